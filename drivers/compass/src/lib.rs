@@ -1,0 +1,6 @@
+//! `ima-compass`: Serial compasses (NMEA 0183 HDG/HDM/HDT, PNI TCM2): sans-IO parsers and session.
+//!
+//! **Status:** not implemented yet; this crate is a placeholder in the workspace layout and
+//! exports nothing.
+#![cfg_attr(not(feature = "std"), no_std)]
+#![warn(missing_docs)]

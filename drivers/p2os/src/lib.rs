@@ -1,0 +1,6 @@
+//! `ima-p2os`: Pioneer 2 (P2OS) protocol: sans-IO wire, framer and session, with async and blocking shells.
+//!
+//! **Status:** not implemented yet; this crate is a placeholder in the workspace layout and
+//! exports nothing.
+#![cfg_attr(not(feature = "std"), no_std)]
+#![warn(missing_docs)]

@@ -1,0 +1,49 @@
+//! Blocking mirrors of the async traits, for simple command-line tools and scripts that do not
+//! want an async runtime. Semantics are those of the async trait of the same name.
+
+use crate::base::{BaseLimits, BumperState, Odometry, VelocityCommand};
+use crate::power::PowerState;
+use crate::sonar::{SonarScan, SonarTransducer};
+use crate::{ErrorType, Stamped};
+
+/// Blocking [`crate::base::DifferentialBase`].
+pub trait DifferentialBase: ErrorType {
+    /// See [`crate::base::DifferentialBase::limits`].
+    fn limits(&self) -> BaseLimits;
+    /// See [`crate::base::DifferentialBase::enable_motors`].
+    fn enable_motors(&mut self, enable: bool) -> Result<(), Self::Error>;
+    /// See [`crate::base::DifferentialBase::set_velocity`].
+    fn set_velocity(&mut self, cmd: VelocityCommand) -> Result<(), Self::Error>;
+    /// See [`crate::base::DifferentialBase::stop`].
+    fn stop(&mut self) -> Result<(), Self::Error>;
+    /// See [`crate::base::DifferentialBase::emergency_stop`].
+    fn emergency_stop(&mut self) -> Result<(), Self::Error>;
+}
+
+/// Blocking [`crate::base::Odometer`].
+pub trait Odometer: ErrorType {
+    /// See [`crate::base::Odometer::odometry`].
+    fn odometry(&mut self) -> Result<Stamped<Odometry>, Self::Error>;
+    /// See [`crate::base::Odometer::reset_odometry`].
+    fn reset_odometry(&mut self) -> Result<(), Self::Error>;
+}
+
+/// Blocking [`crate::sonar::SonarArray`].
+pub trait SonarArray: ErrorType {
+    /// See [`crate::sonar::SonarArray::transducers`].
+    fn transducers(&self) -> &[SonarTransducer];
+    /// See [`crate::sonar::SonarArray::sonar`].
+    fn sonar(&mut self) -> Result<Stamped<SonarScan>, Self::Error>;
+}
+
+/// Blocking [`crate::base::Bumpers`].
+pub trait Bumpers: ErrorType {
+    /// See [`crate::base::Bumpers::bumpers`].
+    fn bumpers(&mut self) -> Result<Stamped<BumperState>, Self::Error>;
+}
+
+/// Blocking [`crate::power::Power`].
+pub trait Power: ErrorType {
+    /// See [`crate::power::Power::power`].
+    fn power(&mut self) -> Result<Stamped<PowerState>, Self::Error>;
+}

@@ -1,0 +1,6 @@
+//! `ima`: the command-line program.
+
+fn main() {
+    eprintln!("ima: not implemented yet");
+    std::process::exit(2);
+}
