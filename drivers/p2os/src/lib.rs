@@ -26,7 +26,11 @@
 )]
 
 pub mod framer;
+pub mod machine;
+pub mod params;
 pub mod wire;
 
 pub use framer::{FrameEvent, Framer, FramerStats};
+pub use machine::{Config, Event, Session, SessionError, SessionState};
+pub use params::RobotParams;
 pub use wire::{Command, Packet, WireError};
