@@ -28,6 +28,8 @@
 pub mod framer;
 pub mod machine;
 pub mod params;
+#[cfg(feature = "tokio")]
+pub mod shell;
 pub mod wire;
 
 pub use framer::{FrameEvent, Framer, FramerStats};

@@ -741,12 +741,17 @@ impl Session {
                 self.framer.clear();
                 self.push_event(Event::SetBaud(after));
             }
-        } else if self.attempts_at_baud == 1 && self.step == 0 {
-            // A robot left open at this rate ignores SYNC0 as a PULSE but still streams; a robot
-            // stuck mid-handshake answers nothing: a CLOSE dislodges both (ARIA's habit).
-            let _ = self.queue(Command::CLOSE, None);
+            self.start_sync(now);
+        } else {
+            self.start_sync(now);
+            if self.attempts_at_baud == 1 {
+                // A robot stuck mid-handshake, or one whose session we lost track of, may sit
+                // silent: a CLOSE before the next SYNC0 dislodges it (ARIA's habit, §5.1).
+                self.tx.clear();
+                let _ = self.queue(Command::CLOSE, None);
+                let _ = self.queue(Command::Sync0, None);
+            }
         }
-        self.start_sync(now);
     }
 
     fn handle_packet(&mut self, p: Packet<'_>, now: Instant) {
@@ -911,12 +916,14 @@ impl Session {
         }
         self.integrate(sip, &params, now);
         let enabled = sip.motors_enabled();
-        if self.motors != Some(enabled) {
-            self.motors = Some(enabled);
-            self.push_event(Event::MotorsEnabled(enabled));
-        }
-        if self.motors_wanted == Some(enabled) && self.enable_deadline.is_some() {
+        let changed = self.motors != Some(enabled);
+        self.motors = Some(enabled);
+        let confirms = self.motors_wanted == Some(enabled) && self.enable_deadline.is_some();
+        if confirms {
             self.enable_deadline = None;
+        }
+        if changed || confirms {
+            self.push_event(Event::MotorsEnabled(enabled));
         }
         let mut new_sonar = false;
         for s in &sip.sonars {
