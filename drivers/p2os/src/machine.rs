@@ -344,7 +344,11 @@ pub struct Session {
 fn owned<const N: usize>(bytes: &[u8]) -> String<N> {
     let mut s = String::new();
     for &b in bytes {
-        let c = if b.is_ascii_graphic() || b == b' ' { b as char } else { '?' };
+        let c = if b.is_ascii_graphic() || b == b' ' {
+            b as char
+        } else {
+            '?'
+        };
         if s.push(c).is_err() {
             break;
         }
@@ -676,7 +680,8 @@ impl Session {
         let n = cmd
             .emit_with(self.cfg.encode, &mut buf)
             .map_err(|_| SessionError::InvalidArgument)?;
-        let frame = Frame::from_slice(buf.get(..n).unwrap_or(&[])).map_err(|_| SessionError::InvalidArgument)?;
+        let frame = Frame::from_slice(buf.get(..n).unwrap_or(&[]))
+            .map_err(|_| SessionError::InvalidArgument)?;
         if let Some(key) = replace_key
             && let Some(q) = self.tx.iter_mut().find(|q| q.replace_key == Some(key))
         {
@@ -790,7 +795,11 @@ impl Session {
         match (self.step, p) {
             (0, Packet::SyncEcho(0)) | (1, Packet::SyncEcho(1)) => {
                 self.step += 1;
-                let next = if self.step == 1 { Command::Sync1 } else { Command::Sync2 };
+                let next = if self.step == 1 {
+                    Command::Sync1
+                } else {
+                    Command::Sync2
+                };
                 let _ = self.queue(next, None);
                 self.deadline = Some(now + self.cfg.sync_step_timeout);
             }
@@ -841,7 +850,10 @@ impl Session {
     }
 
     fn open_timers(&mut self, now: Instant) {
-        if self.last_sip.is_some_and(|l| now >= l + self.cfg.sip_timeout) {
+        if self
+            .last_sip
+            .is_some_and(|l| now >= l + self.cfg.sip_timeout)
+        {
             self.push_event(Event::Disconnected(DisconnectReason::LinkLost));
             self.last_good_baud = self.open_baud.or(self.last_good_baud);
             self.probes = 0;
@@ -984,9 +996,13 @@ impl Session {
     /// indices < 32 were checked by the parser.
     fn sip_is_plausible(&mut self, sip: &Sip, p: &RobotParams, now: Instant) -> bool {
         let vmax = p.max_velocity_mm_s * 1.5 / p.vel_conv;
-        let ok_vel = f64::from(sip.left_vel).abs() <= vmax && f64::from(sip.right_vel).abs() <= vmax;
+        let ok_vel =
+            f64::from(sip.left_vel).abs() <= vmax && f64::from(sip.right_vel).abs() <= vmax;
         let ok_batt = (50..=200).contains(&sip.battery);
-        let ok_sonar = sip.sonars.iter().all(|s| usize::from(s.index) < p.sonars.len());
+        let ok_sonar = sip
+            .sonars
+            .iter()
+            .all(|s| usize::from(s.index) < p.sonars.len());
         let ok_jump = match self.odo.prev {
             None => true,
             Some((px, py, pth, pt)) => {

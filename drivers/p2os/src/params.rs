@@ -168,9 +168,18 @@ mod tests {
 
     #[test]
     fn lookup_is_case_insensitive_and_strict() {
-        assert_eq!(RobotParams::for_subclass(b"P2AT").map(|p| p.subclass), Some("p2at"));
-        assert_eq!(RobotParams::for_subclass(b"p2at8").map(|p| p.range_conv), Some(1.0));
-        assert_eq!(RobotParams::for_subclass(b"p2dx").map(|p| p.dist_conv), Some(0.84));
+        assert_eq!(
+            RobotParams::for_subclass(b"P2AT").map(|p| p.subclass),
+            Some("p2at")
+        );
+        assert_eq!(
+            RobotParams::for_subclass(b"p2at8").map(|p| p.range_conv),
+            Some(1.0)
+        );
+        assert_eq!(
+            RobotParams::for_subclass(b"p2dx").map(|p| p.dist_conv),
+            Some(0.84)
+        );
         assert!(RobotParams::for_subclass(b"p3dx-sh").is_none());
         assert!(RobotParams::for_subclass(b"").is_none());
     }
@@ -180,7 +189,10 @@ mod tests {
         assert!((P2AT.track_mm() - 588.235).abs() < 0.01);
         for i in 0..8 {
             let (a, b) = (P2AT_SONARS[i], P2AT_SONARS[7 - i]);
-            assert_eq!((a.x_mm, a.y_mm, a.heading_deg), (b.x_mm, -b.y_mm, -b.heading_deg));
+            assert_eq!(
+                (a.x_mm, a.y_mm, a.heading_deg),
+                (b.x_mm, -b.y_mm, -b.heading_deg)
+            );
         }
     }
 }

@@ -16,14 +16,13 @@ use ima_hal::base::{
 };
 use ima_hal::power::{Power, PowerState};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
-use ima_hal::time::MonotonicClock;
 use ima_hal::{ErrorKind, ErrorType, Instant, Isometry2, Stamped};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::machine::{
-    Config, DisconnectReason, Event, RobotConfig, RobotIdentity, RobotState, Session,
-    SessionError, SessionStats,
+    Config, DisconnectReason, Event, RobotConfig, RobotIdentity, RobotState, Session, SessionError,
+    SessionStats,
 };
 use crate::params::RobotParams;
 
@@ -94,6 +93,35 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .map_err(io::Error::from)
 }
 
+/// The shell's clock: tokio's monotonic time (so `tokio::time::pause` drives tests in virtual
+/// time), counted from the driver's start.
+#[derive(Debug, Clone, Copy)]
+pub struct TokioClock {
+    epoch: tokio::time::Instant,
+}
+
+impl TokioClock {
+    /// A clock whose epoch is now.
+    #[must_use]
+    pub fn new() -> Self {
+        Self {
+            epoch: tokio::time::Instant::now(),
+        }
+    }
+
+    /// The current instant.
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        Instant::from_micros(u64::try_from(self.epoch.elapsed().as_micros()).unwrap_or(u64::MAX))
+    }
+}
+
+impl Default for TokioClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// Errors of the async driver.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
@@ -127,7 +155,9 @@ impl std::fmt::Display for DriverError {
                 f,
                 "robot subclass {s:?} has no parameter table; set a params override"
             ),
-            Self::HandshakeFailed => f.write_str("no answer to the P2OS handshake at any baud rate"),
+            Self::HandshakeFailed => {
+                f.write_str("no answer to the P2OS handshake at any baud rate")
+            }
             Self::Io(k) => write!(f, "serial I/O error: {k}"),
         }
     }
@@ -186,7 +216,7 @@ pub struct P2os {
     config: watch::Receiver<Option<RobotConfig>>,
     params: RobotParams,
     transducers: Arc<[SonarTransducer]>,
-    clock: MonotonicClock,
+    clock: TokioClock,
 }
 
 impl std::fmt::Debug for Request {
@@ -209,7 +239,7 @@ impl P2os {
     where
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
-        let clock = MonotonicClock::new();
+        let clock = TokioClock::new();
         let (tx, rx) = mpsc::channel(32);
         let (state_tx, state) = watch::channel(None);
         let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
@@ -443,7 +473,7 @@ impl Power for P2os {
 
 struct Task {
     session: Session,
-    clock: MonotonicClock,
+    clock: TokioClock,
     rx: mpsc::Receiver<Request>,
     state_tx: watch::Sender<Option<RobotState>>,
     link_tx: watch::Sender<LinkStatus>,
@@ -598,7 +628,9 @@ impl Task {
                     }
                 }
                 Event::CommandTimeout => {
-                    tracing::warn!("p2os: no velocity command for the command timeout; robot stopped");
+                    tracing::warn!(
+                        "p2os: no velocity command for the command timeout; robot stopped"
+                    );
                 }
                 Event::Config(c) => {
                     self.config_tx.send_replace(Some(c));

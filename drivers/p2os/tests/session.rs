@@ -101,7 +101,11 @@ fn handshake_opens_and_configures_the_robot() {
     let connected = evs
         .iter()
         .find_map(|e| match e {
-            Event::Connected { identity, params, baud } => Some((identity.clone(), *params, *baud)),
+            Event::Connected {
+                identity,
+                params,
+                baud,
+            } => Some((identity.clone(), *params, *baud)),
             _ => None,
         })
         .expect("connected");
@@ -311,7 +315,10 @@ fn commands_before_connect_are_refused() {
         s.set_velocity(VelocityCommand::new(0.1, 0.0), ms(0)),
         Err(ima_p2os::SessionError::NotConnected)
     );
-    assert_eq!(s.enable_motors(true, ms(0)), Err(ima_p2os::SessionError::NotConnected));
+    assert_eq!(
+        s.enable_motors(true, ms(0)),
+        Err(ima_p2os::SessionError::NotConnected)
+    );
 }
 
 #[test]
@@ -322,7 +329,11 @@ fn motors_enable_is_confirmed_by_flags_or_refused() {
     let _ = events(&mut s);
     s.enable_motors(true, t).unwrap();
     assert_eq!(sent(&mut s, t), vec![Command::enable(true)]);
-    feed(&mut s, &Packet::Sip(sip(100, 100, 0, 1)), t + Duration::from_millis(100));
+    feed(
+        &mut s,
+        &Packet::Sip(sip(100, 100, 0, 1)),
+        t + Duration::from_millis(100),
+    );
     assert!(events(&mut s).contains(&Event::MotorsEnabled(true)));
 
     // A robot with its E-stop engaged never sets the flag.
@@ -349,10 +360,19 @@ fn motors_enable_is_confirmed_by_flags_or_refused() {
 fn enabling_motors_that_are_already_on_is_confirmed() {
     let mut s = Session::new(Config::default());
     let t = open(&mut s);
-    feed(&mut s, &Packet::Sip(sip(100, 100, 0, 1)), t + Duration::from_millis(100));
+    feed(
+        &mut s,
+        &Packet::Sip(sip(100, 100, 0, 1)),
+        t + Duration::from_millis(100),
+    );
     let _ = events(&mut s);
-    s.enable_motors(true, t + Duration::from_millis(150)).unwrap();
-    feed(&mut s, &Packet::Sip(sip(100, 100, 0, 1)), t + Duration::from_millis(200));
+    s.enable_motors(true, t + Duration::from_millis(150))
+        .unwrap();
+    feed(
+        &mut s,
+        &Packet::Sip(sip(100, 100, 0, 1)),
+        t + Duration::from_millis(200),
+    );
     assert!(events(&mut s).contains(&Event::MotorsEnabled(true)));
 }
 
@@ -363,7 +383,10 @@ fn link_loss_is_detected_and_the_session_reconnects_at_the_same_rate() {
     let _ = sent(&mut s, t);
     let _ = events(&mut s);
     // No SIP for 700 ms.
-    let lost_at = s.poll_timeout().unwrap().max(t + Duration::from_millis(700));
+    let lost_at = s
+        .poll_timeout()
+        .unwrap()
+        .max(t + Duration::from_millis(700));
     let mut now = t;
     while now < lost_at {
         now = s.poll_timeout().unwrap();
@@ -373,10 +396,22 @@ fn link_loss_is_detected_and_the_session_reconnects_at_the_same_rate() {
     assert!(events(&mut s).contains(&Event::Disconnected(DisconnectReason::LinkLost)));
     assert_eq!(s.state(), SessionState::Syncing);
     // The robot comes back: the handshake completes at the old rate.
-    feed(&mut s, &Packet::SyncEcho(0), now + Duration::from_millis(10));
-    feed(&mut s, &Packet::SyncEcho(1), now + Duration::from_millis(20));
+    feed(
+        &mut s,
+        &Packet::SyncEcho(0),
+        now + Duration::from_millis(10),
+    );
+    feed(
+        &mut s,
+        &Packet::SyncEcho(1),
+        now + Duration::from_millis(20),
+    );
     feed(&mut s, &P2AT_REPLY, now + Duration::from_millis(30));
-    feed(&mut s, &Packet::Sip(sip(5, 5, 0, 0)), now + Duration::from_millis(100));
+    feed(
+        &mut s,
+        &Packet::Sip(sip(5, 5, 0, 0)),
+        now + Duration::from_millis(100),
+    );
     assert!(s.is_open());
     assert_eq!(s.stats().reconnects, 1);
 }
@@ -412,8 +447,18 @@ fn t20_sip_state_in_si_units() {
     let mut p = sip(100, 100, 0, 1);
     p.left_vel = -50;
     p.right_vel = 50;
-    p.sonars.push(SonarRaw { index: 0, range: 1866 }).unwrap();
-    p.sonars.push(SonarRaw { index: 7, range: 3731 }).unwrap();
+    p.sonars
+        .push(SonarRaw {
+            index: 0,
+            range: 1866,
+        })
+        .unwrap();
+    p.sonars
+        .push(SonarRaw {
+            index: 7,
+            range: 3731,
+        })
+        .unwrap();
     p.stall_bumpers = 0x0201; // front bumper 0 + left stall
     feed(&mut s, &Packet::Sip(p), t + Duration::from_millis(100));
     let st = events(&mut s)
@@ -438,14 +483,23 @@ fn implausible_sips_are_dropped_and_counted() {
     let mut s = Session::new(Config::default());
     let t = open(&mut s);
     // A position jump of 2000 units (2.6 m) in 100 ms.
-    feed(&mut s, &Packet::Sip(sip(2100, 100, 0, 0)), t + Duration::from_millis(100));
+    feed(
+        &mut s,
+        &Packet::Sip(sip(2100, 100, 0, 0)),
+        t + Duration::from_millis(100),
+    );
     // A battery of 0.3 V.
     let mut p = sip(100, 100, 0, 0);
     p.battery = 3;
     feed(&mut s, &Packet::Sip(p), t + Duration::from_millis(200));
     // A sonar index beyond the 16-transducer ring.
     let mut p = sip(100, 100, 0, 0);
-    p.sonars.push(SonarRaw { index: 20, range: 100 }).unwrap();
+    p.sonars
+        .push(SonarRaw {
+            index: 20,
+            range: 100,
+        })
+        .unwrap();
     feed(&mut s, &Packet::Sip(p), t + Duration::from_millis(300));
     assert_eq!(s.stats().implausible_sips, 3);
     assert_eq!(s.stats().sips, 1);
