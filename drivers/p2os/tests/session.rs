@@ -434,7 +434,7 @@ fn odometry_unwraps_15_bit_positions_t22() {
             Event::State(st) => Some(st.odometry.value.x_m()),
             _ => None,
         })
-        .last()
+        .next_back()
         .unwrap();
     assert!((x - 0.01716).abs() < 1e-9, "x = {x}");
 }
@@ -522,7 +522,7 @@ fn reset_odometry_makes_the_current_pose_the_origin() {
             Event::State(st) => Some(st.odometry.value.x_m()),
             _ => None,
         })
-        .last()
+        .next_back()
         .unwrap();
     assert!((x - 0.066).abs() < 1e-9, "x = {x}");
 }
