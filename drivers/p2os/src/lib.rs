@@ -25,6 +25,10 @@
     )
 )]
 
+#[cfg(feature = "serial")]
+pub mod blocking;
+#[cfg(feature = "std")]
+pub mod driver;
 pub mod framer;
 pub mod machine;
 pub mod params;

@@ -16,70 +16,16 @@ use ima_hal::base::{
 };
 use ima_hal::power::{Power, PowerState};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
-use ima_hal::{ErrorKind, ErrorType, Instant, Isometry2, Stamped};
+use ima_hal::{ErrorType, Instant, Stamped};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot, watch};
 
+pub use crate::driver::{BaudControl, DriverError, FixedBaud};
 use crate::machine::{
     Config, DisconnectReason, Event, RobotConfig, RobotIdentity, RobotState, Session, SessionError,
     SessionStats,
 };
 use crate::params::RobotParams;
-
-/// A byte stream whose line speed can be changed (for baud probing).
-pub trait BaudControl {
-    /// Set the line speed.
-    fn set_baud(&mut self, baud: u32) -> io::Result<()>;
-}
-
-impl BaudControl for tokio_serial::SerialStream {
-    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
-        tokio_serial::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
-    }
-}
-
-/// Wraps a stream that has no line speed (an in-memory duplex, a TCP bridge): baud changes
-/// are accepted and ignored.
-#[derive(Debug)]
-pub struct FixedBaud<S>(pub S);
-
-impl<S> BaudControl for FixedBaud<S> {
-    fn set_baud(&mut self, _baud: u32) -> io::Result<()> {
-        Ok(())
-    }
-}
-
-impl<S: AsyncRead + Unpin> AsyncRead for FixedBaud<S> {
-    fn poll_read(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &mut tokio::io::ReadBuf<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_read(cx, buf)
-    }
-}
-
-impl<S: AsyncWrite + Unpin> AsyncWrite for FixedBaud<S> {
-    fn poll_write(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &[u8],
-    ) -> std::task::Poll<io::Result<usize>> {
-        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
-    }
-    fn poll_flush(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_flush(cx)
-    }
-    fn poll_shutdown(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
-    }
-}
 
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (probing changes it).
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
@@ -119,60 +65,6 @@ impl TokioClock {
 impl Default for TokioClock {
     fn default() -> Self {
         Self::new()
-    }
-}
-
-/// Errors of the async driver.
-#[derive(Debug, Clone, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum DriverError {
-    /// The driver task has ended (port closed, I/O error, or [`P2os::close`]).
-    Disconnected,
-    /// The robot did not answer in time.
-    Timeout,
-    /// The session refused the request.
-    Session(SessionError),
-    /// The robot never confirmed ENABLE (motors switch or E-stop).
-    MotorsRefused,
-    /// The robot's subclass has no parameter table (set `Config::params_override`).
-    UnsupportedRobot(String),
-    /// No rate answered the handshake.
-    HandshakeFailed,
-    /// An I/O error on the port.
-    Io(io::ErrorKind),
-}
-
-impl std::fmt::Display for DriverError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Disconnected => f.write_str("P2OS driver disconnected"),
-            Self::Timeout => f.write_str("P2OS robot did not answer in time"),
-            Self::Session(e) => write!(f, "{e}"),
-            Self::MotorsRefused => {
-                f.write_str("robot did not enable its motors (motor switch off or E-stop engaged?)")
-            }
-            Self::UnsupportedRobot(s) => write!(
-                f,
-                "robot subclass {s:?} has no parameter table; set a params override"
-            ),
-            Self::HandshakeFailed => {
-                f.write_str("no answer to the P2OS handshake at any baud rate")
-            }
-            Self::Io(k) => write!(f, "serial I/O error: {k}"),
-        }
-    }
-}
-
-impl std::error::Error for DriverError {}
-
-impl ima_hal::Error for DriverError {
-    fn kind(&self) -> ErrorKind {
-        match self {
-            Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
-            Self::Timeout | Self::HandshakeFailed => ErrorKind::Timeout,
-            Self::Session(e) => ima_hal::Error::kind(e),
-            Self::MotorsRefused | Self::UnsupportedRobot(_) => ErrorKind::Protocol,
-        }
     }
 }
 
@@ -281,19 +173,7 @@ impl P2os {
             }
         }
         let params = params_rx.await.map_err(|_| DriverError::Disconnected)?;
-        let transducers: Arc<[SonarTransducer]> = params
-            .sonars
-            .iter()
-            .map(|s| SonarTransducer {
-                pose: Isometry2::new(
-                    ima_hal::Vector2::new(s.x_mm / 1000.0, s.y_mm / 1000.0),
-                    s.heading_deg.to_radians(),
-                ),
-                min_range_m: 0.1,
-                max_range_m: 5.0,
-                beam_width_rad: 30f64.to_radians(),
-            })
-            .collect();
+        let transducers: Arc<[SonarTransducer]> = crate::driver::transducers(&params).into();
         Ok(P2os {
             tx,
             state,
