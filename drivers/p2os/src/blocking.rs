@@ -128,7 +128,9 @@ impl<S: Read + Write + BaudControl> BlockingP2os<S> {
             Err(e)
                 if matches!(
                     e.kind(),
-                    io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+                    io::ErrorKind::TimedOut
+                        | io::ErrorKind::WouldBlock
+                        | io::ErrorKind::Interrupted
                 ) => {}
             Err(e) => return Err(DriverError::Io(e.kind())),
         }
@@ -194,7 +196,10 @@ impl<S: Read + Write + BaudControl> BlockingP2os<S> {
         let now = self.clock.now();
         let mut tbuf = [0u8; crate::wire::MAX_FRAME_LEN];
         for _ in 0..4 {
-            while let Some(n) = self.session.poll_transmit(self.clock.now().max(now), &mut tbuf) {
+            while let Some(n) = self
+                .session
+                .poll_transmit(self.clock.now().max(now), &mut tbuf)
+            {
                 let frame = tbuf.get(..n).unwrap_or(&[]);
                 self.stream
                     .write_all(frame)

@@ -147,7 +147,6 @@ impl ima_hal::Error for DriverError {
     }
 }
 
-
 /// The sonar ring of `params` as HAL transducers (P2OS sonar: 10 cm–5 m, ~30° beams).
 #[must_use]
 pub fn transducers(params: &crate::params::RobotParams) -> Vec<ima_hal::sonar::SonarTransducer> {

@@ -61,6 +61,7 @@ pub struct Framer {
     start: usize,
     end: usize,
     max_count: u8,
+    consumed: u64,
     stats: FramerStats,
 }
 
@@ -91,6 +92,7 @@ impl Framer {
             start: 0,
             end: 0,
             max_count,
+            consumed: 0,
             stats: FramerStats {
                 frames: 0,
                 dropped_bytes: 0,
@@ -121,6 +123,7 @@ impl Framer {
     /// Forget everything buffered (e.g. after reopening a port); counts it as dropped.
     pub fn clear(&mut self) {
         self.stats.dropped_bytes += self.buffered() as u64;
+        self.consumed += self.buffered() as u64;
         self.start = 0;
         self.end = 0;
     }
@@ -155,8 +158,18 @@ impl Framer {
         true
     }
 
+    /// Stream offset of the next unconsumed byte: every byte fed so far minus those still
+    /// buffered. After [`next_frame`](Self::next_frame) returns a frame of payload length
+    /// `p`, that frame began at `position() - (p + 5)`; after a rejection, the rejected header
+    /// began at `position() - 1`.
+    #[must_use]
+    pub fn position(&self) -> u64 {
+        self.consumed
+    }
+
     fn drop_bytes(&mut self, n: usize) {
         let n = n.min(self.buffered());
+        self.consumed += n as u64;
         self.start += n;
         self.stats.dropped_bytes += n as u64;
         if self.start == self.end {
@@ -205,6 +218,7 @@ impl Framer {
             match wire::frame_payload(frame) {
                 Ok(_) => {
                     self.start += total;
+                    self.consumed += total as u64;
                     if self.start == self.end {
                         self.start = 0;
                         self.end = 0;
