@@ -26,11 +26,13 @@
 //!                          (default: for good)
 //!   hangup=P[:OUTAGE]      each byte: with probability P, hang up
 //! P   := decimal in [0, 1]
-//! DUR := decimal followed by a unit: us | ms | s | min     (e.g. 300ms, 1.5s)
+//! DUR := decimal followed by a unit: ns | us | ms | s | min     (e.g. 300ms, 1.5s)
 //! ```
 //!
 //! Example: `corrupt=0.01,drop=0.001,garbage=0.001,split=1,stall=0.0005:300ms,hangup=5s,seed=42`.
-//! A later item overrides an earlier one for the same key and direction. Each direction draws
+//! A later item overrides an earlier one for the same key and direction. [`FaultPlan`]'s
+//! `Display` prints a spec string that parses back to the same plan (log it to reproduce a
+//! run). Each direction draws
 //! from its own generator, seeded from `seed` and the direction, so the faults in one
 //! direction do not depend on the traffic in the other.
 //!
@@ -41,6 +43,7 @@
 //! [`crate::link::DeviceLink`] for why the pty keeps its path during an outage.
 
 use std::collections::VecDeque;
+use std::fmt;
 use std::str::FromStr;
 use std::time::Duration;
 
@@ -212,10 +215,12 @@ fn parse_prob(s: &str) -> Option<f64> {
     (p.is_finite() && (0.0..=1.0).contains(&p)).then_some(p)
 }
 
-/// Parse a duration with a unit: `us`, `ms`, `s` or `min` (decimal allowed, e.g. `1.5s`).
+/// Parse a duration with a unit: `ns`, `us`, `ms`, `s` or `min` (decimal allowed, e.g. `1.5s`).
 pub fn parse_duration(s: &str) -> Option<Duration> {
     let s = s.trim();
-    let (num, scale) = if let Some(n) = s.strip_suffix("us") {
+    let (num, scale) = if let Some(n) = s.strip_suffix("ns") {
+        (n, 1e-9)
+    } else if let Some(n) = s.strip_suffix("us") {
         (n, 1e-6)
     } else if let Some(n) = s.strip_suffix("ms") {
         (n, 1e-3)
@@ -344,6 +349,53 @@ impl FromStr for FaultPlan {
             }
         }
         Ok(plan)
+    }
+}
+
+impl fmt::Display for FaultPlan {
+    /// The canonical spec string: `seed=N`, then every non-default field of each direction
+    /// with its `r2h.`/`h2r.` prefix, durations in `ns`. Parses back to an equal plan when the
+    /// probabilities are in [0, 1].
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "seed={}", self.seed)?;
+        let d = FaultConfig::default();
+        let ns = |x: Duration| format!("{}ns", x.as_nanos());
+        for (pre, c) in [("r2h.", &self.robot_to_host), ("h2r.", &self.host_to_robot)] {
+            if c.corrupt != d.corrupt {
+                write!(f, ",{pre}corrupt={}", c.corrupt)?;
+            }
+            if c.drop != d.drop {
+                write!(f, ",{pre}drop={}", c.drop)?;
+            }
+            if (c.garbage, c.garbage_min, c.garbage_max)
+                != (d.garbage, d.garbage_min, d.garbage_max)
+            {
+                write!(
+                    f,
+                    ",{pre}garbage={}:{}-{}",
+                    c.garbage, c.garbage_min, c.garbage_max
+                )?;
+            }
+            if c.split != d.split {
+                write!(f, ",{pre}split={}", c.split)?;
+            }
+            if (c.stall, c.stall_for) != (d.stall, d.stall_for) {
+                write!(f, ",{pre}stall={}:{}", c.stall, ns(c.stall_for))?;
+            }
+            if c.delay != d.delay {
+                write!(f, ",{pre}delay={}", ns(c.delay))?;
+            }
+            if let Some(h) = c.hangup {
+                match h {
+                    HangupTrigger::At(t) => write!(f, ",{pre}hangup={}", ns(t))?,
+                    HangupTrigger::Probability(p) => write!(f, ",{pre}hangup={p}")?,
+                }
+                if let Some(o) = c.hangup_for {
+                    write!(f, ":{}", ns(o))?;
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -910,7 +962,61 @@ mod tests {
         assert_ne!(oa, ob);
     }
 
+    #[test]
+    fn display_of_the_example_parses_back() {
+        let p = FaultPlan::parse(
+            "corrupt=0.01,drop=0.001,garbage=0.001,split=1,stall=0.0005:300ms,hangup=5s,seed=42",
+        )
+        .unwrap();
+        let s = p.to_string();
+        assert!(s.starts_with("seed=42,r2h.corrupt=0.01,"), "{s}");
+        assert_eq!(FaultPlan::parse(&s).unwrap(), p);
+        assert_eq!(FaultPlan::none().to_string(), "seed=0");
+    }
+
+    fn arb_config() -> impl proptest::strategy::Strategy<Value = FaultConfig> {
+        use proptest::prelude::*;
+        let p = || prop_oneof![Just(0.0), 0.0f64..=1.0];
+        let dur = || (0u64..10_000_000_000).prop_map(Duration::from_nanos);
+        let hang = prop_oneof![
+            Just(None),
+            dur().prop_map(|d| Some(HangupTrigger::At(d))),
+            p().prop_map(|q| Some(HangupTrigger::Probability(q))),
+        ];
+        (
+            (p(), p(), p(), 1u16..100, 0u16..100, p()),
+            (p(), dur(), dur(), hang, proptest::option::of(dur())),
+        )
+            .prop_map(
+                |(
+                    (corrupt, drop, garbage, gmin, gextra, split),
+                    (stall, stall_for, delay, hangup, hangup_for),
+                )| {
+                    FaultConfig {
+                        corrupt,
+                        drop,
+                        garbage,
+                        garbage_min: gmin,
+                        garbage_max: gmin.saturating_add(gextra),
+                        split,
+                        stall,
+                        stall_for,
+                        delay,
+                        hangup_for: hangup.and(hangup_for),
+                        hangup,
+                    }
+                },
+            )
+    }
+
     proptest::proptest! {
+        #[test]
+        fn display_parse_round_trip(seed in proptest::num::u64::ANY, a in arb_config(), b in arb_config()) {
+            let plan = FaultPlan { seed, robot_to_host: a, host_to_robot: b };
+            let text = plan.to_string();
+            proptest::prop_assert_eq!(FaultPlan::parse(&text), Ok(plan), "{}", text);
+        }
+
         #[test]
         fn any_spec_string_parses_or_errs(s in ".{0,60}") {
             let _ = FaultPlan::parse(&s);

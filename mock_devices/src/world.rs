@@ -217,9 +217,9 @@ pub struct Robot {
 }
 
 impl Robot {
-    /// A robot at rest at its spec's start pose.
-    #[must_use]
-    pub fn new(spec: RobotSpec) -> Self {
+    /// A robot at rest at its spec's start pose (the spec was validated by
+    /// [`World::add_robot`]).
+    fn new(spec: RobotSpec) -> Self {
         let pose = Pose::new(spec.x_m, spec.y_m, spec.theta_deg.to_radians());
         Self {
             spec,
@@ -284,8 +284,8 @@ impl Robot {
             }
         };
         let max = self.spec.max_wheel_speed_m_s;
-        self.cmd_left_m_s = or_zero(l).clamp(-max, max);
-        self.cmd_right_m_s = or_zero(r).clamp(-max, max);
+        self.cmd_left_m_s = or_zero(l).max(-max).min(max);
+        self.cmd_right_m_s = or_zero(r).max(-max).min(max);
     }
 
     /// Commanded wheel speeds after clamping, m/s (left, right).
@@ -351,8 +351,9 @@ impl Robot {
 
     /// Both wheels accelerate (toward their commands) linearly for `seg` seconds.
     fn ramp_segment(&mut self, seg: f64, accel: f64) {
-        let dl = (self.cmd_left_m_s - self.left_m_s).clamp(-accel * seg, accel * seg) / seg;
-        let dr = (self.cmd_right_m_s - self.right_m_s).clamp(-accel * seg, accel * seg) / seg;
+        let lim = accel * seg;
+        let dl = (self.cmd_left_m_s - self.left_m_s).max(-lim).min(lim) / seg;
+        let dr = (self.cmd_right_m_s - self.right_m_s).max(-lim).min(lim) / seg;
         // Sub-steps of at most 1 ms (and at most 10 000 of them).
         let n = (seg / 1e-3).ceil().clamp(1.0, 10_000.0);
         let h = seg / n;
@@ -486,6 +487,9 @@ pub enum WorldError {
         /// Which field.
         field: &'static str,
     },
+    /// The file could not be read.
+    #[error("world file: {0}")]
+    Io(String),
     /// Two robots share a name.
     #[error("duplicate robot name {0:?}")]
     DuplicateRobot(String),
@@ -592,6 +596,13 @@ impl World {
     pub fn from_toml_str(s: &str) -> Result<Self, WorldError> {
         let file: WorldFile = toml::from_str(s).map_err(|e| WorldError::Toml(e.to_string()))?;
         Self::from_file(file)
+    }
+
+    /// Read and parse a TOML world file.
+    pub fn from_toml_path(path: &std::path::Path) -> Result<Self, WorldError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| WorldError::Io(format!("{}: {e}", path.display())))?;
+        Self::from_toml_str(&text)
     }
 
     /// The world as a world file (time and motion state are not saved).
@@ -1055,12 +1066,26 @@ impl SonarModel {
         ignore: Option<RobotId>,
         rng: &mut impl Rng,
     ) -> f64 {
-        let max = self.max_range_m;
-        let min = self.min_range_m.min(max);
+        // Sanitise a hand-built config instead of panicking in `clamp`.
+        let max = if self.max_range_m.is_finite() && self.max_range_m > 0.0 {
+            self.max_range_m
+        } else {
+            0.0
+        };
+        let min = if self.min_range_m.is_finite() && self.min_range_m > 0.0 {
+            self.min_range_m.min(max)
+        } else {
+            0.0
+        };
         match self.nearest_echo(world, sensor, ignore) {
             None => max,
             Some(h) => {
-                let noisy = h.distance_m + gaussian(rng) * self.noise_std_m;
+                let noise = if self.noise_std_m.is_finite() {
+                    gaussian(rng) * self.noise_std_m
+                } else {
+                    0.0
+                };
+                let noisy = h.distance_m + noise;
                 if noisy.is_finite() {
                     noisy.clamp(min, max)
                 } else {
@@ -1431,7 +1456,51 @@ mod tests {
         assert_eq!(s2.lock().time(), Instant::from_millis(10));
     }
 
+    #[test]
+    fn sonar_survives_nonsense_config() {
+        let w = wall_at_one_metre();
+        let mut rng = SmallRng::seed_from_u64(3);
+        let m = SonarModel {
+            min_range_m: f64::NAN,
+            max_range_m: f64::NAN,
+            beam_width_rad: f64::INFINITY,
+            rays: 0,
+            noise_std_m: f64::NAN,
+        };
+        let r = m.measure(&w, RobotId(0), &Isometry2::identity(), &mut rng);
+        assert!(r.is_finite());
+        let m = SonarModel {
+            min_range_m: 3.0,
+            max_range_m: 2.0,
+            ..SonarModel::default()
+        };
+        let r = m.measure(&w, RobotId(0), &Isometry2::identity(), &mut rng);
+        assert_eq!(r, 2.0);
+    }
+
+    #[test]
+    fn world_file_from_path() {
+        let dir = std::env::temp_dir().join(format!("ima-world-{}.toml", std::process::id()));
+        std::fs::write(
+            &dir,
+            toml::to_string(&World::default_world().to_file()).unwrap(),
+        )
+        .unwrap();
+        let w = World::from_toml_path(&dir).unwrap();
+        std::fs::remove_file(&dir).unwrap();
+        assert_eq!(w.to_file(), World::default_world().to_file());
+        assert!(matches!(
+            World::from_toml_path(std::path::Path::new("/nonexistent/w.toml")),
+            Err(WorldError::Io(_))
+        ));
+    }
+
     proptest::proptest! {
+        #[test]
+        fn any_text_is_a_world_or_an_error(s in "(\\[\\[robot\\]\\]\n|name='a'\n|x_m=[0-9.e-]{1,4}\n|y_m=1\n|radius_m=-?[0-9]\n|.{0,8}\n){0,8}") {
+            let _ = World::from_toml_str(&s);
+        }
+
         #[test]
         fn stepping_never_produces_non_finite_poses(
             l in -10.0f64..10.0, r in -10.0f64..10.0, dt_ms in 0u64..100_000,
