@@ -65,6 +65,47 @@ impl Drop for WorldStepper {
     }
 }
 
+/// A tokio task stepping a world by tokio's clock every `period`. Under a paused tokio clock
+/// (`#[tokio::test(start_paused = true)]`, or `tokio::time::pause()`) this is **virtual
+/// time**: together with [`crate::duplex`] devices a whole mission runs much faster than real
+/// time and exactly reproducibly. Aborts the task when dropped.
+#[derive(Debug)]
+pub struct TokioWorldStepper {
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl TokioWorldStepper {
+    /// Start stepping (inside a tokio runtime); `period` is at least 1 ms.
+    #[must_use]
+    pub fn spawn(world: SharedWorld, period: Duration) -> Self {
+        let period = period.max(Duration::from_millis(1));
+        let task = tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            let mut last = tokio::time::Instant::now();
+            loop {
+                tick.tick().await;
+                let now = tokio::time::Instant::now();
+                let dt = now.saturating_duration_since(last);
+                last = now;
+                world.with(|w| w.step(dt));
+            }
+        });
+        Self { task }
+    }
+
+    /// Stop stepping.
+    pub fn stop(self) {
+        self.task.abort();
+    }
+}
+
+impl Drop for TokioWorldStepper {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -90,5 +131,28 @@ mod tests {
         // Only that it moved: no timing assertions.
         assert!(w.time() > ima_hal::Instant::ZERO);
         assert!(w.robot(sk).unwrap().pose().x_m > 0.0);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn tokio_stepper_runs_in_virtual_time() {
+        let world = SharedWorld::new(World::default_world());
+        let sk = world.lock().robot_id("skeeter").unwrap();
+        world.with(|w| {
+            w.command(
+                sk,
+                DriveCommand::Twist {
+                    v_m_s: 0.05,
+                    omega_rad_s: 0.0,
+                },
+            )
+        });
+        let s = TokioWorldStepper::spawn(world.clone(), Duration::from_millis(10));
+        // 40 s of the thesis's 0.05 m/s, instantly; skeeter accelerates at 1 m/s² (0.05 s ramp).
+        tokio::time::sleep(Duration::from_secs(40)).await;
+        s.stop();
+        let w = world.lock();
+        let x = w.robot(sk).unwrap().pose().x_m;
+        assert!((x - 2.0).abs() < 0.01, "{x}");
+        assert!(w.time() >= ima_hal::Instant::from_millis(39_990));
     }
 }
