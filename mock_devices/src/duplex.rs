@@ -158,7 +158,8 @@ async fn serve<M: DeviceModel>(
         let wait = link
             .next_wakeup()
             .map_or(poll_period, |t| t.saturating_duration_since(now))
-            .min(poll_period);
+            // Never spin, even if a model keeps asking for a timeout in the past.
+            .clamp(Duration::from_micros(100), poll_period);
         tokio::select! {
             r = pipe.read(&mut buf) => match r {
                 Ok(0) => break 'serve,

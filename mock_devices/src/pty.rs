@@ -120,6 +120,11 @@ pub struct PtyDevice<M> {
 impl<M: DeviceModel + 'static> PtyDevice<M> {
     /// Create a pty and serve `model` on it until stopped.
     pub fn spawn(model: M, opts: PtyOptions) -> Result<Self, PtyError> {
+        // The stepper first: if it fails nothing else is running yet.
+        let stepper = match opts.step_world {
+            Some(w) => Some(WorldStepper::spawn(w, opts.step_period)?),
+            None => None,
+        };
         let (mut master, slave) = pty_pair()?;
         let path = PathBuf::from(slave.name().ok_or(PtyError::NoPath)?);
         master.set_timeout(opts.poll_period)?;
@@ -137,10 +142,6 @@ impl<M: DeviceModel + 'static> PtyDevice<M> {
             // The slave lives (open) exactly as long as the serving thread.
             serve(link, master, slave, clock, poll_period, &thread_shared)
         })?;
-        let stepper = match opts.step_world {
-            Some(w) => Some(WorldStepper::spawn(w, opts.step_period)?),
-            None => None,
-        };
         tracing::debug!(path = %path.display(), "pty device serving");
         Ok(Self {
             path,

@@ -577,17 +577,14 @@ impl World {
         for r in file.robots {
             w.add_robot(r)?;
         }
-        for (i, wall) in file.walls.into_iter().enumerate() {
-            w.add_wall(wall)
-                .map_err(|f| invalid(format!("wall {i}"), f))?;
+        for wall in file.walls {
+            w.add_wall(wall)?;
         }
-        for (i, c) in file.circles.into_iter().enumerate() {
-            w.add_circle(c)
-                .map_err(|f| invalid(format!("circle {i}"), f))?;
+        for c in file.circles {
+            w.add_circle(c)?;
         }
-        for (i, o) in file.objects.into_iter().enumerate() {
-            w.add_object(o)
-                .map_err(|f| invalid(format!("object {i}"), f))?;
+        for o in file.objects {
+            w.add_object(o)?;
         }
         Ok(w)
     }
@@ -706,36 +703,39 @@ impl World {
         Ok(RobotId(self.robots.len() - 1))
     }
 
-    /// Add a wall (both ends finite); returns its index or the bad field.
-    pub fn add_wall(&mut self, wall: Wall) -> Result<usize, &'static str> {
+    /// Add a wall (both ends finite); returns its index.
+    pub fn add_wall(&mut self, wall: Wall) -> Result<usize, WorldError> {
+        let bad = |field| invalid(format!("wall {}", self.walls.len()), field);
         if !finite_pt(wall.from) {
-            return Err("from");
+            return Err(bad("from"));
         }
         if !finite_pt(wall.to) {
-            return Err("to");
+            return Err(bad("to"));
         }
         self.walls.push(wall);
         Ok(self.walls.len() - 1)
     }
 
-    /// Add a round obstacle; returns its index or the bad field.
-    pub fn add_circle(&mut self, c: Circle) -> Result<usize, &'static str> {
+    /// Add a round obstacle; returns its index.
+    pub fn add_circle(&mut self, c: Circle) -> Result<usize, WorldError> {
+        let bad = |field| invalid(format!("circle {}", self.circles.len()), field);
         if !finite_pt(c.center) {
-            return Err("center");
+            return Err(bad("center"));
         }
-        positive(c.radius_m).ok_or("radius_m")?;
+        positive(c.radius_m).ok_or_else(|| bad("radius_m"))?;
         self.circles.push(c);
         Ok(self.circles.len() - 1)
     }
 
-    /// Add a coloured object; returns its index or the bad field.
-    pub fn add_object(&mut self, o: ColoredObject) -> Result<usize, &'static str> {
+    /// Add a coloured object (non-empty colour name); returns its index.
+    pub fn add_object(&mut self, o: ColoredObject) -> Result<usize, WorldError> {
+        let bad = |field| invalid(format!("object {}", self.objects.len()), field);
         if !finite_pt(o.center) {
-            return Err("center");
+            return Err(bad("center"));
         }
-        positive(o.radius_m).ok_or("radius_m")?;
+        positive(o.radius_m).ok_or_else(|| bad("radius_m"))?;
         if o.color.is_empty() {
-            return Err("color");
+            return Err(bad("color"));
         }
         self.objects.push(o);
         Ok(self.objects.len() - 1)
