@@ -50,6 +50,13 @@ pub trait DeviceModel: Send {
     /// Called once `now >= poll_timeout()`.
     fn handle_timeout(&mut self, now: Instant);
 
+    /// The host's line speed, as the host last set it on its end of the line (`None` when
+    /// unknown, e.g. on an in-memory pipe). A model of a device with a fixed rate treats
+    /// traffic at another rate as noise. Called before the bytes that follow the change.
+    fn set_host_baud(&mut self, baud: Option<u32>) {
+        let _ = baud;
+    }
+
     /// The link went down (a hang-up): bytes no longer flow either way. Default: nothing, as
     /// for a pulled cable (the device keeps running and its output is discarded). A model
     /// emulating a power cut can reset its session here.

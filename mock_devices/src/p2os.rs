@@ -256,8 +256,9 @@ impl P2osRobot {
 
     fn reply(&mut self, p: &Packet<'_>) {
         let mut buf = [0u8; wire::MAX_FRAME_LEN];
-        if let Ok(n) = p.emit(&mut buf) {
-            let bytes = &buf[..n];
+        if let Ok(n) = p.emit(&mut buf)
+            && let Some(bytes) = buf.get(..n)
+        {
             if self.line_matches() {
                 self.out.extend_from_slice(bytes);
             } else {
@@ -614,5 +615,152 @@ fn baud_code(baud: u32) -> u8 {
         57600 => 3,
         115200 => 4,
         _ => 0,
+    }
+}
+
+/// A robot of a [`crate::world::World`] as the firmware's body: drive commands go to the
+/// world, sonar ranges are ray casts with the [`crate::world::SonarModel`]'s beam and noise.
+#[derive(Debug)]
+pub struct WorldBody {
+    world: crate::world::SharedWorld,
+    robot: crate::world::RobotId,
+    sonar: crate::world::SonarModel,
+    rng: rand::rngs::SmallRng,
+    battery_v: f64,
+}
+
+impl WorldBody {
+    /// The body of `robot` in `world`; sonar noise is seeded with `seed`.
+    pub fn new(world: crate::world::SharedWorld, robot: crate::world::RobotId, seed: u64) -> Self {
+        use rand::SeedableRng;
+        Self {
+            world,
+            robot,
+            sonar: crate::world::SonarModel::default(),
+            rng: rand::rngs::SmallRng::seed_from_u64(seed),
+            battery_v: 12.5,
+        }
+    }
+
+    /// Use this sonar model (beam width, rays, noise, limits).
+    pub fn with_sonar(mut self, sonar: crate::world::SonarModel) -> Self {
+        self.sonar = sonar;
+        self
+    }
+}
+
+impl P2osBody for WorldBody {
+    fn drive(&mut self, v_m_s: f64, omega_rad_s: f64) {
+        self.world.with(|w| {
+            w.command(
+                self.robot,
+                crate::world::DriveCommand::Twist { v_m_s, omega_rad_s },
+            )
+        });
+    }
+
+    fn pose(&self) -> (f64, f64, f64) {
+        self.world.with(|w| {
+            w.robot(self.robot)
+                .map(|r| {
+                    let p = r.pose();
+                    (p.x_m, p.y_m, p.theta_rad)
+                })
+                .unwrap_or_default()
+        })
+    }
+
+    fn wheel_speeds_mm_s(&self) -> (f64, f64) {
+        self.world.with(|w| {
+            w.robot(self.robot)
+                .map(|r| {
+                    let (l, r) = r.wheel_speeds();
+                    (l * 1000.0, r * 1000.0)
+                })
+                .unwrap_or_default()
+        })
+    }
+
+    fn wheel_travel_mm(&self) -> (f64, f64) {
+        self.world.with(|w| {
+            w.robot(self.robot)
+                .map(crate::world::Robot::wheel_travel_mm)
+                .unwrap_or_default()
+        })
+    }
+
+    fn sonar_range_m(&mut self, mount: &SonarPose) -> Option<f64> {
+        let iso = ima_hal::Isometry2::new(
+            ima_hal::Vector2::new(mount.x_mm / 1000.0, mount.y_mm / 1000.0),
+            mount.heading_deg.to_radians(),
+        );
+        let sonar = self.sonar;
+        let rng = &mut self.rng;
+        let r = self.world.with(|w| sonar.measure(w, self.robot, &iso, rng));
+        (r < sonar.max_range_m).then_some(r)
+    }
+
+    fn battery_v(&self) -> f64 {
+        self.battery_v
+    }
+}
+
+/// The P2OS firmware on a world robot, ready for a runner ([`crate::pty::PtyDevice`],
+/// [`crate::duplex::DuplexDevice`]).
+#[derive(Debug)]
+pub struct P2osDevice {
+    robot: P2osRobot,
+    body: WorldBody,
+    /// Power-cycle the robot when a hung-up link comes back (default: the link was a cable
+    /// pulled and replugged, so the firmware kept its session).
+    pub reset_on_reconnect: bool,
+}
+
+impl P2osDevice {
+    /// The firmware `cfg` driving `body`.
+    pub fn new(cfg: P2osModelConfig, body: WorldBody) -> Self {
+        let robot = P2osRobot::new(cfg, &body);
+        Self {
+            robot,
+            body,
+            reset_on_reconnect: false,
+        }
+    }
+
+    /// The firmware model (state, counters).
+    pub fn robot(&self) -> &P2osRobot {
+        &self.robot
+    }
+}
+
+impl crate::model::DeviceModel for P2osDevice {
+    fn handle_rx(&mut self, bytes: &[u8], now: Instant) {
+        self.robot.handle_rx(bytes, now, &mut self.body);
+    }
+
+    fn poll_tx(&mut self, out: &mut Vec<u8>) {
+        out.extend(self.robot.take_output());
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        self.robot.poll_timeout()
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        self.robot.handle_timeout(now, &mut self.body);
+    }
+
+    fn on_reconnect(&mut self, _now: Instant) {
+        if self.reset_on_reconnect {
+            self.robot.reset(&mut self.body);
+        }
+    }
+
+    fn set_host_baud(&mut self, baud: Option<u32>) {
+        self.robot.set_host_baud(baud);
+    }
+
+    fn name(&self) -> &str {
+        "p2os"
     }
 }

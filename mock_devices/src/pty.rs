@@ -232,6 +232,7 @@ fn serve<M: DeviceModel>(
     let mut write_drops = 0u64;
     let mut io_errors = 0u64;
     let mut timeout = poll_period;
+    let mut host_baud: Option<u32> = None;
     while !shared.stop.load(Ordering::Relaxed) {
         let controls: Vec<Control> = std::mem::take(
             &mut *shared
@@ -282,6 +283,13 @@ fn serve<M: DeviceModel>(
         }
         match master.read(&mut buf) {
             Ok(n) => {
+                // The host sets its line speed on its own descriptor of the slave; a tty has
+                // one set of line settings, so the slave we hold shows it.
+                let baud = serialport::SerialPort::baud_rate(&slave).ok();
+                if baud != host_baud {
+                    host_baud = baud;
+                    link.model_mut().set_host_baud(baud);
+                }
                 if let Some(bytes) = buf.get(..n) {
                     link.from_host(bytes, clock.now());
                 }

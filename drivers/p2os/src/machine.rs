@@ -148,6 +148,8 @@ pub struct RobotState {
     pub motors_enabled: bool,
     /// The robot reports it is moving (SIP type 0x33).
     pub moving: bool,
+    /// The SIP itself, raw units (what the checks accepted).
+    pub sip: Sip,
 }
 
 /// Why a session stopped streaming.
@@ -725,8 +727,8 @@ impl Session {
         self.attempts_at_baud = self.attempts_at_baud.saturating_add(1);
         if self.attempts_at_baud >= self.cfg.syncs_per_baud.max(1) {
             self.attempts_at_baud = 0;
-            self.probes = self.probes.saturating_add(1);
             let before = self.current_baud();
+            self.probes = self.probes.saturating_add(1);
             if self.last_good_baud.is_none() || self.probes % 2 == 1 {
                 self.baud_idx += 1;
             }
@@ -986,6 +988,7 @@ impl Session {
             ),
             motors_enabled: enabled,
             moving: sip.moving,
+            sip: sip.clone(),
         };
         self.push_event(Event::State(state));
     }

@@ -537,3 +537,79 @@ fn close_stops_then_closes() {
     assert_eq!(s.state(), SessionState::Closed);
     assert_eq!(s.poll_timeout(), None);
 }
+
+/// After a link loss the robot stays away for a while: the session must keep the line speed it
+/// announces (SetBaud) in step with the rate it believes it is using, and find the robot again
+/// at the old rate as soon as it answers.
+#[test]
+fn reconnect_probing_keeps_the_line_speed_in_step() {
+    let mut s = Session::new(Config::default());
+    let mut now = open(&mut s);
+    let _ = sent(&mut s, now);
+    let mut line = 0u32;
+    for e in events(&mut s) {
+        if let Event::SetBaud(b) = e {
+            line = b;
+        }
+    }
+    assert_eq!(line, 9600);
+    // The robot is silent for 3 s, then answers only at 9600 (the host's line must be there).
+    let back_at = now + Duration::from_secs(3);
+    let mut step = 0u8;
+    let mut reconnected_at = None;
+    while now < back_at + Duration::from_secs(3) {
+        now = now + Duration::from_millis(10);
+        if s.poll_timeout().is_some_and(|t| t <= now) {
+            s.handle_timeout(now);
+        }
+        for e in events(&mut s) {
+            if let Event::SetBaud(b) = e {
+                line = b;
+            }
+        }
+        for c in sent(&mut s, now) {
+            if now < back_at || line != 9600 {
+                continue;
+            }
+            let reply = match (step, c) {
+                (_, Command::Sync0) => {
+                    step = 1;
+                    Some(Packet::SyncEcho(0))
+                }
+                (1, Command::Sync1) => {
+                    step = 2;
+                    Some(Packet::SyncEcho(1))
+                }
+                (2, Command::Sync2) => {
+                    step = 3;
+                    Some(P2AT_REPLY)
+                }
+                (3, Command::Sync1) => {
+                    step = 4;
+                    None
+                }
+                _ => None,
+            };
+            if let Some(r) = reply {
+                feed(&mut s, &r, now);
+            }
+        }
+        if step == 4 {
+            feed(
+                &mut s,
+                &Packet::Sip(sip(7, 7, 0, 0)),
+                now + Duration::from_millis(50),
+            );
+            step = 5;
+        }
+        if s.is_open() && reconnected_at.is_none() && now > back_at {
+            reconnected_at = Some(now);
+        }
+    }
+    let t = reconnected_at.expect("never reconnected");
+    assert!(
+        t.saturating_duration_since(back_at) < Duration::from_millis(1500),
+        "reconnected {:?} after the robot came back",
+        t.saturating_duration_since(back_at)
+    );
+}
