@@ -668,8 +668,8 @@ impl Command {
 
     /// The legacy Player/ROS/DTU workaround applied to every u32 field (§2.4, `legacy_no_stuff`):
     /// each 0x1B byte of a field is moved away by [`nudge_u32`]. If the frame's checksum then
-    /// still comes out as 0x1B, the velocity of a SET_DIR is changed by one unit (1/Kd m/s,
-    /// far below anything measurable) and nudged again; other commands the driver sends never
+    /// still comes out as 0x1B, one of the three low bits of the SET_DIR velocity is flipped
+    /// (a change of at most 4 units, i.e. 4/Kd m/s, far below anything measurable); other commands the driver sends never
     /// contain 0x1B. Our extension: the legacy drivers left the checksum exposed (P1).
     #[must_use]
     pub fn legacy_nudged(&self) -> Self {
@@ -681,15 +681,15 @@ impl Command {
                     torque: nudge_u32(s.torque),
                     ..s
                 };
-                for _ in 0..4 {
-                    if Self::SetDir(s).content_checksum() != Some(ESC) {
-                        break;
-                    }
-                    let v = s
-                        .velocity
-                        .checked_add(1)
-                        .unwrap_or(u32::MAX.wrapping_sub(1));
-                    s.velocity = nudge_u32(v);
+                if Self::SetDir(s).content_checksum() == Some(ESC) {
+                    // Flip one low bit of the velocity's last byte: the checksum changes by
+                    // the same bit, and the byte itself must not become 0x1B either.
+                    let low = s.velocity & 0xFF;
+                    let k = [1u32, 2, 4]
+                        .into_iter()
+                        .find(|k| (low ^ k) != u32::from(ESC))
+                        .unwrap_or(1);
+                    s.velocity ^= k;
                 }
                 Self::SetDir(s)
             }

@@ -29,7 +29,13 @@ fn t2() -> Vec<u8> {
 }
 /// A report full of bytes that need stuffing.
 fn busy() -> Vec<u8> {
-    frame(2, 0x1B, 0x21, &[0x1B, 0x7C, 0x03, 0x02, 0x1B, 0x1B, 0x00, 0x7C], Stuffing::Full)
+    frame(
+        2,
+        0x1B,
+        0x21,
+        &[0x1B, 0x7C, 0x03, 0x02, 0x1B, 0x1B, 0x00, 0x7C],
+        Stuffing::Full,
+    )
 }
 
 /// Feed `chunks` and collect frames and errors.

@@ -125,10 +125,8 @@ fn t5_cmd() -> Command {
     })
 }
 
-const T5_LOGICAL: &str =
-    "1B 02 02 00 07 0E 01 00 00 1B 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03";
-const T5_WIRE: &str =
-    "1B 02 02 00 07 0E 01 00 00 1B 00 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03";
+const T5_LOGICAL: &str = "1B 02 02 00 07 0E 01 00 00 1B 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03";
+const T5_WIRE: &str = "1B 02 02 00 07 0E 01 00 00 1B 00 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03";
 
 #[test]
 fn t5_command_needing_stuffing() {
@@ -234,7 +232,12 @@ fn t10_sys_status_reply() {
 fn t11_sonar_report() {
     let mut echoes = heapless::Vec::new();
     echoes.push(SonarEcho { id: 0, range: 1476 }).unwrap();
-    echoes.push(SonarEcho { id: 0x10, range: 738 }).unwrap();
+    echoes
+        .push(SonarEcho {
+            id: 0x10,
+            range: 738,
+        })
+        .unwrap();
     check_rep(
         Report::Sonar(SonarReport {
             rv: 0,
