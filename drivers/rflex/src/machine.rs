@@ -792,12 +792,17 @@ impl Machine {
         if !is_zero && !self.motors_enabled {
             return Err(CommandError::MotorsDisabled);
         }
-        self.target = if is_zero { VelocityCommand::ZERO } else { cmd };
+        let cmd = if is_zero { VelocityCommand::ZERO } else { cmd };
+        let changed = cmd != self.target;
+        self.target = cmd;
         self.last_cmd_at = self.now;
         if is_zero {
             self.hold_until = Some(self.now + self.cfg.stop_hold);
         }
-        if self.motors_enabled {
+        // A new speed goes out at once; a repeated one only feeds the watchdog and rides on
+        // the keep-alive (zeros restart the hold, and are sent at once if idle).
+        let idle = !self.keepalive_active() && self.motion == MotionTx::Idle;
+        if self.motors_enabled && (changed || idle) {
             self.motion = MotionTx::Both;
             self.next_keepalive = self.now + self.cfg.keepalive_period;
         }
