@@ -304,7 +304,8 @@ impl<'a> RawFrame<'a> {
             });
         }
         let expected = checksum(rest);
-        if expected != sum {
+        // Fuzz builds accept any checksum so the fuzzer reaches the payload parsers.
+        if expected != sum && !cfg!(fuzzing) {
             return Err(WireError::BadChecksum { expected, got: sum });
         }
         Ok(Self {

@@ -79,13 +79,13 @@ fn one_frame_over_many_reads_including_single_bytes() {
     for split in 1..w.len() {
         let mut f = Framer::strict();
         let (ok, err) = run(&mut f, &[&w[..split], &w[split..]]);
-        assert_eq!(ok, expected(&[w.clone()]), "split at {split}");
+        assert_eq!(ok, expected(std::slice::from_ref(&w)), "split at {split}");
         assert!(err.is_empty());
     }
     let mut f = Framer::strict();
     let singles: Vec<&[u8]> = w.chunks(1).collect();
     let (ok, _) = run(&mut f, &singles);
-    assert_eq!(ok, expected(&[w.clone()]));
+    assert_eq!(ok, expected(std::slice::from_ref(&w)));
 }
 
 #[test]
