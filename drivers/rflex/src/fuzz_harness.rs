@@ -13,8 +13,7 @@ use ima_hal::base::VelocityCommand;
 use crate::framer::{Framer, FramerConfig};
 use crate::machine::{Config, Machine, TX_BUF};
 use crate::wire::{
-    Command, MAX_CONTENT, MAX_WIRE_FRAME, RawFrame, Report, Stuffing, encode_frame,
-    unstuff_frame,
+    Command, MAX_CONTENT, MAX_WIRE_FRAME, RawFrame, Report, Stuffing, encode_frame, unstuff_frame,
 };
 
 /// Split `data` into a control byte and the rest.

@@ -20,7 +20,10 @@ fn replay(target: &str, harness: fn(&[u8])) {
 
 #[test]
 fn rflex_from_robot_corpus() {
-    replay("rflex_from_robot", ima_rflex::fuzz_harness::rflex_from_robot);
+    replay(
+        "rflex_from_robot",
+        ima_rflex::fuzz_harness::rflex_from_robot,
+    );
 }
 
 #[test]
