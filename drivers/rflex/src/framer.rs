@@ -30,7 +30,7 @@ pub struct FramerConfig {
     /// Read `ESC` + any byte other than 00/01/02/03 as a literal 0x1B followed by that byte,
     /// as unstuffed legacy commands arrive (the mock's `lenient` switch, §8). Off = strict §2.5.
     pub lenient: bool,
-    /// Drop a partial frame if no byte arrived for longer than this (§2.5: about 50 ms [I]).
+    /// Drop a partial frame if no byte arrived for longer than this (§2.5: about 50 ms \[I\]).
     /// Only applies when the caller passes times to [`Framer::bytes_arrived`].
     pub max_gap: Duration,
 }

@@ -29,7 +29,7 @@
 //! * **Sonar poses**: the default table maps DTU's 17-sonar ATRV-Jr ids (§7); the poses in it
 //!   are placeholders on the robot's outline until Scooter is measured (see
 //!   [`machine::SonarMount::atrv_jr_default`]).
-//! * **Acks** (§3, [D]): 8-byte `rv ts` frames on MOT 7 and DIO 0/4 parse as
+//! * **Acks** (§3, \[D\]): 8-byte `rv ts` frames on MOT 7 and DIO 0/4 parse as
 //!   [`wire::Report::Ack`] and are ignored by the machine.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![warn(missing_docs)]

@@ -841,7 +841,7 @@ pub enum Report {
         buttons: u8,
     },
     /// An 8-byte `rv ts` acknowledgement echoing a command's port and opcode (MOT 7,
-    /// DIO 0, DIO 4; §3 "Acks", [D]). Drivers ignore them.
+    /// DIO 0, DIO 4; §3 "Acks", \[D\]). Drivers ignore them.
     Ack {
         /// Port of the acknowledged command.
         port: u8,

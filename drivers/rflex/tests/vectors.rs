@@ -282,3 +282,12 @@ fn t13_resync() {
     assert_eq!(f.stats().frames, 2);
     assert_eq!(f.stats().restarts, 1);
 }
+
+#[test]
+fn nudge_examples() {
+    assert_eq!(nudge_u32(0x1B58), 0x1AFF); // T5, low byte ≤ 127: round down
+    assert_eq!(nudge_u32(0x1B80), 0x1C00); // low byte > 127: round up
+    assert_eq!(nudge_u32(0x001B), 0x001C); // least significant byte
+    assert_eq!(nudge_u32(0x1B00_0000), 0x1AFF_FFFF);
+    assert_eq!(nudge_u32(0x0001_86A0), 0x0001_86A0); // untouched
+}
