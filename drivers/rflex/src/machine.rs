@@ -22,6 +22,8 @@
 //!   (0.5 s) is zeroed by the machine ([`Event::CommandTimeout`]).
 //! * **Pacing**: at least [`Config::min_frame_gap`] (5 ms) between two frames.
 //! * **Status**: SYS_STATUS every [`Config::status_period`] (1 s).
+//! * **Link**: no good frame for [`Config::link_timeout`] (1 s) → [`Event::LinkLost`]; the next
+//!   one → [`Event::LinkUp`] (our addition; the spec names no such rule).
 //! * **Shutdown**: SET_DIR 0/0, SONAR_RUN off, MOT_SET_DEFAULTS, MOT_SYSTEM_REPORT_REQ (0, 0),
 //!   DIO_REPORTS_REQ (0), IR off, MOT_BRAKE_SET; then [`Event::ShutdownComplete`].
 
@@ -165,6 +167,9 @@ pub struct Config {
     pub odometry_slack: f64,
     /// After this many rejections in a row the next report becomes the new baseline.
     pub odometry_max_rejects: u8,
+    /// No good frame for this long (reports come at 10 Hz) raises [`Event::LinkLost`];
+    /// the next good frame raises [`Event::LinkUp`]. Default 1 s.
+    pub link_timeout: Duration,
     /// The receiver's options (strict by default).
     pub framer: FramerConfig,
 }
@@ -200,6 +205,7 @@ impl Default for Config {
             shutdown_ir_off: true,
             odometry_slack: 0.05,
             odometry_max_rejects: 3,
+            link_timeout: Duration::from_secs(1),
             framer: FramerConfig::default(),
         }
     }
@@ -274,6 +280,10 @@ pub enum Event {
     Unknown(UnknownFrame),
     /// The client sent no command for [`Config::command_timeout`]; the target was zeroed.
     CommandTimeout,
+    /// No good frame from the base for [`Config::link_timeout`] (cable, power, baud rate).
+    LinkLost,
+    /// A good frame arrived: at the first frame, and after [`Event::LinkLost`].
+    LinkUp,
     /// The shutdown sequence has been sent; the machine is closed.
     ShutdownComplete,
 }
@@ -380,6 +390,8 @@ pub struct Machine {
     motors_enabled: bool,
     target: VelocityCommand,
     last_cmd_at: Instant,
+    last_rx: Instant,
+    link_up: Option<bool>,
     hold_until: Option<Instant>,
     next_keepalive: Instant,
     next_status: Instant,
@@ -403,6 +415,8 @@ impl Machine {
             motors_enabled: false,
             target: VelocityCommand::ZERO,
             last_cmd_at: now,
+            last_rx: now,
+            link_up: None,
             hold_until: None,
             next_keepalive: now,
             next_status: now + cfg.status_period,
@@ -582,6 +596,12 @@ impl Machine {
             return;
         }
         let now = self.now;
+        if self.link_up != Some(false)
+            && now.saturating_duration_since(self.last_rx) >= self.cfg.link_timeout
+        {
+            self.link_up = Some(false);
+            self.push_event(Event::LinkLost);
+        }
         if self.target != VelocityCommand::ZERO
             && now.saturating_duration_since(self.last_cmd_at) >= self.cfg.command_timeout
         {
@@ -651,8 +671,19 @@ impl Machine {
         self.on_report(report);
     }
 
+    /// Whether the base is being heard (`None` before the first frame).
+    #[must_use]
+    pub fn link_up(&self) -> Option<bool> {
+        self.link_up
+    }
+
     fn on_report(&mut self, report: &Report) {
         let at = self.now;
+        self.last_rx = at;
+        if self.link_up != Some(true) {
+            self.link_up = Some(true);
+            self.push_event(Event::LinkUp);
+        }
         match report {
             Report::SysStatus {
                 voltage_raw,
@@ -976,6 +1007,9 @@ impl Machine {
             consider(self.next_status);
             if self.keepalive_active() {
                 consider(self.next_keepalive);
+            }
+            if self.link_up != Some(false) {
+                consider(self.last_rx + self.cfg.link_timeout);
             }
             if self.target != VelocityCommand::ZERO {
                 consider(self.last_cmd_at + self.cfg.command_timeout);

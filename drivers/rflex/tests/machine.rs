@@ -627,6 +627,7 @@ fn sensor_reports_become_si_events() {
         ev.push(e);
     }
     let mut it = ev.iter();
+    assert_eq!(it.next(), Some(&Event::LinkUp));
     match it.next() {
         Some(Event::Power(p)) => {
             assert_eq!(p.at, t);
@@ -680,6 +681,7 @@ fn unknown_and_bad_frames_are_counted_not_fatal() {
     let n = ack.emit(&mut buf).unwrap();
     bytes.extend(&buf[..n]);
     m.handle_bytes(&bytes, ms(1));
+    assert_eq!(m.poll_event(), Some(Event::LinkUp));
     assert!(matches!(m.poll_event(), Some(Event::Unknown(u)) if u.port == 6));
     assert_eq!(m.poll_event(), None);
     assert_eq!(m.stats().unknown_frames, 1);
@@ -721,4 +723,44 @@ fn disabling_motors_zeroes_then_brakes() {
     assert_eq!(after[2], Command::BrakeSet);
     assert_eq!(after[3], Command::SysStatusRequest);
     assert_eq!(after.len(), 4, "no keep-alive once braked: {after:?}");
+}
+
+#[test]
+fn link_lost_and_regained() {
+    let mut s = Sim::new(Config::default());
+    s.run_until(ms(999));
+    assert!(!s.events.contains(&Event::LinkLost));
+    s.run_until(ms(1000));
+    assert_eq!(s.events.last(), Some(&Event::LinkLost));
+    assert_eq!(s.m.link_up(), Some(false));
+    s.run_until(ms(1500));
+    assert_eq!(
+        s.events.iter().filter(|e| **e == Event::LinkLost).count(),
+        1
+    );
+    s.m.handle_bytes(
+        &hex("1B 02 01 07 01 09 00 00 12 36 00 00 0A 46 00 66 1B 03"),
+        ms(1500),
+    );
+    s.drain();
+    assert!(s.events.contains(&Event::LinkUp));
+    assert_eq!(s.m.link_up(), Some(true));
+    // Frames every 400 ms keep it up.
+    for k in 1..5 {
+        s.run_until(ms(1500 + 400 * k));
+        s.m.handle_bytes(
+            &hex("1B 02 05 09 01 07 00 00 12 38 40 00 01 61 1B 03"),
+            ms(1500 + 400 * k),
+        );
+    }
+    s.run_until(ms(3400));
+    assert_eq!(
+        s.events.iter().filter(|e| **e == Event::LinkLost).count(),
+        1
+    );
+    s.run_until(ms(4500));
+    assert_eq!(
+        s.events.iter().filter(|e| **e == Event::LinkLost).count(),
+        2
+    );
 }
