@@ -326,7 +326,8 @@ impl ima_hal::Error for CommandError {
 pub struct Stats {
     /// Frames transmitted.
     pub tx_frames: u32,
-    /// Frames that could not be emitted (buffer too small).
+    /// Frames not sent: the caller's buffer was too small, or a full queue (16 requests)
+    /// dropped its oldest request.
     pub tx_errors: u32,
     /// Good frames whose payload did not fit their port/opcode.
     pub bad_payloads: u32,

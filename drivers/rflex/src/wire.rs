@@ -512,8 +512,7 @@ impl Command {
         mode: 0,
     };
 
-    /// Port and opcode of this command (`None` for [`Command::Unknown`] is never returned:
-    /// unknown frames keep theirs).
+    /// Port and opcode of this command (an unknown frame keeps its own).
     #[must_use]
     pub fn port_opcode(&self) -> (u8, u8) {
         match self {
