@@ -1,16 +1,146 @@
-//! `ima mock <device>`: serve a mock device on a pseudo-terminal.
+//! `ima mock <device>`: serve a mock device on a pseudo-terminal, print its path on the first
+//! line of stdout, and run until interrupted.
 
-use anyhow::{Result, bail};
-use clap::Args;
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::world::{SharedWorld, World};
+
+/// Devices `ima mock` can serve.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Device {
+    /// A Pioneer 2-AT running P2OS.
+    P2os,
+}
 
 /// Arguments of `ima mock`.
 #[derive(Debug, Args)]
 pub struct MockArgs {
     /// Device to serve.
-    device: String,
+    device: Device,
+    /// World file (TOML); the built-in thesis arena when absent.
+    #[arg(long)]
+    world: Option<PathBuf>,
+    /// Seed for sensor noise and faults.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Faults between device and port, e.g. `corrupt=0.01,split=1,stall=0.0005:300ms`
+    /// (grammar: `ima-mock-devices` docs, module `faults`).
+    #[arg(long, default_value = "")]
+    faults: String,
+    /// Which robot of the world the device belongs to.
+    #[arg(long, default_value = "skeeter")]
+    robot: String,
+    /// The device's serial rate (the driver must find it).
+    #[arg(long, default_value_t = 9600)]
+    baud: u32,
+}
+
+/// Load the world of `--world`, or the built-in arena, with `seed`.
+pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
+    let mut world = match path {
+        Some(p) => World::from_toml_path(p).with_context(|| format!("loading {}", p.display()))?,
+        None => World::default_world(),
+    };
+    world.set_seed(seed);
+    Ok(SharedWorld::new(world))
+}
+
+/// Serve a P2OS robot of `world` on a new pty.
+pub fn serve_p2os(
+    world: &SharedWorld,
+    robot: &str,
+    seed: u64,
+    faults: &str,
+    baud: u32,
+    step_world: bool,
+) -> Result<PtyDevice<P2osDevice>> {
+    let id = world
+        .with(|w| w.robot_id(robot))
+        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let plan = if faults.is_empty() {
+        FaultPlan::none()
+    } else {
+        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
+        if !faults.contains("seed=") {
+            p.seed = seed;
+        }
+        p
+    };
+    let name = robot[..1].to_uppercase() + &robot[1..];
+    let cfg = P2osModelConfig {
+        name,
+        baud,
+        ..P2osModelConfig::default()
+    };
+    let dev = P2osDevice::new(cfg, WorldBody::new(world.clone(), id, seed));
+    PtyDevice::spawn(
+        dev,
+        PtyOptions {
+            faults: plan,
+            step_world: step_world.then(|| world.clone()),
+            ..PtyOptions::default()
+        },
+    )
+    .context("starting the pty")
 }
 
 /// Run `ima mock`.
 pub fn run(args: &MockArgs) -> Result<()> {
-    bail!("mock device {:?} is not available yet", args.device)
+    let world = load_world(args.world.as_ref(), args.seed)?;
+    let dev = match args.device {
+        Device::P2os => serve_p2os(
+            &world,
+            &args.robot,
+            args.seed,
+            &args.faults,
+            args.baud,
+            true,
+        )?,
+    };
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", dev.path().display())?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving a mock {:?} on {} at {} baud; Ctrl-C to stop",
+        args.device,
+        dev.path().display(),
+        args.baud
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        #[cfg(unix)]
+        {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => r?,
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        tokio::signal::ctrl_c().await?;
+        anyhow::Ok(())
+    })?;
+    let status = dev.status();
+    let model = dev
+        .stop()
+        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
+    let st = model.robot().stats();
+    eprintln!(
+        "stopped: {} sessions, {} commands, {} SIPs, {} bad frames, {} watchdog trips; link {:?}",
+        st.sessions, st.commands, st.sips, st.bad_frames, st.watchdog_trips, status.counters
+    );
+    std::thread::sleep(Duration::from_millis(10));
+    Ok(())
 }

@@ -73,6 +73,9 @@ pub struct Config {
     pub request_config: bool,
     /// How commands are encoded where clients differ.
     pub encode: EncodeOptions,
+    /// An unchanged velocity command is re-sent at most this often (it is only re-asserted in
+    /// case a frame was lost; the keep-alive feeds the watchdog). A changed one goes at once.
+    pub velocity_resend_interval: Duration,
     /// Consecutive implausible SIPs after which the odometry is re-based on the robot's
     /// values rather than rejected forever (a robot reset or a SETO from elsewhere).
     pub rebase_after_implausible: u8,
@@ -99,6 +102,7 @@ impl Default for Config {
             request_config: true,
             encode: EncodeOptions::default(),
             rebase_after_implausible: 3,
+            velocity_resend_interval: Duration::from_millis(500),
         }
     }
 }
@@ -338,6 +342,7 @@ pub struct Session {
     enable_deadline: Option<Instant>,
     enable_attempts: u8,
     velocity: (i16, i16),
+    velocity_sent_at: Option<Instant>,
     cmd_deadline: Option<Instant>,
     odo: OdoTrack,
     sonar: SonarScan,
@@ -387,6 +392,7 @@ impl Session {
             enable_deadline: None,
             enable_attempts: 0,
             velocity: (0, 0),
+            velocity_sent_at: None,
             cmd_deadline: None,
             odo: OdoTrack::default(),
             sonar: SonarScan::default(),
@@ -466,12 +472,20 @@ impl Session {
             .to_degrees()
             .round();
         let (v, w) = (v_mm_s as i16, w_deg_s as i16);
+        let unchanged = self.velocity == (v, w)
+            && self
+                .velocity_sent_at
+                .is_some_and(|t| now < t + self.cfg.velocity_resend_interval);
         self.velocity = (v, w);
         self.cmd_deadline = if (v, w) != (0, 0) {
             self.cfg.command_timeout.map(|t| now + t)
         } else {
             None
         };
+        if unchanged {
+            return Ok(());
+        }
+        self.velocity_sent_at = Some(now);
         self.queue_velocity(v, w)
     }
 
@@ -479,6 +493,7 @@ impl Session {
     pub fn stop(&mut self) -> Result<(), SessionError> {
         self.require_open()?;
         self.velocity = (0, 0);
+        self.velocity_sent_at = None;
         self.cmd_deadline = None;
         self.queue(Command::Stop, None)
     }
@@ -487,6 +502,7 @@ impl Session {
     pub fn emergency_stop(&mut self) -> Result<(), SessionError> {
         self.require_open()?;
         self.velocity = (0, 0);
+        self.velocity_sent_at = None;
         self.cmd_deadline = None;
         self.queue(Command::EStop, None)
     }
@@ -869,6 +885,7 @@ impl Session {
         if self.cmd_deadline.is_some_and(|d| now >= d) {
             self.cmd_deadline = None;
             self.velocity = (0, 0);
+            self.velocity_sent_at = Some(now);
             self.stats.command_timeouts += 1;
             let _ = self.queue_velocity(0, 0);
             self.push_event(Event::CommandTimeout);

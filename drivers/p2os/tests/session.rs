@@ -613,3 +613,36 @@ fn reconnect_probing_keeps_the_line_speed_in_step() {
         t.saturating_duration_since(back_at)
     );
 }
+
+#[test]
+fn unchanged_velocity_is_not_resent_every_call() {
+    let mut s = Session::new(Config::default());
+    let mut t = open(&mut s);
+    let _ = sent(&mut s, t);
+    let mut frames = 0;
+    // The caller refreshes the same command at 50 Hz for 2 s.
+    for _ in 0..100 {
+        s.set_velocity(VelocityCommand::new(0.2, 0.0), t).unwrap();
+        frames += sent(&mut s, t)
+            .iter()
+            .filter(|c| matches!(c, Command::Int(IntCommand::Vel | IntCommand::RVel, _)))
+            .count();
+        t = t + Duration::from_millis(20);
+    }
+    // Sent at once, then re-asserted every 500 ms: 4 times × 2 frames.
+    assert_eq!(frames, 8);
+    // A change goes out immediately.
+    s.set_velocity(VelocityCommand::new(0.3, 0.0), t).unwrap();
+    assert_eq!(
+        sent(&mut s, t),
+        vec![
+            Command::Int(IntCommand::Vel, 300),
+            Command::Int(IntCommand::RVel, 0)
+        ]
+    );
+    assert_eq!(
+        s.stats().command_timeouts,
+        0,
+        "refreshing keeps the command alive"
+    );
+}

@@ -1,0 +1,159 @@
+//! The `ima` program itself: `mock` and `drive` as separate processes over a pty, `decode`,
+//! and the demo.
+
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Command, Stdio};
+
+fn ima() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ima"))
+}
+
+/// Kills the child when dropped, so a failing test leaves no process behind.
+struct Child(std::process::Child);
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn mock_and_drive_talk_over_a_pty_in_separate_processes() {
+    let mut mock = Child(
+        ima()
+            .args(["mock", "p2os", "--seed", "3"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut path = String::new();
+    BufReader::new(mock.0.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let path = path.trim();
+    assert!(
+        path.starts_with("/dev/"),
+        "first line is the pty path: {path:?}"
+    );
+    let out = ima()
+        .args([
+            "drive", "--port", path, "--vel", "0.3", "--turn", "0", "--for", "1.5", "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert!(
+        lines.len() >= 10,
+        "about one report per SIP: {}",
+        lines.len()
+    );
+    let last = lines.last().unwrap();
+    assert!(last["x_m"].as_f64().unwrap() > 0.2, "{last}");
+    assert!((last["battery_v"].as_f64().unwrap() - 12.5).abs() < 0.05);
+    assert!(last["motors_enabled"].as_bool().unwrap());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("connected to Skeeter (Pioneer p2at)"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn drive_reports_a_clear_error_when_nothing_answers() {
+    // A pty nobody serves: the handshake times out at every rate.
+    let (_master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
+    let path = serialport::SerialPort::name(&slave).unwrap();
+    let out = ima()
+        .args([
+            "drive",
+            "--port",
+            &path,
+            "--for",
+            "0",
+            "--connect-timeout",
+            "1",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("connecting to a P2OS robot"), "{err}");
+}
+
+#[test]
+fn decode_reads_hex_from_stdin_and_reports_bad_frames() {
+    let mut child = ima()
+        .args(["decode", "p2os", "--from", "host", "--hex"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(b"FA FB 06 0B 3B C8 00 D3 3B\nFA FB 06 0B 3B C8 00 D3 3C FA FB 03 1D 00 1D\n")
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    let v: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let kinds: Vec<&str> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
+    assert_eq!(kinds, ["vel", "error", "stop"]);
+    assert_eq!(v[0]["v_m_s"], 0.2);
+    assert_eq!(v[1]["offset"], 9);
+    assert_eq!(v[2]["offset"], 18);
+}
+
+#[test]
+fn demo_drives_a_square_with_odometry_matching_ground_truth() {
+    let out = ima()
+        .args(["demo", "--side", "0.4", "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Vec<serde_json::Value> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let corners: Vec<_> = v.iter().filter(|x| x["kind"] == "corner").collect();
+    assert_eq!(corners.len(), 4);
+    // Back near the start after four sides.
+    let last = corners[3];
+    assert!(
+        last["truth"]["x_m"].as_f64().unwrap().abs() < 0.05,
+        "{last}"
+    );
+    assert!(
+        last["truth"]["y_m"].as_f64().unwrap().abs() < 0.05,
+        "{last}"
+    );
+    let summary = v.iter().find(|x| x["kind"] == "summary").unwrap();
+    assert!(
+        summary["max_position_error_m"].as_f64().unwrap() < 0.02,
+        "{summary}"
+    );
+    assert!(
+        summary["max_heading_error_deg"].as_f64().unwrap() < 1.0,
+        "{summary}"
+    );
+}
