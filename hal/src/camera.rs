@@ -105,7 +105,9 @@ impl Frame {
         if x >= self.width || y >= self.height {
             return None;
         }
-        let row = usize::try_from(y).ok()?.checked_mul(usize::try_from(self.width).ok()?)?;
+        let row = usize::try_from(y)
+            .ok()?
+            .checked_mul(usize::try_from(self.width).ok()?)?;
         row.checked_add(usize::try_from(x).ok()?)?.checked_mul(3)
     }
 
@@ -161,6 +163,9 @@ mod tests {
         assert_eq!(&f.pixels[21..24], &[1, 2, 3]);
         assert_eq!(f.pixel(4, 0), None);
         assert!(!f.set_pixel(0, 2, [9, 9, 9]));
-        assert_eq!(Frame::byte_len(u32::MAX, u32::MAX).is_some(), usize::BITS > 64);
+        assert_eq!(
+            Frame::byte_len(u32::MAX, u32::MAX).is_some(),
+            usize::BITS > 64
+        );
     }
 }

@@ -79,9 +79,9 @@ impl Heading {
     #[must_use]
     pub fn magnetic_rad(&self) -> Option<f64> {
         match self.reference {
-            HeadingReference::Magnetic => {
-                Some(wrap_2pi(self.heading_rad + self.deviation_rad.unwrap_or(0.0)))
-            }
+            HeadingReference::Magnetic => Some(wrap_2pi(
+                self.heading_rad + self.deviation_rad.unwrap_or(0.0),
+            )),
             HeadingReference::True => None,
         }
     }

@@ -182,7 +182,10 @@ impl<const N: usize> LineFramer<N> {
                         self.state = State::InLine;
                         None
                     } else {
-                        add(&mut self.stats.dropped_bytes, self.buf.len().saturating_add(1));
+                        add(
+                            &mut self.stats.dropped_bytes,
+                            self.buf.len().saturating_add(1),
+                        );
                         add(&mut self.stats.overlong, 1);
                         self.buf.clear();
                         self.state = State::Discarding;
@@ -191,7 +194,10 @@ impl<const N: usize> LineFramer<N> {
                 }
             },
             _ => {
-                add(&mut self.stats.dropped_bytes, self.buf.len().saturating_add(1));
+                add(
+                    &mut self.stats.dropped_bytes,
+                    self.buf.len().saturating_add(1),
+                );
                 self.buf.clear();
                 match self.state {
                     State::InLine => {

@@ -74,7 +74,10 @@ impl core::fmt::Display for WireError {
             Self::MissingChecksum => f.write_str("missing checksum"),
             Self::BadChecksumDigits => f.write_str("malformed checksum"),
             Self::BadChecksum { expected, got } => {
-                write!(f, "bad checksum: computed {expected:02X}, line has {got:02X}")
+                write!(
+                    f,
+                    "bad checksum: computed {expected:02X}, line has {got:02X}"
+                )
             }
             Self::BadAddress => f.write_str("bad NMEA address field"),
             Self::UnknownSentence(t) => write!(
@@ -104,21 +107,13 @@ pub fn checksum(body: &[u8]) -> u8 {
     body.iter().fold(0, |acc, b| acc ^ b)
 }
 
-/// How strict parsing is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How strict parsing is (`Default`: strict).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ParseOptions {
     /// Accept `$…` lines with no `*hh` checksum. The spec says TCM2 lines carry the NMEA
     /// checksum but its example line has none, and some TCM2 set-ups turn it off; so the
     /// default (`false`) follows the stated rule and this option admits the alternative.
     pub allow_missing_checksum: bool,
-}
-
-impl Default for ParseOptions {
-    fn default() -> Self {
-        Self {
-            allow_missing_checksum: false,
-        }
-    }
 }
 
 /// Anything a compass sends, one line each.
@@ -243,7 +238,10 @@ impl<'a> Writer<'a> {
     }
 
     pub(crate) fn byte(&mut self, b: u8) -> Result<(), WireError> {
-        let slot = self.buf.get_mut(self.pos).ok_or(WireError::BufferTooSmall)?;
+        let slot = self
+            .buf
+            .get_mut(self.pos)
+            .ok_or(WireError::BufferTooSmall)?;
         *slot = b;
         self.pos = self.pos.saturating_add(1);
         Ok(())
@@ -290,8 +288,14 @@ impl<'a> Writer<'a> {
     pub(crate) fn nmea_tail(&mut self) -> Result<usize, WireError> {
         let sum = checksum(self.buf.get(1..self.pos).unwrap_or(&[]));
         self.byte(b'*')?;
-        self.byte(*HEX.get(usize::from(sum >> 4)).ok_or(WireError::OutOfRange)?)?;
-        self.byte(*HEX.get(usize::from(sum & 0xf)).ok_or(WireError::OutOfRange)?)?;
+        self.byte(
+            *HEX.get(usize::from(sum >> 4))
+                .ok_or(WireError::OutOfRange)?,
+        )?;
+        self.byte(
+            *HEX.get(usize::from(sum & 0xf))
+                .ok_or(WireError::OutOfRange)?,
+        )?;
         self.bytes(b"\r\n")?;
         Ok(self.pos)
     }
@@ -350,9 +354,14 @@ impl Decimal {
             return None;
         }
         let int_part = units.unsigned_abs() / pow10(decimals).unsigned_abs();
-        let needed = if int_part == 0 { 0 } else { digit_count(int_part) };
+        let needed = if int_part == 0 {
+            0
+        } else {
+            digit_count(int_part)
+        };
         let int_digits = int_digits.max(needed);
-        if int_digits.saturating_add(decimals) > MAX_DIGITS || int_digits.saturating_add(decimals) == 0
+        if int_digits.saturating_add(decimals) > MAX_DIGITS
+            || int_digits.saturating_add(decimals) == 0
         {
             return None;
         }
@@ -478,14 +487,20 @@ mod tests {
 
     #[test]
     fn decimal_keeps_written_form() {
-        for s in ["238.5", "005.3", "-12.4", "0.0", "-0.5", ".5", "12", "55.11", "359.99"] {
+        for s in [
+            "238.5", "005.3", "-12.4", "0.0", "-0.5", ".5", "12", "55.11", "359.99",
+        ] {
             let d = Decimal::parse(s.as_bytes()).unwrap();
             assert_eq!(emit_decimal(d), s, "{s}");
         }
         assert_eq!(Decimal::parse(b"+7.25").map(emit_decimal).unwrap(), "7.25");
         assert!((Decimal::parse(b"-12.4").unwrap().to_f64() + 12.4).abs() < 1e-12);
         for bad in ["", "-", ".", "1.2.3", "1e5", "12a", "1234567890123456"] {
-            assert_eq!(Decimal::parse(bad.as_bytes()), Err(WireError::BadNumber), "{bad}");
+            assert_eq!(
+                Decimal::parse(bad.as_bytes()),
+                Err(WireError::BadNumber),
+                "{bad}"
+            );
         }
     }
 

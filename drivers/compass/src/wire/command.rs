@@ -228,8 +228,14 @@ mod tests {
     fn spec_commands_both_ways() {
         use Tcm2Command as T;
         let cases: [(&[u8], Command); 19] = [
-            (b"=t,0\r", Command::Kvh(KvhCommand::OutputFormat(KvhFormat::Nmea))),
-            (b"=t,1\r", Command::Kvh(KvhCommand::OutputFormat(KvhFormat::Kvh))),
+            (
+                b"=t,0\r",
+                Command::Kvh(KvhCommand::OutputFormat(KvhFormat::Nmea)),
+            ),
+            (
+                b"=t,1\r",
+                Command::Kvh(KvhCommand::OutputFormat(KvhFormat::Kvh)),
+            ),
             (
                 b"=t,2\r",
                 Command::Kvh(KvhCommand::OutputFormat(KvhFormat::CorrectedXy)),
@@ -238,8 +244,14 @@ mod tests {
                 b"=t,3\r",
                 Command::Kvh(KvhCommand::OutputFormat(KvhFormat::UncorrectedXy)),
             ),
-            (b"=r,60\r", Command::Kvh(KvhCommand::Rate { per_minute: 60 })),
-            (b"=r,600\r", Command::Kvh(KvhCommand::Rate { per_minute: 600 })),
+            (
+                b"=r,60\r",
+                Command::Kvh(KvhCommand::Rate { per_minute: 60 }),
+            ),
+            (
+                b"=r,600\r",
+                Command::Kvh(KvhCommand::Rate { per_minute: 600 }),
+            ),
             (b"=b,48\r", Command::Kvh(KvhCommand::Baud(KvhBaud::B4800))),
             (b"=b,96\r", Command::Kvh(KvhCommand::Baud(KvhBaud::B9600))),
             (b"h\r", Command::Tcm2(T::Halt)),
@@ -247,9 +259,15 @@ mod tests {
             (b"s?\r", Command::Tcm2(T::QueryOutput)),
             (b"c?\r", Command::Tcm2(T::QueryCompass)),
             (b"sp=8\r", Command::Tcm2(T::SampleRate(8))),
-            (b"sdo=t\r", Command::Tcm2(T::OutputFormat(Tcm2Format::Standard))),
+            (
+                b"sdo=t\r",
+                Command::Tcm2(T::OutputFormat(Tcm2Format::Standard)),
+            ),
             (b"sdo=n\r", Command::Tcm2(T::OutputFormat(Tcm2Format::Nmea))),
-            (b"sdo=m\r", Command::Tcm2(T::OutputFormat(Tcm2Format::Mouse))),
+            (
+                b"sdo=m\r",
+                Command::Tcm2(T::OutputFormat(Tcm2Format::Mouse)),
+            ),
             (b"cc\r", Command::Tcm2(T::ClearCalibration)),
             (b"mpcal=e\r", Command::Tcm2(T::UserCalibrationOn)),
             (b"autocal=e\r", Command::Tcm2(T::AutoCalibration(true))),

@@ -271,10 +271,7 @@ mod tests {
         );
         assert_eq!(Tcm2Data::parse(b"$C", &LAX), Err(WireError::BadNumber));
         assert_eq!(Tcm2Data::parse(b"$C1E", &LAX), Err(WireError::BadNumber));
-        assert_eq!(
-            Tcm2Data::parse(b"$C1E0G1", &LAX),
-            Err(WireError::BadNumber)
-        );
+        assert_eq!(Tcm2Data::parse(b"$C1E0G1", &LAX), Err(WireError::BadNumber));
         assert_eq!(Tcm2Data::parse(b"$", &LAX), Err(WireError::Empty));
         assert_eq!(
             Tcm2Data::default().emit(&mut [0u8; 64]),
