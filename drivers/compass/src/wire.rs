@@ -517,6 +517,33 @@ mod tests {
     }
 
     #[test]
+    fn line_dispatch() {
+        let o = ParseOptions::default();
+        assert!(matches!(
+            Line::parse(b"$HCHDM,238.5,M*25\r\n", &o),
+            Ok(Line::Nmea(_))
+        ));
+        // Five upper-case-or-digit characters after `$` must not be mistaken for an address.
+        let body = b"C3283";
+        let line = std::format!("${}*{:02X}", "C3283", checksum(body));
+        assert!(matches!(
+            Line::parse(line.as_bytes(), &o),
+            Ok(Line::Tcm2(_))
+        ));
+        assert_eq!(Line::parse(b">", &o), Ok(Line::Prompt));
+        assert!(matches!(
+            Line::parse(b"H1V2M3.0", &o),
+            Ok(Line::CalScore(_))
+        ));
+        assert_eq!(Line::parse(b"hello", &o), Err(WireError::UnknownLine));
+        assert_eq!(Line::parse(b"\r\n", &o), Err(WireError::Empty));
+        assert_eq!(
+            Line::parse(b"$HCHDM,1\x01,M*00", &o),
+            Err(WireError::BadByte(1))
+        );
+    }
+
+    #[test]
     fn checksum_vectors_of_the_spec() {
         assert_eq!(checksum(b"HCHDM,238.5,M"), 0x25);
         assert_eq!(checksum(b"HCHDT,238.5,T"), 0x25);

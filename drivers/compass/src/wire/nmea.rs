@@ -13,7 +13,8 @@
 
 use super::{Decimal, ParseOptions, WireError, Writer, split_checked};
 
-/// The two-character talker id (`HC` for a magnetic compass, `HE` gyro, `II` integrated…).
+/// The two-letter talker id (`HC` for a magnetic compass, `HE` gyro, `II` integrated…);
+/// upper-case letters only, which is also what tells an NMEA line from a TCM2 one.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Talker(pub [u8; 2]);
 
@@ -102,11 +103,7 @@ pub(crate) fn looks_like_nmea(rest: &[u8]) -> bool {
         .iter()
         .position(|b| matches!(b, b',' | b'*'))
         .unwrap_or(rest.len());
-    addr_len == 5
-        && rest
-            .iter()
-            .take(5)
-            .all(|b| b.is_ascii_uppercase() || b.is_ascii_digit())
+    addr_len == 5 && rest.iter().take(5).all(u8::is_ascii_uppercase)
 }
 
 fn opt_decimal(field: &[u8], n: u8) -> Result<Option<Decimal>, WireError> {
@@ -156,10 +153,7 @@ impl NmeaSentence {
             [t0, t1, k0, k1, k2] => (Talker([*t0, *t1]), [*k0, *k1, *k2]),
             _ => return Err(WireError::BadAddress),
         };
-        if !addr
-            .iter()
-            .all(|b| b.is_ascii_uppercase() || b.is_ascii_digit())
-        {
+        if !addr.iter().all(u8::is_ascii_uppercase) {
             return Err(WireError::BadAddress);
         }
         // Collect up to 5 fields; anything beyond must be empty.
@@ -212,14 +206,9 @@ impl NmeaSentence {
     ///
     /// # Errors
     /// [`WireError::BufferTooSmall`]; [`WireError::BadAddress`] for a talker that is not
-    /// two upper-case letters or digits.
+    /// two upper-case letters.
     pub fn emit(&self, buf: &mut [u8]) -> Result<usize, WireError> {
-        if !self
-            .talker
-            .0
-            .iter()
-            .all(|b| b.is_ascii_uppercase() || b.is_ascii_digit())
-        {
+        if !self.talker.0.iter().all(u8::is_ascii_uppercase) {
             return Err(WireError::BadAddress);
         }
         let mut w = Writer::new(buf);
