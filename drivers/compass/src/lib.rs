@@ -39,5 +39,6 @@
 )]
 
 pub mod framer;
+pub mod fuzz_harness;
 pub mod machine;
 pub mod wire;

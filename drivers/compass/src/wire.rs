@@ -339,6 +339,13 @@ pub struct Decimal {
 }
 
 impl Decimal {
+    /// `0`.
+    pub const ZERO: Self = Self {
+        units: 0,
+        decimals: 0,
+        int_digits: 1,
+    };
+
     /// `units / 10^decimals`, printed with the fewest integer digits (at least one).
     /// `None` if it would need more than [`MAX_DIGITS`] digits.
     #[must_use]
