@@ -537,6 +537,12 @@ mod tests {
             Line::parse(line.as_bytes(), &o),
             Ok(Line::Tcm2(_))
         ));
+        // An error-only TCM2 line is five upper-case letters as well (found by fuzzing).
+        let line = std::format!("$EFFFF*{:02X}", checksum(b"EFFFF"));
+        assert!(matches!(
+            Line::parse(line.as_bytes(), &o),
+            Ok(Line::Tcm2(_))
+        ));
         assert_eq!(Line::parse(b">", &o), Ok(Line::Prompt));
         assert!(matches!(
             Line::parse(b"H1V2M3.0", &o),

@@ -97,13 +97,11 @@ pub struct NmeaSentence {
     pub body: NmeaBody,
 }
 
-/// `rest` (after `$`) starts with a 5-character address followed by `,` or `*` or the end.
+/// `rest` (after `$`) starts with a 5-letter address followed by `,`. The comma matters: a
+/// TCM2 line has none, and one carrying only an error code (`$EFFFF*45`) is five upper-case
+/// letters too.
 pub(crate) fn looks_like_nmea(rest: &[u8]) -> bool {
-    let addr_len = rest
-        .iter()
-        .position(|b| matches!(b, b',' | b'*'))
-        .unwrap_or(rest.len());
-    addr_len == 5 && rest.iter().take(5).all(u8::is_ascii_uppercase)
+    matches!(rest, [a, b, c, d, e, b',', ..] if [a, b, c, d, e].iter().all(|x| x.is_ascii_uppercase()))
 }
 
 fn opt_decimal(field: &[u8], n: u8) -> Result<Option<Decimal>, WireError> {
