@@ -2,7 +2,7 @@
 //! data stream, run TCM2 calibration on request, and turn lines into heading events.
 //!
 //! Sans-IO: feed received bytes with [`Machine::handle_bytes`] (or parsed lines with
-//! [`Machine::handle_line`]), call [`Machine::handle_timeout`] when [`Machine::poll_timeout`]
+//! [`Machine::handle_frame`]), call [`Machine::handle_timeout`] when [`Machine::poll_timeout`]
 //! is due, send what [`Machine::poll_transmit`] writes, and take [`Machine::poll_event`]s.
 //!
 //! # Jobs
@@ -569,7 +569,7 @@ impl Machine {
                 Some(Frame::Corrupt(_)) | None => None,
             };
             match parsed {
-                Some(Ok(line)) => self.handle_line(line, now),
+                Some(Ok(line)) => self.handle_frame(line, now),
                 Some(Err(_)) => {
                     self.stats.parse_errors = self.stats.parse_errors.saturating_add(1);
                 }
@@ -578,8 +578,8 @@ impl Machine {
         }
     }
 
-    /// Feed one parsed line (the `handle_frame` input of the sans-IO convention).
-    pub fn handle_line(&mut self, line: Line, now: Instant) {
+    /// Feed one parsed line (what [`Machine::handle_bytes`] does for each line it frames).
+    pub fn handle_frame(&mut self, line: Line, now: Instant) {
         match line {
             Line::Prompt => {
                 if self.current_wait() == Some(Wait::Prompt) {

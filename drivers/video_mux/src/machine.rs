@@ -3,7 +3,7 @@
 //! selected; report what the switcher says on its own.
 //!
 //! Sans-IO: feed received bytes with [`Machine::handle_bytes`] (or parsed replies with
-//! [`Machine::handle_reply`]), call [`Machine::handle_timeout`] when [`Machine::poll_timeout`]
+//! [`Machine::handle_frame`]), call [`Machine::handle_timeout`] when [`Machine::poll_timeout`]
 //! is due, send what [`Machine::poll_transmit`] writes, take [`Machine::poll_event`]s.
 //!
 //! # Rules
@@ -411,15 +411,15 @@ impl Machine {
                     .map(|m| KramerMessage::parse(&m).map(Reply::Kramer)),
             };
             match reply {
-                Some(Ok(r)) => self.handle_reply(r, now),
+                Some(Ok(r)) => self.handle_frame(r, now),
                 Some(Err(_)) => self.count_parse_error(),
                 None => {}
             }
         }
     }
 
-    /// Feed one parsed reply (the `handle_frame` input of the sans-IO convention).
-    pub fn handle_reply(&mut self, reply: Reply, now: Instant) {
+    /// Feed one parsed reply (what [`Machine::handle_bytes`] does for each reply it frames).
+    pub fn handle_frame(&mut self, reply: Reply, now: Instant) {
         let pending = self.pending.map(|p| p.kind);
         match reply {
             Reply::Extron(r) => self.handle_extron(r, pending, now),
