@@ -358,3 +358,38 @@ fn unpolled_events_drop_oldest() {
     };
     assert_eq!(last.at, ms(39));
 }
+
+#[test]
+fn tcm2_data_before_go_does_not_confirm_and_retries_run_out() {
+    let mut m = Machine::new(Config {
+        retries: 1,
+        ..tcm2_config()
+    });
+    m.start(ms(0));
+    // The device was still streaming when `h` went out: that data is not the confirmation.
+    m.handle_bytes(&tcm2_line("C10.0"), ms(50));
+    assert!(!events(&mut m).contains(&Event::Configured));
+    for t in [100, 200, 300] {
+        m.handle_timeout(ms(t));
+    }
+    assert_eq!(sent(&mut m), ["h\r", "sdo=t\r", "sp=8\r", "go\r"]);
+    // Silence after `go`: one retry of the whole script, then failure at the `go` step.
+    m.handle_timeout(ms(800));
+    for t in [900, 1000, 1100] {
+        m.handle_timeout(ms(t));
+    }
+    assert_eq!(sent(&mut m), ["h\r", "sdo=t\r", "sp=8\r", "go\r"]);
+    m.handle_timeout(ms(1600));
+    let ev = events(&mut m);
+    assert_eq!(
+        ev,
+        [Event::JobFailed {
+            job: Job::Configure,
+            step: 3
+        }]
+    );
+    assert_eq!(m.current_job(), None);
+    // Requests work again after a failed job.
+    m.set_auto_calibration(true, ms(1700)).unwrap();
+    assert_eq!(sent(&mut m), ["h\r"]);
+}

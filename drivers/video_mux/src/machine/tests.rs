@@ -349,3 +349,24 @@ fn small_transmit_buffer_keeps_the_command() {
     assert_eq!(m.poll_transmit(&mut [0u8; 1]), None);
     assert_eq!(sent(&mut m), [b"3!".to_vec()]);
 }
+
+#[test]
+fn no_retries_configured_fails_on_first_timeout() {
+    let mut m = Machine::new(Config {
+        retries: 0,
+        reply_timeout: Duration::from_millis(200),
+        ..Config::default()
+    });
+    m.select(1, ms(0)).unwrap();
+    assert_eq!(sent(&mut m), [b"1!".to_vec()]);
+    m.handle_timeout(ms(200));
+    assert!(sent(&mut m).is_empty());
+    assert_eq!(
+        events(&mut m),
+        [Event::SelectFailed {
+            channel: 1,
+            failure: Failure::Timeout
+        }]
+    );
+    assert_eq!(m.stats().retransmissions, 0);
+}
