@@ -25,6 +25,8 @@
 
 pub mod base;
 pub mod blocking;
+pub mod camera;
+pub mod compass;
 pub mod error;
 pub mod power;
 pub mod sonar;

@@ -1,8 +1,30 @@
-//! `ima-compass`: Serial compasses (NMEA 0183 HDG/HDM/HDT, PNI TCM2): sans-IO parsers and session.
+//! `ima-compass`: serial compasses — NMEA 0183 `HDG`/`HDM`/`HDT` (KVH C100 and most
+//! compasses) and the PNI TCM2 standard output — as a sans-IO core.
 //!
-//! **Status:** not implemented yet; this crate is a placeholder in the workspace layout and
-//! exports nothing.
-#![cfg_attr(not(feature = "std"), no_std)]
+//! Spec: `protocols/compass_video_mux.md` §7a.
+//!
+//! * [`wire`]: typed lines and commands with `parse` and `emit` in both directions (the mock
+//!   compass reuses them in the device role).
+//! * [`framer`]: a bounded, CR/LF-tolerant line framer that resyncs on `$` and counts what it
+//!   drops.
+//! * [`machine`]: the session — configures the device for its dialect, runs TCM2 calibration
+//!   on request, and turns lines into heading events in radians. No I/O, no clock: time is
+//!   passed in as [`ima_hal::Instant`].
+//!
+//! # Choices where the spec is silent or conflicting
+//!
+//! * The TCM2 checksum: the spec says the line carries the NMEA checksum, but its example has
+//!   none. Lines without `*hh` are refused by default;
+//!   [`wire::ParseOptions::allow_missing_checksum`] admits them.
+//! * `autocal=d` (stop automatic calibration) is inferred from the `mpcal=e`/`mpcal=d` pair.
+//! * After `h`, `mpcal=d` the session waits a bounded time for a `HnVnMn.n` score line; the
+//!   spec names the score format but not when the TCM2 sends it.
+//! * The KVH C100's calibration commands are unknown (spec "Gap"), so calibration requests are
+//!   refused for that dialect.
+//! * The TCM2 error field is read as hex and reported, not interpreted.
+//!
+//! Serial shells (blocking and tokio) are not part of this crate yet.
+#![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![warn(missing_docs)]
 // No panics on input: outside tests, these are compile errors in the protocol cores.
 #![cfg_attr(
@@ -15,3 +37,8 @@
         clippy::unreachable
     )
 )]
+
+pub mod framer;
+pub mod fuzz_harness;
+pub mod machine;
+pub mod wire;

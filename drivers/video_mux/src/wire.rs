@@ -1,0 +1,116 @@
+//! Wire formats of serial video switchers (spec `protocols/compass_video_mux.md` §7b).
+//!
+//! * [`extron`]: Extron SIS — ASCII commands without terminator (`3!`), replies ending CR LF
+//!   (`In3 All`).
+//! * [`kramer`]: Kramer Protocol 2000 — 4-byte binary messages.
+//!
+//! Both directions parse and emit, so the mock switcher can reuse this module.
+
+pub mod extron;
+pub mod kramer;
+
+pub use extron::{ExtronCommand, ExtronError, ExtronReply, Signals, TieKind};
+pub use kramer::{Instruction, KramerMessage};
+
+/// What was wrong with a message. Small and `Copy`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum WireError {
+    /// Nothing to parse.
+    Empty,
+    /// The output buffer is too small.
+    BufferTooSmall,
+    /// Fewer bytes than the message needs.
+    Truncated,
+    /// More bytes than the message has.
+    TrailingBytes,
+    /// A byte that breaks the format (non-printable in SIS; a misplaced high bit in P2000).
+    BadByte(u8),
+    /// A number is malformed or out of range.
+    BadNumber,
+    /// A reply this crate does not recognise.
+    UnknownReply,
+    /// A command this crate does not recognise.
+    UnknownCommand,
+    /// A value the wire cannot carry (emit side).
+    OutOfRange,
+}
+
+impl core::fmt::Display for WireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Empty => f.write_str("empty message"),
+            Self::BufferTooSmall => f.write_str("output buffer too small"),
+            Self::Truncated => f.write_str("truncated message"),
+            Self::TrailingBytes => f.write_str("trailing bytes after message"),
+            Self::BadByte(b) => write!(f, "unexpected byte 0x{b:02x}"),
+            Self::BadNumber => f.write_str("malformed number"),
+            Self::UnknownReply => f.write_str("unknown reply"),
+            Self::UnknownCommand => f.write_str("unknown command"),
+            Self::OutOfRange => f.write_str("value out of range"),
+        }
+    }
+}
+
+impl core::error::Error for WireError {}
+
+/// A bounds-checked cursor over an output buffer.
+pub(crate) struct Writer<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+}
+
+impl<'a> Writer<'a> {
+    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
+        Self { buf, pos: 0 }
+    }
+
+    pub(crate) fn pos(&self) -> usize {
+        self.pos
+    }
+
+    pub(crate) fn byte(&mut self, b: u8) -> Result<(), WireError> {
+        let slot = self
+            .buf
+            .get_mut(self.pos)
+            .ok_or(WireError::BufferTooSmall)?;
+        *slot = b;
+        self.pos = self.pos.saturating_add(1);
+        Ok(())
+    }
+
+    pub(crate) fn bytes(&mut self, s: &[u8]) -> Result<(), WireError> {
+        s.iter().try_for_each(|b| self.byte(*b))
+    }
+
+    /// Decimal, zero-padded to at least `min_digits`.
+    pub(crate) fn uint(&mut self, mut v: u32, min_digits: u8) -> Result<(), WireError> {
+        let mut tmp = [0u8; 10];
+        let mut n = 0usize;
+        loop {
+            if let Some(slot) = tmp.get_mut(n) {
+                *slot = b'0' + (v % 10) as u8;
+            }
+            n = n.saturating_add(1);
+            v /= 10;
+            if (v == 0 && n >= usize::from(min_digits)) || n >= tmp.len() {
+                break;
+            }
+        }
+        tmp.iter().take(n).rev().try_for_each(|b| self.byte(*b))
+    }
+}
+
+/// Parse an unsigned decimal of 1–5 digits.
+pub(crate) fn parse_u16(s: &[u8]) -> Result<u16, WireError> {
+    if s.is_empty() || s.len() > 5 {
+        return Err(WireError::BadNumber);
+    }
+    let mut v: u32 = 0;
+    for c in s {
+        if !c.is_ascii_digit() {
+            return Err(WireError::BadNumber);
+        }
+        v = v * 10 + u32::from(c - b'0');
+    }
+    u16::try_from(v).map_err(|_| WireError::BadNumber)
+}
