@@ -465,12 +465,12 @@ impl Session {
         }
         self.require_open()?;
         let lim = self.limits();
-        let v_mm_s = (cmd.v_m_s.clamp(-lim.max_v_m_s, lim.max_v_m_s) * 1000.0).round();
-        let w_deg_s = cmd
-            .omega_rad_s
-            .clamp(-lim.max_omega_rad_s, lim.max_omega_rad_s)
-            .to_degrees()
-            .round();
+        let v_mm_s = libm::round(cmd.v_m_s.clamp(-lim.max_v_m_s, lim.max_v_m_s) * 1000.0);
+        let w_deg_s = libm::round(
+            cmd.omega_rad_s
+                .clamp(-lim.max_omega_rad_s, lim.max_omega_rad_s)
+                .to_degrees(),
+        );
         let (v, w) = (v_mm_s as i16, w_deg_s as i16);
         let unchanged = self.velocity == (v, w)
             && self
@@ -1032,7 +1032,7 @@ impl Session {
                 let dy = f64::from(unwrap15(py, sip.ypos)) * p.dist_conv;
                 let dth = f64::from(unwrap12(pth, sip.thpos)) * p.angle_conv;
                 let turn = p.max_rot_velocity_deg_s.to_radians() * 1.5 * dt + 0.1;
-                dx.hypot(dy) <= reach_mm && dth.abs() <= turn
+                libm::hypot(dx, dy) <= reach_mm && dth.abs() <= turn
             }
         };
         if ok_vel && ok_batt && ok_sonar && ok_jump {
@@ -1062,7 +1062,7 @@ impl Session {
             let dy_r = f64::from(unwrap15(py, sip.ypos)) * p.dist_conv;
             // The robot integrates XPOS/YPOS in its own odometry frame; rotate the step from
             // that frame into ours (they differ by the heading offset at the session start).
-            let (s, c) = self.odo.heading_offset.sin_cos();
+            let (s, c) = libm::sincos(self.odo.heading_offset);
             self.odo.x_mm += c * dx_r - s * dy_r;
             self.odo.y_mm += s * dx_r + c * dy_r;
             self.odo.theta = normalize_angle(self.odo.theta + dth);
