@@ -26,6 +26,7 @@
 pub mod base;
 pub mod blocking;
 pub mod error;
+pub mod laser;
 pub mod power;
 pub mod sonar;
 pub mod time;
