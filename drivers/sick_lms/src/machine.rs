@@ -108,6 +108,10 @@ pub struct Config {
     pub max_reprobes: u8,
     /// Accept an `F7` result of `00` as success (QM) besides `01` (TL).
     pub config_write_zero_ok: bool,
+    /// While streaming, no B0 for this long (plus one maximum frame time at the current rate)
+    /// means the unit is gone or rebooted at another rate: [`MachineError::StreamStalled`] and
+    /// a fresh probe. `None` disables the watchdog.
+    pub stream_watchdog: Option<Duration>,
     /// Timing.
     pub timeouts: Timeouts,
 }
@@ -128,6 +132,7 @@ impl Default for Config {
             probe_rounds: 2,
             max_reprobes: 2,
             config_write_zero_ok: false,
+            stream_watchdog: Some(Duration::from_secs(1)),
             timeouts: Timeouts::default(),
         }
     }
@@ -169,6 +174,8 @@ pub enum MachineError {
     },
     /// A request was made while another is in flight or initialisation is running.
     Busy,
+    /// The B0 stream stopped arriving (see [`Config::stream_watchdog`]).
+    StreamStalled,
 }
 
 /// What the session settled on.
@@ -614,6 +621,9 @@ impl Core {
         self.note_status(reply.status());
         if let Reply::Scan(_) = reply {
             self.stats.scans = self.stats.scans.saturating_add(1);
+            if self.phase == Phase::Ready && self.streaming {
+                self.arm_watchdog(now);
+            }
         }
         if let Reply::PowerOn { .. } = reply {
             self.emit(Event::PowerOn);
@@ -696,8 +706,9 @@ impl Core {
         Ok(())
     }
 
-    fn require_ready(&self) -> Result<(), MachineError> {
+    fn require_ready(&mut self) -> Result<(), MachineError> {
         if self.is_ready() {
+            self.timer = None;
             Ok(())
         } else {
             Err(MachineError::Busy)
@@ -820,9 +831,22 @@ impl Core {
         self.stats.sent = self.stats.sent.saturating_add(1);
     }
 
+    fn arm_watchdog(&mut self, now: Instant) {
+        self.timer = self
+            .cfg
+            .stream_watchdog
+            .map(|wd| now + wd + wire_time(crate::wire::MAX_TELEGRAM, self.host_baud));
+    }
+
     fn on_timer(&mut self, now: Instant) {
         match self.phase {
             Phase::PowerUp => self.enter_probe(0, 0, now),
+            Phase::Ready if self.streaming && self.pending.is_none() => {
+                self.emit(Event::Error(MachineError::StreamStalled));
+                self.streaming = false;
+                self.reprobes = 0;
+                self.enter_probe(0, 0, now);
+            }
             Phase::Settle(b) => {
                 self.phase = Phase::VerifyBaud(b);
                 let t = self.cfg.timeouts.reply;
@@ -1008,6 +1032,7 @@ impl Core {
                     return;
                 }
                 self.streaming = true;
+                self.arm_watchdog(now);
                 self.emit(Event::StreamStarted);
                 if was_init {
                     self.emit(Event::Ready(self.session()));
