@@ -47,5 +47,6 @@
 
 pub mod decode;
 pub mod framer;
+pub mod fuzz_harness;
 pub mod machine;
 pub mod wire;
