@@ -7,7 +7,9 @@ use std::path::PathBuf;
 use ima_sick_lms::fuzz_harness;
 use ima_sick_lms::wire::*;
 
-const TARGETS: [(&str, fn(&[u8])); 3] = [
+type Harness = fn(&[u8]);
+
+const TARGETS: [(&str, Harness); 3] = [
     ("sick_lms_framer", fuzz_harness::sick_lms_framer),
     ("sick_lms_parse_reply", fuzz_harness::sick_lms_parse_reply),
     ("sick_lms_roundtrip", fuzz_harness::sick_lms_roundtrip),
@@ -64,8 +66,14 @@ fn telegrams() -> Vec<(&'static str, Vec<u8>)> {
     let mut power = Vec::new();
     power.extend_from_slice(b"LMS200;301063;V02.06 ");
     vec![
-        ("cmd_stop_stream", emit_c(&Command::SetMode(ModeRequest::RequestOnly))),
-        ("cmd_stream", emit_c(&Command::SetMode(ModeRequest::StreamAll))),
+        (
+            "cmd_stop_stream",
+            emit_c(&Command::SetMode(ModeRequest::RequestOnly)),
+        ),
+        (
+            "cmd_stream",
+            emit_c(&Command::SetMode(ModeRequest::StreamAll)),
+        ),
         (
             "cmd_baud_500k",
             emit_c(&Command::SetMode(ModeRequest::Baud(BaudRate::B500000))),
@@ -105,7 +113,10 @@ fn telegrams() -> Vec<(&'static str, Vec<u8>)> {
                 0x81,
             ),
         ),
-        ("reply_reset_ack", emit_r(&Reply::ResetAck { status: s }, 0x80)),
+        (
+            "reply_reset_ack",
+            emit_r(&Reply::ResetAck { status: s }, 0x80),
+        ),
         (
             "reply_power_on",
             emit_r(
@@ -206,7 +217,12 @@ fn generate_seed_corpora() {
     corrupted.extend([NAK, 0x55, 0xAA]);
     corrupted.extend(get("reply_b0_181_indices"));
     let mut commands = Vec::new();
-    for k in ["cmd_stop_stream", "cmd_status", "cmd_install", "cmd_write_config"] {
+    for k in [
+        "cmd_stop_stream",
+        "cmd_status",
+        "cmd_install",
+        "cmd_write_config",
+    ] {
         commands.extend(get(k));
     }
     let d = dir("sick_lms_framer");
