@@ -63,6 +63,10 @@ pub struct Timeouts {
     pub nak_backoff: Duration,
     /// Settle after switching the host rate (250 ms, STB; PLY waits 1 s).
     pub settle: Duration,
+    /// Reset confirmation `91` after `10` (STB: ≤ 60 s).
+    pub reset: Duration,
+    /// Power-on telegram `90` after a reset (TL: ≤ 60 s; STB waits 30 s more after `91`).
+    pub power_on: Duration,
 }
 
 impl Default for Timeouts {
@@ -74,6 +78,8 @@ impl Default for Timeouts {
             config_write: Duration::from_secs(15),
             nak_backoff: Duration::from_millis(30),
             settle: Duration::from_millis(250),
+            reset: Duration::from_secs(60),
+            power_on: Duration::from_secs(60),
         }
     }
 }
@@ -254,6 +260,7 @@ enum Phase {
     StartOp,
     StopOp,
     ScanOp,
+    Reset,
     Failed,
 }
 
@@ -535,6 +542,22 @@ impl Machine {
     pub fn set_variant(&mut self, variant: Variant, now: Instant) -> Result<(), MachineError> {
         self.core.set_variant(variant, now)
     }
+
+    /// Reset the unit (`10` → `91`), then wait at 9600 for its power-on telegram `90` (≤
+    /// [`Timeouts::power_on`]) and initialise again from the probe. Ends with [`Event::Ready`].
+    pub fn reset(&mut self, now: Instant) -> Result<(), MachineError> {
+        self.core.reset(now)
+    }
+
+    /// Decode a B0 with the session's measuring mode, the variant inferred from the value
+    /// count (see [`crate::decode::decode_scan`]).
+    pub fn decode(
+        &self,
+        scan: &Scan<'_>,
+        out: &mut ima_hal::laser::LaserScan,
+    ) -> Result<(), crate::decode::DecodeError> {
+        crate::decode::decode_scan(scan, self.measuring_mode(), None, out)
+    }
 }
 
 impl Core {
@@ -706,6 +729,25 @@ impl Core {
         Ok(())
     }
 
+    fn reset(&mut self, now: Instant) -> Result<(), MachineError> {
+        self.require_ready()?;
+        self.phase = Phase::Reset;
+        let t = self.cfg.timeouts.reset;
+        self.send(Command::Reset, t, true, now);
+        Ok(())
+    }
+
+    /// After `91` (or a lost `91`): the unit reboots at its power-up rate (9600).
+    fn await_power_on(&mut self, now: Instant) {
+        self.streaming = false;
+        self.reprobes = 0;
+        self.phase = Phase::PowerUp;
+        if self.host_baud != BaudRate::B9600 {
+            self.set_host_baud(BaudRate::B9600);
+        }
+        self.timer = Some(now + self.cfg.timeouts.power_on);
+    }
+
     fn require_ready(&mut self) -> Result<(), MachineError> {
         if self.is_ready() {
             self.timer = None;
@@ -862,6 +904,11 @@ impl Core {
                 self.enter_probe(idx.saturating_add(1), round, now);
             }
             Phase::BaudChange(_) | Phase::VerifyBaud(_) => self.reprobe(err, now),
+            Phase::Reset => {
+                // The unit may be rebooting already: wait for its 90, then probe.
+                self.emit(Event::Error(err));
+                self.await_power_on(now);
+            }
             Phase::StartOp | Phase::StopOp | Phase::ScanOp => {
                 self.phase = Phase::Ready;
                 self.emit(Event::Error(err));
@@ -1051,6 +1098,7 @@ impl Core {
                 self.phase = Phase::Status;
                 self.send(Command::Status, timeouts.reply, false, now);
             }
+            (Phase::Reset, Reply::ResetAck { .. }) => self.await_power_on(now),
             (Phase::ScanOp, Reply::Scan(_)) => {
                 self.phase = Phase::Ready;
             }

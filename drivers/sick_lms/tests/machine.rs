@@ -33,6 +33,7 @@ struct Sim {
     nak_next: u32,
     silent_after_ack: Vec<u8>,
     reject_variant: bool,
+    f7_result: u8,
     // record
     log: Vec<(Instant, Command)>,
     writes: u32,
@@ -60,6 +61,7 @@ impl Sim {
             nak_next: 0,
             silent_after_ack: Vec::new(),
             reject_variant: false,
+            f7_result: 1,
             log: Vec::new(),
             writes: 0,
             garbage_in: 0,
@@ -242,7 +244,7 @@ impl Sim {
                 self.cfg = cfg;
                 self.writes += 1;
                 let r = Reply::ConfigWritten {
-                    result: 1,
+                    result: self.f7_result,
                     config: cfg,
                     status: s,
                 };
@@ -259,7 +261,16 @@ impl Sim {
                     status: s,
                 },
             ),
-            Command::Reset => self.reply(ms(10), &Reply::ResetAck { status: s }),
+            Command::Reset => {
+                self.reply(ms(10), &Reply::ResetAck { status: s });
+                // Reboot: back to 9600, idle, busy until the power-on telegram.
+                self.baud = BaudRate::B9600;
+                self.streaming = false;
+                self.next_scan = None;
+                self.installation = false;
+                self.mute_until = ms(3000);
+                self.power_on_at = Some(ms(3000));
+            }
         }
     }
 
@@ -924,4 +935,73 @@ impl SetByte for LmsConfig {
         raw[i] = v;
         *self = LmsConfig::from_bytes(&raw).unwrap();
     }
+}
+
+#[test]
+fn reset_waits_for_power_on_then_reinitialises() {
+    let mut w = World::new(cfg_38400(), Sim::new(BaudRate::B38400));
+    assert!(w.run_ready());
+    w.events.clear();
+    w.d.log.clear();
+    let now = w.now;
+    w.m.reset(now).unwrap();
+    assert!(w.run_ready());
+    assert_eq!(w.codes()[0], Command::Reset);
+    assert!(w.has(|e| *e == Event::SetHostBaud(9600)));
+    assert!(w.has(|e| *e == Event::PowerOn));
+    assert!(
+        !w.has(|e| *e == Event::Restarted),
+        "an expected 90 is no surprise"
+    );
+    assert!(w.has(|e| *e == Event::BaudDetected(BaudRate::B9600)));
+    // Nothing but the reset was sent before the power-on telegram.
+    let t90 = now + Duration::from_millis(3000);
+    assert_eq!(w.d.log.iter().filter(|(t, _)| *t < t90).count(), 1);
+    assert_eq!(w.d.baud, BaudRate::B38400);
+    assert!(w.m.is_streaming());
+}
+
+#[test]
+fn config_write_result_zero_needs_the_qm_option() {
+    let want = Config {
+        units: Some(0),
+        ..cfg_38400()
+    };
+    let mut d = Sim::new(BaudRate::B38400);
+    d.f7_result = 0;
+    let mut w = World::new(want.clone(), d);
+    w.run_ready();
+    assert!(w.m.is_failed(), "TL: 00 means rejected");
+    assert!(w.has(|e| *e
+        == Event::Error(MachineError::Refused {
+            code: cmd::WRITE_CONFIG,
+            result: 0
+        })));
+    let mut d = Sim::new(BaudRate::B38400);
+    d.f7_result = 0;
+    let cfg = Config {
+        config_write_zero_ok: true,
+        ..want
+    };
+    let mut w = World::new(cfg, d);
+    assert!(w.run_ready());
+    assert!(w.has(|e| *e == Event::ConfigWritten));
+}
+
+#[test]
+fn machine_decodes_with_session_parameters() {
+    let mut w = World::new(cfg_38400(), Sim::new(BaudRate::B38400));
+    assert!(w.run_ready());
+    let mut buf = [0u8; MAX_TELEGRAM];
+    let words = [1234u16; 361];
+    let n = Reply::Scan(Scan::full(&words, Units::Mm, StatusByte::NORMAL))
+        .emit(&mut buf)
+        .unwrap();
+    let Reply::Scan(s) = Reply::parse(&buf[..n]).unwrap() else {
+        panic!()
+    };
+    let mut out = ima_hal::laser::LaserScan::default();
+    w.m.decode(&s, &mut out).unwrap();
+    assert_eq!(out.len(), 361);
+    assert!((out.ranges_m()[7] - 1.234).abs() < 1e-6);
 }
