@@ -359,6 +359,31 @@ proptest! {
     }
 
     #[test]
+    fn items_do_not_depend_on_chunking(
+        parts in proptest::collection::vec(
+            (proptest::collection::vec(any::<u8>(), 0..12), arb_frame()),
+            1..6,
+        ),
+        chunk in 1usize..200,
+    ) {
+        // Noise here may contain STX, ACK and NAK: whatever the framer makes of the stream, it
+        // makes the same of it however the stream is split.
+        let mut stream = Vec::new();
+        for (noise, frame) in &parts {
+            stream.extend(noise);
+            stream.extend(frame);
+        }
+        let mut whole = Vec::new();
+        feed(&mut Framer::replies(), &stream, T0, &mut whole);
+        let mut f = Framer::replies();
+        let mut split = Vec::new();
+        for c in stream.chunks(chunk) {
+            feed(&mut f, c, T0, &mut split);
+        }
+        prop_assert_eq!(whole, split);
+    }
+
+    #[test]
     fn arbitrary_bytes_never_yield_a_bad_frame(
         bytes in proptest::collection::vec(any::<u8>(), 0..2000),
         chunk in 1usize..64,

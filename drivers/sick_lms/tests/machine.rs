@@ -322,6 +322,8 @@ struct World {
     sent: Vec<(Instant, Vec<u8>)>,
     scans: Vec<(Instant, u16)>,
     host_bps: u32,
+    /// Deliver device output in reads of this many bytes.
+    chunk: usize,
 }
 
 impl World {
@@ -334,6 +336,7 @@ impl World {
             sent: Vec::new(),
             scans: Vec::new(),
             host_bps: 9600,
+            chunk: usize::MAX,
         }
     }
 
@@ -374,8 +377,10 @@ impl World {
             for (bytes, rate) in self.d.due(now) {
                 if rate.bps() == self.host_bps {
                     let scans = &mut self.scans;
-                    self.m
-                        .handle_bytes(&bytes, now, |s, at| scans.push((at, s.count_word.count())));
+                    for c in bytes.chunks(self.chunk) {
+                        self.m
+                            .handle_bytes(c, now, |s, at| scans.push((at, s.count_word.count())));
+                    }
                 } else {
                     // Read at the wrong rate: garbage (never STX/ACK/NAK here).
                     let junk = vec![0xE0; bytes.len() / 3 + 1];
@@ -1004,4 +1009,26 @@ fn machine_decodes_with_session_parameters() {
     w.m.decode(&s, &mut out).unwrap();
     assert_eq!(out.len(), 361);
     assert!((out.ranges_m()[7] - 1.234).abs() < 1e-6);
+}
+
+#[test]
+fn init_and_stream_with_bytes_split_into_small_reads() {
+    let mut baseline = None;
+    for chunk in [usize::MAX, 1, 2, 13, 500] {
+        let mut d = Sim::new(BaudRate::B19200);
+        d.streaming = true;
+        d.next_scan = Some(Instant::ZERO);
+        let mut w = World::new(cfg_38400(), d);
+        w.chunk = chunk;
+        assert!(w.run_ready(), "chunk {chunk}");
+        let t = w.now;
+        w.run(Duration::from_millis(300), |_| false);
+        assert!(w.scans.iter().filter(|(at, _)| *at > t).count() >= 5);
+        assert_eq!(w.m.counters().bad_checksums, 0);
+        // Same conversation however the bytes are split (the retransmissions are the probe's
+        // at the two wrong rates).
+        let r = w.m.stats().retransmissions;
+        assert_eq!(*baseline.get_or_insert(r), r, "chunk {chunk}");
+        assert_eq!(r, 6);
+    }
 }
