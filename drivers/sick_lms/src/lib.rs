@@ -12,6 +12,33 @@
 //! * [`decode`]: B0 values to [`ima_hal::laser::LaserScan`] (masks per measuring mode, special
 //!   codes, geometry).
 //!
+//! # Driving the machine
+//!
+//! A shell owns the port and the clock; the core only sees bytes and instants:
+//!
+//! ```
+//! use ima_hal::Instant;
+//! use ima_hal::laser::LaserScan;
+//! use ima_sick_lms::machine::{Config, Event, Machine};
+//!
+//! let mut m = Machine::new(Config::default(), Instant::ZERO);
+//! let mut tx = [0u8; ima_sick_lms::machine::MAX_COMMAND];
+//! // 1. Events first: set the UART rate (and flush) before writing anything.
+//! assert_eq!(m.poll_event(), Some(Event::SetHostBaud(9600)));
+//! // 2. Then the telegram to write: the probe's `20 25` (spec §1.1 vector).
+//! let n = m.poll_transmit(&mut tx).unwrap();
+//! assert_eq!(&tx[..n], &[0x02, 0x00, 0x02, 0x00, 0x20, 0x25, 0x35, 0x08]);
+//! // 3. Bytes read from the port; B0 scans come out borrowed, decoded in place.
+//! let mut scan = LaserScan::default();
+//! m.handle_bytes(&[0x06], Instant::from_millis(3), |b0, _at| {
+//!     let _ = ima_sick_lms::decode::decode_scan(b0, Default::default(), None, &mut scan);
+//! });
+//! // 4. Sleep until poll_timeout(), then call handle_timeout(now).
+//! let next = m.poll_timeout().unwrap();
+//! assert!(next > Instant::from_millis(3));
+//! m.handle_timeout(next);
+//! ```
+//!
 //! # Choices where the sources disagree (spec §1–§6)
 //!
 //! * **Count word:** the value count is bits 0–9 (STB, and the spec's layout). PLY/CAR mask 14

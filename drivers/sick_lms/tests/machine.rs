@@ -1032,3 +1032,65 @@ fn init_and_stream_with_bytes_split_into_small_reads() {
         assert_eq!(r, 6);
     }
 }
+
+/// Times at which telegrams equal to `c` were sent.
+fn sent_times(w: &World, c: &Command) -> Vec<Instant> {
+    w.sent
+        .iter()
+        .filter(|(_, b)| Command::parse(b).as_ref() == Ok(c))
+        .map(|x| x.0)
+        .collect()
+}
+
+#[test]
+fn reply_timeouts_follow_the_spec_table() {
+    // Mode change: ACK after 2 ms, then up to 3 s (plus one frame time) for A0.
+    let mut d = Sim::new(BaudRate::B9600);
+    d.silent_after_ack = vec![cmd::SET_MODE];
+    let cfg = Config {
+        baud: BaudRate::B9600,
+        ..Config::default()
+    };
+    let mut w = World::new(cfg, d);
+    assert!(w.run_ready());
+    let t = sent_times(&w, &mode(ModeRequest::RequestOnly));
+    let frame = wire_time(MAX_TELEGRAM, BaudRate::B9600);
+    assert_eq!(
+        t[1],
+        t[0] + Duration::from_millis(2) + Duration::from_secs(3) + frame
+    );
+
+    // Config write: up to 15 s for F7.
+    let mut d = Sim::new(BaudRate::B38400);
+    d.silent_after_ack = vec![cmd::WRITE_CONFIG];
+    let cfg = Config {
+        units: Some(0),
+        ..cfg_38400()
+    };
+    let mut w = World::new(cfg, d);
+    assert!(w.run_ready());
+    let writes: Vec<Instant> = w
+        .sent
+        .iter()
+        .filter(|(_, b)| matches!(Command::parse(b), Ok(Command::WriteConfig(_))))
+        .map(|x| x.0)
+        .collect();
+    assert_eq!(writes.len(), 2);
+    let frame = wire_time(MAX_TELEGRAM, BaudRate::B38400);
+    assert_eq!(
+        writes[1],
+        writes[0] + Duration::from_millis(2) + Duration::from_secs(15) + frame
+    );
+    assert_eq!(w.d.writes, 1, "the lost F7's write did not reach the sim");
+
+    // Other requests: 1 s.
+    let mut d = Sim::new(BaudRate::B38400);
+    d.silent_after_ack = vec![cmd::TYPE];
+    let mut w = World::new(cfg_38400(), d);
+    assert!(w.run_ready());
+    let t = sent_times(&w, &Command::Type);
+    assert_eq!(
+        t[1],
+        t[0] + Duration::from_millis(2) + Duration::from_secs(1) + frame
+    );
+}
