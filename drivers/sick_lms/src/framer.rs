@@ -8,7 +8,9 @@
 //!   failure the framer drops **one** byte and rescans what it already holds, because `02 80`
 //!   occurs naturally inside range data (spec §5, CAR).
 //! * A partial candidate expires after [`PARTIAL_TIMEOUT`] (35 ms) without input: it is then
-//!   treated as failed (one byte dropped, the rest rescanned). Time comes in as `now`.
+//!   treated as failed (one byte dropped, the rest rescanned). Time comes in as `now`. A mock
+//!   device sets 6 ms ([`Framer::with_partial_timeout`]) and asks for [`Item::BadChecksum`] to
+//!   know when to NAK ([`Framer::report_bad_checksums`]).
 //! * Every failure is counted in [`Counters`]; a bad frame is never delivered.
 //!
 //! Storage is one fixed [`MAX_TELEGRAM`]-byte buffer: a 361-value B0 (732 bytes) is copied into
@@ -44,6 +46,9 @@ pub enum Item<'a> {
     Nak,
     /// A checked telegram whose payload parses for the framer's [`Direction`].
     Frame(Frame<'a>),
+    /// A candidate with a good header failed its CRC (only with
+    /// [`Framer::report_bad_checksums`]; a mock device answers it with NAK, spec §5 rule 6).
+    BadChecksum,
 }
 
 /// Result of one [`Framer::push`] call.
@@ -95,6 +100,9 @@ pub struct Framer {
     end: usize,
     last_input: Instant,
     counters: Counters,
+    partial_timeout: Duration,
+    report_bad_checksums: bool,
+    bad_checksum_seen: bool,
 }
 
 impl Framer {
@@ -117,7 +125,25 @@ impl Framer {
                 acks: 0,
                 naks: 0,
             },
+            partial_timeout: PARTIAL_TIMEOUT,
+            report_bad_checksums: false,
+            bad_checksum_seen: false,
         }
+    }
+
+    /// Abandon partial candidates after `timeout` of silence instead of [`PARTIAL_TIMEOUT`]
+    /// (a mock device uses 6 ms, the host's inter-byte limit; spec §5 rule 6).
+    #[must_use]
+    pub const fn with_partial_timeout(mut self, timeout: Duration) -> Self {
+        self.partial_timeout = timeout;
+        self
+    }
+
+    /// Also yield [`Item::BadChecksum`] for each candidate that fails its CRC.
+    #[must_use]
+    pub const fn report_bad_checksums(mut self, on: bool) -> Self {
+        self.report_bad_checksums = on;
+        self
     }
 
     /// The host's framer (device replies).
@@ -147,7 +173,7 @@ impl Framer {
     /// When a held partial candidate expires (call [`Framer::push`] with empty input then).
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        (self.buffered() > 0).then(|| self.last_input + PARTIAL_TIMEOUT)
+        (self.buffered() > 0).then(|| self.last_input + self.partial_timeout)
     }
 
     /// Forget any partial candidate (e.g. after the host changed the line speed and flushed).
@@ -217,9 +243,17 @@ impl Framer {
                         item: frame.map(Item::Frame),
                     };
                 }
-                Check::Failed => self.drop_one(),
+                Check::Failed => {
+                    self.drop_one();
+                    if core::mem::take(&mut self.bad_checksum_seen) && self.report_bad_checksums {
+                        return Pushed {
+                            consumed,
+                            item: Some(Item::BadChecksum),
+                        };
+                    }
+                }
                 Check::NeedMore(k) => {
-                    if now >= self.last_input + PARTIAL_TIMEOUT {
+                    if now >= self.last_input + self.partial_timeout {
                         // Silence since the candidate's last byte: abandon it (spec §5 rule 3).
                         self.counters.expired = self.counters.expired.saturating_add(1);
                         self.drop_one();
@@ -325,6 +359,7 @@ impl Framer {
             Ok(()) => Check::Complete(total),
             Err(WireError::BadChecksum { .. }) => {
                 self.counters.bad_checksums = self.counters.bad_checksums.saturating_add(1);
+                self.bad_checksum_seen = true;
                 Check::Failed
             }
             Err(_) => {

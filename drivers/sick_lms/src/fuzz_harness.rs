@@ -36,7 +36,9 @@ pub fn sick_lms_framer(data: &[u8]) {
     };
     let mut rng = Rng(u32::from(seed) | 0x100);
     let mut replies = Framer::replies();
-    let mut commands = Framer::commands();
+    let mut commands = Framer::commands()
+        .with_partial_timeout(Duration::from_millis(6))
+        .report_bad_checksums(true);
     let cfg = Config {
         rs422: true,
         ..Config::default()

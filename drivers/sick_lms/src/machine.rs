@@ -473,7 +473,7 @@ impl Machine {
                         self.core.handle_frame(&reply, now);
                     }
                 }
-                None => {}
+                Some(Item::BadChecksum) | None => {}
             }
             if core::mem::take(&mut self.core.flush) {
                 self.framer.clear();

@@ -9,6 +9,7 @@ use proptest::prelude::*;
 enum Got {
     Ack,
     Nak,
+    Bad,
     Frame(Vec<u8>),
 }
 
@@ -17,6 +18,7 @@ fn feed(f: &mut Framer, bytes: &[u8], now: Instant, out: &mut Vec<Got>) {
         out.push(match item {
             Item::Ack => Got::Ack,
             Item::Nak => Got::Nak,
+            Item::BadChecksum => Got::Bad,
             Item::Frame(fr) => Got::Frame(fr.as_bytes().to_vec()),
         })
     });
@@ -400,4 +402,45 @@ proptest! {
         }
         prop_assert!(f.buffered() <= MAX_TELEGRAM);
     }
+}
+
+#[test]
+fn mock_role_reports_bad_checksums_and_uses_a_6_ms_gap() {
+    use core::time::Duration;
+    let mut cmd = [0u8; 16];
+    let n = Command::Status.emit(&mut cmd).unwrap();
+    let good = cmd[..n].to_vec();
+    let mut bad = good.clone();
+    bad[n - 1] ^= 0xFF;
+    let mk = || {
+        Framer::commands()
+            .with_partial_timeout(Duration::from_millis(6))
+            .report_bad_checksums(true)
+    };
+    let mut f = mk();
+    let mut out = Vec::new();
+    let mut stream = bad.clone();
+    stream.extend(&good);
+    feed(&mut f, &stream, T0, &mut out);
+    assert_eq!(out, vec![Got::Bad, Got::Frame(good.clone())]);
+    // A 7 ms gap inside a telegram abandons it; 5 ms does not.
+    let mut f = mk();
+    let mut out = Vec::new();
+    feed(&mut f, &good[..3], T0, &mut out);
+    feed(&mut f, &good[3..], Instant::from_millis(5), &mut out);
+    assert_eq!(out, vec![Got::Frame(good.clone())]);
+    feed(&mut f, &good[..3], Instant::from_millis(10), &mut out);
+    assert_eq!(f.poll_timeout(), Some(Instant::from_millis(16)));
+    feed(&mut f, &good[3..], Instant::from_millis(17), &mut out);
+    let frames = out.iter().filter(|g| matches!(g, Got::Frame(_))).count();
+    assert_eq!(frames, 1, "the tail alone is not a telegram");
+    assert_eq!(f.counters().expired, 1);
+    // The host framer does not report them by default.
+    let mut h = Framer::replies();
+    let mut bad_reply = a0();
+    bad_reply[6] ^= 1;
+    let mut out = Vec::new();
+    feed(&mut h, &bad_reply, T0, &mut out);
+    assert!(out.is_empty());
+    assert_eq!(h.counters().bad_checksums, 1);
 }

@@ -47,7 +47,9 @@ impl Sim {
         Self {
             baud,
             host_bps: 9600,
-            framer: Framer::commands(),
+            framer: Framer::commands()
+                .with_partial_timeout(Duration::from_millis(6))
+                .report_bad_checksums(true),
             variant: (180, 50),
             cfg,
             installation: false,
@@ -115,11 +117,15 @@ impl Sim {
             return;
         }
         let mut cmds = Vec::new();
-        self.framer.push_all(bytes, now, |item| {
-            if let Item::Frame(f) = item {
-                cmds.push(Command::from_frame(&f).unwrap());
-            }
+        let mut naks = 0;
+        self.framer.push_all(bytes, now, |item| match item {
+            Item::Frame(f) => cmds.push(Command::from_frame(&f).unwrap()),
+            Item::BadChecksum => naks += 1,
+            _ => {}
         });
+        for _ in 0..naks {
+            self.send(now + Duration::from_millis(2), vec![NAK]);
+        }
         for c in cmds {
             self.handle(c, now);
         }
