@@ -330,6 +330,8 @@ struct World {
     host_bps: u32,
     /// Deliver device output in reads of this many bytes.
     chunk: usize,
+    /// Corrupt the CRC of this many next host telegrams on the line.
+    corrupt_tx: u32,
 }
 
 impl World {
@@ -343,6 +345,7 @@ impl World {
             scans: Vec::new(),
             host_bps: 9600,
             chunk: usize::MAX,
+            corrupt_tx: 0,
         }
     }
 
@@ -357,6 +360,10 @@ impl World {
         let mut buf = [0u8; 64];
         while let Some(n) = self.m.poll_transmit(&mut buf) {
             self.sent.push((self.now, buf[..n].to_vec()));
+            if self.corrupt_tx > 0 {
+                self.corrupt_tx -= 1;
+                buf[n - 1] ^= 0x5A;
+            }
             self.d.rx(&buf[..n], self.now);
         }
     }
@@ -1099,4 +1106,21 @@ fn reply_timeouts_follow_the_spec_table() {
         t[1],
         t[0] + Duration::from_millis(2) + Duration::from_secs(1) + frame
     );
+}
+
+#[test]
+fn corrupted_telegram_is_naked_by_the_device_and_resent() {
+    let cfg = Config {
+        baud: BaudRate::B9600,
+        ..Config::default()
+    };
+    let mut w = World::new(cfg, Sim::new(BaudRate::B9600));
+    w.corrupt_tx = 2;
+    assert!(w.run_ready());
+    let t = sent_times(&w, &mode(ModeRequest::RequestOnly));
+    assert!(t.len() >= 3);
+    assert!(t[1] >= t[0] + Duration::from_millis(32), "NAK backoff");
+    assert_eq!(w.m.counters().naks, 2);
+    assert_eq!(w.d.framer.counters().bad_checksums, 2);
+    assert!(w.has(|e| *e == Event::BaudDetected(BaudRate::B9600)));
 }
