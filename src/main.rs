@@ -1,6 +1,56 @@
-//! `ima`: the command-line program.
+//! `ima`: the command-line program of the `ima` robot stack.
+//!
+//! Sub-commands grow with the issues; see `ima --help` and the README.
 
-fn main() {
-    eprintln!("ima: not implemented yet");
-    std::process::exit(2);
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cmd;
+
+/// Drivers, mock devices and agents for a Pioneer 2-AT (P2OS) and an ATRV-Jr (rFLEX).
+#[derive(Debug, Parser)]
+#[command(name = "ima", version, about, long_about = None)]
+struct Cli {
+    /// Log filter (tracing EnvFilter syntax), e.g. `info` or `ima_p2os=debug`.
+    #[arg(long, global = true, env = "IMA_LOG", default_value = "warn")]
+    log: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run the demonstration on built-in mock devices (no hardware).
+    Demo(cmd::demo::DemoArgs),
+    /// Serve a mock device on a pseudo-terminal and print its path.
+    Mock(cmd::mock::MockArgs),
+    /// Connect to a robot base on a serial port and drive it (teleop-style).
+    Drive(cmd::drive::DriveArgs),
+    /// Decode a capture of a serial protocol into JSON Lines.
+    Decode(cmd::decode::DecodeArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_new(&cli.log)
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Demo(a) => cmd::demo::run(&a),
+        Command::Mock(a) => cmd::mock::run(&a),
+        Command::Drive(a) => cmd::drive::run(&a),
+        Command::Decode(a) => cmd::decode::run(&a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("ima: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }

@@ -1,7 +1,16 @@
-//! `ima-p2os`: Pioneer 2 (P2OS) protocol: sans-IO wire, framer and session, with async and blocking shells.
+//! `ima-p2os`: the Pioneer 2 (P2OS) serial protocol, for the Pioneer 2-AT.
 //!
-//! **Status:** not implemented yet; this crate is a placeholder in the workspace layout and
-//! exports nothing.
+//! Layers, after `smoltcp`/`quinn-proto` (see `DESIGN.md`):
+//! * [`wire`] — packets, checksum, typed commands and robot packets; `no_std`, no heap.
+//! * [`framer`] — a byte-stream decoder with resynchronisation and counters.
+//! * [`params`] — robot parameter tables selected by the SYNC2 subclass.
+//! * [`machine`] — the client session (handshake, baud probing, keep-alive, motors,
+//!   odometry), sans-IO: it never touches a port or reads a clock.
+//! * `shell` (feature `tokio`) and `blocking` (feature `serial`) — thin I/O loops that run the
+//!   machine over a byte stream and implement the `ima-hal` traits.
+//!
+//! The wire facts and their sources are in the project's protocol spec
+//! (`shared/protocols/p2os.md`); section numbers in these docs refer to it.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![warn(missing_docs)]
 // No panics on input: outside tests, these are compile errors in the protocol cores.
@@ -15,3 +24,19 @@
         clippy::unreachable
     )
 )]
+
+#[cfg(feature = "serial")]
+pub mod blocking;
+#[cfg(feature = "std")]
+pub mod driver;
+pub mod framer;
+pub mod machine;
+pub mod params;
+#[cfg(feature = "tokio")]
+pub mod shell;
+pub mod wire;
+
+pub use framer::{FrameEvent, Framer, FramerStats};
+pub use machine::{Config, Event, Session, SessionError, SessionState};
+pub use params::RobotParams;
+pub use wire::{Command, Packet, WireError};

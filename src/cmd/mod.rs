@@ -1,0 +1,6 @@
+//! One module per sub-command.
+
+pub mod decode;
+pub mod demo;
+pub mod drive;
+pub mod mock;
