@@ -226,6 +226,36 @@ pub fn decode_scan(
     Ok(())
 }
 
+/// The value word a device reports for `range_m` (`None`: no return) in `units` and `mode`:
+/// the inverse of [`decode_scan`] for a mock device. Ranges are rounded to the unit and
+/// clamped below the special codes (13-bit modes) or to the mask; no return is `1FFF` in
+/// 13-bit modes and the mask elsewhere. Flag bits are zero. Reserved units and unknown modes
+/// give the no-return code of mode `00`.
+#[must_use]
+pub fn encode_range_m(range_m: Option<f64>, units: Units, mode: MeasuringMode) -> u16 {
+    let (Some(mask), Some(unit)) = (mode.distance_mask(), units.metres()) else {
+        return 0x1FFF;
+    };
+    let top = if mode.has_special_values() {
+        0x1FF6
+    } else {
+        mask
+    };
+    match range_m {
+        Some(r) if r.is_finite() => {
+            // Round half up without `f64::round` (not in `core`).
+            let counts = r.max(0.0) / f64::from(unit) + 0.5;
+            if counts >= f64::from(top) {
+                top
+            } else {
+                // In [0.5, top): truncation is the rounding, nothing is cut off.
+                counts as u16
+            }
+        }
+        _ => mask,
+    }
+}
+
 /// Longest range the mode reports in `units`, metres (e.g. 8.191 m for 13 bits in mm).
 #[must_use]
 pub fn max_range_m(mode: MeasuringMode, units: Units) -> Option<f64> {
@@ -390,6 +420,30 @@ mod tests {
             decode_scan(&s3, MeasuringMode::DEFAULT, None, &mut out),
             Err(DecodeError::ReservedUnits)
         );
+    }
+
+    #[test]
+    fn encode_is_the_inverse_of_decode() {
+        let m = MeasuringMode::DEFAULT;
+        assert_eq!(encode_range_m(Some(1.2344), Units::Mm, m), 1234);
+        assert_eq!(encode_range_m(Some(1.2346), Units::Mm, m), 1235);
+        assert_eq!(encode_range_m(Some(-1.0), Units::Mm, m), 0);
+        assert_eq!(encode_range_m(Some(50.0), Units::Mm, m), 0x1FF6);
+        assert_eq!(encode_range_m(None, Units::Mm, m), 0x1FFF);
+        assert_eq!(encode_range_m(Some(f64::NAN), Units::Cm, m), 0x1FFF);
+        assert_eq!(encode_range_m(Some(12.34), Units::Cm, m), 1234);
+        assert_eq!(
+            encode_range_m(Some(20.0), Units::Mm, MeasuringMode(0x03)),
+            0x3FFF
+        );
+        assert_eq!(encode_range_m(None, Units::Mm, MeasuringMode(0x05)), 0x7FFF);
+        assert_eq!(encode_range_m(Some(1.0), Units::Reserved, m), 0x1FFF);
+        for r in [0.0, 0.5, 3.217, 8.0] {
+            let w = encode_range_m(Some(r), Units::Mm, m);
+            let v = Value::decode(w, m).unwrap();
+            assert!(v.flags.is_valid());
+            assert!((f64::from(v.distance) * 0.001 - r).abs() < 0.0006);
+        }
     }
 
     #[test]
