@@ -28,6 +28,7 @@ pub mod blocking;
 pub mod camera;
 pub mod compass;
 pub mod error;
+pub mod laser;
 pub mod power;
 pub mod sonar;
 pub mod time;

@@ -1,0 +1,470 @@
+//! From B0 values to SI scans: variants, value masks, special codes and geometry (spec §3.3).
+
+use core::f64::consts::PI;
+
+use ima_hal::Isometry2;
+use ima_hal::laser::{BeamFlags, LaserDescription, LaserScan};
+
+use crate::wire::{MeasuringMode, Scan, Units};
+
+/// A scan variant: field width and angular resolution (command `3B`, spec §3.6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Variant {
+    angle_deg: u16,
+    res_centideg: u16,
+}
+
+impl Variant {
+    /// 180° at 1° (181 values).
+    pub const W180_R100: Self = Self {
+        angle_deg: 180,
+        res_centideg: 100,
+    };
+    /// 180° at 0.5° (361 values).
+    pub const W180_R50: Self = Self {
+        angle_deg: 180,
+        res_centideg: 50,
+    };
+    /// 100° at 1° (101 values).
+    pub const W100_R100: Self = Self {
+        angle_deg: 100,
+        res_centideg: 100,
+    };
+    /// 100° at 0.5° (201 values).
+    pub const W100_R50: Self = Self {
+        angle_deg: 100,
+        res_centideg: 50,
+    };
+    /// 100° at 0.25° (401 values; 0.25° works only with 100°).
+    pub const W100_R25: Self = Self {
+        angle_deg: 100,
+        res_centideg: 25,
+    };
+
+    /// The variant of `angle_deg` (100 or 180) and `res_centideg` (25, 50, 100), if the LMS
+    /// supports it (0.25° only at 100°).
+    #[must_use]
+    pub const fn new(angle_deg: u16, res_centideg: u16) -> Option<Self> {
+        match (angle_deg, res_centideg) {
+            (180, 50 | 100) | (100, 25 | 50 | 100) => Some(Self {
+                angle_deg,
+                res_centideg,
+            }),
+            _ => None,
+        }
+    }
+
+    /// The variant whose full scan has `count` values, if exactly one has.
+    #[must_use]
+    pub const fn from_count(count: u16) -> Option<Self> {
+        match count {
+            181 => Some(Self::W180_R100),
+            361 => Some(Self::W180_R50),
+            101 => Some(Self::W100_R100),
+            201 => Some(Self::W100_R50),
+            401 => Some(Self::W100_R25),
+            _ => None,
+        }
+    }
+
+    /// Field width, degrees.
+    #[must_use]
+    pub const fn angle_deg(self) -> u16 {
+        self.angle_deg
+    }
+
+    /// Resolution, 1/100°.
+    #[must_use]
+    pub const fn res_centideg(self) -> u16 {
+        self.res_centideg
+    }
+
+    /// Values in a full scan: width / resolution + 1.
+    #[must_use]
+    pub const fn values(self) -> u16 {
+        self.angle_deg * 100 / self.res_centideg + 1
+    }
+
+    /// Angle of value 0 in the LMS convention (0° right, 90° ahead): `(180 − width) / 2`.
+    #[must_use]
+    pub const fn start_deg(self) -> u16 {
+        (180 - self.angle_deg) / 2
+    }
+
+    /// Most complete scans per second: the mirror turns at 75 Hz and a scan needs 1, 2 or 4
+    /// turns at 1°, 0.5°, 0.25° (spec §4).
+    #[must_use]
+    pub fn max_scan_rate_hz(self) -> f64 {
+        75.0 * f64::from(self.res_centideg) / 100.0
+    }
+}
+
+/// Why a B0 could not become a [`LaserScan`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DecodeError {
+    /// The measuring mode is not in the spec's table; its value masks are unknown.
+    UnknownMeasuringMode(u8),
+    /// Mode `3F` reports reflectivity, not ranges.
+    NotRanges,
+    /// Units `11` are reserved.
+    ReservedUnits,
+    /// The value count fits no variant (or not the one given).
+    UnexpectedCount(u16),
+    /// More values than a [`LaserScan`] holds.
+    TooManyValues,
+}
+
+impl core::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::UnknownMeasuringMode(m) => write!(f, "unknown measuring mode {m:#04x}"),
+            Self::NotRanges => f.write_str("measuring mode reports reflectivity, not ranges"),
+            Self::ReservedUnits => f.write_str("reserved units code"),
+            Self::UnexpectedCount(n) => write!(f, "{n} values fit no known variant"),
+            Self::TooManyValues => f.write_str("too many values"),
+        }
+    }
+}
+
+impl core::error::Error for DecodeError {}
+
+/// One decoded value word.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Value {
+    /// Distance in the scan's units (`value & mask`).
+    pub distance: u16,
+    /// Raw bits above the distance mask, shifted down to bit 0 (mode dependent; spec §3.3).
+    pub raw_flags: u8,
+    /// Device-independent flags for the special codes of 13-bit modes.
+    pub flags: BeamFlags,
+}
+
+impl Value {
+    /// Split `word` according to `mode`. `None` for modes whose masks are unknown.
+    #[must_use]
+    pub fn decode(word: u16, mode: MeasuringMode) -> Option<Self> {
+        let mask = mode.distance_mask()?;
+        let distance = word & mask;
+        let shift = mask.trailing_ones();
+        let raw_flags = u8::try_from(word.checked_shr(shift).unwrap_or(0)).unwrap_or(u8::MAX);
+        let flags = if mode.has_special_values() {
+            match distance {
+                0x1FFF => BeamFlags::NO_RETURN,
+                0x1FFE => BeamFlags::DAZZLED,
+                0x1FFD => BeamFlags::OVERFLOW,
+                0x1FFB => BeamFlags::LOW_SIGNAL,
+                0x1FFA => BeamFlags::READ_ERROR,
+                0x1FF7 => BeamFlags::ABOVE_MAX_RANGE,
+                0x1FF8..=0x1FFF => BeamFlags::RESERVED,
+                _ => BeamFlags::VALID,
+            }
+        } else {
+            BeamFlags::VALID
+        };
+        Some(Self {
+            distance,
+            raw_flags,
+            flags: flags.with_device_bits(raw_flags),
+        })
+    }
+}
+
+/// Convert degrees in the LMS convention (0° right, 90° ahead, counter-clockwise) to radians
+/// in the sensor frame (0 ahead, counter-clockwise).
+#[must_use]
+pub fn lms_deg_to_sensor_rad(deg: f64) -> f64 {
+    (deg - 90.0) * PI / 180.0
+}
+
+/// Fill `out` from a B0 scan.
+///
+/// `variant` gives the geometry; `None` infers it from the value count (181, 361, 101, 201,
+/// 401). A partial scan (count-word bit 13) is offset by its index × 0.25°. Valid beams get
+/// `distance × unit` metres; special codes of 13-bit modes get `NAN` and their
+/// [`BeamFlags`]. The raw flag bits travel in [`BeamFlags::device_bits`].
+pub fn decode_scan(
+    scan: &Scan<'_>,
+    mode: MeasuringMode,
+    variant: Option<Variant>,
+    out: &mut LaserScan,
+) -> Result<(), DecodeError> {
+    if mode.is_reflectivity() {
+        return Err(DecodeError::NotRanges);
+    }
+    if mode.distance_mask().is_none() {
+        return Err(DecodeError::UnknownMeasuringMode(mode.0));
+    }
+    let unit = scan
+        .count_word
+        .units()
+        .metres()
+        .ok_or(DecodeError::ReservedUnits)?;
+    let count = scan.count_word.count();
+    let v = match variant {
+        Some(v) if v.values() == count => v,
+        Some(_) => return Err(DecodeError::UnexpectedCount(count)),
+        None => Variant::from_count(count).ok_or(DecodeError::UnexpectedCount(count))?,
+    };
+    let mut start_deg = f64::from(v.start_deg());
+    if scan.count_word.partial() {
+        start_deg += 0.25 * f64::from(scan.count_word.partial_index());
+    }
+    out.reset(
+        lms_deg_to_sensor_rad(start_deg),
+        f64::from(v.res_centideg()) * PI / 18_000.0,
+    );
+    for word in scan.values.iter() {
+        let val = Value::decode(word, mode).ok_or(DecodeError::UnknownMeasuringMode(mode.0))?;
+        let range = if val.flags.is_valid() {
+            f32::from(val.distance) * unit
+        } else {
+            f32::NAN
+        };
+        out.push(range, val.flags)
+            .map_err(|_| DecodeError::TooManyValues)?;
+    }
+    Ok(())
+}
+
+/// The value word a device reports for `range_m` (`None`: no return) in `units` and `mode`:
+/// the inverse of [`decode_scan`] for a mock device. Ranges are rounded to the unit and
+/// clamped below the special codes (13-bit modes) or to the mask; no return is `1FFF` in
+/// 13-bit modes and the mask elsewhere. Flag bits are zero. Reserved units and unknown modes
+/// give the no-return code of mode `00`.
+#[must_use]
+pub fn encode_range_m(range_m: Option<f64>, units: Units, mode: MeasuringMode) -> u16 {
+    let (Some(mask), Some(unit)) = (mode.distance_mask(), units.metres()) else {
+        return 0x1FFF;
+    };
+    let top = if mode.has_special_values() {
+        0x1FF6
+    } else {
+        mask
+    };
+    match range_m {
+        Some(r) if r.is_finite() => {
+            // Round half up without `f64::round` (not in `core`).
+            let counts = r.max(0.0) / f64::from(unit) + 0.5;
+            if counts >= f64::from(top) {
+                top
+            } else {
+                // In [0.5, top): truncation is the rounding, nothing is cut off.
+                counts as u16
+            }
+        }
+        _ => mask,
+    }
+}
+
+/// Longest range the mode reports in `units`, metres (e.g. 8.191 m for 13 bits in mm).
+#[must_use]
+pub fn max_range_m(mode: MeasuringMode, units: Units) -> Option<f64> {
+    let mask = mode.distance_mask()?;
+    let top = if mode.has_special_values() {
+        0x1FF6
+    } else {
+        mask
+    };
+    Some(f64::from(top) * f64::from(units.metres()?))
+}
+
+/// The [`LaserDescription`] of a variant, mode and unit, mounted at `pose`.
+#[must_use]
+pub fn describe(
+    variant: Variant,
+    mode: MeasuringMode,
+    units: Units,
+    pose: Isometry2,
+) -> LaserDescription {
+    LaserDescription {
+        pose,
+        fov_rad: f64::from(variant.angle_deg()) * PI / 180.0,
+        resolution_rad: f64::from(variant.res_centideg()) * PI / 18_000.0,
+        beams: variant.values(),
+        min_range_m: 0.0,
+        max_range_m: max_range_m(mode, units).unwrap_or(0.0),
+        max_scan_rate_hz: variant.max_scan_rate_hz(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wire::{CountWord, StatusByte, Values};
+
+    #[test]
+    fn variants_and_counts() {
+        for (v, n) in [
+            (Variant::W180_R100, 181),
+            (Variant::W180_R50, 361),
+            (Variant::W100_R100, 101),
+            (Variant::W100_R50, 201),
+            (Variant::W100_R25, 401),
+        ] {
+            assert_eq!(v.values(), n);
+            assert_eq!(Variant::from_count(n), Some(v));
+            assert_eq!(Variant::new(v.angle_deg(), v.res_centideg()), Some(v));
+        }
+        assert_eq!(Variant::new(180, 25), None);
+        assert_eq!(Variant::W100_R25.start_deg(), 40);
+        assert_eq!(Variant::from_count(100), None);
+    }
+
+    #[test]
+    fn value_masks_by_mode() {
+        let w = 0b1010_0000_0000_0101;
+        let v = Value::decode(w, MeasuringMode(0x00)).unwrap();
+        assert_eq!((v.distance, v.raw_flags), (5, 0b101));
+        let v = Value::decode(w, MeasuringMode(0x03)).unwrap();
+        assert_eq!((v.distance, v.raw_flags), (0x2005, 0b10));
+        let v = Value::decode(w, MeasuringMode(0x05)).unwrap();
+        assert_eq!((v.distance, v.raw_flags), (0x2005, 1));
+        let v = Value::decode(w, MeasuringMode(0x0F)).unwrap();
+        assert_eq!((v.distance, v.raw_flags), (w, 0));
+        assert!(Value::decode(w, MeasuringMode(0x0D)).is_none());
+    }
+
+    #[test]
+    fn special_codes_only_in_13_bit_modes() {
+        let m = MeasuringMode::DEFAULT;
+        assert_eq!(
+            Value::decode(0x1FFF, m).unwrap().flags,
+            BeamFlags::NO_RETURN
+        );
+        assert_eq!(Value::decode(0x1FFE, m).unwrap().flags, BeamFlags::DAZZLED);
+        assert_eq!(Value::decode(0x1FFD, m).unwrap().flags, BeamFlags::OVERFLOW);
+        assert_eq!(
+            Value::decode(0x1FFB, m).unwrap().flags,
+            BeamFlags::LOW_SIGNAL
+        );
+        assert_eq!(
+            Value::decode(0x1FFA, m).unwrap().flags,
+            BeamFlags::READ_ERROR
+        );
+        assert_eq!(
+            Value::decode(0x1FF7, m).unwrap().flags,
+            BeamFlags::ABOVE_MAX_RANGE
+        );
+        assert_eq!(Value::decode(0x1FF9, m).unwrap().flags, BeamFlags::RESERVED);
+        assert!(Value::decode(0x1FF6, m).unwrap().flags.is_valid());
+        // Bit 13 set on a special code: still special, raw bit kept.
+        let v = Value::decode(0x3FFF, m).unwrap();
+        assert!(v.flags.contains(BeamFlags::NO_RETURN));
+        assert_eq!(v.flags.device_bits(), 1);
+        assert!(
+            Value::decode(0x1FFF, MeasuringMode(0x03))
+                .unwrap()
+                .flags
+                .is_valid()
+        );
+    }
+
+    #[test]
+    fn decode_361_mm_geometry_and_ranges() {
+        let mut words = [1000u16; 361];
+        words[0] = 0x1FFF;
+        words[180] = 0x2000 | 2500;
+        let s = Scan::full(&words, Units::Mm, StatusByte::NORMAL);
+        let mut out = LaserScan::default();
+        decode_scan(&s, MeasuringMode::DEFAULT, None, &mut out).unwrap();
+        assert_eq!(out.len(), 361);
+        assert!((out.start_angle_rad + PI / 2.0).abs() < 1e-12);
+        assert!((out.step_rad - 0.5 * PI / 180.0).abs() < 1e-12);
+        assert!(out.ranges_m()[0].is_nan());
+        assert_eq!(out.flags()[0], BeamFlags::NO_RETURN);
+        assert!((out.ranges_m()[1] - 1.0).abs() < 1e-6);
+        assert!((out.ranges_m()[180] - 2.5).abs() < 1e-6);
+        assert_eq!(out.flags()[180].device_bits(), 1);
+        assert!(out.flags()[180].is_valid());
+        assert!(
+            (out.angle_rad(180)).abs() < 1e-12,
+            "middle beam points ahead"
+        );
+    }
+
+    #[test]
+    fn decode_100_deg_partial_and_errors() {
+        let words = [10u16; 401];
+        let mut s = Scan::full(&words, Units::Cm, StatusByte::NORMAL);
+        s.count_word = CountWord(s.count_word.0 | 0x2000 | (2 << 11));
+        let mut out = LaserScan::default();
+        decode_scan(&s, MeasuringMode::DEFAULT, None, &mut out).unwrap();
+        let start = lms_deg_to_sensor_rad(40.5);
+        assert!((out.start_angle_rad - start).abs() < 1e-12);
+        assert!((out.ranges_m()[3] - 0.1).abs() < 1e-6);
+        assert_eq!(
+            decode_scan(
+                &s,
+                MeasuringMode::DEFAULT,
+                Some(Variant::W180_R50),
+                &mut out
+            ),
+            Err(DecodeError::UnexpectedCount(401))
+        );
+        assert_eq!(
+            decode_scan(&s, MeasuringMode(0x3F), None, &mut out),
+            Err(DecodeError::NotRanges)
+        );
+        assert_eq!(
+            decode_scan(&s, MeasuringMode(0x0E), None, &mut out),
+            Err(DecodeError::UnknownMeasuringMode(0x0E))
+        );
+        let w3 = [1u16, 2, 3];
+        let s3 = Scan {
+            count_word: CountWord(3 | 0xC000),
+            values: Values::Words(&w3),
+            indices: None,
+            status: StatusByte::NORMAL,
+        };
+        assert_eq!(
+            decode_scan(&s3, MeasuringMode::DEFAULT, None, &mut out),
+            Err(DecodeError::ReservedUnits)
+        );
+    }
+
+    #[test]
+    fn encode_is_the_inverse_of_decode() {
+        let m = MeasuringMode::DEFAULT;
+        assert_eq!(encode_range_m(Some(1.2344), Units::Mm, m), 1234);
+        assert_eq!(encode_range_m(Some(1.2346), Units::Mm, m), 1235);
+        assert_eq!(encode_range_m(Some(-1.0), Units::Mm, m), 0);
+        assert_eq!(encode_range_m(Some(50.0), Units::Mm, m), 0x1FF6);
+        assert_eq!(encode_range_m(None, Units::Mm, m), 0x1FFF);
+        assert_eq!(encode_range_m(Some(f64::NAN), Units::Cm, m), 0x1FFF);
+        assert_eq!(encode_range_m(Some(12.34), Units::Cm, m), 1234);
+        assert_eq!(
+            encode_range_m(Some(20.0), Units::Mm, MeasuringMode(0x03)),
+            0x3FFF
+        );
+        assert_eq!(encode_range_m(None, Units::Mm, MeasuringMode(0x05)), 0x7FFF);
+        assert_eq!(encode_range_m(Some(1.0), Units::Reserved, m), 0x1FFF);
+        for r in [0.0, 0.5, 3.217, 8.0] {
+            let w = encode_range_m(Some(r), Units::Mm, m);
+            let v = Value::decode(w, m).unwrap();
+            assert!(v.flags.is_valid());
+            assert!((f64::from(v.distance) * 0.001 - r).abs() < 0.0006);
+        }
+    }
+
+    #[test]
+    fn description_limits() {
+        let d = describe(
+            Variant::W180_R50,
+            MeasuringMode::DEFAULT,
+            Units::Mm,
+            Isometry2::identity(),
+        );
+        assert_eq!(d.beams, 361);
+        assert!((d.fov_rad - PI).abs() < 1e-12);
+        assert!((d.max_range_m - 8.182).abs() < 1e-3);
+        assert!((d.max_scan_rate_hz - 37.5).abs() < 1e-12);
+        let d = describe(
+            Variant::W100_R25,
+            MeasuringMode::DEFAULT,
+            Units::Cm,
+            Isometry2::identity(),
+        );
+        assert!((d.max_range_m - 81.82).abs() < 1e-2);
+        assert!((d.max_scan_rate_hz - 18.75).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,2 @@
+#![no_main]
+libfuzzer_sys::fuzz_target!(|data: &[u8]| ima_sick_lms::fuzz_harness::sick_lms_parse_reply(data));
