@@ -26,6 +26,7 @@
 )]
 
 pub mod framer;
+pub mod fuzz_harness;
 pub mod wire;
 
 pub use framer::{FrameEvent, Framer, FramerStats};

@@ -149,7 +149,11 @@ fn one_byte_reads() {
                 })
                 .collect()
         };
-        assert_eq!(evs.len() - before, usize::from(ends.contains(&i)), "byte {i}");
+        assert_eq!(
+            evs.len() - before,
+            usize::from(ends.contains(&i)),
+            "byte {i}"
+        );
     }
     assert_eq!(frames_only(&evs), payloads);
     assert_eq!(f.stats().frames, 3);
@@ -239,7 +243,11 @@ fn truncated_frame_then_a_good_one() {
     for chunk in [1, 5, stream.len()] {
         let mut f = Framer::new();
         let evs = push_chunked(&mut f, &stream, chunk);
-        assert_eq!(frames_only(&evs), vec![good[3..7].to_vec()], "chunk {chunk}");
+        assert_eq!(
+            frames_only(&evs),
+            vec![good[3..7].to_vec()],
+            "chunk {chunk}"
+        );
         assert_eq!(f.stats().bad_checksums, 1);
         assert_eq!(f.stats().dropped_bytes, 10 + 30);
         assert_eq!(f.buffered(), 0);
@@ -348,7 +356,10 @@ fn oversize_count_byte_for_commands_and_largest_frames_from_the_robot() {
     let f255 = frame(&p255);
     assert_eq!(f255[2], 255);
     let mut f = Framer::new();
-    assert_eq!(push_chunked(&mut f, &f255, 1), vec![Ev::Frame(p255.clone())]);
+    assert_eq!(
+        push_chunked(&mut f, &f255, 1),
+        vec![Ev::Frame(p255.clone())]
+    );
 
     // A custom limit.
     let mut f = Framer::with_max_count(10);

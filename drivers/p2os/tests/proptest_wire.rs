@@ -120,10 +120,8 @@ fn arb_cmd() -> impl Strategy<Value = OwnedCmd> {
         .prop_map(|(c, s)| OwnedCmd::Str(c, s));
     let other_arg = prop_oneof![
         Just(OwnedArg::None),
-        (any::<bool>(), any::<u16>()).prop_map(|(negative, raw)| OwnedArg::Int(IntArg {
-            negative,
-            raw
-        })),
+        (any::<bool>(), any::<u16>())
+            .prop_map(|(negative, raw)| OwnedArg::Int(IntArg { negative, raw })),
         prop::collection::vec(any::<u8>(), 0..=200).prop_map(OwnedArg::Str),
     ];
     let other = (
@@ -223,7 +221,10 @@ fn string_arguments_are_exactly_l_bytes_and_count_is_capped_at_200() {
     .unwrap();
     assert_eq!(ok[2], MAX_COMMAND_COUNT);
     assert!(matches!(
-        emit_cmd(&Command::Str(StrCommand::Tty2, &s), EncodeOptions::default()),
+        emit_cmd(
+            &Command::Str(StrCommand::Tty2, &s),
+            EncodeOptions::default()
+        ),
         Err(WireError::PayloadTooLong(_))
     ));
 }
@@ -583,7 +584,9 @@ fn check_single_corruption(good: &[u8], pos: usize, value: u8) -> Result<(), Tes
         2 => prop_assert!(
             matches!(
                 r,
-                Err(WireError::BadCount(_) | WireError::Truncated | WireError::LengthMismatch { .. })
+                Err(WireError::BadCount(_)
+                    | WireError::Truncated
+                    | WireError::LengthMismatch { .. })
             ),
             "count corrupted: {:?}",
             r
