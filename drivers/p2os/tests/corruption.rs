@@ -20,17 +20,19 @@
 //! Observed with these seeds (x86_64, rand 0.9 `SmallRng`; print them with
 //! `cargo test -p ima-p2os --test corruption -- --nocapture`):
 //! * 20,000 SIPs (893,253 bytes, 9,027 changed): 12,830 intact, **all delivered**; 7,170
-//!   corrupted, of which the framer rejected all but one (6,765 bad checksums, 4 bad counts,
-//!   the rest lost their header); **1 escape**: two sonar-range low bytes changed by −39 and
-//!   +39 (payload offsets 48 and 60, both high bytes of a checksum pair), which cancel in the
-//!   sum and are plausible values, so no wire-level check can see them.
+//!   corrupted, all but one rejected by the framer (it counted 6,765 bad checksums and 4 bad
+//!   counts; SIPs whose `FA FB` was hit never became candidates); **1 escape**: two
+//!   sonar-range low bytes changed by −39 and +39 (payload offsets 48 and 60, both the high
+//!   byte of a checksum pair), which cancel in the sum and are plausible values, so no
+//!   wire-level check can see them.
 //! * 1,000,000 SIPs (the ignored test below, in release mode): 641,605 intact, all delivered
 //!   (ARIA lost 2.3 %, spec §10 item 13); 358,395 corrupted; **87** passed the checksum (ARIA:
-//!   89); of those, parse caught **14** (sonar index ≥ 32), **3** came out as a non-SIP packet
-//!   type, and **70** escaped as SIPs. Their 134 corrupted payload bytes sat in fields the wire cannot
-//!   judge: sonar ranges 38, pose (x/y/θ) 30, control 8, stall 8, compass 8, velocities 14,
-//!   flags 7, battery 4, sonar index (to another valid index) 4, I/O and gripper bytes 13.
-//!   Catching more needs the session's checks (odometry jump ≤ speed × time, battery range).
+//!   89); of those, parse caught **14** (sonar index ≥ 32), **3** came out as a non-SIP
+//!   packet type, and **70** escaped as SIPs. Their 134 corrupted payload bytes sat in fields
+//!   the wire cannot judge: sonar ranges 38, pose (x/y/θ) 30, velocities 14, control 8, stall
+//!   8, compass 8, flags 7, battery 4, sonar index (to another valid index) 4, I/O and gripper
+//!   bytes 13. Catching more needs the session's checks (odometry jump ≤ speed × time,
+//!   battery range).
 //!
 //! Intact SIPs are never lost: resynchronising one byte after every rejected candidate (spec
 //! §10 item 2) keeps them all.
