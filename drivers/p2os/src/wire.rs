@@ -366,7 +366,8 @@ pub enum Arg<'a> {
     None,
     /// An integer.
     Int(IntArg),
-    /// A string (length-prefixed on the wire; one trailing NUL is not part of it).
+    /// A string: exactly the L bytes its length byte announces (a NUL terminator sent after
+    /// them, as ARIA does, is surplus and ignored).
     Str(&'a [u8]),
 }
 
@@ -685,7 +686,9 @@ impl<'a> Command<'a> {
             Arg::Str(_) => Err(WireError::BadArgType(ARGSTR)),
         };
         let string = |arg: Arg<'a>| match arg {
-            Arg::Str(s) => Ok(s.strip_suffix(&[0]).unwrap_or(s)),
+            // Trust L (spec §4): ARIA's NUL terminator is *after* the L bytes and is ignored
+            // as surplus; a NUL inside L is data (SAY tone 0, binary TTY2 bytes).
+            Arg::Str(s) => Ok(s),
             Arg::None => Err(WireError::MissingArgument(number)),
             Arg::Int(i) => Err(WireError::BadArgType(if i.negative {
                 ARGNINT
@@ -722,7 +725,9 @@ impl<'a> Command<'a> {
         self.emit_with(EncodeOptions::default(), out)
     }
 
-    /// Emit the whole frame with the given options; returns its length.
+    /// Emit the whole frame with the given options; returns its length. A command whose count
+    /// byte would exceed [`MAX_COMMAND_COUNT`] (which P2OS ignores) is refused with
+    /// [`WireError::PayloadTooLong`].
     pub fn emit_with(&self, opts: EncodeOptions, out: &mut [u8]) -> Result<usize, WireError> {
         let arg = match *self {
             Command::Sync1 | Command::Sync2 if opts.open_close_arg => {
@@ -753,7 +758,13 @@ impl<'a> Command<'a> {
             w.u8(number);
             result = arg.write(w);
         })?;
-        result.map(|()| n)
+        result?;
+        // P2OS ignores commands with a count over 200 (spec §2): refuse to emit one.
+        let count = n.saturating_sub(3);
+        if count > usize::from(MAX_COMMAND_COUNT) {
+            return Err(WireError::PayloadTooLong(count.saturating_sub(2)));
+        }
+        Ok(n)
     }
 }
 
