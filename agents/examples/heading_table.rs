@@ -11,7 +11,9 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(0.05);
     let rows = sweep_48(noise);
-    println!("angle_deg,ds_m,dt_m,true_heading_deg,thesis_err_deg,range_exact_err_deg,range_noisy_err_deg");
+    println!(
+        "angle_deg,ds_m,dt_m,true_heading_deg,thesis_err_deg,range_exact_err_deg,range_noisy_err_deg"
+    );
     for r in &rows {
         println!(
             "{},{},{},{:.2},{:.2},{:.2},{:.2}",
@@ -25,7 +27,9 @@ fn main() {
         );
     }
     println!();
-    println!("summary (range noise ±{noise} m): angle | thesis max/mean | exact max/mean | noisy max/mean");
+    println!(
+        "summary (range noise ±{noise} m): angle | thesis max/mean | exact max/mean | noisy max/mean"
+    );
     for a in [45.0, 90.0, 135.0] {
         let sel: Vec<_> = rows.iter().filter(|r| r.angle_deg == a).collect();
         let stat = |f: &dyn Fn(&&ima_agents::heading::SweepRow) -> f64| {

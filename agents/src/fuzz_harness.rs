@@ -16,7 +16,16 @@ pub fn ses_shared_form(data: &[u8]) {
         Err(e) => panic!("a decoded form must re-encode: {e}"),
     };
     let again = SharedForm::decode(&bytes);
-    assert_eq!(again.as_ref(), Ok(&form), "decode(encode(decode(x))) != decode(x)");
-    let body = |b: &[u8]| b.len().checked_sub(2).and_then(|n| b.get(..n)).map(<[u8]>::to_vec);
+    assert_eq!(
+        again.as_ref(),
+        Ok(&form),
+        "decode(encode(decode(x))) != decode(x)"
+    );
+    let body = |b: &[u8]| {
+        b.len()
+            .checked_sub(2)
+            .and_then(|n| b.get(..n))
+            .map(<[u8]>::to_vec)
+    };
     assert_eq!(body(&bytes), body(data), "re-encoding changed the body");
 }

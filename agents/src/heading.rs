@@ -189,9 +189,15 @@ pub fn thesis_heading(scout_bearing_rad: f64, target_bearing_rad: f64) -> Result
 ///
 /// # Errors
 /// As [`thesis_heading`].
-pub fn thesis_heading_deg(scout_bearing_deg: f64, target_bearing_deg: f64) -> Result<f64, Degenerate> {
-    thesis_heading(scout_bearing_deg.to_radians(), target_bearing_deg.to_radians())
-        .map(f64::to_degrees)
+pub fn thesis_heading_deg(
+    scout_bearing_deg: f64,
+    target_bearing_deg: f64,
+) -> Result<f64, Degenerate> {
+    thesis_heading(
+        scout_bearing_deg.to_radians(),
+        target_bearing_deg.to_radians(),
+    )
+    .map(f64::to_degrees)
 }
 
 /// The turn `θd − θh` from the current heading to the desired one, in (−π, π].
@@ -268,8 +274,7 @@ pub fn triangulate_scout_range(
 /// on the scout's bearing.
 pub fn range_aware_heading(obs: &Observation) -> Result<HeadingEstimate, Degenerate> {
     let valid = |r: &Range| r.metres.is_finite() && r.metres >= 0.0;
-    if obs.scout_range.is_some_and(|r| !valid(&r)) || obs.target_range.is_some_and(|r| !valid(&r))
-    {
+    if obs.scout_range.is_some_and(|r| !valid(&r)) || obs.target_range.is_some_and(|r| !valid(&r)) {
         return Err(Degenerate::NonFinite);
     }
     let scout = obs.scout_range.or_else(|| {
@@ -388,7 +393,10 @@ mod tests {
         // Target opposite: straight through the observer.
         assert!((thesis_heading_deg(30.0, 210.0).unwrap() + 150.0).abs() < 1e-9);
         // Wrap-around: scout at 170°, target at −170° (20° counter-clockwise).
-        assert!((thesis_heading_deg(170.0, -170.0).unwrap() - (180.0 + 170.0 - 80.0 - 360.0)).abs() < 1e-9);
+        assert!(
+            (thesis_heading_deg(170.0, -170.0).unwrap() - (180.0 + 170.0 - 80.0 - 360.0)).abs()
+                < 1e-9
+        );
         assert_eq!(thesis_heading(1.0, 1.0), Err(Degenerate::SameBearing));
         assert_eq!(thesis_heading(f64::NAN, 1.0), Err(Degenerate::NonFinite));
     }

@@ -59,7 +59,6 @@ fn maes_toy_sequence() {
     assert!(net.goals_achieved());
 }
 
-
 fn pinned(file: &str, state: &[&str], steps: usize, want: &[(u64, &str)]) {
     let got = scenario(file, state, steps);
     let want: Vec<(u64, String)> = want.iter().map(|&(s, m)| (s, m.to_owned())).collect();
@@ -70,9 +69,18 @@ fn pinned(file: &str, state: &[&str], steps: usize, want: &[(u64, &str)]) {
 fn skeeter_asks_scooter_then_reports_failure() {
     pinned(
         "skeeter.toml",
-        &["target-requested", "scooter-in-view", "target-not-in-view", "scooter-cannot-see-target"],
+        &[
+            "target-requested",
+            "scooter-in-view",
+            "target-not-in-view",
+            "scooter-cannot-see-target",
+        ],
         18,
-        &[(6, "scan-for-target"), (12, "ask-scooter"), (18, "report-failed")],
+        &[
+            (6, "scan-for-target"),
+            (12, "ask-scooter"),
+            (18, "report-failed"),
+        ],
     );
 }
 
@@ -80,7 +88,13 @@ fn skeeter_asks_scooter_then_reports_failure() {
 fn skeeter_sends_a_requested_heading_at_once() {
     pinned(
         "skeeter.toml",
-        &["target-requested", "scan-done", "target-in-view", "scooter-in-view", "heading-requested"],
+        &[
+            "target-requested",
+            "scan-done",
+            "target-in-view",
+            "scooter-in-view",
+            "heading-requested",
+        ],
         1,
         &[(1, "send-heading")],
     );
@@ -90,7 +104,13 @@ fn skeeter_sends_a_requested_heading_at_once() {
 fn skeeter_calls_scooter_back_before_sending_a_heading() {
     pinned(
         "skeeter.toml",
-        &["target-requested", "scan-done", "target-in-view", "scooter-lost", "heading-requested"],
+        &[
+            "target-requested",
+            "scan-done",
+            "target-in-view",
+            "scooter-lost",
+            "heading-requested",
+        ],
         4,
         &[(3, "call-back-scooter"), (4, "send-heading")],
     );
@@ -98,7 +118,12 @@ fn skeeter_calls_scooter_back_before_sending_a_heading() {
 
 #[test]
 fn skeeter_reports_success_and_timeout() {
-    let base = ["target-requested", "scan-done", "target-in-view", "scooter-in-view"];
+    let base = [
+        "target-requested",
+        "scan-done",
+        "target-in-view",
+        "scooter-in-view",
+    ];
     let mut s = base.to_vec();
     s.push("scooter-reached-target");
     pinned("skeeter.toml", &s, 6, &[(6, "report-accomplished")]);
@@ -128,7 +153,11 @@ fn scooter_avoids_then_resumes() {
         "scooter.toml",
         &["obstacle-near", "target-in-view", "skeeter-in-view"],
         10,
-        &[(6, "avoid-obstacle"), (9, "move-to-target"), (10, "notify-skeeter")],
+        &[
+            (6, "avoid-obstacle"),
+            (9, "move-to-target"),
+            (10, "notify-skeeter"),
+        ],
     );
 }
 
@@ -142,7 +171,12 @@ fn scooter_goes_home_when_called_and_answers_questions() {
     );
     pinned(
         "scooter.toml",
-        &["asked-for-target", "path-clear", "skeeter-in-view", "heading-known"],
+        &[
+            "asked-for-target",
+            "path-clear",
+            "skeeter-in-view",
+            "heading-known",
+        ],
         1,
         &[(1, "reply-target-query")],
     );
@@ -152,7 +186,8 @@ fn scooter_goes_home_when_called_and_answers_questions() {
 fn conditions_fed_by_agents_drive_the_choice() {
     // Live use: no simulated effects; an agent reports the world through set_condition.
     let mut net = load("scooter.toml");
-    net.set_state(&["target-in-view", "path-clear", "skeeter-in-view"]).unwrap();
+    net.set_state(&["target-in-view", "path-clear", "skeeter-in-view"])
+        .unwrap();
     let first = (0..10).find_map(|_| net.step().fired).unwrap();
     assert_eq!(first, "move-to-target");
     net.set_condition("path-clear", false).unwrap();

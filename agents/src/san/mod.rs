@@ -230,7 +230,9 @@ impl Network {
         }
         let mut goal = vec![false; np];
         for g in &spec.goals {
-            let &i = index.get(g).ok_or_else(|| SpecError::UnknownGoal(g.clone()))?;
+            let &i = index
+                .get(g)
+                .ok_or_else(|| SpecError::UnknownGoal(g.clone()))?;
             goal[i] = true;
         }
         let n = modules.len();
@@ -303,7 +305,10 @@ impl Network {
     /// Whether a condition is true (`None` if unknown).
     #[must_use]
     pub fn condition(&self, name: &str) -> Option<bool> {
-        self.index.get(name).and_then(|&i| self.count.get(i)).map(|&c| c > 0)
+        self.index
+            .get(name)
+            .and_then(|&i| self.count.get(i))
+            .map(|&c| c > 0)
     }
 
     /// Set a condition from an agent's report (local, or remote through a message): `true`
@@ -451,7 +456,7 @@ impl Network {
                     let take = (prev[x] * (p.delta / p.gamma)
                         / len(&self.u_of[q])
                         / len(&self.modules[y].del))
-                        .min(prev[y]);
+                    .min(prev[y]);
                     delta[y] -= take;
                 }
             }
@@ -645,7 +650,10 @@ add = ["g"]
         spec.params.phi = 1.0;
         let mut net = Network::new(&spec).unwrap();
         let sum: f64 = net.step().modules.iter().map(|m| m.activation).sum();
-        assert!((sum - 2.0).abs() < 1e-9, "below n·π it is left alone: {sum}");
+        assert!(
+            (sum - 2.0).abs() < 1e-9,
+            "below n·π it is left alone: {sum}"
+        );
     }
 
     #[test]
@@ -694,10 +702,15 @@ pre = ["c"]
             SpecError::BadParam("theta")
         );
         assert_eq!(
-            bad("name = \"x\"\n[[condition]]\nname = \"c\"\n[[condition]]\nname = \"c\"\n[[module]]\nname = \"m\""),
+            bad(
+                "name = \"x\"\n[[condition]]\nname = \"c\"\n[[condition]]\nname = \"c\"\n[[module]]\nname = \"m\""
+            ),
             SpecError::DuplicateCondition("c".into())
         );
-        assert!(matches!(bad("name = \"x\"\ntypo = 1\n[[module]]\nname = \"m\""), SpecError::Toml(_)));
+        assert!(matches!(
+            bad("name = \"x\"\ntypo = 1\n[[module]]\nname = \"m\""),
+            SpecError::Toml(_)
+        ));
     }
 
     #[test]

@@ -399,11 +399,12 @@ impl Dome {
         while let Some(&v) = out.get(head) {
             head += 1;
             for &w in self.neighbours(v) {
-                if let Some(s) = seen.get_mut(w as usize) {
-                    if !*s && self.dot(w, &q) >= min_dot {
-                        *s = true;
-                        out.push(w);
-                    }
+                if let Some(s) = seen.get_mut(w as usize)
+                    && !*s
+                    && self.dot(w, &q) >= min_dot
+                {
+                    *s = true;
+                    out.push(w);
                 }
             }
         }
@@ -446,7 +447,7 @@ fn cube_cell_centre(c: usize) -> Vec3 {
     let face = c / (CUBE_CELLS * CUBE_CELLS);
     let t = |k: usize| (k as f64 + 0.5) / CUBE_CELLS as f64 * 2.0 - 1.0;
     let (u, v) = (t(u), t(v));
-    let s = if face % 2 == 0 { 1.0 } else { -1.0 };
+    let s = if face.is_multiple_of(2) { 1.0 } else { -1.0 };
     match face / 2 {
         0 => Vec3::new(s, u, v),
         1 => Vec3::new(u, s, v),

@@ -495,17 +495,40 @@ mod tests {
     #[test]
     fn same_tag_and_source_replaces() {
         let mut s = ses();
-        let a = s.post("red", "vision", Instant::from_millis(1), payload("red", 10.0)).unwrap();
+        let a = s
+            .post(
+                "red",
+                "vision",
+                Instant::from_millis(1),
+                payload("red", 10.0),
+            )
+            .unwrap();
         assert!(!a.replaced);
-        let b = s.post("red", "vision", Instant::from_millis(2), payload("red", -120.0)).unwrap();
+        let b = s
+            .post(
+                "red",
+                "vision",
+                Instant::from_millis(2),
+                payload("red", -120.0),
+            )
+            .unwrap();
         assert!(b.replaced);
         assert_eq!(s.len(), 1);
         assert!(s.at_vertex(a.vertex).is_empty());
         assert_eq!(s.at_vertex(b.vertex).len(), 1);
         // A different source is a different entry.
-        s.post("red", "peer:scooter", Instant::from_millis(3), payload("red", 10.0)).unwrap();
+        s.post(
+            "red",
+            "peer:scooter",
+            Instant::from_millis(3),
+            payload("red", 10.0),
+        )
+        .unwrap();
         assert_eq!(s.by_tag("red").len(), 2);
-        assert_eq!(s.remove("red", "vision").unwrap().time, Instant::from_millis(2));
+        assert_eq!(
+            s.remove("red", "vision").unwrap().time,
+            Instant::from_millis(2)
+        );
         assert_eq!(s.len(), 1);
     }
 
@@ -513,8 +536,13 @@ mod tests {
     fn queries_by_direction_tag_and_time() {
         let mut s = ses();
         for (i, az) in [0.0, 5.0, 20.0, 90.0, 179.0, -179.0].iter().enumerate() {
-            s.post(&format!("t{}", i % 2), &format!("src{i}"), Instant::from_millis(i as u64), payload("o", *az))
-                .unwrap();
+            s.post(
+                &format!("t{}", i % 2),
+                &format!("src{i}"),
+                Instant::from_millis(i as u64),
+                payload("o", *az),
+            )
+            .unwrap();
         }
         let near = s.by_direction(Direction::from_degrees(0.0, 0.0), 10f64.to_radians());
         assert_eq!(near.len(), 2);
@@ -524,9 +552,18 @@ mod tests {
         assert_eq!(s.by_tag("t1").len(), 3);
         assert!(s.by_tag("nope").is_empty());
         let w = s.by_time(Instant::from_millis(1), Instant::from_millis(3));
-        assert_eq!(w.iter().map(|e| e.source.as_str()).collect::<Vec<_>>(), ["src1", "src2", "src3"]);
-        assert!(s.by_time(Instant::from_millis(3), Instant::from_millis(1)).is_empty());
-        assert!(s.by_direction(Direction::horizontal(0.0), f64::NAN).is_empty());
+        assert_eq!(
+            w.iter().map(|e| e.source.as_str()).collect::<Vec<_>>(),
+            ["src1", "src2", "src3"]
+        );
+        assert!(
+            s.by_time(Instant::from_millis(3), Instant::from_millis(1))
+                .is_empty()
+        );
+        assert!(
+            s.by_direction(Direction::horizontal(0.0), f64::NAN)
+                .is_empty()
+        );
         assert_eq!(s.by_direction(Direction::horizontal(0.0), 4.0).len(), 6);
     }
 
@@ -540,14 +577,18 @@ mod tests {
                     bearing: Direction::from_degrees(f64::from(az) + 0.3, f64::from(el)),
                     ..payload("o", 0.0)
                 };
-                s.post("x", &format!("{k}"), Instant::from_millis(k), p).unwrap();
+                s.post("x", &format!("{k}"), Instant::from_millis(k), p)
+                    .unwrap();
                 k += 1;
             }
         }
         let q = Direction::from_degrees(33.0, 21.0);
         for r in [0.01, 0.1, 0.3, 1.0] {
             let fast = s.by_direction(q, r).len();
-            let scan = s.iter().filter(|e| e.payload.bearing.angle_to(q) <= r).count();
+            let scan = s
+                .iter()
+                .filter(|e| e.payload.bearing.angle_to(q) <= r)
+                .count();
             assert_eq!(fast, scan, "radius {r}");
         }
     }
@@ -556,9 +597,15 @@ mod tests {
     fn ttl_per_tag_and_default() {
         let mut s = ses();
         s.set_ttl("sonar", Duration::from_secs(1));
-        s.post("sonar", "a", Instant::from_millis(0), payload("wall", 0.0)).unwrap();
-        s.post("red", "b", Instant::from_millis(0), payload("red", 30.0)).unwrap();
-        assert_eq!(s.expire(Instant::from_millis(1000)), 0, "age == ttl survives");
+        s.post("sonar", "a", Instant::from_millis(0), payload("wall", 0.0))
+            .unwrap();
+        s.post("red", "b", Instant::from_millis(0), payload("red", 30.0))
+            .unwrap();
+        assert_eq!(
+            s.expire(Instant::from_millis(1000)),
+            0,
+            "age == ttl survives"
+        );
         assert_eq!(s.expire(Instant::from_millis(1001)), 1);
         assert!(s.by_tag("sonar").is_empty());
         assert_eq!(s.expire(Instant::from_millis(30_000)), 0);
@@ -575,7 +622,12 @@ mod tests {
         .unwrap();
         for i in 0..5_u64 {
             let out = s
-                .post("red", &format!("s{i}"), Instant::from_millis(10 - i), payload("red", 45.0))
+                .post(
+                    "red",
+                    &format!("s{i}"),
+                    Instant::from_millis(10 - i),
+                    payload("red", 45.0),
+                )
                 .unwrap();
             assert_eq!(out.evicted, usize::from(i >= 3));
         }
@@ -590,13 +642,22 @@ mod tests {
         let mut s = ses();
         let mut p = payload("x", 0.0);
         p.bearing.azimuth_rad = f64::NAN;
-        assert_eq!(s.post("t", "s", Instant::ZERO, p), Err(PostError::BadGeometry));
+        assert_eq!(
+            s.post("t", "s", Instant::ZERO, p),
+            Err(PostError::BadGeometry)
+        );
         let mut p = payload("x", 0.0);
         p.range_m = Some(-1.0);
-        assert_eq!(s.post("t", "s", Instant::ZERO, p), Err(PostError::BadGeometry));
+        assert_eq!(
+            s.post("t", "s", Instant::ZERO, p),
+            Err(PostError::BadGeometry)
+        );
         let mut p = payload("x", 0.0);
         p.confidence = 1.5;
-        assert_eq!(s.post("t", "s", Instant::ZERO, p), Err(PostError::BadConfidence));
+        assert_eq!(
+            s.post("t", "s", Instant::ZERO, p),
+            Err(PostError::BadConfidence)
+        );
         assert!(s.is_empty());
     }
 }

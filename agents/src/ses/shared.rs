@@ -547,10 +547,16 @@ mod tests {
         }
         let mut b = good.clone();
         b[0] = b'X';
-        assert_eq!(SharedForm::decode(&b), Err(DecodeError::BadMagic([b'X', b'E'])));
+        assert_eq!(
+            SharedForm::decode(&b),
+            Err(DecodeError::BadMagic([b'X', b'E']))
+        );
         let mut b = good.clone();
         b[2] = 2;
-        assert_eq!(SharedForm::decode(&b), Err(DecodeError::UnsupportedVersion(2)));
+        assert_eq!(
+            SharedForm::decode(&b),
+            Err(DecodeError::UnsupportedVersion(2))
+        );
         let mut b = good.clone();
         let n = b.len();
         b[n - 1] ^= 1;
@@ -564,7 +570,10 @@ mod tests {
         // Reserved flag bit in the first record (offset 2+1+1+7+8+2 = 21).
         let mut b = good.clone();
         b[21] = 0x81;
-        assert_eq!(SharedForm::decode(&b), Err(DecodeError::ReservedFlags(0x81)));
+        assert_eq!(
+            SharedForm::decode(&b),
+            Err(DecodeError::ReservedFlags(0x81))
+        );
     }
 
     #[test]
