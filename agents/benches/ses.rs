@@ -117,7 +117,7 @@ fn query_by_direction_15deg(b: Bencher) {
 }
 
 #[divan::bench(sample_count = 100, sample_size = 4)]
-fn shared_form_encode_decode_2000(b: Bencher) {
+fn shared_form_encode_decode_1024_records(b: Bencher) {
     let ses = filled();
     let form = ses.export_shared("skeeter", Instant::from_millis(10_000), |_| true);
     b.bench_local(|| {

@@ -64,7 +64,7 @@ fn write_seed_corpus() {
         SharedForm {
             source_robot: "s".repeat(32),
             sent_at: Instant::from_micros(u64::MAX),
-            records: vec![rec(&"o".repeat(64), -3.14, 1.5707, Some(0.0), u64::MAX - 7)],
+            records: vec![rec(&"o".repeat(64), -3.0, 1.5, Some(0.0), u64::MAX - 7)],
         },
     ];
     for (i, f) in forms.iter().enumerate() {

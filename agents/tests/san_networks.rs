@@ -205,3 +205,43 @@ fn traces_are_deterministic() {
     };
     assert_eq!(run(), run());
 }
+
+/// Step 1 of the toy problem worked by hand (α' = 0, so only the state and goal inputs count):
+/// pick-up-X gets φ/1/2 (X-somewhere) + φ/3/2 (hand-is-empty, in 3 modules) = 13.33;
+/// sand-board-in-{hand,vise} get φ/3/3 (operational) + γ/2/1 (board-sanded, 2 achievers)
+/// = 37.22; spray-paint-self gets φ/3/2 + γ/1/1 = 73.33; the rest 0. Σ = 187.78, scaled to
+/// n·π = 200. Nothing is executable above θ = 45 (spraying needs the sprayer in hand), so
+/// θ drops to 40.5.
+#[test]
+fn maes_toy_step_one_by_hand() {
+    let mut net = load("maes_toy.toml");
+    let t = net.simulate_step();
+    let (phi, gamma) = (20.0, 70.0);
+    let pick = phi / 2.0 + phi / 3.0 / 2.0;
+    let sand = phi / 9.0 + gamma / 2.0;
+    let spray = phi / 6.0 + gamma;
+    let scale = 200.0 / (3.0 * pick + 2.0 * sand + spray);
+    let want = [
+        ("pick-up-sprayer", pick),
+        ("pick-up-sander", pick),
+        ("pick-up-board", pick),
+        ("put-down-sprayer", 0.0),
+        ("put-down-sander", 0.0),
+        ("put-down-board", 0.0),
+        ("sand-board-in-hand", sand),
+        ("sand-board-in-vise", sand),
+        ("spray-paint-self", spray),
+        ("place-board-in-vise", 0.0),
+    ];
+    for (m, (name, a)) in t.modules.iter().zip(want) {
+        assert_eq!(m.name, name);
+        assert!(
+            (m.activation - a * scale).abs() < 1e-9,
+            "{name}: {}",
+            m.activation
+        );
+    }
+    assert_eq!(t.fired, None);
+    assert_eq!(t.threshold, 45.0);
+    assert!((t.next_threshold - 40.5).abs() < 1e-12);
+}

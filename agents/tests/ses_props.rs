@@ -42,7 +42,7 @@ proptest! {
     /// Angles -> vector -> angles is the identity (away from the poles, where azimuth is
     /// undefined).
     #[test]
-    fn angles_round_trip(az in -3.14159f64..3.14159, el in -1.5f64..1.5) {
+    fn angles_round_trip(az in -3.1f64..3.1, el in -1.5f64..1.5) {
         let d = Direction::new(az, el);
         let back = Direction::from_vector(&d.to_unit()).unwrap();
         prop_assert!((back.azimuth_rad - d.azimuth_rad).abs() < 1e-12);
@@ -67,7 +67,7 @@ proptest! {
     /// round-trips it within the documented resolution.
     #[test]
     fn posted_entries_are_found(
-        posts in proptest::collection::vec((-3.1f64..3.1, -1.5f64..1.5, 0u64..10_000, 0usize..4, 0usize..6), 1..40)
+        posts in proptest::collection::vec((-3.0f64..3.0, -1.5f64..1.5, 0u64..10_000, 0usize..4, 0usize..6), 1..40)
     ) {
         let mut ses = empty_ses();
         for &(az, el, t, tag, src) in &posts {
