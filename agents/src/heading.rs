@@ -18,11 +18,14 @@
 //!   the scout). With both ranges it is exact; with only one (or none) the isosceles
 //!   assumption is the best the geometry allows, and it falls back to the thesis rule and
 //!   says so in [`Method`].
+//! * [`sonar_range_along`] — the observer's own sonar range along a bearing (a consumer of
+//!   [`ima_hal::sonar`]).
 //! * [`sweep_48`] — the thesis's 48 start configurations and each rule's initial-heading
 //!   error from geometry alone.
 
 use core::f64::consts::PI;
 
+use ima_hal::sonar::{SonarScan, SonarTransducer};
 use ima_hal::{Vector2, normalize_angle};
 
 /// Why no heading can be computed.
@@ -313,6 +316,42 @@ pub fn range_aware_heading(obs: &Observation) -> Result<HeadingEstimate, Degener
     }
 }
 
+/// The observer's own sonar range along a bearing (robot frame, radians): among the
+/// transducers whose beam (axis ± half the beam width) contains the bearing and that report
+/// an echo (`min_range_m ≤ r < max_range_m`), the nearest echo, expressed as a distance from
+/// the robot centre (the transducer's offset is added along its beam axis). `None` when no
+/// beam covers the bearing or none has an echo.
+///
+/// Caveat: a sonar echo is the nearest reflector in the beam, which may be another object
+/// than the one the camera saw on that bearing; callers should check it against the SES
+/// (e.g. accept it only within a plausible band).
+#[must_use]
+pub fn sonar_range_along(
+    scan: &SonarScan,
+    transducers: &[SonarTransducer],
+    bearing_rad: f64,
+) -> Option<Range> {
+    if !bearing_rad.is_finite() {
+        return None;
+    }
+    scan.readings
+        .iter()
+        .filter_map(|r| {
+            let t = transducers.get(usize::from(r.index))?;
+            let axis = t.pose.rotation.angle();
+            let covers = normalize_angle(bearing_rad - axis).abs() <= t.beam_width_rad / 2.0;
+            let echo =
+                r.range_m.is_finite() && r.range_m >= t.min_range_m && r.range_m < t.max_range_m;
+            (covers && echo).then(|| (t.pose.translation.vector + unit(axis) * r.range_m).norm())
+        })
+        .filter(|d| d.is_finite())
+        .min_by(f64::total_cmp)
+        .map(|metres| Range {
+            metres,
+            source: RangeSource::Sensor,
+        })
+}
+
 /// One of the thesis's 48 start configurations and each rule's initial-heading error.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SweepRow {
@@ -460,6 +499,38 @@ mod tests {
             heading_from_ranges(0.3, 2.0, 0.3, 2.0),
             Err(Degenerate::AtTarget)
         );
+    }
+
+    #[test]
+    fn sonar_range_along_picks_the_covering_beam() {
+        use ima_hal::sonar::SonarReading;
+        use ima_hal::{Instant, Isometry2};
+        let tr = |deg: f64| SonarTransducer {
+            pose: Isometry2::new(unit(deg.to_radians()) * 0.2, deg.to_radians()),
+            min_range_m: 0.1,
+            max_range_m: 5.0,
+            beam_width_rad: 30f64.to_radians(),
+        };
+        let transducers = [tr(0.0), tr(20.0), tr(90.0)];
+        let mut scan = SonarScan::default();
+        for (index, range_m) in [(0, 3.0), (1, 2.0), (2, 5.0)] {
+            scan.upsert(SonarReading {
+                index,
+                range_m,
+                at: Instant::ZERO,
+            });
+        }
+        // 10°: both front beams cover it; the nearer echo wins, plus the 0.2 m offset.
+        let r = sonar_range_along(&scan, &transducers, 10f64.to_radians()).unwrap();
+        assert!((r.metres - 2.2).abs() < 1e-12);
+        assert_eq!(r.source, RangeSource::Sensor);
+        // -10°: only the 0° beam.
+        let r = sonar_range_along(&scan, &transducers, (-10f64).to_radians()).unwrap();
+        assert!((r.metres - 3.2).abs() < 1e-12);
+        // 90°: the beam reports max range = no echo. 180°: no beam.
+        assert_eq!(sonar_range_along(&scan, &transducers, PI / 2.0), None);
+        assert_eq!(sonar_range_along(&scan, &transducers, PI), None);
+        assert_eq!(sonar_range_along(&scan, &transducers, f64::NAN), None);
     }
 
     #[test]

@@ -98,7 +98,8 @@ pub struct StepTrace {
     pub fired: Option<String>,
     /// θ after the step.
     pub next_threshold: f64,
-    /// True propositions after the step (repeated per instance), in declaration order.
+    /// True propositions after the step, in declaration order, repeated once per instance
+    /// (at most 64 times, to keep traces small).
     pub state: Vec<String>,
     /// Goals not yet true after the step.
     pub goals: Vec<String>,
