@@ -177,6 +177,12 @@ impl Default for SesConfig {
 
 type Slot = u32;
 
+#[derive(Debug, Clone, Default)]
+struct TagIndex {
+    sources: HashMap<String, Slot>,
+    by_time: BTreeSet<(Instant, Slot)>,
+}
+
 /// The Sensory EgoSphere. See the [module docs](self).
 ///
 /// Storage: a slab of entries, a per-vertex list, a `(tag, source)` index for replacement, a
@@ -189,8 +195,9 @@ pub struct Ses {
     slots: Vec<Option<Entry>>,
     free: Vec<Slot>,
     at_vertex: Vec<Vec<Slot>>,
-    by_key: HashMap<(String, String), Slot>,
-    by_tag: HashMap<String, BTreeSet<(Instant, Slot)>>,
+    /// Per tag: source -> slot (the replacement key) and the tag's entries by time. Emptied
+    /// indexes are kept so a tag's strings are allocated once.
+    tags: HashMap<String, TagIndex>,
     by_time: BTreeSet<(Instant, Slot)>,
 }
 
@@ -208,8 +215,7 @@ impl Ses {
             slots: Vec::new(),
             free: Vec::new(),
             at_vertex,
-            by_key: HashMap::new(),
-            by_tag: HashMap::new(),
+            tags: HashMap::new(),
             by_time: BTreeSet::new(),
         })
     }
@@ -269,35 +275,60 @@ impl Ses {
             return Err(PostError::BadConfidence);
         }
         let vertex = self.dome.nearest(&b.to_unit());
-        let key = (tag.to_owned(), source.to_owned());
-        let replaced = match self.by_key.get(&key) {
-            Some(&slot) => {
-                self.remove_slot(slot);
-                true
-            }
-            None => false,
-        };
-        let entry = Entry {
-            tag: key.0.clone(),
-            source: key.1.clone(),
-            time,
-            payload,
-            vertex,
-        };
-        let slot = match self.free.pop() {
-            Some(s) => {
-                if let Some(x) = self.slots.get_mut(s as usize) {
-                    *x = Some(entry);
+        let existing = self
+            .tags
+            .get(tag)
+            .and_then(|t| t.sources.get(source))
+            .copied();
+        let slot =
+            match existing.and_then(|s| Some((s, self.entry(s)?.time, self.entry(s)?.vertex))) {
+                // Replace in place: no allocation in the steady state of a sensing agent.
+                Some((slot, old_time, old_vertex)) => {
+                    if let Some(t) = self.tags.get_mut(tag) {
+                        t.by_time.remove(&(old_time, slot));
+                        t.by_time.insert((time, slot));
+                    }
+                    self.by_time.remove(&(old_time, slot));
+                    if let Some(list) = self.at_vertex.get_mut(old_vertex as usize) {
+                        list.retain(|&s| s != slot);
+                    }
+                    if let Some(Some(e)) = self.slots.get_mut(slot as usize) {
+                        e.time = time;
+                        e.payload = payload;
+                        e.vertex = vertex;
+                    }
+                    slot
                 }
-                s
-            }
-            None => {
-                self.slots.push(Some(entry));
-                (self.slots.len() - 1) as Slot
-            }
-        };
-        self.by_key.insert(key.clone(), slot);
-        self.by_tag.entry(key.0).or_default().insert((time, slot));
+                None => {
+                    let entry = Entry {
+                        tag: tag.to_owned(),
+                        source: source.to_owned(),
+                        time,
+                        payload,
+                        vertex,
+                    };
+                    let slot = match self.free.pop() {
+                        Some(s) => {
+                            if let Some(x) = self.slots.get_mut(s as usize) {
+                                *x = Some(entry);
+                            }
+                            s
+                        }
+                        None => {
+                            self.slots.push(Some(entry));
+                            (self.slots.len() - 1) as Slot
+                        }
+                    };
+                    let t = match self.tags.get_mut(tag) {
+                        Some(t) => t,
+                        None => self.tags.entry(tag.to_owned()).or_default(),
+                    };
+                    t.sources.insert(source.to_owned(), slot);
+                    t.by_time.insert((time, slot));
+                    slot
+                }
+            };
+        let replaced = existing.is_some();
         self.by_time.insert((time, slot));
         let mut evicted = 0;
         if let Some(list) = self.at_vertex.get_mut(vertex as usize) {
@@ -331,7 +362,7 @@ impl Ses {
 
     /// Remove the entry posted under `(tag, source)`; returns it if there was one.
     pub fn remove(&mut self, tag: &str, source: &str) -> Option<Entry> {
-        let slot = *self.by_key.get(&(tag.to_owned(), source.to_owned()))?;
+        let slot = *self.tags.get(tag)?.sources.get(source)?;
         self.remove_slot(slot)
     }
 
@@ -361,7 +392,7 @@ impl Ses {
     /// The entry posted under `(tag, source)`.
     #[must_use]
     pub fn get(&self, tag: &str, source: &str) -> Option<&Entry> {
-        let slot = *self.by_key.get(&(tag.to_owned(), source.to_owned()))?;
+        let slot = *self.tags.get(tag)?.sources.get(source)?;
         self.entry(slot)
     }
 
@@ -406,12 +437,12 @@ impl Ses {
     /// Entries with tag `tag`, oldest first.
     #[must_use]
     pub fn by_tag(&self, tag: &str) -> Vec<&Entry> {
-        self.by_tag
-            .get(tag)
-            .into_iter()
-            .flatten()
-            .filter_map(|&(_, s)| self.entry(s))
-            .collect()
+        let Some(t) = self.tags.get(tag) else {
+            return Vec::new();
+        };
+        let mut out = Vec::with_capacity(t.by_time.len());
+        out.extend(t.by_time.iter().filter_map(|&(_, s)| self.entry(s)));
+        out
     }
 
     /// Entries sensed in the closed window `[from, to]`, oldest first.
@@ -442,12 +473,9 @@ impl Ses {
     fn remove_slot(&mut self, slot: Slot) -> Option<Entry> {
         let e = self.slots.get_mut(slot as usize)?.take()?;
         self.free.push(slot);
-        self.by_key.remove(&(e.tag.clone(), e.source.clone()));
-        if let Some(set) = self.by_tag.get_mut(&e.tag) {
-            set.remove(&(e.time, slot));
-            if set.is_empty() {
-                self.by_tag.remove(&e.tag);
-            }
+        if let Some(t) = self.tags.get_mut(&e.tag) {
+            t.sources.remove(&e.source);
+            t.by_time.remove(&(e.time, slot));
         }
         self.by_time.remove(&(e.time, slot));
         if let Some(list) = self.at_vertex.get_mut(e.vertex as usize) {
