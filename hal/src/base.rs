@@ -92,10 +92,7 @@ pub trait DifferentialBase: ErrorType {
     fn limits(&self) -> BaseLimits;
 
     /// Enable (`true`) or disable the drive motors. Resolves once the robot confirms.
-    fn enable_motors(
-        &mut self,
-        enable: bool,
-    ) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn enable_motors(&mut self, enable: bool) -> impl Future<Output = Result<(), Self::Error>> + Send;
 
     /// Command a velocity; it holds until the next command, a stop, or the command timeout.
     fn set_velocity(
@@ -149,6 +146,5 @@ impl BumperState {
 /// Bumpers and stall detection.
 pub trait Bumpers: ErrorType {
     /// The latest bumper and stall state.
-    fn bumpers(&mut self)
-    -> impl Future<Output = Result<Stamped<BumperState>, Self::Error>> + Send;
+    fn bumpers(&mut self) -> impl Future<Output = Result<Stamped<BumperState>, Self::Error>> + Send;
 }

@@ -66,10 +66,7 @@ pub trait SonarArray: ErrorType {
     fn transducers(&self) -> &[SonarTransducer];
 
     /// Turn firing on or off.
-    fn set_sonar_enabled(
-        &mut self,
-        on: bool,
-    ) -> impl Future<Output = Result<(), Self::Error>> + Send;
+    fn set_sonar_enabled(&mut self, on: bool) -> impl Future<Output = Result<(), Self::Error>> + Send;
 
     /// The latest reading of each transducer (waits for the first reading).
     fn sonar(&mut self) -> impl Future<Output = Result<Stamped<SonarScan>, Self::Error>> + Send;
