@@ -82,7 +82,10 @@ mod tests {
     use super::*;
 
     fn toy() -> PathBuf {
-        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/agents/networks/maes_toy.toml"))
+        PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/agents/networks/maes_toy.toml"
+        ))
     }
 
     fn lines(args: &SanSimulateArgs) -> Vec<serde_json::Value> {
@@ -119,7 +122,10 @@ mod tests {
                 "spray-paint-self"
             ]
         );
-        assert_eq!(v[19]["protected"], serde_json::json!(["board-sanded", "self-painted"]));
+        assert_eq!(
+            v[19]["protected"],
+            serde_json::json!(["board-sanded", "self-painted"])
+        );
     }
 
     #[test]
