@@ -1,4 +1,17 @@
 //! `ima-agents`: the robots' agents. They depend on `ima-hal` only, never on a driver.
 //!
-//! **Status:** not implemented yet; this crate is a placeholder in the workspace layout.
+//! Pure, deterministic logic with no I/O and no clock reads (time is an
+//! [`ima_hal::Instant`] argument):
+//!
+//! * [`ses`] — the Sensory EgoSphere: a geodesic dome of tagged, time-stamped entries, and
+//!   its [shared form](ses::shared), the binary list of observations robots exchange.
+//! * [`san`] — a Spreading Activation Network after Maes (1989), loaded from TOML.
+//! * [`heading`] — the thesis's isosceles heading rule and a range-aware rule.
+//!
+//! Everything is `f64`, SI units, radians; degrees appear only at API edges that say so.
 #![warn(missing_docs)]
+
+pub mod fuzz_harness;
+pub mod heading;
+pub mod san;
+pub mod ses;
