@@ -29,6 +29,15 @@ enum Command {
     Drive(cmd::drive::DriveArgs),
     /// Decode a capture of a serial protocol into JSON Lines.
     Decode(cmd::decode::DecodeArgs),
+    /// Spreading Activation Network tools.
+    #[command(subcommand)]
+    San(SanCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum SanCommand {
+    /// Run a network (TOML) step by step, one JSON line per step.
+    Simulate(cmd::san::SanSimulateArgs),
 }
 
 fn main() -> ExitCode {
@@ -45,6 +54,7 @@ fn main() -> ExitCode {
         Command::Mock(a) => cmd::mock::run(&a),
         Command::Drive(a) => cmd::drive::run(&a),
         Command::Decode(a) => cmd::decode::run(&a),
+        Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

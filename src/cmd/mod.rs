@@ -4,3 +4,4 @@ pub mod decode;
 pub mod demo;
 pub mod drive;
 pub mod mock;
+pub mod san;
