@@ -475,3 +475,39 @@ fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted()
         "delivered more SIPs than arrived intact"
     );
 }
+
+/// The blocking serialport shell over a real pty: connect, enable, drive, read sonar.
+#[test]
+fn blocking_shell_drives_the_mock() {
+    use ima_hal::blocking::{DifferentialBase as _, Odometer as _, Power as _, SonarArray as _};
+    use ima_p2os::blocking::{BlockingP2os, open_port as open_blocking};
+
+    let (world, id) = world_with_skeeter(Some(2.0));
+    let dev = serve(&world, id, P2osModelConfig::default(), "");
+    let port = open_blocking(dev.path().to_str().unwrap(), 9600).unwrap();
+    let mut robot =
+        BlockingP2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10)).unwrap();
+    assert_eq!(robot.identity().unwrap().subclass.as_str(), "p2at");
+    robot.enable_motors(true).unwrap();
+    let start = robot.odometry().unwrap().value.x_m();
+    let t = std::time::Instant::now();
+    while t.elapsed() < Duration::from_millis(1500) {
+        robot.set_velocity(VelocityCommand::new(0.2, 0.0)).unwrap();
+        robot.pump_for(Duration::from_millis(50)).unwrap();
+    }
+    robot.stop().unwrap();
+    robot.pump_for(Duration::from_millis(500)).unwrap();
+    let moved = robot.odometry().unwrap().value.x_m() - start;
+    let truth_x = truth(&world, id).0;
+    assert!(moved > 0.2, "moved {moved} m");
+    assert!(
+        (moved - truth_x).abs() < 0.01,
+        "odometry {moved} vs truth {truth_x}"
+    );
+    assert!((robot.power().unwrap().value.battery_v - 12.5).abs() < 0.05);
+    assert_eq!(robot.transducers().len(), 16);
+    // Wall at x = 2 m: front sonar 3 (0.245 m ahead, aimed 10° left) sees it.
+    let r3 = robot.sonar().unwrap().value.get(3).unwrap().range_m;
+    assert!(r3 < 2.0 - truth_x, "sonar 3 reads {r3}");
+    robot.close().unwrap();
+}

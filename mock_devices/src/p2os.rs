@@ -764,3 +764,228 @@ impl crate::model::DeviceModel for P2osDevice {
         "p2os"
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A body that stands still, with every sonar reading 2 m.
+    #[derive(Default)]
+    struct Still {
+        drive: (f64, f64),
+        drives: u32,
+    }
+
+    impl P2osBody for Still {
+        fn drive(&mut self, v: f64, w: f64) {
+            self.drive = (v, w);
+            self.drives += 1;
+        }
+        fn pose(&self) -> (f64, f64, f64) {
+            (0.0, 0.0, 0.0)
+        }
+        fn wheel_speeds_mm_s(&self) -> (f64, f64) {
+            (0.0, 0.0)
+        }
+        fn wheel_travel_mm(&self) -> (f64, f64) {
+            (1000.0, -500.0)
+        }
+        fn sonar_range_m(&mut self, _m: &SonarPose) -> Option<f64> {
+            Some(2.0)
+        }
+    }
+
+    fn ms(t: u64) -> Instant {
+        Instant::from_millis(t)
+    }
+
+    fn frame(c: Command<'_>) -> Vec<u8> {
+        let mut b = [0u8; 300];
+        let n = c.emit(&mut b).unwrap();
+        b[..n].to_vec()
+    }
+
+    fn packets(r: &mut P2osRobot) -> Vec<Packet<'static>> {
+        let out = r.take_output();
+        let mut f = Framer::new();
+        let mut v = Vec::new();
+        f.push(&out, |ev| {
+            if let FrameEvent::Frame(p) = ev {
+                let owned: &'static [u8] = Box::leak(p.to_vec().into_boxed_slice());
+                v.push(Packet::parse(owned).unwrap());
+            }
+        });
+        v
+    }
+
+    fn opened(body: &mut Still) -> P2osRobot {
+        let mut r = P2osRobot::new(P2osModelConfig::default(), body);
+        for (i, c) in [
+            Command::Sync0,
+            Command::Sync1,
+            Command::Sync2,
+            Command::OPEN,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            r.handle_rx(&frame(c), ms(i as u64), body);
+        }
+        let p = packets(&mut r);
+        assert_eq!(p.len(), 3, "three sync replies");
+        assert!(matches!(
+            p[2],
+            Packet::SyncReply {
+                subclass: b"p2at",
+                ..
+            }
+        ));
+        assert_eq!(r.link(), RobotLink::Open);
+        r
+    }
+
+    #[test]
+    fn idle_robot_is_silent_and_strict_about_sync_order() {
+        let mut body = Still::default();
+        let mut r = P2osRobot::new(P2osModelConfig::default(), &body);
+        r.handle_rx(&frame(Command::Int(IntCommand::Vel, 100)), ms(0), &mut body);
+        r.handle_timeout(ms(500), &mut body);
+        assert!(r.take_output().is_empty());
+        r.handle_rx(&frame(Command::Sync0), ms(1), &mut body);
+        r.handle_rx(&frame(Command::Sync2), ms(2), &mut body); // out of order
+        assert_eq!(r.link(), RobotLink::Idle);
+        assert_eq!(packets(&mut r), vec![Packet::SyncEcho(0)]);
+    }
+
+    #[test]
+    fn sips_every_100_ms_with_sonar_and_flags() {
+        let mut body = Still::default();
+        let mut r = opened(&mut body);
+        for t in (10..=1010).step_by(10) {
+            r.handle_timeout(ms(t), &mut body);
+        }
+        let sips: Vec<_> = packets(&mut r)
+            .into_iter()
+            .filter_map(|p| match p {
+                Packet::Sip(s) => Some(s),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(sips.len(), 10);
+        // 25 Hz per array: ~5 new readings per SIP, each 2 m / 0.268 mm.
+        let n: usize = sips.iter().map(|s| s.sonars.len()).sum();
+        assert!((45..=55).contains(&n), "{n} readings");
+        assert!(sips.iter().flat_map(|s| &s.sonars).all(|s| s.range == 7463));
+        assert!(!sips[0].motors_enabled());
+        assert_eq!(sips[0].flags & 0x1E, 0x1E, "sonar on");
+    }
+
+    #[test]
+    fn motors_stay_off_until_enable_and_watchdog_stops_then_resumes() {
+        let mut body = Still::default();
+        let mut r = opened(&mut body);
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::Vel, 300)),
+            ms(10),
+            &mut body,
+        );
+        assert_eq!(body.drive, (0.0, 0.0), "motors disabled");
+        r.handle_rx(&frame(Command::enable(true)), ms(20), &mut body);
+        assert!(
+            (body.drive.0 - 0.3).abs() < 1e-9,
+            "setpoint applies once enabled"
+        );
+        // Silence: at 2 s the robot stops but keeps streaming.
+        r.handle_timeout(ms(2000), &mut body);
+        assert!(!r.watchdog_tripped());
+        r.handle_timeout(ms(2021), &mut body);
+        assert!(r.watchdog_tripped());
+        assert_eq!(body.drive, (0.0, 0.0));
+        assert_eq!(r.link(), RobotLink::Open);
+        // A PULSE revives it and it resumes the old setpoint (spec §5.2).
+        r.handle_rx(&frame(Command::PULSE), ms(2500), &mut body);
+        assert!(!r.watchdog_tripped());
+        assert!((body.drive.0 - 0.3).abs() < 1e-9);
+        assert_eq!(r.stats().watchdog_trips, 1);
+    }
+
+    #[test]
+    fn sync_bytes_alias_pulse_open_close_on_an_open_session() {
+        let mut body = Still::default();
+        let mut r = opened(&mut body);
+        r.handle_rx(&frame(Command::Sync0), ms(10), &mut body); // PULSE
+        r.handle_rx(&frame(Command::Sync1), ms(11), &mut body); // OPEN again
+        assert_eq!(r.link(), RobotLink::Open);
+        assert!(
+            packets(&mut r).is_empty(),
+            "no sync echo on an open session"
+        );
+        r.handle_rx(&frame(Command::Sync2), ms(12), &mut body); // CLOSE
+        assert_eq!(r.link(), RobotLink::Idle);
+        r.handle_timeout(ms(1000), &mut body);
+        assert!(r.take_output().is_empty(), "no SIPs after CLOSE");
+        assert!(!r.motors_enabled());
+    }
+
+    #[test]
+    fn config_and_encoder_packets() {
+        let mut body = Still::default();
+        let mut r = opened(&mut body);
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::Config, 1)),
+            ms(10),
+            &mut body,
+        );
+        let out = r.take_output();
+        assert!(out[2] > 127, "CONFIG count byte {} must exceed 127", out[2]);
+        let mut f = Framer::new();
+        let mut got = None;
+        f.push(&out, |ev| {
+            if let FrameEvent::Frame(p) = ev
+                && let Ok(Packet::Config(c)) = Packet::parse(p)
+            {
+                got = Some((c.numbers.watchdog, c.subtype.to_vec(), c.numbers.ticks_mm));
+            }
+        });
+        assert_eq!(got, Some((2000, b"p2at".to_vec(), 19)));
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::Encoder, 2)),
+            ms(20),
+            &mut body,
+        );
+        for t in (30..=300).step_by(10) {
+            r.handle_timeout(ms(t), &mut body);
+        }
+        let enc: Vec<_> = packets(&mut r)
+            .into_iter()
+            .filter(|p| matches!(p, Packet::Encoder { .. }))
+            .collect();
+        assert!(enc.len() >= 2, "continuous ENCODER packets: {}", enc.len());
+        assert_eq!(
+            enc[0],
+            Packet::Encoder {
+                left: 19000,
+                right: -9500
+            }
+        );
+    }
+
+    #[test]
+    fn traffic_at_the_wrong_line_speed_is_noise() {
+        let mut body = Still::default();
+        let mut r = P2osRobot::new(
+            P2osModelConfig {
+                baud: 38400,
+                ..P2osModelConfig::default()
+            },
+            &body,
+        );
+        r.set_host_baud(Some(9600));
+        r.handle_rx(&frame(Command::Sync0), ms(0), &mut body);
+        assert!(r.take_output().is_empty());
+        assert_eq!(r.stats().baud_mismatch_bytes, 6);
+        r.set_host_baud(Some(38400));
+        r.handle_rx(&frame(Command::Sync0), ms(1), &mut body);
+        assert_eq!(packets(&mut r), vec![Packet::SyncEcho(0)]);
+    }
+}
