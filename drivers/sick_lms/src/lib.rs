@@ -26,7 +26,7 @@
 //! // 1. Events first: set the UART rate (and flush) before writing anything.
 //! assert_eq!(m.poll_event(), Some(Event::SetHostBaud(9600)));
 //! // 2. Then the telegram to write: the probe's `20 25` (spec §1.1 vector).
-//! let n = m.poll_transmit(&mut tx).unwrap();
+//! let n = m.poll_transmit(&mut tx).ok_or("nothing to send")?;
 //! assert_eq!(&tx[..n], &[0x02, 0x00, 0x02, 0x00, 0x20, 0x25, 0x35, 0x08]);
 //! // 3. Bytes read from the port; B0 scans come out borrowed, decoded in place.
 //! let mut scan = LaserScan::default();
@@ -34,9 +34,10 @@
 //!     let _ = ima_sick_lms::decode::decode_scan(b0, Default::default(), None, &mut scan);
 //! });
 //! // 4. Sleep until poll_timeout(), then call handle_timeout(now).
-//! let next = m.poll_timeout().unwrap();
+//! let next = m.poll_timeout().ok_or("no timer")?;
 //! assert!(next > Instant::from_millis(3));
 //! m.handle_timeout(next);
+//! # Ok::<(), &'static str>(())
 //! ```
 //!
 //! # Choices where the sources disagree (spec §1–§6)

@@ -1,3 +1,4 @@
+// #[cfg(test)]: this whole file is a test module (declared `#[cfg(test)] mod tests;`).
 //! Session tests in virtual time.
 
 use super::*;
