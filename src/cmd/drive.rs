@@ -29,6 +29,10 @@ pub struct DriveArgs {
     /// Print one JSON object per report instead of text.
     #[arg(long)]
     json: bool,
+    /// Use this parameter table (p2at, p2at8, p2dx) whatever subclass the robot reports;
+    /// needed for robots whose subclass has no built-in table.
+    #[arg(long)]
+    params: Option<String>,
     /// How long to wait for the robot to answer, seconds.
     #[arg(long, default_value_t = 10.0)]
     connect_timeout: f64,
@@ -60,6 +64,11 @@ async fn drive(args: &DriveArgs) -> Result<()> {
         }
     }
     cfg.bauds = bauds;
+    if let Some(name) = &args.params {
+        let p = ima_p2os::RobotParams::for_subclass(name.as_bytes())
+            .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))?;
+        cfg.params_override = Some(*p);
+    }
     let mut robot = P2os::connect(port, cfg, Duration::from_secs_f64(args.connect_timeout))
         .await
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;
