@@ -69,6 +69,7 @@ async fn drive(args: &DriveArgs) -> Result<()> {
             .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))?;
         cfg.params_override = Some(*p);
     }
+    let port = open_port(&args.port, args.baud).with_context(|| format!("opening {}", args.port))?;
     let mut robot = P2os::connect(port, cfg, Duration::from_secs_f64(args.connect_timeout))
         .await
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;
