@@ -53,8 +53,6 @@ pub fn run(args: &DriveArgs) -> Result<()> {
 }
 
 async fn drive(args: &DriveArgs) -> Result<()> {
-    let port =
-        open_port(&args.port, args.baud).with_context(|| format!("opening {}", args.port))?;
     let mut cfg = ima_p2os::Config::default();
     let mut bauds = heapless::Vec::<u32, 8>::new();
     let _ = bauds.push(args.baud);
@@ -69,7 +67,8 @@ async fn drive(args: &DriveArgs) -> Result<()> {
             .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))?;
         cfg.params_override = Some(*p);
     }
-    let port = open_port(&args.port, args.baud).with_context(|| format!("opening {}", args.port))?;
+    let port =
+        open_port(&args.port, args.baud).with_context(|| format!("opening {}", args.port))?;
     let mut robot = P2os::connect(port, cfg, Duration::from_secs_f64(args.connect_timeout))
         .await
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;
