@@ -45,6 +45,8 @@
     )
 )]
 
+pub mod camera;
+pub mod compass;
 pub mod duplex;
 pub mod faults;
 pub mod link;
@@ -52,4 +54,5 @@ pub mod model;
 pub mod p2os;
 pub mod pty;
 pub mod stepper;
+pub mod video_mux;
 pub mod world;
