@@ -139,3 +139,23 @@ async fn sweep_all_cameras_through_the_real_switcher() {
         "every object appears in some camera: {seen:?}"
     );
 }
+
+#[test]
+fn blocking_shell_selects_and_queries() {
+    let bus = VideoBus::default();
+    let dev = PtyDevice::spawn(
+        MuxDevice::new(MuxModelConfig::default(), bus.clone()),
+        PtyOptions::default(),
+    )
+    .unwrap();
+    let port = ima_video_mux::blocking::open_port(dev.path().to_str().unwrap(), 9600).unwrap();
+    let mut mux = ima_video_mux::blocking::BlockingVideoMux::new(port, Config::default());
+    let sel = mux.select(4).unwrap();
+    assert_eq!(sel.channel, 4);
+    assert_eq!(bus.current().0, Some(4));
+    assert_eq!(mux.current_channel().unwrap(), Some(4));
+    assert_eq!(
+        mux.select(0).unwrap_err().kind(),
+        ErrorKind::InvalidArgument
+    );
+}
