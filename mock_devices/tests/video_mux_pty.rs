@@ -159,3 +159,31 @@ fn blocking_shell_selects_and_queries() {
         ErrorKind::InvalidArgument
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kramer_dialect_over_a_pty() {
+    let bus = VideoBus::default();
+    let dev = serve(
+        MuxModelConfig {
+            dialect: ima_mock_devices::video_mux::MuxDialect::Kramer,
+            ..MuxModelConfig::default()
+        },
+        &bus,
+    );
+    let port = open_port(dev.path().to_str().unwrap(), 9600).unwrap();
+    let mut mux = VideoMux::spawn(
+        port,
+        Config {
+            dialect: ima_video_mux::machine::Dialect::Kramer {
+                output: 1,
+                machine: 1,
+                expect_reply: true,
+            },
+            ..Config::default()
+        },
+    );
+    let sel = mux.select(6).await.unwrap();
+    assert_eq!(sel.channel, 6);
+    assert_eq!(bus.current().0, Some(6));
+    assert_eq!(mux.current_channel().await.unwrap(), Some(6));
+}
