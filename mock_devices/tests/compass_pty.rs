@@ -182,6 +182,7 @@ async fn tcm2_heading_follows_the_world_and_calibrates() {
 
 #[test]
 fn blocking_shell_reads_the_mock() {
+    use ima_hal::blocking::Compass as _;
     let (world, id, dev) = setup(CompassModelConfig {
         noise_deg: 0.0,
         ..CompassModelConfig::default()

@@ -142,6 +142,7 @@ async fn sweep_all_cameras_through_the_real_switcher() {
 
 #[test]
 fn blocking_shell_selects_and_queries() {
+    use ima_hal::blocking::CameraMux as _;
     let bus = VideoBus::default();
     let dev = PtyDevice::spawn(
         MuxDevice::new(MuxModelConfig::default(), bus.clone()),

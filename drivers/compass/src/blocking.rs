@@ -4,12 +4,13 @@
 //! The stream's `read` must return within a few milliseconds when nothing arrives (a port from
 //! [`open_port`] has a 10 ms timeout; `TimedOut` and `WouldBlock` count as "nothing"), because
 //! the session's timers run between reads. Time only advances inside the driver's calls.
-//! `ima-hal` has no blocking compass trait; [`BlockingCompass::heading`] and
-//! [`BlockingCompass::next_heading`] mirror [`ima_hal::compass::Compass`].
+//! [`BlockingCompass`] implements [`ima_hal::blocking::Compass`], the blocking mirror of
+//! [`ima_hal::compass::Compass`].
 
 use std::io::{self, Read, Write};
 use std::time::Duration;
 
+use ima_hal::blocking;
 use ima_hal::compass::Heading;
 use ima_hal::time::MonotonicClock;
 use ima_hal::{ErrorType, Instant, Stamped};
@@ -108,28 +109,6 @@ impl<S: Read + Write> BlockingCompass<S> {
         }
     }
 
-    /// The most recent heading (waits up to 3 s for the first one).
-    ///
-    /// # Errors
-    /// As [`BlockingCompass::next_reading`].
-    pub fn heading(&mut self) -> Result<Stamped<Heading>, DriverError> {
-        self.pump_available()?;
-        match self.latest {
-            Some(r) => Ok(r.map(|r| r.heading)),
-            None => self.next_heading(Instant::ZERO),
-        }
-    }
-
-    /// A heading measured after `after` (waits up to 3 s).
-    ///
-    /// # Errors
-    /// As [`BlockingCompass::next_reading`].
-    pub fn next_heading(&mut self, after: Instant) -> Result<Stamped<Heading>, DriverError> {
-        Ok(self
-            .next_reading(after, Duration::from_secs(3))?
-            .map(|r| r.heading))
-    }
-
     fn pump_available(&mut self) -> Result<(), DriverError> {
         // One pass: whatever is buffered now (bounded by the port timeout).
         self.pump_once()
@@ -189,4 +168,22 @@ impl<S: Read + Write> BlockingCompass<S> {
 
 impl<S> ErrorType for BlockingCompass<S> {
     type Error = DriverError;
+}
+
+impl<S: Read + Write> blocking::Compass for BlockingCompass<S> {
+    /// The most recent heading (waits up to 3 s for the first one).
+    fn heading(&mut self) -> Result<Stamped<Heading>, DriverError> {
+        self.pump_available()?;
+        match self.latest {
+            Some(r) => Ok(r.map(|r| r.heading)),
+            None => self.next_heading(Instant::ZERO),
+        }
+    }
+
+    /// A heading measured after `after` (waits up to 3 s).
+    fn next_heading(&mut self, after: Instant) -> Result<Stamped<Heading>, DriverError> {
+        Ok(self
+            .next_reading(after, Duration::from_secs(3))?
+            .map(|r| r.heading))
+    }
 }

@@ -2,13 +2,14 @@
 //! stream, for simple tools without an async runtime.
 //!
 //! The stream's `read` must return within a few milliseconds when nothing arrives (a port from
-//! [`open_port`] has a 10 ms timeout; `TimedOut`/`WouldBlock` count as "nothing"). `ima-hal`
-//! has no blocking camera-mux trait; [`BlockingVideoMux::select`] and
-//! [`BlockingVideoMux::current_channel`] mirror [`ima_hal::camera::CameraMux`].
+//! [`open_port`] has a 10 ms timeout; `TimedOut`/`WouldBlock` count as "nothing").
+//! [`BlockingVideoMux`] implements [`ima_hal::blocking::CameraMux`], the blocking mirror of
+//! [`ima_hal::camera::CameraMux`].
 
 use std::io::{self, Read, Write};
 use std::time::Duration;
 
+use ima_hal::blocking;
 use ima_hal::camera::{Channel, Selection};
 use ima_hal::time::MonotonicClock;
 use ima_hal::{ErrorType, Instant};
@@ -66,37 +67,6 @@ impl<S: Read + Write> BlockingVideoMux<S> {
         self.clock.now()
     }
 
-    /// Switch to `channel` and wait for the switcher's confirmation (with retries).
-    ///
-    /// # Errors
-    /// [`DriverError::Request`], [`DriverError::Refused`], [`DriverError::Timeout`],
-    /// [`DriverError::Io`].
-    pub fn select(&mut self, channel: Channel) -> Result<Selection, DriverError> {
-        self.machine
-            .select(channel, self.clock.now())
-            .map_err(DriverError::Request)?;
-        match self.run()? {
-            Outcome::Selected(s) => Ok(s),
-            Outcome::Failed(e) => Err(e),
-            Outcome::Current(_) => Err(DriverError::Timeout),
-        }
-    }
-
-    /// Ask the switcher which channel is selected.
-    ///
-    /// # Errors
-    /// As [`BlockingVideoMux::select`].
-    pub fn current_channel(&mut self) -> Result<Option<Channel>, DriverError> {
-        self.machine
-            .query(self.clock.now())
-            .map_err(DriverError::Request)?;
-        match self.run()? {
-            Outcome::Current(c) => Ok(c),
-            Outcome::Failed(e) => Err(e),
-            Outcome::Selected(_) => Err(DriverError::Timeout),
-        }
-    }
-
     fn run(&mut self) -> Result<Outcome, DriverError> {
         // The machine bounds the wait (reply timeout × retries); this is a backstop.
         let deadline = std::time::Instant::now() + Duration::from_secs(30);
@@ -148,4 +118,38 @@ impl<S: Read + Write> BlockingVideoMux<S> {
 
 impl<S> ErrorType for BlockingVideoMux<S> {
     type Error = DriverError;
+}
+
+impl<S: Read + Write> blocking::CameraMux for BlockingVideoMux<S> {
+    fn channel_count(&self) -> Channel {
+        self.machine.config().channel_count
+    }
+
+    fn settle_time(&self) -> Duration {
+        self.machine.config().settle_time
+    }
+
+    /// Switch to `channel` and wait for the switcher's confirmation (with retries).
+    fn select(&mut self, channel: Channel) -> Result<Selection, DriverError> {
+        self.machine
+            .select(channel, self.clock.now())
+            .map_err(DriverError::Request)?;
+        match self.run()? {
+            Outcome::Selected(s) => Ok(s),
+            Outcome::Failed(e) => Err(e),
+            Outcome::Current(_) => Err(DriverError::Timeout),
+        }
+    }
+
+    /// Ask the switcher which channel is selected.
+    fn current_channel(&mut self) -> Result<Option<Channel>, DriverError> {
+        self.machine
+            .query(self.clock.now())
+            .map_err(DriverError::Request)?;
+        match self.run()? {
+            Outcome::Current(c) => Ok(c),
+            Outcome::Failed(e) => Err(e),
+            Outcome::Selected(_) => Err(DriverError::Timeout),
+        }
+    }
 }
