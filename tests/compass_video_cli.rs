@@ -105,7 +105,7 @@ fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
 }
 
 #[test]
-fn compass_on_a_silent_port_fails_cleanly() {
+fn compass_on_a_switcher_port_fails_cleanly() {
     let (_mock, path) = spawn_mock(&["video-mux"]);
     // A switcher is no compass: configuration must fail, not hang.
     let out = ima()
