@@ -29,6 +29,11 @@ enum Command {
     Drive(cmd::drive::DriveArgs),
     /// Decode a capture of a serial protocol into JSON Lines.
     Decode(cmd::decode::DecodeArgs),
+    /// Configure a serial compass and print its heading live.
+    Compass(cmd::compass::CompassArgs),
+    /// Camera head tools (the mock head: grab a frame as PNG).
+    #[command(subcommand)]
+    Camera(cmd::camera::CameraCommand),
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
@@ -55,6 +60,8 @@ fn main() -> ExitCode {
         Command::Drive(a) => cmd::drive::run(&a),
         Command::Decode(a) => cmd::decode::run(&a),
         Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
+        Command::Compass(a) => cmd::compass::run(&a),
+        Command::Camera(c) => cmd::camera::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

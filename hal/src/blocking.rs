@@ -47,3 +47,29 @@ pub trait Power: ErrorType {
     /// See [`crate::power::Power::power`].
     fn power(&mut self) -> Result<Stamped<PowerState>, Self::Error>;
 }
+
+/// Blocking [`crate::compass::Compass`].
+pub trait Compass: ErrorType {
+    /// See [`crate::compass::Compass::heading`].
+    fn heading(&mut self) -> Result<Stamped<crate::compass::Heading>, Self::Error>;
+    /// See [`crate::compass::Compass::next_heading`].
+    fn next_heading(
+        &mut self,
+        after: crate::Instant,
+    ) -> Result<Stamped<crate::compass::Heading>, Self::Error>;
+}
+
+/// Blocking [`crate::camera::CameraMux`].
+pub trait CameraMux: ErrorType {
+    /// See [`crate::camera::CameraMux::channel_count`].
+    fn channel_count(&self) -> crate::camera::Channel;
+    /// See [`crate::camera::CameraMux::settle_time`].
+    fn settle_time(&self) -> core::time::Duration;
+    /// See [`crate::camera::CameraMux::select`].
+    fn select(
+        &mut self,
+        channel: crate::camera::Channel,
+    ) -> Result<crate::camera::Selection, Self::Error>;
+    /// See [`crate::camera::CameraMux::current_channel`].
+    fn current_channel(&mut self) -> Result<Option<crate::camera::Channel>, Self::Error>;
+}

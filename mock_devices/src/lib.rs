@@ -18,6 +18,9 @@
 //! * [`duplex`] — serve a model on a `tokio::io::duplex` pipe for fast tests.
 //! * [`p2os`] — the Pioneer 2-AT's P2OS firmware as a device model.
 //! * [`stepper`] — advance a [`world::SharedWorld`] in real time.
+//! * [`compass`] — a KVH C100 (NMEA) or PNI TCM2 compass reporting its robot's heading.
+//! * [`video_mux`] — an Extron SIS / Kramer video switcher and the [`video_mux::VideoBus`]
+//!   it shares with [`camera`], the 7-camera head rendering the world's coloured objects.
 //!
 //! # Quick start
 //!
@@ -45,6 +48,8 @@
     )
 )]
 
+pub mod camera;
+pub mod compass;
 pub mod duplex;
 pub mod faults;
 pub mod link;
@@ -52,4 +57,5 @@ pub mod model;
 pub mod p2os;
 pub mod pty;
 pub mod stepper;
+pub mod video_mux;
 pub mod world;

@@ -22,6 +22,12 @@ use serde_json::{Value, json};
 pub enum Protocol {
     /// Pioneer 2 P2OS.
     P2os,
+    /// Serial compass: NMEA HDG/HDM/HDT, TCM2 lines (`--from host`: KVH/TCM2 commands).
+    Compass,
+    /// Extron SIS video switcher (`--from host`: SIS commands).
+    VideoMux,
+    /// Kramer Protocol 2000 video switcher (both directions).
+    Kramer,
 }
 
 /// Which side of the link the capture is from.
@@ -94,6 +100,27 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     let mut out = std::io::BufWriter::new(stdout.lock());
     match args.protocol {
         Protocol::P2os => decode_p2os(&bytes, args.from, params, &mut |v| {
+            serde_json::to_writer(&mut out, &v)?;
+            out.write_all(b"\n")?;
+            Ok(())
+        })?,
+        Protocol::Compass => {
+            crate::cmd::decode_compass::decode(&bytes, args.from == Direction::Host, &mut |v| {
+                serde_json::to_writer(&mut out, &v)?;
+                out.write_all(b"\n")?;
+                Ok(())
+            })?
+        }
+        Protocol::VideoMux => crate::cmd::decode_video_mux::decode_extron(
+            &bytes,
+            args.from == Direction::Host,
+            &mut |v| {
+                serde_json::to_writer(&mut out, &v)?;
+                out.write_all(b"\n")?;
+                Ok(())
+            },
+        )?,
+        Protocol::Kramer => crate::cmd::decode_video_mux::decode_kramer(&bytes, &mut |v| {
             serde_json::to_writer(&mut out, &v)?;
             out.write_all(b"\n")?;
             Ok(())

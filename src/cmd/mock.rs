@@ -17,6 +17,10 @@ use ima_mock_devices::world::{SharedWorld, World};
 pub enum Device {
     /// A Pioneer 2-AT running P2OS.
     P2os,
+    /// A serial compass (KVH C100 NMEA or PNI TCM2) on Scooter.
+    Compass,
+    /// An Extron (or Kramer) video switcher for the 7-camera head.
+    VideoMux,
 }
 
 /// Arguments of `ima mock`.
@@ -34,12 +38,34 @@ pub struct MockArgs {
     /// (grammar: `ima-mock-devices` docs, module `faults`).
     #[arg(long, default_value = "")]
     faults: String,
-    /// Which robot of the world the device belongs to.
-    #[arg(long, default_value = "skeeter")]
-    robot: String,
+    /// Which robot of the world the device belongs to (default: skeeter; scooter for the
+    /// compass).
+    #[arg(long)]
+    robot: Option<String>,
     /// The device's serial rate (the driver must find it).
     #[arg(long, default_value_t = 9600)]
     baud: u32,
+    /// Compass: the dialect.
+    #[arg(long, value_enum, default_value = "nmea")]
+    dialect: crate::cmd::compass::MockCompassDialect,
+    /// Compass: installation deviation, degrees east.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    deviation: f64,
+    /// Compass: turn the robot at this rate, degrees per second.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    spin: f64,
+    /// Video mux: number of inputs.
+    #[arg(long, default_value_t = 7)]
+    inputs: u8,
+    /// Video mux: switch delay, milliseconds.
+    #[arg(long, default_value_t = 30)]
+    switch_delay_ms: u64,
+    /// Video mux: front-panel auto-switch mode (selections refused with E06).
+    #[arg(long)]
+    auto_switch: bool,
+    /// Video mux: speak Kramer Protocol 2000 instead of Extron SIS.
+    #[arg(long)]
+    kramer: bool,
 }
 
 /// Load the world of `--world`, or the built-in arena, with `seed`.
@@ -95,9 +121,28 @@ pub fn serve_p2os(
 pub fn run(args: &MockArgs) -> Result<()> {
     let world = load_world(args.world.as_ref(), args.seed)?;
     let dev = match args.device {
+        Device::Compass => {
+            let opts = crate::cmd::compass::MockCompassOptions {
+                dialect: args.dialect,
+                deviation_deg: args.deviation,
+                spin_deg_s: args.spin,
+                seed: args.seed,
+            };
+            let robot = args.robot.as_deref().unwrap_or("scooter");
+            return crate::cmd::compass::run_mock(&world, robot, &args.faults, opts);
+        }
+        Device::VideoMux => {
+            let opts = crate::cmd::camera::MockMuxOptions {
+                inputs: args.inputs,
+                switch_delay_ms: args.switch_delay_ms,
+                auto_switch: args.auto_switch,
+                kramer: args.kramer,
+            };
+            return crate::cmd::camera::run_mock(&args.faults, opts);
+        }
         Device::P2os => serve_p2os(
             &world,
-            &args.robot,
+            args.robot.as_deref().unwrap_or("skeeter"),
             args.seed,
             &args.faults,
             args.baud,

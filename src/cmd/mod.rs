@@ -1,6 +1,10 @@
 //! One module per sub-command.
 
+pub mod camera;
+pub mod compass;
 pub mod decode;
+pub mod decode_compass;
+pub mod decode_video_mux;
 pub mod demo;
 pub mod drive;
 pub mod mock;

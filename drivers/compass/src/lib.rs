@@ -23,7 +23,11 @@
 //!   refused for that dialect.
 //! * The TCM2 error field is read as hex and reported, not interpreted.
 //!
-//! Serial shells (blocking and tokio) are not part of this crate yet.
+//! # I/O shells
+//!
+//! * `shell` (feature `tokio`): an async task owning the port, cloneable
+//!   `CompassDriver` handles implementing [`ima_hal::compass::Compass`].
+//! * `blocking` (feature `serial`): `BlockingCompass` over any `Read + Write`.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![warn(missing_docs)]
 // No panics on input: outside tests, these are compile errors in the protocol cores.
@@ -38,7 +42,13 @@
     )
 )]
 
+#[cfg(feature = "serial")]
+pub mod blocking;
+#[cfg(feature = "std")]
+pub mod driver;
 pub mod framer;
 pub mod fuzz_harness;
 pub mod machine;
+#[cfg(feature = "tokio")]
+pub mod shell;
 pub mod wire;

@@ -11,8 +11,8 @@
 //!   query; unsolicited messages. No I/O, no clock: time is passed in as
 //!   [`ima_hal::Instant`].
 //!
-//! The HAL side is [`ima_hal::camera::CameraMux`] (implemented by the I/O shell, not yet
-//! written) and [`ima_hal::camera::FrameSource`] (frame grabbers and the mock camera head).
+//! The HAL side is [`ima_hal::camera::CameraMux`] (implemented by the async I/O shell `shell::VideoMux`,
+//! feature `tokio`; a blocking mirror is `blocking::BlockingVideoMux`, feature `serial`) and [`ima_hal::camera::FrameSource`] (frame grabbers and the mock camera head).
 //!
 //! # Choices where the spec is silent
 //!
@@ -37,7 +37,13 @@
     )
 )]
 
+#[cfg(feature = "serial")]
+pub mod blocking;
+#[cfg(feature = "std")]
+pub mod driver;
 pub mod framer;
 pub mod fuzz_harness;
 pub mod machine;
+#[cfg(feature = "tokio")]
+pub mod shell;
 pub mod wire;

@@ -1,0 +1,205 @@
+//! `ima camera grab`: grab one frame from the mock camera head (through the mock switcher and
+//! the real switcher driver) and save it as PNG; and the serving half of `ima mock video-mux`.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand};
+use ima_hal::camera::{CameraMux, Frame, FrameSource};
+use ima_mock_devices::camera::{CameraConfig, MockCameraHead};
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::video_mux::{MuxDevice, MuxDialect, MuxModelConfig, VideoBus};
+use ima_video_mux::machine::Config as MuxConfig;
+use ima_video_mux::shell::{VideoMux, open_port};
+
+/// `ima camera` sub-commands.
+#[derive(Debug, Subcommand)]
+pub enum CameraCommand {
+    /// Grab one frame of the mock camera head and write it as PNG.
+    Grab(GrabArgs),
+}
+
+/// Arguments of `ima camera grab`.
+#[derive(Debug, Args)]
+pub struct GrabArgs {
+    /// Camera channel, 1 (forward) to 7, counter-clockwise.
+    #[arg(long)]
+    channel: u8,
+    /// Output PNG file.
+    #[arg(long)]
+    out: PathBuf,
+    /// World file (TOML); the built-in thesis arena when absent.
+    #[arg(long)]
+    world: Option<PathBuf>,
+    /// Seed for pixel noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// The robot carrying the head.
+    #[arg(long, default_value = "skeeter")]
+    robot: String,
+    /// Horizontal field of view of each camera, degrees.
+    #[arg(long, default_value_t = 60.0)]
+    fov: f64,
+    /// Frame width, pixels.
+    #[arg(long, default_value_t = 320)]
+    width: u32,
+    /// Frame height, pixels.
+    #[arg(long, default_value_t = 240)]
+    height: u32,
+    /// Grab right after the switch, before the picture settles (shows the garbage frame).
+    #[arg(long)]
+    no_settle: bool,
+    /// Tell the head the channel directly instead of selecting it on the mock switcher.
+    #[arg(long)]
+    direct: bool,
+}
+
+/// Write an RGB frame as an 8-bit PNG.
+pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
+    if !frame.is_consistent() {
+        bail!("frame buffer does not match its size");
+    }
+    let file =
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), frame.width, frame.height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().context("writing the PNG header")?;
+    w.write_image_data(&frame.pixels)
+        .context("writing the PNG data")?;
+    w.finish().context("finishing the PNG")?;
+    Ok(())
+}
+
+/// Run `ima camera …`.
+pub fn run(cmd: &CameraCommand) -> Result<()> {
+    match cmd {
+        CameraCommand::Grab(a) => grab(a),
+    }
+}
+
+fn grab(args: &GrabArgs) -> Result<()> {
+    let world = crate::cmd::mock::load_world(args.world.as_ref(), args.seed)?;
+    let id = world
+        .with(|w| w.robot_id(&args.robot))
+        .with_context(|| format!("the world has no robot named {:?}", args.robot))?;
+    let cfg = CameraConfig {
+        fov_deg: args.fov,
+        width: args.width,
+        height: args.height,
+        seed: args.seed,
+        ..CameraConfig::default()
+    };
+    if args.channel == 0 || args.channel > cfg.cameras {
+        bail!("channel must be 1..={}", cfg.cameras);
+    }
+    if !(args.fov > 0.0 && args.fov < 180.0) || args.width == 0 || args.height == 0 {
+        bail!("field of view must be in (0, 180) degrees and the size non-zero");
+    }
+    let bus = VideoBus::new(None);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let frame = rt.block_on(async {
+        let mut cam = MockCameraHead::new(cfg, world.clone(), id, bus.clone());
+        // Keep the switcher alive until the frame is taken.
+        let mut _switcher = None;
+        let settled_in = if args.direct {
+            bus.switch(args.channel);
+            cfg.settle_time
+        } else {
+            let dev = PtyDevice::spawn(
+                MuxDevice::new(MuxModelConfig::default(), bus.clone()),
+                PtyOptions::default(),
+            )
+            .context("starting the mock switcher")?;
+            let port = open_port(&dev.path().to_string_lossy(), 9600)
+                .context("opening the switcher pty")?;
+            _switcher = Some(dev);
+            let mut mux = VideoMux::spawn(port, MuxConfig::default());
+            let sel = mux
+                .select(args.channel)
+                .await
+                .context("selecting the camera")?;
+            eprintln!(
+                "switcher confirmed channel {}; settled in {:?}",
+                sel.channel,
+                mux.settle_time()
+            );
+            mux.close().await;
+            sel.settled_at.saturating_duration_since(mux.now())
+        };
+        if !args.no_settle {
+            tokio::time::sleep(settled_in).await;
+        }
+        let f = cam.grab().await.context("grabbing")?;
+        anyhow::Ok(f.value)
+    })?;
+    write_png(&args.out, &frame)?;
+    eprintln!(
+        "wrote {} ({}×{}, channel {})",
+        args.out.display(),
+        frame.width,
+        frame.height,
+        args.channel
+    );
+    Ok(())
+}
+
+/// Options of the mock switcher (the switcher-specific flags of `ima mock`).
+#[derive(Debug, Clone, Copy)]
+pub struct MockMuxOptions {
+    /// Number of inputs.
+    pub inputs: u8,
+    /// Switch delay, milliseconds.
+    pub switch_delay_ms: u64,
+    /// Refuse selections with E06 (front-panel auto-switch mode).
+    pub auto_switch: bool,
+    /// Speak Kramer Protocol 2000 instead of Extron SIS.
+    pub kramer: bool,
+}
+
+/// `ima mock video-mux`.
+pub fn run_mock(faults: &str, opts: MockMuxOptions) -> Result<()> {
+    let plan = if faults.is_empty() {
+        FaultPlan::none()
+    } else {
+        FaultPlan::parse(faults).context("parsing --faults")?
+    };
+    let cfg = MuxModelConfig {
+        dialect: if opts.kramer {
+            MuxDialect::Kramer
+        } else {
+            MuxDialect::Extron
+        },
+        inputs: opts.inputs,
+        switch_delay: Duration::from_millis(opts.switch_delay_ms),
+        auto_switch: opts.auto_switch,
+        ..MuxModelConfig::default()
+    };
+    let dev = PtyDevice::spawn(
+        MuxDevice::new(cfg, VideoBus::default()),
+        PtyOptions {
+            faults: plan,
+            ..PtyOptions::default()
+        },
+    )
+    .context("starting the pty")?;
+    let what = if opts.kramer {
+        "Kramer switcher"
+    } else {
+        "Extron switcher"
+    };
+    crate::cmd::compass::announce_and_wait(dev.path(), what)?;
+    let model = dev
+        .stop()
+        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
+    let st = model.stats();
+    eprintln!(
+        "stopped: {} commands, {} switches, {} error replies",
+        st.commands, st.switches, st.errors
+    );
+    Ok(())
+}

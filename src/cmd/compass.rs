@@ -1,0 +1,272 @@
+//! `ima compass --port PATH`: configure a serial compass and print its heading live; and the
+//! serving half of `ima mock compass`.
+
+use std::io::Write;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use ima_compass::machine::{Config, Dialect};
+use ima_compass::shell::{CompassDriver, default_baud, open_port};
+use ima_compass::wire::Tcm2Format;
+use ima_hal::compass::HeadingReference;
+use ima_mock_devices::compass::{CompassDevice, CompassModelConfig, MockDialect};
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::world::{DriveCommand, SharedWorld};
+
+/// Compass dialects the driver speaks.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum DriverDialect {
+    /// KVH C100: set NMEA output (`=t,0`) and the rate (`=r,N`), then read NMEA.
+    Kvh,
+    /// Any NMEA 0183 heading source, already configured: listen only.
+    Nmea,
+    /// PNI TCM2: `h`, `sdo=t`, `sp=N`, `go`, then read the standard line.
+    Tcm2,
+}
+
+/// Dialects of the mock compass.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum MockCompassDialect {
+    /// A KVH C100 streaming NMEA `HDG` (answers `=…` commands with `>`).
+    Nmea,
+    /// A PNI TCM2 streaming its standard line.
+    Tcm2,
+}
+
+/// Arguments of `ima compass`.
+#[derive(Debug, Args)]
+pub struct CompassArgs {
+    /// Serial port (or the pty printed by `ima mock compass`).
+    #[arg(long)]
+    port: String,
+    /// The compass on the port.
+    #[arg(long, value_enum, default_value = "kvh")]
+    dialect: DriverDialect,
+    /// Line speed (default: 4800 for NMEA/KVH, 9600 for TCM2).
+    #[arg(long)]
+    baud: Option<u32>,
+    /// Readings per second asked of the device (KVH: ×60 per minute; TCM2: `sp=N`).
+    #[arg(long, default_value_t = 10)]
+    rate: u16,
+    /// Stop after this many readings (0: run until interrupted).
+    #[arg(long, default_value_t = 0)]
+    count: u64,
+    /// One JSON object per reading instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+fn config(args: &CompassArgs) -> Config {
+    let dialect = match args.dialect {
+        DriverDialect::Kvh => Dialect::KvhC100 {
+            rate_per_minute: args.rate.saturating_mul(60).clamp(1, 600),
+        },
+        DriverDialect::Nmea => Dialect::Nmea,
+        DriverDialect::Tcm2 => Dialect::Tcm2 {
+            sample_rate_hz: u8::try_from(args.rate.clamp(1, 8)).unwrap_or(8),
+            output: Tcm2Format::Standard,
+        },
+    };
+    Config::for_dialect(dialect)
+}
+
+/// Run `ima compass`.
+pub fn run(args: &CompassArgs) -> Result<()> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(run_async(args))
+}
+
+async fn run_async(args: &CompassArgs) -> Result<()> {
+    let cfg = config(args);
+    let baud = args.baud.unwrap_or_else(|| default_baud(cfg.dialect));
+    let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
+    let drv = CompassDriver::connect(port, cfg, Duration::from_secs(10))
+        .await
+        .context("configuring the compass")?;
+    let start = drv.now();
+    let mut after = start;
+    let mut n = 0u64;
+    let mut stdout = std::io::stdout();
+    loop {
+        let r = tokio::select! {
+            r = drv.next_reading(after, Duration::from_secs(3)) => r.context("reading the compass")?,
+            _ = tokio::signal::ctrl_c() => break,
+        };
+        after = r.at;
+        let h = &r.value.heading;
+        let t = r.at.saturating_duration_since(start).as_secs_f64();
+        let reference = match h.reference {
+            HeadingReference::Magnetic => "magnetic",
+            HeadingReference::True => "true",
+        };
+        let line = if args.json {
+            serde_json::json!({
+                "t_s": t,
+                "heading_rad": h.heading_rad,
+                "heading_deg": h.heading_rad.to_degrees(),
+                "reference": reference,
+                "deviation_rad": h.deviation_rad,
+                "variation_rad": h.variation_rad,
+                "magnetic_rad": h.magnetic_rad(),
+                "true_rad": h.true_rad(),
+                "yaw_enu_rad": h.yaw_enu_rad(),
+                "pitch_rad": r.value.pitch_rad,
+                "roll_rad": r.value.roll_rad,
+                "temperature_c": r.value.temperature_c,
+                "error_code": r.value.error_code,
+            })
+            .to_string()
+        } else {
+            let mut s = format!(
+                "t={t:7.2}s heading {:6.1}° {reference}",
+                h.heading_rad.to_degrees()
+            );
+            if let Some(d) = h.deviation_rad {
+                s.push_str(&format!(" deviation {:+.1}°", d.to_degrees()));
+                if let Some(m) = h.magnetic_rad() {
+                    s.push_str(&format!(" → {:6.1}° corrected", m.to_degrees()));
+                }
+            }
+            if let (Some(p), Some(rl)) = (r.value.pitch_rad, r.value.roll_rad) {
+                s.push_str(&format!(
+                    " pitch {:+.1}° roll {:+.1}°",
+                    p.to_degrees(),
+                    rl.to_degrees()
+                ));
+            }
+            s
+        };
+        writeln!(stdout, "{line}")?;
+        stdout.flush()?;
+        n += 1;
+        if args.count > 0 && n >= args.count {
+            break;
+        }
+    }
+    let st = drv.stats();
+    eprintln!(
+        "{} headings, {} parse errors, {} bad checksums, {} bytes dropped",
+        st.headings, st.parse_errors, st.framer.bad_checksums, st.framer.dropped_bytes
+    );
+    drv.close().await;
+    Ok(())
+}
+
+/// Options of the mock compass (the compass-specific flags of `ima mock`).
+#[derive(Debug, Clone, Copy)]
+pub struct MockCompassOptions {
+    /// The dialect.
+    pub dialect: MockCompassDialect,
+    /// Installation deviation, degrees east.
+    pub deviation_deg: f64,
+    /// Turn the robot at this rate, degrees per second (0: stand still).
+    pub spin_deg_s: f64,
+    /// Noise seed.
+    pub seed: u64,
+}
+
+/// Serve a mock compass on `robot` of `world` on a new pty (the world is stepped in real
+/// time by this device).
+pub fn serve_mock(
+    world: &SharedWorld,
+    robot: &str,
+    faults: &str,
+    opts: MockCompassOptions,
+) -> Result<PtyDevice<CompassDevice>> {
+    let id = world
+        .with(|w| w.robot_id(robot))
+        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    if opts.spin_deg_s != 0.0 {
+        world.with(|w| {
+            w.command(
+                id,
+                DriveCommand::Twist {
+                    v_m_s: 0.0,
+                    omega_rad_s: opts.spin_deg_s.to_radians(),
+                },
+            )
+        });
+    }
+    let plan = if faults.is_empty() {
+        FaultPlan::none()
+    } else {
+        FaultPlan::parse(faults).context("parsing --faults")?
+    };
+    let cfg = CompassModelConfig {
+        dialect: match opts.dialect {
+            MockCompassDialect::Nmea => MockDialect::Kvh,
+            MockCompassDialect::Tcm2 => MockDialect::Tcm2,
+        },
+        deviation_deg: opts.deviation_deg,
+        seed: opts.seed,
+        ..CompassModelConfig::default()
+    };
+    PtyDevice::spawn(
+        CompassDevice::new(cfg, world.clone(), id),
+        PtyOptions {
+            faults: plan,
+            step_world: Some(world.clone()),
+            ..PtyOptions::default()
+        },
+    )
+    .context("starting the pty")
+}
+
+/// Wait for Ctrl-C or SIGTERM.
+pub fn wait_for_interrupt() -> Result<()> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        #[cfg(unix)]
+        {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => r?,
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        tokio::signal::ctrl_c().await?;
+        anyhow::Ok(())
+    })
+}
+
+/// Print the pty path on stdout's first line, then serve until interrupted.
+pub fn announce_and_wait(path: &std::path::Path, what: &str) -> Result<()> {
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", path.display())?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving a mock {what} on {}; Ctrl-C to stop",
+        path.display()
+    );
+    wait_for_interrupt()
+}
+
+/// `ima mock compass`.
+pub fn run_mock(
+    world: &SharedWorld,
+    robot: &str,
+    faults: &str,
+    opts: MockCompassOptions,
+) -> Result<()> {
+    let dev = serve_mock(world, robot, faults, opts)?;
+    announce_and_wait(dev.path(), &format!("{:?} compass", opts.dialect))?;
+    let model = dev
+        .stop()
+        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
+    let st = model.stats();
+    eprintln!(
+        "stopped: {} commands, {} bad commands, {} lines sent",
+        st.commands, st.bad_commands, st.lines
+    );
+    Ok(())
+}

@@ -1,0 +1,231 @@
+//! `ima decode compass`: NMEA `HDG`/`HDM`/`HDT`, TCM2 lines, calibration scores and KVH
+//! prompts (device side), or KVH/TCM2 commands (`--from host`), as JSON Lines (the contract of
+//! [`crate::cmd::decode`]).
+
+use anyhow::Result;
+use ima_compass::framer::{Frame, FrameError, LineFramer};
+use ima_compass::wire::{
+    Command, Decimal, KvhCommand, Line, NmeaBody, Offset, ParseOptions, Tcm2Command, Tcm2Data,
+};
+use serde_json::{Value, json};
+
+fn deg(d: Option<Decimal>) -> Option<f64> {
+    d.map(Decimal::to_f64)
+}
+
+fn offset_json(o: Option<Offset>) -> Value {
+    match o {
+        Some(o) => json!({"deg": o.signed_deg(), "rad": o.signed_deg().to_radians()}),
+        None => Value::Null,
+    }
+}
+
+fn heading_fields(v: &mut Value, h: Option<f64>) {
+    v["heading_deg"] = json!(h);
+    v["heading_rad"] = json!(h.map(f64::to_radians));
+}
+
+fn line_json(line: &Line) -> Value {
+    match line {
+        Line::Prompt => json!({"kind": "prompt"}),
+        Line::CalScore(s) => json!({
+            "kind": "calibration_score", "horizontal": s.h, "vertical": s.v,
+            "distortion": s.m.to_f64(),
+        }),
+        Line::Nmea(s) => {
+            let talker = String::from_utf8_lossy(&s.talker.0).into_owned();
+            let (kind, reference) = match s.body {
+                NmeaBody::Hdg(_) => ("hdg", "magnetic"),
+                NmeaBody::Hdm(_) => ("hdm", "magnetic"),
+                NmeaBody::Hdt(_) => ("hdt", "true"),
+            };
+            let mut v = json!({"kind": kind, "talker": talker, "reference": reference});
+            heading_fields(&mut v, s.heading_deg());
+            if let NmeaBody::Hdg(g) = s.body {
+                v["deviation"] = offset_json(g.deviation);
+                v["variation"] = offset_json(g.variation);
+            }
+            v
+        }
+        Line::Tcm2(d) => tcm2_json(d),
+    }
+}
+
+fn tcm2_json(d: &Tcm2Data) -> Value {
+    let mut v = json!({"kind": "tcm2", "reference": "magnetic"});
+    heading_fields(&mut v, deg(d.heading));
+    v["pitch_rad"] = json!(deg(d.pitch).map(f64::to_radians));
+    v["roll_rad"] = json!(deg(d.roll).map(f64::to_radians));
+    v["bx"] = json!(deg(d.bx));
+    v["by"] = json!(deg(d.by));
+    v["bz"] = json!(deg(d.bz));
+    v["temperature_c"] = json!(deg(d.temperature));
+    v["error_code"] = json!(d.error);
+    v
+}
+
+fn command_json(c: Command) -> Value {
+    match c {
+        Command::Kvh(k) => match k {
+            KvhCommand::OutputFormat(f) => {
+                json!({"kind": "kvh_output_format", "format": format!("{f:?}")})
+            }
+            KvhCommand::Rate { per_minute } => json!({
+                "kind": "kvh_rate", "per_minute": per_minute,
+                "rate_hz": f64::from(per_minute) / 60.0,
+            }),
+            KvhCommand::Baud(b) => json!({"kind": "kvh_baud", "baud": format!("{b:?}")}),
+        },
+        Command::Tcm2(t) => match t {
+            Tcm2Command::Halt => json!({"kind": "tcm2_halt"}),
+            Tcm2Command::Go => json!({"kind": "tcm2_go"}),
+            Tcm2Command::QueryOutput => json!({"kind": "tcm2_query_output"}),
+            Tcm2Command::QueryCompass => json!({"kind": "tcm2_query_compass"}),
+            Tcm2Command::SampleRate(hz) => json!({"kind": "tcm2_sample_rate", "rate_hz": hz}),
+            Tcm2Command::OutputFormat(f) => {
+                json!({"kind": "tcm2_output_format", "format": format!("{f:?}")})
+            }
+            Tcm2Command::ClearCalibration => json!({"kind": "tcm2_clear_calibration"}),
+            Tcm2Command::UserCalibrationOn => json!({"kind": "tcm2_user_calibration", "on": true}),
+            Tcm2Command::UserCalibrationOff => {
+                json!({"kind": "tcm2_user_calibration", "on": false})
+            }
+            Tcm2Command::AutoCalibration(on) => json!({"kind": "tcm2_auto_calibration", "on": on}),
+        },
+    }
+}
+
+fn frame_error(e: FrameError) -> String {
+    match e {
+        FrameError::Overlong => "line too long".into(),
+        FrameError::BadByte(b) => format!("non-printable byte {b:#04x}"),
+        FrameError::BadChecksum { expected, got } => {
+            format!("bad checksum: computed {expected:02X}, line has {got:02X}")
+        }
+    }
+}
+
+/// Decode a compass byte stream; `from_host` selects the command direction.
+pub fn decode(
+    bytes: &[u8],
+    from_host: bool,
+    emit: &mut dyn FnMut(Value) -> Result<()>,
+) -> Result<()> {
+    if from_host {
+        return decode_commands(bytes, emit);
+    }
+    let opts = ParseOptions::default();
+    let mut framer: LineFramer = LineFramer::new();
+    for (i, &b) in bytes.iter().enumerate() {
+        let v = match framer.push_byte(b) {
+            None => continue,
+            Some(Frame::Prompt) => {
+                let mut v = line_json(&Line::Prompt);
+                v["offset"] = json!(i);
+                v
+            }
+            Some(Frame::Corrupt(e)) => {
+                json!({"kind": "error", "error": frame_error(e), "offset": i})
+            }
+            Some(Frame::Line(l)) => {
+                let offset = i.saturating_sub(l.len());
+                match Line::parse(l, &opts) {
+                    Ok(line) => {
+                        let mut v = line_json(&line);
+                        v["offset"] = json!(offset);
+                        v
+                    }
+                    Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
+                }
+            }
+        };
+        emit(v)?;
+    }
+    if framer.pending() > 0 {
+        emit(
+            json!({"kind": "error", "error": "truncated line at end of input", "offset": bytes.len().saturating_sub(framer.pending())}),
+        )?;
+    }
+    Ok(())
+}
+
+fn decode_commands(bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+    let mut start = 0usize;
+    for (i, &b) in bytes.iter().enumerate() {
+        if b != b'\r' && b != b'\n' {
+            continue;
+        }
+        let line = bytes.get(start..i).unwrap_or(&[]);
+        let offset = start;
+        start = i + 1;
+        if line.is_empty() {
+            continue;
+        }
+        emit(match Command::parse(line) {
+            Ok(c) => {
+                let mut v = command_json(c);
+                v["offset"] = json!(offset);
+                v
+            }
+            Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
+        })?;
+    }
+    if start < bytes.len() {
+        emit(
+            json!({"kind": "error", "error": "truncated command at end of input", "offset": start}),
+        )?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(bytes: &[u8], host: bool) -> Vec<Value> {
+        let mut out = Vec::new();
+        decode(bytes, host, &mut |v| {
+            out.push(v);
+            Ok(())
+        })
+        .unwrap();
+        out
+    }
+
+    #[test]
+    fn spec_vectors_and_errors() {
+        let v = run(
+            b"$HCHDM,238.5,M*25\r\n$HCHDG,238.5,0.0,E,12.3,W*6C\r\n$HCHDM,238.5,M*26\r\n>\
+              $C328.3P28.4R-12.4T22.3E001*XX\r\nH8V7M0.4\r\n",
+            false,
+        );
+        assert_eq!(v[0]["kind"], "hdm");
+        assert!((v[0]["heading_deg"].as_f64().unwrap() - 238.5).abs() < 1e-9);
+        assert_eq!(v[0]["offset"], 0);
+        assert_eq!(v[1]["kind"], "hdg");
+        assert!((v[1]["variation"]["deg"].as_f64().unwrap() + 12.3).abs() < 1e-9);
+        assert_eq!(v[2]["kind"], "error");
+        assert_eq!(v[3]["kind"], "prompt");
+        assert_eq!(v[4]["kind"], "error");
+        assert_eq!(v[5]["kind"], "calibration_score");
+        assert_eq!(v.len(), 6);
+    }
+
+    #[test]
+    fn commands() {
+        let v = run(b"=t,0\r=r,600\rh\rsp=8\rgo\rbogus\r", true);
+        let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
+        assert_eq!(
+            kinds,
+            [
+                "kvh_output_format",
+                "kvh_rate",
+                "tcm2_halt",
+                "tcm2_sample_rate",
+                "tcm2_go",
+                "error"
+            ]
+        );
+        assert_eq!(v[1]["rate_hz"], 10.0);
+    }
+}

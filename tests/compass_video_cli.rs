@@ -1,0 +1,206 @@
+//! The `ima` program for issue 5: `mock compass` and `compass` as separate processes over a
+//! pty (both dialects), `camera grab` to PNG, and `decode compass|video-mux|kramer`.
+
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Command, Stdio};
+
+fn ima() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ima"))
+}
+
+/// Kills the child when dropped, so a failing test leaves no process behind.
+struct Child(std::process::Child);
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn spawn_mock(args: &[&str]) -> (Child, String) {
+    let mut mock = Child(
+        ima()
+            .arg("mock")
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut path = String::new();
+    BufReader::new(mock.0.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let path = path.trim().to_owned();
+    assert!(
+        path.starts_with("/dev/"),
+        "first line is the pty path: {path:?}"
+    );
+    (mock, path)
+}
+
+fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {
+    String::from_utf8_lossy(out)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+#[test]
+fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
+    // Scooter starts at yaw 30°, so the compass reads 60° (deviation 4° east corrected).
+    for (mock_dialect, drv_dialect, corrected) in [("nmea", "kvh", true), ("tcm2", "tcm2", false)] {
+        let (_mock, path) = spawn_mock(&[
+            "compass",
+            "--dialect",
+            mock_dialect,
+            "--deviation",
+            if corrected { "4" } else { "0" },
+            "--seed",
+            "5",
+        ]);
+        let out = ima()
+            .args([
+                "compass",
+                "--port",
+                &path,
+                "--dialect",
+                drv_dialect,
+                "--count",
+                "20",
+                "--json",
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let lines = json_lines(&out.stdout);
+        assert_eq!(lines.len(), 20);
+        let mean: f64 = lines
+            .iter()
+            .map(|l| {
+                let key = if corrected {
+                    "magnetic_rad"
+                } else {
+                    "heading_rad"
+                };
+                l[key].as_f64().unwrap().to_degrees()
+            })
+            .sum::<f64>()
+            / 20.0;
+        assert!(
+            (mean - 60.0).abs() < 0.5,
+            "{mock_dialect}: mean heading {mean}"
+        );
+        if drv_dialect == "tcm2" {
+            assert!(lines[0]["pitch_rad"].is_number());
+        } else {
+            assert!((lines[0]["deviation_rad"].as_f64().unwrap().to_degrees() - 4.0).abs() < 1e-9);
+        }
+    }
+}
+
+#[test]
+fn compass_on_a_switcher_port_fails_cleanly() {
+    let (_mock, path) = spawn_mock(&["video-mux"]);
+    // A switcher is no compass: configuration must fail, not hang.
+    let out = ima()
+        .args([
+            "compass",
+            "--port",
+            &path,
+            "--dialect",
+            "tcm2",
+            "--count",
+            "1",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("compass"));
+}
+
+#[test]
+fn camera_grab_writes_a_png_with_the_expected_blob() {
+    let dir = std::env::temp_dir().join(format!("ima-camera-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("ch1.png");
+    let out = ima()
+        .args(["camera", "grab", "--channel", "1", "--out"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&file).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (320, 240));
+    // The red object is dead ahead of Skeeter: a red blob centred on column 160.
+    let (mut sum, mut n) = (0usize, 0usize);
+    for (i, p) in buf.chunks_exact(3).enumerate() {
+        if p[0] > 200 && p[1] < 50 && p[2] < 50 {
+            sum += i % 320;
+            n += 1;
+        }
+    }
+    assert!(n > 300, "red pixels: {n}");
+    let col = sum as f64 / n as f64 + 0.5;
+    assert!((col - 160.0).abs() < 1.5, "{col}");
+    let bad = ima()
+        .args(["camera", "grab", "--channel", "9", "--out"])
+        .arg(dir.join("x.png"))
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn decode(protocol: &str, extra: &[&str], input: &[u8]) -> Vec<serde_json::Value> {
+    let mut child = ima()
+        .arg("decode")
+        .arg(protocol)
+        .args(extra)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(input).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    json_lines(&out.stdout)
+}
+
+#[test]
+fn decode_compass_and_switchers() {
+    let v = decode(
+        "compass",
+        &[],
+        b"$HCHDT,238.5,T*25\r\ngarbage\r\n$HCHDG,238.5,,,,*4E\r\n",
+    );
+    assert_eq!(v.len(), 3);
+    assert_eq!(v[0]["kind"], "hdt");
+    assert_eq!(v[0]["reference"], "true");
+    assert!((v[0]["heading_rad"].as_f64().unwrap() - 238.5f64.to_radians()).abs() < 1e-12);
+    assert_eq!(v[1]["kind"], "error");
+    assert_eq!(v[2]["kind"], "hdg");
+    assert!(v[2]["deviation"].is_null());
+    let v = decode("compass", &["--from", "host"], b"h\rsdo=t\rsp=8\rgo\r");
+    assert_eq!(v.len(), 4);
+    let v = decode("video-mux", &[], b"In3 All\r\nE13\r\n");
+    assert_eq!(v[0]["input"], 3);
+    assert_eq!(v[1]["code"], 13);
+    let v = decode("video-mux", &["--from", "host"], b"3!");
+    assert_eq!(v[0]["kind"], "select");
+    let v = decode("kramer", &["--hex"], b"01 83 81 81");
+    assert_eq!(v[0]["kind"], "switch_video");
+    assert_eq!(v[0]["input"], 3);
+}
