@@ -51,5 +51,6 @@ pub mod link;
 pub mod model;
 pub mod p2os;
 pub mod pty;
+pub mod rflex;
 pub mod stepper;
 pub mod world;
