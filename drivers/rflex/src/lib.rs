@@ -49,3 +49,8 @@ pub mod framer;
 pub mod fuzz_harness;
 pub mod machine;
 pub mod wire;
+
+#[cfg(feature = "std")]
+pub mod driver;
+#[cfg(feature = "tokio")]
+pub mod shell;
