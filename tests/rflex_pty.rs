@@ -73,11 +73,7 @@ fn truth(world: &SharedWorld, id: RobotId) -> (f64, f64, f64) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn init_accepted_and_brake_release_needed_before_motion() {
     let (world, id) = world_with_scooter(None);
-    let dev = serve(
-        &world,
-        device(&world, id, RflexModelConfig::default()),
-        "",
-    );
+    let dev = serve(&world, device(&world, id, RflexModelConfig::default()), "");
     let mut base = connect(dev.path()).await;
     // Status arrives: 26.30 + 1.2 V, brake engaged at power-up.
     let p = base.power().await.unwrap().value;
@@ -118,11 +114,7 @@ async fn init_accepted_and_brake_release_needed_before_motion() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn drive_one_metre_and_turn_ninety_degrees() {
     let (world, id) = world_with_scooter(None);
-    let dev = serve(
-        &world,
-        device(&world, id, RflexModelConfig::default()),
-        "",
-    );
+    let dev = serve(&world, device(&world, id, RflexModelConfig::default()), "");
     let mut base = connect(dev.path()).await;
     base.enable_motors(true).await.unwrap();
     let o0 = base.odometry().await.unwrap().value;
@@ -182,11 +174,7 @@ async fn drive_one_metre_and_turn_ninety_degrees() {
 async fn front_sonar_sees_a_wall_one_metre_ahead() {
     // Index 0 of the default table sits 0.40 m ahead of the centre, looking straight ahead.
     let (world, id) = world_with_scooter(Some(0.40 + 1.0));
-    let dev = serve(
-        &world,
-        device(&world, id, RflexModelConfig::default()),
-        "",
-    );
+    let dev = serve(&world, device(&world, id, RflexModelConfig::default()), "");
     let mut base = connect(dev.path()).await;
     // 17 ids at 40 ms each: a full round takes 0.68 s.
     tokio::time::sleep(Duration::from_millis(1500)).await;
@@ -203,11 +191,7 @@ async fn front_sonar_sees_a_wall_one_metre_ahead() {
 #[test]
 fn robot_stops_after_the_failsafe_when_the_host_goes_silent() {
     let (world, id) = world_with_scooter(None);
-    let dev = serve(
-        &world,
-        device(&world, id, RflexModelConfig::default()),
-        "",
-    );
+    let dev = serve(&world, device(&world, id, RflexModelConfig::default()), "");
     let rt = tokio::runtime::Runtime::new().unwrap();
     let path = dev.path().to_owned();
     // Keep the handle alive past the runtime: dropping the last handle would shut the base
@@ -287,7 +271,10 @@ async fn driver_recovers_after_the_mock_hangs_up() {
                 .unwrap();
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
-        assert!(truth(&world, id).0 - x0 > 0.03, "drives again (reset = {reset})");
+        assert!(
+            truth(&world, id).0 - x0 > 0.03,
+            "drives again (reset = {reset})"
+        );
         assert!(base.stats().reconnects >= 1);
         base.close().await.unwrap();
         let model = dev.stop().unwrap();

@@ -30,8 +30,8 @@ use ima_hal::Instant;
 use ima_rflex::framer::{Framer, FramerConfig};
 use ima_rflex::machine::SonarMount;
 use ima_rflex::wire::{
-    Command, DIO_BUMPER_ADDRESS, DioReport, MotionReport, Report, SonarEcho, SonarReport,
-    Stuffing, MAX_WIRE_FRAME,
+    Command, DIO_BUMPER_ADDRESS, DioReport, MAX_WIRE_FRAME, MotionReport, Report, SonarEcho,
+    SonarReport, Stuffing,
 };
 
 /// What the controller drives and senses.
@@ -455,10 +455,7 @@ impl RflexRobot {
                 wrap_i32((d - self.origin.0) * self.cfg.kd),
                 wrap_i32((th - self.origin.1) * self.cfg.ka),
             ];
-            let vel = [
-                wrap_i32(v * self.cfg.kd),
-                wrap_i32(w * self.cfg.ka),
-            ];
+            let vel = [wrap_i32(v * self.cfg.kd), wrap_i32(w * self.cfg.ka)];
             for axis in 0..2u8 {
                 if mask & (1 << axis) == 0 {
                     continue;
@@ -499,7 +496,10 @@ impl RflexRobot {
                             self.cfg.no_echo_raw
                         }
                     });
-                    self.pending_echoes.push(SonarEcho { id: m.id, range: raw });
+                    self.pending_echoes.push(SonarEcho {
+                        id: m.id,
+                        range: raw,
+                    });
                 }
                 if self.pending_echoes.len() >= self.cfg.echoes_per_frame.clamp(1, 6) {
                     let mut echoes = heapless::Vec::new();
@@ -586,10 +586,7 @@ impl RflexBody for RflexWorldBody {
                 .map(|r| {
                     let (l, rr) = r.wheel_travel_mm();
                     let track = r.track_width_m();
-                    (
-                        (l + rr) / 2000.0,
-                        (rr - l) / 1000.0 / track.max(1e-6),
-                    )
+                    ((l + rr) / 2000.0, (rr - l) / 1000.0 / track.max(1e-6))
                 })
                 .unwrap_or_default()
         })
@@ -621,10 +618,7 @@ impl RflexBody for RflexWorldBody {
                 w.cast_ignoring(p.point(), dir, reach, Some(self.robot))
                     .is_some()
             };
-            (
-                hit(p.theta_rad),
-                hit(p.theta_rad + std::f64::consts::PI),
-            )
+            (hit(p.theta_rad), hit(p.theta_rad + std::f64::consts::PI))
         })
     }
 }
@@ -764,8 +758,16 @@ mod tests {
         r.handle_rx(&cmd(set_dir(0, 45_405, true)), Instant::ZERO, &mut b);
         run(&mut r, &mut b, 0, 300);
         assert_eq!(b.v.0, 0.0, "braked robot moved");
-        r.handle_rx(&cmd(Command::BrakeRelease), Instant::from_millis(300), &mut b);
-        r.handle_rx(&cmd(set_dir(0, 45_405, true)), Instant::from_millis(300), &mut b);
+        r.handle_rx(
+            &cmd(Command::BrakeRelease),
+            Instant::from_millis(300),
+            &mut b,
+        );
+        r.handle_rx(
+            &cmd(set_dir(0, 45_405, true)),
+            Instant::from_millis(300),
+            &mut b,
+        );
         run(&mut r, &mut b, 301, 550);
         // 1 m/s² for 0.25 s → 0.25 m/s (target 0.5).
         assert!((b.v.0 - 0.25).abs() < 0.02, "{}", b.v.0);
@@ -793,8 +795,16 @@ mod tests {
             t0,
             &mut b,
         );
-        r.handle_rx(&cmd(Command::DioReportsReq { period_us: 100_000 }), t0, &mut b);
-        r.handle_rx(&cmd(Command::SonarRun(ima_rflex::wire::SonarRun::ON)), t0, &mut b);
+        r.handle_rx(
+            &cmd(Command::DioReportsReq { period_us: 100_000 }),
+            t0,
+            &mut b,
+        );
+        r.handle_rx(
+            &cmd(Command::SonarRun(ima_rflex::wire::SonarRun::ON)),
+            t0,
+            &mut b,
+        );
         r.handle_rx(&cmd(Command::SysStatusRequest), t0, &mut b);
         b.travel = (1.0, 0.5);
         run(&mut r, &mut b, 0, 250);
@@ -828,7 +838,11 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(sonar.len(), 1, "6 readings at 40 ms in 300 ms → one frame of 6");
+        assert_eq!(
+            sonar.len(),
+            1,
+            "6 readings at 40 ms in 300 ms → one frame of 6"
+        );
         assert_eq!(sonar[0].echoes.len(), 6);
         assert_eq!(sonar[0].echoes[0].range, 1476);
         assert!(out.iter().any(|x| matches!(
@@ -858,7 +872,10 @@ mod tests {
         let out = r.take_output();
         assert!(out.windows(3).any(|w| w == [0x7C, 0x1B, 0x01]));
         let got = reports(&out);
-        assert!(got.iter().any(|x| matches!(x, Report::Motion(m) if m.position == 0x7C7C)));
+        assert!(
+            got.iter()
+                .any(|x| matches!(x, Report::Motion(m) if m.position == 0x7C7C))
+        );
     }
 
     #[test]

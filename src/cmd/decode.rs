@@ -22,6 +22,8 @@ use serde_json::{Value, json};
 pub enum Protocol {
     /// Pioneer 2 P2OS.
     P2os,
+    /// iRobot/RWI rFLEX (ATRV-Jr).
+    Rflex,
 }
 
 /// Which side of the link the capture is from.
@@ -94,6 +96,11 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     let mut out = std::io::BufWriter::new(stdout.lock());
     match args.protocol {
         Protocol::P2os => decode_p2os(&bytes, args.from, params, &mut |v| {
+            serde_json::to_writer(&mut out, &v)?;
+            out.write_all(b"\n")?;
+            Ok(())
+        })?,
+        Protocol::Rflex => super::decode_rflex::decode_rflex(&bytes, args.from, &mut |v| {
             serde_json::to_writer(&mut out, &v)?;
             out.write_all(b"\n")?;
             Ok(())

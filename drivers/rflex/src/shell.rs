@@ -161,8 +161,12 @@ impl Rflex {
         let (stats_tx, stats) = watch::channel(ShellStats::default());
         let limits = cfg.limits;
         let machine = Machine::new(cfg, clock.now());
-        let transducers: Arc<[SonarTransducer]> =
-            machine.transducers().iter().copied().collect::<Vec<_>>().into();
+        let transducers: Arc<[SonarTransducer]> = machine
+            .transducers()
+            .iter()
+            .copied()
+            .collect::<Vec<_>>()
+            .into();
         let task = Task {
             machine,
             clock,
