@@ -431,3 +431,45 @@ fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted()
         "delivered {delivered} of {intact} intact reports"
     );
 }
+
+#[test]
+fn blocking_shell_drives_the_mock() {
+    use ima_hal::blocking::{DifferentialBase as _, Odometer as _, Power as _};
+    use ima_rflex::blocking::{BlockingRflex, open_port as open_blocking};
+
+    let (world, id) = world_with_scooter(None);
+    let dev = serve(&world, device(&world, id, RflexModelConfig::default()), "");
+    let port = open_blocking(dev.path().to_str().unwrap(), 115_200).unwrap();
+    let mut base = BlockingRflex::connect(
+        port,
+        ima_rflex::machine::Config::default(),
+        Duration::from_secs(10),
+    )
+    .unwrap();
+    assert!((base.power().unwrap().value.battery_v - 27.5).abs() < 1e-9);
+    assert_eq!(
+        base.set_velocity(VelocityCommand::new(0.3, 0.0)),
+        Err(DriverError::Command(CommandError::MotorsDisabled))
+    );
+    base.enable_motors(true).unwrap();
+    let start = std::time::Instant::now();
+    while start.elapsed() < Duration::from_millis(1500) {
+        base.set_velocity(VelocityCommand::new(0.3, 0.0)).unwrap();
+    }
+    base.stop().unwrap();
+    base.pump_for(Duration::from_millis(800)).unwrap();
+    let o = base.odometry().unwrap().value;
+    let t = truth(&world, id);
+    assert!(t.0 > 0.2, "moved {}", t.0);
+    assert!(
+        (o.x_m() - t.0).abs() / t.0 < 0.02,
+        "odometry {} vs {}",
+        o.x_m(),
+        t.0
+    );
+    base.close().unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let model = dev.stop().unwrap();
+    assert_eq!(model.robot().stats().bad_frames, 0);
+    assert!(model.robot().brake_engaged());
+}

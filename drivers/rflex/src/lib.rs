@@ -50,6 +50,8 @@ pub mod fuzz_harness;
 pub mod machine;
 pub mod wire;
 
+#[cfg(feature = "serial")]
+pub mod blocking;
 #[cfg(feature = "std")]
 pub mod driver;
 #[cfg(feature = "tokio")]
