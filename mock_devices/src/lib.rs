@@ -17,6 +17,7 @@
 //!   like `/dev/ttyS0`.
 //! * [`duplex`] — serve a model on a `tokio::io::duplex` pipe for fast tests.
 //! * [`p2os`] — the Pioneer 2-AT's P2OS firmware as a device model.
+//! * [`rflex`] — the ATRV-Jr's rFLEX controller as a device model.
 //! * [`stepper`] — advance a [`world::SharedWorld`] in real time.
 //!
 //! # Quick start

@@ -903,6 +903,36 @@ mod tests {
     }
 
     #[test]
+    fn world_body_feels_a_wall_at_the_front_bumper_and_measures_travel() {
+        use crate::world::{RobotSpec, SharedWorld, Wall, World};
+        let mut w = World::new();
+        let mut spec = RobotSpec::new("scooter", 0.0, 0.0, 0.0);
+        spec.radius_m = 0.4;
+        spec.track_width_m = 0.42;
+        let id = w.add_robot(spec).unwrap();
+        w.add_wall(Wall {
+            from: [1.0, -5.0],
+            to: [1.0, 5.0],
+        })
+        .unwrap();
+        let world = SharedWorld::new(w);
+        let mut body = RflexWorldBody::new(world.clone(), id, 1);
+        assert_eq!(body.bumpers(), (false, false));
+        let m = SonarMount::atrv_jr_default()[0];
+        let r = body.sonar_range_m(&m).unwrap();
+        assert!((r - 0.6).abs() < 0.05, "{r}");
+        body.drive(0.5, 0.0);
+        for _ in 0..120 {
+            world.with(|w| w.step(Duration::from_millis(10)));
+        }
+        let (d, th) = body.travel();
+        let (x, _, _) = body.pose();
+        assert!((d - x).abs() < 1e-9 && th.abs() < 1e-9, "{d} {x} {th}");
+        assert!(x > 0.58, "{x}");
+        assert_eq!(body.bumpers(), (true, false));
+    }
+
+    #[test]
     fn bad_frames_are_dropped_silently() {
         let mut b = toy();
         let mut r = RflexRobot::new(RflexModelConfig::default(), &b);
