@@ -137,6 +137,7 @@ async fn drive_one_metre_and_turn_ninety_degrees() {
     let t1 = truth(&world, id);
     let odo_d = (o1.x_m() - o0.x_m()).hypot(o1.y_m() - o0.y_m());
     let true_d = (t1.0 - t0.0).hypot(t1.1 - t0.1);
+    eprintln!("drive: odometry {odo_d:.4} m, ground truth {true_d:.4} m");
     assert!(true_d > 0.9, "moved {true_d} m");
     assert!(
         ((odo_d - true_d) / true_d).abs() < 0.02,
@@ -162,6 +163,7 @@ async fn drive_one_metre_and_turn_ninety_degrees() {
     let t2 = truth(&world, id);
     let odo_turn = ima_hal::normalize_angle(o2.theta_rad() - h0).to_degrees();
     let true_turn = ima_hal::normalize_angle(t2.2 - t1.2).to_degrees();
+    eprintln!("turn: odometry {odo_turn:.2}°, ground truth {true_turn:.2}°");
     assert!(
         (odo_turn - true_turn).abs() < 3.0,
         "odometry turn {odo_turn:.2}° vs ground truth {true_turn:.2}°"
@@ -220,6 +222,7 @@ fn robot_stops_after_the_failsafe_when_the_host_goes_silent() {
         std::thread::sleep(Duration::from_millis(5));
     }
     let stopped_after = silent_at.elapsed();
+    eprintln!("fail-safe: stopped {stopped_after:?} after the host went silent");
     // Fail-safe 1.0 s after the last SET_DIR (≤ 100 ms before the host died), then a ramp
     // down from 0.1 m/s at 0.7 m/s² (≈ 0.15 s); generous on top for a loaded machine.
     assert!(
