@@ -55,7 +55,8 @@ pub struct BlockingRflex<S> {
 const WAIT: Duration = Duration::from_secs(2);
 
 impl<S: Read + Write> BlockingRflex<S> {
-    /// Send the initialisation on `stream` and wait until the base answers, or `timeout`.
+    /// Send the initialisation on `stream` and wait until the base streams motion reports,
+    /// or `timeout`.
     pub fn connect(stream: S, cfg: Config, timeout: Duration) -> Result<Self, DriverError> {
         let clock = MonotonicClock::new();
         let machine = Machine::new(cfg, clock.now());
@@ -103,7 +104,7 @@ impl<S: Read + Write> BlockingRflex<S> {
         self.brake
     }
 
-    /// Whether the base is being heard.
+    /// Whether the base is streaming motion reports.
     #[must_use]
     pub fn link_up(&self) -> bool {
         self.link_up
@@ -165,15 +166,17 @@ impl<S: Read + Write> BlockingRflex<S> {
     fn drain_events(&mut self) {
         while let Some(ev) = self.machine.poll_event() {
             match ev {
-                Event::LinkUp => {
-                    self.link_up = true;
-                    self.reinit_at = None;
-                }
+                Event::LinkUp => {}
                 Event::LinkLost => {
                     self.link_up = false;
                     self.reinit_at = Some(self.clock.now());
                 }
-                Event::Odometry(o) => self.odometry = Some(o),
+                // Up = motion reports flow (see the async shell's recovery notes).
+                Event::Odometry(o) => {
+                    self.odometry = Some(o);
+                    self.link_up = true;
+                    self.reinit_at = None;
+                }
                 Event::Power(p) => self.power = Some(p),
                 Event::Brake(b) => self.brake = Some(b),
                 Event::Sonar(r) => {

@@ -8,7 +8,7 @@
 //!
 //! * **Recovery**: when the machine reports [`Event::LinkLost`] the task re-sends the §6
 //!   initialisation ([`Machine::reinitialize`]) every [`Config::link_timeout`] until the base
-//!   answers again, so a power-cycled controller (reports off, brake on) comes back with
+//!   streams motion reports again, so a power-cycled controller (reports off, brake on) comes back with
 //!   reports, sonar and — if the motors had been enabled — the brake released.
 //! * **Emergency stop**: the spec (§3, §6) names no emergency command, so
 //!   [`DifferentialBase::emergency_stop`] zeroes both axes at once (the same SET_DIR pair as
@@ -80,7 +80,7 @@ impl Default for TokioClock {
 pub enum LinkStatus {
     /// Waiting for the first report.
     Connecting,
-    /// Reports are arriving.
+    /// Motion reports are arriving.
     Connected,
     /// No report for the link timeout; re-initialising.
     Lost,
@@ -132,7 +132,7 @@ pub struct Rflex {
     clock: TokioClock,
 }
 
-/// How long [`Rflex::connect`] waits for the first report by default.
+/// How long [`Rflex::connect`] waits for the first motion report by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(1);
@@ -140,8 +140,8 @@ const WAIT_TIMEOUT: Duration = Duration::from_secs(2);
 
 impl Rflex {
     /// Spawn the driver task on `stream` (a port opened with [`open_port`], or any byte
-    /// stream) and wait until the base answers (or `connect_timeout` passes). Must be called
-    /// inside a tokio runtime.
+    /// stream) and wait until the base streams motion reports (or `connect_timeout` passes).
+    /// Must be called inside a tokio runtime.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
@@ -520,10 +520,11 @@ impl Task {
         while let Some(ev) = self.machine.poll_event() {
             match ev {
                 Event::Initialized => tracing::debug!("rflex: initialisation sent"),
-                Event::LinkUp => {
-                    self.reinit_at = None;
-                    self.link_tx.send_replace(LinkStatus::Connected);
-                }
+                // A frame alone (an ack, a status reply) does not prove the base is
+                // streaming again (a power-cycled controller has reports off, and may have
+                // come back after our last re-initialisation): keep re-initialising until
+                // motion reports arrive.
+                Event::LinkUp => {}
                 Event::LinkLost => {
                     tracing::warn!("rflex: no report from the base; re-initialising");
                     self.reconnects = self.reconnects.wrapping_add(1);
@@ -532,6 +533,10 @@ impl Task {
                 }
                 Event::Odometry(o) => {
                     self.odo_tx.send_replace(Some(o));
+                    self.reinit_at = None;
+                    if *self.link_tx.borrow() != LinkStatus::Connected {
+                        self.link_tx.send_replace(LinkStatus::Connected);
+                    }
                 }
                 Event::OdometryRejected {
                     delta_m, delta_rad, ..
