@@ -146,3 +146,24 @@ fn decode_rflex_reads_hex_from_stdin_and_reports_bad_frames() {
     let v: serde_json::Value = serde_json::from_str(s.lines().next().unwrap()).unwrap();
     assert_eq!(v["kind"], "brake_release");
 }
+
+#[test]
+fn drive_atrv_jr_rejects_a_bad_calibration() {
+    let out = ima()
+        .args([
+            "drive",
+            "--robot",
+            "atrv-jr",
+            "--port",
+            "/dev/null",
+            "--kd",
+            "-5",
+            "--for",
+            "0",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--kd must be a positive number"), "{err}");
+}

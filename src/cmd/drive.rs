@@ -42,6 +42,12 @@ pub struct DriveArgs {
     /// Print one JSON object per report instead of text.
     #[arg(long)]
     json: bool,
+    /// rFLEX only: translation units per metre (Kd; ATRV-Jr default 90810, calibrate it).
+    #[arg(long)]
+    kd: Option<f64>,
+    /// rFLEX only: rotation units per radian (Ka; ATRV-Jr default 37000, calibrate it).
+    #[arg(long)]
+    ka: Option<f64>,
     /// How long to wait for the robot to answer, seconds.
     #[arg(long, default_value_t = 10.0)]
     connect_timeout: f64,
@@ -67,6 +73,8 @@ pub fn run(args: &DriveArgs) -> Result<()> {
             duration_s: args.duration,
             json: args.json,
             connect_timeout_s: args.connect_timeout,
+            kd: args.kd,
+            ka: args.ka,
         };
         return rt.block_on(super::drive_rflex::drive(&opts));
     }

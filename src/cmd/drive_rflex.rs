@@ -25,18 +25,25 @@ pub struct DriveOptions {
     pub json: bool,
     /// How long to wait for the first report, s.
     pub connect_timeout_s: f64,
+    /// Translation units per metre (default: the ATRV-Jr's 90810).
+    pub kd: Option<f64>,
+    /// Rotation units per radian (default: the ATRV-Jr's 37000).
+    pub ka: Option<f64>,
 }
 
 /// Connect, release the brake, drive for the duration, stop, report, shut down.
 pub async fn drive(o: &DriveOptions) -> Result<()> {
+    let mut cfg = ima_rflex::machine::Config::default();
+    for (name, value, slot) in [("--kd", o.kd, &mut cfg.kd), ("--ka", o.ka, &mut cfg.ka)] {
+        if let Some(v) = value {
+            anyhow::ensure!(v.is_finite() && v > 0.0, "{name} must be a positive number");
+            *slot = v;
+        }
+    }
     let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
-    let mut base = Rflex::connect(
-        port,
-        ima_rflex::machine::Config::default(),
-        Duration::from_secs_f64(o.connect_timeout_s),
-    )
-    .await
-    .with_context(|| format!("connecting to an rFLEX base on {}", o.port))?;
+    let mut base = Rflex::connect(port, cfg, Duration::from_secs_f64(o.connect_timeout_s))
+        .await
+        .with_context(|| format!("connecting to an rFLEX base on {}", o.port))?;
     eprintln!("connected to an rFLEX base at {} baud", o.baud);
     base.enable_motors(true)
         .await
