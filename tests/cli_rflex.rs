@@ -157,7 +157,7 @@ fn drive_atrv_jr_rejects_a_bad_calibration() {
             "--port",
             "/dev/null",
             "--kd",
-            "-5",
+            "0",
             "--for",
             "0",
         ])
