@@ -17,6 +17,7 @@
 //!   like `/dev/ttyS0`.
 //! * [`duplex`] — serve a model on a `tokio::io::duplex` pipe for fast tests.
 //! * [`p2os`] — the Pioneer 2-AT's P2OS firmware as a device model.
+//! * [`rflex`] — the ATRV-Jr's rFLEX controller as a device model.
 //! * [`stepper`] — advance a [`world::SharedWorld`] in real time.
 //! * [`compass`] — a KVH C100 (NMEA) or PNI TCM2 compass reporting its robot's heading.
 //! * [`video_mux`] — an Extron SIS / Kramer video switcher and the [`video_mux::VideoBus`]
@@ -56,6 +57,7 @@ pub mod link;
 pub mod model;
 pub mod p2os;
 pub mod pty;
+pub mod rflex;
 pub mod stepper;
 pub mod video_mux;
 pub mod world;

@@ -28,6 +28,8 @@ pub enum Protocol {
     VideoMux,
     /// Kramer Protocol 2000 video switcher (both directions).
     Kramer,
+    /// iRobot/RWI rFLEX (ATRV-Jr).
+    Rflex,
 }
 
 /// Which side of the link the capture is from.
@@ -121,6 +123,11 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
             },
         )?,
         Protocol::Kramer => crate::cmd::decode_video_mux::decode_kramer(&bytes, &mut |v| {
+            serde_json::to_writer(&mut out, &v)?;
+            out.write_all(b"\n")?;
+            Ok(())
+        })?,
+        Protocol::Rflex => super::decode_rflex::decode_rflex(&bytes, args.from, &mut |v| {
             serde_json::to_writer(&mut out, &v)?;
             out.write_all(b"\n")?;
             Ok(())

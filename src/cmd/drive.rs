@@ -4,9 +4,18 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use clap::Args;
+use clap::{Args, ValueEnum};
 use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
 use ima_p2os::shell::{P2os, open_port};
+
+/// Robot bases `ima drive` can drive.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum Robot {
+    /// Pioneer 2-AT on P2OS (baud probed from `--baud`, default 9600).
+    P2at,
+    /// ATRV-Jr on rFLEX (115200 baud unless `--baud`).
+    AtrvJr,
+}
 
 /// Arguments of `ima drive`.
 #[derive(Debug, Args)]
@@ -14,9 +23,13 @@ pub struct DriveArgs {
     /// Serial port (e.g. /dev/ttyS0, /dev/ttyUSB0, or a pty from `ima mock p2os`).
     #[arg(long)]
     port: String,
-    /// First line speed to try; the others of 9600–115200 are probed after it.
-    #[arg(long, default_value_t = 9600)]
-    baud: u32,
+    /// Which base is on the port.
+    #[arg(long, value_enum, default_value = "p2at")]
+    robot: Robot,
+    /// Line speed. P2OS: the first rate to try (default 9600; the others of 9600–115200 are
+    /// probed after it). rFLEX: the rate (default 115200).
+    #[arg(long)]
+    baud: Option<u32>,
     /// Forward speed, m/s.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     vel: f64,
@@ -33,6 +46,12 @@ pub struct DriveArgs {
     /// needed for robots whose subclass has no built-in table.
     #[arg(long)]
     params: Option<String>,
+    /// rFLEX only: translation units per metre (Kd; ATRV-Jr default 90810, calibrate it).
+    #[arg(long)]
+    kd: Option<f64>,
+    /// rFLEX only: rotation units per radian (Ka; ATRV-Jr default 37000, calibrate it).
+    #[arg(long)]
+    ka: Option<f64>,
     /// How long to wait for the robot to answer, seconds.
     #[arg(long, default_value_t = 10.0)]
     connect_timeout: f64,
@@ -49,15 +68,30 @@ pub fn run(args: &DriveArgs) -> Result<()> {
         "--for must be a non-negative number of seconds"
     );
     let rt = tokio::runtime::Runtime::new()?;
+    if args.robot == Robot::AtrvJr {
+        let opts = super::drive_rflex::DriveOptions {
+            port: args.port.clone(),
+            baud: args.baud.unwrap_or(ima_rflex::driver::BAUD),
+            vel: args.vel,
+            turn: args.turn,
+            duration_s: args.duration,
+            json: args.json,
+            connect_timeout_s: args.connect_timeout,
+            kd: args.kd,
+            ka: args.ka,
+        };
+        return rt.block_on(super::drive_rflex::drive(&opts));
+    }
     rt.block_on(drive(args))
 }
 
 async fn drive(args: &DriveArgs) -> Result<()> {
+    let baud = args.baud.unwrap_or(9600);
     let mut cfg = ima_p2os::Config::default();
     let mut bauds = heapless::Vec::<u32, 8>::new();
-    let _ = bauds.push(args.baud);
+    let _ = bauds.push(baud);
     for b in ima_p2os::machine::DEFAULT_BAUDS {
-        if b != args.baud {
+        if b != baud {
             let _ = bauds.push(b);
         }
     }
@@ -67,8 +101,7 @@ async fn drive(args: &DriveArgs) -> Result<()> {
             .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))?;
         cfg.params_override = Some(*p);
     }
-    let port =
-        open_port(&args.port, args.baud).with_context(|| format!("opening {}", args.port))?;
+    let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
     let mut robot = P2os::connect(port, cfg, Duration::from_secs_f64(args.connect_timeout))
         .await
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;

@@ -21,6 +21,8 @@ pub enum Device {
     Compass,
     /// An Extron (or Kramer) video switcher for the 7-camera head.
     VideoMux,
+    /// An ATRV-Jr on an rFLEX controller (115200 baud; `--baud` is ignored).
+    Rflex,
 }
 
 /// Arguments of `ima mock`.
@@ -38,8 +40,8 @@ pub struct MockArgs {
     /// (grammar: `ima-mock-devices` docs, module `faults`).
     #[arg(long, default_value = "")]
     faults: String,
-    /// Which robot of the world the device belongs to (default: skeeter; scooter for the
-    /// compass).
+    /// Which robot of the world the device belongs to (default: skeeter for p2os and the
+    /// video switcher, scooter for rflex and the compass).
     #[arg(long)]
     robot: Option<String>,
     /// The device's serial rate (the driver must find it).
@@ -139,6 +141,14 @@ pub fn run(args: &MockArgs) -> Result<()> {
                 kramer: args.kramer,
             };
             return crate::cmd::camera::run_mock(&args.faults, opts);
+        }
+        Device::Rflex => {
+            return super::mock_rflex::run(
+                &world,
+                args.robot.as_deref().unwrap_or("scooter"),
+                args.seed,
+                &args.faults,
+            );
         }
         Device::P2os => serve_p2os(
             &world,

@@ -886,6 +886,40 @@ impl Machine {
         Ok(())
     }
 
+    /// Send the initialisation frames of §6 again (after the base was lost: it may have been
+    /// power-cycled, which turns reports off and engages the brake). The odometry pose is
+    /// kept, but the next pair of axis reports only sets a new baseline, so a controller whose
+    /// counters restarted does not make the pose jump. If the motors were enabled, the brake
+    /// is released again; sonar is restarted if [`Config::sonar_at_start`] or `sonar`.
+    /// Queued requests are dropped. Does nothing once shutting down.
+    pub fn reinitialize(&mut self, sonar: bool, now: Instant) {
+        self.advance(now);
+        if self.phase != Phase::Running {
+            return;
+        }
+        self.queue.clear();
+        self.odo.base = None;
+        self.odo.pending = [None, None];
+        self.enqueue(Command::SystemReportReq {
+            period_us: self.cfg.report_period_us,
+            mask: 3,
+        });
+        self.enqueue(Command::DioReportsReq {
+            period_us: self.cfg.dio_period_us,
+        });
+        self.enqueue(Command::SetDefaults);
+        let [a, b] = self.set_dir_pair(VelocityCommand::ZERO);
+        self.enqueue(Command::SetDir(a));
+        self.enqueue(Command::SetDir(b));
+        if self.motors_enabled {
+            self.enqueue(Command::BrakeRelease);
+        }
+        if sonar || self.cfg.sonar_at_start {
+            self.enqueue(Command::SonarRun(SonarRun::ON));
+        }
+        self.enqueue(Command::SysStatusRequest);
+    }
+
     /// Make the current pose the odometry origin (host side only, §4).
     pub fn reset_odometry(&mut self) {
         self.odo.x = 0.0;

@@ -764,3 +764,42 @@ fn link_lost_and_regained() {
         2
     );
 }
+
+#[test]
+fn reinitialize_resends_init_keeps_the_pose_and_rebaselines() {
+    let mut s = Sim::new(Config::default());
+    s.run_until(ms(200));
+    // Drive 1 m on odometry, with motors enabled.
+    s.m.enable_motors(true, ms(200)).unwrap();
+    s.run_until(ms(300));
+    let pairs: Vec<_> = (0..=10).map(|k| (9_081 * k, 0, 0, 0)).collect();
+    let ev = feed_pairs(&mut s.m, 300, &pairs);
+    assert!((odometries(&ev).last().unwrap().x_m() - 1.0).abs() < 1e-9);
+    // The base was power-cycled: re-initialise.
+    let t = ms(2500);
+    s.run_until(t);
+    s.m.reinitialize(false, t);
+    s.run_until(ms(2700));
+    let mut expect = init_frames(&Config::default());
+    // The brake is released again (motors were enabled), before SONAR_RUN.
+    let at = expect.len() - 2;
+    expect.insert(at, Command::BrakeRelease);
+    // Zero SET_DIRs carry the driving torques (set_dir_pair), not the init's zero torque.
+    let got = s.frames_since(t);
+    assert_eq!(got.len(), expect.len(), "{got:?}");
+    for (g, e) in got.iter().zip(&expect) {
+        match (g, e) {
+            (Command::SetDir(a), Command::SetDir(b)) => {
+                assert_eq!((a.axis, a.velocity), (b.axis, b.velocity));
+            }
+            _ => assert_eq!(g, e),
+        }
+    }
+    // Counters restarted at 0: the first pair is a new baseline, the pose is kept.
+    let ev = feed_pairs(&mut s.m, 2800, &[(0, 0, 0, 0), (9_081, 0, 0, 0)]);
+    let o = odometries(&ev);
+    assert_eq!(o.len(), 2);
+    assert!((o[0].x_m() - 1.0).abs() < 1e-9);
+    assert!((o[1].x_m() - 1.1).abs() < 1e-9);
+    assert_eq!(s.m.stats().odometry_rejected, 0);
+}

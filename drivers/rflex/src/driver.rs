@@ -1,0 +1,56 @@
+//! What both I/O shells share: the driver error and the serial port settings (feature `std`).
+//!
+//! Unlike P2OS, the rFLEX runs at one fixed rate (115200 8N1, spec §1), so the shells need no
+//! line-speed control and take any byte stream.
+
+use std::io;
+
+use ima_hal::ErrorKind;
+
+use crate::machine::CommandError;
+
+/// The rFLEX line speed (§1).
+pub const BAUD: u32 = 115_200;
+
+/// Errors of the rFLEX drivers (both shells).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DriverError {
+    /// The driver task has ended (port closed, I/O error, or `close`).
+    Disconnected,
+    /// The base did not answer in time (no report at connect, no brake confirmation).
+    Timeout,
+    /// The session refused the request (motors disabled, not finite, closed).
+    Command(CommandError),
+    /// An I/O error on the port.
+    Io(io::ErrorKind),
+}
+
+impl std::fmt::Display for DriverError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Disconnected => f.write_str("rFLEX driver disconnected"),
+            Self::Timeout => f.write_str("rFLEX base did not answer in time"),
+            Self::Command(e) => write!(f, "{e}"),
+            Self::Io(k) => write!(f, "serial I/O error: {k}"),
+        }
+    }
+}
+
+impl std::error::Error for DriverError {}
+
+impl ima_hal::Error for DriverError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
+            Self::Timeout => ErrorKind::Timeout,
+            Self::Command(e) => ima_hal::Error::kind(e),
+        }
+    }
+}
+
+impl From<CommandError> for DriverError {
+    fn from(e: CommandError) -> Self {
+        Self::Command(e)
+    }
+}

@@ -1,0 +1,252 @@
+//! `ima decode rflex`: an rFLEX capture (either direction) as JSON Lines, under the contract of
+//! [`super::decode`]: one object per frame with a snake_case `"kind"`, SI fields with unit
+//! suffixes next to the raw values (ATRV-Jr defaults: Kd 90810 units/m, Ka 37000 units/rad,
+//! sonar 1476 units/m, battery raw/100 + 1.2 V), `"offset"` = byte offset of the frame's
+//! `ESC STX`, and `{"kind":"error","error":…,"offset":…}` for a dropped frame.
+
+use anyhow::Result;
+use ima_rflex::framer::{FrameError, Framer};
+use ima_rflex::machine::Config;
+use ima_rflex::wire::{Command, Report, SetDir};
+use serde_json::{Value, json};
+
+use super::decode::Direction;
+
+/// Decode an rFLEX byte stream, calling `emit` with one JSON object per frame or error.
+pub fn decode_rflex(
+    bytes: &[u8],
+    from: Direction,
+    emit: &mut dyn FnMut(Value) -> Result<()>,
+) -> Result<()> {
+    let cfg = Config::default();
+    let mut framer = Framer::strict();
+    let mut pos = 0usize;
+    // Offset of the most recent ESC STX (where the current candidate frame began).
+    let mut start = 0usize;
+    let mut prev_esc = false;
+    while pos < bytes.len() {
+        let rest = bytes.get(pos..).unwrap_or(&[]);
+        let (used, item) = framer.decode(rest);
+        // Track the last ESC STX inside the consumed bytes.
+        for (i, &b) in rest.iter().take(used).enumerate() {
+            if prev_esc && b == ima_rflex::wire::STX {
+                start = (pos + i).saturating_sub(1);
+            }
+            prev_esc = b == ima_rflex::wire::ESC && !prev_esc;
+        }
+        pos += used;
+        if let Some(item) = item {
+            let v = match item {
+                Ok(raw) => {
+                    let v = if from == Direction::Host {
+                        Command::from_raw(&raw).map(|c| command_json(&c, &cfg))
+                    } else {
+                        Report::from_raw(&raw).map(|r| report_json(&r, &cfg))
+                    };
+                    match v {
+                        Ok(mut v) => {
+                            v["id"] = json!(raw.id);
+                            v["offset"] = json!(start);
+                            v
+                        }
+                        Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": start}),
+                    }
+                }
+                Err(e) => {
+                    let reason = match e {
+                        FrameError::Invalid(w) => w.to_string(),
+                        FrameError::BadEscape(b) => format!("ESC followed by {b:#04x}"),
+                        FrameError::Oversize => "frame longer than 264 bytes".to_owned(),
+                        FrameError::Restarted => "ESC STX before ESC ETX".to_owned(),
+                    };
+                    json!({"kind": "error", "error": reason, "offset": start})
+                }
+            };
+            emit(v)?;
+        }
+        if used == 0 {
+            break;
+        }
+    }
+    if framer.in_frame() {
+        emit(
+            json!({"kind": "error", "error": "truncated frame at end of input", "offset": start}),
+        )?;
+    }
+    Ok(())
+}
+
+fn set_dir_json(s: &SetDir, cfg: &Config) -> Value {
+    let sign = if s.forward { 1.0 } else { -1.0 };
+    let mut v = json!({
+        "kind": "set_dir", "axis": s.axis, "velocity": s.velocity,
+        "acceleration": s.acceleration, "torque": s.torque, "forward": s.forward,
+    });
+    match s.axis {
+        0 => {
+            v["v_m_s"] = json!(sign * f64::from(s.velocity) / cfg.kd);
+            v["accel_m_s2"] = json!(f64::from(s.acceleration) / cfg.kd);
+        }
+        1 => {
+            v["omega_rad_s"] = json!(sign * f64::from(s.velocity) / cfg.ka);
+            v["accel_rad_s2"] = json!(f64::from(s.acceleration) / cfg.ka);
+        }
+        _ => {}
+    }
+    v
+}
+
+fn command_json(c: &Command, cfg: &Config) -> Value {
+    match c {
+        Command::SysStatusRequest => json!({"kind": "sys_status_request"}),
+        Command::SetDir(s) => set_dir_json(s, cfg),
+        Command::SetDefaults => json!({"kind": "set_defaults"}),
+        Command::BrakeSet => json!({"kind": "brake_set"}),
+        Command::BrakeRelease => json!({"kind": "brake_release"}),
+        Command::SystemReportReq { period_us, mask } => json!({
+            "kind": "system_report_req", "period_us": period_us, "mask": mask,
+            "period_s": f64::from(*period_us) / 1e6,
+        }),
+        Command::SonarRun(r) => json!({
+            "kind": "sonar_run", "echo_delay_us": r.echo_delay_us, "ping_delay_us": r.ping_delay_us,
+            "set_delay_us": r.set_delay_us, "mode": r.mode, "on": r.mode == 2,
+        }),
+        Command::DioReportsReq { period_us } => json!({
+            "kind": "dio_reports_req", "period_us": period_us, "period_s": f64::from(*period_us) / 1e6,
+        }),
+        Command::JoystickRequest => json!({"kind": "joystick_request"}),
+        Command::IrRun { params, mode } => {
+            json!({"kind": "ir_run", "params": params, "mode": mode})
+        }
+        Command::Unknown(u) => json!({
+            "kind": "unknown", "port": u.port, "opcode": u.opcode, "len": u.len,
+        }),
+    }
+}
+
+fn report_json(r: &Report, cfg: &Config) -> Value {
+    match r {
+        Report::SysStatus {
+            ts,
+            voltage_raw,
+            brake_engaged,
+        } => json!({
+            "kind": "sys_status", "ts": ts, "voltage_raw": voltage_raw,
+            "battery_v": f64::from(*voltage_raw) / 100.0 + cfg.power_offset_v,
+            "brake_engaged": brake_engaged,
+        }),
+        Report::Motion(m) => {
+            let mut v = json!({
+                "kind": "motion", "rv": m.rv, "ts": m.ts, "axis": m.axis, "position": m.position,
+                "velocity": m.velocity, "acceleration": m.acceleration, "torque": m.torque,
+            });
+            match m.axis {
+                0 => {
+                    v["position_m"] = json!(f64::from(m.position) / cfg.kd);
+                    v["v_m_s"] = json!(f64::from(m.velocity) / cfg.kd);
+                }
+                1 => {
+                    v["position_rad"] = json!(f64::from(m.position) / cfg.ka);
+                    v["omega_rad_s"] = json!(f64::from(m.velocity) / cfg.ka);
+                }
+                _ => {}
+            }
+            v
+        }
+        Report::Sonar(s) => {
+            let echoes: Vec<Value> = s
+                .echoes
+                .iter()
+                .map(|e| {
+                    let index = cfg
+                        .sonar_table
+                        .iter()
+                        .find(|m| m.id == e.id)
+                        .map(|m| m.index);
+                    json!({
+                        "id": e.id, "index": index, "range": e.range,
+                        "range_m": f64::from(e.range) / cfg.sonar_units_per_m,
+                    })
+                })
+                .collect();
+            json!({"kind": "sonar", "rv": s.rv, "ts": s.ts, "echoes": echoes})
+        }
+        Report::Dio(d) | Report::DioUpdate(d) => {
+            let kind = if matches!(r, Report::Dio(_)) {
+                "dio"
+            } else {
+                "dio_update"
+            };
+            let mut v = json!({"kind": kind, "ts": d.ts, "address": d.address, "data": d.data});
+            if d.address == ima_rflex::wire::DIO_BUMPER_ADDRESS {
+                v["front_bumper"] = json!(d.data & 1 != 0);
+                v["rear_bumper"] = json!(d.data & 2 != 0);
+            }
+            v
+        }
+        Report::Joystick { ts, x, y, buttons } => json!({
+            "kind": "joystick", "ts": ts, "x": x, "y": y, "buttons": buttons,
+        }),
+        Report::Ack {
+            port,
+            opcode,
+            rv,
+            ts,
+        } => json!({"kind": "ack", "port": port, "opcode": opcode, "rv": rv, "ts": ts}),
+        Report::Unknown(u) => json!({
+            "kind": "unknown", "port": u.port, "opcode": u.opcode, "len": u.len,
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(hex: &str, from: Direction) -> Vec<Value> {
+        let bytes = super::super::decode::parse_hex(hex).unwrap();
+        let mut v = Vec::new();
+        decode_rflex(&bytes, from, &mut |x| {
+            v.push(x);
+            Ok(())
+        })
+        .unwrap();
+        v
+    }
+
+    #[test]
+    fn t7_motion_report_and_t10_status() {
+        let v = run(
+            "1B 02 02 05 21 19 00 00 00 00 00 00 12 34 00 00 01 62 BA 00 00 6A 6B 00 00 00 00 00 00 00 00 C1 1B 03 \
+             1B 02 01 07 01 09 00 00 12 36 00 00 0A 46 00 66 1B 03",
+            Direction::Robot,
+        );
+        assert_eq!(v.len(), 2);
+        assert_eq!(v[0]["kind"], "motion");
+        assert_eq!(v[0]["position_m"], 1.0);
+        assert!((v[0]["v_m_s"].as_f64().unwrap() - 0.3).abs() < 1e-12);
+        assert_eq!(v[0]["offset"], 0);
+        assert_eq!(v[0]["id"], 5);
+        assert_eq!(v[1]["kind"], "sys_status");
+        assert!((v[1]["battery_v"].as_f64().unwrap() - 27.5).abs() < 1e-9);
+        assert_eq!(v[1]["offset"], 34);
+    }
+
+    #[test]
+    fn t5_stuffed_command_and_bad_frames() {
+        let v = run(
+            "FF 1B 02 02 00 07 0E 01 00 00 1B 00 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03 \
+             1B 02 02 00 0C 00 0F 1B 03 1B 02 01",
+            Direction::Host,
+        );
+        assert_eq!(v.len(), 3, "{v:?}");
+        assert_eq!(v[0]["kind"], "set_dir");
+        assert_eq!(v[0]["velocity"], 7000);
+        assert!((v[0]["omega_rad_s"].as_f64().unwrap() + 7000.0 / 37000.0).abs() < 1e-12);
+        assert_eq!(v[0]["offset"], 1);
+        assert_eq!(v[1]["kind"], "error");
+        assert_eq!(v[1]["offset"], 25);
+        assert_eq!(v[2]["kind"], "error");
+        assert_eq!(v[2]["offset"], 34);
+    }
+}

@@ -1,0 +1,114 @@
+//! `ima drive --robot atrv-jr`: drive an rFLEX base (ATRV-Jr) on a serial port, printing
+//! odometry, sonar and battery as it goes.
+
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
+use ima_hal::power::Power;
+use ima_rflex::shell::{Rflex, open_port};
+
+/// What to do (from `ima drive`'s arguments).
+#[derive(Debug, Clone)]
+pub struct DriveOptions {
+    /// Serial port path.
+    pub port: String,
+    /// Line speed (rFLEX: 115200).
+    pub baud: u32,
+    /// Forward speed, m/s.
+    pub vel: f64,
+    /// Turn rate, rad/s (CCW positive).
+    pub turn: f64,
+    /// How long to drive, s.
+    pub duration_s: f64,
+    /// JSON Lines output.
+    pub json: bool,
+    /// How long to wait for the first report, s.
+    pub connect_timeout_s: f64,
+    /// Translation units per metre (default: the ATRV-Jr's 90810).
+    pub kd: Option<f64>,
+    /// Rotation units per radian (default: the ATRV-Jr's 37000).
+    pub ka: Option<f64>,
+}
+
+/// Connect, release the brake, drive for the duration, stop, report, shut down.
+pub async fn drive(o: &DriveOptions) -> Result<()> {
+    let mut cfg = ima_rflex::machine::Config::default();
+    for (name, value, slot) in [("--kd", o.kd, &mut cfg.kd), ("--ka", o.ka, &mut cfg.ka)] {
+        if let Some(v) = value {
+            anyhow::ensure!(v.is_finite() && v > 0.0, "{name} must be a positive number");
+            *slot = v;
+        }
+    }
+    let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
+    let mut base = Rflex::connect(port, cfg, Duration::from_secs_f64(o.connect_timeout_s))
+        .await
+        .with_context(|| format!("connecting to an rFLEX base on {}", o.port))?;
+    eprintln!("connected to an rFLEX base at {} baud", o.baud);
+    base.enable_motors(true)
+        .await
+        .context("releasing the brake")?;
+    let start = base.now();
+    let cmd = VelocityCommand::new(o.vel, o.turn);
+    let end = start + Duration::from_secs_f64(o.duration_s);
+    let mut last = start;
+    while base.now() < end {
+        base.set_velocity(cmd).await?;
+        let odo = base.next_odometry(last).await?;
+        last = odo.at;
+        let t = odo.at.saturating_duration_since(start).as_secs_f64();
+        let v = odo.value;
+        let battery_v = base.power().await.ok().map(|p| p.value.battery_v);
+        let sonar = ima_hal::sonar::SonarArray::sonar(&mut base)
+            .await
+            .ok()
+            .map(|s| s.value);
+        if o.json {
+            let ranges: Vec<_> = sonar
+                .iter()
+                .flat_map(|s| s.readings.iter())
+                .map(|r| serde_json::json!({"index": r.index, "range_m": r.range_m}))
+                .collect();
+            println!(
+                "{}",
+                serde_json::json!({
+                    "t_s": t, "x_m": v.x_m(), "y_m": v.y_m(), "theta_rad": v.theta_rad(),
+                    "v_m_s": v.v_m_s, "omega_rad_s": v.omega_rad_s,
+                    "battery_v": battery_v, "sonar": ranges,
+                })
+            );
+        } else {
+            let front: Vec<String> = sonar
+                .iter()
+                .flat_map(|s| s.readings.iter())
+                .filter(|r| r.index <= 2 || r.index >= 15)
+                .map(|r| format!("{:.2}", r.range_m))
+                .collect();
+            println!(
+                "t={t:6.2}s x={:+.3} y={:+.3} θ={:+6.1}° v={:+.2} ω={:+.2} batt={} front sonar [{}]",
+                v.x_m(),
+                v.y_m(),
+                v.theta_rad().to_degrees(),
+                v.v_m_s,
+                v.omega_rad_s,
+                battery_v.map_or_else(|| "?".to_owned(), |b| format!("{b:.1}V")),
+                front.join(" ")
+            );
+        }
+    }
+    base.stop().await?;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let odo = base.odometry().await?;
+    let st = base.stats();
+    eprintln!(
+        "stopped at x={:.3} m y={:.3} m θ={:.1}°; {} frames, {} framing errors, {} odometry rejected",
+        odo.value.x_m(),
+        odo.value.y_m(),
+        odo.value.theta_rad().to_degrees(),
+        st.framer.frames,
+        st.framer.errors(),
+        st.session.odometry_rejected
+    );
+    base.close().await.ok();
+    Ok(())
+}

@@ -1,0 +1,92 @@
+//! `ima mock rflex`: serve the mock ATRV-Jr (rFLEX controller, spec §8) on a pty.
+
+use std::io::Write;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use ima_mock_devices::world::SharedWorld;
+
+/// Serve an rFLEX base for robot `robot` of `world` on a new pty.
+pub fn serve_rflex(
+    world: &SharedWorld,
+    robot: &str,
+    seed: u64,
+    faults: &str,
+    step_world: bool,
+) -> Result<PtyDevice<RflexDevice>> {
+    let id = world
+        .with(|w| w.robot_id(robot))
+        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let plan = if faults.is_empty() {
+        FaultPlan::none()
+    } else {
+        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
+        if !faults.contains("seed=") {
+            p.seed = seed;
+        }
+        p
+    };
+    let dev = RflexDevice::new(
+        RflexModelConfig::default(),
+        RflexWorldBody::new(world.clone(), id, seed),
+    );
+    PtyDevice::spawn(
+        dev,
+        PtyOptions {
+            faults: plan,
+            step_world: step_world.then(|| world.clone()),
+            ..PtyOptions::default()
+        },
+    )
+    .context("starting the pty")
+}
+
+/// Serve until SIGINT/SIGTERM, printing the pty path on stdout's first line.
+pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str) -> Result<()> {
+    let dev = serve_rflex(world, robot, seed, faults, true)?;
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", dev.path().display())?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving a mock ATRV-Jr (rFLEX) for {robot:?} on {} at 115200 baud; Ctrl-C to stop",
+        dev.path().display()
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        #[cfg(unix)]
+        {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => r?,
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        tokio::signal::ctrl_c().await?;
+        anyhow::Ok(())
+    })?;
+    let status = dev.status();
+    let model = dev
+        .stop()
+        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
+    let st = model.robot().stats();
+    eprintln!(
+        "stopped: {} commands, {} frames sent, {} motion reports, {} bad frames, {} fail-safe trips; link {:?}",
+        st.commands,
+        st.frames_sent,
+        st.motion_reports,
+        st.bad_frames,
+        st.failsafe_trips,
+        status.counters
+    );
+    std::thread::sleep(Duration::from_millis(10));
+    Ok(())
+}
