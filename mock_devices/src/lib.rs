@@ -17,6 +17,7 @@
 //!   like `/dev/ttyS0`.
 //! * [`duplex`] — serve a model on a `tokio::io::duplex` pipe for fast tests.
 //! * [`p2os`] — the Pioneer 2-AT's P2OS firmware as a device model.
+//! * [`sick_lms`] — a SICK LMS 200/291 laser scanner as a device model.
 //! * [`stepper`] — advance a [`world::SharedWorld`] in real time.
 //!
 //! # Quick start
@@ -51,5 +52,6 @@ pub mod link;
 pub mod model;
 pub mod p2os;
 pub mod pty;
+pub mod sick_lms;
 pub mod stepper;
 pub mod world;
