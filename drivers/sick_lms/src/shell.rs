@@ -283,10 +283,21 @@ impl SickLms {
             .send(Request::Close(tx))
             .await
             .map_err(|_| DriverError::Disconnected)?;
-        tokio::time::timeout(Duration::from_secs(2), rx)
-            .await
-            .map_err(|_| DriverError::Timeout)?
-            .map_err(|_| DriverError::Disconnected)
+        let mut link = self.link.clone();
+        tokio::time::timeout(Duration::from_secs(2), async move {
+            let _ = rx.await;
+            // Wait until the task has let go of the port.
+            while !matches!(
+                &*link.borrow_and_update(),
+                LinkStatus::Closed | LinkStatus::Failed(_)
+            ) {
+                if link.changed().await.is_err() {
+                    break;
+                }
+            }
+        })
+        .await
+        .map_err(|_| DriverError::Timeout)
     }
 
     /// Wait for a scan with sequence number above `after_seq` and stamped after `after`.
@@ -379,6 +390,8 @@ impl Task {
             }
             self.publish_stats();
             if closing {
+                // Release the port before reporting: a caller may reopen it at once.
+                drop(stream);
                 self.link_tx.send_replace(LinkStatus::Closed);
                 return;
             }
