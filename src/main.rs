@@ -29,6 +29,8 @@ enum Command {
     Drive(cmd::drive::DriveArgs),
     /// Decode a capture of a serial protocol into JSON Lines.
     Decode(cmd::decode::DecodeArgs),
+    /// Connect to a SICK LMS laser scanner, print scans, optionally write one as SVG.
+    Scan(cmd::scan::ScanArgs),
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
@@ -54,6 +56,7 @@ fn main() -> ExitCode {
         Command::Mock(a) => cmd::mock::run(&a),
         Command::Drive(a) => cmd::drive::run(&a),
         Command::Decode(a) => cmd::decode::run(&a),
+        Command::Scan(a) => cmd::scan::run(&a),
         Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
     };
     match result {

@@ -226,7 +226,10 @@ async fn stream_survives_corruption_and_delivers_no_bad_scan() {
         assert_true_scan(&s.value, &want);
     }
     let st = l.stats();
-    assert!(st.framer.bad_checksums + st.framer.bad_headers > 0, "{st:?}");
+    assert!(
+        st.framer.bad_checksums + st.framer.bad_headers > 0,
+        "{st:?}"
+    );
     assert_eq!(st.decode_errors, 0);
     l.close().await.unwrap();
     let m = dev.stop().unwrap();
@@ -265,7 +268,10 @@ async fn one_percent_byte_corruption_counts_bad_frames_and_delivers_none() {
         - (start.framer.bad_checksums + start.framer.bad_headers + start.framer.expired);
     assert!(bad >= 30, "{st:?}");
     assert_eq!(st.decode_errors, 0);
-    assert!(matches!(l.link(), ima_sick_lms::shell::LinkStatus::Ready(_)));
+    assert!(matches!(
+        l.link(),
+        ima_sick_lms::shell::LinkStatus::Ready(_)
+    ));
     l.close().await.unwrap();
     let m = dev.stop().unwrap();
     assert!(m.model().stats().scans >= 60);
@@ -377,7 +383,10 @@ fn blocking_shell_streams_over_a_pty() {
         .set_variant(Variant::W180_R100, Duration::from_secs(20))
         .unwrap();
     assert_eq!(info.variant, Some(Variant::W180_R100));
-    assert_eq!(l.next_scan(Duration::from_secs(10)).unwrap().value.len(), 181);
+    assert_eq!(
+        l.next_scan(Duration::from_secs(10)).unwrap().value.len(),
+        181
+    );
     assert_eq!(l.stats().decode_errors, 0);
     drop(l.close());
     dev.stop().unwrap();

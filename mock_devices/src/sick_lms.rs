@@ -702,7 +702,8 @@ impl SickLmsModel {
         let start = lms_deg_to_sensor_rad(f64::from(v.start_deg()));
         let step = f64::from(v.res_centideg()).to_radians() / 100.0;
         let mut ranges = std::mem::take(&mut self.ranges);
-        self.source.ranges(start, step, v.values(), max, &mut ranges);
+        self.source
+            .ranges(start, step, v.values(), max, &mut ranges);
         self.words.clear();
         self.words
             .extend(ranges.iter().map(|r| encode_range_m(*r, units, mode)));
@@ -918,10 +919,7 @@ mod tests {
         run(&mut m, Instant::from_millis(1000));
         let mut c = m.config();
         c.set_units(0);
-        m.handle_rx(
-            &cmd(&Command::WriteConfig(c)),
-            Instant::from_millis(1000),
-        );
+        m.handle_rx(&cmd(&Command::WriteConfig(c)), Instant::from_millis(1000));
         let items = run(&mut m, Instant::from_millis(2000));
         assert_eq!(items[1][4], 0x92);
         m.handle_rx(
@@ -930,10 +928,7 @@ mod tests {
             })),
             Instant::from_millis(2000),
         );
-        m.handle_rx(
-            &cmd(&Command::WriteConfig(c)),
-            Instant::from_millis(2100),
-        );
+        m.handle_rx(&cmd(&Command::WriteConfig(c)), Instant::from_millis(2100));
         let items = run(&mut m, Instant::from_millis(4000));
         assert!(items.iter().any(|i| i.get(4) == Some(&0xF7)));
         assert_eq!(m.stats().eeprom_writes, 1);

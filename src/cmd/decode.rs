@@ -22,6 +22,8 @@ use serde_json::{Value, json};
 pub enum Protocol {
     /// Pioneer 2 P2OS.
     P2os,
+    /// SICK LMS 200/291 laser scanner telegrams.
+    SickLms,
 }
 
 /// Which side of the link the capture is from.
@@ -98,6 +100,13 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
             out.write_all(b"\n")?;
             Ok(())
         })?,
+        Protocol::SickLms => {
+            super::decode_sick::decode_sick_lms(&bytes, args.from == Direction::Host, &mut |v| {
+                serde_json::to_writer(&mut out, &v)?;
+                out.write_all(b"\n")?;
+                Ok(())
+            })?
+        }
     }
     out.flush()?;
     Ok(())

@@ -17,6 +17,8 @@ use ima_mock_devices::world::{SharedWorld, World};
 pub enum Device {
     /// A Pioneer 2-AT running P2OS.
     P2os,
+    /// A SICK LMS 200 laser scanner (on Scooter by default).
+    SickLms,
 }
 
 /// Arguments of `ima mock`.
@@ -34,9 +36,10 @@ pub struct MockArgs {
     /// (grammar: `ima-mock-devices` docs, module `faults`).
     #[arg(long, default_value = "")]
     faults: String,
-    /// Which robot of the world the device belongs to.
-    #[arg(long, default_value = "skeeter")]
-    robot: String,
+    /// Which robot of the world the device belongs to (default: skeeter for p2os, scooter
+    /// for sick-lms).
+    #[arg(long)]
+    robot: Option<String>,
     /// The device's serial rate (the driver must find it).
     #[arg(long, default_value_t = 9600)]
     baud: u32,
@@ -94,10 +97,20 @@ pub fn serve_p2os(
 /// Run `ima mock`.
 pub fn run(args: &MockArgs) -> Result<()> {
     let world = load_world(args.world.as_ref(), args.seed)?;
+    let robot = args.robot.as_deref();
     let dev = match args.device {
+        Device::SickLms => {
+            return super::mock_sick::run(
+                &world,
+                robot.unwrap_or("scooter"),
+                args.seed,
+                &args.faults,
+                args.baud,
+            );
+        }
         Device::P2os => serve_p2os(
             &world,
-            &args.robot,
+            robot.unwrap_or("skeeter"),
             args.seed,
             &args.faults,
             args.baud,

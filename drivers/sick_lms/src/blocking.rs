@@ -194,7 +194,9 @@ impl<S: Read + Write + BaudControl> BlockingSickLms<S> {
             Err(e)
                 if matches!(
                     e.kind(),
-                    io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+                    io::ErrorKind::TimedOut
+                        | io::ErrorKind::WouldBlock
+                        | io::ErrorKind::Interrupted
                 ) => {}
             Err(e) => return Err(DriverError::Io(e.kind())),
         }
@@ -202,11 +204,11 @@ impl<S: Read + Write + BaudControl> BlockingSickLms<S> {
         if self.machine.poll_timeout().is_some_and(|t| t <= now) {
             let mode = self.machine.measuring_mode();
             let (scan, work, seq, stats) = (
-                    &mut self.scan,
-                    &mut self.work,
-                    &mut self.seq,
-                    &mut self.stats,
-                );
+                &mut self.scan,
+                &mut self.work,
+                &mut self.seq,
+                &mut self.stats,
+            );
             self.machine.handle_timeout_with(now, |b0, at| {
                 take_scan(b0, at, mode, scan, work, seq, stats);
             });

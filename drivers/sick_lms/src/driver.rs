@@ -145,9 +145,7 @@ impl ima_hal::Error for DriverError {
             Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
             Self::Timeout
             | Self::Session(
-                MachineError::NoDevice
-                | MachineError::Timeout { .. }
-                | MachineError::StreamStalled,
+                MachineError::NoDevice | MachineError::Timeout { .. } | MachineError::StreamStalled,
             ) => ErrorKind::Timeout,
             Self::Session(MachineError::Busy) => ErrorKind::Other,
             Self::Session(_) | Self::Decode(_) => ErrorKind::Protocol,

@@ -425,8 +425,12 @@ impl Task {
 
     fn input(&mut self, bytes: &[u8], now: Instant) {
         let mode = self.machine.measuring_mode();
-        let (work, stats, scan_tx, seq) =
-            (&mut self.work, &mut self.stats, &self.scan_tx, &mut self.seq);
+        let (work, stats, scan_tx, seq) = (
+            &mut self.work,
+            &mut self.stats,
+            &self.scan_tx,
+            &mut self.seq,
+        );
         self.machine.handle_bytes(bytes, now, |b0, at| {
             publish(b0, at, mode, work, stats, scan_tx, seq);
         });
@@ -434,8 +438,12 @@ impl Task {
 
     fn timeout(&mut self, now: Instant) {
         let mode = self.machine.measuring_mode();
-        let (work, stats, scan_tx, seq) =
-            (&mut self.work, &mut self.stats, &self.scan_tx, &mut self.seq);
+        let (work, stats, scan_tx, seq) = (
+            &mut self.work,
+            &mut self.stats,
+            &self.scan_tx,
+            &mut self.seq,
+        );
         self.machine.handle_timeout_with(now, |b0, at| {
             publish(b0, at, mode, work, stats, scan_tx, seq);
         });
@@ -516,7 +524,11 @@ impl Task {
                     }
                 }
                 Event::Ready(info) => {
-                    tracing::info!(baud = info.baud.bps(), streaming = info.streaming, "sick_lms: ready");
+                    tracing::info!(
+                        baud = info.baud.bps(),
+                        streaming = info.streaming,
+                        "sick_lms: ready"
+                    );
                     self.stats.readies = self.stats.readies.saturating_add(1);
                     if let Some(w) = self.waiter.take() {
                         let _ = w.send(Ok(info));
