@@ -90,9 +90,9 @@ pub fn svg(s: &LaserScan) -> String {
         .filter(|r| r.is_finite())
         .fold(1.0f32, f32::max)
         .ceil();
-    let size = 800.0;
-    let scale = f64::from(size / 2.0 - 20.0) / f64::from(max);
-    let c = f64::from(size / 2.0);
+    let size: f64 = 800.0;
+    let scale = (size / 2.0 - 20.0) / f64::from(max);
+    let c = size / 2.0;
     let mut out = String::new();
     let _ = writeln!(
         out,
