@@ -116,6 +116,10 @@ async fn initialises_from_every_starting_baud_and_switches_to_500k() {
                 m.model().stats().baud_changes,
                 u64::from(baud != BaudRate::B500000)
             );
+            // The probe's telegrams at the wrong rates reached the unit as noise only.
+            if baud != BaudRate::B9600 {
+                assert!(m.model().stats().garbled_rx > 0, "from {baud:?}");
+            }
         }));
     }
     for j in jobs {

@@ -26,6 +26,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 use crate::decode::{Variant, decode_scan};
 pub use crate::driver::{BaudControl, DriverError, FixedBaud, LinkStatus, ScanStats};
 use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
+use crate::wire::MeasuringMode;
 
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (the probe changes it).
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
@@ -425,27 +426,29 @@ impl Task {
 
     fn input(&mut self, bytes: &[u8], now: Instant) {
         let mode = self.machine.measuring_mode();
-        let (work, stats, scan_tx, seq) = (
-            &mut self.work,
-            &mut self.stats,
-            &self.scan_tx,
-            &mut self.seq,
-        );
+        let mut out = Out {
+            work: &mut self.work,
+            stats: &mut self.stats,
+            stats_tx: &self.stats_tx,
+            scan_tx: &self.scan_tx,
+            seq: &mut self.seq,
+        };
         self.machine.handle_bytes(bytes, now, |b0, at| {
-            publish(b0, at, mode, work, stats, scan_tx, seq);
+            out.publish(b0, at, mode);
         });
     }
 
     fn timeout(&mut self, now: Instant) {
         let mode = self.machine.measuring_mode();
-        let (work, stats, scan_tx, seq) = (
-            &mut self.work,
-            &mut self.stats,
-            &self.scan_tx,
-            &mut self.seq,
-        );
+        let mut out = Out {
+            work: &mut self.work,
+            stats: &mut self.stats,
+            stats_tx: &self.stats_tx,
+            scan_tx: &self.scan_tx,
+            seq: &mut self.seq,
+        };
         self.machine.handle_timeout_with(now, |b0, at| {
-            publish(b0, at, mode, work, stats, scan_tx, seq);
+            out.publish(b0, at, mode);
         });
     }
 
@@ -579,27 +582,34 @@ impl Task {
     }
 }
 
-/// Decode one B0 into `work` and swap it into the watch slot.
-fn publish(
-    b0: &crate::wire::Scan<'_>,
-    at: Instant,
-    mode: crate::wire::MeasuringMode,
-    work: &mut LaserScan,
-    stats: &mut ScanStats,
-    scan_tx: &watch::Sender<Slot>,
-    seq: &mut u64,
-) {
-    match decode_scan(b0, mode, None, work) {
-        Ok(()) => {
-            *seq = seq.saturating_add(1);
-            let s = *seq;
-            stats.delivered = stats.delivered.saturating_add(1);
-            scan_tx.send_modify(|slot| {
-                core::mem::swap(&mut slot.scan.value, work);
-                slot.scan.at = at;
-                slot.seq = s;
-            });
+/// Where decoded scans go (borrowed from the task while the machine holds the frame).
+struct Out<'a> {
+    work: &'a mut LaserScan,
+    stats: &'a mut ScanStats,
+    stats_tx: &'a watch::Sender<ScanStats>,
+    scan_tx: &'a watch::Sender<Slot>,
+    seq: &'a mut u64,
+}
+
+impl Out<'_> {
+    /// Decode one B0 into the work buffer and swap it into the watch slot (counters are
+    /// published first, so a handle woken by the scan sees it counted).
+    fn publish(&mut self, b0: &crate::wire::Scan<'_>, at: Instant, mode: MeasuringMode) {
+        match decode_scan(b0, mode, None, self.work) {
+            Ok(()) => {
+                *self.seq = self.seq.saturating_add(1);
+                let s = *self.seq;
+                self.stats.delivered = self.stats.delivered.saturating_add(1);
+                let delivered = self.stats.delivered;
+                self.stats_tx.send_modify(|st| st.delivered = delivered);
+                let work = &mut *self.work;
+                self.scan_tx.send_modify(|slot| {
+                    core::mem::swap(&mut slot.scan.value, work);
+                    slot.scan.at = at;
+                    slot.seq = s;
+                });
+            }
+            Err(_) => self.stats.decode_errors = self.stats.decode_errors.saturating_add(1),
         }
-        Err(_) => stats.decode_errors = stats.decode_errors.saturating_add(1),
     }
 }
