@@ -101,3 +101,26 @@ async fn outage_is_detected_and_recovered_in_virtual_time() {
     let st = runner.stop().await.unwrap().model().stats();
     assert!(st.scans > 10);
 }
+
+#[tokio::test(start_paused = true)]
+async fn stream_stops_and_starts_on_request() {
+    let (mut lms, runner) = setup(BaudRate::B500000).await;
+    lms.next_scan(lms.now()).await.unwrap();
+    let info = lms.set_streaming(false).await.unwrap();
+    assert!(!info.streaming);
+    let quiet_from = lms.now() + Duration::from_millis(100);
+    let mut quiet = lms.clone().with_scan_timeout(Duration::from_secs(2));
+    assert!(matches!(
+        quiet.next_scan(quiet_from).await,
+        Err(ima_sick_lms::driver::DriverError::Timeout)
+    ));
+    assert!(matches!(
+        lms.link(),
+        ima_sick_lms::shell::LinkStatus::Ready(_)
+    ));
+    let info = lms.set_streaming(true).await.unwrap();
+    assert!(info.streaming);
+    let after = lms.now();
+    assert!(lms.next_scan(after).await.unwrap().at > after);
+    assert!(runner.stop().await.unwrap().model().is_streaming());
+}
