@@ -34,6 +34,8 @@ enum Command {
     /// Camera head tools (the mock head: grab a frame as PNG).
     #[command(subcommand)]
     Camera(cmd::camera::CameraCommand),
+    /// Connect to a SICK LMS laser scanner, print scans, optionally write one as SVG.
+    Scan(cmd::scan::ScanArgs),
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
@@ -59,6 +61,7 @@ fn main() -> ExitCode {
         Command::Mock(a) => cmd::mock::run(&a),
         Command::Drive(a) => cmd::drive::run(&a),
         Command::Decode(a) => cmd::decode::run(&a),
+        Command::Scan(a) => cmd::scan::run(&a),
         Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
         Command::Compass(a) => cmd::compass::run(&a),
         Command::Camera(c) => cmd::camera::run(&c),

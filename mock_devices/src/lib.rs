@@ -18,6 +18,7 @@
 //! * [`duplex`] — serve a model on a `tokio::io::duplex` pipe for fast tests.
 //! * [`p2os`] — the Pioneer 2-AT's P2OS firmware as a device model.
 //! * [`rflex`] — the ATRV-Jr's rFLEX controller as a device model.
+//! * [`sick_lms`] — a SICK LMS 200/291 laser scanner as a device model.
 //! * [`stepper`] — advance a [`world::SharedWorld`] in real time.
 //! * [`compass`] — a KVH C100 (NMEA) or PNI TCM2 compass reporting its robot's heading.
 //! * [`video_mux`] — an Extron SIS / Kramer video switcher and the [`video_mux::VideoBus`]
@@ -58,6 +59,7 @@ pub mod model;
 pub mod p2os;
 pub mod pty;
 pub mod rflex;
+pub mod sick_lms;
 pub mod stepper;
 pub mod video_mux;
 pub mod world;

@@ -30,6 +30,8 @@ pub enum Protocol {
     Kramer,
     /// iRobot/RWI rFLEX (ATRV-Jr).
     Rflex,
+    /// SICK LMS 200/291 laser scanner telegrams.
+    SickLms,
 }
 
 /// Which side of the link the capture is from.
@@ -108,6 +110,13 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         })?,
         Protocol::Compass => {
             crate::cmd::decode_compass::decode(&bytes, args.from == Direction::Host, &mut |v| {
+                serde_json::to_writer(&mut out, &v)?;
+                out.write_all(b"\n")?;
+                Ok(())
+            })?
+        }
+        Protocol::SickLms => {
+            super::decode_sick::decode_sick_lms(&bytes, args.from == Direction::Host, &mut |v| {
                 serde_json::to_writer(&mut out, &v)?;
                 out.write_all(b"\n")?;
                 Ok(())

@@ -23,6 +23,8 @@ pub enum Device {
     VideoMux,
     /// An ATRV-Jr on an rFLEX controller (115200 baud; `--baud` is ignored).
     Rflex,
+    /// A SICK LMS 200 laser scanner (on Scooter by default).
+    SickLms,
 }
 
 /// Arguments of `ima mock`.
@@ -41,7 +43,7 @@ pub struct MockArgs {
     #[arg(long, default_value = "")]
     faults: String,
     /// Which robot of the world the device belongs to (default: skeeter for p2os and the
-    /// video switcher, scooter for rflex and the compass).
+    /// video switcher, scooter for rflex, sick-lms and the compass).
     #[arg(long)]
     robot: Option<String>,
     /// The device's serial rate (the driver must find it).
@@ -122,6 +124,7 @@ pub fn serve_p2os(
 /// Run `ima mock`.
 pub fn run(args: &MockArgs) -> Result<()> {
     let world = load_world(args.world.as_ref(), args.seed)?;
+    let robot = args.robot.as_deref();
     let dev = match args.device {
         Device::Compass => {
             let opts = crate::cmd::compass::MockCompassOptions {
@@ -150,9 +153,18 @@ pub fn run(args: &MockArgs) -> Result<()> {
                 &args.faults,
             );
         }
+        Device::SickLms => {
+            return super::mock_sick::run(
+                &world,
+                robot.unwrap_or("scooter"),
+                args.seed,
+                &args.faults,
+                args.baud,
+            );
+        }
         Device::P2os => serve_p2os(
             &world,
-            args.robot.as_deref().unwrap_or("skeeter"),
+            robot.unwrap_or("skeeter"),
             args.seed,
             &args.faults,
             args.baud,

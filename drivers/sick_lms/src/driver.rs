@@ -1,0 +1,253 @@
+//! What both I/O shells share (feature `std`): the driver error, line-speed control, scan
+//! statistics and the line-rate arithmetic of spec §4.
+
+use std::io;
+
+use ima_hal::ErrorKind;
+use ima_hal::laser::LaserDescription;
+
+use crate::decode::{Variant, describe};
+use crate::framer::Counters;
+use crate::machine::{MachineError, SessionInfo, Stats};
+use crate::wire::{BaudRate, MeasuringMode, Units};
+
+/// A byte stream whose line speed can be changed (baud probe and baud change, spec §4).
+pub trait BaudControl {
+    /// Set the line speed.
+    fn set_baud(&mut self, baud: u32) -> io::Result<()>;
+
+    /// Discard bytes received but not yet read (after a rate change they are garbage).
+    /// Default: nothing (the machine's framer drops its partial frame anyway).
+    fn clear_input(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+#[cfg(feature = "tokio")]
+impl BaudControl for tokio_serial::SerialStream {
+    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
+        tokio_serial::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
+    }
+
+    fn clear_input(&mut self) -> io::Result<()> {
+        tokio_serial::SerialPort::clear(self, tokio_serial::ClearBuffer::Input)
+            .map_err(io::Error::from)
+    }
+}
+
+#[cfg(feature = "serial")]
+impl BaudControl for serialport::TTYPort {
+    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
+        serialport::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
+    }
+
+    fn clear_input(&mut self) -> io::Result<()> {
+        serialport::SerialPort::clear(self, serialport::ClearBuffer::Input).map_err(io::Error::from)
+    }
+}
+
+/// Wraps a stream that has no line speed (an in-memory duplex, a TCP bridge): rate changes
+/// are accepted and ignored.
+#[derive(Debug)]
+pub struct FixedBaud<S>(pub S);
+
+impl<S> BaudControl for FixedBaud<S> {
+    fn set_baud(&mut self, _baud: u32) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+#[cfg(feature = "tokio")]
+impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for FixedBaud<S> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_read(cx, buf)
+    }
+}
+
+#[cfg(feature = "tokio")]
+impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for FixedBaud<S> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<io::Result<usize>> {
+        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
+    }
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
+    }
+}
+
+impl<S: io::Read> io::Read for FixedBaud<S> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        self.0.read(buf)
+    }
+}
+
+impl<S: io::Write> io::Write for FixedBaud<S> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.0.write(buf)
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.0.flush()
+    }
+}
+
+/// Errors of the SICK LMS drivers (both shells).
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DriverError {
+    /// The driver task has ended (port closed, I/O error, or `close`).
+    Disconnected,
+    /// The scanner did not answer (or scan) in time.
+    Timeout,
+    /// The session failed or refused a request.
+    Session(MachineError),
+    /// A B0 could not be decoded (unknown measuring mode, reflectivity mode…).
+    Decode(crate::decode::DecodeError),
+    /// An I/O error on the port.
+    Io(io::ErrorKind),
+}
+
+impl std::fmt::Display for DriverError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Disconnected => f.write_str("SICK LMS driver disconnected"),
+            Self::Timeout => f.write_str("SICK LMS did not answer in time"),
+            Self::Session(MachineError::NoDevice) => f.write_str(
+                "no SICK LMS answered at any rate (powered? still booting? RS-422 needed for 500k?)",
+            ),
+            Self::Session(e) => write!(f, "SICK LMS session: {e:?}"),
+            Self::Decode(e) => write!(f, "SICK LMS scan decoding: {e:?}"),
+            Self::Io(k) => write!(f, "serial I/O error: {k}"),
+        }
+    }
+}
+
+impl std::error::Error for DriverError {}
+
+impl ima_hal::Error for DriverError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
+            Self::Timeout
+            | Self::Session(
+                MachineError::NoDevice | MachineError::Timeout { .. } | MachineError::StreamStalled,
+            ) => ErrorKind::Timeout,
+            Self::Session(MachineError::Busy) => ErrorKind::Other,
+            Self::Session(_) | Self::Decode(_) => ErrorKind::Protocol,
+        }
+    }
+}
+
+/// Counters of a running driver.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ScanStats {
+    /// Scans decoded and published.
+    pub delivered: u64,
+    /// B0 frames that did not decode (counted, not published).
+    pub decode_errors: u64,
+    /// Framer counters (bad CRCs, dropped bytes, expired partial frames, ACK/NAK…).
+    pub framer: Counters,
+    /// Session statistics (telegrams, retransmissions…).
+    pub session: Stats,
+    /// Times the session (re)reached the ready state.
+    pub readies: u64,
+    /// Times the link was lost (stream stalled, device restarted) and recovered by re-probing.
+    pub losses: u64,
+}
+
+/// Link status as seen by handles.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LinkStatus {
+    /// Probing / initialising (first time, after a loss, or reconfiguring).
+    Connecting,
+    /// Initialised; scans flow if streaming was asked for.
+    Ready(SessionInfo),
+    /// Lost (stream stalled, unit restarted); the session is re-initialising.
+    Lost,
+    /// Failed for good.
+    Failed(DriverError),
+    /// The task ended.
+    Closed,
+}
+
+/// The [`LaserDescription`] of a session (defaults: 180°/0.5°, mode 00, mm), for a scanner
+/// mounted at `pose`. The scan-rate limit is the lower of the mirror's and the line's (§4).
+#[must_use]
+pub fn description(info: Option<&SessionInfo>, pose: ima_hal::Isometry2) -> LaserDescription {
+    let variant = info.and_then(|i| i.variant).unwrap_or(Variant::W180_R50);
+    let (mode, units) = info
+        .and_then(|i| i.config)
+        .map_or((MeasuringMode::DEFAULT, Units::Mm), |c| {
+            (c.measuring_mode(), units_of(c.units()))
+        });
+    let mut d = describe(variant, mode, units, pose);
+    if let Some(i) = info {
+        d.max_scan_rate_hz = d.max_scan_rate_hz.min(line_scan_rate_hz(i.baud, variant));
+    }
+    d
+}
+
+fn units_of(code: u8) -> Units {
+    Units::from_code(u16::from(code))
+}
+
+/// Scans per second the line allows for full scans of `variant` at `baud` (10 bits per byte,
+/// frame = 2N + 10 bytes, spec §4's table).
+#[must_use]
+pub fn line_scan_rate_hz(baud: BaudRate, variant: Variant) -> f64 {
+    let bytes = 2.0 * f64::from(variant.values()) + 10.0;
+    f64::from(baud.bps()) / (10.0 * bytes)
+}
+
+/// Scans per second a unit can deliver: the lower of the mirror's limit and the line's.
+#[must_use]
+pub fn expected_scan_rate_hz(baud: BaudRate, variant: Variant) -> f64 {
+    variant
+        .max_scan_rate_hz()
+        .min(line_scan_rate_hz(baud, variant))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_match_the_spec_table() {
+        let r = |b, v| (expected_scan_rate_hz(b, v) * 10.0).round() / 10.0;
+        assert_eq!(r(BaudRate::B38400, Variant::W180_R50), 5.2);
+        assert_eq!(r(BaudRate::B38400, Variant::W180_R100), 10.3);
+        assert_eq!(r(BaudRate::B9600, Variant::W180_R50), 1.3);
+        assert_eq!(r(BaudRate::B500000, Variant::W180_R50), 37.5);
+        assert_eq!(r(BaudRate::B500000, Variant::W180_R100), 75.0);
+    }
+
+    #[test]
+    fn error_kinds() {
+        use ima_hal::Error as _;
+        assert_eq!(
+            DriverError::Session(MachineError::NoDevice).kind(),
+            ErrorKind::Timeout
+        );
+        assert_eq!(
+            DriverError::Session(MachineError::Rejected { code: 0x3B }).kind(),
+            ErrorKind::Protocol
+        );
+        assert_eq!(DriverError::Disconnected.kind(), ErrorKind::Disconnected);
+        assert!(!DriverError::Timeout.to_string().is_empty());
+    }
+}

@@ -1,0 +1,615 @@
+//! The async I/O shell (feature `tokio`): one task owns the byte stream and the sans-IO
+//! [`Machine`]; cloneable [`SickLms`] handles talk to it and implement
+//! [`ima_hal::laser::LaserScanner`].
+//!
+//! The shell is generic over any `AsyncRead + AsyncWrite` stream that can change its line
+//! speed ([`BaudControl`]): a `tokio_serial::SerialStream` on a real port or a pty, or an
+//! in-memory duplex wrapped in [`FixedBaud`]. Time is tokio's ([`TokioClock`]), so tests can
+//! run in paused virtual time.
+//!
+//! **No heap per scan.** The task decodes every B0 in place (borrowed from the framer) into
+//! one work [`LaserScan`] and swaps it into a `watch` slot; handles copy the inline scan out.
+//! Neither step allocates.
+//!
+//! **Losses.** When the stream stalls (watchdog) or the unit restarts, the machine re-probes
+//! and re-initialises by itself; handles see [`LinkStatus::Lost`] and then
+//! [`LinkStatus::Ready`] again. Only a failed initialisation is final.
+
+use std::io;
+use std::time::Duration;
+
+use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
+use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{mpsc, oneshot, watch};
+
+use crate::decode::{Variant, decode_scan};
+pub use crate::driver::{BaudControl, DriverError, FixedBaud, LinkStatus, ScanStats};
+use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
+use crate::wire::MeasuringMode;
+
+/// Open a serial port for the shell: 8N1, no flow control, at `baud` (the probe changes it).
+pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
+    use tokio_serial::SerialPortBuilderExt;
+    tokio_serial::new(path, baud)
+        .data_bits(tokio_serial::DataBits::Eight)
+        .parity(tokio_serial::Parity::None)
+        .stop_bits(tokio_serial::StopBits::One)
+        .flow_control(tokio_serial::FlowControl::None)
+        .open_native_async()
+        .map_err(io::Error::from)
+}
+
+/// The shell's clock: tokio's monotonic time, counted from the driver's start.
+#[derive(Debug, Clone, Copy)]
+pub struct TokioClock {
+    epoch: tokio::time::Instant,
+}
+
+impl TokioClock {
+    /// A clock whose epoch is now.
+    #[must_use]
+    pub fn new() -> Self {
+        Self {
+            epoch: tokio::time::Instant::now(),
+        }
+    }
+
+    /// The current instant.
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        Instant::from_micros(u64::try_from(self.epoch.elapsed().as_micros()).unwrap_or(u64::MAX))
+    }
+}
+
+impl Default for TokioClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The latest scan and its sequence number (0: none yet).
+#[derive(Debug, Clone)]
+struct Slot {
+    seq: u64,
+    scan: Stamped<LaserScan>,
+}
+
+impl Default for Slot {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            scan: Stamped::new(Instant::ZERO, LaserScan::default()),
+        }
+    }
+}
+
+type Reply = oneshot::Sender<Result<SessionInfo, DriverError>>;
+
+enum Request {
+    Variant(Variant, Reply),
+    Stream(bool, Reply),
+    Close(oneshot::Sender<()>),
+}
+
+impl std::fmt::Debug for Request {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Request")
+    }
+}
+
+/// How long [`SickLms::connect`] waits by default: a probe round over four rates with
+/// retries, a baud change and a config write fit well inside it.
+pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// A handle to a running SICK LMS driver. Cheap to clone; every clone talks to the same task.
+#[derive(Debug, Clone)]
+pub struct SickLms {
+    tx: mpsc::Sender<Request>,
+    scan: watch::Receiver<Slot>,
+    link: watch::Receiver<LinkStatus>,
+    stats: watch::Receiver<ScanStats>,
+    device_type: watch::Receiver<String>,
+    pose: Isometry2,
+    clock: TokioClock,
+    scan_timeout: Duration,
+}
+
+impl SickLms {
+    /// Spawn the driver task on `stream` and wait until the session is ready (or
+    /// `connect_timeout` passes). Must be called inside a tokio runtime.
+    pub async fn connect<S>(
+        stream: S,
+        cfg: Config,
+        connect_timeout: Duration,
+    ) -> Result<SickLms, DriverError>
+    where
+        S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
+    {
+        let clock = TokioClock::new();
+        let (tx, rx) = mpsc::channel(8);
+        let (scan_tx, scan) = watch::channel(Slot::default());
+        let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
+        let (stats_tx, stats) = watch::channel(ScanStats::default());
+        let (type_tx, device_type) = watch::channel(String::new());
+        let task = Task {
+            machine: Machine::new(cfg, clock.now()),
+            clock,
+            rx,
+            scan_tx,
+            link_tx,
+            stats_tx,
+            type_tx,
+            waiter: None,
+            work: LaserScan::default(),
+            stats: ScanStats::default(),
+            seq: 0,
+        };
+        tokio::spawn(task.run(stream));
+        let waited = tokio::time::timeout(connect_timeout, async {
+            loop {
+                match &*link.borrow_and_update() {
+                    LinkStatus::Ready(_) => return Ok(()),
+                    LinkStatus::Failed(e) => return Err(e.clone()),
+                    LinkStatus::Closed => return Err(DriverError::Disconnected),
+                    LinkStatus::Connecting | LinkStatus::Lost => {}
+                }
+                if link.changed().await.is_err() {
+                    return Err(DriverError::Disconnected);
+                }
+            }
+        })
+        .await;
+        match waited {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(e),
+            Err(_) => {
+                let _ = tx.try_send(Request::Close(oneshot::channel().0));
+                return Err(DriverError::Timeout);
+            }
+        }
+        Ok(SickLms {
+            tx,
+            scan,
+            link,
+            stats,
+            device_type,
+            pose: Isometry2::identity(),
+            clock,
+            scan_timeout: Duration::from_secs(3),
+        })
+    }
+
+    /// Set where the scanner sits on the robot (reported by [`LaserScanner::description`]).
+    #[must_use]
+    pub fn with_pose(mut self, pose: Isometry2) -> Self {
+        self.pose = pose;
+        self
+    }
+
+    /// How long [`LaserScanner::scan`] / [`LaserScanner::next_scan`] wait (default 3 s).
+    #[must_use]
+    pub fn with_scan_timeout(mut self, timeout: Duration) -> Self {
+        self.scan_timeout = timeout;
+        self
+    }
+
+    /// Current link status.
+    #[must_use]
+    pub fn link(&self) -> LinkStatus {
+        self.link.borrow().clone()
+    }
+
+    /// What the session runs with, when ready.
+    #[must_use]
+    pub fn session(&self) -> Option<SessionInfo> {
+        match &*self.link.borrow() {
+            LinkStatus::Ready(i) => Some(*i),
+            _ => None,
+        }
+    }
+
+    /// Counters (scans delivered, bad CRCs, retransmissions, losses…).
+    #[must_use]
+    pub fn stats(&self) -> ScanStats {
+        *self.stats.borrow()
+    }
+
+    /// The type string the unit reported (e.g. `LMS200;30106`), empty until identified.
+    #[must_use]
+    pub fn device_type(&self) -> String {
+        self.device_type.borrow().clone()
+    }
+
+    /// The driver's clock (the time base of every stamp it produces).
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        self.clock.now()
+    }
+
+    /// Wait until the link is ready again (after a loss), at most `timeout`.
+    pub async fn wait_ready(&self, timeout: Duration) -> Result<SessionInfo, DriverError> {
+        let mut link = self.link.clone();
+        tokio::time::timeout(timeout, async move {
+            loop {
+                match &*link.borrow_and_update() {
+                    LinkStatus::Ready(i) => return Ok(*i),
+                    LinkStatus::Failed(e) => return Err(e.clone()),
+                    LinkStatus::Closed => return Err(DriverError::Disconnected),
+                    LinkStatus::Connecting | LinkStatus::Lost => {}
+                }
+                link.changed()
+                    .await
+                    .map_err(|_| DriverError::Disconnected)?;
+            }
+        })
+        .await
+        .map_err(|_| DriverError::Timeout)?
+    }
+
+    async fn request(
+        &self,
+        make: impl FnOnce(Reply) -> Request,
+        timeout: Duration,
+    ) -> Result<SessionInfo, DriverError> {
+        let (tx, rx) = oneshot::channel();
+        self.tx
+            .send(make(tx))
+            .await
+            .map_err(|_| DriverError::Disconnected)?;
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(DriverError::Disconnected),
+            Err(_) => Err(DriverError::Timeout),
+        }
+    }
+
+    /// Change the scan variant (stream stopped, `3B`, stream restarted; spec §3.6).
+    pub async fn set_variant(&self, variant: Variant) -> Result<SessionInfo, DriverError> {
+        self.request(|tx| Request::Variant(variant, tx), Duration::from_secs(20))
+            .await
+    }
+
+    /// Start (`20 24`) or stop (`20 25`) the B0 stream.
+    pub async fn set_streaming(&self, on: bool) -> Result<SessionInfo, DriverError> {
+        self.request(|tx| Request::Stream(on, tx), Duration::from_secs(10))
+            .await
+    }
+
+    /// Stop the stream (best effort: `20 25` is written, its reply not awaited) and end the
+    /// driver task. The unit stays at the rate the session chose until it is power-cycled.
+    pub async fn close(&self) -> Result<(), DriverError> {
+        let (tx, rx) = oneshot::channel();
+        self.tx
+            .send(Request::Close(tx))
+            .await
+            .map_err(|_| DriverError::Disconnected)?;
+        let mut link = self.link.clone();
+        tokio::time::timeout(Duration::from_secs(2), async move {
+            let _ = rx.await;
+            // Wait until the task has let go of the port.
+            while !matches!(
+                &*link.borrow_and_update(),
+                LinkStatus::Closed | LinkStatus::Failed(_)
+            ) {
+                if link.changed().await.is_err() {
+                    break;
+                }
+            }
+        })
+        .await
+        .map_err(|_| DriverError::Timeout)
+    }
+
+    /// Wait for a scan with sequence number above `after_seq` and stamped after `after`.
+    async fn wait_scan(&self, after: Instant) -> Result<Stamped<LaserScan>, DriverError> {
+        let mut rx = self.scan.clone();
+        let mut link = self.link.clone();
+        tokio::time::timeout(self.scan_timeout, async move {
+            loop {
+                {
+                    let s = rx.borrow_and_update();
+                    if s.seq > 0 && s.scan.at > after {
+                        return Ok(s.scan.clone());
+                    }
+                }
+                if let LinkStatus::Failed(e) = &*link.borrow_and_update() {
+                    return Err(e.clone());
+                }
+                tokio::select! {
+                    r = rx.changed() => r.map_err(|_| DriverError::Disconnected)?,
+                    r = link.changed() => r.map_err(|_| DriverError::Disconnected)?,
+                }
+            }
+        })
+        .await
+        .map_err(|_| DriverError::Timeout)?
+    }
+}
+
+impl ErrorType for SickLms {
+    type Error = DriverError;
+}
+
+impl LaserScanner for SickLms {
+    fn description(&self) -> LaserDescription {
+        crate::driver::description(self.session().as_ref(), self.pose)
+    }
+
+    async fn scan(&mut self) -> Result<Stamped<LaserScan>, DriverError> {
+        {
+            let s = self.scan.borrow();
+            if s.seq > 0 {
+                return Ok(s.scan.clone());
+            }
+        }
+        self.wait_scan(Instant::ZERO).await
+    }
+
+    async fn next_scan(&mut self, after: Instant) -> Result<Stamped<LaserScan>, DriverError> {
+        self.wait_scan(after).await
+    }
+}
+
+struct Task {
+    machine: Machine,
+    clock: TokioClock,
+    rx: mpsc::Receiver<Request>,
+    scan_tx: watch::Sender<Slot>,
+    link_tx: watch::Sender<LinkStatus>,
+    stats_tx: watch::Sender<ScanStats>,
+    type_tx: watch::Sender<String>,
+    /// The caller of the reconfiguration in flight (answered at `Ready` or `Error`).
+    waiter: Option<Reply>,
+    /// Decoding buffer, swapped into the watch slot (no allocation per scan).
+    work: LaserScan,
+    stats: ScanStats,
+    seq: u64,
+}
+
+impl Task {
+    async fn run<S>(mut self, mut stream: S)
+    where
+        S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
+    {
+        let mut rbuf = [0u8; 1024];
+        let mut tbuf = [0u8; MAX_COMMAND];
+        let mut closing = false;
+        loop {
+            // Events first: a rate change must take effect before the next write.
+            if let Err(e) = self.drain_events(&mut stream) {
+                self.fail(DriverError::Io(e.kind()));
+                return;
+            }
+            while let Some(n) = self.machine.poll_transmit(&mut tbuf) {
+                let Some(frame) = tbuf.get(..n) else { break };
+                if let Err(e) = stream.write_all(frame).await {
+                    self.fail(DriverError::Io(e.kind()));
+                    return;
+                }
+                let _ = stream.flush().await;
+            }
+            self.publish_stats();
+            if closing {
+                // Release the port before reporting: a caller may reopen it at once.
+                drop(stream);
+                self.link_tx.send_replace(LinkStatus::Closed);
+                return;
+            }
+            let sleep_for = self
+                .machine
+                .poll_timeout()
+                .map_or(Duration::from_millis(500), |t| {
+                    t.saturating_duration_since(self.clock.now())
+                });
+            tokio::select! {
+                r = stream.read(&mut rbuf) => match r {
+                    Ok(0) => { self.fail(DriverError::Disconnected); return; }
+                    Ok(n) => {
+                        let now = self.clock.now();
+                        self.input(rbuf.get(..n).unwrap_or(&[]), now);
+                    }
+                    Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                    Err(e) => { self.fail(DriverError::Io(e.kind())); return; }
+                },
+                () = tokio::time::sleep(sleep_for) => {
+                    let now = self.clock.now();
+                    self.timeout(now);
+                }
+                req = self.rx.recv() => match req {
+                    None => closing = self.close(),
+                    Some(req) => closing = self.handle_request(req),
+                },
+            }
+        }
+    }
+
+    fn input(&mut self, bytes: &[u8], now: Instant) {
+        let mode = self.machine.measuring_mode();
+        let mut out = Out {
+            work: &mut self.work,
+            stats: &mut self.stats,
+            stats_tx: &self.stats_tx,
+            scan_tx: &self.scan_tx,
+            seq: &mut self.seq,
+        };
+        self.machine.handle_bytes(bytes, now, |b0, at| {
+            out.publish(b0, at, mode);
+        });
+    }
+
+    fn timeout(&mut self, now: Instant) {
+        let mode = self.machine.measuring_mode();
+        let mut out = Out {
+            work: &mut self.work,
+            stats: &mut self.stats,
+            stats_tx: &self.stats_tx,
+            scan_tx: &self.scan_tx,
+            seq: &mut self.seq,
+        };
+        self.machine.handle_timeout_with(now, |b0, at| {
+            out.publish(b0, at, mode);
+        });
+    }
+
+    fn publish_stats(&mut self) {
+        self.stats.framer = self.machine.counters();
+        self.stats.session = self.machine.stats();
+        let s = self.stats;
+        self.stats_tx.send_if_modified(|old| {
+            let changed = *old != s;
+            *old = s;
+            changed
+        });
+    }
+
+    fn fail(&mut self, e: DriverError) {
+        if let Some(w) = self.waiter.take() {
+            let _ = w.send(Err(e.clone()));
+        }
+        self.link_tx.send_replace(LinkStatus::Failed(e));
+    }
+
+    /// Returns true when the task should end after flushing.
+    fn close(&mut self) -> bool {
+        let now = self.clock.now();
+        if self.machine.is_ready() && self.machine.is_streaming() {
+            let _ = self.machine.stop_stream(now);
+        }
+        true
+    }
+
+    fn handle_request(&mut self, req: Request) -> bool {
+        let now = self.clock.now();
+        let (result, tx) = match req {
+            Request::Close(tx) => {
+                let _ = tx.send(());
+                return self.close();
+            }
+            Request::Variant(v, tx) => (self.machine.set_variant(v, now), tx),
+            Request::Stream(on, tx) => {
+                if on == self.machine.is_streaming() && self.machine.is_ready() {
+                    let _ = tx.send(Ok(self.machine.session()));
+                    return false;
+                }
+                let r = if on {
+                    self.machine.start_stream(now)
+                } else {
+                    self.machine.stop_stream(now)
+                };
+                (r, tx)
+            }
+        };
+        match result {
+            Ok(()) => {
+                self.link_tx.send_replace(LinkStatus::Connecting);
+                self.waiter = Some(tx);
+            }
+            Err(e) => {
+                let _ = tx.send(Err(DriverError::Session(e)));
+            }
+        }
+        false
+    }
+
+    fn drain_events<S: BaudControl>(&mut self, stream: &mut S) -> io::Result<()> {
+        while let Some(ev) = self.machine.poll_event() {
+            match ev {
+                Event::SetHostBaud(b) => {
+                    tracing::debug!(baud = b, "sick_lms: line speed");
+                    stream.set_baud(b)?;
+                    stream.clear_input()?;
+                }
+                Event::Identified => {
+                    if let Some(t) = self.machine.device_type() {
+                        let t = String::from_utf8_lossy(t).trim().to_owned();
+                        self.type_tx.send_replace(t);
+                    }
+                }
+                Event::Ready(info) => {
+                    tracing::info!(
+                        baud = info.baud.bps(),
+                        streaming = info.streaming,
+                        "sick_lms: ready"
+                    );
+                    self.stats.readies = self.stats.readies.saturating_add(1);
+                    if let Some(w) = self.waiter.take() {
+                        let _ = w.send(Ok(info));
+                    }
+                    self.link_tx.send_replace(LinkStatus::Ready(info));
+                }
+                Event::StreamStarted | Event::StreamStopped => {
+                    // A stream start/stop request ends with `Ready` only during
+                    // initialisation; answer the waiter here too.
+                    if self.machine.is_ready() {
+                        let info = self.machine.session();
+                        if let Some(w) = self.waiter.take() {
+                            let _ = w.send(Ok(info));
+                        }
+                        self.link_tx.send_replace(LinkStatus::Ready(info));
+                    }
+                }
+                Event::Restarted => {
+                    tracing::warn!("sick_lms: unit restarted, re-initialising");
+                    self.stats.losses = self.stats.losses.saturating_add(1);
+                    self.link_tx.send_replace(LinkStatus::Lost);
+                }
+                Event::Error(e) => {
+                    if let Some(w) = self.waiter.take() {
+                        let _ = w.send(Err(DriverError::Session(e)));
+                    }
+                    if self.machine.is_failed() {
+                        self.link_tx
+                            .send_replace(LinkStatus::Failed(DriverError::Session(e)));
+                    } else if e == MachineError::StreamStalled {
+                        tracing::warn!("sick_lms: stream stalled, re-probing");
+                        self.stats.losses = self.stats.losses.saturating_add(1);
+                        self.link_tx.send_replace(LinkStatus::Lost);
+                    } else if self.machine.is_ready() {
+                        self.link_tx
+                            .send_replace(LinkStatus::Ready(self.machine.session()));
+                    } else {
+                        tracing::debug!(error = ?e, "sick_lms: request failed");
+                    }
+                }
+                Event::PowerOn
+                | Event::BaudDetected(_)
+                | Event::DeviceStatus(_)
+                | Event::ConfigWritten => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Where decoded scans go (borrowed from the task while the machine holds the frame).
+struct Out<'a> {
+    work: &'a mut LaserScan,
+    stats: &'a mut ScanStats,
+    stats_tx: &'a watch::Sender<ScanStats>,
+    scan_tx: &'a watch::Sender<Slot>,
+    seq: &'a mut u64,
+}
+
+impl Out<'_> {
+    /// Decode one B0 into the work buffer and swap it into the watch slot (counters are
+    /// published first, so a handle woken by the scan sees it counted).
+    fn publish(&mut self, b0: &crate::wire::Scan<'_>, at: Instant, mode: MeasuringMode) {
+        match decode_scan(b0, mode, None, self.work) {
+            Ok(()) => {
+                *self.seq = self.seq.saturating_add(1);
+                let s = *self.seq;
+                self.stats.delivered = self.stats.delivered.saturating_add(1);
+                let delivered = self.stats.delivered;
+                self.stats_tx.send_modify(|st| st.delivered = delivered);
+                let work = &mut *self.work;
+                self.scan_tx.send_modify(|slot| {
+                    core::mem::swap(&mut slot.scan.value, work);
+                    slot.scan.at = at;
+                    slot.seq = s;
+                });
+            }
+            Err(_) => self.stats.decode_errors = self.stats.decode_errors.saturating_add(1),
+        }
+    }
+}

@@ -1,0 +1,297 @@
+//! `ima decode sick-lms`: SICK LMS telegrams to JSON Lines (the contract of
+//! [`crate::cmd::decode`]): one object per telegram or standalone ACK/NAK byte, in input
+//! order, with `"kind"` and `"offset"`; ranges in metres (`ranges_m`, `null` for special
+//! codes) next to the raw value words; angles in radians. A telegram with a bad CRC becomes
+//! `{"kind":"error",...}` and decoding goes on. B0 values are decoded with measuring mode 00
+//! (the default; the raw words are always there for other modes).
+
+use anyhow::Result;
+use ima_hal::laser::LaserScan;
+use ima_sick_lms::decode::{Value as LmsValue, decode_scan};
+use ima_sick_lms::framer::{Direction, Framer, Item};
+use ima_sick_lms::wire::{
+    Command, Frame, LmsConfig, MeasuringMode, ModeRequest, Reply, StatusByte,
+};
+use serde_json::{Value, json};
+
+/// Decode a SICK LMS byte stream (`from_host`: host → LMS commands, else LMS replies),
+/// calling `emit` with one JSON object per item.
+pub fn decode_sick_lms(
+    bytes: &[u8],
+    from_host: bool,
+    emit: &mut dyn FnMut(Value) -> Result<()>,
+) -> Result<()> {
+    let dir = if from_host {
+        Direction::Commands
+    } else {
+        Direction::Replies
+    };
+    // Captures have no timing: never expire a partial telegram.
+    let mut framer = Framer::new(dir)
+        .report_bad_checksums(true)
+        .with_partial_timeout(core::time::Duration::from_secs(u64::MAX / 4_000_000));
+    let now = ima_hal::Instant::ZERO;
+    let mut pos = 0usize;
+    let mut input = bytes;
+    let mut scan = LaserScan::default();
+    loop {
+        enum Got {
+            Ack,
+            Nak,
+            Bad,
+            Frame(Vec<u8>),
+        }
+        let p = framer.push(input, now);
+        let consumed = p.consumed;
+        let item = p.item.map(|i| match i {
+            Item::Ack => Got::Ack,
+            Item::Nak => Got::Nak,
+            Item::BadChecksum => Got::Bad,
+            Item::Frame(f) => Got::Frame(f.as_bytes().to_vec()),
+        });
+        pos += consumed;
+        let held = framer.buffered();
+        let got = item.is_some();
+        let v = match item {
+            None => None,
+            Some(Got::Ack) => Some(json!({"kind": "ack", "offset": pos - 1})),
+            Some(Got::Nak) => Some(json!({"kind": "nak", "offset": pos - 1})),
+            Some(Got::Bad) => Some(json!({"kind": "error",
+                "error": "bad CRC (candidate dropped, resynchronising one byte on)",
+                "offset": bad_candidate_start(bytes, pos)})),
+            Some(Got::Frame(raw)) => {
+                let offset = pos.saturating_sub(held + raw.len());
+                let v = match Frame::new_checked(&raw) {
+                    Err(e) => json!({"kind": "error", "error": e.to_string()}),
+                    Ok(f) => {
+                        let mut v = if from_host {
+                            Command::from_frame(&f).map_or_else(
+                                |e| json!({"kind": "error", "error": e.to_string()}),
+                                |c| command_json(&c),
+                            )
+                        } else {
+                            match Reply::from_frame(&f) {
+                                Ok(r) => reply_json(&r, &mut scan),
+                                Err(e) => json!({"kind": "error", "error": e.to_string()}),
+                            }
+                        };
+                        v["address"] = json!(f.address());
+                        v
+                    }
+                };
+                let mut v = v;
+                v["offset"] = json!(offset);
+                Some(v)
+            }
+        };
+        if let Some(v) = v {
+            emit(v)?;
+        }
+        input = input.get(consumed..).unwrap_or(&[]);
+        if !got && consumed == 0 {
+            break;
+        }
+    }
+    if framer.buffered() > 0 {
+        emit(
+            json!({"kind": "error", "error": "truncated telegram at end of input",
+            "offset": pos - framer.buffered()}),
+        )?;
+    }
+    Ok(())
+}
+
+/// Where the candidate that just failed its CRC began: the framer reads exactly a claimed
+/// telegram (`LEN + 6` bytes) before checking it, so it is the STX whose claimed end is `end`.
+fn bad_candidate_start(bytes: &[u8], end: usize) -> Option<usize> {
+    (0..end.saturating_sub(7)).rev().find(|&s| {
+        let len = bytes
+            .get(s + 2..s + 4)
+            .and_then(|l| <[u8; 2]>::try_from(l).ok())
+            .map(|l| usize::from(u16::from_le_bytes(l)));
+        bytes.get(s) == Some(&0x02) && len.is_some_and(|l| s + l + 6 == end)
+    })
+}
+
+fn status_json(s: StatusByte) -> Value {
+    json!({"raw": s.0, "severity": format!("{:?}", s.severity()).to_lowercase(),
+        "error": s.is_error(), "pollution": s.pollution(), "restart": s.restart(),
+        "implausible": s.implausible()})
+}
+
+fn config_json(c: &LmsConfig) -> Value {
+    json!({"len": c.as_bytes().len(), "bytes": c.as_bytes(), "blanking_cm": c.blanking_cm(),
+        "availability": c.availability(), "measuring_mode": c.measuring_mode().0,
+        "units": c.units()})
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn command_json(c: &Command) -> Value {
+    match c {
+        Command::Reset => json!({"kind": "reset"}),
+        Command::SetMode(m) => {
+            let mut v = json!({"kind": "set_mode", "mode": m.code()});
+            match m {
+                ModeRequest::Installation { password } => v["password"] = json!(text(password)),
+                ModeRequest::Baud(b) => v["baud"] = json!(b.bps()),
+                ModeRequest::StreamAll => v["name"] = json!("stream_all"),
+                ModeRequest::RequestOnly => v["name"] = json!("request_only"),
+                ModeRequest::StreamSubrange { start, end } => {
+                    v["start"] = json!(start);
+                    v["end"] = json!(end);
+                }
+                _ => {}
+            }
+            v
+        }
+        Command::RequestValues { sub, params } => {
+            json!({"kind": "request_values", "sub": sub, "params": params.as_slice()})
+        }
+        Command::Status => json!({"kind": "status_request"}),
+        Command::Errors => json!({"kind": "errors_request"}),
+        Command::Type => json!({"kind": "type_request"}),
+        Command::Variant {
+            angle_deg,
+            res_centideg,
+        } => json!({"kind": "variant_request", "angle_deg": angle_deg,
+            "resolution_rad": f64::from(*res_centideg).to_radians() / 100.0,
+            "res_centideg": res_centideg}),
+        Command::ReadConfig => json!({"kind": "read_config"}),
+        Command::WriteConfig(c) => json!({"kind": "write_config", "config": config_json(c)}),
+    }
+}
+
+fn reply_json(r: &Reply<'_>, scan: &mut LaserScan) -> Value {
+    let status = status_json(r.status());
+    match r {
+        Reply::ModeChanged { result, .. } => {
+            json!({"kind": "mode_changed", "result": result, "accepted": *result == 0, "status": status})
+        }
+        Reply::Scan(s) => {
+            let cw = s.count_word;
+            let values: Vec<u16> = s.values.iter().collect();
+            let mut v = json!({"kind": "scan", "count": cw.count(),
+                "units": format!("{:?}", cw.units()).to_lowercase(), "partial": cw.partial(),
+                "partial_index": cw.partial_index(), "raw_flags": cw.raw_flags(),
+                "indices": s.indices.map(|(a, b)| [a, b]), "values": values, "status": status});
+            match decode_scan(s, MeasuringMode::DEFAULT, None, scan) {
+                Ok(()) => {
+                    v["start_angle_rad"] = json!(scan.start_angle_rad);
+                    v["step_rad"] = json!(scan.step_rad);
+                    let ranges: Vec<Option<f32>> = scan
+                        .ranges_m()
+                        .iter()
+                        .map(|r| (!r.is_nan()).then_some(*r))
+                        .collect();
+                    v["ranges_m"] = json!(ranges);
+                }
+                Err(e) => {
+                    // Not a full-scan count (sub-range, unusual variant): ranges without
+                    // geometry.
+                    let unit = cw.units().metres();
+                    let ranges: Vec<Option<f32>> = s
+                        .values
+                        .iter()
+                        .map(|w| {
+                            let val = LmsValue::decode(w, MeasuringMode::DEFAULT)?;
+                            let u = unit?;
+                            val.flags.is_valid().then(|| f32::from(val.distance) * u)
+                        })
+                        .collect();
+                    v["ranges_m"] = json!(ranges);
+                    v["geometry"] = json!(format!("unknown: {e:?}"));
+                }
+            }
+            v
+        }
+        Reply::Status { block, .. } => json!({"kind": "status",
+            "len": block.0.len(),
+            "firmware": block.firmware().map(text),
+            "operating_mode": block.operating_mode(), "device_status": block.device_status(),
+            "measuring_mode": block.measuring_mode().map(|m| m.0),
+            "scan_angle_deg": block.scan_angle_deg(),
+            "resolution_centideg": block.resolution_centideg(),
+            "baud": block.baud().map(|b| b.bps()), "baud_code": block.baud_code(),
+            "permanent_baud": block.permanent_baud(), "units": block.units(),
+            "status": status}),
+        Reply::Errors { pairs, .. } => {
+            let p: Vec<[u8; 2]> = pairs.iter().map(|(t, n)| [t, n]).collect();
+            json!({"kind": "errors", "errors": p, "status": status})
+        }
+        Reply::Type { text: t, .. } => json!({"kind": "type", "text": text(t), "status": status}),
+        Reply::Variant {
+            accepted,
+            angle_deg,
+            res_centideg,
+            ..
+        } => json!({"kind": "variant", "accepted": *accepted == 1, "angle_deg": angle_deg,
+            "res_centideg": res_centideg,
+            "resolution_rad": f64::from(*res_centideg).to_radians() / 100.0, "status": status}),
+        Reply::Config { config, .. } => {
+            json!({"kind": "config", "config": config_json(config), "status": status})
+        }
+        Reply::ConfigWritten { result, config, .. } => json!({"kind": "config_written",
+            "result": result, "config": config_json(config), "status": status}),
+        Reply::PowerOn { text: t, .. } => {
+            json!({"kind": "power_on", "text": text(t), "status": status})
+        }
+        Reply::ResetAck { .. } => json!({"kind": "reset_ack", "status": status}),
+        Reply::Rejected { data, .. } => {
+            json!({"kind": "rejected", "data": data, "status": status})
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn decode(bytes: &[u8], from_host: bool) -> Vec<Value> {
+        let mut out = Vec::new();
+        decode_sick_lms(bytes, from_host, &mut |v| {
+            out.push(v);
+            Ok(())
+        })
+        .unwrap();
+        out
+    }
+
+    #[test]
+    fn spec_vectors_decode() {
+        // ACK, then the synthetic 3-value B0 of spec §1.1, then the QM-style reset reply.
+        let mut b = vec![0x06];
+        b.extend([
+            0x02, 0x80, 0x0A, 0x00, 0xB0, 0x03, 0x40, 0xE8, 0x03, 0xD0, 0x07, 0xFF, 0x1F, 0x10,
+            0x16, 0xB1,
+        ]);
+        b.extend([0x02, 0x80, 0x02, 0x00, 0x91, 0x10, 0x79, 0x30]);
+        let v = decode(&b, false);
+        assert_eq!(v[0]["kind"], "ack");
+        assert_eq!(v[1]["kind"], "scan");
+        assert_eq!(v[1]["offset"], 1);
+        assert_eq!(v[1]["values"], json!([1000, 2000, 0x1FFF]));
+        assert_eq!(v[1]["units"], "mm");
+        assert_eq!(v[2]["kind"], "reset_ack");
+        assert_eq!(v[2]["offset"], 17);
+    }
+
+    #[test]
+    fn commands_and_bad_crc() {
+        let mut b = vec![0x02, 0x00, 0x02, 0x00, 0x20, 0x24, 0x34, 0x08];
+        b.extend([0x02, 0x00, 0x01, 0x00, 0x31, 0x15, 0x13]); // CRC damaged
+        b.extend([
+            0x02, 0x00, 0x05, 0x00, 0x3B, 0x64, 0x00, 0x19, 0x00, 0xE7, 0x72,
+        ]);
+        let v = decode(&b, true);
+        assert_eq!(v[0]["kind"], "set_mode");
+        assert_eq!(v[0]["name"], "stream_all");
+        assert!(v.iter().any(|x| x["kind"] == "error"));
+        let last = v.last().unwrap();
+        assert_eq!(last["kind"], "variant_request");
+        assert_eq!(last["angle_deg"], 100);
+        assert_eq!(last["offset"], 15);
+    }
+}

@@ -1,0 +1,99 @@
+//! `ima mock sick-lms`: the mock SICK LMS on a pty (called from [`crate::cmd::mock`]).
+
+use std::io::Write;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
+use ima_mock_devices::world::SharedWorld;
+use ima_sick_lms::wire::BaudRate;
+
+/// Serve a SICK LMS on `robot` of `world` on a new pty, powering up at `baud`.
+pub fn serve_sick_lms(
+    world: &SharedWorld,
+    robot: &str,
+    seed: u64,
+    faults: &str,
+    baud: u32,
+    step_world: bool,
+) -> Result<PtyDevice<SickLmsDevice>> {
+    let id = world
+        .with(|w| w.robot_id(robot))
+        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let baud = BaudRate::from_bps(baud)
+        .with_context(|| format!("a SICK LMS runs at 9600, 19200, 38400 or 500000, not {baud}"))?;
+    let plan = if faults.is_empty() {
+        FaultPlan::none()
+    } else {
+        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
+        if !faults.contains("seed=") {
+            p.seed = seed;
+        }
+        p
+    };
+    let cfg = SickLmsModelConfig {
+        baud,
+        ..SickLmsModelConfig::default()
+    };
+    let laser = WorldLaser::new(world.clone(), id, seed);
+    let dev = SickLmsDevice::new(cfg, Box::new(laser), ima_hal::Instant::ZERO);
+    PtyDevice::spawn(
+        dev,
+        PtyOptions {
+            faults: plan,
+            step_world: step_world.then(|| world.clone()),
+            ..PtyOptions::default()
+        },
+    )
+    .context("starting the pty")
+}
+
+/// Serve until SIGINT/SIGTERM, then print the unit's counters on stderr.
+pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32) -> Result<()> {
+    let dev = serve_sick_lms(world, robot, seed, faults, baud, true)?;
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", dev.path().display())?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving a mock SICK LMS (on {robot}) on {} powering up at {baud} baud; Ctrl-C to stop",
+        dev.path().display()
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        #[cfg(unix)]
+        {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => r?,
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        tokio::signal::ctrl_c().await?;
+        anyhow::Ok(())
+    })?;
+    let status = dev.status();
+    let model = dev
+        .stop()
+        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
+    let st = model.model().stats();
+    eprintln!(
+        "stopped: {} telegrams, {} NAKs, {} scans, {} baud changes, {} EEPROM writes, {} garbled bytes in; link {:?}",
+        st.telegrams,
+        st.naks,
+        st.scans,
+        st.baud_changes,
+        st.eeprom_writes,
+        st.garbled_rx,
+        status.counters
+    );
+    std::thread::sleep(Duration::from_millis(10));
+    Ok(())
+}
