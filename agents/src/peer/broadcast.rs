@@ -71,7 +71,12 @@ impl Broadcaster {
     ///
     /// # Errors
     /// As [`Broadcaster::status`].
-    pub fn emergency(&mut self, kind: &str, text: &str, out: &mut [u8]) -> Result<usize, WireError> {
+    pub fn emergency(
+        &mut self,
+        kind: &str,
+        text: &str,
+        out: &mut [u8],
+    ) -> Result<usize, WireError> {
         let m = Msg::Emergency {
             robot: self.robot.clone(),
             seq: self.next_seq(),

@@ -389,19 +389,19 @@ impl PeerClient {
 
     fn handle_msg(&mut self, msg: Msg) {
         match msg {
-            Msg::Registered { client, sources } if client == self.id => {
-                if self.reg == Registration::Registering {
-                    self.reg = Registration::Registered;
-                    self.sources_known = sources.clone();
-                    self.event(ClientEvent::Registered { client, sources });
-                }
+            Msg::Registered { client, sources }
+                if client == self.id && self.reg == Registration::Registering =>
+            {
+                self.reg = Registration::Registered;
+                self.sources_known = sources.clone();
+                self.event(ClientEvent::Registered { client, sources });
             }
             Msg::Declined { client, reason } if client == self.id => {
                 if self.reg != Registration::Registering {
                     return;
                 }
-                let retry = reason == DeclineReason::DuplicateId
-                    && self.retries < self.cfg.max_retries;
+                let retry =
+                    reason == DeclineReason::DuplicateId && self.retries < self.cfg.max_retries;
                 let retry_with = if retry {
                     self.retries = self.retries.saturating_add(1);
                     self.id = splitmix64(&mut self.id_state);
@@ -445,19 +445,18 @@ impl PeerClient {
                     ticket,
                 });
             }
-            Msg::Pending { client, source } if client == self.id => {
-                if self.requests.contains_key(&source) {
-                    self.event(ClientEvent::Pending { source });
-                }
+            Msg::Pending { client, source }
+                if client == self.id && self.requests.contains_key(&source) =>
+            {
+                self.event(ClientEvent::Pending { source });
             }
             Msg::Denied {
                 client,
                 source,
                 reason,
-            } if client == self.id => {
-                if self.requests.remove(&source).is_some() {
-                    self.event(ClientEvent::Denied { source, reason });
-                }
+            } if client == self.id && self.requests.contains_key(&source) => {
+                self.requests.remove(&source);
+                self.event(ClientEvent::Denied { source, reason });
             }
             Msg::Revoked {
                 client,
@@ -483,8 +482,9 @@ impl PeerClient {
                 self.event(ClientEvent::Revoked { source, reason });
             }
             Msg::SourcesChanged { added, removed } => {
-                self.sources_known
-                    .retain(|s| !removed.contains(&s.name) && !added.iter().any(|a| a.name == s.name));
+                self.sources_known.retain(|s| {
+                    !removed.contains(&s.name) && !added.iter().any(|a| a.name == s.name)
+                });
                 self.sources_known.extend(added.iter().cloned());
                 self.sources_known.sort();
                 self.event(ClientEvent::SourcesChanged { added, removed });
@@ -519,8 +519,10 @@ impl PeerClient {
     /// When [`PeerClient::handle_timeout`] should next be called.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        (self.reg != Registration::Lost)
-            .then(|| self.next_heartbeat.min(self.last_heard + self.loss_window()))
+        (self.reg != Registration::Lost).then(|| {
+            self.next_heartbeat
+                .min(self.last_heard + self.loss_window())
+        })
     }
 
     /// The next frame for the manager, sealed into `buf`; returns its length.

@@ -15,7 +15,8 @@
 //! of the [`SelfAgent`]) and the source has a free slot
 //! ([`ManagerConfig::max_grants_per_source`]). Otherwise it is pending. Pending requests are
 //! examined highest priority first; ties go to the earlier request, then to the lower client
-//! ID. They are re-examined whenever the task priority changes, a request is made, renewed or
+//! ID (arrival is the `now` of the request, so two requests of one instant tie). They are
+//! re-examined whenever the task priority changes, a request is made, renewed or
 //! withdrawn, a client goes away, or a source changes.
 //!
 //! When the task priority rises above a granted request's priority, the grant is revoked
@@ -329,7 +330,7 @@ enum ReqState {
 #[derive(Debug, Clone)]
 struct Req {
     priority: Priority,
-    arrival: u64,
+    arrival: Instant,
     state: ReqState,
 }
 
@@ -344,7 +345,6 @@ pub struct PeerManager<A: SelfAgent> {
     sessions: BTreeMap<PeerId, Session>,
     clients: BTreeMap<u64, ClientRec>,
     requests: BTreeMap<(u64, String), Req>,
-    arrivals: u64,
     nonces: u64,
     sources: Vec<SourceInfo>,
     task_priority: u8,
@@ -377,7 +377,6 @@ impl<A: SelfAgent> PeerManager<A> {
             sessions: BTreeMap::new(),
             clients: BTreeMap::new(),
             requests: BTreeMap::new(),
-            arrivals: 0,
             nonces: 0,
             sources,
             task_priority,
@@ -608,12 +607,11 @@ impl<A: SelfAgent> PeerManager<A> {
                 deny(self, DenyReason::QueueFull, priority);
                 return;
             }
-            self.arrivals = self.arrivals.wrapping_add(1);
             self.requests.insert(
                 key.clone(),
                 Req {
                     priority,
-                    arrival: self.arrivals,
+                    arrival: now,
                     state: ReqState::Pending,
                 },
             );
@@ -654,7 +652,7 @@ impl<A: SelfAgent> PeerManager<A> {
             }
         }
         // Serve pending requests, best first.
-        let mut pending: Vec<(Priority, u64, u64, String)> = self
+        let mut pending: Vec<(Priority, Instant, u64, String)> = self
             .requests
             .iter()
             .filter(|(_, r)| r.state == ReqState::Pending && r.priority.request >= task)

@@ -43,11 +43,13 @@
 //!
 //! # Body fields
 //!
-//! `str` = u8 length + UTF-8 bytes (≤ 255). `u64`, `u16`, `u32`, `i32` little-endian.
-//! `source` = `str` name, `str` kind, `u16` schema, `u32` rate in mHz. `list<T>` = u8 count
-//! + items. `ticket` = 32 bytes (see [`manager`]). Reason codes: decline 1 duplicate ID,
-//! 2 full; deny 1 not registered, 2 unknown source, 3 queue full; revoke 1 task priority,
-//! 2 source gone, 3 shutdown, 4 bad ticket; mission 1 accepted, 2 accomplished, 3 failed.
+//! `str` = u8 length then UTF-8 bytes (at most 255). `u64`, `u16`, `u32`, `i32` are
+//! little-endian. `source` = `str` name, `str` kind, `u16` schema, `u32` rate in mHz.
+//! `list<T>` = u8 count then the items. `ticket` = 32 bytes (see [`manager`]).
+//!
+//! Reason codes: decline (1 duplicate ID, 2 full); deny (1 not registered, 2 unknown source,
+//! 3 queue full); revoke (1 task priority, 2 source gone, 3 shutdown, 4 bad ticket); mission
+//! event (1 accepted, 2 accomplished, 3 failed).
 //!
 //! ## Request channel (client → manager)
 //!

@@ -672,7 +672,10 @@ struct Writer<'a> {
 
 impl Writer<'_> {
     fn bytes(&mut self, b: &[u8]) -> Result<(), WireError> {
-        let end = self.pos.checked_add(b.len()).ok_or(WireError::BufferTooSmall)?;
+        let end = self
+            .pos
+            .checked_add(b.len())
+            .ok_or(WireError::BufferTooSmall)?;
         let dst = self
             .buf
             .get_mut(self.pos..end)
@@ -788,10 +791,12 @@ impl Header {
 /// [`WireError::Truncated`] (fewer than [`HEADER_LEN`] bytes), [`WireError::BadMagic`],
 /// [`WireError::BadVersion`], [`WireError::Oversize`].
 pub fn parse_header(bytes: &[u8], max_body: usize) -> Result<Header, WireError> {
-    let (head, _) = bytes.split_at_checked(HEADER_LEN).ok_or(WireError::Truncated {
-        need: HEADER_LEN,
-        got: bytes.len(),
-    })?;
+    let (head, _) = bytes
+        .split_at_checked(HEADER_LEN)
+        .ok_or(WireError::Truncated {
+            need: HEADER_LEN,
+            got: bytes.len(),
+        })?;
     let mut r = Reader { buf: head };
     let trunc = |_| WireError::Truncated {
         need: HEADER_LEN,
@@ -881,10 +886,7 @@ impl Signer {
         let body_len16 = u16::try_from(body_len).map_err(|_| WireError::FieldTooLong)?;
         let total = HEADER_LEN + body_len + MAC_LEN;
         let frame = out.get_mut(..total).ok_or(WireError::BufferTooSmall)?;
-        let mut w = Writer {
-            buf: frame,
-            pos: 0,
-        };
+        let mut w = Writer { buf: frame, pos: 0 };
         w.bytes(&MAGIC)?;
         w.u8(VERSION)?;
         w.u8(msg.code())?;
