@@ -588,7 +588,8 @@ fn bad_frames_close_only_their_session() {
     let mut n = Net::new(0, |_| {});
     let good = n.add("scout", 1, ms(0));
     n.register(good, ms(0));
-    let bad_peers: Vec<(Vec<u8>, fn(&WireError) -> bool)> = vec![
+    type Check = fn(&WireError) -> bool;
+    let bad_peers: Vec<(Vec<u8>, Check)> = vec![
         (b"GET / HTTP/1.0\r\n\r\nxxxxxxxxxxxx".to_vec(), |e| {
             matches!(e, WireError::BadMagic(_))
         }),
