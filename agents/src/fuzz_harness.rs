@@ -40,12 +40,14 @@ pub const PEER_FUZZ_KEY: &[u8] = b"ima peer fuzz group key 32 bytes";
 ///    that must succeed, open again to the same message, and give back the same header and
 ///    body bytes (the encoding is canonical).
 /// 3. The rest is cut into frames with [`frame_len`](crate::peer::wire::frame_len) and fed
-///    to a manager (session 1), a client and a broadcast receiver, with timeouts in between.
+///    to a manager (session 1), a client, a broadcast receiver and both ends of a data
+///    session, with timeouts in between.
 ///    With mode bit 0 set, every frame that parses is first re-sealed with the group key, so
 ///    the fuzzer reaches the state machines with authenticated messages.
 pub fn peer_frames(data: &[u8]) {
     use crate::peer::broadcast::{BroadcastReceiver, ReceiverConfig};
     use crate::peer::client::{ClientConfig, PeerClient};
+    use crate::peer::data::{DataClientSession, DataConfig, DataServerSession};
     use crate::peer::manager::{FixedSelfAgent, ManagerConfig, PeerManager};
     use crate::peer::wire::{
         DEFAULT_MAX_BODY, GroupKey, HEADER_LEN, Signer, SourceInfo, Verifier, frame_len,
@@ -92,6 +94,15 @@ pub fn peer_frames(data: &[u8]) {
     );
     let _ = c.register();
     let mut rx = BroadcastReceiver::new(key.clone(), ReceiverConfig::default());
+    let mut ds = DataServerSession::new(DataConfig::new(4), key.clone(), Instant::ZERO);
+    let mut dc = DataClientSession::new(
+        DataConfig::new(5),
+        key.clone(),
+        6,
+        "ses",
+        [0; 32],
+        Instant::ZERO,
+    );
     let mut resealer = Signer::new(key, 9, 1);
     let mut buf = vec![0u8; 70_000];
     let mut now = Instant::ZERO;
@@ -123,6 +134,15 @@ pub fn peer_frames(data: &[u8]) {
         m.handle_frame(1, frame, now);
         c.handle_frame(frame, now);
         let _ = rx.handle_datagram(frame, now);
+        ds.handle_frame(frame, &m, now);
+        ds.offer(now.as_micros(), frame);
+        dc.handle_frame(frame, now);
+        ds.handle_timeout(now);
+        dc.handle_timeout(now);
+        while ds.poll_transmit(&mut buf, now).is_some() {}
+        while dc.poll_transmit(&mut buf, now).is_some() {}
+        while ds.poll_event().is_some() || dc.poll_event().is_some() {}
+        while dc.pop_sample().is_some() {}
         m.handle_timeout(now);
         c.handle_timeout(now);
         while m.poll_transmit(&mut buf).is_some() {}

@@ -1,8 +1,9 @@
 //! The Peer Agent over IP: transport-agnostic core (PEER.md).
 //!
 //! **Status: core only.** This module holds the pure state machines and the wire format. The
-//! tokio TCP/UDP shell (listeners, data server sockets, multicast), the `ima peer` tools and
-//! the loopback benchmarks are not built yet.
+//! tokio TCP/UDP shell (manager listener, data-server sockets, multicast with the unicast
+//! fallback, key files and `--insecure`), the `ima peer` tools and the loopback benchmarks
+//! are not built yet.
 //!
 //! * [`manager::PeerManager`] — one per robot: registration (duplicate IDs declined), the
 //!   competency list and its change pushes, the three-part priority with the pending queue,
@@ -13,6 +14,9 @@
 //!   duplicate-ID retry and manager-loss handling.
 //! * [`broadcast`] — sequence-numbered status, emergency and mission messages; receivers drop
 //!   duplicates and stale reorderings.
+//! * [`data`] — the data channel: [`data::DataServerSession`] refuses a session without a
+//!   valid ticket and streams samples latest-value; [`data::DataClientSession`] presents the
+//!   ticket and hands samples to the target agent.
 //! * [`queue::LatestQueue`] — bounded, latest-value queue for sample streams.
 //! * [`wire`] — frames, messages, authentication.
 //!
@@ -83,9 +87,10 @@
 //! | `0x22` | DataClosed | `str` source, `u8` revoke reason |
 //! | `0x23` | Sample | `u64` seq, `u64` stamp µs, `u16` length, payload |
 //!
-//! The data server checks the ticket with [`manager::PeerManager::check_ticket`]. The
-//! session state machines of the data channel are part of the shell step (not built yet);
-//! the sample queue they will use is [`queue::LatestQueue`].
+//! The first frame of a data session must be OpenData with a ticket that
+//! [`manager::PeerManager::check_ticket`] accepts; otherwise the server answers DataClosed
+//! (bad ticket) and closes. Samples are numbered per session from 1; a gap means samples
+//! dropped by the latest-value queue.
 //!
 //! ## Broadcast channel (UDP)
 //!
@@ -116,6 +121,7 @@
 
 pub mod broadcast;
 pub mod client;
+pub mod data;
 pub mod manager;
 pub mod queue;
 pub mod wire;

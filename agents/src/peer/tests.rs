@@ -1110,3 +1110,189 @@ mod props {
         }
     }
 }
+
+// ---- data sessions ----
+
+mod data_sessions {
+    use super::*;
+    use crate::peer::data::{
+        DataClientSession, DataClose, DataConfig, DataEvent, DataServerSession,
+    };
+
+    fn granted() -> (Net, u64, [u8; 32]) {
+        let mut n = Net::new(0, |_| {});
+        let a = n.add("scout", 1, ms(0));
+        n.register(a, ms(0));
+        n.events(a);
+        n.clients[a].request("sonar", 3).unwrap();
+        n.pump(ms(1));
+        let ev = n.events(a);
+        let [ClientEvent::Granted { ticket, .. }] = &ev[..] else {
+            panic!("{ev:?}")
+        };
+        let id = n.clients[a].id();
+        (n, id, *ticket)
+    }
+
+    fn cfg(node: u64, queue: usize) -> DataConfig {
+        let mut c = DataConfig::new(node);
+        c.queue = queue;
+        c
+    }
+
+    /// Moves frames between the two ends until quiet.
+    fn pump(s: &mut DataServerSession, c: &mut DataClientSession, m: &Net, now: Instant) {
+        let mut buf = vec![0u8; 70_000];
+        loop {
+            let mut moved = false;
+            while let Some(k) = c.poll_transmit(&mut buf, now) {
+                s.handle_frame(&buf[..k], &m.m, now);
+                moved = true;
+            }
+            while let Some(k) = s.poll_transmit(&mut buf, now) {
+                c.handle_frame(&buf[..k], now);
+                moved = true;
+            }
+            if !moved {
+                break;
+            }
+        }
+    }
+
+    #[test]
+    fn valid_ticket_opens_and_samples_flow_in_order() {
+        let (n, id, ticket) = granted();
+        let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
+        let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(2));
+        pump(&mut s, &mut c, &n, ms(2));
+        assert!(s.is_streaming() && c.is_open());
+        assert_eq!(
+            s.poll_event(),
+            Some(DataEvent::Opened {
+                client: id,
+                source: "sonar".into()
+            })
+        );
+        assert_eq!(
+            c.poll_event(),
+            Some(DataEvent::Opened {
+                client: id,
+                source: "sonar".into()
+            })
+        );
+        for i in 0..3u8 {
+            s.offer(u64::from(i), &[i; 4]);
+        }
+        pump(&mut s, &mut c, &n, ms(3));
+        let got: Vec<u64> = std::iter::from_fn(|| c.pop_sample())
+            .map(|x| x.seq)
+            .collect();
+        assert_eq!(got, vec![1, 2, 3]);
+        assert_eq!(c.lost_samples(), 0);
+    }
+
+    #[test]
+    fn data_server_refuses_a_session_without_a_valid_ticket() {
+        let (n, id, ticket) = granted();
+        let mut forged = ticket;
+        forged[31] ^= 1;
+        for (client, source, t, want) in [
+            (id, "sonar", forged, TicketError::Forged),
+            (id ^ 1, "sonar", ticket, TicketError::Forged),
+            (id, "ses", ticket, TicketError::Forged),
+        ] {
+            let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
+            let mut c = DataClientSession::new(cfg(51, 8), key(), client, source, t, ms(2));
+            s.offer(1, b"secret");
+            pump(&mut s, &mut c, &n, ms(2));
+            assert_eq!(
+                s.poll_event(),
+                Some(DataEvent::Closed(DataClose::Ticket(want)))
+            );
+            assert_eq!(
+                c.poll_event(),
+                Some(DataEvent::Closed(DataClose::Revoked(
+                    RevokeReason::BadTicket
+                )))
+            );
+            assert_eq!(c.pop_sample(), None);
+        }
+        // A first frame that is not OpenData closes the session too.
+        let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
+        let f = Signer::new(key(), 9, 1).seal_vec(&Msg::Heartbeat).unwrap();
+        s.handle_frame(&f, &n.m, ms(2));
+        assert_eq!(
+            s.poll_event(),
+            Some(DataEvent::Closed(DataClose::Unexpected(0x05)))
+        );
+    }
+
+    #[test]
+    fn slow_consumer_loses_the_oldest_samples_and_never_blocks_the_source() {
+        let (n, id, ticket) = granted();
+        let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
+        let mut c = DataClientSession::new(cfg(51, 4), key(), id, "sonar", ticket, ms(2));
+        pump(&mut s, &mut c, &n, ms(2));
+        // The socket is not drained while the source produces 100 samples.
+        for i in 0..100u64 {
+            s.offer(i, &i.to_le_bytes());
+        }
+        assert_eq!(s.dropped(), 92);
+        pump(&mut s, &mut c, &n, ms(3));
+        // The target does not read while 8 arrive; it keeps the latest 4.
+        let got: Vec<u64> = std::iter::from_fn(|| c.pop_sample())
+            .map(|x| x.stamp_us)
+            .collect();
+        assert_eq!(got, vec![96, 97, 98, 99]);
+        assert_eq!(c.lost_samples(), 4);
+    }
+
+    #[test]
+    fn revoke_closes_the_session_and_tells_the_client_why() {
+        let (n, id, ticket) = granted();
+        let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
+        let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(2));
+        pump(&mut s, &mut c, &n, ms(2));
+        c.poll_event();
+        s.revoke(RevokeReason::TaskPriority);
+        s.offer(1, b"late");
+        pump(&mut s, &mut c, &n, ms(3));
+        assert_eq!(
+            c.poll_event(),
+            Some(DataEvent::Closed(DataClose::Revoked(
+                RevokeReason::TaskPriority
+            )))
+        );
+        assert!(!c.is_open());
+        assert_eq!(c.pop_sample(), None);
+    }
+
+    #[test]
+    fn silent_source_is_lost_within_three_heartbeats() {
+        let (n, id, ticket) = granted();
+        let mut s = DataServerSession::new(cfg(50, 8), key(), ms(0));
+        let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(0));
+        pump(&mut s, &mut c, &n, ms(0));
+        c.poll_event();
+        // Heartbeats both ways keep the session up.
+        for t in (0..1000).step_by(50) {
+            s.handle_timeout(ms(t));
+            c.handle_timeout(ms(t));
+            pump(&mut s, &mut c, &n, ms(t));
+        }
+        assert!(c.is_open() && s.is_streaming());
+        // The source dies after t = 950; its last frame (a heartbeat, sent when idle for one
+        // interval) left at t = 900, so the client must declare it lost at 900 + 3 × 100.
+        let mut buf = vec![0u8; 1000];
+        let mut t = 1000;
+        while t < 1200 {
+            c.handle_timeout(ms(t));
+            while c.poll_transmit(&mut buf, ms(t)).is_some() {}
+            assert!(c.poll_event().is_none(), "lost too early at {t}");
+            t += 10;
+        }
+        assert_eq!(c.poll_timeout(), Some(ms(1200)));
+        c.handle_timeout(ms(1200));
+        assert_eq!(c.poll_event(), Some(DataEvent::Closed(DataClose::Lost)));
+    }
+}
