@@ -134,7 +134,7 @@ pub fn peer_frames(data: &[u8]) {
         m.handle_frame(1, frame, now);
         c.handle_frame(frame, now);
         let _ = rx.handle_datagram(frame, now);
-        ds.handle_frame(frame, &m, now);
+        ds.handle_frame(frame, &mut m, now);
         ds.offer(now.as_micros(), frame);
         dc.handle_frame(frame, now);
         ds.handle_timeout(now);

@@ -24,12 +24,12 @@ use super::wire::{GroupKey, Msg, RevokeReason, Signer, Ticket, Verifier, WireErr
 
 /// Who checks tickets for a data server.
 pub trait TicketAuthority {
-    /// Whether `ticket` admits `client` to `source` now.
+    /// Whether `ticket` admits `client` to `source` now; a ticket that does is used up.
     ///
     /// # Errors
     /// Why not.
-    fn check(
-        &self,
+    fn redeem(
+        &mut self,
         client: u64,
         source: &str,
         ticket: &Ticket,
@@ -38,14 +38,14 @@ pub trait TicketAuthority {
 }
 
 impl<A: SelfAgent> TicketAuthority for PeerManager<A> {
-    fn check(
-        &self,
+    fn redeem(
+        &mut self,
         client: u64,
         source: &str,
         ticket: &Ticket,
         now: Instant,
     ) -> Result<(), TicketError> {
-        self.check_ticket(client, source, ticket, now)
+        self.redeem_ticket(client, source, ticket, now)
     }
 }
 
@@ -202,7 +202,7 @@ impl DataServerSession {
     }
 
     /// One frame from the client.
-    pub fn handle_frame(&mut self, frame: &[u8], tickets: &impl TicketAuthority, now: Instant) {
+    pub fn handle_frame(&mut self, frame: &[u8], tickets: &mut impl TicketAuthority, now: Instant) {
         if self.state == ServerState::Closed {
             return;
         }
@@ -219,7 +219,7 @@ impl DataServerSession {
                     source,
                     ticket,
                 },
-            ) => match tickets.check(client, &source, &ticket, now) {
+            ) => match tickets.redeem(client, &source, &ticket, now) {
                 Ok(()) => {
                     self.control.push_back(Msg::DataAccepted {
                         source: source.clone(),

@@ -30,7 +30,8 @@
 //! bytes of HMAC-SHA-256 under the manager's private *ticket key* over `"ima-ticket"` ‖
 //! client ‖ source ‖ nonce ‖ expiry. [`PeerManager::check_ticket`] accepts it only while it
 //! has not expired, its MAC verifies (constant-time), and the grant it was issued for still
-//! stands with the same nonce (so a revoked or re-issued ticket is dead).
+//! stands with the same nonce (so a revoked or re-issued ticket is dead);
+//! [`PeerManager::redeem_ticket`] also uses it up (one ticket, one data session).
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -210,6 +211,8 @@ pub enum TicketError {
     Expired,
     /// No standing grant with this ticket (revoked, re-issued, or the client is gone).
     NotGranted,
+    /// The ticket already opened a data session.
+    AlreadyUsed,
 }
 
 /// Manager configuration.
@@ -247,6 +250,10 @@ pub struct ManagerConfig {
     pub max_events: usize,
     /// Body-size limit of incoming frames.
     pub max_body: usize,
+    /// Senders whose last frame counter is remembered (default 4096). The counters are kept
+    /// across sessions, so frames recorded on one session cannot be replayed on another;
+    /// a sender forgotten to make room (the one heard longest ago) could be replayed.
+    pub max_senders: usize,
 }
 
 impl ManagerConfig {
@@ -270,6 +277,7 @@ impl ManagerConfig {
             max_outbox: 8192,
             max_events: 1024,
             max_body: super::wire::DEFAULT_MAX_BODY,
+            max_senders: 4096,
         }
     }
 }
@@ -308,7 +316,6 @@ pub struct ManagerStats {
 
 #[derive(Debug)]
 struct Session {
-    verifier: Verifier,
     last_heard: Instant,
     next_heartbeat: Instant,
     slow: bool,
@@ -332,16 +339,17 @@ struct Req {
     priority: Priority,
     arrival: Instant,
     state: ReqState,
+    redeemed: bool,
 }
 
 /// The manager state machine.
 #[derive(Debug)]
 pub struct PeerManager<A: SelfAgent> {
     cfg: ManagerConfig,
-    key: GroupKey,
     ticket_key: [u8; 32],
     agent: A,
     signer: Signer,
+    verifier: Verifier,
     sessions: BTreeMap<PeerId, Session>,
     clients: BTreeMap<u64, ClientRec>,
     requests: BTreeMap<(u64, String), Req>,
@@ -367,13 +375,14 @@ impl<A: SelfAgent> PeerManager<A> {
         let sources = sorted(agent.sources(now));
         let task_priority = agent.task_priority(now);
         let signer = Signer::new(key.clone(), cfg.node, cfg.first_counter);
+        let verifier = Verifier::with_limits(key, cfg.max_body, cfg.max_senders);
         Self {
             next_rescan: now + cfg.rescan,
             cfg,
-            key,
             ticket_key,
             agent,
             signer,
+            verifier,
             sessions: BTreeMap::new(),
             clients: BTreeMap::new(),
             requests: BTreeMap::new(),
@@ -450,11 +459,9 @@ impl<A: SelfAgent> PeerManager<A> {
     /// A new session (the shell accepted a connection). Frames from a session not
     /// connected this way are ignored and counted.
     pub fn connect(&mut self, peer: PeerId, now: Instant) {
-        let verifier = Verifier::with_limits(self.key.clone(), self.cfg.max_body, 1);
         self.sessions.insert(
             peer,
             Session {
-                verifier,
                 last_heard: now,
                 next_heartbeat: now,
                 slow: false,
@@ -471,17 +478,19 @@ impl<A: SelfAgent> PeerManager<A> {
     /// not send, closes that session ([`ManagerEvent::ClosePeer`]); others are unaffected.
     pub fn handle_frame(&mut self, peer: PeerId, frame: &[u8], now: Instant) {
         self.refresh_task_priority(now);
-        let Some(s) = self.sessions.get_mut(&peer) else {
+        if !self.sessions.contains_key(&peer) {
             self.stats.unknown_peer = self.stats.unknown_peer.saturating_add(1);
             return;
-        };
-        match s.verifier.open(frame) {
+        }
+        match self.verifier.open(frame) {
             Ok(o) => {
-                s.last_heard = now;
+                if let Some(s) = self.sessions.get_mut(&peer) {
+                    s.last_heard = now;
+                }
                 self.handle_msg(peer, o.msg, now);
             }
             Err(e) => {
-                self.stats.rejects.count(e);
+                self.stats.rejects = self.verifier.rejects;
                 self.stats.closed_bad = self.stats.closed_bad.saturating_add(1);
                 self.drop_session(peer, Some(CloseReason::Wire(e)), now);
             }
@@ -613,6 +622,7 @@ impl<A: SelfAgent> PeerManager<A> {
                     priority,
                     arrival: now,
                     state: ReqState::Pending,
+                    redeemed: false,
                 },
             );
         }
@@ -680,6 +690,7 @@ impl<A: SelfAgent> PeerManager<A> {
             return;
         };
         r.state = ReqState::Granted { nonce };
+        r.redeemed = false;
         let priority = r.priority;
         if let Some(peer) = self.clients.get(&client).map(|c| c.peer) {
             self.send(
@@ -725,7 +736,27 @@ impl<A: SelfAgent> PeerManager<A> {
         t
     }
 
-    /// Checks a data-session ticket (the data server calls this before streaming).
+    /// Redeems a data-session ticket: [`PeerManager::check_ticket`], then marks it used, so
+    /// one ticket opens one data session (a recorded OpenData cannot be replayed). After a
+    /// data session drops, the client renews its request to get a fresh ticket.
+    ///
+    /// # Errors
+    /// [`TicketError`].
+    pub fn redeem_ticket(
+        &mut self,
+        client: u64,
+        source: &str,
+        ticket: &Ticket,
+        now: Instant,
+    ) -> Result<(), TicketError> {
+        self.check_ticket(client, source, ticket, now)?;
+        if let Some(r) = self.requests.get_mut(&(client, source.to_owned())) {
+            r.redeemed = true;
+        }
+        Ok(())
+    }
+
+    /// Checks a data-session ticket without using it up.
     ///
     /// # Errors
     /// [`TicketError`].
@@ -752,8 +783,15 @@ impl<A: SelfAgent> PeerManager<A> {
         match self.requests.get(&(client, source.to_owned())) {
             Some(Req {
                 state: ReqState::Granted { nonce: g },
+                redeemed,
                 ..
-            }) if *g == nonce => Ok(()),
+            }) if *g == nonce => {
+                if *redeemed {
+                    Err(TicketError::AlreadyUsed)
+                } else {
+                    Ok(())
+                }
+            }
             _ => Err(TicketError::NotGranted),
         }
     }

@@ -673,6 +673,33 @@ fn replayed_frame_is_rejected_and_closes_the_session() {
 }
 
 #[test]
+fn frames_recorded_on_one_session_cannot_be_replayed_on_another() {
+    let mut n = Net::new(0, |_| {});
+    let p1 = n.add("scout", 1, ms(0));
+    let mut s = Signer::new(key(), 9, 1);
+    let reg = s
+        .seal_vec(&Msg::Register {
+            client: 5,
+            robot: "scout".into(),
+        })
+        .unwrap();
+    let unreg = s.seal_vec(&Msg::Unregister { client: 5 }).unwrap();
+    n.m.handle_frame(p1 as u64, &reg, ms(0));
+    n.m.handle_frame(p1 as u64, &unreg, ms(1));
+    assert!(n.m.status().is_empty());
+    let p2 = n.add("stranger", 2, ms(2));
+    n.m.handle_frame(p2 as u64, &reg, ms(2));
+    assert!(n.m.status().is_empty(), "replayed registration accepted");
+    assert!(n.mevents().iter().any(|e| matches!(
+        e,
+        ManagerEvent::ClosePeer {
+            reason: CloseReason::Wire(WireError::Replay { .. }),
+            ..
+        }
+    )));
+}
+
+#[test]
 fn client_closes_on_a_tampered_frame() {
     let mut n = Net::new(0, |_| {});
     let a = n.add("scout", 1, ms(0));
@@ -1141,12 +1168,12 @@ mod data_sessions {
     }
 
     /// Moves frames between the two ends until quiet.
-    fn pump(s: &mut DataServerSession, c: &mut DataClientSession, m: &Net, now: Instant) {
+    fn pump(s: &mut DataServerSession, c: &mut DataClientSession, m: &mut Net, now: Instant) {
         let mut buf = vec![0u8; 70_000];
         loop {
             let mut moved = false;
             while let Some(k) = c.poll_transmit(&mut buf, now) {
-                s.handle_frame(&buf[..k], &m.m, now);
+                s.handle_frame(&buf[..k], &mut m.m, now);
                 moved = true;
             }
             while let Some(k) = s.poll_transmit(&mut buf, now) {
@@ -1161,10 +1188,10 @@ mod data_sessions {
 
     #[test]
     fn valid_ticket_opens_and_samples_flow_in_order() {
-        let (n, id, ticket) = granted();
+        let (mut n, id, ticket) = granted();
         let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
         let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(2));
-        pump(&mut s, &mut c, &n, ms(2));
+        pump(&mut s, &mut c, &mut n, ms(2));
         assert!(s.is_streaming() && c.is_open());
         assert_eq!(
             s.poll_event(),
@@ -1183,7 +1210,7 @@ mod data_sessions {
         for i in 0..3u8 {
             s.offer(u64::from(i), &[i; 4]);
         }
-        pump(&mut s, &mut c, &n, ms(3));
+        pump(&mut s, &mut c, &mut n, ms(3));
         let got: Vec<u64> = std::iter::from_fn(|| c.pop_sample())
             .map(|x| x.seq)
             .collect();
@@ -1193,7 +1220,7 @@ mod data_sessions {
 
     #[test]
     fn data_server_refuses_a_session_without_a_valid_ticket() {
-        let (n, id, ticket) = granted();
+        let (mut n, id, ticket) = granted();
         let mut forged = ticket;
         forged[31] ^= 1;
         for (client, source, t, want) in [
@@ -1204,7 +1231,7 @@ mod data_sessions {
             let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
             let mut c = DataClientSession::new(cfg(51, 8), key(), client, source, t, ms(2));
             s.offer(1, b"secret");
-            pump(&mut s, &mut c, &n, ms(2));
+            pump(&mut s, &mut c, &mut n, ms(2));
             assert_eq!(
                 s.poll_event(),
                 Some(DataEvent::Closed(DataClose::Ticket(want)))
@@ -1220,7 +1247,7 @@ mod data_sessions {
         // A first frame that is not OpenData closes the session too.
         let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
         let f = Signer::new(key(), 9, 1).seal_vec(&Msg::Heartbeat).unwrap();
-        s.handle_frame(&f, &n.m, ms(2));
+        s.handle_frame(&f, &mut n.m, ms(2));
         assert_eq!(
             s.poll_event(),
             Some(DataEvent::Closed(DataClose::Unexpected(0x05)))
@@ -1228,17 +1255,49 @@ mod data_sessions {
     }
 
     #[test]
+    fn a_ticket_opens_one_session_only_and_renewal_issues_a_fresh_one() {
+        let (mut n, id, ticket) = granted();
+        let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
+        let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(2));
+        pump(&mut s, &mut c, &mut n, ms(2));
+        assert!(s.is_streaming());
+        // A second session with the same ticket (say, a recorded OpenData replayed on a new
+        // connection) is refused.
+        let mut s2 = DataServerSession::new(cfg(50, 8), key(), ms(3));
+        let mut c2 = DataClientSession::new(cfg(52, 8), key(), id, "sonar", ticket, ms(3));
+        pump(&mut s2, &mut c2, &mut n, ms(3));
+        assert_eq!(
+            s2.poll_event(),
+            Some(DataEvent::Closed(DataClose::Ticket(
+                TicketError::AlreadyUsed
+            )))
+        );
+        // Renewing the request gives a fresh ticket that works.
+        n.clients[0].request("sonar", 3).unwrap();
+        n.pump(ms(4));
+        let ev = n.events(0);
+        let [ClientEvent::Granted { ticket: fresh, .. }] = &ev[..] else {
+            panic!("{ev:?}")
+        };
+        assert_ne!(*fresh, ticket);
+        let mut s3 = DataServerSession::new(cfg(50, 8), key(), ms(5));
+        let mut c3 = DataClientSession::new(cfg(53, 8), key(), id, "sonar", *fresh, ms(5));
+        pump(&mut s3, &mut c3, &mut n, ms(5));
+        assert!(s3.is_streaming() && c3.is_open());
+    }
+
+    #[test]
     fn slow_consumer_loses_the_oldest_samples_and_never_blocks_the_source() {
-        let (n, id, ticket) = granted();
+        let (mut n, id, ticket) = granted();
         let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
         let mut c = DataClientSession::new(cfg(51, 4), key(), id, "sonar", ticket, ms(2));
-        pump(&mut s, &mut c, &n, ms(2));
+        pump(&mut s, &mut c, &mut n, ms(2));
         // The socket is not drained while the source produces 100 samples.
         for i in 0..100u64 {
             s.offer(i, &i.to_le_bytes());
         }
         assert_eq!(s.dropped(), 92);
-        pump(&mut s, &mut c, &n, ms(3));
+        pump(&mut s, &mut c, &mut n, ms(3));
         // The target does not read while 8 arrive; it keeps the latest 4.
         let got: Vec<u64> = std::iter::from_fn(|| c.pop_sample())
             .map(|x| x.stamp_us)
@@ -1249,14 +1308,14 @@ mod data_sessions {
 
     #[test]
     fn revoke_closes_the_session_and_tells_the_client_why() {
-        let (n, id, ticket) = granted();
+        let (mut n, id, ticket) = granted();
         let mut s = DataServerSession::new(cfg(50, 8), key(), ms(2));
         let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(2));
-        pump(&mut s, &mut c, &n, ms(2));
+        pump(&mut s, &mut c, &mut n, ms(2));
         c.poll_event();
         s.revoke(RevokeReason::TaskPriority);
         s.offer(1, b"late");
-        pump(&mut s, &mut c, &n, ms(3));
+        pump(&mut s, &mut c, &mut n, ms(3));
         assert_eq!(
             c.poll_event(),
             Some(DataEvent::Closed(DataClose::Revoked(
@@ -1269,16 +1328,16 @@ mod data_sessions {
 
     #[test]
     fn silent_source_is_lost_within_three_heartbeats() {
-        let (n, id, ticket) = granted();
+        let (mut n, id, ticket) = granted();
         let mut s = DataServerSession::new(cfg(50, 8), key(), ms(0));
         let mut c = DataClientSession::new(cfg(51, 8), key(), id, "sonar", ticket, ms(0));
-        pump(&mut s, &mut c, &n, ms(0));
+        pump(&mut s, &mut c, &mut n, ms(0));
         c.poll_event();
         // Heartbeats both ways keep the session up.
         for t in (0..1000).step_by(50) {
             s.handle_timeout(ms(t));
             c.handle_timeout(ms(t));
-            pump(&mut s, &mut c, &n, ms(t));
+            pump(&mut s, &mut c, &mut n, ms(t));
         }
         assert!(c.is_open() && s.is_streaming());
         // The source dies after t = 950; its last frame (a heartbeat, sent when idle for one
