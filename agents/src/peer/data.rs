@@ -2,7 +2,7 @@
 //!
 //! * [`DataServerSession`] — the source robot's end of one data session. The first frame must
 //!   be [`Msg::OpenData`] with a ticket that the [`TicketAuthority`] (the
-//!   [`PeerManager`](super::manager::PeerManager)) accepts; anything else closes the session
+//!   [`PeerManager`]) accepts; anything else closes the session
 //!   without a sample sent. Samples [`offer`](DataServerSession::offer)ed by the source go
 //!   through a [`LatestQueue`]: a slow consumer loses the oldest samples, the source never
 //!   blocks and memory stays bounded. The shell calls [`DataServerSession::revoke`] when the
