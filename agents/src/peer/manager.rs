@@ -601,9 +601,9 @@ impl<A: SelfAgent> PeerManager<A> {
         let key = (client, source.clone());
         if let Some(r) = self.requests.get_mut(&key) {
             // Renewal: new priority; a standing grant gets a fresh ticket.
+            // (If the task now outranks the new priority, `reexamine` revokes it instead.)
             r.priority = priority;
-            if let ReqState::Granted { .. } = r.state {
-                r.state = ReqState::Pending;
+            if matches!(r.state, ReqState::Granted { .. }) && prio >= self.task_priority {
                 self.grant(client, &source, now);
             }
         } else {

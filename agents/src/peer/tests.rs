@@ -362,6 +362,42 @@ fn renewal_with_higher_priority_is_reexamined() {
 }
 
 #[test]
+fn renewing_a_grant_gives_a_fresh_ticket_or_a_revoke_if_now_outranked() {
+    let mut n = Net::new(3, |_| {});
+    let a = n.add("scout", 1, ms(0));
+    n.register(a, ms(0));
+    n.events(a);
+    n.clients[a].request("ses", 5).unwrap();
+    n.pump(ms(1));
+    let first = n.events(a);
+    n.clients[a].request("ses", 4).unwrap();
+    n.pump(ms(2));
+    let second = n.events(a);
+    let ticket = |ev: &[ClientEvent]| match ev {
+        [ClientEvent::Granted { ticket, .. }] => *ticket,
+        other => panic!("{other:?}"),
+    };
+    assert_ne!(ticket(&first), ticket(&second));
+    n.clients[a].request("ses", 2).unwrap();
+    n.pump(ms(3));
+    assert_eq!(
+        n.events(a),
+        vec![
+            ClientEvent::SourceGone {
+                source: "ses".into()
+            },
+            ClientEvent::Revoked {
+                source: "ses".into(),
+                reason: RevokeReason::TaskPriority
+            },
+            ClientEvent::Pending {
+                source: "ses".into()
+            },
+        ]
+    );
+}
+
+#[test]
 fn pending_requests_are_served_in_priority_order() {
     let mut n = Net::new(10, |_| {});
     let scout = n.add("scout", 1, ms(0)); // robot priority 1
