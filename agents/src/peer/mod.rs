@@ -45,6 +45,27 @@
 //! `Replay`, `UnknownType`, `Body(..)` ([`wire::WireError`]); the MAC is checked before the
 //! replay counter and both before the body is parsed.
 //!
+//! **Test vector.** Group key `"group key of the test fleet, 32b"` (32 ASCII bytes), sender
+//! `0x11`, counter `0x22`, Register { client `0x0102030405060708`, robot `"scooter"` }:
+//!
+//! ```text
+//! 49 50 01 01 10 00                     magic "IP", version 1, type 0x01, body length 16
+//! 11 00 00 00 00 00 00 00               sender 0x11
+//! 22 00 00 00 00 00 00 00               counter 0x22
+//! 08 07 06 05 04 03 02 01 07            client, robot-name length 7
+//! 73 63 6f 6f 74 65 72                  "scooter"
+//! 38 7d 60 60 08 11 4c d4 af e4 5a 93 e9 a8 88 1a
+//! 69 a4 8d 84 94 d2 c6 d8 30 f9 e0 40 a7 19 ef 94   HMAC-SHA-256
+//! ```
+//!
+//! **Sender IDs and counters.** Every sender (manager, client, data-session end,
+//! broadcaster) seals with its own sender ID and a counter that grows by one per frame. The
+//! shell should draw sender IDs at random per process start and start counters from a clock
+//! that grows across restarts (µs since the UNIX epoch), so a restarted robot is never taken
+//! for a replayer. The manager remembers counters per sender *across* its sessions
+//! ([`manager::ManagerConfig::max_senders`]), so frames recorded on one session cannot be
+//! replayed on a new one; data-session tickets are single-use for the same reason.
+//!
 //! # Body fields
 //!
 //! `str` = u8 length then UTF-8 bytes (at most 255). `u64`, `u16`, `u32`, `i32` are

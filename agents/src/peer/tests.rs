@@ -889,6 +889,30 @@ fn broadcast_rejects_strangers_and_replays() {
 
 // ---- wire ----
 
+/// Test vector of the module docs, computed independently (Python `hmac` + `hashlib`).
+const REGISTER_VECTOR: &str = "4950010110001100000000000000220000000000000008070605040302010773\
+636f6f746572387d606008114cd4afe45a93e9a8881a69a48d8494d2c6d830f9e040a719ef94";
+
+fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+#[test]
+fn register_test_vector_both_ways() {
+    let want = unhex(REGISTER_VECTOR);
+    let msg = Msg::Register {
+        client: 0x0102_0304_0506_0708,
+        robot: "scooter".into(),
+    };
+    let got = Signer::new(key(), 0x11, 0x22).seal_vec(&msg).unwrap();
+    assert_eq!(got, want);
+    let o = Verifier::new(key()).open(&want).unwrap();
+    assert_eq!((o.sender, o.counter, o.msg), (0x11, 0x22, msg));
+}
+
 #[test]
 fn each_wire_error_is_distinct() {
     let mut s = Signer::new(key(), 1, 10);
