@@ -102,45 +102,19 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         .with_context(|| format!("unknown P2OS robot {:?} (p2at, p2at8, p2dx)", args.robot))?;
     let stdout = std::io::stdout();
     let mut out = std::io::BufWriter::new(stdout.lock());
+    let host = args.from == Direction::Host;
+    let mut emit = |v: Value| -> Result<()> {
+        serde_json::to_writer(&mut out, &v)?;
+        out.write_all(b"\n")?;
+        Ok(())
+    };
     match args.protocol {
-        Protocol::P2os => decode_p2os(&bytes, args.from, params, &mut |v| {
-            serde_json::to_writer(&mut out, &v)?;
-            out.write_all(b"\n")?;
-            Ok(())
-        })?,
-        Protocol::Compass => {
-            crate::cmd::decode_compass::decode(&bytes, args.from == Direction::Host, &mut |v| {
-                serde_json::to_writer(&mut out, &v)?;
-                out.write_all(b"\n")?;
-                Ok(())
-            })?
-        }
-        Protocol::SickLms => {
-            super::decode_sick::decode_sick_lms(&bytes, args.from == Direction::Host, &mut |v| {
-                serde_json::to_writer(&mut out, &v)?;
-                out.write_all(b"\n")?;
-                Ok(())
-            })?
-        }
-        Protocol::VideoMux => crate::cmd::decode_video_mux::decode_extron(
-            &bytes,
-            args.from == Direction::Host,
-            &mut |v| {
-                serde_json::to_writer(&mut out, &v)?;
-                out.write_all(b"\n")?;
-                Ok(())
-            },
-        )?,
-        Protocol::Kramer => crate::cmd::decode_video_mux::decode_kramer(&bytes, &mut |v| {
-            serde_json::to_writer(&mut out, &v)?;
-            out.write_all(b"\n")?;
-            Ok(())
-        })?,
-        Protocol::Rflex => super::decode_rflex::decode_rflex(&bytes, args.from, &mut |v| {
-            serde_json::to_writer(&mut out, &v)?;
-            out.write_all(b"\n")?;
-            Ok(())
-        })?,
+        Protocol::P2os => decode_p2os(&bytes, args.from, params, &mut emit)?,
+        Protocol::Compass => super::decode_compass::decode(&bytes, host, &mut emit)?,
+        Protocol::SickLms => super::decode_sick::decode_sick_lms(&bytes, host, &mut emit)?,
+        Protocol::VideoMux => super::decode_video_mux::decode_extron(&bytes, host, &mut emit)?,
+        Protocol::Kramer => super::decode_video_mux::decode_kramer(&bytes, &mut emit)?,
+        Protocol::Rflex => super::decode_rflex::decode_rflex(&bytes, args.from, &mut emit)?,
     }
     out.flush()?;
     Ok(())
