@@ -46,34 +46,8 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .map_err(io::Error::from)
 }
 
-/// The shell's clock: tokio's monotonic time (so `tokio::time::pause` drives tests in virtual
-/// time), counted from the driver's start.
-#[derive(Debug, Clone, Copy)]
-pub struct TokioClock {
-    epoch: tokio::time::Instant,
-}
-
-impl TokioClock {
-    /// A clock whose epoch is now.
-    #[must_use]
-    pub fn new() -> Self {
-        Self {
-            epoch: tokio::time::Instant::now(),
-        }
-    }
-
-    /// The current instant.
-    #[must_use]
-    pub fn now(&self) -> Instant {
-        Instant::from_micros(u64::try_from(self.epoch.elapsed().as_micros()).unwrap_or(u64::MAX))
-    }
-}
-
-impl Default for TokioClock {
-    fn default() -> Self {
-        Self::new()
-    }
-}
+/// The shell's clock (tokio time, so paused tests run in virtual time).
+pub use ima_hal::time::TokioClock;
 
 /// Link status as seen by handles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
