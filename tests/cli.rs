@@ -1,42 +1,16 @@
 //! The `ima` program itself: `mock` and `drive` as separate processes over a pty, `decode`,
 //! and the demo.
 
-use std::io::{BufRead, BufReader, Write};
-use std::process::{Command, Stdio};
+use std::io::Write;
+use std::process::Stdio;
 
-fn ima() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_ima"))
-}
-
-/// Kills the child when dropped, so a failing test leaves no process behind.
-struct Child(std::process::Child);
-
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
+mod common;
+use common::{ima, spawn_mock};
 
 #[test]
 fn mock_and_drive_talk_over_a_pty_in_separate_processes() {
-    let mut mock = Child(
-        ima()
-            .args(["mock", "p2os", "--seed", "3"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut path = String::new();
-    BufReader::new(mock.0.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
-    let path = path.trim();
-    assert!(
-        path.starts_with("/dev/"),
-        "first line is the pty path: {path:?}"
-    );
+    let (_mock, path) = spawn_mock(&["p2os", "--seed", "3"]);
+    let path = path.as_str();
     let out = ima()
         .args([
             "drive", "--port", path, "--vel", "0.3", "--turn", "0", "--for", "1.5", "--json",

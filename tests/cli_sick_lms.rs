@@ -1,43 +1,16 @@
 //! The `ima` program with the SICK LMS: `mock sick-lms` and `scan` as separate processes over
 //! a pty, and `decode sick-lms`.
 
-use std::io::{BufRead, BufReader, Write};
-use std::process::{Command, Stdio};
+use std::io::Write;
+use std::process::Stdio;
 
-fn ima() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_ima"))
-}
+mod common;
+use common::ima;
 
-/// Kills the child when dropped, so a failing test leaves no process behind.
-struct Child(std::process::Child);
-
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn_mock(extra: &[&str]) -> (Child, String) {
-    let mut mock = Child(
-        ima()
-            .args(["mock", "sick-lms", "--seed", "3"])
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut path = String::new();
-    BufReader::new(mock.0.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
-    let path = path.trim().to_owned();
-    assert!(
-        path.starts_with("/dev/"),
-        "first line is the pty path: {path:?}"
-    );
-    (mock, path)
+fn spawn_mock(extra: &[&str]) -> (common::Child, String) {
+    let mut args = vec!["sick-lms", "--seed", "3"];
+    args.extend_from_slice(extra);
+    common::spawn_mock(&args)
 }
 
 #[test]

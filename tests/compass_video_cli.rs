@@ -1,51 +1,11 @@
 //! The `ima` program for issue 5: `mock compass` and `compass` as separate processes over a
 //! pty (both dialects), `camera grab` to PNG, and `decode compass|video-mux|kramer`.
 
-use std::io::{BufRead, BufReader, Write};
-use std::process::{Command, Stdio};
+use std::io::Write;
+use std::process::Stdio;
 
-fn ima() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_ima"))
-}
-
-/// Kills the child when dropped, so a failing test leaves no process behind.
-struct Child(std::process::Child);
-
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn_mock(args: &[&str]) -> (Child, String) {
-    let mut mock = Child(
-        ima()
-            .arg("mock")
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut path = String::new();
-    BufReader::new(mock.0.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
-    let path = path.trim().to_owned();
-    assert!(
-        path.starts_with("/dev/"),
-        "first line is the pty path: {path:?}"
-    );
-    (mock, path)
-}
-
-fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {
-    String::from_utf8_lossy(out)
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
-}
+mod common;
+use common::{ima, json_lines, spawn_mock};
 
 #[test]
 fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
