@@ -14,6 +14,7 @@
 
 pub mod fuzz_harness;
 pub mod heading;
+pub mod mission;
 pub mod peer;
 pub mod san;
 pub mod ses;
