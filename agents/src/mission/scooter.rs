@@ -62,7 +62,7 @@
 //!
 //! | module | action |
 //! |---|---|
-//! | `request-heading` | stop, send [`ScooterSay::RequestHeading`] (again every `lost_after`) |
+//! | `request-heading` | send [`ScooterSay::RequestHeading`] (again every `lost_after`); coast on the last plan for [`ScooterConfig::coast_for`] after the last sample, then stand still |
 //! | `follow-heading` | turn to θd and drive |
 //! | `move-to-target` | drive to the laser cluster |
 //! | `avoid-obstacle` | steer round the obstacle on a locked side |
@@ -170,6 +170,10 @@ pub struct ScooterConfig {
     pub odometry_heading_offset_rad: f64,
     /// Period of [`ScooterSay::Status`] messages.
     pub status_period: Duration,
+    /// While `request-heading` runs (lost), keep following the last plan for at most this
+    /// long after the last SES sample, then stand still (Skeeter may simply have lost sight
+    /// of the target or of Scooter for a scan or two, e.g. when Scooter hides the target).
+    pub coast_for: Duration,
     /// Stop homing this close to Skeeter's estimated position, metres.
     pub home_stop_distance_m: f64,
     /// At most this many samples are averaged into the target position estimate.
@@ -203,6 +207,7 @@ impl Default for ScooterConfig {
             fusion_gain: 0.05,
             odometry_heading_offset_rad: 0.0,
             status_period: Duration::from_secs(1),
+            coast_for: Duration::from_secs(30),
             home_stop_distance_m: 1.2,
             max_target_samples: 12,
             avoid: AvoidConfig::default(),
@@ -934,7 +939,15 @@ impl ScooterBrain {
                     self.last_request_at = Some(now);
                     self.outbox.push(ScooterSay::RequestHeading);
                 }
-                self.omega = 0.0;
+                let coast = self.plan.is_some()
+                    && self.last_ses_at.is_some_and(|t| {
+                        now.saturating_duration_since(t) <= self.cfg.coast_for
+                    });
+                if coast {
+                    command = self.drive(now, h, obstacle.map(|d| d.steer_rad), dt);
+                } else {
+                    self.omega = 0.0;
+                }
             }
             Behaviour::ReplyTargetQuery => {
                 if let Some(colour) = self.query.take() {
