@@ -21,7 +21,10 @@
 //! optical axis) has its centre at column `w/2 − f·tan b` with `f = (w/2) / tan(fov/2)`, on
 //! the middle row (cameras at object height), drawn as a disc of radius `f · r / range`
 //! pixels in the object's colour. Objects come from [`crate::world::World::visible_objects`]
-//! (centre in view, not hidden; the robot itself is transparent). The background is a plain
+//! (centre in view, not hidden; the robot itself is transparent). Other robots that carry a
+//! marker ([`crate::world::RobotSpec::marker_rgb`]) are drawn the same way, as a disc of
+//! their footprint radius in the marker colour
+//! ([`crate::world::World::visible_markers`]); robots without a marker are not drawn. The background is a plain
 //! grey; every pixel gets uniform noise of ± [`noise`](CameraConfig::noise).
 //!
 //! A frame exposed less than [`settle_time`](CameraConfig::settle_time) after a switch is
@@ -183,21 +186,33 @@ impl CameraHead {
             return Some(frame);
         }
         let half_fov = self.cfg.fov_deg.to_radians() / 2.0;
-        let sightings = self.world.with(|wd| {
-            wd.visible_objects(view, half_fov, self.cfg.max_range_m, Some(self.robot))
+        // (bearing, range, colour, radius) of every object and robot marker in view.
+        let mut sightings = self.world.with(|wd| {
+            let max = self.cfg.max_range_m;
+            let mut v: Vec<(f64, f64, [u8; 3], f64)> = wd
+                .visible_objects(view, half_fov, max, Some(self.robot))
                 .into_iter()
-                .filter_map(|s| wd.objects().get(s.object).map(|o| (s, o.rgb, o.radius_m)))
-                .collect::<Vec<_>>()
+                .filter_map(|s| {
+                    wd.objects()
+                        .get(s.object)
+                        .map(|o| (s.bearing_rad, s.range_m, o.rgb, o.radius_m))
+                })
+                .collect();
+            v.extend(
+                wd.visible_markers(view, half_fov, max, Some(self.robot))
+                    .into_iter()
+                    .map(|m| (m.bearing_rad, m.range_m, m.rgb, m.radius_m)),
+            );
+            v
         });
         let mut px = vec![self.cfg.background; usize::try_from(u64::from(w) * u64::from(h)).ok()?];
-        // Far objects first, so near ones cover them.
-        let mut sightings = sightings;
-        sightings.sort_by(|a, b| b.0.range_m.total_cmp(&a.0.range_m));
+        // Far things first, so near ones cover them.
+        sightings.sort_by(|a, b| b.1.total_cmp(&a.1));
         let f = self.cfg.focal_px();
         let cy = f64::from(h) / 2.0;
-        for (s, rgb, radius_m) in sightings {
-            let cx = self.cfg.column_for_bearing(s.bearing_rad);
-            let r = (f * radius_m / s.range_m.max(1e-3)).max(1.0);
+        for (bearing_rad, range_m, rgb, radius_m) in sightings {
+            let cx = self.cfg.column_for_bearing(bearing_rad);
+            let r = (f * radius_m / range_m.max(1e-3)).max(1.0);
             let x0 = (cx - r).floor().max(0.0) as u32;
             let x1 = ((cx + r).ceil().max(0.0) as u32).min(w);
             let y0 = (cy - r).floor().max(0.0) as u32;
@@ -384,6 +399,38 @@ mod tests {
         );
         assert!(h.render(0, Duration::ZERO).is_none());
         assert!(h.render(8, Duration::ZERO).is_none());
+    }
+
+    #[test]
+    fn scooter_marker_is_drawn_at_its_bearing() {
+        use crate::world::DEFAULT_SCOOTER_MARKER;
+        let cfg = CameraConfig::default();
+        let (mut h, world) = head(cfg);
+        // Scooter is at 210° from Skeeter, 4 m: channel 4 looks along 3·360/7 ≈ 154°,
+        // channel 5 along ≈ 206°.
+        let f = h.render(5, Duration::from_secs(1)).unwrap();
+        let bearing = 210f64.to_radians() - cfg.camera_yaw_rad(5).unwrap();
+        let want = cfg.column_for_bearing(bearing);
+        let (col, n) = find_color(&f, DEFAULT_SCOOTER_MARKER, 12).unwrap();
+        assert!((col - want).abs() < 1.0, "{col} vs {want}");
+        // radius 0.4 m at 4 m: 277·0.1 ≈ 27.7 px → ~2400 px of disc.
+        assert!(n > 1800 && n < 3000, "{n}");
+        // Without a marker Scooter is not drawn.
+        world.with(|w| {
+            let id = w.robot_id("scooter").unwrap();
+            let spec = w.robot(id).unwrap().spec().clone();
+            let mut w2 = World::new();
+            for r in w.robots() {
+                let mut s = r.spec().clone();
+                if s.name == spec.name {
+                    s.marker_rgb = None;
+                }
+                w2.add_robot(s).unwrap();
+            }
+            *w = w2;
+        });
+        let f = h.render(5, Duration::from_secs(1)).unwrap();
+        assert!(find_color(&f, DEFAULT_SCOOTER_MARKER, 12).is_none());
     }
 
     #[test]
