@@ -19,13 +19,16 @@
 //! counter-clockwise (channel 1 forward). A pinhole camera of horizontal field of view
 //! [`fov_deg`](CameraConfig::fov_deg): an object at bearing `b` (counter-clockwise from the
 //! optical axis) has its centre at column `w/2 − f·tan b` with `f = (w/2) / tan(fov/2)`, on
-//! the middle row (cameras at object height), drawn as a disc of radius `f · r / range`
-//! pixels in the object's colour. Objects come from [`crate::world::World::visible_objects`]
-//! (centre in view, not hidden; the robot itself is transparent). Other robots that carry a
-//! marker ([`crate::world::RobotSpec::marker_rgb`]) are drawn the same way, as a disc of
-//! their footprint radius in the marker colour
-//! ([`crate::world::World::visible_markers`]); robots without a marker are not drawn. The background is a plain
-//! grey; every pixel gets uniform noise of ± [`noise`](CameraConfig::noise).
+//! the middle row (cameras at object height), drawn in the object's colour as a disc of
+//! radius `f·tan(asin(r/range))` ≈ `f · r / range` pixels stretched by perspective off the
+//! axis (an ellipse, `/cos²b` across and `/cos b` up), so that its angular width is
+//! `2·asin(r/range)` wherever it appears, as through a real pinhole lens. Objects come from
+//! [`crate::world::World::visible_objects`] (centre in view, not hidden; the robot itself is
+//! transparent). Other robots that carry a marker ([`crate::world::RobotSpec::marker_rgb`])
+//! are drawn the same way, as a disc of their footprint radius in the marker colour
+//! ([`crate::world::World::visible_markers`]); robots without a marker are not drawn. The
+//! background is a plain grey; every pixel gets uniform noise of ±
+//! [`noise`](CameraConfig::noise).
 //!
 //! A frame exposed less than [`settle_time`](CameraConfig::settle_time) after a switch is
 //! garbage (random pixels), as on real hardware while the grabber re-locks.
@@ -212,15 +215,18 @@ impl CameraHead {
         let cy = f64::from(h) / 2.0;
         for (bearing_rad, range_m, rgb, radius_m) in sightings {
             let cx = self.cfg.column_for_bearing(bearing_rad);
-            let r = (f * radius_m / range_m.max(1e-3)).max(1.0);
-            let x0 = (cx - r).floor().max(0.0) as u32;
-            let x1 = ((cx + r).ceil().max(0.0) as u32).min(w);
-            let y0 = (cy - r).floor().max(0.0) as u32;
-            let y1 = ((cy + r).ceil().max(0.0) as u32).min(h);
+            let (rx, ry) = disc_radii_px(f, bearing_rad, range_m, radius_m);
+            let x0 = (cx - rx).floor().max(0.0) as u32;
+            let x1 = ((cx + rx).ceil().max(0.0) as u32).min(w);
+            let y0 = (cy - ry).floor().max(0.0) as u32;
+            let y1 = ((cy + ry).ceil().max(0.0) as u32).min(h);
             for y in y0..y1 {
                 for x in x0..x1 {
-                    let (dx, dy) = (f64::from(x) + 0.5 - cx, f64::from(y) + 0.5 - cy);
-                    if dx * dx + dy * dy <= r * r
+                    let (dx, dy) = (
+                        (f64::from(x) + 0.5 - cx) / rx,
+                        (f64::from(y) + 0.5 - cy) / ry,
+                    );
+                    if dx * dx + dy * dy <= 1.0
                         && let Some(p) = px.get_mut((y as usize) * (w as usize) + x as usize)
                     {
                         *p = rgb;
@@ -241,6 +247,19 @@ impl CameraHead {
         }
         Some(frame)
     }
+}
+
+/// Horizontal and vertical radii, pixels, of the image of a round object of radius
+/// `radius_m` whose centre is `range_m` away at `bearing_rad` from the optical axis, for a
+/// focal length of `f` pixels: on the axis `f·tan β` with `β = asin(r/d)` the object's
+/// angular radius (≈ `f·r/d`), stretched by perspective off the axis (`/cos²b` across,
+/// `/cos b` up), so the object's *angular* width is `2β` wherever it is in the picture.
+/// At least one pixel each.
+fn disc_radii_px(f: f64, bearing_rad: f64, range_m: f64, radius_m: f64) -> (f64, f64) {
+    let c = bearing_rad.cos().abs().max(0.1);
+    let d = range_m.max(radius_m * 1.01).max(1e-3);
+    let r = f * radius_m / (d * d - radius_m * radius_m).max(1e-9).sqrt();
+    ((r / (c * c)).max(1.0), (r / c).max(1.0))
 }
 
 /// Errors of the mock camera head.

@@ -9,3 +9,4 @@
 #![allow(clippy::module_name_repetitions)]
 
 pub mod msg;
+pub mod vision;
