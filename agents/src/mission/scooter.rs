@@ -81,6 +81,7 @@ use ima_hal::laser::LaserScan;
 use ima_hal::{Instant, Isometry2, Point2, Vector2, normalize_angle};
 
 use super::avoid::{AvoidConfig, Avoider};
+use super::msg::{Broadcast, Emergency, MissionEvent, Pose};
 use crate::heading::{self, Observation, Range, RangeSource};
 use crate::san::Network;
 use crate::ses::shared::{SharedForm, SharedRecord};
@@ -224,8 +225,12 @@ pub enum ScooterHeard {
         /// Colour name, as in the SES.
         colour: String,
     },
-    /// The current mission ended (accomplished or failed): stop and wait.
-    MissionEnded,
+    /// The mission for `colour` ended (accomplished or failed): stop and wait (ignored when
+    /// `colour` is not the current target).
+    MissionEnded {
+        /// The target that ended.
+        colour: String,
+    },
     /// Skeeter's stress call `scooter-lost`: come home.
     ScooterLost,
     /// Skeeter sees Scooter again (`scooter-found`).
@@ -268,6 +273,82 @@ impl ScooterSay {
     #[must_use]
     pub fn reply_text(colour: &str, seen: bool) -> String {
         format!("{colour} {}", if seen { "yes" } else { "no" })
+    }
+
+    /// The broadcast to send for this output, from robot `robot` (`"scooter"`), with `san`
+    /// as the status's SAN summary. `None` for [`ScooterSay::RequestHeading`], which is for
+    /// the Peer Agent client (re-request Skeeter's `ses` source), not the broadcast channel.
+    /// The status pose is the DR pose in millimetres and milliradians.
+    #[must_use]
+    pub fn to_broadcast(&self, robot: &str, san: &str) -> Option<Broadcast> {
+        match self {
+            Self::TargetReached { colour } => Some(Broadcast::emergency(
+                robot,
+                Emergency::TargetReached {
+                    colour: colour.clone(),
+                },
+            )),
+            Self::TargetReply { colour, seen } => Some(Broadcast::emergency(
+                robot,
+                Emergency::TargetReply {
+                    colour: colour.clone(),
+                    seen: *seen,
+                },
+            )),
+            Self::Status { behaviour, pose } => {
+                let fix = |v: f64| {
+                    if v.is_finite() {
+                        (v * 1000.0).round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+                    } else {
+                        0
+                    }
+                };
+                Some(Broadcast::status(
+                    robot,
+                    behaviour.as_str(),
+                    san,
+                    Some(Pose {
+                        x_mm: fix(pose.0),
+                        y_mm: fix(pose.1),
+                        theta_mrad: fix(pose.2),
+                    }),
+                ))
+            }
+            Self::RequestHeading => None,
+        }
+    }
+}
+
+impl ScooterHeard {
+    /// What a broadcast means to Scooter, if anything: a target `Accepted` by anyone but
+    /// Scooter (the commander's request or Skeeter's acceptance) starts a target;
+    /// `Accomplished`/`Failed` ends it; the emergencies `scooter-lost`, `scooter-found` and
+    /// `target-query` map one to one. Everything else (statuses, Scooter's own
+    /// emergencies) is `None`.
+    #[must_use]
+    pub fn from_broadcast(b: &Broadcast, me: &str) -> Option<Self> {
+        if b.robot() == me {
+            return None;
+        }
+        match b {
+            Broadcast::Mission { event, target, .. } => Some(match event {
+                MissionEvent::Accepted => Self::TargetAccepted {
+                    colour: target.clone(),
+                },
+                MissionEvent::Accomplished | MissionEvent::Failed => Self::MissionEnded {
+                    colour: target.clone(),
+                },
+            }),
+            Broadcast::Emergency { emergency, .. } => match emergency {
+                Emergency::ScooterLost => Some(Self::ScooterLost),
+                Emergency::ScooterFound => Some(Self::ScooterFound),
+                Emergency::TargetQuery { colour } => Some(Self::TargetQuery {
+                    colour: colour.clone(),
+                }),
+                Emergency::TargetReply { .. } | Emergency::TargetReached { .. } => None,
+            },
+            Broadcast::Status { .. } => None,
+        }
     }
 }
 
@@ -602,11 +683,41 @@ impl ScooterBrain {
         self.avoider.reset();
     }
 
-    /// A broadcast heard.
+    /// A typed broadcast from the channel (see [`ScooterHeard::from_broadcast`]); returns
+    /// whether it meant anything to Scooter.
+    pub fn handle_broadcast(&mut self, b: &Broadcast, now: Instant) -> bool {
+        match ScooterHeard::from_broadcast(b, &self.cfg.robot_name) {
+            Some(h) => {
+                self.handle_heard(&h, now);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// A one-line SAN summary for status broadcasts: the true conditions.
+    #[must_use]
+    pub fn san_summary(&self) -> String {
+        self.san
+            .condition_names()
+            .filter(|c| self.san.condition(c) == Some(true))
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+
+    /// A broadcast heard (already typed). A repeated acceptance of the current target
+    /// (the commander's, then Skeeter's) does not restart it.
     pub fn handle_heard(&mut self, heard: &ScooterHeard, now: Instant) {
         match heard {
-            ScooterHeard::TargetAccepted { colour } => self.set_target(colour, now),
-            ScooterHeard::MissionEnded => {
+            ScooterHeard::TargetAccepted { colour } => {
+                if self.target.as_deref() != Some(colour.as_str()) || self.reached {
+                    self.set_target(colour, now);
+                }
+            }
+            ScooterHeard::MissionEnded { colour } => {
+                if self.target.as_deref() != Some(colour.as_str()) {
+                    return;
+                }
                 self.target = None;
                 self.plan = None;
                 self.avoider.reset();
