@@ -39,6 +39,9 @@ enum Command {
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
+    /// Experiments in virtual time (the thesis's heading evaluation).
+    #[command(subcommand)]
+    Experiment(cmd::experiment::ExperimentCommand),
 }
 
 #[derive(Debug, Subcommand)]
@@ -65,6 +68,7 @@ fn main() -> ExitCode {
         Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
         Command::Compass(a) => cmd::compass::run(&a),
         Command::Camera(c) => cmd::camera::run(&c),
+        Command::Experiment(c) => cmd::experiment::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -212,9 +212,9 @@ pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
     sim_cfg.brain.heading_rule = spec.rule;
     sim_cfg.brain.cruise_speed_m_s = cfg.speed_m_s;
     let v = cfg.speed_m_s;
-    let expected_d =
-        ((target[0] - start[0]).hypot(target[1] - start[1]) - sim_cfg.brain.reach_distance_m)
-            .max(0.1);
+    let expected_d = ((target[0] - start[0]).hypot(target[1] - start[1])
+        - sim_cfg.brain.reach_distance_m)
+        .max(0.1);
     let cap = Duration::from_secs_f64((cfg.timeout_factor * expected_d / v).clamp(1.0, 1e6));
     let world = world_for(spec.angle_deg, spec.ds_m, spec.dt_m, spec.seed);
     let stride = cfg.trajectory_stride.max(1);
@@ -438,14 +438,14 @@ pub fn svg_f(results: &[RunResult]) -> String {
         .filter(|r| results.iter().any(|x| x.rule == *r))
         .collect();
     let cell = 46.0;
-    let (pad_l, pad_t, gap) = (60.0, 50.0, 40.0);
+    let (pad_l, pad_t, gap): (f64, f64, f64) = (60.0, 50.0, 40.0);
     let panel = cell * 4.0;
-    let width = pad_l + 3.0 * (panel + gap) + 10.0;
+    let width = (pad_l + 3.0 * (panel + gap) + 10.0).max(720.0);
     let height = pad_t + rules.len() as f64 * (panel + gap + 30.0) + 10.0;
     let mut s = svg_header(width, height);
     let _ = writeln!(
         s,
-        r#"<text x="10" y="22" font-size="16">Performance index f per configuration (rows: Skeeter–target Dt, columns: Skeeter–Scooter Ds, 2–5 m)</text>"#
+        r#"<text x="10" y="22" font-size="15">Performance index f per configuration (rows: Skeeter–target Dt, columns: Skeeter–Scooter Ds)</text>"#
     );
     for (ri, rule) in rules.iter().enumerate() {
         let y0 = pad_t + ri as f64 * (panel + gap + 30.0) + 20.0;
@@ -533,7 +533,7 @@ pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
     let mut s = svg_header(w, h);
     let _ = writeln!(
         s,
-        r#"<text x="10" y="22" font-size="15">Trajectories, θ = {angle_deg:.0}° (Ds, Dt ∈ {{2, 5}} m): thesis dashed orange, range-aware solid blue; grid 1 m</text>"#
+        r#"<text x="10" y="16" font-size="14">Trajectories, θ = {angle_deg:.0}°, Ds and Dt ∈ {{2, 5}} m, grid 1 m</text><text x="10" y="32" font-size="12">thesis rule: dashed orange; range-aware rule: solid blue</text>"#
     );
     for gx in (xmin as i32)..=(xmax as i32) {
         let x = f64::from(gx);

@@ -10,6 +10,7 @@ pub mod decode_video_mux;
 pub mod demo;
 pub mod drive;
 pub mod drive_rflex;
+pub mod experiment;
 pub mod mock;
 pub mod mock_rflex;
 pub mod mock_sick;
