@@ -93,7 +93,7 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let progress = |done: usize, total: usize| {
         // On a terminal the bar redraws in place; otherwise one line per quarter.
-        if tty || done == total || (total >= 4 && done % (total / 4) == 0) {
+        if tty || done == total || (total >= 4 && done.is_multiple_of(total / 4)) {
             let mut e = std::io::stderr().lock();
             let _ = write!(e, "{}", bar(done, total));
             if !tty {
