@@ -9,4 +9,5 @@
 #![allow(clippy::module_name_repetitions)]
 
 pub mod msg;
+pub mod scan;
 pub mod vision;
