@@ -10,4 +10,5 @@
 
 pub mod msg;
 pub mod scan;
+pub mod skeeter;
 pub mod vision;
