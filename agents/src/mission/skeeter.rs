@@ -9,16 +9,33 @@
 //! | input | conditions it feeds |
 //! |---|---|
 //! | commander's `Mission{commander, Accepted, colour}` ([`SkeeterBrain::handle_broadcast`]) | a target starts (one at a time; others wait in a queue): `target-requested` ↑, `mission-reported` ↓, the target timer starts |
-//! | a [`ScanReport`] ([`SkeeterBrain::handle_scan`]) | `scanner-idle` ↑; with a target: `scan-done` ↑, `target-in-view` / `target-not-in-view` (find-target node), `heading-requested` ↑ (a new SES sample is due); always: `scooter-in-view` / `scooter-lost` (detect-Scooter node) |
+//! | a [`ScanReport`] ([`SkeeterBrain::handle_scan`]) | `scanner-idle` ↑; with a target: `scan-done` ↑, `target-in-view` / `target-not-in-view` (find-target node), `scooter-in-view` / `scooter-lost` (detect-Scooter node); `heading-requested` ↑ only when [`SkeeterConfig::publish_every_scan`] is off |
 //! | Scooter's `target-reached` (colour = target) | `scooter-reached-target` ↑ |
 //! | Scooter's `target-reply` (colour = target, after a query) | `scooter-cannot-see-target` = not seen |
 //! | Scooter's client asks for the SES ([`SkeeterBrain::handle_heading_request`]) | `heading-requested` ↑ |
 //! | the target timer ([`SkeeterBrain::handle_timeout`]) | `timeout` ↑ (timeout node) |
 //!
-//! `scooter-lost` is raised when a scan does not see Scooter and it has not been called
-//! back yet, or the last call is older than [`SkeeterConfig::stress_repeat`] (a broadcast
-//! may be lost). When a scan sees Scooter again after a call-back, the brain broadcasts
-//! `scooter-found` at once (Scooter resumes its mission) and clears `scooter-called-back`.
+//! The find and detect nodes have hysteresis, because a single sweep can miss a thing that
+//! is there (Scooter driving between Skeeter and the target hides it; an object can hide
+//! Scooter for a moment): `target-not-in-view` is raised after
+//! [`SkeeterConfig::query_after_scans`] sweeps in a row without the target, and
+//! `scooter-lost` after [`SkeeterConfig::lost_after_scans`] sweeps in a row without Scooter
+//! (while a target is being processed: there is no mission to call Scooter back for
+//! otherwise), if it has not been called back yet or the last call is older than
+//! [`SkeeterConfig::stress_repeat`] (a broadcast may be lost). When a sweep sees Scooter
+//! again after a call-back, the brain broadcasts `scooter-found` at once (Scooter resumes its
+//! mission) and clears `scooter-called-back`.
+//!
+//! # Publishing the SES
+//!
+//! With [`SkeeterConfig::publish_every_scan`] (the default, as agreed for the Peer Agent
+//! source `ses`: one sample per full sweep) every report's shared form is published at once
+//! ([`SkeeterOutput::PublishSes`]), whatever it holds: Scooter needs the bearings even when
+//! its own or the target's record is missing. The SAN's `send-heading` then answers explicit
+//! requests ([`SkeeterBrain::handle_heading_request`], e.g. when Scooter's client is
+//! granted the source) with the latest sample. With the option off, the thesis's gating
+//! holds: a sweep only makes a sample *due* (`heading-requested`), and `send-heading`
+//! publishes it when the target and Scooter are both in view.
 //!
 //! # Modules → actions
 //!
@@ -106,6 +123,13 @@ pub struct SkeeterConfig {
     pub pose: Option<Pose>,
     /// Targets waiting beyond this many are refused (ignored).
     pub max_queue: usize,
+    /// Sweeps in a row without the target before `target-not-in-view` (and the question
+    /// to Scooter).
+    pub query_after_scans: u32,
+    /// Sweeps in a row without Scooter before `scooter-lost` (the stress call).
+    pub lost_after_scans: u32,
+    /// Publish every sweep's SES ([module docs](self), "Publishing the SES").
+    pub publish_every_scan: bool,
     /// The network, TOML ([`crate::san::spec`]).
     pub network: String,
 }
@@ -126,6 +150,9 @@ impl Default for SkeeterConfig {
                 theta_mrad: 0,
             }),
             max_queue: 16,
+            query_after_scans: 2,
+            lost_after_scans: 2,
+            publish_every_scan: true,
             network: SKEETER_NETWORK.to_owned(),
         }
     }
@@ -194,6 +221,8 @@ pub struct SkeeterBrain {
     scanning: bool,
     last_form: Option<SharedForm>,
     last_call: Option<Instant>,
+    target_missing: u32,
+    scooter_missing: u32,
     behaviour: String,
     next_status: Option<Instant>,
     out: VecDeque<SkeeterOutput>,
@@ -221,6 +250,8 @@ impl SkeeterBrain {
             scanning: false,
             last_form: None,
             last_call: None,
+            target_missing: 0,
+            scooter_missing: 0,
             behaviour: IDLE.to_owned(),
             next_status: None,
             out: VecDeque::new(),
@@ -380,15 +411,31 @@ impl SkeeterBrain {
         self.scanning = false;
         self.set("scanner-idle", true);
         self.last_form = Some(report.shared.clone());
+        if self.cfg.publish_every_scan {
+            self.out
+                .push_back(SkeeterOutput::PublishSes(report.shared.clone()));
+        }
+        let active = self.active.is_some();
         if let Some(target) = self.target().map(str::to_owned) {
             let seen = report.sees(&target);
+            self.target_missing = if seen {
+                0
+            } else {
+                self.target_missing.saturating_add(1)
+            };
             self.set("scan-done", true);
             self.set("target-in-view", seen);
-            self.set("target-not-in-view", !seen);
-            self.set("heading-requested", true);
-            self.set("heading-sent", false);
+            self.set(
+                "target-not-in-view",
+                self.target_missing >= self.cfg.query_after_scans.max(1),
+            );
+            if !self.cfg.publish_every_scan {
+                self.set("heading-requested", true);
+                self.set("heading-sent", false);
+            }
         }
         if report.sees(&self.cfg.scooter_tag) {
+            self.scooter_missing = 0;
             self.set("scooter-in-view", true);
             self.set("scooter-lost", false);
             if self.is("scooter-called-back") {
@@ -400,12 +447,13 @@ impl SkeeterBrain {
                 ));
             }
         } else {
+            self.scooter_missing = self.scooter_missing.saturating_add(1);
             self.set("scooter-in-view", false);
             let call_due = !self.is("scooter-called-back")
                 || self
                     .last_call
                     .is_none_or(|t| now.saturating_duration_since(t) >= self.cfg.stress_repeat);
-            if call_due {
+            if active && call_due && self.scooter_missing >= self.cfg.lost_after_scans.max(1) {
                 self.set("scooter-lost", true);
             }
         }
@@ -472,6 +520,7 @@ impl SkeeterBrain {
             started: now,
             deadline: now + self.cfg.target_timeout,
         });
+        self.target_missing = 0;
         for c in [
             "scan-done",
             "target-in-view",
@@ -512,6 +561,7 @@ impl SkeeterBrain {
             "scooter-cannot-see-target",
             "scooter-reached-target",
             "timeout",
+            "scooter-lost",
         ] {
             self.set(c, false);
         }
@@ -719,26 +769,60 @@ mod tests {
     }
 
     #[test]
-    fn target_seen_with_scooter_publishes_the_ses_every_scan() {
+    fn every_scan_is_published_by_default() {
         let mut b = started("red");
         b.handle_scan(&report(&["red", "scooter"], t(3)), t(3));
         let out = actions(&mut b);
         assert!(
-            out.iter()
-                .any(|o| matches!(o, SkeeterOutput::PublishSes(f) if f.sent_at == t(3))),
+            matches!(&out[0], SkeeterOutput::PublishSes(f) if f.sent_at == t(3)),
             "{out:?}"
         );
-        assert!(out.contains(&SkeeterOutput::StartScan), "scanning goes on");
+        assert_eq!(out[1], SkeeterOutput::StartScan, "scanning goes on");
         assert_eq!(out.len(), 2, "{out:?}");
-        assert!(b.network().condition("heading-sent").unwrap());
-        // Next scan: the same again.
-        b.handle_scan(&report(&["red", "scooter"], t(6)), t(6));
+        // Also a sweep that sees neither the target nor Scooter.
+        b.handle_scan(&report(&[], t(6)), t(6));
         let out = actions(&mut b);
+        assert!(matches!(&out[0], SkeeterOutput::PublishSes(f) if f.sent_at == t(6)));
+    }
+
+    #[test]
+    fn thesis_mode_sends_the_ses_only_with_target_and_scooter_in_view() {
+        let mut b = SkeeterBrain::new(SkeeterConfig {
+            status_interval: None,
+            publish_every_scan: false,
+            lost_after_scans: 1,
+            ..SkeeterConfig::default()
+        })
+        .unwrap();
+        b.handle_target("red", t(0));
+        drain(&mut b);
+        b.handle_scan(&report(&["red", "scooter"], t(3)), t(3));
+        let out = actions(&mut b);
+        assert_eq!(out.len(), 2, "{out:?}");
         assert!(
             out.iter()
-                .any(|o| matches!(o, SkeeterOutput::PublishSes(_)))
+                .any(|o| matches!(o, SkeeterOutput::PublishSes(f) if f.sent_at == t(3)))
         );
         assert!(out.contains(&SkeeterOutput::StartScan));
+        assert!(b.network().condition("heading-sent").unwrap());
+        assert!(!b.network().condition("heading-requested").unwrap());
+        // Scooter lost: no sample, the stress call instead.
+        b.handle_scan(&report(&["red"], t(6)), t(6));
+        let out = actions(&mut b);
+        assert!(
+            !out.iter()
+                .any(|o| matches!(o, SkeeterOutput::PublishSes(_))),
+            "{out:?}"
+        );
+        assert!(out.contains(&emergency(Emergency::ScooterLost)));
+        // Target not seen: no sample either.
+        b.handle_scan(&report(&["scooter"], t(9)), t(9));
+        let out = actions(&mut b);
+        assert!(
+            !out.iter()
+                .any(|o| matches!(o, SkeeterOutput::PublishSes(_))),
+            "{out:?}"
+        );
     }
 
     #[test]
@@ -810,7 +894,16 @@ mod tests {
     #[test]
     fn target_not_seen_asks_scooter_and_fails_if_scooter_cannot_see_it_either() {
         let mut b = started("red");
+        // One sweep without the target is not enough (it may be hidden for a moment).
         b.handle_scan(&report(&["scooter"], t(3)), t(3));
+        let out = actions(&mut b);
+        assert!(
+            !out.iter()
+                .any(|o| matches!(o, SkeeterOutput::Broadcast(Broadcast::Emergency { .. }))),
+            "{out:?}"
+        );
+        assert!(!b.network().condition("target-not-in-view").unwrap());
+        b.handle_scan(&report(&["scooter"], t(6)), t(6));
         let out = actions(&mut b);
         assert!(
             out.contains(&emergency(Emergency::TargetQuery {
@@ -819,11 +912,6 @@ mod tests {
             "{out:?}"
         );
         assert!(out.contains(&SkeeterOutput::StartScan));
-        assert!(
-            !out.iter()
-                .any(|o| matches!(o, SkeeterOutput::PublishSes(_))),
-            "no heading without the target"
-        );
         // A reply about another colour, or from another robot: ignored.
         b.handle_broadcast(
             &from_scooter(Emergency::TargetReply {
@@ -859,6 +947,7 @@ mod tests {
     fn scooter_seeing_the_target_keeps_the_mission_going() {
         let mut b = started("red");
         b.handle_scan(&report(&["scooter"], t(3)), t(3));
+        b.handle_scan(&report(&["scooter"], t(4)), t(4));
         drain(&mut b);
         b.handle_broadcast(
             &from_scooter(Emergency::TargetReply {
@@ -947,36 +1036,48 @@ mod tests {
     }
 
     #[test]
-    fn scooter_lost_stress_call_then_found() {
+    fn scooter_lost_stress_call_repeated_then_found() {
         let mut b = started("red");
+        // One sweep without Scooter: not yet.
         b.handle_scan(&report(&["red"], t(3)), t(3));
+        assert!(!actions(&mut b).contains(&emergency(Emergency::ScooterLost)));
+        b.handle_scan(&report(&["red"], t(6)), t(6));
         let out = actions(&mut b);
         assert!(out.contains(&emergency(Emergency::ScooterLost)), "{out:?}");
-        assert!(
-            !out.iter()
-                .any(|o| matches!(o, SkeeterOutput::PublishSes(_))),
-            "no heading while Scooter is lost"
-        );
-        assert_eq!(out.len(), 2, "stress call and the next scan: {out:?}");
+        assert_eq!(out.len(), 3, "sample, stress call, next scan: {out:?}");
+        assert!(b.network().condition("scooter-called-back").unwrap());
         // Still lost 5 s later: no second call yet (repeat after 10 s).
-        b.handle_scan(&report(&["red"], t(8)), t(8));
-        let out = actions(&mut b);
-        assert!(!out.contains(&emergency(Emergency::ScooterLost)), "{out:?}");
+        b.handle_scan(&report(&["red"], t(11)), t(11));
+        assert!(!actions(&mut b).contains(&emergency(Emergency::ScooterLost)));
         // 10 s after the call: called again.
-        b.handle_scan(&report(&["red"], t(13)), t(13));
+        b.handle_scan(&report(&["red"], t(16)), t(16));
+        assert!(actions(&mut b).contains(&emergency(Emergency::ScooterLost)));
+        // Seen again: scooter-found.
+        b.handle_scan(&report(&["red", "scooter"], t(19)), t(19));
         let out = actions(&mut b);
-        assert!(out.contains(&emergency(Emergency::ScooterLost)), "{out:?}");
-        // Seen again: scooter-found, and the heading goes out again.
-        b.handle_scan(&report(&["red", "scooter"], t(16)), t(16));
+        assert!(out.contains(&emergency(Emergency::ScooterFound)), "{out:?}");
+        assert!(!b.network().condition("scooter-called-back").unwrap());
+        // Seen once more: no second "found".
+        b.handle_scan(&report(&["red", "scooter"], t(22)), t(22));
+        assert!(!actions(&mut b).contains(&emergency(Emergency::ScooterFound)));
+        // Missed once: the count starts again.
+        b.handle_scan(&report(&["red"], t(25)), t(25));
+        assert!(!actions(&mut b).contains(&emergency(Emergency::ScooterLost)));
+    }
+
+    #[test]
+    fn no_stress_call_without_a_target() {
+        let mut b = brain();
+        for s in 0..5 {
+            b.handle_scan(&report(&[], t(s)), t(s));
+        }
         let out = actions(&mut b);
-        assert_eq!(out[0], emergency(Emergency::ScooterFound));
         assert!(
             out.iter()
-                .any(|o| matches!(o, SkeeterOutput::PublishSes(_)))
+                .all(|o| matches!(o, SkeeterOutput::PublishSes(_))),
+            "{out:?}"
         );
-        // Seen once more: no second "found".
-        b.handle_scan(&report(&["red", "scooter"], t(19)), t(19));
-        assert!(!actions(&mut b).contains(&emergency(Emergency::ScooterFound)));
+        assert_eq!(b.behaviour(), IDLE);
     }
 
     #[test]
