@@ -203,3 +203,12 @@ fn table_csv_json_and_svg_writers() {
     // Only (Ds 5, Dt 2) is among the plotted corner configurations at 45°.
     assert_eq!(svg_trajectories(&results, 45.0).matches("<path").count(), 1);
 }
+
+#[test]
+fn camera_observer_runs_the_real_vision_pipeline() {
+    let mut cfg = SweepConfig::default();
+    cfg.sim.observer = ima_sim::Observer::Camera;
+    let r = run_one(&spec(HeadingRule::RangeAware, 90.0, 2.0, 2.0, 1), &cfg);
+    assert_eq!(r.reason, "reached", "{r:?}");
+    assert!(r.f >= 0.9, "f = {}", r.f);
+}

@@ -6,7 +6,9 @@
 //! Prints one table per angle and rule (rows Skeeter–target Dt, columns Skeeter–Scooter Ds)
 //! and a summary on stdout — or, with `--json`, one JSON document. With `--out DIR` it also
 //! writes `heading.csv`, `heading.json`, `tables.md`, `f.svg` and
-//! `trajectories-{45,90,135}.svg` there. A progress bar goes to stderr.
+//! `trajectories-{45,90,135}.svg` there. A progress bar goes to stderr. `--camera` makes
+//! Skeeter see through rendered mock-camera frames and the blob detector instead of the
+//! geometric model (slower).
 
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -14,6 +16,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use ima_agents::mission::scooter::HeadingRule;
+use ima_sim::Observer;
 use ima_sim::experiment::{
     ANGLES_DEG, SweepConfig, csv, json, markdown_tables, run_sweep, summary, svg_f,
     svg_trajectories,
@@ -55,6 +58,10 @@ pub struct HeadingArgs {
     /// Worker threads.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
+    /// Skeeter sees through rendered camera frames and the blob detector instead of the
+    /// (faster) geometric observation model.
+    #[arg(long)]
+    pub camera: bool,
 }
 
 /// Run an experiment command.
@@ -83,12 +90,15 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
         RuleArg::RangeAware => vec![HeadingRule::RangeAware],
         RuleArg::Both => vec![HeadingRule::Thesis, HeadingRule::RangeAware],
     };
-    let cfg = SweepConfig {
+    let mut cfg = SweepConfig {
         rules,
         seed: a.seed,
         threads: a.threads.max(1),
         ..SweepConfig::default()
     };
+    if a.camera {
+        cfg.sim.observer = Observer::Camera;
+    }
     let tty = std::io::stderr().is_terminal();
     let started = Instant::now();
     let progress = |done: usize, total: usize| {

@@ -159,6 +159,13 @@ pub struct ScooterConfig {
     /// Point plans: a cluster is the target when its centre is within this of the expected
     /// target position, metres.
     pub match_radius_m: f64,
+    /// Skeeter's footprint diameter, metres: the range-aware rule ranges Skeeter with the
+    /// laser when it is in view (a cluster of this width where Skeeter's bearing says it is).
+    pub skeeter_diameter_m: f64,
+    /// Accepted difference between a cluster's width and Skeeter's diameter, metres.
+    pub skeeter_diameter_tolerance_m: f64,
+    /// A Skeeter cluster must lie within this of the direction θ1 + 180°, radians.
+    pub skeeter_bearing_tolerance_rad: f64,
     /// Largest range jump between neighbouring beams of one cluster, metres.
     pub cluster_gap_m: f64,
     /// The laser's pose on the robot.
@@ -202,6 +209,9 @@ impl Default for ScooterConfig {
             diameter_tolerance_m: 0.15,
             bearing_tolerance_rad: 40f64.to_radians(),
             match_radius_m: 0.8,
+            skeeter_diameter_m: 0.66,
+            skeeter_diameter_tolerance_m: 0.2,
+            skeeter_bearing_tolerance_rad: 15f64.to_radians(),
             cluster_gap_m: 0.10,
             laser_mount: Isometry2::new(Vector2::new(0.2, 0.0), 0.0),
             laser_max_range_m: 8.0,
@@ -438,8 +448,8 @@ pub struct Cluster {
 }
 
 /// Split a scan into clusters of neighbouring valid returns (range jumps ≤ `gap_m`); each
-/// cluster's centre is its returns' mean pushed back by `radius_m` along the line of sight
-/// (a round object's near surface is what the laser sees). Clusters touching the first or
+/// cluster's centre is taken `radius_m` behind its nearest return, in the direction of its
+/// returns' mean (a round object's near surface is what the laser sees). Clusters touching the first or
 /// last beam are dropped (they may be cut by the field of view).
 #[must_use]
 pub fn laser_clusters(
@@ -461,10 +471,16 @@ pub fn laser_clusters(
         {
             let width_m = (b - a).norm();
             let mean = cur.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / cur.len() as f64;
+            // Direction: the returns' mean; distance: the nearest return (the point of a
+            // round object nearest the sensor lies on the line to its centre) + radius.
             let origin = mount.translation.vector;
             let los = mean - origin;
-            let centre = if los.norm() > 1e-9 {
-                Point2::from(mean + los.normalize() * radius_m)
+            let nearest = cur
+                .iter()
+                .map(|p| (p.coords - origin).norm())
+                .fold(f64::INFINITY, f64::min);
+            let centre = if los.norm() > 1e-9 && nearest.is_finite() {
+                Point2::from(origin + los.normalize() * (nearest + radius_m))
             } else {
                 Point2::from(mean)
             };
@@ -536,6 +552,7 @@ pub struct ScooterBrain {
     // Laser.
     points: Vec<Point2>,
     target_fix: Option<(Instant, Vector2)>,
+    skeeter_fix: Option<(Instant, Vector2)>,
     laser_at: Option<Instant>,
     // Controller.
     last_step: Option<Instant>,
@@ -594,6 +611,7 @@ impl ScooterBrain {
             history: VecDeque::new(),
             points: Vec::new(),
             target_fix: None,
+            skeeter_fix: None,
             laser_at: None,
             last_step: None,
             omega: 0.0,
@@ -836,9 +854,19 @@ impl ScooterBrain {
                 .map(Plan::Heading),
             HeadingRule::RangeAware => {
                 let valid = |r: Option<f64>| r.filter(|m| m.is_finite() && *m >= 0.0);
-                let scout = valid(me.range_m).map(|metres| Range {
-                    metres,
-                    source: RangeSource::Ses,
+                // Scooter's own laser fix on Skeeter (fresh) beats Skeeter's estimate.
+                let laser = self
+                    .skeeter_fix
+                    .filter(|(at, _)| now.saturating_duration_since(*at) <= TARGET_FIX_TTL)
+                    .map(|(_, s)| Range {
+                        metres: (s - p_rec).norm(),
+                        source: RangeSource::Sensor,
+                    });
+                let scout = laser.or_else(|| {
+                    valid(me.range_m).map(|metres| Range {
+                        metres,
+                        source: RangeSource::Ses,
+                    })
                 });
                 let scout = scout.or_else(|| {
                     let prev = previous?;
@@ -895,6 +923,31 @@ impl ScooterBrain {
         let Some(h) = self.heading() else {
             return;
         };
+        if let Some(fix) = self.last_fix {
+            let expected = normalize_angle(fix.scout_bearing + PI);
+            let sr = self.cfg.skeeter_diameter_m / 2.0;
+            let best = laser_clusters(
+                scan,
+                &self.cfg.laser_mount,
+                self.cfg.laser_max_range_m,
+                self.cfg.cluster_gap_m,
+                sr,
+            )
+            .into_iter()
+            .filter(|c| {
+                (c.width_m - self.cfg.skeeter_diameter_m).abs()
+                    <= self.cfg.skeeter_diameter_tolerance_m
+            })
+            .filter_map(|c| {
+                let d = nalgebra_rotate(h, c.centre.coords);
+                let err = normalize_angle(d.y.atan2(d.x) - expected).abs();
+                (err <= self.cfg.skeeter_bearing_tolerance_rad).then_some((self.dr + d, err))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+            if let Some((p, _)) = best {
+                self.skeeter_fix = Some((now, p));
+            }
+        }
         if self.target.is_none() || self.reached {
             return;
         }
@@ -1652,6 +1705,43 @@ mod tests {
                 .iter()
                 .all(|m| matches!(m, ScooterSay::Status { .. }))
         );
+    }
+
+    #[test]
+    fn range_aware_rule_ranges_skeeter_with_the_laser() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Bearings only: Scooter at 180°, target at 90°.
+        let f0 = form(
+            vec![
+                rec("scooter", 180.0, None, t(0)),
+                rec(RED, 90.0, Some(3.0), t(0)),
+            ],
+            t(0),
+        );
+        b.handle_ses(&f0, t(0));
+        assert!(matches!(b.plan(), Some(Plan::Heading(_))));
+        // Scooter at (−2.5, 0) facing +x sees Skeeter (r 0.33) at the origin.
+        let w = Mini {
+            x: -2.5,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([0.0, 0.0], 0.33)],
+        };
+        b.handle_laser(&w.scan(&b.config().laser_mount), t(100));
+        let f1 = form(
+            vec![
+                rec("scooter", 180.0, None, t(200)),
+                rec(RED, 90.0, Some(3.0), t(200)),
+            ],
+            t(200),
+        );
+        b.handle_ses(&f1, t(200));
+        // Target (0, 3) from Scooter (−2.5, 0): DR (2.5, 3).
+        match b.plan() {
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(2.5, 3.0)).norm() < 0.05, "{p}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]
