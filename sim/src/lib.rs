@@ -1,7 +1,7 @@
 //! `ima-sim`: the mission in one process, in virtual time — no ptys, no sockets.
 //!
 //! A [`ScooterSim`] owns a mock-devices [`World`] and Scooter's
-//! [`ScooterBrain`](ima_agents::mission::scooter::ScooterBrain) and steps both at a fixed
+//! [`ScooterBrain`] and steps both at a fixed
 //! `dt`:
 //!
 //! 1. **Skeeter's observations** (the SES samples). Skeeter's 7-camera head is modelled as 7

@@ -212,3 +212,53 @@ fn camera_observer_runs_the_real_vision_pipeline() {
     assert_eq!(r.reason, "reached", "{r:?}");
     assert!(r.f >= 0.9, "f = {}", r.f);
 }
+
+#[test]
+fn a_barrel_on_the_way_is_avoided_smoothly_with_the_real_laser_model() {
+    use ima_mock_devices::world::Circle;
+    // Range-aware, 90°, Ds = Dt = 4: the straight path from (−4, 0) to (0, 4) passes
+    // (−2, 2); a barrel of radius 0.3 stands there.
+    let mut world = world_for(90.0, 4.0, 4.0, 1);
+    world
+        .add_circle(Circle {
+            center: [-2.0, 2.0],
+            radius_m: 0.3,
+        })
+        .unwrap();
+    let mut cfg = SweepConfig::default().sim;
+    cfg.brain.heading_rule = HeadingRule::RangeAware;
+    let mut sim = ScooterSim::new(world, TARGET_COLOUR, cfg).unwrap();
+    let mut signs = Vec::new();
+    let mut avoided = false;
+    let mut clearance = f64::INFINITY;
+    for _ in 0..6000 {
+        let out = sim.step().clone();
+        avoided |= out.behaviour == Behaviour::AvoidObstacle;
+        // Turning while avoiding, ignoring the small corrections of compass noise.
+        if out.behaviour == Behaviour::AvoidObstacle && out.command.omega_rad_s.abs() > 0.1 {
+            signs.push((out.command.omega_rad_s * 100.0).round() / 100.0);
+        }
+        let p = *sim.trajectory().last().unwrap();
+        clearance = clearance.min((p[0] + 2.0).hypot(p[1] - 2.0) - 0.3 - 0.4);
+        if sim.reached_at().is_some() {
+            break;
+        }
+    }
+    assert!(avoided, "the barrel made Scooter avoid");
+    assert!(
+        sim.reached_at().is_some(),
+        "and it still reached the target"
+    );
+    assert!(clearance > 0.0, "never touched the barrel: {clearance}");
+    assert!(signs.len() > 10, "it turned while avoiding: {signs:?}");
+    let flips = signs
+        .windows(2)
+        .filter(|w| w[0].signum() != w[1].signum())
+        .count();
+    eprintln!("avoidance turn rates: {signs:?}");
+    // Away from the barrel, then back toward the goal: one change of sign (two allowed).
+    assert!(
+        flips <= 2,
+        "turn-rate sign flipped {flips} times while avoiding: {signs:?}"
+    );
+}

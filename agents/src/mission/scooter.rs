@@ -39,8 +39,24 @@
 //!
 //! The controller turns toward θd: in place while the error exceeds
 //! [`ScooterConfig::turn_in_place_enter_rad`] (until it is below `…_exit_rad`), otherwise
-//! it drives at the cruise speed with proportional steering; the turn rate is rate-limited
-//! and low-pass filtered.
+//! it drives at the cruise speed with proportional steering, the turn rate clamped to
+//! [`ScooterConfig::max_turn_rate_rad_s`] (an optional low-pass, `turn_filter_s`, is off by
+//! default: its lag made the robot overshoot after turning in place).
+//!
+//! # Smooth avoidance
+//!
+//! The [avoider](super::avoid) locks the side it goes round an obstacle on and has
+//! enter/exit hysteresis; the brain low-pass filters its steering direction in the common
+//! frame ([`ScooterConfig::avoid_smoothing_s`]) so the candidate search's 3° steps and laser
+//! noise at a corridor's edge never reach the wheels. In the simulation (`ima-sim` test
+//! `a_barrel_on_the_way_is_avoided_smoothly_with_the_real_laser_model`) the turn rate
+//! changes sign once while going round a barrel: away, then back.
+//!
+//! # Ranges
+//!
+//! Scooter's range from Skeeter comes, best first, from its own laser (a cluster of
+//! Skeeter's diameter where θ1 + 180° says Skeeter is, fresh within 3 s), from the SES
+//! record, or from triangulation over two samples.
 //!
 //! # Behaviours (MISSION.md, "Scooter's SAN"; `agents/networks/scooter.toml`)
 //!
@@ -186,6 +202,10 @@ pub struct ScooterConfig {
     pub home_stop_distance_m: f64,
     /// At most this many samples are averaged into the target position estimate.
     pub max_target_samples: usize,
+    /// Time constant smoothing the avoider's steering direction (in the common frame), so
+    /// that the 3° steps of its candidate search and laser noise at a corridor's edge do not
+    /// reach the wheels, seconds (0 = none).
+    pub avoid_smoothing_s: f64,
     /// Obstacle avoidance.
     pub avoid: AvoidConfig,
 }
@@ -201,7 +221,7 @@ impl Default for ScooterConfig {
             steering_gain: 1.5,
             turn_in_place_enter_rad: 30f64.to_radians(),
             turn_in_place_exit_rad: 8f64.to_radians(),
-            turn_filter_s: 0.2,
+            turn_filter_s: 0.0,
             lost_after: Duration::from_secs(12),
             reach_distance_m: 0.8,
             see_distance_m: 1.6,
@@ -221,6 +241,7 @@ impl Default for ScooterConfig {
             coast_for: Duration::from_secs(30),
             home_stop_distance_m: 1.2,
             max_target_samples: 12,
+            avoid_smoothing_s: 0.6,
             avoid: AvoidConfig::default(),
         }
     }
@@ -553,6 +574,7 @@ pub struct ScooterBrain {
     points: Vec<Point2>,
     target_fix: Option<(Instant, Vector2)>,
     skeeter_fix: Option<(Instant, Vector2)>,
+    avoid_heading: Option<f64>,
     laser_at: Option<Instant>,
     // Controller.
     last_step: Option<Instant>,
@@ -612,6 +634,7 @@ impl ScooterBrain {
             points: Vec::new(),
             target_fix: None,
             skeeter_fix: None,
+            avoid_heading: None,
             laser_at: None,
             last_step: None,
             omega: 0.0,
@@ -1091,7 +1114,29 @@ impl ScooterBrain {
                 None
             }
         };
-        let steer = obstacle.filter(|d| d.active).map(|d| d.steer_rad);
+        let raw = obstacle.filter(|d| d.active).map(|d| d.steer_rad);
+        // Smooth the avoider's direction in the common frame (first-order, τ).
+        let steer = match (raw, h) {
+            (Some(s), Some(h)) => {
+                let target = normalize_angle(h + s);
+                let tau = self.cfg.avoid_smoothing_s.max(0.0);
+                let k = if tau > 0.0 && dt > 0.0 {
+                    dt / (tau + dt)
+                } else {
+                    1.0
+                };
+                let f = match self.avoid_heading {
+                    Some(f) => normalize_angle(f + k * normalize_angle(target - f)),
+                    None => target,
+                };
+                self.avoid_heading = Some(f);
+                Some(normalize_angle(f - h))
+            }
+            _ => {
+                self.avoid_heading = None;
+                raw
+            }
+        };
         self.feed_san(now, steer.is_some());
         let chosen = self.select();
         let motion = if self.reached && self.target.is_some() {
