@@ -37,6 +37,10 @@
 //!   and the heading to it is recomputed at every step from dead reckoning. Without ranges
 //!   it falls back to the thesis rule.
 //!
+//! A sample without both Scooter and the target keeps the previous plan and does not reset
+//! the lost timer; one where the rule is degenerate (the thesis rule with θ1 = θ2) keeps
+//! the previous plan.
+//!
 //! The controller turns toward θd: in place while the error exceeds
 //! [`ScooterConfig::turn_in_place_enter_rad`] (until it is below `…_exit_rad`), otherwise
 //! it drives at the cruise speed with proportional steering, the turn rate clamped to
