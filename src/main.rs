@@ -36,6 +36,9 @@ enum Command {
     Camera(cmd::camera::CameraCommand),
     /// Connect to a SICK LMS laser scanner, print scans, optionally write one as SVG.
     Scan(cmd::scan::ScanArgs),
+    /// Peer Agent over IP: standalone manager, client, broadcast listener and sender.
+    #[command(subcommand)]
+    Peer(cmd::peer::PeerCommand),
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
@@ -69,6 +72,7 @@ fn main() -> ExitCode {
         Command::Compass(a) => cmd::compass::run(&a),
         Command::Camera(c) => cmd::camera::run(&c),
         Command::Experiment(c) => cmd::experiment::run(&c),
+        Command::Peer(c) => cmd::peer::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

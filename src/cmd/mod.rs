@@ -14,5 +14,6 @@ pub mod experiment;
 pub mod mock;
 pub mod mock_rflex;
 pub mod mock_sick;
+pub mod peer;
 pub mod san;
 pub mod scan;

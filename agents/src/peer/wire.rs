@@ -112,6 +112,12 @@ impl GroupKey {
         (bytes.len() >= MIN_KEY_LEN).then(|| Self(bytes.to_vec()))
     }
 
+    /// A 32-byte key (always long enough).
+    #[must_use]
+    pub fn from_array(bytes: [u8; 32]) -> Self {
+        Self(bytes.to_vec())
+    }
+
     fn mac(&self) -> HmacSha256 {
         // HMAC accepts keys of any length; `new_from_slice` cannot fail for HMAC.
         match HmacSha256::new_from_slice(&self.0) {
@@ -142,6 +148,19 @@ pub struct SourceInfo {
     pub schema: u16,
     /// Nominal rate in millihertz (10 Hz = 10 000).
     pub rate_mhz: u32,
+}
+
+impl SourceInfo {
+    /// A source description; `rate_hz` is stored in millihertz (saturating).
+    #[must_use]
+    pub fn new(name: &str, kind: &str, schema: u16, rate_hz: f64) -> Self {
+        Self {
+            name: name.to_owned(),
+            kind: kind.to_owned(),
+            schema,
+            rate_mhz: (rate_hz * 1000.0).clamp(0.0, f64::from(u32::MAX)) as u32,
+        }
+    }
 }
 
 /// Why a registration was declined.
