@@ -54,6 +54,17 @@
 //!    `say.to_broadcast("scooter", &brain.san_summary())` on the broadcast channel, and
 //!    on [`scooter::ScooterSay::RequestHeading`] re-request the `ses` source.
 
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::unreachable,
+        clippy::indexing_slicing
+    )
+)]
+
 pub mod avoid;
 pub mod commander;
 pub mod msg;
