@@ -8,12 +8,15 @@
 //! * [`san`] — a Spreading Activation Network after Maes (1989), loaded from TOML.
 //! * [`heading`] — the thesis's isosceles heading rule and a range-aware rule.
 //! * [`peer`] — the Peer Agent core: manager, client, broadcast channel, authenticated frames.
+//! * [`mission`] — the demonstration's pure decision logic: inter-robot vocabulary, vision,
+//!   the Scan node, Skeeter's brain, the commander.
 //!
 //! Everything is `f64`, SI units, radians; degrees appear only at API edges that say so.
 #![warn(missing_docs)]
 
 pub mod fuzz_harness;
 pub mod heading;
+pub mod mission;
 pub mod peer;
 pub mod san;
 pub mod ses;
