@@ -484,7 +484,10 @@ mod tests {
         let t = served.world().with(|w| w.time());
         let real = start.elapsed();
         // World time is ahead of real time (4× nominal; only "ahead" is asserted).
-        assert!(t.as_micros() > u64::try_from(real.as_micros()).unwrap(), "{t:?} vs {real:?}");
+        assert!(
+            t.as_micros() > u64::try_from(real.as_micros()).unwrap(),
+            "{t:?} vs {real:?}"
+        );
         assert!(
             ServedWorld::start(
                 SharedWorld::new(World::default_world()),

@@ -13,5 +13,6 @@ pub mod drive_rflex;
 pub mod mock;
 pub mod mock_rflex;
 pub mod mock_sick;
+pub mod mock_world;
 pub mod san;
 pub mod scan;

@@ -184,9 +184,7 @@ impl Header {
     #[must_use]
     pub fn payload_len(&self) -> u32 {
         if self.status == Status::Ok {
-            self.width
-                .saturating_mul(self.height)
-                .saturating_mul(3)
+            self.width.saturating_mul(self.height).saturating_mul(3)
         } else {
             0
         }
@@ -441,10 +439,7 @@ mod tests {
         assert_eq!(b, [0x49, 0x4D, 0x41, 0x46, 1, 1]);
         assert_eq!(Request::parse(&b), Ok(Request::Grab));
         assert_eq!(Request::parse(&b[..5]), Err(WireError::Truncated));
-        assert_eq!(
-            Request::parse(b"IMAX\x01\x01"),
-            Err(WireError::BadMagic)
-        );
+        assert_eq!(Request::parse(b"IMAX\x01\x01"), Err(WireError::BadMagic));
         assert_eq!(
             Request::parse(b"IMAF\x02\x01"),
             Err(WireError::BadVersion(2))
@@ -467,8 +462,8 @@ mod tests {
         };
         let b = h.emit();
         let want: [u8; HEADER_LEN] = [
-            0x49, 0x4D, 0x41, 0x46, 1, 0, 3, 0, 0, 0, 0, 2, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1, 2,
-            0, 0, 0, 0, 0, 0, 3, 4, 0, 0, 0, 6,
+            0x49, 0x4D, 0x41, 0x46, 1, 0, 3, 0, 0, 0, 0, 2, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1, 2, 0,
+            0, 0, 0, 0, 0, 3, 4, 0, 0, 0, 6,
         ];
         assert_eq!(b, want);
         assert_eq!(Header::parse(&b), Ok(h));
