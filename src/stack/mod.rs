@@ -2,3 +2,4 @@
 //! the robot stacks as tokio tasks.
 
 pub mod devices;
+pub mod report;
