@@ -144,6 +144,8 @@ pub mod broadcast;
 pub mod client;
 pub mod data;
 pub mod manager;
+#[cfg(feature = "net")]
+pub mod net;
 pub mod queue;
 pub mod wire;
 

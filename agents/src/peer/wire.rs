@@ -112,6 +112,12 @@ impl GroupKey {
         (bytes.len() >= MIN_KEY_LEN).then(|| Self(bytes.to_vec()))
     }
 
+    /// A 32-byte key (always long enough).
+    #[must_use]
+    pub fn from_array(bytes: [u8; 32]) -> Self {
+        Self(bytes.to_vec())
+    }
+
     fn mac(&self) -> HmacSha256 {
         // HMAC accepts keys of any length; `new_from_slice` cannot fail for HMAC.
         match HmacSha256::new_from_slice(&self.0) {

@@ -1,0 +1,2 @@
+//! Loopback benchmarks of the Peer Agent net shell.
+fn main() {}

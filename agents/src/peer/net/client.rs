@@ -1,0 +1,715 @@
+//! The client shell: one task per manager session owning a [`PeerClient`], one task per
+//! data session owning a [`DataClientSession`].
+
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use ima_hal::time::TokioClock;
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpStream, ToSocketAddrs};
+use tokio::sync::{Notify, mpsc, oneshot};
+use tokio::task::JoinHandle;
+
+use super::NetError;
+use super::config::PeerNetConfig;
+use super::frames::{FrameReader, WRITE_BATCH, max_frame, write_frames};
+use super::{random_u64, unix_micros};
+use crate::peer::client::{ClientConfig, ClientEvent, PeerClient};
+use crate::peer::data::{DataClientSession, DataClose, DataConfig, DataEvent};
+use crate::peer::wire::{
+    DenyReason, GroupKey, HEADER_LEN, MAC_LEN, RevokeReason, SourceInfo, Ticket,
+};
+
+/// Why a subscription's data stopped for a while (the request stands; samples resume when
+/// the manager grants it again).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LossReason {
+    /// The grant was revoked (task priority rose above the request's priority); the request
+    /// is pending again at the manager.
+    Revoked(RevokeReason),
+}
+
+/// Why a subscription ended (no more events follow).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    /// The manager is lost (missed heartbeats, a bad frame, or its session closed).
+    ManagerLost,
+    /// The grant was revoked for good (source gone, manager shutting down).
+    Revoked(RevokeReason),
+    /// The data session failed (lost, damaged frame, ticket refused).
+    Data(DataClose),
+    /// This client disconnected the source.
+    Disconnected,
+    /// This client unregistered.
+    Unregistered,
+    /// A renewal of the request was denied.
+    Denied(DenyReason),
+}
+
+/// What a [`Subscription`] yields.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SubscriptionEvent {
+    /// One sample of the source.
+    Sample {
+        /// Sequence number of the data session (a gap = samples dropped on the way).
+        seq: u64,
+        /// Measurement time, µs on the source robot's clock.
+        stamp_us: u64,
+        /// The bytes.
+        payload: Vec<u8>,
+    },
+    /// The data stopped for a while; it resumes when the source grants again.
+    Lost {
+        /// Why.
+        reason: LossReason,
+    },
+    /// The subscription is over; [`Subscription::next`] returns `None` afterwards.
+    Closed {
+        /// Why.
+        reason: EndReason,
+    },
+}
+
+struct SubState {
+    queue: VecDeque<SubscriptionEvent>,
+    samples: usize,
+    cap: usize,
+    dropped: u64,
+    done: bool,
+}
+
+struct SubShared {
+    state: Mutex<SubState>,
+    notify: Notify,
+}
+
+impl SubShared {
+    fn new(cap: usize) -> Arc<Self> {
+        Arc::new(Self {
+            state: Mutex::new(SubState {
+                queue: VecDeque::new(),
+                samples: 0,
+                cap: cap.max(1),
+                dropped: 0,
+                done: false,
+            }),
+            notify: Notify::new(),
+        })
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, SubState> {
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn push(&self, e: SubscriptionEvent) {
+        let mut st = self.lock();
+        if st.done {
+            return;
+        }
+        if matches!(e, SubscriptionEvent::Sample { .. }) {
+            if st.samples >= st.cap
+                && let Some(i) = st
+                    .queue
+                    .iter()
+                    .position(|e| matches!(e, SubscriptionEvent::Sample { .. }))
+            {
+                st.queue.remove(i);
+                st.samples = st.samples.saturating_sub(1);
+                st.dropped = st.dropped.saturating_add(1);
+            }
+            st.samples = st.samples.saturating_add(1);
+        }
+        if matches!(e, SubscriptionEvent::Closed { .. }) {
+            st.done = true;
+        }
+        st.queue.push_back(e);
+        drop(st);
+        self.notify.notify_one();
+    }
+}
+
+/// The receiving end of a granted request: samples (latest-value: a slow reader loses the
+/// oldest), interruptions and the end.
+pub struct Subscription {
+    source: String,
+    shared: Arc<SubShared>,
+}
+
+impl core::fmt::Debug for Subscription {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Subscription")
+            .field("source", &self.source)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Subscription {
+    /// The source name.
+    #[must_use]
+    pub fn source(&self) -> &str {
+        &self.source
+    }
+
+    /// Samples dropped here because the reader was slow.
+    #[must_use]
+    pub fn dropped(&self) -> u64 {
+        self.shared.lock().dropped
+    }
+
+    /// The next event; `None` after [`SubscriptionEvent::Closed`] has been returned.
+    pub async fn next(&mut self) -> Option<SubscriptionEvent> {
+        loop {
+            {
+                let mut st = self.shared.lock();
+                if let Some(e) = st.queue.pop_front() {
+                    if matches!(e, SubscriptionEvent::Sample { .. }) {
+                        st.samples = st.samples.saturating_sub(1);
+                    }
+                    return Some(e);
+                }
+                if st.done {
+                    return None;
+                }
+            }
+            self.shared.notify.notified().await;
+        }
+    }
+}
+
+type Reply<T> = oneshot::Sender<Result<T, NetError>>;
+
+enum Cmd {
+    Register(Reply<Vec<SourceInfo>>),
+    Unregister(Reply<()>),
+    Request {
+        source: String,
+        priority: u8,
+        reply: Reply<Subscription>,
+    },
+    Disconnect {
+        source: String,
+        reply: Reply<()>,
+    },
+    Sources(oneshot::Sender<(u64, Vec<SourceInfo>)>),
+}
+
+struct DataEnd {
+    source: String,
+    generation: u64,
+    why: DataClose,
+}
+
+/// A client session to one manager. Dropping the handle ends the session (and every data
+/// session opened through it).
+#[derive(Debug)]
+pub struct PeerClientHandle {
+    cmd: mpsc::UnboundedSender<Cmd>,
+    task: JoinHandle<()>,
+}
+
+impl Drop for PeerClientHandle {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+impl PeerClientHandle {
+    /// Connects to the manager at `addr` (its request channel). Robot name, heartbeat and
+    /// limits come from `cfg`. Must be called inside a tokio runtime.
+    ///
+    /// # Errors
+    /// [`NetError::Io`] when the connection fails.
+    pub async fn connect(
+        addr: impl ToSocketAddrs,
+        cfg: &PeerNetConfig,
+        key: GroupKey,
+    ) -> Result<Self, NetError> {
+        let stream = TcpStream::connect(addr).await?;
+        let _ = stream.set_nodelay(true);
+        let clock = TokioClock::new();
+        let mut ccfg = ClientConfig::new(&cfg.robot, random_u64(), random_u64());
+        ccfg.first_counter = unix_micros();
+        ccfg.heartbeat = cfg.heartbeat();
+        ccfg.missed_heartbeats = cfg.missed_heartbeats;
+        ccfg.max_body = cfg.max_body;
+        let mut dcfg = DataConfig::new(0);
+        dcfg.heartbeat = cfg.heartbeat();
+        dcfg.missed_heartbeats = cfg.missed_heartbeats;
+        dcfg.queue = cfg.manager.data_queue.max(1);
+        dcfg.max_body = cfg.max_body;
+        let core = PeerClient::new(ccfg, key.clone(), clock.now());
+        let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
+        let task = ClientTask {
+            core,
+            clock,
+            key,
+            dcfg,
+            reg_reply: None,
+            unreg_reply: None,
+            req_replies: BTreeMap::new(),
+            subs: BTreeMap::new(),
+            generation: 0,
+        };
+        let task = tokio::spawn(task.run(stream, cmd_rx));
+        Ok(Self { cmd: cmd_tx, task })
+    }
+
+    async fn call<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, NetError> {
+        let (tx, rx) = oneshot::channel();
+        self.cmd.send(make(tx)).map_err(|_| NetError::ManagerLost)?;
+        rx.await.map_err(|_| NetError::ManagerLost)?
+    }
+
+    /// Procedure *register*: returns the manager's competency list. A duplicate ID is
+    /// retried with a fresh one by the core.
+    ///
+    /// # Errors
+    /// [`NetError::Declined`], [`NetError::Client`], [`NetError::ManagerLost`].
+    pub async fn register(&self) -> Result<Vec<SourceInfo>, NetError> {
+        self.call(Cmd::Register).await
+    }
+
+    /// Procedure *unregister*: every subscription ends ([`EndReason::Unregistered`]).
+    ///
+    /// # Errors
+    /// [`NetError::Client`], [`NetError::ManagerLost`].
+    pub async fn unregister(&self) -> Result<(), NetError> {
+        self.call(Cmd::Unregister).await
+    }
+
+    /// Procedure *request*: waits until the manager grants (also after a `Pending`), then
+    /// returns the subscription whose data session is being opened.
+    ///
+    /// # Errors
+    /// [`NetError::Denied`], [`NetError::AlreadySubscribed`], [`NetError::Client`],
+    /// [`NetError::ManagerLost`], [`NetError::Revoked`] (source removed while pending).
+    pub async fn request(&self, source: &str, priority: u8) -> Result<Subscription, NetError> {
+        self.call(|reply| Cmd::Request {
+            source: source.to_owned(),
+            priority,
+            reply,
+        })
+        .await
+    }
+
+    /// Procedure *disconnect*: ends the request or grant for `source`; its subscription
+    /// ends with [`EndReason::Disconnected`].
+    ///
+    /// # Errors
+    /// [`NetError::Client`], [`NetError::ManagerLost`].
+    pub async fn disconnect(&self, source: &str) -> Result<(), NetError> {
+        self.call(|reply| Cmd::Disconnect {
+            source: source.to_owned(),
+            reply,
+        })
+        .await
+    }
+
+    /// The current client ID and the competency list last received.
+    ///
+    /// # Errors
+    /// [`NetError::ManagerLost`] once the session is over.
+    pub async fn sources(&self) -> Result<(u64, Vec<SourceInfo>), NetError> {
+        let (tx, rx) = oneshot::channel();
+        self.cmd
+            .send(Cmd::Sources(tx))
+            .map_err(|_| NetError::ManagerLost)?;
+        rx.await.map_err(|_| NetError::ManagerLost)
+    }
+
+    /// Whether the manager session is over (lost or closed).
+    #[must_use]
+    pub fn is_lost(&self) -> bool {
+        self.task.is_finished()
+    }
+}
+
+struct SubRec {
+    shared: Arc<SubShared>,
+    data: Option<(u64, oneshot::Sender<()>)>,
+}
+
+struct ClientTask {
+    core: PeerClient,
+    clock: TokioClock,
+    key: GroupKey,
+    dcfg: DataConfig,
+    reg_reply: Option<Reply<Vec<SourceInfo>>>,
+    unreg_reply: Option<Reply<()>>,
+    req_replies: BTreeMap<String, Reply<Subscription>>,
+    subs: BTreeMap<String, SubRec>,
+    generation: u64,
+}
+
+impl ClientTask {
+    async fn run(mut self, stream: TcpStream, mut cmds: mpsc::UnboundedReceiver<Cmd>) {
+        let max_body = self.dcfg.max_body;
+        let (mut rd, wr) = stream.into_split();
+        let (wtx, wrx) = mpsc::channel(1024);
+        let writer = tokio::spawn(write_frames(wr, wrx));
+        let (dtx, mut drx) = mpsc::unbounded_channel::<DataEnd>();
+        let mut reader = FrameReader::new(max_body);
+        let mut buf = vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN];
+        let mut lost = false;
+        while !lost {
+            let sleep = tokio::time::sleep_until(deadline(&self.clock, self.core.poll_timeout()));
+            tokio::select! {
+                r = reader.read_from(&mut rd) => match r {
+                    Ok(0) | Err(_) => self.core.closed(),
+                    Ok(_) => {
+                        let now = self.clock.now();
+                        while let Some(f) = reader.next_frame() {
+                            self.core.handle_frame(f, now);
+                        }
+                    }
+                },
+                c = cmds.recv() => match c {
+                    Some(c) => self.handle_cmd(c),
+                    None => break,
+                },
+                Some(d) = drx.recv() => self.data_end(d),
+                () = sleep => self.core.handle_timeout(self.clock.now()),
+            }
+            while let Some(n) = self.core.poll_transmit(&mut buf) {
+                if let Some(f) = buf.get(..n)
+                    && wtx.try_send(f.to_vec()).is_err()
+                {
+                    self.core.closed();
+                }
+            }
+            while let Some(e) = self.core.poll_event() {
+                if matches!(e, ClientEvent::ManagerLost(_)) {
+                    lost = true;
+                }
+                self.handle_event(e, &dtx);
+            }
+        }
+        // Lost or dropped: every data session ends with the session.
+        for (_, sub) in std::mem::take(&mut self.subs) {
+            if let Some((_, close)) = sub.data {
+                let _ = close.send(());
+            }
+            sub.shared.push(SubscriptionEvent::Closed {
+                reason: EndReason::ManagerLost,
+            });
+        }
+        drop(wtx);
+        let _ = writer.await;
+    }
+
+    fn handle_cmd(&mut self, c: Cmd) {
+        match c {
+            Cmd::Register(reply) => match self.core.register() {
+                Ok(()) => self.reg_reply = Some(reply),
+                Err(e) => {
+                    let _ = reply.send(Err(e.into()));
+                }
+            },
+            Cmd::Unregister(reply) => match self.core.unregister() {
+                Ok(()) => {
+                    self.unreg_reply = Some(reply);
+                    self.end_all(EndReason::Unregistered);
+                }
+                Err(e) => {
+                    let _ = reply.send(Err(e.into()));
+                }
+            },
+            Cmd::Request {
+                source,
+                priority,
+                reply,
+            } => {
+                if self.subs.contains_key(&source) || self.req_replies.contains_key(&source) {
+                    let _ = reply.send(Err(NetError::AlreadySubscribed));
+                    return;
+                }
+                match self.core.request(&source, priority) {
+                    Ok(()) => {
+                        self.req_replies.insert(source, reply);
+                    }
+                    Err(e) => {
+                        let _ = reply.send(Err(e.into()));
+                    }
+                }
+            }
+            Cmd::Disconnect { source, reply } => {
+                let r = self.core.disconnect(&source).map_err(NetError::from);
+                if r.is_ok() {
+                    self.end_sub(&source, EndReason::Disconnected);
+                    if let Some(w) = self.req_replies.remove(&source) {
+                        let _ = w.send(Err(NetError::Closed));
+                    }
+                }
+                let _ = reply.send(r);
+            }
+            Cmd::Sources(reply) => {
+                let _ = reply.send((self.core.id(), self.core.sources().to_vec()));
+            }
+        }
+    }
+
+    fn end_sub(&mut self, source: &str, reason: EndReason) {
+        if let Some(sub) = self.subs.remove(source) {
+            if let Some((_, close)) = sub.data {
+                let _ = close.send(());
+            }
+            sub.shared.push(SubscriptionEvent::Closed { reason });
+        }
+    }
+
+    fn end_all(&mut self, reason: EndReason) {
+        let names: Vec<String> = self.subs.keys().cloned().collect();
+        for n in names {
+            self.end_sub(&n, reason);
+        }
+        for (_, w) in std::mem::take(&mut self.req_replies) {
+            let _ = w.send(Err(match reason {
+                EndReason::ManagerLost => NetError::ManagerLost,
+                _ => NetError::Closed,
+            }));
+        }
+    }
+
+    fn close_data(&mut self, source: &str) {
+        if let Some(sub) = self.subs.get_mut(source)
+            && let Some((_, close)) = sub.data.take()
+        {
+            let _ = close.send(());
+        }
+    }
+
+    fn data_end(&mut self, d: DataEnd) {
+        let current = self
+            .subs
+            .get(&d.source)
+            .and_then(|s| s.data.as_ref())
+            .is_some_and(|(g, _)| *g == d.generation);
+        if !current {
+            return;
+        }
+        if let Some(s) = self.subs.get_mut(&d.source) {
+            s.data = None;
+        }
+        match d.why {
+            // The request channel is authoritative for revocations and local closes.
+            DataClose::Local | DataClose::Revoked(_) => {}
+            why => {
+                let _ = self.core.disconnect(&d.source);
+                self.end_sub(&d.source, EndReason::Data(why));
+            }
+        }
+    }
+
+    fn handle_event(&mut self, e: ClientEvent, dtx: &mpsc::UnboundedSender<DataEnd>) {
+        match e {
+            ClientEvent::Registered { sources, .. } => {
+                if let Some(r) = self.reg_reply.take() {
+                    let _ = r.send(Ok(sources));
+                }
+            }
+            ClientEvent::Declined {
+                reason,
+                retry_with: None,
+                ..
+            } => {
+                if let Some(r) = self.reg_reply.take() {
+                    let _ = r.send(Err(NetError::Declined(reason)));
+                }
+            }
+            ClientEvent::Declined { .. } | ClientEvent::Pending { .. } => {}
+            ClientEvent::Unregistered => {
+                if let Some(r) = self.unreg_reply.take() {
+                    let _ = r.send(Ok(()));
+                }
+            }
+            ClientEvent::Granted {
+                source,
+                address,
+                ticket,
+            } => self.granted(source, address, ticket, dtx),
+            ClientEvent::Denied { source, reason } => {
+                if let Some(r) = self.req_replies.remove(&source) {
+                    let _ = r.send(Err(NetError::Denied(reason)));
+                }
+                self.end_sub(&source, EndReason::Denied(reason));
+            }
+            ClientEvent::Revoked { source, reason } => {
+                if reason == RevokeReason::TaskPriority {
+                    self.close_data(&source);
+                    if let Some(sub) = self.subs.get(&source) {
+                        sub.shared.push(SubscriptionEvent::Lost {
+                            reason: LossReason::Revoked(reason),
+                        });
+                    }
+                } else {
+                    if let Some(r) = self.req_replies.remove(&source) {
+                        let _ = r.send(Err(NetError::Revoked(reason)));
+                    }
+                    self.end_sub(&source, EndReason::Revoked(reason));
+                }
+            }
+            ClientEvent::SourcesChanged { .. } => {}
+            ClientEvent::SourceGone { source } => self.close_data(&source),
+            ClientEvent::ManagerLost(_) => {
+                if let Some(r) = self.reg_reply.take() {
+                    let _ = r.send(Err(NetError::ManagerLost));
+                }
+                if let Some(r) = self.unreg_reply.take() {
+                    let _ = r.send(Err(NetError::ManagerLost));
+                }
+                self.end_all(EndReason::ManagerLost);
+            }
+        }
+    }
+
+    fn granted(
+        &mut self,
+        source: String,
+        address: String,
+        ticket: Ticket,
+        dtx: &mpsc::UnboundedSender<DataEnd>,
+    ) {
+        let cap = self.dcfg.queue;
+        let sub = self.subs.entry(source.clone()).or_insert_with(|| SubRec {
+            shared: SubShared::new(cap),
+            data: None,
+        });
+        if let Some(r) = self.req_replies.remove(&source) {
+            let s = Subscription {
+                source: source.clone(),
+                shared: sub.shared.clone(),
+            };
+            if r.send(Ok(s)).is_err() {
+                // The requester went away: withdraw.
+                let _ = self.core.disconnect(&source);
+                self.end_sub(&source, EndReason::Disconnected);
+                return;
+            }
+        }
+        if sub.data.is_some() {
+            // A renewal while streaming: keep the running data session.
+            return;
+        }
+        self.generation = self.generation.wrapping_add(1);
+        let generation = self.generation;
+        let (ctx, crx) = oneshot::channel();
+        sub.data = Some((generation, ctx));
+        let mut cfg = self.dcfg.clone();
+        cfg.node = random_u64();
+        cfg.first_counter = unix_micros();
+        tokio::spawn(data_session(DataTask {
+            address,
+            key: self.key.clone(),
+            cfg,
+            client: self.core.id(),
+            source,
+            ticket,
+            sub: sub.shared.clone(),
+            generation,
+            close: crx,
+            done: dtx.clone(),
+        }));
+    }
+}
+
+fn deadline(clock: &TokioClock, at: Option<ima_hal::Instant>) -> tokio::time::Instant {
+    let now = tokio::time::Instant::now();
+    match at {
+        Some(t) => now + t.saturating_duration_since(clock.now()),
+        None => now + std::time::Duration::from_secs(3600),
+    }
+}
+
+struct DataTask {
+    address: String,
+    key: GroupKey,
+    cfg: DataConfig,
+    client: u64,
+    source: String,
+    ticket: Ticket,
+    sub: Arc<SubShared>,
+    generation: u64,
+    close: oneshot::Receiver<()>,
+    done: mpsc::UnboundedSender<DataEnd>,
+}
+
+async fn data_session(mut t: DataTask) {
+    let why = run_data(&mut t).await;
+    let _ = t.done.send(DataEnd {
+        source: t.source.clone(),
+        generation: t.generation,
+        why,
+    });
+}
+
+async fn run_data(t: &mut DataTask) -> DataClose {
+    let clock = TokioClock::new();
+    let window = t
+        .cfg
+        .heartbeat
+        .saturating_mul(t.cfg.missed_heartbeats.max(1));
+    let stream = match tokio::time::timeout(window, TcpStream::connect(t.address.as_str())).await {
+        Ok(Ok(s)) => s,
+        _ => return DataClose::Lost,
+    };
+    let _ = stream.set_nodelay(true);
+    let max_body = t.cfg.max_body;
+    let mut s = DataClientSession::new(
+        t.cfg.clone(),
+        t.key.clone(),
+        t.client,
+        &t.source,
+        t.ticket,
+        clock.now(),
+    );
+    let (mut rd, mut wr) = stream.into_split();
+    let mut reader = FrameReader::new(max_body);
+    let mut buf = vec![0u8; max_frame(max_body)];
+    let mut out = Vec::with_capacity(1024);
+    let mut end = DataClose::Lost;
+    let mut closing = false;
+    loop {
+        let now = clock.now();
+        out.clear();
+        while out.len() < WRITE_BATCH {
+            match s.poll_transmit(&mut buf, now) {
+                Some(n) => out.extend_from_slice(buf.get(..n).unwrap_or_default()),
+                None => break,
+            }
+        }
+        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+            return DataClose::Lost;
+        }
+        while let Some(e) = s.poll_event() {
+            if let DataEvent::Closed(why) = e {
+                end = why;
+                closing = true;
+            }
+        }
+        if closing {
+            let _ = wr.shutdown().await;
+            return end;
+        }
+        let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));
+        tokio::select! {
+            r = reader.read_from(&mut rd) => match r {
+                Ok(0) | Err(_) => return DataClose::Lost,
+                Ok(_) => {
+                    let now = clock.now();
+                    while let Some(f) = reader.next_frame() {
+                        s.handle_frame(f, now);
+                    }
+                    while let Some(x) = s.pop_sample() {
+                        t.sub.push(SubscriptionEvent::Sample {
+                            seq: x.seq,
+                            stamp_us: x.stamp_us,
+                            payload: x.payload,
+                        });
+                    }
+                }
+            },
+            _ = &mut t.close => s.close(),
+            () = sleep => s.handle_timeout(clock.now()),
+        }
+    }
+}

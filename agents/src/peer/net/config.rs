@@ -1,0 +1,266 @@
+//! Serde configuration of the network shell (TOML). Every field has a default; see
+//! [`PeerNetConfig`] and the example `configs/peer-manager.toml`.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use super::NetError;
+
+/// Configuration of one robot's Peer Agent over IP.
+///
+/// ```toml
+/// robot = "skeeter"              # default "robot"
+/// key_file = "/etc/ima/group.key" # no default: tools refuse to run without a key
+/// heartbeat_ms = 100              # default 100 (a LAN)
+/// missed_heartbeats = 3           # default 3
+/// max_body = 8192                 # default 8192 bytes
+///
+/// [manager]
+/// listen = "127.0.0.1:7400"       # request channel; default 0.0.0.0:7400
+/// data_listen = "127.0.0.1:0"     # data server; default 0.0.0.0:0 (any free port)
+/// # data_advertise = "10.0.0.5:7401"  # address put in grants; default: the data
+/// #                                  # listener's address (127.0.0.1 when bound to 0.0.0.0)
+/// rescan_ms = 1000
+/// ticket_lifetime_ms = 5000
+/// max_clients = 1024
+/// data_queue = 64                 # samples queued per data session (latest value)
+/// task_priority = 0               # of the built-in FixedSelfAgent
+/// unknown_robot_priority = 0
+/// [manager.robot_priorities]
+/// commander = 3
+/// skeeter = 2
+///
+/// [broadcast]
+/// mode = "multicast"              # "multicast" | "unicast" | "both"
+/// group = "239.255.73.77"
+/// port = 7477
+/// interface = "0.0.0.0"           # IP_MULTICAST_IF / membership; "127.0.0.1" for loopback
+/// peers = ["192.168.1.12:7477"]   # unicast fallback
+/// ttl = 1
+/// loopback = true
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PeerNetConfig {
+    /// This robot's name (sent on registration, used as broadcast sender name).
+    pub robot: String,
+    /// Path of the group-key file (see [`super::load_key_file`]).
+    pub key_file: Option<PathBuf>,
+    /// Heartbeat interval in ms on every channel (default 100).
+    pub heartbeat_ms: u64,
+    /// Missed intervals before a peer is declared lost (default 3).
+    pub missed_heartbeats: u32,
+    /// Body-size limit of incoming frames (default 8192).
+    pub max_body: usize,
+    /// Manager side.
+    pub manager: ManagerNetConfig,
+    /// Broadcast channel.
+    pub broadcast: BroadcastConfig,
+}
+
+impl Default for PeerNetConfig {
+    fn default() -> Self {
+        Self {
+            robot: "robot".into(),
+            key_file: None,
+            heartbeat_ms: 100,
+            missed_heartbeats: 3,
+            max_body: crate::peer::wire::DEFAULT_MAX_BODY,
+            manager: ManagerNetConfig::default(),
+            broadcast: BroadcastConfig::default(),
+        }
+    }
+}
+
+impl PeerNetConfig {
+    /// Parses TOML.
+    ///
+    /// # Errors
+    /// [`NetError::Config`].
+    pub fn from_toml(text: &str) -> Result<Self, NetError> {
+        toml::from_str(text).map_err(|e| NetError::Config(e.to_string()))
+    }
+
+    /// Reads and parses a TOML file.
+    ///
+    /// # Errors
+    /// [`NetError::Config`].
+    pub fn load(path: &std::path::Path) -> Result<Self, NetError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| NetError::Config(format!("{}: {e}", path.display())))?;
+        Self::from_toml(&text)
+    }
+
+    /// A configuration for tests and tools on loopback: everything on 127.0.0.1 with free
+    /// ports, multicast on the loopback interface.
+    #[must_use]
+    pub fn loopback(robot: &str) -> Self {
+        let mut c = Self {
+            robot: robot.to_owned(),
+            ..Self::default()
+        };
+        c.manager.listen = "127.0.0.1:0".into();
+        c.manager.data_listen = "127.0.0.1:0".into();
+        c.broadcast.interface = "127.0.0.1".into();
+        c
+    }
+
+    /// The heartbeat interval.
+    #[must_use]
+    pub fn heartbeat(&self) -> Duration {
+        Duration::from_millis(self.heartbeat_ms.max(1))
+    }
+}
+
+/// The manager's sockets and rules.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ManagerNetConfig {
+    /// Request-channel listen address (default `0.0.0.0:7400`).
+    pub listen: String,
+    /// Data-server listen address (default `0.0.0.0:0`).
+    pub data_listen: String,
+    /// Data address put in grants (default: the data listener's address, with an
+    /// unspecified IP replaced by 127.0.0.1 — set this on a LAN).
+    pub data_advertise: Option<String>,
+    /// Source re-scan interval, ms (default 1000).
+    pub rescan_ms: u64,
+    /// Ticket lifetime, ms (default 5000).
+    pub ticket_lifetime_ms: u64,
+    /// Maximum registered clients (default 1024).
+    pub max_clients: usize,
+    /// Samples queued per data session; the oldest are dropped (default 64).
+    pub data_queue: usize,
+    /// Frames queued per client session before it is closed as too slow (default 1024).
+    pub session_queue: usize,
+    /// Task priority of the built-in `FixedSelfAgent` (default 0).
+    pub task_priority: u8,
+    /// Robot priorities; a leader gets the highest (default empty).
+    pub robot_priorities: BTreeMap<String, u8>,
+    /// Priority of robots not listed (default 0, the lowest).
+    pub unknown_robot_priority: u8,
+}
+
+impl Default for ManagerNetConfig {
+    fn default() -> Self {
+        Self {
+            listen: "0.0.0.0:7400".into(),
+            data_listen: "0.0.0.0:0".into(),
+            data_advertise: None,
+            rescan_ms: 1000,
+            ticket_lifetime_ms: 5000,
+            max_clients: 1024,
+            data_queue: 64,
+            session_queue: 1024,
+            task_priority: 0,
+            robot_priorities: BTreeMap::new(),
+            unknown_robot_priority: 0,
+        }
+    }
+}
+
+/// How broadcasts travel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum BroadcastMode {
+    /// UDP multicast to `group:port` (default).
+    #[default]
+    Multicast,
+    /// Unicast datagrams to every address of `peers`.
+    Unicast,
+    /// Both (receivers drop the duplicates).
+    Both,
+}
+
+/// The broadcast channel's sockets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BroadcastConfig {
+    /// Mode (default multicast).
+    pub mode: BroadcastMode,
+    /// Multicast group (default `239.255.73.77`, organisation-local scope).
+    pub group: String,
+    /// UDP port (default 7477); bound with `SO_REUSEADDR`/`SO_REUSEPORT` so several processes
+    /// on one host share it for multicast. In unicast mode every process on one host needs
+    /// its own port (unicast datagrams reach only one of the sockets sharing a port).
+    pub port: u16,
+    /// Interface address for `IP_MULTICAST_IF` and the group membership (default
+    /// `0.0.0.0`: the system's choice; `127.0.0.1` for loopback).
+    pub interface: String,
+    /// Bind address (default `0.0.0.0`).
+    pub bind: String,
+    /// Unicast peers `host:port` (fallback where multicast is blocked).
+    pub peers: Vec<String>,
+    /// Multicast TTL (default 1: the local segment only).
+    pub ttl: u32,
+    /// `IP_MULTICAST_LOOP` (default true: processes on this host hear each other).
+    pub loopback: bool,
+    /// Whether `recv` also returns this robot's own broadcasts (default false).
+    pub receive_own: bool,
+}
+
+impl Default for BroadcastConfig {
+    fn default() -> Self {
+        Self {
+            mode: BroadcastMode::Multicast,
+            group: "239.255.73.77".into(),
+            port: 7477,
+            interface: "0.0.0.0".into(),
+            bind: "0.0.0.0".into(),
+            peers: Vec::new(),
+            ttl: 1,
+            loopback: true,
+            receive_own: false,
+        }
+    }
+}
+
+/// A synthetic source served by `ima peer manager` (tools and tests).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SyntheticSource {
+    /// Source name, e.g. `counter`.
+    pub name: String,
+    /// Generator: `counter` (u64 LE), `sine` (f64 LE), `blobN` (N bytes).
+    pub generator: String,
+    /// Samples per second.
+    pub rate_hz: f64,
+}
+
+pub(crate) fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
+    use std::net::ToSocketAddrs;
+    s.to_socket_addrs()
+        .map_err(|e| NetError::Config(format!("{what} {s:?}: {e}")))?
+        .next()
+        .ok_or_else(|| NetError::Config(format!("{what} {s:?}: no address")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_and_toml() {
+        let c = PeerNetConfig::from_toml(
+            "robot = \"skeeter\"\nheartbeat_ms = 50\n[manager]\nlisten = \"127.0.0.1:0\"\n\
+             [manager.robot_priorities]\ncommander = 3\n[broadcast]\nmode = \"both\"\n\
+             peers = [\"127.0.0.1:9\"]\n",
+        )
+        .unwrap();
+        assert_eq!(c.robot, "skeeter");
+        assert_eq!(c.heartbeat_ms, 50);
+        assert_eq!(c.missed_heartbeats, 3);
+        assert_eq!(c.manager.robot_priorities.get("commander"), Some(&3));
+        assert_eq!(c.broadcast.mode, BroadcastMode::Both);
+        assert_eq!(c.broadcast.port, 7477);
+        assert!(PeerNetConfig::from_toml("[manager]\nbogus = 1\n").is_err());
+        assert_eq!(
+            PeerNetConfig::from_toml("").unwrap(),
+            PeerNetConfig::default()
+        );
+    }
+}

@@ -1,0 +1,116 @@
+//! Cutting frames out of a TCP byte stream (header-checked, bounded).
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
+use tokio::net::tcp::OwnedWriteHalf;
+use tokio::sync::mpsc;
+
+use crate::peer::wire::{self, HEADER_LEN, MAC_LEN};
+
+/// Bytes written to a socket in one call at most (frames are batched up to this).
+pub(crate) const WRITE_BATCH: usize = 64 * 1024;
+
+/// Buffer size for one maximum frame plus slack.
+pub(crate) fn max_frame(max_body: usize) -> usize {
+    HEADER_LEN + max_body + MAC_LEN
+}
+
+/// Accumulates stream bytes and yields whole frames. A bad header (magic, version, size
+/// limit) yields the header bytes once, so the core can count and close; after that the
+/// reader yields nothing more (the session is closed, no resynchronisation).
+pub(crate) struct FrameReader {
+    buf: Vec<u8>,
+    start: usize,
+    max_body: usize,
+    poisoned: bool,
+}
+
+impl FrameReader {
+    pub(crate) fn new(max_body: usize) -> Self {
+        Self {
+            buf: Vec::with_capacity(16 * 1024),
+            start: 0,
+            max_body,
+            poisoned: false,
+        }
+    }
+
+    /// Reads more bytes (cancel-safe). `Ok(0)` is end of stream.
+    pub(crate) async fn read_from<R: AsyncRead + Unpin>(
+        &mut self,
+        r: &mut R,
+    ) -> std::io::Result<usize> {
+        if self.start > 0 && (self.start == self.buf.len() || self.start > self.buf.len() / 2) {
+            self.buf.drain(..self.start);
+            self.start = 0;
+        }
+        self.buf.reserve(16 * 1024);
+        r.read_buf(&mut self.buf).await
+    }
+
+    /// The next complete frame (or a bad header), if buffered.
+    pub(crate) fn next_frame(&mut self) -> Option<&[u8]> {
+        if self.poisoned {
+            return None;
+        }
+        let pending = self.buf.get(self.start..)?;
+        match wire::frame_len(pending, self.max_body) {
+            Ok(None) => None,
+            Ok(Some(n)) if pending.len() >= n => {
+                let s = self.start;
+                self.start += n;
+                self.buf.get(s..s + n)
+            }
+            Ok(Some(_)) => None,
+            Err(_) => {
+                self.poisoned = true;
+                let s = self.start;
+                self.start = self.buf.len();
+                self.buf.get(s..s + HEADER_LEN)
+            }
+        }
+    }
+}
+
+/// Writes the frames of `rx`, batched, until the channel closes; then shuts the socket
+/// down (the remote sees the end of the stream).
+pub(crate) async fn write_frames(mut wr: OwnedWriteHalf, mut rx: mpsc::Receiver<Vec<u8>>) {
+    let mut batch = Vec::with_capacity(WRITE_BATCH);
+    while let Some(f) = rx.recv().await {
+        batch.clear();
+        batch.extend_from_slice(&f);
+        while batch.len() < WRITE_BATCH {
+            match rx.try_recv() {
+                Ok(f) => batch.extend_from_slice(&f),
+                Err(_) => break,
+            }
+        }
+        if wr.write_all(&batch).await.is_err() {
+            return;
+        }
+    }
+    let _ = wr.shutdown().await;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::peer::wire::{GroupKey, Msg, Signer};
+
+    #[test]
+    fn cuts_frames_and_poisons_on_bad_header() {
+        let key = GroupKey::from_array([3; 32]);
+        let mut s = Signer::new(key, 1, 1);
+        let a = s.seal_vec(&Msg::Heartbeat).unwrap();
+        let b = s.seal_vec(&Msg::Unregister { client: 9 }).unwrap();
+        let mut r = FrameReader::new(8192);
+        r.buf.extend_from_slice(&a);
+        r.buf.extend_from_slice(b.get(..10).unwrap());
+        assert_eq!(r.next_frame(), Some(a.as_slice()));
+        assert_eq!(r.next_frame(), None);
+        r.buf.extend_from_slice(b.get(10..).unwrap());
+        assert_eq!(r.next_frame(), Some(b.as_slice()));
+        r.buf.extend_from_slice(&[0u8; 30]);
+        assert_eq!(r.next_frame().map(<[u8]>::len), Some(HEADER_LEN));
+        assert_eq!(r.next_frame(), None);
+    }
+}

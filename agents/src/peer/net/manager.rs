@@ -1,0 +1,943 @@
+//! The manager shell: request-channel listener, data server, source publishers.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use ima_hal::Instant;
+use ima_hal::time::TokioClock;
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::task::{AbortHandle, JoinHandle};
+
+use super::config::{PeerNetConfig, parse_addr};
+use super::frames::{FrameReader, WRITE_BATCH, max_frame, write_frames};
+use super::{NetError, random_key32, random_u64, unix_micros};
+use crate::peer::data::{DataClose, DataConfig, DataEvent, DataServerSession, TicketAuthority};
+use crate::peer::manager::{
+    ClientStatus, Decision, ManagerConfig, ManagerEvent, ManagerStats, Outcome, PeerId,
+    PeerManager, SelfAgent, TicketError,
+};
+use crate::peer::wire::{
+    GroupKey, HEADER_LEN, MAC_LEN, Msg, RejectCounts, RevokeReason, SourceInfo, Ticket, Verifier,
+};
+
+/// One published sample: source time stamp (µs) and payload.
+type SampleItem = (u64, Arc<[u8]>);
+
+/// Frames from all client sessions waiting for the manager task.
+const IO_QUEUE: usize = 4096;
+/// Events kept for slow `events()` subscribers.
+const EVENT_QUEUE: usize = 1024;
+/// Per-sample overhead of a Sample body: seq 8, stamp 8, length 2.
+const SAMPLE_OVERHEAD: usize = 18;
+
+/// What the manager shell reports on [`ManagerHandle::events`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ManagerNetEvent {
+    /// An event of the core (registrations, decisions, source changes, closed sessions).
+    Core(ManagerEvent),
+    /// A client session was accepted.
+    SessionOpened {
+        /// Session number.
+        peer: PeerId,
+        /// Remote address.
+        addr: SocketAddr,
+    },
+    /// A client session ended (closed by the remote, or by the shell because its outgoing
+    /// queue overflowed).
+    SessionEnded {
+        /// Session number.
+        peer: PeerId,
+        /// Whether the shell closed it as a slow consumer.
+        slow: bool,
+    },
+    /// A data session was opened with a valid ticket.
+    DataOpened {
+        /// Client ID.
+        client: u64,
+        /// Source name.
+        source: String,
+    },
+    /// A data session ended.
+    DataClosed {
+        /// Source name, if the session got that far.
+        source: Option<String>,
+        /// Why.
+        reason: DataClose,
+    },
+}
+
+/// Counters and state of a running manager.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct ManagerNetStats {
+    /// The core's counters (request-channel rejections by class, lost sessions…).
+    pub core: ManagerStats,
+    /// Open request-channel sessions.
+    pub sessions: usize,
+    /// Registered clients.
+    pub clients: usize,
+    /// Open data sessions.
+    pub data_sessions: usize,
+    /// Data-session frames rejected, by class.
+    pub data_rejects: RejectCounts,
+    /// Data sessions refused for a bad ticket.
+    pub data_bad_tickets: u64,
+    /// Sessions closed by the shell because they could not keep up.
+    pub slow_closed: u64,
+    /// The task priority in force.
+    pub task_priority: u8,
+    /// The competency list.
+    pub sources: Vec<SourceInfo>,
+}
+
+struct SourceEntry {
+    id: u64,
+    info: SourceInfo,
+    tx: broadcast::Sender<SampleItem>,
+}
+
+#[derive(Default)]
+struct Shared {
+    sources: Mutex<BTreeMap<String, SourceEntry>>,
+    next_id: Mutex<u64>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The Self Agent the core sees: the caller's agent plus the published sources, and a task
+/// priority override set through [`ManagerHandle::set_task_priority`].
+struct ShellAgent<A> {
+    inner: A,
+    shared: Arc<Shared>,
+    task_override: Option<u8>,
+}
+
+impl<A: SelfAgent> SelfAgent for ShellAgent<A> {
+    fn task_priority(&mut self, now: Instant) -> u8 {
+        let own = self.inner.task_priority(now);
+        self.task_override.unwrap_or(own)
+    }
+    fn sources(&mut self, now: Instant) -> Vec<SourceInfo> {
+        let mut v = self.inner.sources(now);
+        v.extend(lock(&self.shared.sources).values().map(|e| e.info.clone()));
+        v
+    }
+    fn notify(&mut self, decision: &Decision) {
+        self.inner.notify(decision);
+    }
+}
+
+struct DataGrant {
+    id: u64,
+    samples: Option<broadcast::Receiver<SampleItem>>,
+    revoke: oneshot::Receiver<RevokeReason>,
+}
+
+enum Ctl {
+    Redeem {
+        client: u64,
+        source: String,
+        ticket: Ticket,
+        reply: oneshot::Sender<Result<DataGrant, TicketError>>,
+    },
+    DataEnded {
+        id: Option<u64>,
+        reason: DataClose,
+    },
+    Rescan,
+    SetTaskPriority(Option<u8>),
+    Stats(oneshot::Sender<ManagerNetStats>),
+    Status(oneshot::Sender<Vec<ClientStatus>>),
+    Shutdown(oneshot::Sender<()>),
+}
+
+enum Io {
+    Accepted {
+        peer: PeerId,
+        addr: SocketAddr,
+        tx: mpsc::Sender<Vec<u8>>,
+        reader: AbortHandle,
+    },
+    Frame {
+        peer: PeerId,
+        bytes: Vec<u8>,
+    },
+    Closed {
+        peer: PeerId,
+    },
+}
+
+/// Publishes one source's samples to every data session streaming it. Dropping it (or
+/// [`SourcePublisher::remove`]) removes the source: clients are told at once
+/// (`SourcesChanged`, grants revoked with `SourceGone`).
+#[derive(Debug)]
+pub struct SourcePublisher {
+    id: u64,
+    name: String,
+    tx: broadcast::Sender<SampleItem>,
+    shared: Arc<SharedRef>,
+    ctl: mpsc::UnboundedSender<Ctl>,
+    max_payload: usize,
+}
+
+/// Opaque wrapper so `SourcePublisher` can derive `Debug`.
+struct SharedRef(Arc<Shared>);
+
+impl core::fmt::Debug for SharedRef {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("Shared(..)")
+    }
+}
+
+impl SourcePublisher {
+    /// The source name.
+    #[must_use]
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Largest payload accepted (the peers' body-size limit minus the sample header).
+    #[must_use]
+    pub fn max_payload(&self) -> usize {
+        self.max_payload
+    }
+
+    /// Publishes a sample measured at `stamp_us` (µs on this robot's clock). Never blocks:
+    /// every data session keeps the latest samples and drops the oldest when it cannot keep
+    /// up. Returns the number of data sessions it was queued for.
+    ///
+    /// # Errors
+    /// [`NetError::Config`] when the payload is above [`SourcePublisher::max_payload`].
+    pub fn publish(&self, stamp_us: u64, payload: &[u8]) -> Result<usize, NetError> {
+        if payload.len() > self.max_payload {
+            return Err(NetError::Config(format!(
+                "payload of {} bytes above the limit of {}",
+                payload.len(),
+                self.max_payload
+            )));
+        }
+        Ok(self.tx.send((stamp_us, Arc::from(payload))).unwrap_or(0))
+    }
+
+    /// Data sessions streaming this source now.
+    #[must_use]
+    pub fn subscribers(&self) -> usize {
+        self.tx.receiver_count()
+    }
+
+    /// Removes the source (same as dropping the publisher).
+    pub fn remove(self) {}
+}
+
+impl Drop for SourcePublisher {
+    fn drop(&mut self) {
+        let mut map = lock(&self.shared.0.sources);
+        if map.get(&self.name).is_some_and(|e| e.id == self.id) {
+            map.remove(&self.name);
+        }
+        drop(map);
+        let _ = self.ctl.send(Ctl::Rescan);
+    }
+}
+
+/// Handle of a running manager (request-channel listener, data server, manager task).
+/// Dropping it shuts the manager down abruptly (tasks aborted, sockets closed); call
+/// [`ManagerHandle::shutdown`] for an orderly end with `Revoked(Shutdown)` sent first.
+#[derive(Debug)]
+pub struct ManagerHandle {
+    local_addr: SocketAddr,
+    data_addr: SocketAddr,
+    ctl: mpsc::UnboundedSender<Ctl>,
+    events: broadcast::Sender<ManagerNetEvent>,
+    shared: Arc<SharedRef>,
+    tasks: Vec<JoinHandle<()>>,
+    data_queue: usize,
+    max_payload: usize,
+}
+
+impl ManagerHandle {
+    /// Address of the request-channel listener.
+    #[must_use]
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// Address of the data server.
+    #[must_use]
+    pub fn data_addr(&self) -> SocketAddr {
+        self.data_addr
+    }
+
+    /// Adds (or replaces) a source and returns its publisher. Registered clients are told
+    /// at once (`SourcesChanged`).
+    #[must_use]
+    pub fn publisher(&self, info: SourceInfo) -> SourcePublisher {
+        let id = {
+            let mut n = lock(&self.shared.0.next_id);
+            *n = n.wrapping_add(1);
+            *n
+        };
+        let (tx, _) = broadcast::channel(self.data_queue.max(1));
+        lock(&self.shared.0.sources).insert(
+            info.name.clone(),
+            SourceEntry {
+                id,
+                info: info.clone(),
+                tx: tx.clone(),
+            },
+        );
+        let _ = self.ctl.send(Ctl::Rescan);
+        SourcePublisher {
+            id,
+            name: info.name,
+            tx,
+            shared: self.shared.clone(),
+            ctl: self.ctl.clone(),
+            max_payload: self.max_payload,
+        }
+    }
+
+    /// Overrides the Self Agent's task priority (`None`: ask the Self Agent again). Grants
+    /// below it are revoked; pending requests at or above it are granted.
+    pub fn set_task_priority(&self, priority: Option<u8>) {
+        let _ = self.ctl.send(Ctl::SetTaskPriority(priority));
+    }
+
+    /// A stream of events (a slow subscriber loses the oldest; see
+    /// [`broadcast::Receiver`]).
+    #[must_use]
+    pub fn events(&self) -> broadcast::Receiver<ManagerNetEvent> {
+        self.events.subscribe()
+    }
+
+    /// Counters and state.
+    ///
+    /// # Errors
+    /// [`NetError::Closed`] when the manager has stopped.
+    pub async fn stats(&self) -> Result<ManagerNetStats, NetError> {
+        let (tx, rx) = oneshot::channel();
+        self.ctl
+            .send(Ctl::Stats(tx))
+            .map_err(|_| NetError::Closed)?;
+        rx.await.map_err(|_| NetError::Closed)
+    }
+
+    /// Status of every registered client.
+    ///
+    /// # Errors
+    /// [`NetError::Closed`] when the manager has stopped.
+    pub async fn status(&self) -> Result<Vec<ClientStatus>, NetError> {
+        let (tx, rx) = oneshot::channel();
+        self.ctl
+            .send(Ctl::Status(tx))
+            .map_err(|_| NetError::Closed)?;
+        rx.await.map_err(|_| NetError::Closed)
+    }
+
+    /// Orderly shutdown: every grant is revoked (`Shutdown`), queued frames are written,
+    /// then every socket is closed.
+    pub async fn shutdown(mut self) {
+        let (tx, rx) = oneshot::channel();
+        if self.ctl.send(Ctl::Shutdown(tx)).is_ok() {
+            let _ = tokio::time::timeout(Duration::from_secs(2), rx).await;
+        }
+        for t in self.tasks.drain(..) {
+            t.abort();
+        }
+    }
+
+    /// Abrupt stop, as if the process died: every task is aborted and every socket closed
+    /// without a word to the clients.
+    pub fn abort(mut self) {
+        for t in self.tasks.drain(..) {
+            t.abort();
+        }
+    }
+}
+
+impl Drop for ManagerHandle {
+    fn drop(&mut self) {
+        for t in self.tasks.drain(..) {
+            t.abort();
+        }
+    }
+}
+
+fn advertised(cfg: &PeerNetConfig, bound: SocketAddr) -> String {
+    if let Some(a) = &cfg.manager.data_advertise {
+        return a.clone();
+    }
+    let mut a = bound;
+    if a.ip().is_unspecified() {
+        a.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+    }
+    a.to_string()
+}
+
+/// Starts a manager: binds the request-channel listener and the data server, and spawns the
+/// manager task owning a [`PeerManager`] with `agent` as its Self Agent (wrapped so that
+/// published sources and [`ManagerHandle::set_task_priority`] are seen). Must be called
+/// inside a tokio runtime.
+///
+/// # Errors
+/// [`NetError::Config`] (bad address), [`NetError::Io`] (bind failed, no OS randomness).
+pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
+    cfg: &PeerNetConfig,
+    key: GroupKey,
+    agent: A,
+) -> Result<ManagerHandle, NetError> {
+    let listen = parse_addr(&cfg.manager.listen, "manager.listen")?;
+    let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen")?;
+    let listener = TcpListener::bind(listen).await?;
+    let data_listener = TcpListener::bind(data_listen).await?;
+    let local_addr = listener.local_addr()?;
+    let data_addr = data_listener.local_addr()?;
+    let clock = TokioClock::new();
+    let hb = cfg.heartbeat();
+    let mut mcfg = ManagerConfig::new(&cfg.robot, random_u64(), &advertised(cfg, data_addr));
+    mcfg.first_counter = unix_micros();
+    mcfg.heartbeat = hb;
+    mcfg.missed_heartbeats = cfg.missed_heartbeats;
+    mcfg.rescan = Duration::from_millis(cfg.manager.rescan_ms.max(1));
+    mcfg.ticket_lifetime = Duration::from_millis(cfg.manager.ticket_lifetime_ms.max(1));
+    mcfg.robot_priorities = cfg
+        .manager
+        .robot_priorities
+        .iter()
+        .map(|(r, p)| (r.clone(), *p))
+        .collect();
+    mcfg.unknown_robot_priority = cfg.manager.unknown_robot_priority;
+    mcfg.max_clients = cfg.manager.max_clients;
+    mcfg.max_body = cfg.max_body;
+    let shared = Arc::new(Shared::default());
+    let agent = ShellAgent {
+        inner: agent,
+        shared: shared.clone(),
+        task_override: None,
+    };
+    let core = PeerManager::new(mcfg, key.clone(), random_key32()?, agent, clock.now());
+    let (ctl_tx, ctl_rx) = mpsc::unbounded_channel();
+    let (io_tx, io_rx) = mpsc::channel(IO_QUEUE);
+    let (ev_tx, _) = broadcast::channel(EVENT_QUEUE);
+    let max_body = cfg.max_body;
+    let session_queue = cfg.manager.session_queue.max(1);
+    let mut dcfg = DataConfig::new(0);
+    dcfg.heartbeat = hb;
+    dcfg.missed_heartbeats = cfg.missed_heartbeats;
+    dcfg.queue = cfg.manager.data_queue.max(1);
+    dcfg.max_body = max_body;
+
+    let task = ManagerTask {
+        core,
+        clock,
+        sessions: BTreeMap::new(),
+        data: BTreeMap::new(),
+        next_data: 0,
+        events: ev_tx.clone(),
+        shared: shared.clone(),
+        data_rejects: RejectCounts::default(),
+        data_bad_tickets: 0,
+        slow_closed: 0,
+        out: vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN],
+    };
+    let tasks = vec![
+        tokio::spawn(task.run(ctl_rx, io_rx)),
+        tokio::spawn(accept_sessions(
+            listener,
+            io_tx,
+            ev_tx.clone(),
+            session_queue,
+            max_body,
+        )),
+        tokio::spawn(accept_data(
+            data_listener,
+            ctl_tx.clone(),
+            ev_tx.clone(),
+            key,
+            dcfg,
+        )),
+    ];
+    Ok(ManagerHandle {
+        local_addr,
+        data_addr,
+        ctl: ctl_tx,
+        events: ev_tx,
+        shared: Arc::new(SharedRef(shared)),
+        tasks,
+        data_queue: cfg.manager.data_queue,
+        max_payload: max_body.saturating_sub(SAMPLE_OVERHEAD),
+    })
+}
+
+struct SessionRec {
+    tx: mpsc::Sender<Vec<u8>>,
+    reader: AbortHandle,
+}
+
+struct ManagerTask<A: SelfAgent> {
+    core: PeerManager<ShellAgent<A>>,
+    clock: TokioClock,
+    sessions: BTreeMap<PeerId, SessionRec>,
+    data: BTreeMap<u64, (u64, String, oneshot::Sender<RevokeReason>)>,
+    next_data: u64,
+    events: broadcast::Sender<ManagerNetEvent>,
+    shared: Arc<Shared>,
+    data_rejects: RejectCounts,
+    data_bad_tickets: u64,
+    slow_closed: u64,
+    out: Vec<u8>,
+}
+
+fn deadline(clock: &TokioClock, at: Option<Instant>) -> tokio::time::Instant {
+    let now = tokio::time::Instant::now();
+    match at {
+        Some(t) => now + t.saturating_duration_since(clock.now()),
+        None => now + Duration::from_secs(3600),
+    }
+}
+
+impl<A: SelfAgent> ManagerTask<A> {
+    async fn run(mut self, mut ctl: mpsc::UnboundedReceiver<Ctl>, mut io: mpsc::Receiver<Io>) {
+        loop {
+            let sleep = tokio::time::sleep_until(deadline(&self.clock, self.core.poll_timeout()));
+            tokio::select! {
+                c = ctl.recv() => match c {
+                    Some(Ctl::Shutdown(done)) => {
+                        self.shutdown();
+                        let _ = done.send(());
+                        return;
+                    }
+                    Some(c) => self.handle_ctl(c),
+                    None => return,
+                },
+                Some(m) = io.recv() => self.handle_io(m),
+                () = sleep => {
+                    let now = self.clock.now();
+                    self.core.handle_timeout(now);
+                }
+            }
+            self.flush();
+        }
+    }
+
+    fn handle_ctl(&mut self, c: Ctl) {
+        let now = self.clock.now();
+        match c {
+            Ctl::Redeem {
+                client,
+                source,
+                ticket,
+                reply,
+            } => {
+                let r = self.core.redeem_ticket(client, &source, &ticket, now);
+                let r = r.map(|()| {
+                    self.next_data = self.next_data.wrapping_add(1);
+                    let id = self.next_data;
+                    let (rtx, rrx) = oneshot::channel();
+                    self.data.insert(id, (client, source.clone(), rtx));
+                    let samples = lock(&self.shared.sources)
+                        .get(&source)
+                        .map(|e| e.tx.subscribe());
+                    DataGrant {
+                        id,
+                        samples,
+                        revoke: rrx,
+                    }
+                });
+                if r.is_err() {
+                    self.data_bad_tickets = self.data_bad_tickets.saturating_add(1);
+                }
+                let _ = reply.send(r);
+            }
+            Ctl::DataEnded { id, reason } => {
+                if let Some(id) = id {
+                    self.data.remove(&id);
+                }
+                if let DataClose::Wire(e) = reason {
+                    self.data_rejects.count(e);
+                }
+            }
+            Ctl::Rescan => self.core.rescan(now),
+            Ctl::SetTaskPriority(p) => {
+                self.core.agent_mut().task_override = p;
+                self.core.handle_timeout(now);
+            }
+            Ctl::Stats(reply) => {
+                let _ = reply.send(self.stats());
+            }
+            Ctl::Status(reply) => {
+                let _ = reply.send(self.core.status());
+            }
+            Ctl::Shutdown(_) => {}
+        }
+    }
+
+    fn stats(&self) -> ManagerNetStats {
+        ManagerNetStats {
+            core: self.core.stats(),
+            sessions: self.core.session_count(),
+            clients: self.core.status().len(),
+            data_sessions: self.data.len(),
+            data_rejects: self.data_rejects,
+            data_bad_tickets: self.data_bad_tickets,
+            slow_closed: self.slow_closed,
+            task_priority: self.core.task_priority(),
+            sources: self.core.sources().to_vec(),
+        }
+    }
+
+    fn handle_io(&mut self, m: Io) {
+        let now = self.clock.now();
+        match m {
+            Io::Accepted {
+                peer,
+                addr,
+                tx,
+                reader,
+            } => {
+                self.sessions.insert(peer, SessionRec { tx, reader });
+                self.core.connect(peer, now);
+                let _ = self
+                    .events
+                    .send(ManagerNetEvent::SessionOpened { peer, addr });
+            }
+            Io::Frame { peer, bytes } => self.core.handle_frame(peer, &bytes, now),
+            Io::Closed { peer } => {
+                if self.sessions.remove(&peer).is_some() {
+                    self.core.disconnect(peer, now);
+                    let _ = self
+                        .events
+                        .send(ManagerNetEvent::SessionEnded { peer, slow: false });
+                }
+            }
+        }
+    }
+
+    fn close_session(&mut self, peer: PeerId) {
+        if let Some(s) = self.sessions.remove(&peer) {
+            // Dropping the sender lets the writer flush what is queued, then close.
+            s.reader.abort();
+        }
+    }
+
+    fn flush(&mut self) {
+        loop {
+            let mut progressed = false;
+            let mut slow = Vec::new();
+            while let Some((peer, n)) = self.core.poll_transmit(&mut self.out) {
+                progressed = true;
+                if let (Some(s), Some(frame)) = (self.sessions.get(&peer), self.out.get(..n))
+                    && s.tx.try_send(frame.to_vec()).is_err()
+                {
+                    slow.push(peer);
+                }
+            }
+            for peer in slow {
+                if self.sessions.contains_key(&peer) {
+                    self.close_session(peer);
+                    self.slow_closed = self.slow_closed.saturating_add(1);
+                    self.core.disconnect(peer, self.clock.now());
+                    let _ = self
+                        .events
+                        .send(ManagerNetEvent::SessionEnded { peer, slow: true });
+                }
+            }
+            while let Some(e) = self.core.poll_event() {
+                progressed = true;
+                match &e {
+                    ManagerEvent::ClosePeer { peer, .. } => self.close_session(*peer),
+                    ManagerEvent::Decision(d) => {
+                        let reason = match d.outcome {
+                            Outcome::Revoked(r) => Some(r),
+                            Outcome::Withdrawn => Some(RevokeReason::SourceGone),
+                            _ => None,
+                        };
+                        if let Some(r) = reason {
+                            self.revoke_data(d.client, &d.source, r);
+                        }
+                    }
+                    _ => {}
+                }
+                let _ = self.events.send(ManagerNetEvent::Core(e));
+            }
+            if !progressed {
+                break;
+            }
+        }
+    }
+
+    fn revoke_data(&mut self, client: u64, source: &str, reason: RevokeReason) {
+        let ids: Vec<u64> = self
+            .data
+            .iter()
+            .filter(|(_, (c, s, _))| *c == client && s == source)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in ids {
+            if let Some((_, _, tx)) = self.data.remove(&id) {
+                let _ = tx.send(reason);
+            }
+        }
+    }
+
+    fn shutdown(&mut self) {
+        let now = self.clock.now();
+        self.core.shutdown(now);
+        self.flush();
+        for (_, (_, _, tx)) in std::mem::take(&mut self.data) {
+            let _ = tx.send(RevokeReason::Shutdown);
+        }
+        let peers: Vec<PeerId> = self.sessions.keys().copied().collect();
+        for p in peers {
+            self.close_session(p);
+        }
+    }
+}
+
+async fn accept_sessions(
+    listener: TcpListener,
+    io: mpsc::Sender<Io>,
+    events: broadcast::Sender<ManagerNetEvent>,
+    session_queue: usize,
+    max_body: usize,
+) {
+    let mut next: PeerId = 0;
+    loop {
+        let (stream, addr) = match listener.accept().await {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!("peer manager: accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        next = next.wrapping_add(1);
+        let peer = next;
+        let (mut rd, wr) = stream.into_split();
+        let (tx, rx) = mpsc::channel(session_queue);
+        tokio::spawn(write_frames(wr, rx));
+        let io2 = io.clone();
+        let reader = tokio::spawn(async move {
+            let mut fr = FrameReader::new(max_body);
+            loop {
+                match fr.read_from(&mut rd).await {
+                    Ok(0) | Err(_) => break,
+                    Ok(_) => {
+                        while let Some(f) = fr.next_frame() {
+                            let bytes = f.to_vec();
+                            if io2.send(Io::Frame { peer, bytes }).await.is_err() {
+                                return;
+                            }
+                        }
+                    }
+                }
+            }
+            let _ = io2.send(Io::Closed { peer }).await;
+        });
+        let accepted = Io::Accepted {
+            peer,
+            addr,
+            tx,
+            reader: reader.abort_handle(),
+        };
+        if io.send(accepted).await.is_err() {
+            reader.abort();
+            return;
+        }
+        let _ = &events;
+    }
+}
+
+async fn accept_data(
+    listener: TcpListener,
+    ctl: mpsc::UnboundedSender<Ctl>,
+    events: broadcast::Sender<ManagerNetEvent>,
+    key: GroupKey,
+    dcfg: DataConfig,
+) {
+    loop {
+        let stream = match listener.accept().await {
+            Ok((s, _)) => s,
+            Err(e) => {
+                tracing::warn!("peer data server: accept failed: {e}");
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        let mut cfg = dcfg.clone();
+        cfg.node = random_u64();
+        cfg.first_counter = unix_micros();
+        tokio::spawn(serve_data(
+            stream,
+            ctl.clone(),
+            events.clone(),
+            key.clone(),
+            cfg,
+        ));
+    }
+}
+
+/// A ticket decision fetched from the manager task before the core asks for it.
+struct Prefetched(Option<Result<(), TicketError>>);
+
+impl TicketAuthority for Prefetched {
+    fn redeem(
+        &mut self,
+        _client: u64,
+        _source: &str,
+        _ticket: &Ticket,
+        _now: Instant,
+    ) -> Result<(), TicketError> {
+        self.0.take().unwrap_or(Err(TicketError::NotGranted))
+    }
+}
+
+async fn recv_sample(
+    rx: &mut Option<broadcast::Receiver<SampleItem>>,
+) -> Result<SampleItem, broadcast::error::RecvError> {
+    match rx {
+        Some(r) => r.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+async fn recv_revoke(rx: &mut Option<oneshot::Receiver<RevokeReason>>) -> Option<RevokeReason> {
+    match rx {
+        Some(r) => {
+            let v = r.await.ok();
+            if v.is_none() {
+                // The manager task is gone: treat as shutdown.
+                return Some(RevokeReason::Shutdown);
+            }
+            v
+        }
+        None => std::future::pending().await,
+    }
+}
+
+async fn serve_data(
+    stream: TcpStream,
+    ctl: mpsc::UnboundedSender<Ctl>,
+    events: broadcast::Sender<ManagerNetEvent>,
+    key: GroupKey,
+    cfg: DataConfig,
+) {
+    let clock = TokioClock::new();
+    let max_body = cfg.max_body;
+    let mut s = DataServerSession::new(cfg, key.clone(), clock.now());
+    let (mut rd, mut wr) = stream.into_split();
+    let mut reader = FrameReader::new(max_body);
+    let mut samples: Option<broadcast::Receiver<SampleItem>> = None;
+    let mut revoke: Option<oneshot::Receiver<RevokeReason>> = None;
+    let mut id = None;
+    let mut source: Option<String> = None;
+    let mut buf = vec![0u8; max_frame(usize::from(u16::MAX))];
+    let mut out: Vec<u8> = Vec::with_capacity(WRITE_BATCH);
+    let mut end = DataClose::Lost;
+    'run: loop {
+        while let Some(ev) = s.poll_event() {
+            match ev {
+                DataEvent::Opened {
+                    client,
+                    source: src,
+                } => {
+                    source = Some(src.clone());
+                    let _ = events.send(ManagerNetEvent::DataOpened {
+                        client,
+                        source: src,
+                    });
+                }
+                DataEvent::Closed(why) => end = why,
+            }
+        }
+        let now = clock.now();
+        out.clear();
+        while out.len() < WRITE_BATCH {
+            match s.poll_transmit(&mut buf, now) {
+                Some(n) => out.extend_from_slice(buf.get(..n).unwrap_or_default()),
+                None => break,
+            }
+        }
+        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+            end = DataClose::Lost;
+            break;
+        }
+        if s.is_closed() {
+            if out.is_empty() {
+                break;
+            }
+            continue;
+        }
+        let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));
+        tokio::select! {
+            r = reader.read_from(&mut rd) => {
+                match r {
+                    Ok(0) | Err(_) => {
+                        end = DataClose::Lost;
+                        break 'run;
+                    }
+                    Ok(_) => {}
+                }
+                while let Some(f) = reader.next_frame() {
+                    let f = f.to_vec();
+                    let mut auth = Prefetched(None);
+                    if !s.is_streaming() {
+                        let probe = Verifier::with_limits(key.clone(), max_body, 1).open(&f);
+                        if let Ok(o) = probe
+                            && let Msg::OpenData { client, source, ticket } = o.msg
+                        {
+                            let (tx, rx) = oneshot::channel();
+                            let _ = ctl.send(Ctl::Redeem { client, source, ticket, reply: tx });
+                            auth.0 = Some(match rx.await {
+                                Ok(Ok(g)) => {
+                                    id = Some(g.id);
+                                    samples = g.samples;
+                                    revoke = Some(g.revoke);
+                                    Ok(())
+                                }
+                                Ok(Err(e)) => Err(e),
+                                Err(_) => Err(TicketError::NotGranted),
+                            });
+                        }
+                    }
+                    s.handle_frame(&f, &mut auth, clock.now());
+                }
+            }
+            r = recv_sample(&mut samples) => match r {
+                Ok((stamp, p)) => {
+                    s.offer(stamp, &p);
+                    if let Some(rx) = samples.as_mut() {
+                        while let Ok((stamp, p)) = rx.try_recv() {
+                            s.offer(stamp, &p);
+                        }
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => {
+                    samples = None;
+                    s.revoke(RevokeReason::SourceGone);
+                }
+            },
+            r = recv_revoke(&mut revoke) => {
+                revoke = None;
+                if let Some(reason) = r {
+                    s.revoke(reason);
+                }
+            }
+            () = sleep => s.handle_timeout(clock.now()),
+        }
+    }
+    let _ = wr.shutdown().await;
+    let _ = ctl.send(Ctl::DataEnded { id, reason: end });
+    let _ = events.send(ManagerNetEvent::DataClosed {
+        source,
+        reason: end,
+    });
+}

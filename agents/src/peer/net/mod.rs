@@ -1,0 +1,137 @@
+//! The tokio TCP/UDP shell of the Peer Agent (feature `net`).
+//!
+//! Thin shells around the sans-IO cores of [`super`]: one task per socket or session owns a
+//! core state machine, feeds it frames and timeouts on [`ima_hal::time::TokioClock`] (so tests
+//! can run in paused time) and writes what it transmits.
+//!
+//! * [`spawn_manager`] → [`ManagerHandle`]: the manager's request-channel TCP listener and its
+//!   data server (TCP) that redeems tickets through the core; [`SourcePublisher`]s feed
+//!   samples in without ever blocking.
+//! * [`PeerClientHandle`]: a client session with `register`, `request` → [`Subscription`],
+//!   `disconnect`, `unregister`.
+//! * [`BroadcastChannel`]: UDP multicast (via `socket2`) and/or a unicast peer list.
+//! * [`PeerNetConfig`]: the serde configuration (TOML), [`load_key_file`] the group key.
+//!
+//! Details, defaults and the key-file format are in the [module docs](super) of `peer`.
+
+mod broadcast;
+mod client;
+mod config;
+mod frames;
+mod key;
+mod manager;
+
+pub use broadcast::{BroadcastChannel, BroadcastStats};
+pub use client::{EndReason, LossReason, PeerClientHandle, Subscription, SubscriptionEvent};
+pub use config::{
+    BroadcastConfig, BroadcastMode, ManagerNetConfig, PeerNetConfig, SyntheticSource,
+};
+pub use key::{INSECURE_KEY, insecure_key, load_key_file, parse_key};
+pub use manager::{
+    ManagerHandle, ManagerNetEvent, ManagerNetStats, SourcePublisher, spawn_manager,
+};
+
+use super::client::ClientError;
+use super::wire::{DeclineReason, DenyReason, RevokeReason};
+
+/// Errors of the network shell.
+#[derive(Debug)]
+pub enum NetError {
+    /// A socket operation failed.
+    Io(std::io::Error),
+    /// The key file is missing, unreadable or too short.
+    Key(String),
+    /// The configuration is invalid (bad address, bad TOML…).
+    Config(String),
+    /// The registration was declined.
+    Declined(DeclineReason),
+    /// The request was denied.
+    Denied(DenyReason),
+    /// The client core refused the procedure.
+    Client(ClientError),
+    /// A request for a source this client already subscribes to (or is requesting).
+    AlreadySubscribed,
+    /// A pending request was revoked (e.g. its source was removed).
+    Revoked(RevokeReason),
+    /// The manager session is lost (no heartbeat for the loss window, a bad frame, or closed).
+    ManagerLost,
+    /// The task behind this handle has ended.
+    Closed,
+}
+
+impl core::fmt::Display for NetError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            NetError::Io(e) => write!(f, "I/O error: {e}"),
+            NetError::Key(s) => write!(f, "group key: {s}"),
+            NetError::Config(s) => write!(f, "configuration: {s}"),
+            NetError::Declined(r) => write!(f, "registration declined: {r:?}"),
+            NetError::Denied(r) => write!(f, "request denied: {r:?}"),
+            NetError::Client(e) => write!(f, "client: {e:?}"),
+            NetError::AlreadySubscribed => f.write_str("already subscribed to this source"),
+            NetError::Revoked(r) => write!(f, "request revoked: {r:?}"),
+            NetError::ManagerLost => f.write_str("manager lost"),
+            NetError::Closed => f.write_str("the peer task has ended"),
+        }
+    }
+}
+
+impl std::error::Error for NetError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            NetError::Io(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<std::io::Error> for NetError {
+    fn from(e: std::io::Error) -> Self {
+        NetError::Io(e)
+    }
+}
+
+impl From<ClientError> for NetError {
+    fn from(e: ClientError) -> Self {
+        match e {
+            ClientError::Lost => NetError::ManagerLost,
+            other => NetError::Client(other),
+        }
+    }
+}
+
+/// A random `u64` from the operating system (sender IDs, client-ID seeds); falls back to a
+/// hash of the time and the process ID if the OS source fails.
+#[must_use]
+pub fn random_u64() -> u64 {
+    let mut b = [0u8; 8];
+    if getrandom::fill(&mut b).is_ok() {
+        return u64::from_le_bytes(b);
+    }
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u64(unix_micros());
+    h.write_u32(std::process::id());
+    h.finish()
+}
+
+/// 32 random bytes from the operating system (the manager's ticket key).
+///
+/// # Errors
+/// [`NetError::Io`] when the OS random source fails.
+pub fn random_key32() -> Result<[u8; 32], NetError> {
+    let mut k = [0u8; 32];
+    getrandom::fill(&mut k).map_err(|e| NetError::Io(std::io::Error::other(e.to_string())))?;
+    Ok(k)
+}
+
+/// Microseconds since the UNIX epoch: the first frame counter and broadcast sequence number
+/// of every sender, so a restarted process is never taken for a replayer.
+#[must_use]
+pub fn unix_micros() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
+        .unwrap_or(1)
+        .max(1)
+}

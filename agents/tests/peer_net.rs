@@ -1,0 +1,1 @@
+//! Loopback tests of the Peer Agent net shell (feature `net`).
