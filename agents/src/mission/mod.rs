@@ -8,4 +8,6 @@
 //!   source's name) with conversions to and from [`crate::peer::wire::Msg`].
 #![allow(clippy::module_name_repetitions)]
 
+pub mod avoid;
 pub mod msg;
+pub mod scooter;

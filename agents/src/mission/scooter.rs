@@ -1,0 +1,1074 @@
+//! Scooter's brain: the scout's heading agent, heading-calculation agent, obstacle agent,
+//! target finder and SAN, as one pure, sans-IO object.
+//!
+//! # Frames (read this first)
+//!
+//! * **Common frame.** The thesis measures every bearing "relative to the robots' common
+//!   initial heading" (MISSION.md): at the start both robots face the same way, and that
+//!   direction is azimuth 0, counter-clockwise positive, radians in (−π, π]. Skeeter never
+//!   moves, so its own robot frame *is* the common frame, centred on Skeeter: the bearings
+//!   θ1 (Skeeter → Scooter) and θ2 (Skeeter → target) of its SES records are common-frame
+//!   bearings.
+//! * **Scooter's heading θh** is its heading in the common frame. From the compass
+//!   ([`ScooterBrain::handle_compass`] takes it *already in the common frame*: the runtime
+//!   subtracts the compass reading taken while the robots faced the common initial heading),
+//!   from odometry (odometry heading + [`ScooterConfig::odometry_heading_offset_rad`], 0 when
+//!   the odometry was reset while facing the common initial heading), or both fused
+//!   ([`HeadingSource`]).
+//! * **Dead-reckoning frame (DR).** Scooter's own position estimate: odometry distance
+//!   increments rotated by θh, so its axes are the common frame's but its origin is wherever
+//!   Scooter started (Scooter does not know where it is relative to Skeeter unless ranges
+//!   tell it). Only *differences* of DR positions are used (triangulation, target estimate).
+//! * **Robot frame**: x forward, y left (as `ima_hal`); the laser is mounted at
+//!   [`ScooterConfig::laser_mount`].
+//!
+//! # Heading rules ([`HeadingRule`], from [`crate::heading`])
+//!
+//! Each time a new SES sample arrives the heading-calculation agent computes a plan:
+//!
+//! * **Thesis**: `θd = thesis_heading(θ1, θ2)`, a fixed common-frame heading followed until
+//!   the next sample (the isosceles assumption; exact only on the SES circle).
+//! * **Range-aware**: with Skeeter's ranges (SES) for both the target and Scooter — or
+//!   Scooter's range triangulated from its own motion between two samples
+//!   ([`crate::heading::triangulate_scout_range`]) — the target's position is known
+//!   relative to Scooter: `T_dr = P_dr(t_rec) + Dt·u(θ2) − Ds·u(θ1)`, where `P_dr(t_rec)` is
+//!   Scooter's DR position when Skeeter's camera saw it. The plan is that **point** (a
+//!   running mean over the samples of the current target, which averages range noise out),
+//!   and the heading to it is recomputed at every step from dead reckoning. Without ranges
+//!   it falls back to the thesis rule.
+//!
+//! The controller turns toward θd: in place while the error exceeds
+//! [`ScooterConfig::turn_in_place_enter_rad`] (until it is below `…_exit_rad`), otherwise
+//! it drives at the cruise speed with proportional steering; the turn rate is rate-limited
+//! and low-pass filtered.
+//!
+//! # Behaviours (MISSION.md, "Scooter's SAN"; `agents/networks/scooter.toml`)
+//!
+//! Agents set the SAN's conditions every step; the SAN spreads activation and the module it
+//! fires — or, on a step where nothing reaches the threshold, the executable module with the
+//! highest activation (ties by weight) — runs. The brain runs the network with
+//! `reset_fired = false` so the running module does not alternate with a runner-up.
+//!
+//! | condition | set by |
+//! |---|---|
+//! | `heading-stale` | no SES sample for [`ScooterConfig::lost_after`] (or none yet for this target) |
+//! | `heading-known` | a plan exists and is not stale |
+//! | `target-in-view` | a laser cluster of the target's diameter where Scooter expects the target |
+//! | `obstacle-near` / `path-clear` | the [avoider](super::avoid) (hysteresis) |
+//! | `called-back` / `skeeter-in-view` | broadcast `scooter-lost` / `scooter-found` |
+//! | `asked-for-target` | broadcast `target-query` |
+//! | `at-target` | the target cluster within [`ScooterConfig::reach_distance_m`] |
+//! | `skeeter-notified` | `target-reached` sent |
+//!
+//! | module | action |
+//! |---|---|
+//! | `request-heading` | stop, send [`ScooterSay::RequestHeading`] (again every `lost_after`) |
+//! | `follow-heading` | turn to θd and drive |
+//! | `move-to-target` | drive to the laser cluster |
+//! | `avoid-obstacle` | steer round the obstacle on a locked side |
+//! | `move-to-home` | drive toward Skeeter (DR position when known, else θ1 + 180°) and stop 1.2 m short |
+//! | `reply-target-query` | send [`ScooterSay::TargetReply`] (motion continues) |
+//! | `notify-skeeter` | send [`ScooterSay::TargetReached`] once and stop |
+//!
+//! Without a target the brain is [`Behaviour::Idle`] (not a SAN module) and stands still.
+
+use core::f64::consts::PI;
+use core::time::Duration;
+use std::collections::VecDeque;
+
+use ima_hal::base::{Odometry, VelocityCommand};
+use ima_hal::laser::LaserScan;
+use ima_hal::{Instant, Isometry2, Point2, Vector2, normalize_angle};
+
+use super::avoid::{AvoidConfig, Avoider};
+use crate::heading::{self, Observation, Range, RangeSource};
+use crate::san::Network;
+use crate::ses::shared::{SharedForm, SharedRecord};
+
+/// Scooter's SAN network, `agents/networks/scooter.toml`.
+pub const SCOOTER_NETWORK_TOML: &str = include_str!("../../networks/scooter.toml");
+
+/// Which heading-calculation rule to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HeadingRule {
+    /// The thesis's isosceles rule (bearings only).
+    Thesis,
+    /// Ranges when known (SES or triangulated), else the thesis rule.
+    RangeAware,
+}
+
+impl HeadingRule {
+    /// `"thesis"` or `"range-aware"`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Thesis => "thesis",
+            Self::RangeAware => "range-aware",
+        }
+    }
+}
+
+/// Where Scooter's heading θh comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HeadingSource {
+    /// The compass alone (absolute, noisy, no drift).
+    Compass,
+    /// Odometry alone (smooth, drifts).
+    Odometry,
+    /// Both: odometry increments corrected toward the compass by a complementary filter of
+    /// gain [`ScooterConfig::fusion_gain`] per compass reading.
+    Fused,
+}
+
+/// The brain's parameters. [`Default`] suits the demo; the experiment lowers the cruise speed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScooterConfig {
+    /// Scooter's object name in Skeeter's SES (`"scooter"`).
+    pub robot_name: String,
+    /// Heading-calculation rule.
+    pub heading_rule: HeadingRule,
+    /// Heading source.
+    pub heading_source: HeadingSource,
+    /// Forward speed while following a heading or going to the target, m/s.
+    pub cruise_speed_m_s: f64,
+    /// Largest turn rate commanded, rad/s.
+    pub max_turn_rate_rad_s: f64,
+    /// Proportional steering gain, (rad/s) per rad of heading error.
+    pub steering_gain: f64,
+    /// Turn in place when the heading error exceeds this, radians.
+    pub turn_in_place_enter_rad: f64,
+    /// …and drive again once it is below this, radians (hysteresis).
+    pub turn_in_place_exit_rad: f64,
+    /// Time constant of the turn-rate low-pass filter, seconds (0 = none).
+    pub turn_filter_s: f64,
+    /// The "lost" timer: no SES sample for this long makes the heading stale.
+    pub lost_after: Duration,
+    /// Target reached when the target's centre is this close to Scooter's centre, metres.
+    pub reach_distance_m: f64,
+    /// Farthest distance (Scooter's centre to the target's centre) at which the laser
+    /// identifies the target, metres.
+    pub see_distance_m: f64,
+    /// Target objects' diameter, metres.
+    pub target_diameter_m: f64,
+    /// Accepted difference between a cluster's width and the target diameter, metres.
+    pub diameter_tolerance_m: f64,
+    /// Bearing-only plans: a cluster is the target when its common-frame bearing from Scooter
+    /// is within this of θd, radians.
+    pub bearing_tolerance_rad: f64,
+    /// Point plans: a cluster is the target when its centre is within this of the expected
+    /// target position, metres.
+    pub match_radius_m: f64,
+    /// Largest range jump between neighbouring beams of one cluster, metres.
+    pub cluster_gap_m: f64,
+    /// The laser's pose on the robot.
+    pub laser_mount: Isometry2,
+    /// Ranges at or above this are "no return", metres.
+    pub laser_max_range_m: f64,
+    /// Complementary-filter gain for [`HeadingSource::Fused`], per compass reading, (0, 1].
+    pub fusion_gain: f64,
+    /// Scooter's common-frame heading when its odometry was reset, radians.
+    pub odometry_heading_offset_rad: f64,
+    /// Period of [`ScooterSay::Status`] messages.
+    pub status_period: Duration,
+    /// Stop homing this close to Skeeter's estimated position, metres.
+    pub home_stop_distance_m: f64,
+    /// At most this many samples are averaged into the target position estimate.
+    pub max_target_samples: usize,
+    /// Obstacle avoidance.
+    pub avoid: AvoidConfig,
+}
+
+impl Default for ScooterConfig {
+    fn default() -> Self {
+        Self {
+            robot_name: "scooter".to_owned(),
+            heading_rule: HeadingRule::RangeAware,
+            heading_source: HeadingSource::Fused,
+            cruise_speed_m_s: 0.3,
+            max_turn_rate_rad_s: 1.0,
+            steering_gain: 1.5,
+            turn_in_place_enter_rad: 30f64.to_radians(),
+            turn_in_place_exit_rad: 8f64.to_radians(),
+            turn_filter_s: 0.2,
+            lost_after: Duration::from_secs(12),
+            reach_distance_m: 0.8,
+            see_distance_m: 1.6,
+            target_diameter_m: 0.30,
+            diameter_tolerance_m: 0.15,
+            bearing_tolerance_rad: 40f64.to_radians(),
+            match_radius_m: 0.8,
+            cluster_gap_m: 0.10,
+            laser_mount: Isometry2::new(Vector2::new(0.2, 0.0), 0.0),
+            laser_max_range_m: 8.0,
+            fusion_gain: 0.05,
+            odometry_heading_offset_rad: 0.0,
+            status_period: Duration::from_secs(1),
+            home_stop_distance_m: 1.2,
+            max_target_samples: 12,
+            avoid: AvoidConfig::default(),
+        }
+    }
+}
+
+/// What Scooter hears on the broadcast channel (the runtime converts the typed mission
+/// messages of `mission::msg` into these).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ScooterHeard {
+    /// A new target colour was accepted (by Skeeter): go find it.
+    TargetAccepted {
+        /// Colour name, as in the SES.
+        colour: String,
+    },
+    /// The current mission ended (accomplished or failed): stop and wait.
+    MissionEnded,
+    /// Skeeter's stress call `scooter-lost`: come home.
+    ScooterLost,
+    /// Skeeter sees Scooter again (`scooter-found`).
+    ScooterFound,
+    /// Skeeter asks whether Scooter sees the target (`target-query`).
+    TargetQuery {
+        /// Colour asked about.
+        colour: String,
+    },
+}
+
+/// What Scooter says (the runtime turns these into broadcasts or Peer Agent requests).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ScooterSay {
+    /// `target-reached` (text = colour).
+    TargetReached {
+        /// Colour reached.
+        colour: String,
+    },
+    /// `target-reply` (text = `"<colour> yes"` / `"<colour> no"`).
+    TargetReply {
+        /// Colour asked about.
+        colour: String,
+        /// Whether Scooter's laser sees it.
+        seen: bool,
+    },
+    /// Periodic `Status`.
+    Status {
+        /// Running module.
+        behaviour: Behaviour,
+        /// DR pose `(x_m, y_m, θh_rad)`.
+        pose: (f64, f64, f64),
+    },
+    /// The lost timer ran out: ask Skeeter for a fresh SES sample.
+    RequestHeading,
+}
+
+impl ScooterSay {
+    /// The text of a `target-reply` emergency: `"<colour> yes"` or `"<colour> no"`.
+    #[must_use]
+    pub fn reply_text(colour: &str, seen: bool) -> String {
+        format!("{colour} {}", if seen { "yes" } else { "no" })
+    }
+}
+
+/// The running behaviour: a module of Scooter's SAN, or idle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Behaviour {
+    /// No target: standing still (not a SAN module).
+    Idle,
+    /// `request-heading`.
+    RequestHeading,
+    /// `follow-heading`.
+    FollowHeading,
+    /// `move-to-target`.
+    MoveToTarget,
+    /// `avoid-obstacle`.
+    AvoidObstacle,
+    /// `move-to-home`.
+    MoveToHome,
+    /// `reply-target-query`.
+    ReplyTargetQuery,
+    /// `notify-skeeter`.
+    NotifySkeeter,
+}
+
+impl Behaviour {
+    /// The SAN module name (`"idle"` for [`Behaviour::Idle`]).
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Idle => "idle",
+            Self::RequestHeading => "request-heading",
+            Self::FollowHeading => "follow-heading",
+            Self::MoveToTarget => "move-to-target",
+            Self::AvoidObstacle => "avoid-obstacle",
+            Self::MoveToHome => "move-to-home",
+            Self::ReplyTargetQuery => "reply-target-query",
+            Self::NotifySkeeter => "notify-skeeter",
+        }
+    }
+
+    /// The behaviour of a SAN module name.
+    #[must_use]
+    pub fn from_module(name: &str) -> Option<Self> {
+        Some(match name {
+            "request-heading" => Self::RequestHeading,
+            "follow-heading" => Self::FollowHeading,
+            "move-to-target" => Self::MoveToTarget,
+            "avoid-obstacle" => Self::AvoidObstacle,
+            "move-to-home" => Self::MoveToHome,
+            "reply-target-query" => Self::ReplyTargetQuery,
+            "notify-skeeter" => Self::NotifySkeeter,
+            _ => return None,
+        })
+    }
+
+    fn moves(self) -> bool {
+        matches!(
+            self,
+            Self::FollowHeading | Self::MoveToTarget | Self::AvoidObstacle | Self::MoveToHome
+        )
+    }
+}
+
+/// The heading-calculation agent's current plan.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Plan {
+    /// Follow a fixed common-frame heading, radians (thesis rule, or range-aware fallback).
+    Heading(f64),
+    /// Go to a point in the DR frame (range-aware rule with ranges).
+    Point(Vector2),
+}
+
+/// One step's outputs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScooterOutput {
+    /// Velocity command for the base.
+    pub command: VelocityCommand,
+    /// The running behaviour (SAN module).
+    pub behaviour: Behaviour,
+    /// Messages to send, oldest first.
+    pub messages: Vec<ScooterSay>,
+}
+
+/// A laser cluster (robot frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cluster {
+    /// Estimated centre of the round object that produced it (robot frame).
+    pub centre: Point2,
+    /// Chord between its first and last returns, metres.
+    pub width_m: f64,
+}
+
+/// Split a scan into clusters of neighbouring valid returns (range jumps ≤ `gap_m`); each
+/// cluster's centre is its returns' mean pushed back by `radius_m` along the line of sight
+/// (a round object's near surface is what the laser sees). Clusters touching the first or
+/// last beam are dropped (they may be cut by the field of view).
+#[must_use]
+pub fn laser_clusters(
+    scan: &LaserScan,
+    mount: &Isometry2,
+    max_range_m: f64,
+    gap_m: f64,
+    radius_m: f64,
+) -> Vec<Cluster> {
+    let mut out = Vec::new();
+    let mut cur: Vec<Point2> = Vec::new();
+    let mut first_beam = true;
+    let mut prev_r: Option<f64> = None;
+    let n = scan.len();
+    let flush = |cur: &mut Vec<Point2>, touches_edge: bool, out: &mut Vec<Cluster>| {
+        if let (Some(a), Some(b)) = (cur.first(), cur.last())
+            && !touches_edge
+            && cur.len() >= 2
+        {
+            let width_m = (b - a).norm();
+            let mean = cur.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / cur.len() as f64;
+            let origin = mount.translation.vector;
+            let los = mean - origin;
+            let centre = if los.norm() > 1e-9 {
+                Point2::from(mean + los.normalize() * radius_m)
+            } else {
+                Point2::from(mean)
+            };
+            out.push(Cluster { centre, width_m });
+        }
+        cur.clear();
+    };
+    let mut cur_starts_at_edge = false;
+    for (i, (angle, range, flags)) in scan.beams().enumerate() {
+        let r = f64::from(range);
+        let valid = flags.is_valid() && r.is_finite() && r > 0.0 && r < max_range_m;
+        if !valid {
+            flush(&mut cur, cur_starts_at_edge, &mut out);
+            prev_r = None;
+            first_beam = false;
+            continue;
+        }
+        if prev_r.is_some_and(|p| (p - r).abs() > gap_m) {
+            flush(&mut cur, cur_starts_at_edge, &mut out);
+        }
+        if cur.is_empty() {
+            cur_starts_at_edge = first_beam;
+        }
+        cur.push(mount * Point2::new(r * angle.cos(), r * angle.sin()));
+        prev_r = Some(r);
+        first_beam = false;
+        if i + 1 == n {
+            flush(&mut cur, true, &mut out);
+        }
+    }
+    flush(&mut cur, cur_starts_at_edge, &mut out);
+    out
+}
+
+#[derive(Debug, Clone, Copy)]
+struct SesFix {
+    /// θ1, common frame.
+    scout_bearing: f64,
+    /// DR position when Skeeter saw Scooter.
+    p_rec: Vector2,
+}
+
+/// Scooter's brain. See the [module docs](self).
+#[derive(Debug, Clone)]
+pub struct ScooterBrain {
+    cfg: ScooterConfig,
+    san: Network,
+    avoider: Avoider,
+    // Target and mission.
+    target: Option<String>,
+    target_since: Instant,
+    plan: Option<Plan>,
+    target_samples: VecDeque<Vector2>,
+    skeeter_dr: Option<Vector2>,
+    last_fix: Option<SesFix>,
+    last_ses_at: Option<Instant>,
+    last_request_at: Option<Instant>,
+    reached: bool,
+    notified: bool,
+    called_back: bool,
+    query: Option<String>,
+    // Heading and position.
+    compass: Option<f64>,
+    odo_prev: Option<Isometry2>,
+    odo_theta: Option<f64>,
+    fused: Option<f64>,
+    dr: Vector2,
+    history: VecDeque<(Instant, Vector2)>,
+    // Laser.
+    points: Vec<Point2>,
+    target_fix: Option<(Instant, Vector2)>,
+    laser_at: Option<Instant>,
+    // Controller.
+    last_step: Option<Instant>,
+    omega: f64,
+    turning_in_place: bool,
+    behaviour: Behaviour,
+    motion: Behaviour,
+    last_status: Option<Instant>,
+    outbox: Vec<ScooterSay>,
+}
+
+const HISTORY_LEN: usize = 4096;
+const TARGET_FIX_TTL: Duration = Duration::from_secs(3);
+
+fn unit(theta: f64) -> Vector2 {
+    Vector2::new(theta.cos(), theta.sin())
+}
+
+impl ScooterBrain {
+    /// A brain with `cfg`, no target, at DR origin.
+    ///
+    /// # Panics
+    /// Never: the embedded network is checked by a unit test.
+    #[must_use]
+    pub fn new(cfg: ScooterConfig) -> Self {
+        #[allow(clippy::expect_used)] // the embedded TOML is a constant, tested
+        let mut san = Network::from_toml(SCOOTER_NETWORK_TOML).expect("scooter.toml is valid");
+        let mut params = *san.params();
+        params.reset_fired = false;
+        san.set_params(params);
+        Self {
+            avoider: Avoider::new(cfg.avoid),
+            cfg,
+            san,
+            target: None,
+            target_since: Instant::ZERO,
+            plan: None,
+            target_samples: VecDeque::new(),
+            skeeter_dr: None,
+            last_fix: None,
+            last_ses_at: None,
+            last_request_at: None,
+            reached: false,
+            notified: false,
+            called_back: false,
+            query: None,
+            compass: None,
+            odo_prev: None,
+            odo_theta: None,
+            fused: None,
+            dr: Vector2::zeros(),
+            history: VecDeque::new(),
+            points: Vec::new(),
+            target_fix: None,
+            laser_at: None,
+            last_step: None,
+            omega: 0.0,
+            turning_in_place: false,
+            behaviour: Behaviour::Idle,
+            motion: Behaviour::Idle,
+            last_status: None,
+            outbox: Vec::new(),
+        }
+    }
+
+    /// The parameters.
+    #[must_use]
+    pub fn config(&self) -> &ScooterConfig {
+        &self.cfg
+    }
+
+    /// The SAN (for status summaries and traces).
+    #[must_use]
+    pub fn san(&self) -> &Network {
+        &self.san
+    }
+
+    /// The current target colour.
+    #[must_use]
+    pub fn target(&self) -> Option<&str> {
+        self.target.as_deref()
+    }
+
+    /// The running behaviour after the last [`ScooterBrain::step`].
+    #[must_use]
+    pub fn behaviour(&self) -> Behaviour {
+        self.behaviour
+    }
+
+    /// The current plan of the heading-calculation agent.
+    #[must_use]
+    pub fn plan(&self) -> Option<Plan> {
+        self.plan
+    }
+
+    /// Scooter's heading θh in the common frame from the configured source, if known.
+    #[must_use]
+    pub fn heading(&self) -> Option<f64> {
+        match self.cfg.heading_source {
+            HeadingSource::Compass => self.compass,
+            HeadingSource::Odometry => self.odo_theta,
+            HeadingSource::Fused => self.fused,
+        }
+    }
+
+    /// Scooter's DR position (metres, common-frame axes, origin where it started).
+    #[must_use]
+    pub fn dr_position(&self) -> Vector2 {
+        self.dr
+    }
+
+    /// The desired common-frame heading θd right now (from the plan), if any.
+    #[must_use]
+    pub fn desired_heading(&self) -> Option<f64> {
+        match self.plan? {
+            Plan::Heading(h) => Some(h),
+            Plan::Point(p) => {
+                let d = p - self.dr;
+                (d.norm() > 1e-6).then(|| d.y.atan2(d.x))
+            }
+        }
+    }
+
+    /// Whether the target was reached (and Skeeter told).
+    #[must_use]
+    pub fn reached(&self) -> bool {
+        self.reached
+    }
+
+    /// Set a new target colour directly (same as hearing [`ScooterHeard::TargetAccepted`]).
+    pub fn set_target(&mut self, colour: &str, now: Instant) {
+        self.target = Some(colour.to_owned());
+        self.target_since = now;
+        self.plan = None;
+        self.target_samples.clear();
+        self.last_ses_at = None;
+        self.last_request_at = None;
+        self.reached = false;
+        self.notified = false;
+        self.target_fix = None;
+        self.avoider.reset();
+    }
+
+    /// A broadcast heard.
+    pub fn handle_heard(&mut self, heard: &ScooterHeard, now: Instant) {
+        match heard {
+            ScooterHeard::TargetAccepted { colour } => self.set_target(colour, now),
+            ScooterHeard::MissionEnded => {
+                self.target = None;
+                self.plan = None;
+                self.avoider.reset();
+            }
+            ScooterHeard::ScooterLost => self.called_back = true,
+            ScooterHeard::ScooterFound => self.called_back = false,
+            ScooterHeard::TargetQuery { colour } => self.query = Some(colour.clone()),
+        }
+    }
+
+    /// A compass heading, radians, **common frame** (see the module docs).
+    pub fn handle_compass(&mut self, heading_rad: f64, _now: Instant) {
+        if !heading_rad.is_finite() {
+            return;
+        }
+        let h = normalize_angle(heading_rad);
+        self.compass = Some(h);
+        self.fused = Some(match self.fused {
+            None => h,
+            Some(f) => {
+                let k = self.cfg.fusion_gain.clamp(0.0, 1.0);
+                normalize_angle(f + k * normalize_angle(h - f))
+            }
+        });
+    }
+
+    /// An odometry reading: advances the odometry heading, the fused heading and the DR
+    /// position (distance increments rotated by θh at mid-step).
+    pub fn handle_odometry(&mut self, odo: &Odometry, now: Instant) {
+        let pose = odo.pose;
+        let th = pose.rotation.angle();
+        if !(th.is_finite() && pose.translation.vector.iter().all(|c| c.is_finite())) {
+            return;
+        }
+        let odo_theta = normalize_angle(th + self.cfg.odometry_heading_offset_rad);
+        let (ds, dth) = match self.odo_prev {
+            Some(prev) => {
+                let d = pose.translation.vector - prev.translation.vector;
+                let pth = prev.rotation.angle();
+                (
+                    d.x * pth.cos() + d.y * pth.sin(),
+                    normalize_angle(th - pth),
+                )
+            }
+            None => (0.0, 0.0),
+        };
+        self.odo_prev = Some(pose);
+        self.odo_theta = Some(odo_theta);
+        if let Some(f) = self.fused.as_mut() {
+            *f = normalize_angle(*f + dth);
+        } else if self.cfg.heading_source != HeadingSource::Compass {
+            self.fused = Some(odo_theta);
+        }
+        if let Some(h) = self.heading() {
+            self.dr += unit(h - dth / 2.0) * ds;
+        }
+        if self.history.len() >= HISTORY_LEN {
+            self.history.pop_front();
+        }
+        self.history.push_back((now, self.dr));
+    }
+
+    /// Scooter's DR position at `t` (linear interpolation in the history; the nearest end
+    /// outside it).
+    fn dr_at(&self, t: Instant) -> Vector2 {
+        let mut before: Option<(Instant, Vector2)> = None;
+        for &(at, p) in &self.history {
+            if at >= t {
+                return match before {
+                    Some((a0, p0)) if at > a0 => {
+                        let span = at.saturating_duration_since(a0).as_secs_f64();
+                        let x = t.saturating_duration_since(a0).as_secs_f64() / span;
+                        p0 + (p - p0) * x
+                    }
+                    _ => p,
+                };
+            }
+            before = Some((at, p));
+        }
+        self.dr
+    }
+
+    fn best<'a>(form: &'a SharedForm, name: &str) -> Option<&'a SharedRecord> {
+        form.records
+            .iter()
+            .filter(|r| r.object == name && r.bearing.azimuth_rad.is_finite())
+            .max_by(|a, b| a.confidence.total_cmp(&b.confidence))
+    }
+
+    /// A sample of Skeeter's SES: the heading-calculation agent computes a new plan when it
+    /// holds both Scooter and the current target. Returns whether a plan was made.
+    pub fn handle_ses(&mut self, form: &SharedForm, now: Instant) -> bool {
+        let Some(colour) = self.target.clone() else {
+            return false;
+        };
+        let (Some(me), Some(tg)) = (
+            Self::best(form, &self.cfg.robot_name),
+            Self::best(form, &colour),
+        ) else {
+            return false;
+        };
+        // Sensing time on our clock: now − (sent_at − time).
+        let age = form.sent_at.saturating_duration_since(me.time);
+        let seen_at = Instant::from_micros(now.as_micros().saturating_sub(
+            u64::try_from(age.as_micros()).unwrap_or(u64::MAX),
+        ));
+        let theta1 = me.bearing.azimuth_rad;
+        let theta2 = tg.bearing.azimuth_rad;
+        let p_rec = self.dr_at(seen_at);
+        let previous = self.last_fix.replace(SesFix {
+            scout_bearing: theta1,
+            p_rec,
+        });
+        self.last_ses_at = Some(now);
+        let plan = match self.cfg.heading_rule {
+            HeadingRule::Thesis => heading::thesis_heading(theta1, theta2)
+                .ok()
+                .map(Plan::Heading),
+            HeadingRule::RangeAware => {
+                let valid = |r: Option<f64>| r.filter(|m| m.is_finite() && *m >= 0.0);
+                let scout = valid(me.range_m).map(|metres| Range {
+                    metres,
+                    source: RangeSource::Ses,
+                });
+                let scout = scout.or_else(|| {
+                    let prev = previous?;
+                    heading::triangulate_scout_range(prev.scout_bearing, theta1, p_rec - prev.p_rec)
+                        .ok()
+                        .map(|metres| Range {
+                            metres,
+                            source: RangeSource::Triangulated,
+                        })
+                });
+                let target = valid(tg.range_m).map(|metres| Range {
+                    metres,
+                    source: RangeSource::Ses,
+                });
+                match (scout, target) {
+                    (Some(s), Some(t)) => {
+                        let rel = unit(theta2) * t.metres - unit(theta1) * s.metres;
+                        self.skeeter_dr = Some(p_rec - unit(theta1) * s.metres);
+                        if self.target_samples.len() >= self.cfg.max_target_samples.max(1) {
+                            self.target_samples.pop_front();
+                        }
+                        self.target_samples.push_back(p_rec + rel);
+                        let n = self.target_samples.len() as f64;
+                        let mean = self
+                            .target_samples
+                            .iter()
+                            .fold(Vector2::zeros(), |a, p| a + p)
+                            / n;
+                        Some(Plan::Point(mean))
+                    }
+                    (s, t) => heading::range_aware_heading(&Observation {
+                        scout_range: s,
+                        target_range: t,
+                        ..Observation::bearings(theta1, theta2)
+                    })
+                    .ok()
+                    .map(|e| Plan::Heading(e.heading_rad)),
+                }
+            }
+        };
+        match plan {
+            Some(p) => {
+                self.plan = Some(p);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// A laser scan: obstacle points for the avoider, and the target search.
+    pub fn handle_laser(&mut self, scan: &LaserScan, now: Instant) {
+        avoid_points(scan, &self.cfg, &mut self.points);
+        self.laser_at = Some(now);
+        let Some(h) = self.heading() else {
+            return;
+        };
+        if self.target.is_none() || self.reached {
+            return;
+        }
+        let r = self.cfg.target_diameter_m / 2.0;
+        let clusters = laser_clusters(
+            scan,
+            &self.cfg.laser_mount,
+            self.cfg.laser_max_range_m,
+            self.cfg.cluster_gap_m,
+            r,
+        );
+        let to_dr = |c: &Point2| self.dr + nalgebra_rotate(h, c.coords);
+        let expected_point = match self.plan {
+            Some(Plan::Point(p)) => Some(p),
+            _ => None,
+        };
+        // While the target is being tracked, it is where we saw it last.
+        let tracked = self
+            .target_fix
+            .filter(|(at, _)| now.saturating_duration_since(*at) <= TARGET_FIX_TTL)
+            .map(|(_, p)| p);
+        let best = clusters
+            .iter()
+            .filter(|c| {
+                (c.width_m - self.cfg.target_diameter_m).abs() <= self.cfg.diameter_tolerance_m
+                    && c.centre.coords.norm() <= self.cfg.see_distance_m
+            })
+            .filter_map(|c| {
+                let p = to_dr(&c.centre);
+                let score = if let Some(t) = tracked {
+                    (p - t).norm()
+                } else if let Some(e) = expected_point {
+                    (p - e).norm()
+                } else {
+                    let hd = self.desired_heading()?;
+                    let d = p - self.dr;
+                    let err = normalize_angle(d.y.atan2(d.x) - hd).abs();
+                    return (err <= self.cfg.bearing_tolerance_rad).then_some((p, err));
+                };
+                (score <= self.cfg.match_radius_m).then_some((p, score))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((p, _)) = best {
+            self.target_fix = Some((now, p));
+        }
+    }
+
+    fn target_in_view(&self, now: Instant) -> Option<Vector2> {
+        self.target_fix
+            .filter(|(at, _)| now.saturating_duration_since(*at) <= TARGET_FIX_TTL)
+            .map(|(_, p)| p)
+    }
+
+    fn heading_stale(&self, now: Instant) -> bool {
+        match self.last_ses_at {
+            None => true,
+            Some(t) => now.saturating_duration_since(t) > self.cfg.lost_after,
+        }
+    }
+
+    /// Set the SAN's conditions from the agents' state.
+    fn feed_san(&mut self, now: Instant, obstacle: bool) {
+        let stale = self.heading_stale(now) && !self.reached;
+        let tiv = self.target_in_view(now).is_some();
+        let conds: [(&str, bool); 11] = [
+            ("heading-stale", stale),
+            ("heading-known", self.plan.is_some() && !stale),
+            ("target-in-view", tiv),
+            ("path-clear", !obstacle),
+            ("obstacle-near", obstacle),
+            ("called-back", self.called_back),
+            ("skeeter-in-view", !self.called_back),
+            ("asked-for-target", self.query.is_some()),
+            ("query-answered", self.query.is_none()),
+            ("at-target", self.reached),
+            ("skeeter-notified", self.notified),
+        ];
+        for (name, v) in conds {
+            let _ = self.san.set_condition(name, v);
+        }
+    }
+
+    fn select(&mut self) -> Behaviour {
+        let trace = self.san.step();
+        if let Some(b) = trace.fired.as_deref().and_then(Behaviour::from_module) {
+            return b;
+        }
+        trace
+            .modules
+            .iter()
+            .filter(|m| m.executable)
+            .max_by(|a, b| a.activation.total_cmp(&b.activation))
+            .and_then(|m| Behaviour::from_module(&m.name))
+            .unwrap_or(Behaviour::Idle)
+    }
+
+    /// One control step at `now`: run the SAN and the selected behaviour.
+    pub fn step(&mut self, now: Instant) -> ScooterOutput {
+        let dt = self
+            .last_step
+            .map_or(0.0, |t| now.saturating_duration_since(t).as_secs_f64());
+        self.last_step = Some(now);
+        // Reply to a query whatever runs (a message does not need the wheels).
+        let h = self.heading();
+        // Reached?
+        if let (Some(t), Some(_), false) = (self.target_in_view(now), h, self.reached)
+            && self.target.is_some()
+            && (t - self.dr).norm() <= self.cfg.reach_distance_m
+        {
+            self.reached = true;
+        }
+        // Obstacle agent: judge the path toward the current goal.
+        let goal = self.goal(now);
+        let obstacle = match (goal, h) {
+            (Some((dir, dist, ignore)), Some(h)) if self.target.is_some() && !self.reached => {
+                let ignore = ignore.map(|(p, r)| {
+                    (Point2::from(nalgebra_rotate(-h, p - self.dr)), r)
+                });
+                let d = self
+                    .avoider
+                    .decide(&self.points, normalize_angle(dir - h), dist, ignore);
+                Some(d)
+            }
+            _ => {
+                self.avoider.reset();
+                None
+            }
+        };
+        let obstacle_near = obstacle.is_some_and(|d| d.active);
+        self.feed_san(now, obstacle_near);
+        let mut behaviour = if self.target.is_none() && !self.called_back {
+            Behaviour::Idle
+        } else {
+            self.select()
+        };
+        if self.target.is_none() && behaviour != Behaviour::MoveToHome {
+            behaviour = if self.query.is_some() {
+                Behaviour::ReplyTargetQuery
+            } else {
+                Behaviour::Idle
+            };
+        }
+        let mut command = VelocityCommand::ZERO;
+        match behaviour {
+            Behaviour::Idle => self.omega = 0.0,
+            Behaviour::RequestHeading => {
+                let due = self
+                    .last_request_at
+                    .is_none_or(|t| now.saturating_duration_since(t) >= self.cfg.lost_after);
+                if due {
+                    self.last_request_at = Some(now);
+                    self.outbox.push(ScooterSay::RequestHeading);
+                }
+                self.omega = 0.0;
+            }
+            Behaviour::ReplyTargetQuery => {
+                if let Some(colour) = self.query.take() {
+                    let seen = self.target.as_deref() == Some(colour.as_str())
+                        && self.target_in_view(now).is_some();
+                    self.outbox.push(ScooterSay::TargetReply { colour, seen });
+                }
+                // Motion continues as it was.
+                if self.motion.moves() {
+                    command = self.drive(now, h, obstacle.map(|d| d.steer_rad), dt);
+                }
+            }
+            Behaviour::NotifySkeeter => {
+                if !self.notified
+                    && let Some(colour) = self.target.clone()
+                {
+                    self.notified = true;
+                    self.outbox.push(ScooterSay::TargetReached { colour });
+                }
+                self.omega = 0.0;
+                self.avoider.reset();
+            }
+            Behaviour::FollowHeading
+            | Behaviour::MoveToTarget
+            | Behaviour::AvoidObstacle
+            | Behaviour::MoveToHome => {
+                command = self.drive(now, h, obstacle.map(|d| d.steer_rad), dt);
+            }
+        }
+        self.behaviour = behaviour;
+        if behaviour != Behaviour::ReplyTargetQuery {
+            self.motion = behaviour;
+        }
+        if self
+            .last_status
+            .is_none_or(|t| now.saturating_duration_since(t) >= self.cfg.status_period)
+        {
+            self.last_status = Some(now);
+            self.outbox.push(ScooterSay::Status {
+                behaviour,
+                pose: (self.dr.x, self.dr.y, h.unwrap_or(0.0)),
+            });
+        }
+        ScooterOutput {
+            command,
+            behaviour,
+            messages: std::mem::take(&mut self.outbox),
+        }
+    }
+
+    /// The current goal for the running motion: (common-frame direction, distance, a DR
+    /// circle to ignore as an obstacle).
+    fn goal(&self, now: Instant) -> Option<(f64, f64, Option<(Vector2, f64)>)> {
+        let ignore_r = self.cfg.target_diameter_m / 2.0 + 0.15;
+        if self.called_back {
+            return match self.skeeter_dr {
+                Some(s) => {
+                    let d = s - self.dr;
+                    Some((d.y.atan2(d.x), d.norm(), Some((s, 0.6))))
+                }
+                None => self
+                    .last_fix
+                    .map(|f| (normalize_angle(f.scout_bearing + PI), f64::INFINITY, None)),
+            };
+        }
+        if let Some(t) = self.target_in_view(now) {
+            let d = t - self.dr;
+            return Some((d.y.atan2(d.x), d.norm(), Some((t, ignore_r))));
+        }
+        match self.plan? {
+            Plan::Heading(hd) => Some((hd, f64::INFINITY, None)),
+            Plan::Point(p) => {
+                let d = p - self.dr;
+                Some((d.y.atan2(d.x), d.norm(), Some((p, ignore_r + 0.2))))
+            }
+        }
+    }
+
+    /// The controller: turn toward the goal (or the avoider's steering direction).
+    fn drive(
+        &mut self,
+        now: Instant,
+        h: Option<f64>,
+        avoid_steer: Option<f64>,
+        dt: f64,
+    ) -> VelocityCommand {
+        let (Some(h), Some((dir, dist, _))) = (h, self.goal(now)) else {
+            self.omega = 0.0;
+            return VelocityCommand::ZERO;
+        };
+        // Robot-frame error: the avoider's direction already is robot-frame.
+        let err = match avoid_steer {
+            Some(s) if self.avoider.is_active() => s,
+            _ => normalize_angle(dir - h),
+        };
+        let homing_done = self.called_back && dist <= self.cfg.home_stop_distance_m;
+        if self.turning_in_place {
+            if err.abs() < self.cfg.turn_in_place_exit_rad {
+                self.turning_in_place = false;
+            }
+        } else if err.abs() > self.cfg.turn_in_place_enter_rad {
+            self.turning_in_place = true;
+        }
+        let max_w = self.cfg.max_turn_rate_rad_s.abs();
+        let mut w = (self.cfg.steering_gain * err).clamp(-max_w, max_w);
+        if self.turning_in_place {
+            // Turn in place at a good fraction of the maximum rate.
+            w = err.signum() * (self.cfg.steering_gain * err.abs()).clamp(0.3 * max_w, max_w);
+        }
+        let tau = self.cfg.turn_filter_s.max(0.0);
+        self.omega = if tau > 0.0 && dt > 0.0 {
+            self.omega + (w - self.omega) * (dt / (tau + dt))
+        } else {
+            w
+        };
+        if homing_done {
+            self.omega = 0.0;
+            return VelocityCommand::ZERO;
+        }
+        let v = if self.turning_in_place {
+            0.0
+        } else {
+            self.cfg.cruise_speed_m_s
+        };
+        VelocityCommand::new(v, self.omega)
+    }
+}
+
+/// Rotate a vector by `theta`.
+fn nalgebra_rotate(theta: f64, v: Vector2) -> Vector2 {
+    let (s, c) = theta.sin_cos();
+    Vector2::new(c * v.x - s * v.y, s * v.x + c * v.y)
+}
+
+fn avoid_points(scan: &LaserScan, cfg: &ScooterConfig, out: &mut Vec<Point2>) {
+    super::avoid::scan_points(scan, &cfg.laser_mount, cfg.laser_max_range_m, out);
+}
