@@ -306,6 +306,10 @@ impl Default for AgentConfig {
 pub struct PeerConfig {
     /// This robot's manager listens here (TCP); empty: no manager (the commander).
     pub listen: String,
+    /// The manager's data server (TCP) listens here (port 0: any free port).
+    pub data_listen: String,
+    /// The data address put in grants (set it on a LAN when `data_listen` is `0.0.0.0`).
+    pub data_advertise: Option<String>,
     /// The manager whose sources this robot requests (Scooter: Skeeter's manager).
     pub connect: Option<String>,
     /// The group key file (32 random bytes, or 64 hex characters). Required unless
@@ -317,8 +321,8 @@ pub struct PeerConfig {
     pub broadcast_group: String,
     /// Unicast broadcast peers (`host:port`), the fallback where multicast is not routed.
     pub broadcast_peers: Vec<String>,
-    /// Local address the broadcast socket binds (`0.0.0.0:port`); defaults to the group's
-    /// port on all interfaces.
+    /// Local address the broadcast socket binds, `ip:port`. Default: all interfaces on the
+    /// group's port. With unicast peers on one host every process needs its own port.
     pub broadcast_bind: Option<String>,
     /// Robot priorities of the manager's three-part priority (higher wins).
     pub priorities: BTreeMap<String, u8>,
@@ -330,6 +334,8 @@ impl Default for PeerConfig {
     fn default() -> Self {
         Self {
             listen: String::new(),
+            data_listen: "0.0.0.0:0".into(),
+            data_advertise: None,
             connect: None,
             key_file: None,
             insecure: false,
@@ -445,45 +451,6 @@ impl RobotConfig {
         }
         Ok(())
     }
-
-    /// Read the group key named by `peer.key_file` (32 raw bytes, or 64 hex characters with
-    /// optional whitespace). `None` when `peer.insecure` and no file is given.
-    pub fn group_key(&self) -> Result<Option<[u8; 32]>> {
-        let Some(path) = &self.peer.key_file else {
-            if self.peer.insecure {
-                return Ok(None);
-            }
-            bail!("peer.key_file is required (or peer.insecure = true)");
-        };
-        let bytes =
-            std::fs::read(path).with_context(|| format!("reading the key {}", path.display()))?;
-        parse_key(&bytes)
-            .with_context(|| format!("in the key file {}", path.display()))
-            .map(Some)
-    }
-}
-
-/// Parse a group key: 32 raw bytes, or 64 hex characters (whitespace ignored).
-pub fn parse_key(bytes: &[u8]) -> Result<[u8; 32]> {
-    let text: Vec<u8> = bytes
-        .iter()
-        .copied()
-        .filter(|b| !b.is_ascii_whitespace())
-        .collect();
-    if text.len() == 64 && text.iter().all(u8::is_ascii_hexdigit) {
-        let mut key = [0u8; 32];
-        for (k, pair) in key.iter_mut().zip(text.chunks_exact(2)) {
-            let s = std::str::from_utf8(pair).context("key is not text")?;
-            *k = u8::from_str_radix(s, 16).context("bad hex in the key")?;
-        }
-        return Ok(key);
-    }
-    if bytes.len() == 32 {
-        let mut key = [0u8; 32];
-        key.copy_from_slice(bytes);
-        return Ok(key);
-    }
-    bail!("a key is 32 raw bytes or 64 hex characters")
 }
 
 /// Write `key` as 64 hex characters and a newline.
@@ -536,11 +503,9 @@ mod tests {
     }
 
     #[test]
-    fn keys_parse_in_both_forms() {
+    fn hex_keys_are_what_the_peer_agent_reads() {
         let raw = [7u8; 32];
-        assert_eq!(parse_key(&raw).unwrap(), raw);
-        let hex = key_to_hex(&raw);
-        assert_eq!(parse_key(hex.as_bytes()).unwrap(), raw);
-        assert!(parse_key(b"short").is_err());
+        assert!(ima_agents::peer::net::parse_key(key_to_hex(&raw).as_bytes()).is_ok());
+        assert!(ima_agents::peer::net::parse_key(b"0123").is_err());
     }
 }

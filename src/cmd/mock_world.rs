@@ -88,6 +88,7 @@ pub fn loopback_configs(
             .collect();
         PeerConfig {
             listen: listen.map(|p| format!("127.0.0.1:{p}")).unwrap_or_default(),
+            data_listen: "127.0.0.1:0".into(),
             connect: connect.map(|p| format!("127.0.0.1:{p}")),
             key_file: key_file.map(Path::to_path_buf),
             insecure: key_file.is_none(),
@@ -164,6 +165,12 @@ pub fn write_configs(dir: &Path, e: &Endpoints, speed: f64) -> Result<()> {
     let key_path = dir.join("group.key");
     std::fs::write(&key_path, key_to_hex(&random_key()?))
         .with_context(|| format!("writing {}", key_path.display()))?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&key_path, std::fs::Permissions::from_mode(0o600))
+            .with_context(|| format!("chmod 600 {}", key_path.display()))?;
+    }
     let key_path = std::fs::canonicalize(&key_path).unwrap_or(key_path);
     for c in loopback_configs(e, speed, Some(&key_path))? {
         let path = dir.join(format!("{}.toml", c.robot));

@@ -3,3 +3,4 @@
 
 pub mod devices;
 pub mod report;
+pub mod net;
