@@ -279,6 +279,14 @@ pub struct AgentConfig {
     pub time_scale: f64,
     /// SAN network file (TOML); the built-in one of the role when absent.
     pub network: Option<PathBuf>,
+    /// Compass heading (degrees clockwise from north) of the robots' common initial heading,
+    /// i.e. the way Skeeter faces; 90 (east) in the built-in arena.
+    pub common_heading_deg: f64,
+    /// Scooter without a compass: its heading at start in the common frame, degrees
+    /// counter-clockwise (with a compass the first reading gives it).
+    pub initial_heading_deg: Option<f64>,
+    /// Scooter: priority of its request for Skeeter's `ses` source.
+    pub ses_request_priority: u8,
     /// Skeeter: the colour database (empty: the built-in thesis colours).
     pub colours: Vec<ColourEntry>,
 }
@@ -295,6 +303,9 @@ impl Default for AgentConfig {
             lost_timeout_s: 20.0,
             time_scale: 1.0,
             network: None,
+            common_heading_deg: 90.0,
+            initial_heading_deg: None,
+            ses_request_priority: 5,
             colours: Vec::new(),
         }
     }

@@ -42,7 +42,8 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
         (false, _) => BroadcastMode::Unicast,
     };
     if let Some(bind) = &p.broadcast_bind {
-        let (ip, port) = split_addr(bind).with_context(|| format!("peer.broadcast_bind {bind:?}"))?;
+        let (ip, port) =
+            split_addr(bind).with_context(|| format!("peer.broadcast_bind {bind:?}"))?;
         b.bind = ip.clone();
         b.port = port;
         if ip.starts_with("127.") {

@@ -641,10 +641,7 @@ impl ScooterBrain {
             Some(prev) => {
                 let d = pose.translation.vector - prev.translation.vector;
                 let pth = prev.rotation.angle();
-                (
-                    d.x * pth.cos() + d.y * pth.sin(),
-                    normalize_angle(th - pth),
-                )
+                (d.x * pth.cos() + d.y * pth.sin(), normalize_angle(th - pth))
             }
             None => (0.0, 0.0),
         };
@@ -705,9 +702,10 @@ impl ScooterBrain {
         };
         // Sensing time on our clock: now − (sent_at − time).
         let age = form.sent_at.saturating_duration_since(me.time);
-        let seen_at = Instant::from_micros(now.as_micros().saturating_sub(
-            u64::try_from(age.as_micros()).unwrap_or(u64::MAX),
-        ));
+        let seen_at = Instant::from_micros(
+            now.as_micros()
+                .saturating_sub(u64::try_from(age.as_micros()).unwrap_or(u64::MAX)),
+        );
         let theta1 = me.bearing.azimuth_rad;
         let theta2 = tg.bearing.azimuth_rad;
         let p_rec = self.dr_at(seen_at);
@@ -896,9 +894,8 @@ impl ScooterBrain {
         let goal = self.goal(now);
         let obstacle = match (goal, h) {
             (Some((dir, dist, ignore)), Some(h)) if self.target.is_some() && !self.reached => {
-                let ignore = ignore.map(|(p, r)| {
-                    (Point2::from(nalgebra_rotate(-h, p - self.dr)), r)
-                });
+                let ignore =
+                    ignore.map(|(p, r)| (Point2::from(nalgebra_rotate(-h, p - self.dr)), r));
                 let d = self
                     .avoider
                     .decide(&self.points, normalize_angle(dir - h), dist, ignore);

@@ -1,0 +1,339 @@
+//! Scooter's stack: sensor loops (odometry, compass, laser) feeding [`ScooterBrain`] stepped
+//! at `agent.control_hz`, velocity commands to the rFLEX base, a Peer Agent client
+//! requesting Skeeter's `ses` source (reconnecting and retrying), its own manager, and the
+//! broadcast channel.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use ima_agents::mission::msg::{Broadcast, Emergency, MissionEvent, Pose, SES_SOURCE, SKEETER};
+use ima_agents::mission::scooter::{
+    HeadingRule, HeadingSource, ScooterBrain, ScooterConfig, ScooterHeard, ScooterSay,
+};
+use ima_agents::peer::manager::FixedSelfAgent;
+use ima_agents::peer::net::{PeerClientHandle, SubscriptionEvent, spawn_manager};
+use ima_agents::peer::wire::GroupKey;
+use ima_agents::ses::shared::SharedForm;
+use ima_hal::base::{DifferentialBase, VelocityCommand};
+use ima_hal::laser::{LaserScan, LaserScanner};
+use ima_hal::normalize_angle;
+use serde_json::json;
+use tokio::sync::{mpsc, watch};
+
+use super::devices::ScooterDevices;
+use super::net::{Bus, net_config};
+use super::{Events, MissionClock};
+use crate::config::{self, RobotConfig};
+
+/// The brain's configuration from the robot's.
+pub fn brain_config(cfg: &RobotConfig, odometry_offset_rad: f64) -> ScooterConfig {
+    let a = &cfg.agent;
+    ScooterConfig {
+        robot_name: cfg.robot.clone(),
+        heading_rule: match a.heading_rule {
+            config::HeadingRule::Thesis => HeadingRule::Thesis,
+            config::HeadingRule::RangeAware => HeadingRule::RangeAware,
+        },
+        heading_source: match a.heading_source {
+            config::HeadingSource::Compass => HeadingSource::Compass,
+            config::HeadingSource::Odometry => HeadingSource::Odometry,
+            config::HeadingSource::Both => HeadingSource::Fused,
+        },
+        cruise_speed_m_s: a.cruise_speed_m_s,
+        max_turn_rate_rad_s: a.max_turn_rad_s,
+        lost_after: Duration::from_secs_f64(a.lost_timeout_s),
+        odometry_heading_offset_rad: odometry_offset_rad,
+        ..ScooterConfig::default()
+    }
+}
+
+/// What the brain hears of a broadcast (`None`: nothing for Scooter).
+pub fn heard(b: &Broadcast) -> Option<ScooterHeard> {
+    match b {
+        Broadcast::Mission {
+            robot,
+            event,
+            target,
+        } if robot == SKEETER => Some(match event {
+            MissionEvent::Accepted => ScooterHeard::TargetAccepted {
+                colour: target.clone(),
+            },
+            _ => ScooterHeard::MissionEnded,
+        }),
+        Broadcast::Emergency { emergency, .. } => match emergency {
+            Emergency::ScooterLost => Some(ScooterHeard::ScooterLost),
+            Emergency::ScooterFound => Some(ScooterHeard::ScooterFound),
+            Emergency::TargetQuery { colour } => Some(ScooterHeard::TargetQuery {
+                colour: colour.clone(),
+            }),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
+/// The compass heading in the common frame (radians, counter-clockwise).
+fn common_heading(h: &ima_hal::compass::Heading, cfg: &RobotConfig) -> f64 {
+    let common_yaw = normalize_angle((90.0 - cfg.agent.common_heading_deg).to_radians());
+    normalize_angle(h.yaw_enu_rad() - common_yaw)
+}
+
+/// Run Scooter until `stop` turns true (or a fatal error).
+pub async fn run(
+    cfg: RobotConfig,
+    key: GroupKey,
+    dev: ScooterDevices,
+    events: Events,
+    mut stop: watch::Receiver<bool>,
+) -> Result<()> {
+    let clock = MissionClock::new(cfg.agent.time_scale);
+    let me = cfg.robot.clone();
+    let ScooterDevices {
+        mut base,
+        laser,
+        compass,
+    } = dev;
+    // Odometry heading offset: the compass gives Scooter's common-frame heading at start.
+    let start_heading = match &compass {
+        Some(c) => c.latest().map(|h| common_heading(&h.value.heading, &cfg)),
+        None => None,
+    };
+    let start_heading = start_heading
+        .or(cfg.agent.initial_heading_deg.map(f64::to_radians))
+        .unwrap_or(0.0);
+    let odo_theta = base.latest_odometry().map_or(0.0, |o| o.value.theta_rad());
+    let mut brain = ScooterBrain::new(brain_config(
+        &cfg,
+        normalize_angle(start_heading - odo_theta),
+    ));
+    events.emit(
+        &clock,
+        &me,
+        "connected",
+        json!({"start_heading_deg": start_heading.to_degrees()}),
+    );
+
+    let bus = Bus::bind(&cfg, key.clone())?;
+    // Scooter's own manager (no sources of its own yet beyond the competency list).
+    let net = net_config(&cfg)?;
+    let _manager = if cfg.peer.listen.is_empty() {
+        None
+    } else {
+        Some(
+            spawn_manager(&net, key.clone(), FixedSelfAgent::default())
+                .await
+                .map_err(|e| anyhow::anyhow!("starting Scooter's manager: {e}"))?,
+        )
+    };
+
+    // Laser: latest scan in a watch channel.
+    let (scan_tx, mut scan_rx) = watch::channel::<Option<LaserScan>>(None);
+    let laser_task = tokio::spawn({
+        let mut laser = laser.clone();
+        async move {
+            let mut after = laser.now();
+            loop {
+                match laser.next_scan(after).await {
+                    Ok(s) => {
+                        after = s.at;
+                        if scan_tx.send(Some(s.value)).is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        tracing::warn!("laser: {e:?}");
+                        tokio::time::sleep(Duration::from_millis(200)).await;
+                    }
+                }
+            }
+        }
+    });
+
+    // SES subscription with reconnect/retry.
+    let (ses_tx, mut ses_rx) = mpsc::channel::<SharedForm>(8);
+    let ses_task = tokio::spawn(ses_loop(
+        cfg.clone(),
+        net.clone(),
+        key,
+        ses_tx,
+        events.clone(),
+        clock,
+    ));
+
+    // Broadcasts.
+    let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
+    let bus_rx = bus.clone();
+    let rx_task = tokio::spawn(async move {
+        while let Ok(b) = bus_rx.recv().await {
+            if heard_tx.send(b).await.is_err() {
+                return;
+            }
+        }
+    });
+
+    let period = Duration::from_secs_f64(1.0 / cfg.agent.control_hz);
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last_behaviour = String::new();
+    let mut last_odo_at = None;
+    let mut last_compass_at = None;
+    let result = loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            r = stop.changed() => {
+                if r.is_err() || *stop.borrow() {
+                    break Ok(());
+                }
+                continue;
+            }
+        }
+        let now = clock.now();
+        while let Ok(b) = heard_rx.try_recv() {
+            events.emit(&clock, &me, "heard", json!(b.to_string()));
+            if let Some(h) = heard(&b) {
+                brain.handle_heard(&h, now);
+            }
+        }
+        while let Ok(form) = ses_rx.try_recv() {
+            let planned = brain.handle_ses(&form, now);
+            events.emit(
+                &clock,
+                &me,
+                "ses",
+                json!({"records": form.records.len(), "planned": planned}),
+            );
+        }
+        if let Some(o) = base.latest_odometry()
+            && Some(o.at) != last_odo_at
+        {
+            last_odo_at = Some(o.at);
+            brain.handle_odometry(&o.value, now);
+        }
+        if let Some(c) = compass.as_ref().and_then(|c| c.latest())
+            && Some(c.at) != last_compass_at
+        {
+            last_compass_at = Some(c.at);
+            brain.handle_compass(common_heading(&c.value.heading, &cfg), now);
+        }
+        if scan_rx.has_changed().unwrap_or(false) {
+            let scan = scan_rx.borrow_and_update().clone();
+            if let Some(scan) = scan {
+                brain.handle_laser(&scan, now);
+            }
+        }
+        let out = brain.step(now);
+        if let Err(e) = base.set_velocity(scaled(out.command)).await {
+            tracing::warn!("base: {e:?}");
+        }
+        let b = out.behaviour.as_str().to_owned();
+        if b != last_behaviour {
+            events.emit(&clock, &me, "behaviour", json!(b));
+            last_behaviour = b;
+        }
+        for say in out.messages {
+            let msg = match say {
+                ScooterSay::TargetReached { colour } => {
+                    Broadcast::emergency(&me, Emergency::TargetReached { colour })
+                }
+                ScooterSay::TargetReply { colour, seen } => {
+                    Broadcast::emergency(&me, Emergency::TargetReply { colour, seen })
+                }
+                ScooterSay::Status { behaviour, pose } => Broadcast::status(
+                    &me,
+                    behaviour.as_str(),
+                    "",
+                    Some(Pose {
+                        x_mm: (pose.0 * 1000.0) as i32,
+                        y_mm: (pose.1 * 1000.0) as i32,
+                        theta_mrad: (pose.2 * 1000.0) as i32,
+                    }),
+                ),
+                ScooterSay::RequestHeading => {
+                    events.emit(&clock, &me, "request-heading", json!(null));
+                    continue;
+                }
+            };
+            events.emit(&clock, &me, "say", json!(msg.to_string()));
+            // Target notifications must not be lost: send them three times.
+            let times = if matches!(msg, Broadcast::Status { .. }) {
+                1
+            } else {
+                3
+            };
+            bus.send_repeated(&msg, times, Duration::from_millis(30))
+                .await;
+        }
+    };
+    laser_task.abort();
+    ses_task.abort();
+    rx_task.abort();
+    let _ = base.stop().await;
+    result
+}
+
+/// Velocity commands go to the base as the brain gives them; the world's speed factor applies
+/// to the world, not to the commands.
+fn scaled(c: VelocityCommand) -> VelocityCommand {
+    c
+}
+
+async fn ses_loop(
+    cfg: RobotConfig,
+    net: ima_agents::peer::net::PeerNetConfig,
+    key: GroupKey,
+    tx: mpsc::Sender<SharedForm>,
+    events: Events,
+    clock: MissionClock,
+) {
+    let Some(addr) = cfg.peer.connect.clone() else {
+        return;
+    };
+    let me = cfg.robot.clone();
+    let prio = cfg.agent.ses_request_priority;
+    loop {
+        let r: Result<(), String> = async {
+            let client = PeerClientHandle::connect(addr.as_str(), &net, key.clone())
+                .await
+                .map_err(|e| e.to_string())?;
+            client.register().await.map_err(|e| e.to_string())?;
+            let mut sub = client
+                .request(SES_SOURCE, prio)
+                .await
+                .map_err(|e| e.to_string())?;
+            events.emit(
+                &clock,
+                &me,
+                "peer",
+                json!({"granted": SES_SOURCE, "manager": addr}),
+            );
+            while let Some(ev) = sub.next().await {
+                match ev {
+                    SubscriptionEvent::Sample { payload, .. } => match SharedForm::decode(&payload)
+                    {
+                        Ok(f) => {
+                            if tx.send(f).await.is_err() {
+                                return Ok(());
+                            }
+                        }
+                        Err(e) => tracing::warn!("bad SES sample: {e:?}"),
+                    },
+                    SubscriptionEvent::Lost { reason } => {
+                        events.emit(&clock, &me, "peer", json!({"lost": format!("{reason:?}")}));
+                    }
+                    SubscriptionEvent::Closed { reason } => {
+                        return Err(format!("subscription closed: {reason:?}"));
+                    }
+                }
+            }
+            Err("subscription ended".to_owned())
+        }
+        .await;
+        if let Err(e) = r {
+            events.emit(&clock, &me, "peer", json!({"retry": e}));
+        }
+        if tx.is_closed() {
+            return;
+        }
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    }
+}
