@@ -110,3 +110,5 @@ impl Events {
     }
 }
 pub mod scooter;
+pub mod commander;
+pub mod skeeter;
