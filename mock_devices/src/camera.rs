@@ -19,10 +19,16 @@
 //! counter-clockwise (channel 1 forward). A pinhole camera of horizontal field of view
 //! [`fov_deg`](CameraConfig::fov_deg): an object at bearing `b` (counter-clockwise from the
 //! optical axis) has its centre at column `w/2 − f·tan b` with `f = (w/2) / tan(fov/2)`, on
-//! the middle row (cameras at object height), drawn as a disc of radius `f · r / range`
-//! pixels in the object's colour. Objects come from [`crate::world::World::visible_objects`]
-//! (centre in view, not hidden; the robot itself is transparent). The background is a plain
-//! grey; every pixel gets uniform noise of ± [`noise`](CameraConfig::noise).
+//! the middle row (cameras at object height), drawn in the object's colour as a disc of
+//! radius `f·tan(asin(r/range))` ≈ `f · r / range` pixels stretched by perspective off the
+//! axis (an ellipse, `/cos²b` across and `/cos b` up), so that its angular width is
+//! `2·asin(r/range)` wherever it appears, as through a real pinhole lens. Objects come from
+//! [`crate::world::World::visible_objects`] (centre in view, not hidden; the robot itself is
+//! transparent). Other robots that carry a marker ([`crate::world::RobotSpec::marker_rgb`])
+//! are drawn the same way, as a disc of their footprint radius in the marker colour
+//! ([`crate::world::World::visible_markers`]); robots without a marker are not drawn. The
+//! background is a plain grey; every pixel gets uniform noise of ±
+//! [`noise`](CameraConfig::noise).
 //!
 //! A frame exposed less than [`settle_time`](CameraConfig::settle_time) after a switch is
 //! garbage (random pixels), as on real hardware while the grabber re-locks.
@@ -183,29 +189,44 @@ impl CameraHead {
             return Some(frame);
         }
         let half_fov = self.cfg.fov_deg.to_radians() / 2.0;
-        let sightings = self.world.with(|wd| {
-            wd.visible_objects(view, half_fov, self.cfg.max_range_m, Some(self.robot))
+        // (bearing, range, colour, radius) of every object and robot marker in view.
+        let mut sightings = self.world.with(|wd| {
+            let max = self.cfg.max_range_m;
+            let mut v: Vec<(f64, f64, [u8; 3], f64)> = wd
+                .visible_objects(view, half_fov, max, Some(self.robot))
                 .into_iter()
-                .filter_map(|s| wd.objects().get(s.object).map(|o| (s, o.rgb, o.radius_m)))
-                .collect::<Vec<_>>()
+                .filter_map(|s| {
+                    wd.objects()
+                        .get(s.object)
+                        .map(|o| (s.bearing_rad, s.range_m, o.rgb, o.radius_m))
+                })
+                .collect();
+            v.extend(
+                wd.visible_markers(view, half_fov, max, Some(self.robot))
+                    .into_iter()
+                    .map(|m| (m.bearing_rad, m.range_m, m.rgb, m.radius_m)),
+            );
+            v
         });
         let mut px = vec![self.cfg.background; usize::try_from(u64::from(w) * u64::from(h)).ok()?];
-        // Far objects first, so near ones cover them.
-        let mut sightings = sightings;
-        sightings.sort_by(|a, b| b.0.range_m.total_cmp(&a.0.range_m));
+        // Far things first, so near ones cover them.
+        sightings.sort_by(|a, b| b.1.total_cmp(&a.1));
         let f = self.cfg.focal_px();
         let cy = f64::from(h) / 2.0;
-        for (s, rgb, radius_m) in sightings {
-            let cx = self.cfg.column_for_bearing(s.bearing_rad);
-            let r = (f * radius_m / s.range_m.max(1e-3)).max(1.0);
-            let x0 = (cx - r).floor().max(0.0) as u32;
-            let x1 = ((cx + r).ceil().max(0.0) as u32).min(w);
-            let y0 = (cy - r).floor().max(0.0) as u32;
-            let y1 = ((cy + r).ceil().max(0.0) as u32).min(h);
+        for (bearing_rad, range_m, rgb, radius_m) in sightings {
+            let cx = self.cfg.column_for_bearing(bearing_rad);
+            let (rx, ry) = disc_radii_px(f, bearing_rad, range_m, radius_m);
+            let x0 = (cx - rx).floor().max(0.0) as u32;
+            let x1 = ((cx + rx).ceil().max(0.0) as u32).min(w);
+            let y0 = (cy - ry).floor().max(0.0) as u32;
+            let y1 = ((cy + ry).ceil().max(0.0) as u32).min(h);
             for y in y0..y1 {
                 for x in x0..x1 {
-                    let (dx, dy) = (f64::from(x) + 0.5 - cx, f64::from(y) + 0.5 - cy);
-                    if dx * dx + dy * dy <= r * r
+                    let (dx, dy) = (
+                        (f64::from(x) + 0.5 - cx) / rx,
+                        (f64::from(y) + 0.5 - cy) / ry,
+                    );
+                    if dx * dx + dy * dy <= 1.0
                         && let Some(p) = px.get_mut((y as usize) * (w as usize) + x as usize)
                     {
                         *p = rgb;
@@ -226,6 +247,19 @@ impl CameraHead {
         }
         Some(frame)
     }
+}
+
+/// Horizontal and vertical radii, pixels, of the image of a round object of radius
+/// `radius_m` whose centre is `range_m` away at `bearing_rad` from the optical axis, for a
+/// focal length of `f` pixels: on the axis `f·tan β` with `β = asin(r/d)` the object's
+/// angular radius (≈ `f·r/d`), stretched by perspective off the axis (`/cos²b` across,
+/// `/cos b` up), so the object's *angular* width is `2β` wherever it is in the picture.
+/// At least one pixel each.
+fn disc_radii_px(f: f64, bearing_rad: f64, range_m: f64, radius_m: f64) -> (f64, f64) {
+    let c = bearing_rad.cos().abs().max(0.1);
+    let d = range_m.max(radius_m * 1.01).max(1e-3);
+    let r = f * radius_m / (d * d - radius_m * radius_m).max(1e-9).sqrt();
+    ((r / (c * c)).max(1.0), (r / c).max(1.0))
 }
 
 /// Errors of the mock camera head.
@@ -384,6 +418,38 @@ mod tests {
         );
         assert!(h.render(0, Duration::ZERO).is_none());
         assert!(h.render(8, Duration::ZERO).is_none());
+    }
+
+    #[test]
+    fn scooter_marker_is_drawn_at_its_bearing() {
+        use crate::world::DEFAULT_SCOOTER_MARKER;
+        let cfg = CameraConfig::default();
+        let (mut h, world) = head(cfg);
+        // Scooter is at 210° from Skeeter, 4 m: channel 4 looks along 3·360/7 ≈ 154°,
+        // channel 5 along ≈ 206°.
+        let f = h.render(5, Duration::from_secs(1)).unwrap();
+        let bearing = 210f64.to_radians() - cfg.camera_yaw_rad(5).unwrap();
+        let want = cfg.column_for_bearing(bearing);
+        let (col, n) = find_color(&f, DEFAULT_SCOOTER_MARKER, 12).unwrap();
+        assert!((col - want).abs() < 1.0, "{col} vs {want}");
+        // radius 0.4 m at 4 m: 277·0.1 ≈ 27.7 px → ~2400 px of disc.
+        assert!(n > 1800 && n < 3000, "{n}");
+        // Without a marker Scooter is not drawn.
+        world.with(|w| {
+            let id = w.robot_id("scooter").unwrap();
+            let spec = w.robot(id).unwrap().spec().clone();
+            let mut w2 = World::new();
+            for r in w.robots() {
+                let mut s = r.spec().clone();
+                if s.name == spec.name {
+                    s.marker_rgb = None;
+                }
+                w2.add_robot(s).unwrap();
+            }
+            *w = w2;
+        });
+        let f = h.render(5, Duration::from_secs(1)).unwrap();
+        assert!(find_color(&f, DEFAULT_SCOOTER_MARKER, 12).is_none());
     }
 
     #[test]

@@ -147,6 +147,12 @@ pub struct RobotSpec {
     /// Largest wheel acceleration magnitude, m/s²; absent = instantaneous.
     #[serde(default)]
     pub max_wheel_accel_m_s2: Option<f64>,
+    /// Colour of the marker the robot carries, as other robots' cameras see it: drawn as a
+    /// disc of the footprint radius ([`RobotSpec::radius_m`]) by
+    /// [`crate::camera::CameraHead`]. Absent (the default, also for world files written
+    /// before markers existed) = the robot is invisible to cameras.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_rgb: Option<[u8; 3]>,
 }
 
 fn default_radius() -> f64 {
@@ -172,6 +178,7 @@ impl RobotSpec {
             track_width_m: default_track(),
             max_wheel_speed_m_s: default_max_wheel(),
             max_wheel_accel_m_s2: None,
+            marker_rgb: None,
         }
     }
 
@@ -473,6 +480,24 @@ pub struct Sighting {
     pub range_m: f64,
 }
 
+/// A robot's marker seen from a viewpoint (see [`World::visible_markers`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MarkerSighting {
+    /// The robot.
+    pub robot: RobotId,
+    /// Its marker colour.
+    pub rgb: [u8; 3],
+    /// The marker's radius (the robot's footprint radius), metres.
+    pub radius_m: f64,
+    /// Bearing of the robot's centre relative to the viewing direction, radians CCW.
+    pub bearing_rad: f64,
+    /// Distance to the robot's centre, metres.
+    pub range_m: f64,
+}
+
+/// Scooter's marker colour in [`World::default_world`]: white-ish, a colour no object has.
+pub const DEFAULT_SCOOTER_MARKER: [u8; 3] = [235, 235, 235];
+
 /// Errors of world construction and world files.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum WorldError {
@@ -509,6 +534,7 @@ pub enum WorldError {
 /// track_width_m = 0.588         # optional, default 0.5
 /// max_wheel_speed_m_s = 1.2     # optional, default 1.0
 /// max_wheel_accel_m_s2 = 0.5    # optional, default: instantaneous
+/// marker_rgb = [235, 235, 235]  # optional: marker colour seen by cameras; default none
 ///
 /// [[wall]]
 /// from = [-5.0, -5.0]
@@ -628,7 +654,8 @@ impl World {
     /// (Pioneer 2-AT) at the centre facing +x, Scooter (ATRV-Jr) 4 m from the centre at
     /// bearing 210° (between two objects, so Skeeter sees it) facing the centre, and a ring of
     /// six coloured objects 3 m from the centre, one every 60° starting at +x: red, green,
-    /// blue, yellow, orange, purple.
+    /// blue, yellow, orange, purple. Scooter carries a white-ish marker `[235, 235, 235]`
+    /// (a colour no object has) so Skeeter's cameras can find it; Skeeter carries none.
     ///
     /// Robot figures: Skeeter's track 0.588 m (P2OS DiffConvFactor, p2os.md §8), footprint
     /// radius 0.33 m, wheels ≤ 1.2 m/s; Scooter's track 0.42 m, radius 0.40 m, wheels
@@ -654,6 +681,7 @@ impl World {
         scooter.track_width_m = 0.42;
         scooter.max_wheel_speed_m_s = 1.0;
         scooter.max_wheel_accel_m_s2 = Some(1.0);
+        scooter.marker_rgb = Some(DEFAULT_SCOOTER_MARKER);
         let _ = w.add_robot(skeeter);
         let _ = w.add_robot(scooter);
         let colours: [(&str, [u8; 3]); 6] = [
@@ -892,6 +920,52 @@ impl World {
             if hit.is_some_and(|h| h.target == Target::Object(i)) {
                 out.push(Sighting {
                     object: i,
+                    bearing_rad: bearing,
+                    range_m: range,
+                });
+            }
+        }
+        out.sort_by(|a, b| a.bearing_rad.total_cmp(&b.bearing_rad));
+        out
+    }
+
+    /// Markers of robots (those with a [`RobotSpec::marker_rgb`]) whose centre lies within
+    /// `half_fov_rad` of `view`'s heading, closer than `max_range_m`, and not hidden: a ray
+    /// to the centre hits that robot first. Robot `ignore` (the viewer) is transparent and
+    /// never listed. Sorted by bearing, right to left.
+    #[must_use]
+    pub fn visible_markers(
+        &self,
+        view: Pose,
+        half_fov_rad: f64,
+        max_range_m: f64,
+        ignore: Option<RobotId>,
+    ) -> Vec<MarkerSighting> {
+        let mut out = Vec::new();
+        for (i, r) in self.robots.iter().enumerate() {
+            let id = RobotId(i);
+            let Some(rgb) = r.spec.marker_rgb else {
+                continue;
+            };
+            if Some(id) == ignore {
+                continue;
+            }
+            let (ex, ey) = (r.pose.x_m - view.x_m, r.pose.y_m - view.y_m);
+            let range = ex.hypot(ey);
+            if range.is_nan() || range > max_range_m {
+                continue;
+            }
+            let abs_dir = ey.atan2(ex);
+            let bearing = normalize_angle(abs_dir - view.theta_rad);
+            if bearing.is_nan() || bearing.abs() > half_fov_rad {
+                continue;
+            }
+            let hit = self.cast_ignoring(view.point(), abs_dir, range, ignore);
+            if hit.is_some_and(|h| h.target == Target::Robot(id)) {
+                out.push(MarkerSighting {
+                    robot: id,
+                    rgb,
+                    radius_m: r.radius_m(),
                     bearing_rad: bearing,
                     range_m: range,
                 });
@@ -1615,5 +1689,74 @@ mod tests {
             proptest::prop_assert!(p.x_m.is_finite() && p.y_m.is_finite() && p.theta_rad.is_finite());
             proptest::prop_assert!(p.theta_rad > -PI - 1e-12 && p.theta_rad <= PI + 1e-12);
         }
+    }
+
+    #[test]
+    fn markers_in_world_files_are_optional_and_round_trip() {
+        let old = "[[robot]]\nname = \"a\"\nx_m = 0.0\ny_m = 0.0\n";
+        let w = World::from_toml_str(old).unwrap();
+        assert_eq!(w.robots()[0].spec().marker_rgb, None);
+        assert!(!toml::to_string(&w.to_file()).unwrap().contains("marker"));
+        let new = format!("{old}marker_rgb = [1, 2, 3]\n");
+        let w = World::from_toml_str(&new).unwrap();
+        assert_eq!(w.robots()[0].spec().marker_rgb, Some([1, 2, 3]));
+        let again = World::from_toml_str(&toml::to_string(&w.to_file()).unwrap()).unwrap();
+        assert_eq!(again.to_file(), w.to_file());
+        assert!(World::from_toml_str(&format!("{old}marker_rgb = [1, 2]\n")).is_err());
+        assert!(World::from_toml_str(&format!("{old}marker_rgb = [1, 2, 300]\n")).is_err());
+    }
+
+    #[test]
+    fn default_world_scooter_marker_is_visible_from_skeeter() {
+        let w = World::default_world();
+        let sk = w.robot_id("skeeter").unwrap();
+        let sc = w.robot_id("scooter").unwrap();
+        assert_eq!(w.robot(sk).unwrap().spec().marker_rgb, None);
+        assert_eq!(
+            w.robot(sc).unwrap().spec().marker_rgb,
+            Some(DEFAULT_SCOOTER_MARKER)
+        );
+        assert!(
+            w.objects().iter().all(|o| o.rgb != DEFAULT_SCOOTER_MARKER),
+            "no object has the marker colour"
+        );
+        // Scooter is at 210°, 4 m.
+        let view = Pose::new(0.0, 0.0, 210f64.to_radians());
+        let seen = w.visible_markers(view, 0.5, 12.0, Some(sk));
+        assert_eq!(seen.len(), 1);
+        let m = seen[0];
+        assert_eq!(m.robot, sc);
+        assert_eq!(m.rgb, DEFAULT_SCOOTER_MARKER);
+        assert!((m.range_m - 4.0).abs() < 1e-9);
+        assert!(m.bearing_rad.abs() < 1e-9);
+        assert!((m.radius_m - 0.4).abs() < 1e-12);
+        // Out of view, out of range, and the viewer itself.
+        assert!(
+            w.visible_markers(Pose::new(0.0, 0.0, 0.0), 0.5, 12.0, Some(sk))
+                .is_empty()
+        );
+        assert!(w.visible_markers(view, 0.5, 3.0, Some(sk)).is_empty());
+        let from_scooter = Pose::new(-10.0, -10.0, 0.0);
+        assert!(
+            w.visible_markers(from_scooter, PI, 30.0, Some(sc))
+                .is_empty()
+        );
+    }
+
+    #[test]
+    fn a_hidden_marker_is_not_visible() {
+        let mut w = World::new();
+        let a = w.add_robot(RobotSpec::new("a", 0.0, 0.0, 0.0)).unwrap();
+        let mut b = RobotSpec::new("b", 4.0, 0.0, 0.0);
+        b.marker_rgb = Some([9, 9, 9]);
+        w.add_robot(b).unwrap();
+        let view = Pose::new(0.0, 0.0, 0.0);
+        assert_eq!(w.visible_markers(view, 0.5, 10.0, Some(a)).len(), 1);
+        w.add_circle(Circle {
+            center: [2.0, 0.0],
+            radius_m: 0.2,
+        })
+        .unwrap();
+        assert!(w.visible_markers(view, 0.5, 10.0, Some(a)).is_empty());
     }
 }

@@ -10,4 +10,6 @@
 
 pub mod avoid;
 pub mod msg;
+pub mod scan;
 pub mod scooter;
+pub mod vision;
