@@ -171,10 +171,15 @@ pub async fn run(
         }
     });
 
-    let period = Duration::from_secs_f64(1.0 / cfg.agent.control_hz);
+    // The brain steps at control_hz of mission time (at most 50 Hz real).
+    let period = Duration::from_secs_f64(1.0 / (cfg.agent.control_hz * cfg.agent.time_scale))
+        .max(Duration::from_millis(20));
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_behaviour = String::new();
+    let mut last_ses: Option<(ima_hal::Instant, SharedForm)> = None;
+    let mut reached: Option<String> = None;
+    let lost_after = Duration::from_secs_f64(cfg.agent.lost_timeout_s);
     let mut last_odo_at = None;
     let mut last_compass_at = None;
     let result = loop {
@@ -190,8 +195,26 @@ pub async fn run(
         let now = clock.now();
         while let Ok(b) = heard_rx.try_recv() {
             events.emit(&clock, &me, "heard", json!(b.to_string()));
-            if let Some(h) = heard(&b) {
-                brain.handle_heard(&h, now);
+            let Some(h) = heard(&b) else { continue };
+            match &h {
+                // Repeats of the current target (several copies are sent) change nothing.
+                ScooterHeard::TargetAccepted { colour } if brain.target() == Some(colour) => {}
+                ScooterHeard::TargetAccepted { colour } => {
+                    brain.handle_heard(&h, now);
+                    reached = None;
+                    // Skeeter's latest SES already says where the target is.
+                    if let Some((at, form)) = &last_ses
+                        && now.saturating_duration_since(*at) < lost_after
+                    {
+                        let planned = brain.handle_ses(form, now);
+                        events.emit(&clock, &me, "ses", json!({"records": form.records.len(), "planned": planned, "target": colour}));
+                    }
+                }
+                ScooterHeard::MissionEnded => {
+                    brain.handle_heard(&h, now);
+                    reached = None;
+                }
+                _ => brain.handle_heard(&h, now),
             }
         }
         while let Ok(form) = ses_rx.try_recv() {
@@ -202,6 +225,7 @@ pub async fn run(
                 "ses",
                 json!({"records": form.records.len(), "planned": planned}),
             );
+            last_ses = Some((now, form));
         }
         if let Some(o) = base.latest_odometry()
             && Some(o.at) != last_odo_at
@@ -222,7 +246,14 @@ pub async fn run(
             }
         }
         let out = brain.step(now);
-        if let Err(e) = base.set_velocity(scaled(out.command)).await {
+        // Once Scooter has told Skeeter it reached the target it waits there for the end of
+        // the mission (or a new target), whatever the brain selects meanwhile.
+        let command = if reached.is_some() {
+            VelocityCommand::ZERO
+        } else {
+            out.command
+        };
+        if let Err(e) = base.set_velocity(command).await {
             tracing::warn!("base: {e:?}");
         }
         let b = out.behaviour.as_str().to_owned();
@@ -269,12 +300,6 @@ pub async fn run(
     rx_task.abort();
     let _ = base.stop().await;
     result
-}
-
-/// Velocity commands go to the base as the brain gives them; the world's speed factor applies
-/// to the world, not to the commands.
-fn scaled(c: VelocityCommand) -> VelocityCommand {
-    c
 }
 
 async fn ses_loop(

@@ -214,6 +214,26 @@ pub fn colour_db(cfg: &RobotConfig) -> Result<ColourDb> {
     ColourDb::new(colours).map_err(|e| anyhow::anyhow!("agent.colours: {e:?}"))
 }
 
+async fn flush(
+    mission: &mut SkeeterMission,
+    bus: &Bus,
+    events: &Events,
+    clock: &MissionClock,
+    me: &str,
+) {
+    for b in mission.take_outbox() {
+        events.emit(clock, me, "say", json!(b.to_string()));
+        // Mission events and emergencies must not be lost: three copies (receivers are
+        // idempotent).
+        let times = if matches!(b, Broadcast::Status { .. }) {
+            1
+        } else {
+            3
+        };
+        bus.send_repeated(&b, times, Duration::from_millis(30)).await;
+    }
+}
+
 /// Run Skeeter until `stop` turns true.
 pub async fn run(
     cfg: RobotConfig,
@@ -286,7 +306,7 @@ pub async fn run(
         if *stop.borrow() {
             break Ok(());
         }
-        // One sweep; broadcasts heard meanwhile are handled after it.
+        // One sweep; broadcasts heard meanwhile are handled at once.
         let sweep = run_scan(
             &mut scanner,
             &mut mux,
@@ -294,15 +314,22 @@ pub async fn run(
             |d| tokio::time::sleep(d.div_f64(scale)),
             || clock.now(),
         );
-        let report = tokio::select! {
-            r = sweep => r,
-            _ = stop.changed() => break Ok(()),
+        tokio::pin!(sweep);
+        let report = loop {
+            tokio::select! {
+                r = &mut sweep => break Some(r),
+                Some(b) = heard_rx.recv() => {
+                    events.emit(&clock, &me, "heard", json!(b.to_string()));
+                    mission.handle_broadcast(&b, clock.now());
+                    flush(&mut mission, &bus, &events, &clock, &me).await;
+                }
+                _ = stop.changed() => break None,
+            }
+        };
+        let Some(report) = report else {
+            break Ok(());
         };
         let now = clock.now();
-        while let Ok(b) = heard_rx.try_recv() {
-            events.emit(&clock, &me, "heard", json!(b.to_string()));
-            mission.handle_broadcast(&b, now);
-        }
         if let Some(report) = report {
             match report.shared.to_bytes() {
                 Ok(bytes) => {
@@ -326,11 +353,7 @@ pub async fn run(
         } else {
             mission.handle_timeout(now);
         }
-        for b in mission.take_outbox() {
-            events.emit(&clock, &me, "say", json!(b.to_string()));
-            let times = if matches!(b, Broadcast::Status { .. }) { 1 } else { 3 };
-            bus.send_repeated(&b, times, Duration::from_millis(30)).await;
-        }
+        flush(&mut mission, &bus, &events, &clock, &me).await;
         if last_status.is_none_or(|t| now.saturating_duration_since(t) >= Duration::from_secs(2))
         {
             last_status = Some(now);
