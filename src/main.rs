@@ -42,6 +42,9 @@ enum Command {
     Run(cmd::run::RunArgs),
     /// Send targets to the robots over the broadcast channel and follow the mission live.
     Commander(cmd::commander::CommanderArgs),
+    /// Peer Agent over IP: standalone manager, client, broadcast listener and sender.
+    #[command(subcommand)]
+    Peer(cmd::peer::PeerCommand),
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
@@ -73,6 +76,7 @@ fn main() -> ExitCode {
         Command::Camera(c) => cmd::camera::run(&c),
         Command::Commander(a) => cmd::commander::run(&a),
         Command::Run(a) => cmd::run::run(&a),
+        Command::Peer(c) => cmd::peer::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -17,5 +17,6 @@ pub mod mock_rflex;
 pub mod mock_sick;
 pub mod mock_world;
 pub mod run;
+pub mod peer;
 pub mod san;
 pub mod scan;

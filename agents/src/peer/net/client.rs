@@ -102,29 +102,40 @@ impl SubShared {
     }
 
     fn push(&self, e: SubscriptionEvent) {
+        self.push_all(core::iter::once(e));
+    }
+
+    /// Queues events under one lock and wakes the reader once.
+    fn push_all(&self, events: impl IntoIterator<Item = SubscriptionEvent>) {
         let mut st = self.lock();
-        if st.done {
-            return;
-        }
-        if matches!(e, SubscriptionEvent::Sample { .. }) {
-            if st.samples >= st.cap
-                && let Some(i) = st
-                    .queue
-                    .iter()
-                    .position(|e| matches!(e, SubscriptionEvent::Sample { .. }))
-            {
-                st.queue.remove(i);
-                st.samples = st.samples.saturating_sub(1);
-                st.dropped = st.dropped.saturating_add(1);
+        let mut any = false;
+        for e in events {
+            if st.done {
+                break;
             }
-            st.samples = st.samples.saturating_add(1);
+            if matches!(e, SubscriptionEvent::Sample { .. }) {
+                if st.samples >= st.cap
+                    && let Some(i) = st
+                        .queue
+                        .iter()
+                        .position(|e| matches!(e, SubscriptionEvent::Sample { .. }))
+                {
+                    st.queue.remove(i);
+                    st.samples = st.samples.saturating_sub(1);
+                    st.dropped = st.dropped.saturating_add(1);
+                }
+                st.samples = st.samples.saturating_add(1);
+            }
+            if matches!(e, SubscriptionEvent::Closed { .. }) {
+                st.done = true;
+            }
+            st.queue.push_back(e);
+            any = true;
         }
-        if matches!(e, SubscriptionEvent::Closed { .. }) {
-            st.done = true;
-        }
-        st.queue.push_back(e);
         drop(st);
-        self.notify.notify_one();
+        if any {
+            self.notify.notify_one();
+        }
     }
 }
 
@@ -154,6 +165,24 @@ impl Subscription {
     #[must_use]
     pub fn dropped(&self) -> u64 {
         self.shared.lock().dropped
+    }
+
+    /// The next event if one is queued now (never waits); `None` when nothing is queued or
+    /// the subscription is over (see [`Subscription::is_closed`]).
+    pub fn try_next(&mut self) -> Option<SubscriptionEvent> {
+        let mut st = self.shared.lock();
+        let e = st.queue.pop_front()?;
+        if matches!(e, SubscriptionEvent::Sample { .. }) {
+            st.samples = st.samples.saturating_sub(1);
+        }
+        Some(e)
+    }
+
+    /// Whether the subscription is over and every event has been taken.
+    #[must_use]
+    pub fn is_closed(&self) -> bool {
+        let st = self.shared.lock();
+        st.done && st.queue.is_empty()
     }
 
     /// The next event; `None` after [`SubscriptionEvent::Closed`] has been returned.
@@ -699,13 +728,13 @@ async fn run_data(t: &mut DataTask) -> DataClose {
                     while let Some(f) = reader.next_frame() {
                         s.handle_frame(f, now);
                     }
-                    while let Some(x) = s.pop_sample() {
-                        t.sub.push(SubscriptionEvent::Sample {
+                    t.sub.push_all(core::iter::from_fn(|| s.pop_sample()).map(|x| {
+                        SubscriptionEvent::Sample {
                             seq: x.seq,
                             stamp_us: x.stamp_us,
                             payload: x.payload,
-                        });
-                    }
+                        }
+                    }));
                 }
             },
             _ = &mut t.close => s.close(),

@@ -193,6 +193,9 @@ pub struct BroadcastConfig {
     pub interface: String,
     /// Bind address (default `0.0.0.0`).
     pub bind: String,
+    /// Port to bind when it differs from `port` (default: `port`); `0` binds any free
+    /// port, for send-only tools and for unicast receivers that list their own port.
+    pub bind_port: Option<u16>,
     /// Unicast peers `host:port` (fallback where multicast is blocked).
     pub peers: Vec<String>,
     /// Multicast TTL (default 1: the local segment only).
@@ -211,6 +214,7 @@ impl Default for BroadcastConfig {
             port: 7477,
             interface: "0.0.0.0".into(),
             bind: "0.0.0.0".into(),
+            bind_port: None,
             peers: Vec::new(),
             ttl: 1,
             loopback: true,

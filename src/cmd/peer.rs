@@ -1,0 +1,548 @@
+//! `ima peer …`: Peer Agent tools over IP — a standalone manager serving synthetic sources,
+//! a client that prints a source's samples, and a broadcast listener and sender. Every line
+//! on stdout is one JSON object.
+//!
+//! Keys: the group key comes from the key file named by `--key-file` or by `key_file` in the
+//! config; without one the tools refuse to run unless `--insecure`, which uses the
+//! documented all-zero key (anyone can forge frames under it) and says so loudly.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand, ValueEnum};
+use ima_agents::peer::manager::FixedSelfAgent;
+use ima_agents::peer::net::{
+    BroadcastChannel, BroadcastMode, PeerClientHandle, PeerNetConfig, SourcePublisher,
+    SubscriptionEvent, SyntheticSource, insecure_key, load_key_file, spawn_manager,
+};
+use ima_agents::peer::wire::{GroupKey, MissionEvent, Msg, SourceInfo};
+use serde_json::{Value, json};
+
+/// `ima peer` sub-commands.
+#[derive(Debug, Subcommand)]
+pub enum PeerCommand {
+    /// Run a standalone Peer Agent Manager serving synthetic sources (counter, sine, blob64).
+    Manager(ManagerArgs),
+    /// Connect to a manager, request a source and print its samples as JSON lines.
+    Client(ClientArgs),
+    /// Print broadcast traffic (status, emergency, mission) as JSON lines.
+    Listen(ListenArgs),
+    /// Send one broadcast message.
+    Send(SendArgs),
+}
+
+/// Key and config options shared by every `ima peer` tool.
+#[derive(Debug, Args)]
+pub struct Common {
+    /// Config file (TOML, see configs/peer-manager.toml); defaults when absent.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Group-key file (hex or raw, at least 32 bytes, mode 600); overrides `key_file`.
+    #[arg(long)]
+    key_file: Option<PathBuf>,
+    /// Run without a key file, with the documented all-zero key: NOT SECURE.
+    #[arg(long)]
+    insecure: bool,
+    /// Robot name (overrides `robot` of the config).
+    #[arg(long)]
+    robot: Option<String>,
+    /// Heartbeat interval in ms (overrides `heartbeat_ms`).
+    #[arg(long)]
+    heartbeat_ms: Option<u64>,
+}
+
+/// Broadcast-channel overrides.
+#[derive(Debug, Args)]
+pub struct BroadcastArgs {
+    /// Broadcast mode (overrides `broadcast.mode`).
+    #[arg(long, value_enum)]
+    mode: Option<Mode>,
+    /// UDP port (overrides `broadcast.port`).
+    #[arg(long)]
+    port: Option<u16>,
+    /// Multicast group (overrides `broadcast.group`).
+    #[arg(long)]
+    group: Option<String>,
+    /// Multicast interface address, e.g. 127.0.0.1 (overrides `broadcast.interface`).
+    #[arg(long)]
+    interface: Option<String>,
+    /// Unicast peer `host:port` (repeatable; replaces `broadcast.peers`).
+    #[arg(long = "peer")]
+    peers: Vec<String>,
+}
+
+/// `--mode` values.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Mode {
+    /// UDP multicast.
+    Multicast,
+    /// Unicast to the peer list.
+    Unicast,
+    /// Both.
+    Both,
+}
+
+/// Arguments of `ima peer manager`.
+#[derive(Debug, Args)]
+pub struct ManagerArgs {
+    #[command(flatten)]
+    common: Common,
+    /// Request-channel listen address (overrides `manager.listen`).
+    #[arg(long)]
+    listen: Option<String>,
+    /// Also send a status broadcast at this interval, ms (0: no broadcast channel).
+    #[arg(long, default_value_t = 0)]
+    status_ms: u64,
+    #[command(flatten)]
+    broadcast: BroadcastArgs,
+}
+
+/// Arguments of `ima peer client`.
+#[derive(Debug, Args)]
+pub struct ClientArgs {
+    #[command(flatten)]
+    common: Common,
+    /// Manager address `host:port`.
+    #[arg(long)]
+    connect: String,
+    /// Source to request.
+    #[arg(long)]
+    request: String,
+    /// Request priority.
+    #[arg(long, default_value_t = 0)]
+    priority: u8,
+    /// Stop after this many samples (default: run until the source ends).
+    #[arg(long)]
+    count: Option<u64>,
+}
+
+/// Arguments of `ima peer listen`.
+#[derive(Debug, Args)]
+pub struct ListenArgs {
+    #[command(flatten)]
+    common: Common,
+    #[command(flatten)]
+    broadcast: BroadcastArgs,
+    /// Stop after this many messages.
+    #[arg(long)]
+    count: Option<u64>,
+}
+
+/// Arguments of `ima peer send`.
+#[derive(Debug, Args)]
+pub struct SendArgs {
+    #[command(flatten)]
+    common: Common,
+    #[command(flatten)]
+    broadcast: BroadcastArgs,
+    /// What to send.
+    #[command(subcommand)]
+    what: SendWhat,
+}
+
+/// `ima peer send` messages.
+#[derive(Debug, Subcommand)]
+pub enum SendWhat {
+    /// A status message.
+    Status {
+        /// Current behaviour.
+        #[arg(long)]
+        behaviour: String,
+        /// SAN summary.
+        #[arg(long, default_value = "")]
+        san: String,
+    },
+    /// An emergency, e.g. `--kind scooter-lost`.
+    Emergency {
+        /// Kind.
+        #[arg(long)]
+        kind: String,
+        /// Text.
+        #[arg(long, default_value = "")]
+        text: String,
+    },
+    /// A mission event.
+    Mission {
+        /// accepted, accomplished or failed.
+        #[arg(long, value_enum)]
+        event: Event,
+        /// Target colour.
+        #[arg(long)]
+        target: String,
+    },
+}
+
+/// Mission events for `ima peer send mission`.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Event {
+    /// Accepted.
+    Accepted,
+    /// Accomplished.
+    Accomplished,
+    /// Failed.
+    Failed,
+}
+
+/// Runs an `ima peer` tool.
+pub fn run(cmd: &PeerCommand) -> Result<()> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        match cmd {
+            PeerCommand::Manager(a) => manager(a).await,
+            PeerCommand::Client(a) => client(a).await,
+            PeerCommand::Listen(a) => listen(a).await,
+            PeerCommand::Send(a) => send(a).await,
+        }
+    })
+}
+
+/// The config file split into the peer config and the CLI's synthetic sources.
+fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSource>)> {
+    let Some(path) = path else {
+        return Ok((PeerNetConfig::default(), Vec::new()));
+    };
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut table: toml::Table =
+        toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    let synthetic = match table.remove("synthetic") {
+        Some(v) => v.try_into().context("[[synthetic]] sources")?,
+        None => Vec::new(),
+    };
+    let cfg: PeerNetConfig = toml::Value::Table(table)
+        .try_into()
+        .with_context(|| format!("{}", path.display()))?;
+    Ok((cfg, synthetic))
+}
+
+fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> {
+    let (mut cfg, synthetic) = load_config(c.config.as_deref())?;
+    if let Some(r) = &c.robot {
+        cfg.robot.clone_from(r);
+    }
+    if let Some(h) = c.heartbeat_ms {
+        cfg.heartbeat_ms = h;
+    }
+    let key = if let Some(path) = c.key_file.as_ref().or(cfg.key_file.as_ref()) {
+        load_key_file(path).map_err(|e| anyhow::anyhow!("{e}"))?
+    } else if c.insecure {
+        eprintln!(
+            "ima: WARNING: --insecure: using the all-zero group key. Anyone on the network can \
+             register, request, read and inject. Never use this outside a test bench."
+        );
+        insecure_key()
+    } else {
+        bail!(
+            "no group key: name a key file with `key_file` in the config or --key-file \
+             (generate one: head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \\n' > group.key; \
+             chmod 600 group.key), or pass --insecure for a test bench"
+        );
+    };
+    Ok((cfg, synthetic, key))
+}
+
+fn apply_broadcast(cfg: &mut PeerNetConfig, b: &BroadcastArgs) {
+    if let Some(m) = b.mode {
+        cfg.broadcast.mode = match m {
+            Mode::Multicast => BroadcastMode::Multicast,
+            Mode::Unicast => BroadcastMode::Unicast,
+            Mode::Both => BroadcastMode::Both,
+        };
+    }
+    if let Some(p) = b.port {
+        cfg.broadcast.port = p;
+    }
+    if let Some(g) = &b.group {
+        cfg.broadcast.group.clone_from(g);
+    }
+    if let Some(i) = &b.interface {
+        cfg.broadcast.interface.clone_from(i);
+    }
+    if !b.peers.is_empty() {
+        cfg.broadcast.peers.clone_from(&b.peers);
+    }
+}
+
+fn line(v: &Value) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{v}")?;
+    out.flush()?;
+    Ok(())
+}
+
+fn hex(b: &[u8]) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::with_capacity(b.len() * 2);
+    for x in b {
+        let _ = write!(s, "{x:02x}");
+    }
+    s
+}
+
+fn default_synthetic() -> Vec<SyntheticSource> {
+    vec![
+        SyntheticSource {
+            name: "counter".into(),
+            generator: "counter".into(),
+            rate_hz: 10.0,
+        },
+        SyntheticSource {
+            name: "sine".into(),
+            generator: "sine".into(),
+            rate_hz: 10.0,
+        },
+        SyntheticSource {
+            name: "blob64".into(),
+            generator: "blob64".into(),
+            rate_hz: 100.0,
+        },
+    ]
+}
+
+/// One synthetic sample: `counter` u64 LE, `sine` f64 LE (0.2 Hz), `blobN` N bytes.
+fn synth(generator: &str, i: u64, t: f64) -> Result<Vec<u8>> {
+    Ok(match generator {
+        "counter" => i.to_le_bytes().to_vec(),
+        "sine" => (2.0 * std::f64::consts::PI * 0.2 * t)
+            .sin()
+            .to_le_bytes()
+            .to_vec(),
+        g => match g.strip_prefix("blob").and_then(|n| n.parse::<usize>().ok()) {
+            Some(n) => (0..n).map(|k| (i as usize).wrapping_add(k) as u8).collect(),
+            None => bail!("unknown synthetic generator {g:?} (counter, sine, blobN)"),
+        },
+    })
+}
+
+fn run_source(s: &SyntheticSource, p: SourcePublisher) -> Result<tokio::task::JoinHandle<()>> {
+    let generator = s.generator.clone();
+    synth(&generator, 0, 0.0)?;
+    let period = Duration::from_secs_f64(1.0 / s.rate_hz.clamp(0.001, 100_000.0));
+    Ok(tokio::spawn(async move {
+        let start = std::time::Instant::now();
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut i: u64 = 0;
+        loop {
+            tick.tick().await;
+            i = i.wrapping_add(1);
+            let t = start.elapsed();
+            if let Ok(b) = synth(&generator, i, t.as_secs_f64()) {
+                let _ = p.publish(u64::try_from(t.as_micros()).unwrap_or(u64::MAX), &b);
+            }
+        }
+    }))
+}
+
+async fn manager(a: &ManagerArgs) -> Result<()> {
+    let (mut cfg, mut synthetic, key) = setup(&a.common)?;
+    if let Some(l) = &a.listen {
+        cfg.manager.listen.clone_from(l);
+    }
+    apply_broadcast(&mut cfg, &a.broadcast);
+    if synthetic.is_empty() {
+        synthetic = default_synthetic();
+    }
+    let agent = FixedSelfAgent::new(cfg.manager.task_priority, Vec::new());
+    let m = spawn_manager(&cfg, key.clone(), agent)
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut events = m.events();
+    let mut tasks = Vec::new();
+    for s in &synthetic {
+        let p = m.publisher(SourceInfo {
+            name: s.name.clone(),
+            kind: s.generator.clone(),
+            schema: 1,
+            rate_mhz: (s.rate_hz * 1000.0).clamp(0.0, f64::from(u32::MAX)) as u32,
+        });
+        tasks.push(run_source(s, p)?);
+    }
+    line(&json!({
+        "event": "listening",
+        "robot": cfg.robot,
+        "addr": m.local_addr().to_string(),
+        "data_addr": m.data_addr().to_string(),
+        "sources": synthetic.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
+    }))?;
+    if a.status_ms > 0 {
+        let ch =
+            BroadcastChannel::bind(&cfg, &cfg.robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let period = Duration::from_millis(a.status_ms);
+        tasks.push(tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            loop {
+                tick.tick().await;
+                let _ = ch.send_status("serving", "manager", None).await;
+            }
+        }));
+    }
+    loop {
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => break,
+            e = events.recv() => match e {
+                Ok(e) => line(&json!({ "event": "manager", "detail": format!("{e:?}") }))?,
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                    line(&json!({ "event": "lagged", "dropped": n }))?;
+                }
+                Err(_) => break,
+            },
+        }
+    }
+    for t in tasks {
+        t.abort();
+    }
+    m.shutdown().await;
+    Ok(())
+}
+
+async fn client(a: &ClientArgs) -> Result<()> {
+    let (cfg, _, key) = setup(&a.common)?;
+    let c = PeerClientHandle::connect(a.connect.as_str(), &cfg, key)
+        .await
+        .with_context(|| format!("connecting to {}", a.connect))?;
+    let sources = c.register().await.map_err(|e| anyhow::anyhow!("{e}"))?;
+    line(&json!({
+        "event": "registered",
+        "sources": sources.iter().map(|s| json!({
+            "name": s.name, "kind": s.kind, "schema": s.schema, "rate_mhz": s.rate_mhz,
+        })).collect::<Vec<_>>(),
+    }))?;
+    let mut sub = c
+        .request(&a.request, a.priority)
+        .await
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    line(&json!({ "event": "granted", "source": a.request }))?;
+    let mut n: u64 = 0;
+    loop {
+        if a.count.is_some_and(|c| n >= c) {
+            let _ = c.disconnect(&a.request).await;
+            let _ = c.unregister().await;
+            return Ok(());
+        }
+        let next = tokio::select! {
+            e = sub.next() => e,
+            _ = tokio::signal::ctrl_c() => return Ok(()),
+        };
+        match next {
+            Some(SubscriptionEvent::Sample {
+                seq,
+                stamp_us,
+                payload,
+            }) => {
+                n += 1;
+                line(&json!({
+                    "source": a.request,
+                    "seq": seq,
+                    "stamp_us": stamp_us,
+                    "len": payload.len(),
+                    "payload": hex(&payload),
+                }))?;
+            }
+            Some(SubscriptionEvent::Lost { reason }) => {
+                line(&json!({ "event": "lost", "reason": format!("{reason:?}") }))?;
+            }
+            Some(SubscriptionEvent::Closed { reason }) => {
+                line(&json!({ "event": "closed", "reason": format!("{reason:?}") }))?;
+                bail!("source {} ended: {reason:?}", a.request);
+            }
+            None => bail!("source {} ended", a.request),
+        }
+    }
+}
+
+fn msg_json(m: &Msg, from: std::net::SocketAddr) -> Value {
+    match m {
+        Msg::Status {
+            robot,
+            seq,
+            behaviour,
+            san,
+            pose,
+        } => json!({
+            "type": "status", "from": from.to_string(), "robot": robot, "seq": seq,
+            "behaviour": behaviour, "san": san,
+            "pose": pose.map(|p| json!({"x_mm": p.x_mm, "y_mm": p.y_mm, "theta_mrad": p.theta_mrad})),
+        }),
+        Msg::Emergency {
+            robot,
+            seq,
+            kind,
+            text,
+        } => json!({
+            "type": "emergency", "from": from.to_string(), "robot": robot, "seq": seq,
+            "kind": kind, "text": text,
+        }),
+        Msg::Mission {
+            robot,
+            seq,
+            event,
+            target,
+        } => json!({
+            "type": "mission", "from": from.to_string(), "robot": robot, "seq": seq,
+            "mission_event": format!("{event:?}").to_lowercase(), "target": target,
+        }),
+        other => json!({ "type": "other", "code": other.code() }),
+    }
+}
+
+async fn listen(a: &ListenArgs) -> Result<()> {
+    let (mut cfg, _, key) = setup(&a.common)?;
+    apply_broadcast(&mut cfg, &a.broadcast);
+    // A listener sends nothing: every robot's messages are shown, whatever its own name.
+    cfg.broadcast.receive_own = true;
+    let robot = a.common.robot.clone().unwrap_or_else(|| "commander".into());
+    let ch = BroadcastChannel::bind(&cfg, &robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
+    line(&json!({
+        "event": "listening",
+        "addr": ch.local_addr().map_err(|e| anyhow::anyhow!("{e}"))?.to_string(),
+    }))?;
+    let mut n = 0;
+    loop {
+        if a.count.is_some_and(|c| n >= c) {
+            let s = ch.stats();
+            line(&json!({
+                "event": "stats", "accepted": s.receiver.accepted, "bad_mac": s.wire.bad_mac,
+                "replay": s.wire.replay, "duplicate": s.receiver.duplicate,
+                "stale": s.receiver.stale,
+            }))?;
+            return Ok(());
+        }
+        let r = tokio::select! {
+            r = ch.recv() => r,
+            _ = tokio::signal::ctrl_c() => return Ok(()),
+        };
+        let (m, from) = r.map_err(|e| anyhow::anyhow!("{e}"))?;
+        n += 1;
+        line(&msg_json(&m, from))?;
+    }
+}
+
+async fn send(a: &SendArgs) -> Result<()> {
+    let (mut cfg, _, key) = setup(&a.common)?;
+    apply_broadcast(&mut cfg, &a.broadcast);
+    // The sender needs no fixed port: bind any, send to the group/peers.
+    cfg.broadcast.bind_port = Some(0);
+    let robot = a.common.robot.clone().unwrap_or_else(|| cfg.robot.clone());
+    let ch = BroadcastChannel::bind(&cfg, &robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let r = match &a.what {
+        SendWhat::Status { behaviour, san } => ch.send_status(behaviour, san, None).await,
+        SendWhat::Emergency { kind, text } => ch.send_emergency(kind, text).await,
+        SendWhat::Mission { event, target } => {
+            let e = match event {
+                Event::Accepted => MissionEvent::Accepted,
+                Event::Accomplished => MissionEvent::Accomplished,
+                Event::Failed => MissionEvent::Failed,
+            };
+            ch.send_mission(e, target).await
+        }
+    };
+    let n = r.map_err(|e| anyhow::anyhow!("{e}"))?;
+    line(&json!({ "event": "sent", "destinations": n }))?;
+    Ok(())
+}

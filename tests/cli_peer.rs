@@ -1,0 +1,298 @@
+//! `ima peer …` over loopback: key handling, a client printing samples, loss of a killed or
+//! frozen manager, broadcast listen/send between processes.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{ChildStdout, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{Child, ima, json_lines};
+use serde_json::Value;
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ima-cli-peer-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn manager_config(dir: &std::path::Path, extra: &str) -> PathBuf {
+    let p = dir.join("manager.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "robot = \"skeeter\"\nheartbeat_ms = 100\n{extra}\n[manager]\nlisten = \"127.0.0.1:0\"\n\
+             data_listen = \"127.0.0.1:0\"\n[[synthetic]]\nname = \"counter\"\n\
+             generator = \"counter\"\nrate_hz = 100\n[[synthetic]]\nname = \"blob64\"\n\
+             generator = \"blob64\"\nrate_hz = 100\n"
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// Starts `ima peer manager` and returns it with its request-channel address.
+fn spawn_manager(args: &[&str]) -> (Child, String, BufReader<ChildStdout>) {
+    let mut m = Child(
+        ima()
+            .args(["peer", "manager"])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut out = BufReader::new(m.0.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    let v: Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(v["event"], "listening");
+    (m, v["addr"].as_str().unwrap().to_owned(), out)
+}
+
+#[test]
+fn manager_refuses_to_run_without_a_key() {
+    let dir = temp_dir("nokey");
+    let cfg = manager_config(&dir, "");
+    let out = ima()
+        .args(["peer", "manager", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no group key"), "{err}");
+    assert!(err.contains("--insecure"), "{err}");
+}
+
+#[test]
+fn insecure_manager_serves_a_client_that_prints_json_samples() {
+    let dir = temp_dir("insecure");
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, _out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
+    let out = ima()
+        .args(["peer", "client", "--insecure", "--connect", &addr])
+        .args(["--request", "blob64", "--count", "7"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines = json_lines(&out.stdout);
+    assert_eq!(lines[0]["event"], "registered");
+    assert_eq!(lines[1]["event"], "granted");
+    let samples: Vec<&Value> = lines.iter().filter(|l| l.get("seq").is_some()).collect();
+    assert_eq!(samples.len(), 7);
+    let mut last = 0;
+    for s in samples {
+        assert_eq!(s["source"], "blob64");
+        assert_eq!(s["len"], 64);
+        assert_eq!(s["payload"].as_str().unwrap().len(), 128);
+        let seq = s["seq"].as_u64().unwrap();
+        assert!(seq > last);
+        last = seq;
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn key_files_are_required_private_and_must_match() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = temp_dir("keys");
+    let key = dir.join("group.key");
+    std::fs::write(&key, format!("# test key\n{}\n", "5a".repeat(32))).unwrap();
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let cfg = manager_config(&dir, &format!("key_file = {:?}", key.to_str().unwrap()));
+    let out = ima()
+        .args(["peer", "manager", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("chmod 600"));
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
+    let (_m, addr, _out) = spawn_manager(&["--config", cfg.to_str().unwrap()]);
+    let out = ima()
+        .args(["peer", "client", "--key-file"])
+        .arg(&key)
+        .args(["--connect", &addr, "--request", "counter", "--count", "3"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        json_lines(&out.stdout)
+            .iter()
+            .filter(|l| l.get("seq").is_some())
+            .count(),
+        3
+    );
+    // The wrong (insecure) key is refused by the manager.
+    let out = ima()
+        .args(["peer", "client", "--insecure", "--connect", &addr])
+        .args(["--request", "counter", "--count", "1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}
+
+/// Streams from a manager, does `act` to the manager process, and returns the client's
+/// output and how long the loss took to report.
+fn client_sees_loss(act: &str) -> (Vec<Value>, Duration) {
+    let dir = temp_dir(act);
+    let cfg = manager_config(&dir, "");
+    let (m, addr, _out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
+    let mut client = Child(
+        ima()
+            .args(["peer", "client", "--insecure", "--heartbeat-ms", "100"])
+            .args(["--connect", &addr, "--request", "counter"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut out = BufReader::new(client.0.stdout.take().unwrap());
+    let mut lines = Vec::new();
+    let mut l = String::new();
+    while lines.len() < 5 {
+        l.clear();
+        out.read_line(&mut l).unwrap();
+        let v: Value = serde_json::from_str(&l).unwrap();
+        if v.get("seq").is_some() {
+            lines.push(v);
+        }
+    }
+    let pid = m.0.id().to_string();
+    let t0 = Instant::now();
+    let status = std::process::Command::new("kill")
+        .args([act, &pid])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let mut rest = String::new();
+    loop {
+        l.clear();
+        if out.read_line(&mut l).unwrap() == 0 {
+            break;
+        }
+        rest.push_str(&l);
+    }
+    let took = t0.elapsed();
+    let code = client.0.wait().unwrap();
+    assert!(!code.success(), "the client reports the end of its source");
+    if act == "-STOP" {
+        let _ = std::process::Command::new("kill")
+            .args(["-CONT", &pid])
+            .status();
+    }
+    drop(m);
+    (json_lines(rest.as_bytes()), took)
+}
+
+#[test]
+fn killed_manager_process_is_reported() {
+    let (lines, took) = client_sees_loss("-KILL");
+    let last = lines.last().expect("a closing line");
+    assert_eq!(last["event"], "closed");
+    assert!(took < Duration::from_secs(5));
+}
+
+#[test]
+fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
+    let (lines, took) = client_sees_loss("-STOP");
+    let last = lines.last().expect("a closing line");
+    assert_eq!(last["event"], "closed");
+    let reason = last["reason"].as_str().unwrap();
+    assert!(
+        reason == "ManagerLost" || reason == "Data(Lost)",
+        "{reason}"
+    );
+    // 3 heartbeats are 300 ms; generous bound for a loaded machine.
+    assert!(took < Duration::from_secs(5), "{took:?}");
+}
+
+fn free_udp_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+#[test]
+fn listener_prints_broadcasts_of_two_managers_and_a_sender() {
+    let port = free_udp_port().to_string();
+    let bcast = [
+        "--insecure",
+        "--port",
+        &port,
+        "--interface",
+        "127.0.0.1",
+        "--group",
+        "239.255.73.79",
+    ];
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--count", "6"])
+            .args(bcast)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut out = BufReader::new(listener.0.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    assert!(first.contains("listening"));
+    let dir = temp_dir("bcast");
+    let cfg = manager_config(&dir, "");
+    let mut managers = Vec::new();
+    for robot in ["skeeter", "scooter"] {
+        let mut args = vec!["--config", cfg.to_str().unwrap(), "--robot", robot];
+        args.extend(["--status-ms", "100"]);
+        args.extend(bcast);
+        managers.push(spawn_manager(&args));
+    }
+    let sent = ima()
+        .args(["peer", "send", "--robot", "commander"])
+        .args(bcast)
+        .args(["mission", "--event", "accepted", "--target", "red"])
+        .output()
+        .unwrap();
+    assert!(
+        sent.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sent.stderr)
+    );
+    let mut rest = String::new();
+    let mut l = String::new();
+    while out.read_line(&mut l).unwrap() > 0 {
+        rest.push_str(&l);
+        l.clear();
+    }
+    let lines = json_lines(rest.as_bytes());
+    let robots: std::collections::BTreeSet<&str> = lines
+        .iter()
+        .filter(|l| l["type"] == "status")
+        .map(|l| l["robot"].as_str().unwrap())
+        .collect();
+    assert!(
+        robots.contains("skeeter") && robots.contains("scooter"),
+        "{lines:?}"
+    );
+    assert!(
+        lines
+            .iter()
+            .any(|l| l["type"] == "mission" && l["robot"] == "commander" && l["target"] == "red"),
+        "{lines:?}"
+    );
+    let stats = lines.last().unwrap();
+    assert_eq!(stats["event"], "stats");
+    assert_eq!(stats["accepted"].as_u64(), Some(6));
+}
