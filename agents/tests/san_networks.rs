@@ -71,14 +71,15 @@ fn skeeter_asks_scooter_then_reports_failure() {
         "skeeter.toml",
         &[
             "target-requested",
+            "scanner-idle",
             "scooter-in-view",
             "target-not-in-view",
             "scooter-cannot-see-target",
         ],
         18,
         &[
-            (6, "scan-for-target"),
-            (12, "ask-scooter"),
+            (7, "scan-for-target"),
+            (13, "ask-scooter"),
             (18, "report-failed"),
         ],
     );

@@ -1,0 +1,513 @@
+//! The Commander Interface Agent's logic (MISSION.md, "The agents": "sends a series of
+//! targets, shows each target's progress (processing, done, failed) and the robots'
+//! broadcasts").
+//!
+//! Sans-IO: [`Commander::start`], [`Commander::handle_broadcast`] and
+//! [`Commander::handle_timeout`] are the inputs; [`Commander::poll_broadcast`] (targets to
+//! send) and [`Commander::poll_timeout`] the outputs.
+//!
+//! Targets go out **one at a time**, as `Mission{commander, Accepted, colour}`
+//! ([`Broadcast::new_target`]). The target is [`TargetState::Sent`] until the observer robot
+//! (Skeeter) answers with its own `Accepted` ([`TargetState::Processing`]), then
+//! [`TargetState::Done`] on its `Accomplished` or [`TargetState::Failed`] on its `Failed`;
+//! then the next target goes out. Broadcasts travel by datagram and may be lost, so an
+//! unanswered target is sent again every [`CommanderConfig::resend`]. If the observer says
+//! nothing at all about a target for [`CommanderConfig::give_up_after`] (a dead robot), the
+//! commander marks it failed itself. Every broadcast heard is kept in a log.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use ima_hal::Instant;
+
+use super::msg::{Broadcast, MissionEvent};
+
+/// Settings of the commander.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CommanderConfig {
+    /// The commander's broadcast name.
+    pub robot: String,
+    /// The robot whose mission events update the targets (the observer).
+    pub observer: String,
+    /// An unanswered target is sent again after this long.
+    pub resend: Duration,
+    /// A target with no word from the observer for this long is failed by the commander
+    /// (`None`: wait for ever). Skeeter's own timeout (180 s) normally comes first.
+    pub give_up_after: Option<Duration>,
+    /// Most broadcasts kept in the log (the oldest go first).
+    pub max_log: usize,
+}
+
+impl Default for CommanderConfig {
+    fn default() -> Self {
+        Self {
+            robot: super::msg::COMMANDER.to_owned(),
+            observer: super::msg::SKEETER.to_owned(),
+            resend: Duration::from_secs(2),
+            give_up_after: Some(Duration::from_secs(240)),
+            max_log: 10_000,
+        }
+    }
+}
+
+/// Progress of one target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum TargetState {
+    /// Not sent yet.
+    Waiting,
+    /// Sent, not yet accepted by the observer.
+    Sent,
+    /// The observer accepted it and is working on it ("processing").
+    Processing,
+    /// Accomplished ("done").
+    Done,
+    /// Failed (reported by the observer, or given up by the commander).
+    Failed,
+}
+
+impl TargetState {
+    /// The word the console shows: `waiting`, `sent`, `processing`, `done`, `failed`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Waiting => "waiting",
+            Self::Sent => "sent",
+            Self::Processing => "processing",
+            Self::Done => "done",
+            Self::Failed => "failed",
+        }
+    }
+
+    /// Done or failed.
+    #[must_use]
+    pub fn is_final(self) -> bool {
+        matches!(self, Self::Done | Self::Failed)
+    }
+}
+
+/// One target of the series.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Target {
+    /// The colour.
+    pub colour: String,
+    /// Its progress.
+    pub state: TargetState,
+    /// When it was first sent.
+    pub sent_at: Option<Instant>,
+    /// When the observer accepted it.
+    pub accepted_at: Option<Instant>,
+    /// When it was done or failed.
+    pub finished_at: Option<Instant>,
+    /// Times it was sent (1 + resends).
+    pub sends: u32,
+    /// The commander gave up on it (no word from the observer).
+    pub given_up: bool,
+}
+
+impl Target {
+    /// From first send to the end, if both happened.
+    #[must_use]
+    pub fn duration(&self) -> Option<Duration> {
+        Some(self.finished_at?.saturating_duration_since(self.sent_at?))
+    }
+}
+
+/// A broadcast heard, and when.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogEntry {
+    /// When it was heard.
+    pub at: Instant,
+    /// What.
+    pub broadcast: Broadcast,
+}
+
+/// Counts of a series.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Summary {
+    /// Targets in the series.
+    pub total: usize,
+    /// Accomplished.
+    pub done: usize,
+    /// Failed.
+    pub failed: usize,
+    /// Neither yet.
+    pub open: usize,
+    /// Broadcasts heard.
+    pub broadcasts: usize,
+}
+
+impl core::fmt::Display for Summary {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "{} targets: {} done, {} failed, {} open; {} broadcasts heard",
+            self.total, self.done, self.failed, self.open, self.broadcasts
+        )
+    }
+}
+
+/// The commander's logic ([module docs](self)).
+#[derive(Debug, Clone)]
+pub struct Commander {
+    cfg: CommanderConfig,
+    targets: Vec<Target>,
+    current: Option<usize>,
+    started: bool,
+    last_word: Instant,
+    next_send: Option<Instant>,
+    out: VecDeque<Broadcast>,
+    log: VecDeque<LogEntry>,
+    heard: usize,
+}
+
+impl Commander {
+    /// A commander for this series of colours (sent in order).
+    #[must_use]
+    pub fn new<S: AsRef<str>>(colours: &[S], cfg: CommanderConfig) -> Self {
+        Self {
+            cfg,
+            targets: colours
+                .iter()
+                .map(|c| Target {
+                    colour: c.as_ref().to_owned(),
+                    state: TargetState::Waiting,
+                    sent_at: None,
+                    accepted_at: None,
+                    finished_at: None,
+                    sends: 0,
+                    given_up: false,
+                })
+                .collect(),
+            current: None,
+            started: false,
+            last_word: Instant::ZERO,
+            next_send: None,
+            out: VecDeque::new(),
+            log: VecDeque::new(),
+            heard: 0,
+        }
+    }
+
+    /// The settings.
+    #[must_use]
+    pub fn config(&self) -> &CommanderConfig {
+        &self.cfg
+    }
+
+    /// Send the first target (no-op if already started).
+    pub fn start(&mut self, now: Instant) {
+        if !self.started {
+            self.started = true;
+            self.advance(now);
+        }
+    }
+
+    /// The targets and their progress, in series order.
+    #[must_use]
+    pub fn targets(&self) -> &[Target] {
+        &self.targets
+    }
+
+    /// The target being worked on.
+    #[must_use]
+    pub fn current(&self) -> Option<&Target> {
+        self.targets.get(self.current?)
+    }
+
+    /// Broadcasts heard, oldest first (at most [`CommanderConfig::max_log`]).
+    pub fn log(&self) -> impl Iterator<Item = &LogEntry> {
+        self.log.iter()
+    }
+
+    /// Every target is done or failed.
+    #[must_use]
+    pub fn is_finished(&self) -> bool {
+        self.targets.iter().all(|t| t.state.is_final())
+    }
+
+    /// Counts of the series.
+    #[must_use]
+    pub fn summary(&self) -> Summary {
+        let count = |s| self.targets.iter().filter(|t| t.state == s).count();
+        let (done, failed) = (count(TargetState::Done), count(TargetState::Failed));
+        Summary {
+            total: self.targets.len(),
+            done,
+            failed,
+            open: self.targets.len() - done - failed,
+            broadcasts: self.heard,
+        }
+    }
+
+    /// The next broadcast to send.
+    pub fn poll_broadcast(&mut self) -> Option<Broadcast> {
+        self.out.pop_front()
+    }
+
+    /// When [`Commander::handle_timeout`] is due (resend, give up).
+    #[must_use]
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        let t = self.targets.get(self.current?)?;
+        let give_up = self.cfg.give_up_after.map(|d| self.last_word + d);
+        let resend = (t.state == TargetState::Sent)
+            .then_some(self.next_send)
+            .flatten();
+        match (resend, give_up) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Time passed: resend an unanswered target; give up on a silent observer.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        let Some(i) = self.current else {
+            return;
+        };
+        if self
+            .cfg
+            .give_up_after
+            .is_some_and(|d| now >= self.last_word + d)
+        {
+            if let Some(t) = self.targets.get_mut(i) {
+                t.state = TargetState::Failed;
+                t.finished_at = Some(now);
+                t.given_up = true;
+            }
+            self.advance(now);
+            return;
+        }
+        if let Some(t) = self.targets.get(i)
+            && t.state == TargetState::Sent
+            && self.next_send.is_some_and(|n| now >= n)
+        {
+            self.send(i, now);
+        }
+    }
+
+    /// A broadcast heard: logged; the observer's mission events about the current target
+    /// update it (others — earlier targets, other robots — are only logged).
+    pub fn handle_broadcast(&mut self, b: &Broadcast, now: Instant) {
+        self.heard = self.heard.saturating_add(1);
+        if self.log.len() >= self.cfg.max_log.max(1) {
+            self.log.pop_front();
+        }
+        self.log.push_back(LogEntry {
+            at: now,
+            broadcast: b.clone(),
+        });
+        let Broadcast::Mission {
+            robot,
+            event,
+            target,
+        } = b
+        else {
+            return;
+        };
+        if *robot != self.cfg.observer {
+            return;
+        }
+        let Some(i) = self.current else {
+            return;
+        };
+        let Some(t) = self.targets.get_mut(i) else {
+            return;
+        };
+        if t.colour != *target {
+            return;
+        }
+        self.last_word = now;
+        match event {
+            MissionEvent::Accepted => {
+                if t.state == TargetState::Sent {
+                    t.state = TargetState::Processing;
+                    t.accepted_at = Some(now);
+                }
+            }
+            MissionEvent::Accomplished | MissionEvent::Failed => {
+                t.state = if *event == MissionEvent::Accomplished {
+                    TargetState::Done
+                } else {
+                    TargetState::Failed
+                };
+                t.finished_at = Some(now);
+                if t.accepted_at.is_none() {
+                    t.accepted_at = Some(now);
+                }
+                self.advance(now);
+            }
+        }
+    }
+
+    fn send(&mut self, i: usize, now: Instant) {
+        if let Some(t) = self.targets.get_mut(i) {
+            if t.sent_at.is_none() {
+                t.sent_at = Some(now);
+                t.state = TargetState::Sent;
+            }
+            t.sends = t.sends.saturating_add(1);
+            self.out.push_back(Broadcast::mission(
+                &self.cfg.robot,
+                MissionEvent::Accepted,
+                &t.colour,
+            ));
+            self.next_send = Some(now + self.cfg.resend);
+        }
+    }
+
+    /// Send the next waiting target, if any.
+    fn advance(&mut self, now: Instant) {
+        self.current = self
+            .targets
+            .iter()
+            .position(|t| t.state == TargetState::Waiting);
+        self.next_send = None;
+        if let Some(i) = self.current {
+            self.last_word = now;
+            self.send(i, now);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mission::msg::{COMMANDER, Emergency, SCOOTER, SKEETER};
+
+    fn t(s: u64) -> Instant {
+        Instant::from_millis(s * 1000)
+    }
+
+    fn from_skeeter(event: MissionEvent, colour: &str) -> Broadcast {
+        Broadcast::mission(SKEETER, event, colour)
+    }
+
+    fn drain(c: &mut Commander) -> Vec<Broadcast> {
+        std::iter::from_fn(|| c.poll_broadcast()).collect()
+    }
+
+    fn states(c: &Commander) -> Vec<&'static str> {
+        c.targets().iter().map(|t| t.state.as_str()).collect()
+    }
+
+    #[test]
+    fn a_series_goes_out_one_target_at_a_time() {
+        let mut c = Commander::new(&["red", "blue", "green"], CommanderConfig::default());
+        assert_eq!(drain(&mut c), [], "nothing before start");
+        c.start(t(0));
+        c.start(t(0));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("red")]);
+        assert_eq!(states(&c), ["sent", "waiting", "waiting"]);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(1));
+        assert_eq!(states(&c), ["processing", "waiting", "waiting"]);
+        assert_eq!(drain(&mut c), []);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "red"), t(30));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("blue")]);
+        assert_eq!(states(&c), ["done", "sent", "waiting"]);
+        assert_eq!(c.targets()[0].duration(), Some(Duration::from_secs(30)));
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "blue"), t(31));
+        c.handle_broadcast(&from_skeeter(MissionEvent::Failed, "blue"), t(40));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("green")]);
+        assert!(!c.is_finished());
+        // Failed straight away, without an Accepted first (it was lost).
+        c.handle_broadcast(&from_skeeter(MissionEvent::Failed, "green"), t(41));
+        assert_eq!(states(&c), ["done", "failed", "failed"]);
+        assert!(c.is_finished());
+        assert_eq!(drain(&mut c), []);
+        assert_eq!(c.current(), None);
+        assert_eq!(c.poll_timeout(), None);
+        let s = c.summary();
+        assert_eq!(
+            (s.total, s.done, s.failed, s.open, s.broadcasts),
+            (3, 1, 2, 0, 5)
+        );
+        assert_eq!(
+            s.to_string(),
+            "3 targets: 1 done, 2 failed, 0 open; 5 broadcasts heard"
+        );
+    }
+
+    #[test]
+    fn unanswered_targets_are_resent_until_accepted() {
+        let mut c = Commander::new(&["red"], CommanderConfig::default());
+        c.start(t(0));
+        drain(&mut c);
+        assert_eq!(c.poll_timeout(), Some(t(2)));
+        c.handle_timeout(Instant::from_millis(1999));
+        assert_eq!(drain(&mut c), []);
+        c.handle_timeout(t(2));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("red")]);
+        assert_eq!(c.targets()[0].sends, 2);
+        assert_eq!(c.targets()[0].sent_at, Some(t(0)), "first send kept");
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(3));
+        c.handle_timeout(t(10));
+        assert_eq!(drain(&mut c), [], "no resend once accepted");
+        assert_eq!(c.targets()[0].accepted_at, Some(t(3)));
+    }
+
+    #[test]
+    fn only_the_observers_events_about_the_current_target_count_but_all_are_logged() {
+        let mut c = Commander::new(&["red", "blue"], CommanderConfig::default());
+        c.start(t(0));
+        drain(&mut c);
+        let noise = [
+            Broadcast::mission(SCOOTER, MissionEvent::Accomplished, "red"),
+            Broadcast::mission(COMMANDER, MissionEvent::Accepted, "red"),
+            from_skeeter(MissionEvent::Accomplished, "blue"),
+            Broadcast::emergency(SKEETER, Emergency::ScooterLost),
+            Broadcast::status(SCOOTER, "go-to-target", "", None),
+        ];
+        for (i, b) in noise.iter().enumerate() {
+            c.handle_broadcast(b, t(i as u64));
+        }
+        assert_eq!(states(&c), ["sent", "waiting"]);
+        let log: Vec<&Broadcast> = c.log().map(|e| &e.broadcast).collect();
+        assert_eq!(log.len(), 5);
+        assert_eq!(log[3], &noise[3]);
+        assert_eq!(c.log().nth(4).unwrap().at, t(4));
+    }
+
+    #[test]
+    fn a_silent_observer_is_given_up_on() {
+        let mut c = Commander::new(
+            &["red", "blue"],
+            CommanderConfig {
+                give_up_after: Some(Duration::from_secs(60)),
+                resend: Duration::from_secs(100),
+                ..CommanderConfig::default()
+            },
+        );
+        c.start(t(0));
+        drain(&mut c);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(10));
+        assert_eq!(c.poll_timeout(), Some(t(70)), "60 s after the last word");
+        c.handle_timeout(t(69));
+        assert_eq!(states(&c), ["processing", "waiting"]);
+        c.handle_timeout(t(70));
+        assert_eq!(states(&c), ["failed", "sent"]);
+        assert!(c.targets()[0].given_up);
+        assert_eq!(drain(&mut c), [Broadcast::new_target("blue")]);
+        // A late report about red changes nothing.
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "red"), t(71));
+        assert_eq!(states(&c), ["failed", "sent"]);
+    }
+
+    #[test]
+    fn the_log_is_bounded_and_an_empty_series_is_finished() {
+        let mut c = Commander::new(
+            &["red"],
+            CommanderConfig {
+                max_log: 3,
+                ..CommanderConfig::default()
+            },
+        );
+        for i in 0..5 {
+            c.handle_broadcast(&Broadcast::status(SKEETER, "idle", "", None), t(i));
+        }
+        assert_eq!(c.log().count(), 3);
+        assert_eq!(c.log().next().unwrap().at, t(2));
+        assert_eq!(c.summary().broadcasts, 5);
+        let empty = Commander::new::<&str>(&[], CommanderConfig::default());
+        assert!(empty.is_finished());
+        assert_eq!(empty.summary(), Summary::default());
+    }
+}
