@@ -17,6 +17,8 @@
 //!   map every SAN condition to the input that feeds it and every module to its action.
 //! * [`commander`] — the Commander Interface Agent's logic: a series of targets sent one at
 //!   a time, each target's progress from Skeeter's mission events, a log of broadcasts.
+//! * [`scooter`] — Scooter's brain: heading rules, SAN, laser target finder, controller.
+//! * [`avoid`] — smooth laser obstacle avoidance (locked side, hysteresis).
 //!
 //! # How a runtime drives Skeeter
 //!

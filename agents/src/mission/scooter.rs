@@ -62,7 +62,7 @@
 //!
 //! | module | action |
 //! |---|---|
-//! | `request-heading` | stop, send [`ScooterSay::RequestHeading`] (again every `lost_after`) |
+//! | `request-heading` | send [`ScooterSay::RequestHeading`] (again every `lost_after`); coast on the last plan for [`ScooterConfig::coast_for`] after the last sample, then stand still |
 //! | `follow-heading` | turn to θd and drive |
 //! | `move-to-target` | drive to the laser cluster |
 //! | `avoid-obstacle` | steer round the obstacle on a locked side |
@@ -81,6 +81,7 @@ use ima_hal::laser::LaserScan;
 use ima_hal::{Instant, Isometry2, Point2, Vector2, normalize_angle};
 
 use super::avoid::{AvoidConfig, Avoider};
+use super::msg::{Broadcast, Emergency, MissionEvent, Pose};
 use crate::heading::{self, Observation, Range, RangeSource};
 use crate::san::Network;
 use crate::ses::shared::{SharedForm, SharedRecord};
@@ -170,6 +171,10 @@ pub struct ScooterConfig {
     pub odometry_heading_offset_rad: f64,
     /// Period of [`ScooterSay::Status`] messages.
     pub status_period: Duration,
+    /// While `request-heading` runs (lost), keep following the last plan for at most this
+    /// long after the last SES sample, then stand still (Skeeter may simply have lost sight
+    /// of the target or of Scooter for a scan or two, e.g. when Scooter hides the target).
+    pub coast_for: Duration,
     /// Stop homing this close to Skeeter's estimated position, metres.
     pub home_stop_distance_m: f64,
     /// At most this many samples are averaged into the target position estimate.
@@ -203,6 +208,7 @@ impl Default for ScooterConfig {
             fusion_gain: 0.05,
             odometry_heading_offset_rad: 0.0,
             status_period: Duration::from_secs(1),
+            coast_for: Duration::from_secs(30),
             home_stop_distance_m: 1.2,
             max_target_samples: 12,
             avoid: AvoidConfig::default(),
@@ -219,8 +225,12 @@ pub enum ScooterHeard {
         /// Colour name, as in the SES.
         colour: String,
     },
-    /// The current mission ended (accomplished or failed): stop and wait.
-    MissionEnded,
+    /// The mission for `colour` ended (accomplished or failed): stop and wait (ignored when
+    /// `colour` is not the current target).
+    MissionEnded {
+        /// The target that ended.
+        colour: String,
+    },
     /// Skeeter's stress call `scooter-lost`: come home.
     ScooterLost,
     /// Skeeter sees Scooter again (`scooter-found`).
@@ -263,6 +273,82 @@ impl ScooterSay {
     #[must_use]
     pub fn reply_text(colour: &str, seen: bool) -> String {
         format!("{colour} {}", if seen { "yes" } else { "no" })
+    }
+
+    /// The broadcast to send for this output, from robot `robot` (`"scooter"`), with `san`
+    /// as the status's SAN summary. `None` for [`ScooterSay::RequestHeading`], which is for
+    /// the Peer Agent client (re-request Skeeter's `ses` source), not the broadcast channel.
+    /// The status pose is the DR pose in millimetres and milliradians.
+    #[must_use]
+    pub fn to_broadcast(&self, robot: &str, san: &str) -> Option<Broadcast> {
+        match self {
+            Self::TargetReached { colour } => Some(Broadcast::emergency(
+                robot,
+                Emergency::TargetReached {
+                    colour: colour.clone(),
+                },
+            )),
+            Self::TargetReply { colour, seen } => Some(Broadcast::emergency(
+                robot,
+                Emergency::TargetReply {
+                    colour: colour.clone(),
+                    seen: *seen,
+                },
+            )),
+            Self::Status { behaviour, pose } => {
+                let fix = |v: f64| {
+                    if v.is_finite() {
+                        (v * 1000.0).round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+                    } else {
+                        0
+                    }
+                };
+                Some(Broadcast::status(
+                    robot,
+                    behaviour.as_str(),
+                    san,
+                    Some(Pose {
+                        x_mm: fix(pose.0),
+                        y_mm: fix(pose.1),
+                        theta_mrad: fix(pose.2),
+                    }),
+                ))
+            }
+            Self::RequestHeading => None,
+        }
+    }
+}
+
+impl ScooterHeard {
+    /// What a broadcast means to Scooter, if anything: a target `Accepted` by anyone but
+    /// Scooter (the commander's request or Skeeter's acceptance) starts a target;
+    /// `Accomplished`/`Failed` ends it; the emergencies `scooter-lost`, `scooter-found` and
+    /// `target-query` map one to one. Everything else (statuses, Scooter's own
+    /// emergencies) is `None`.
+    #[must_use]
+    pub fn from_broadcast(b: &Broadcast, me: &str) -> Option<Self> {
+        if b.robot() == me {
+            return None;
+        }
+        match b {
+            Broadcast::Mission { event, target, .. } => Some(match event {
+                MissionEvent::Accepted => Self::TargetAccepted {
+                    colour: target.clone(),
+                },
+                MissionEvent::Accomplished | MissionEvent::Failed => Self::MissionEnded {
+                    colour: target.clone(),
+                },
+            }),
+            Broadcast::Emergency { emergency, .. } => match emergency {
+                Emergency::ScooterLost => Some(Self::ScooterLost),
+                Emergency::ScooterFound => Some(Self::ScooterFound),
+                Emergency::TargetQuery { colour } => Some(Self::TargetQuery {
+                    colour: colour.clone(),
+                }),
+                Emergency::TargetReply { .. } | Emergency::TargetReached { .. } => None,
+            },
+            Broadcast::Status { .. } => None,
+        }
     }
 }
 
@@ -316,13 +402,6 @@ impl Behaviour {
             "notify-skeeter" => Self::NotifySkeeter,
             _ => return None,
         })
-    }
-
-    fn moves(self) -> bool {
-        matches!(
-            self,
-            Self::FollowHeading | Self::MoveToTarget | Self::AvoidObstacle | Self::MoveToHome
-        )
     }
 }
 
@@ -466,6 +545,10 @@ pub struct ScooterBrain {
 }
 
 const HISTORY_LEN: usize = 4096;
+
+/// A goal: common-frame direction, distance (∞ if unknown), and a DR circle that is not an
+/// obstacle (the target itself, or Skeeter when homing).
+type Goal = (f64, f64, Option<(Vector2, f64)>);
 const TARGET_FIX_TTL: Duration = Duration::from_secs(3);
 
 fn unit(theta: f64) -> Vector2 {
@@ -597,11 +680,41 @@ impl ScooterBrain {
         self.avoider.reset();
     }
 
-    /// A broadcast heard.
+    /// A typed broadcast from the channel (see [`ScooterHeard::from_broadcast`]); returns
+    /// whether it meant anything to Scooter.
+    pub fn handle_broadcast(&mut self, b: &Broadcast, now: Instant) -> bool {
+        match ScooterHeard::from_broadcast(b, &self.cfg.robot_name) {
+            Some(h) => {
+                self.handle_heard(&h, now);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// A one-line SAN summary for status broadcasts: the true conditions.
+    #[must_use]
+    pub fn san_summary(&self) -> String {
+        self.san
+            .condition_names()
+            .filter(|c| self.san.condition(c) == Some(true))
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+
+    /// A broadcast heard (already typed). A repeated acceptance of the current target
+    /// (the commander's, then Skeeter's) does not restart it.
     pub fn handle_heard(&mut self, heard: &ScooterHeard, now: Instant) {
         match heard {
-            ScooterHeard::TargetAccepted { colour } => self.set_target(colour, now),
-            ScooterHeard::MissionEnded => {
+            ScooterHeard::TargetAccepted { colour } => {
+                if self.target.as_deref() != Some(colour.as_str()) || self.reached {
+                    self.set_target(colour, now);
+                }
+            }
+            ScooterHeard::MissionEnded { colour } => {
+                if self.target.as_deref() != Some(colour.as_str()) {
+                    return;
+                }
                 self.target = None;
                 self.plan = None;
                 self.avoider.reset();
@@ -641,7 +754,10 @@ impl ScooterBrain {
             Some(prev) => {
                 let d = pose.translation.vector - prev.translation.vector;
                 let pth = prev.rotation.angle();
-                (d.x * pth.cos() + d.y * pth.sin(), normalize_angle(th - pth))
+                (
+                    d.x * pth.cos() + d.y * pth.sin(),
+                    normalize_angle(th - pth),
+                )
             }
             None => (0.0, 0.0),
         };
@@ -702,10 +818,9 @@ impl ScooterBrain {
         };
         // Sensing time on our clock: now − (sent_at − time).
         let age = form.sent_at.saturating_duration_since(me.time);
-        let seen_at = Instant::from_micros(
-            now.as_micros()
-                .saturating_sub(u64::try_from(age.as_micros()).unwrap_or(u64::MAX)),
-        );
+        let seen_at = Instant::from_micros(now.as_micros().saturating_sub(
+            u64::try_from(age.as_micros()).unwrap_or(u64::MAX),
+        ));
         let theta1 = me.bearing.azimuth_rad;
         let theta2 = tg.bearing.azimuth_rad;
         let p_rec = self.dr_at(seen_at);
@@ -861,29 +976,47 @@ impl ScooterBrain {
         }
     }
 
+    /// Step the SAN and choose among the modules that move or wait (`request-heading`,
+    /// `follow-heading`, `move-to-target`, `avoid-obstacle`, `move-to-home`): the fired
+    /// module, else the executable one with the highest activation. The two message-only
+    /// modules (`reply-target-query`, `notify-skeeter`) are reflexes handled in
+    /// [`ScooterBrain::step`].
     fn select(&mut self) -> Behaviour {
         let trace = self.san.step();
-        if let Some(b) = trace.fired.as_deref().and_then(Behaviour::from_module) {
+        let allowed = |b: &Behaviour| {
+            !matches!(b, Behaviour::ReplyTargetQuery | Behaviour::NotifySkeeter)
+        };
+        if let Some(b) = trace
+            .fired
+            .as_deref()
+            .and_then(Behaviour::from_module)
+            .filter(allowed)
+        {
             return b;
         }
         trace
             .modules
             .iter()
             .filter(|m| m.executable)
-            .max_by(|a, b| a.activation.total_cmp(&b.activation))
-            .and_then(|m| Behaviour::from_module(&m.name))
-            .unwrap_or(Behaviour::Idle)
+            .filter_map(|m| {
+                Behaviour::from_module(&m.name)
+                    .filter(allowed)
+                    .map(|b| (b, m.activation))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(Behaviour::Idle, |(b, _)| b)
     }
 
-    /// One control step at `now`: run the SAN and the selected behaviour.
+    /// One control step at `now`: the agents set the SAN's conditions, the SAN chooses the
+    /// running module, and the module acts. A reached target makes `notify-skeeter` run
+    /// (send `target-reached` once, then stand still); a pending query is answered in the
+    /// same step whatever moves (`reply-target-query` is reported for that step).
     pub fn step(&mut self, now: Instant) -> ScooterOutput {
         let dt = self
             .last_step
             .map_or(0.0, |t| now.saturating_duration_since(t).as_secs_f64());
         self.last_step = Some(now);
-        // Reply to a query whatever runs (a message does not need the wheels).
         let h = self.heading();
-        // Reached?
         if let (Some(t), Some(_), false) = (self.target_in_view(now), h, self.reached)
             && self.target.is_some()
             && (t - self.dr).norm() <= self.cfg.reach_distance_m
@@ -891,38 +1024,33 @@ impl ScooterBrain {
             self.reached = true;
         }
         // Obstacle agent: judge the path toward the current goal.
-        let goal = self.goal(now);
-        let obstacle = match (goal, h) {
+        let obstacle = match (self.goal(now), h) {
             (Some((dir, dist, ignore)), Some(h)) if self.target.is_some() && !self.reached => {
                 let ignore =
                     ignore.map(|(p, r)| (Point2::from(nalgebra_rotate(-h, p - self.dr)), r));
-                let d = self
-                    .avoider
-                    .decide(&self.points, normalize_angle(dir - h), dist, ignore);
-                Some(d)
+                Some(
+                    self.avoider
+                        .decide(&self.points, normalize_angle(dir - h), dist, ignore),
+                )
             }
             _ => {
                 self.avoider.reset();
                 None
             }
         };
-        let obstacle_near = obstacle.is_some_and(|d| d.active);
-        self.feed_san(now, obstacle_near);
-        let mut behaviour = if self.target.is_none() && !self.called_back {
+        let steer = obstacle.filter(|d| d.active).map(|d| d.steer_rad);
+        self.feed_san(now, steer.is_some());
+        let chosen = self.select();
+        let motion = if self.reached && self.target.is_some() {
+            Behaviour::NotifySkeeter
+        } else if self.target.is_none() && !(self.called_back && chosen == Behaviour::MoveToHome)
+        {
             Behaviour::Idle
         } else {
-            self.select()
+            chosen
         };
-        if self.target.is_none() && behaviour != Behaviour::MoveToHome {
-            behaviour = if self.query.is_some() {
-                Behaviour::ReplyTargetQuery
-            } else {
-                Behaviour::Idle
-            };
-        }
         let mut command = VelocityCommand::ZERO;
-        match behaviour {
-            Behaviour::Idle => self.omega = 0.0,
+        match motion {
             Behaviour::RequestHeading => {
                 let due = self
                     .last_request_at
@@ -931,17 +1059,14 @@ impl ScooterBrain {
                     self.last_request_at = Some(now);
                     self.outbox.push(ScooterSay::RequestHeading);
                 }
-                self.omega = 0.0;
-            }
-            Behaviour::ReplyTargetQuery => {
-                if let Some(colour) = self.query.take() {
-                    let seen = self.target.as_deref() == Some(colour.as_str())
-                        && self.target_in_view(now).is_some();
-                    self.outbox.push(ScooterSay::TargetReply { colour, seen });
-                }
-                // Motion continues as it was.
-                if self.motion.moves() {
-                    command = self.drive(now, h, obstacle.map(|d| d.steer_rad), dt);
+                let coast = self.plan.is_some()
+                    && self
+                        .last_ses_at
+                        .is_some_and(|t| now.saturating_duration_since(t) <= self.cfg.coast_for);
+                if coast {
+                    command = self.drive(self.goal_for(motion, now), h, steer, dt);
+                } else {
+                    self.omega = 0.0;
                 }
             }
             Behaviour::NotifySkeeter => {
@@ -958,13 +1083,19 @@ impl ScooterBrain {
             | Behaviour::MoveToTarget
             | Behaviour::AvoidObstacle
             | Behaviour::MoveToHome => {
-                command = self.drive(now, h, obstacle.map(|d| d.steer_rad), dt);
+                command = self.drive(self.goal_for(motion, now), h, steer, dt);
             }
+            Behaviour::Idle | Behaviour::ReplyTargetQuery => self.omega = 0.0,
+        }
+        let mut behaviour = motion;
+        if let Some(colour) = self.query.take() {
+            let seen = self.target.as_deref() == Some(colour.as_str())
+                && self.target_in_view(now).is_some();
+            self.outbox.push(ScooterSay::TargetReply { colour, seen });
+            behaviour = Behaviour::ReplyTargetQuery;
         }
         self.behaviour = behaviour;
-        if behaviour != Behaviour::ReplyTargetQuery {
-            self.motion = behaviour;
-        }
+        self.motion = motion;
         if self
             .last_status
             .is_none_or(|t| now.saturating_duration_since(t) >= self.cfg.status_period)
@@ -982,51 +1113,70 @@ impl ScooterBrain {
         }
     }
 
-    /// The current goal for the running motion: (common-frame direction, distance, a DR
-    /// circle to ignore as an obstacle).
-    fn goal(&self, now: Instant) -> Option<(f64, f64, Option<(Vector2, f64)>)> {
-        let ignore_r = self.cfg.target_diameter_m / 2.0 + 0.15;
-        if self.called_back {
-            return match self.skeeter_dr {
-                Some(s) => {
-                    let d = s - self.dr;
-                    Some((d.y.atan2(d.x), d.norm(), Some((s, 0.6))))
-                }
-                None => self
-                    .last_fix
-                    .map(|f| (normalize_angle(f.scout_bearing + PI), f64::INFINITY, None)),
-            };
+    fn home_goal(&self) -> Option<Goal> {
+        match self.skeeter_dr {
+            Some(s) => {
+                let d = s - self.dr;
+                Some((d.y.atan2(d.x), d.norm(), Some((s, 0.6))))
+            }
+            None => self
+                .last_fix
+                .map(|f| (normalize_angle(f.scout_bearing + PI), f64::INFINITY, None)),
         }
-        if let Some(t) = self.target_in_view(now) {
-            let d = t - self.dr;
-            return Some((d.y.atan2(d.x), d.norm(), Some((t, ignore_r))));
-        }
+    }
+
+    fn target_goal(&self, now: Instant) -> Option<Goal> {
+        let t = self.target_in_view(now)?;
+        let d = t - self.dr;
+        let r = self.cfg.target_diameter_m / 2.0 + 0.15;
+        Some((d.y.atan2(d.x), d.norm(), Some((t, r))))
+    }
+
+    fn plan_goal(&self) -> Option<Goal> {
+        let r = self.cfg.target_diameter_m / 2.0 + 0.35;
         match self.plan? {
             Plan::Heading(hd) => Some((hd, f64::INFINITY, None)),
             Plan::Point(p) => {
                 let d = p - self.dr;
-                Some((d.y.atan2(d.x), d.norm(), Some((p, ignore_r + 0.2))))
+                Some((d.y.atan2(d.x), d.norm(), Some((p, r))))
             }
         }
+    }
+
+    /// The goal of a motion module.
+    fn goal_for(&self, b: Behaviour, now: Instant) -> Option<Goal> {
+        match b {
+            Behaviour::MoveToHome => self.home_goal(),
+            Behaviour::MoveToTarget => self.target_goal(now).or_else(|| self.plan_goal()),
+            Behaviour::FollowHeading | Behaviour::RequestHeading => self.plan_goal(),
+            _ => self.goal(now),
+        }
+    }
+
+    /// The goal by state priority (called back → home; target in view → target; else the
+    /// plan), which the obstacle agent judges the path toward: (common-frame direction,
+    /// distance, a DR circle that is not an obstacle).
+    fn goal(&self, now: Instant) -> Option<Goal> {
+        if self.called_back {
+            return self.home_goal();
+        }
+        self.target_goal(now).or_else(|| self.plan_goal())
     }
 
     /// The controller: turn toward the goal (or the avoider's steering direction).
     fn drive(
         &mut self,
-        now: Instant,
+        goal: Option<Goal>,
         h: Option<f64>,
         avoid_steer: Option<f64>,
         dt: f64,
     ) -> VelocityCommand {
-        let (Some(h), Some((dir, dist, _))) = (h, self.goal(now)) else {
+        let (Some(h), Some((dir, dist, _))) = (h, goal) else {
             self.omega = 0.0;
             return VelocityCommand::ZERO;
         };
         // Robot-frame error: the avoider's direction already is robot-frame.
-        let err = match avoid_steer {
-            Some(s) if self.avoider.is_active() => s,
-            _ => normalize_angle(dir - h),
-        };
+        let err = avoid_steer.unwrap_or_else(|| normalize_angle(dir - h));
         let homing_done = self.called_back && dist <= self.cfg.home_stop_distance_m;
         if self.turning_in_place {
             if err.abs() < self.cfg.turn_in_place_exit_rad {
@@ -1068,4 +1218,670 @@ fn nalgebra_rotate(theta: f64, v: Vector2) -> Vector2 {
 
 fn avoid_points(scan: &LaserScan, cfg: &ScooterConfig, out: &mut Vec<Point2>) {
     super::avoid::scan_points(scan, &cfg.laser_mount, cfg.laser_max_range_m, out);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ima_hal::laser::BeamFlags;
+
+    const RED: &str = "red";
+
+    fn t(ms: u64) -> Instant {
+        Instant::from_millis(ms)
+    }
+
+    fn rec(object: &str, bearing_deg: f64, range_m: Option<f64>, time: Instant) -> SharedRecord {
+        SharedRecord {
+            object: object.to_owned(),
+            bearing: crate::ses::Direction::horizontal(bearing_deg.to_radians()),
+            range_m,
+            confidence: 1.0,
+            time,
+        }
+    }
+
+    fn form(records: Vec<SharedRecord>, sent_at: Instant) -> SharedForm {
+        SharedForm {
+            source_robot: "skeeter".to_owned(),
+            sent_at,
+            records,
+        }
+    }
+
+    fn brain(rule: HeadingRule) -> ScooterBrain {
+        let cfg = ScooterConfig {
+            heading_rule: rule,
+            heading_source: HeadingSource::Compass,
+            ..ScooterConfig::default()
+        };
+        let mut b = ScooterBrain::new(cfg);
+        b.handle_compass(0.0, t(0));
+        b.handle_odometry(&Odometry::origin(), t(0));
+        b
+    }
+
+    fn close_deg(a: f64, b_deg: f64) -> bool {
+        normalize_angle(a - b_deg.to_radians()).abs() < 1e-3
+    }
+
+    /// A tiny world for closed-loop tests: a unicycle and round things, a 181-beam laser.
+    struct Mini {
+        x: f64,
+        y: f64,
+        th: f64,
+        circles: Vec<([f64; 2], f64)>,
+    }
+
+    impl Mini {
+        fn scan(&self, mount: &Isometry2) -> LaserScan {
+            let mut s = LaserScan::new(-PI / 2.0, PI / 180.0);
+            let sensor = Isometry2::new(Vector2::new(self.x, self.y), self.th) * mount;
+            let o = sensor.translation.vector;
+            for k in 0..181 {
+                let dir = sensor.rotation.angle() - PI / 2.0 + f64::from(k) * PI / 180.0;
+                let d = unit(dir);
+                let mut best = f64::INFINITY;
+                for (c, r) in &self.circles {
+                    let f = o - Vector2::new(c[0], c[1]);
+                    let b = f.dot(&d);
+                    let cc = f.dot(&f) - r * r;
+                    let disc = b * b - cc;
+                    if disc >= 0.0 {
+                        let hit = -b - disc.sqrt();
+                        if hit >= 0.0 {
+                            best = best.min(hit);
+                        }
+                    }
+                }
+                if best < 8.0 {
+                    s.push(best as f32, BeamFlags::VALID).unwrap();
+                } else {
+                    s.push(f32::NAN, BeamFlags::NO_RETURN).unwrap();
+                }
+            }
+            s
+        }
+
+        fn odo(&self, start: (f64, f64, f64)) -> Odometry {
+            let s = Isometry2::new(Vector2::new(start.0, start.1), start.2);
+            let p = Isometry2::new(Vector2::new(self.x, self.y), self.th);
+            Odometry {
+                pose: s.inverse() * p,
+                v_m_s: 0.0,
+                omega_rad_s: 0.0,
+            }
+        }
+
+        fn advance(&mut self, c: VelocityCommand, dt: f64) {
+            self.th = normalize_angle(self.th + c.omega_rad_s * dt);
+            self.x += c.v_m_s * dt * self.th.cos();
+            self.y += c.v_m_s * dt * self.th.sin();
+        }
+    }
+
+    #[test]
+    fn embedded_network_loads_and_every_module_has_a_behaviour() {
+        let b = ScooterBrain::new(ScooterConfig::default());
+        for m in b.san().module_names() {
+            let beh = Behaviour::from_module(m).unwrap();
+            assert_eq!(beh.as_str(), m);
+        }
+        assert_eq!(b.behaviour(), Behaviour::Idle);
+    }
+
+    #[test]
+    fn idle_without_a_target() {
+        let mut b = brain(HeadingRule::Thesis);
+        let out = b.step(t(0));
+        assert_eq!(out.behaviour, Behaviour::Idle);
+        assert_eq!(out.command, VelocityCommand::ZERO);
+        assert!(!b.handle_ses(&form(vec![rec("scooter", 0.0, None, t(0))], t(0)), t(0)));
+    }
+
+    #[test]
+    fn thesis_rule_plans_the_isosceles_heading_and_turns_in_place() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![
+                rec("scooter", 0.0, Some(3.0), t(0)),
+                rec(RED, 90.0, Some(5.0), t(0)),
+            ],
+            t(0),
+        );
+        assert!(b.handle_ses(&f, t(0)));
+        // Ranges are ignored by the thesis rule: θd = 135°.
+        assert!(matches!(b.plan(), Some(Plan::Heading(h)) if close_deg(h, 135.0)));
+        b.step(t(0));
+        let out = b.step(t(50));
+        assert_eq!(out.behaviour, Behaviour::FollowHeading);
+        assert_eq!(out.command.v_m_s, 0.0, "turns in place first");
+        assert!(out.command.omega_rad_s > 0.0, "counter-clockwise toward 135°");
+    }
+
+    #[test]
+    fn range_aware_rule_with_ranges_plans_the_target_point() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![
+                rec("scooter", 0.0, Some(2.0), t(0)),
+                rec(RED, 90.0, Some(5.0), t(0)),
+            ],
+            t(0),
+        );
+        assert!(b.handle_ses(&f, t(0)));
+        // Scooter at (2, 0), target at (0, 5): relative (−2, 5) from the DR origin.
+        match b.plan() {
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(-2.0, 5.0)).norm() < 1e-3),
+            other => panic!("{other:?}"),
+        }
+        assert!(close_deg(b.desired_heading().unwrap(), 5f64.atan2(-2.0).to_degrees()));
+    }
+
+    #[test]
+    fn range_aware_rule_falls_back_to_the_thesis_rule_without_ranges() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, -90.0, None, t(0))],
+            t(0),
+        );
+        assert!(b.handle_ses(&f, t(0)));
+        assert!(matches!(b.plan(), Some(Plan::Heading(h)) if close_deg(h, -135.0)));
+    }
+
+    #[test]
+    fn range_aware_rule_triangulates_scooter_from_its_own_motion() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Scooter at (1, 0) in the common frame; Skeeter sees it at 0°.
+        let f0 = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 180.0, Some(4.0), t(0))],
+            t(0),
+        );
+        assert!(b.handle_ses(&f0, t(0)));
+        assert!(matches!(b.plan(), Some(Plan::Heading(_))));
+        // It drives 1 m along +y (heading 90°) to (1, 1): Skeeter sees it at 45°.
+        b.handle_compass(PI / 2.0, t(1000));
+        b.handle_odometry(
+            &Odometry {
+                pose: Isometry2::new(Vector2::new(0.0, 0.0), PI / 2.0),
+                ..Odometry::origin()
+            },
+            t(1000),
+        );
+        b.handle_odometry(
+            &Odometry {
+                pose: Isometry2::new(Vector2::new(0.0, 1.0), PI / 2.0),
+                ..Odometry::origin()
+            },
+            t(2000),
+        );
+        let f1 = form(
+            vec![rec("scooter", 45.0, None, t(2000)), rec(RED, 180.0, Some(4.0), t(2000))],
+            t(2000),
+        );
+        assert!(b.handle_ses(&f1, t(2000)));
+        match b.plan() {
+            // DR = common − (1, 0): the target (−4, 0) is DR (−5, 0).
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(-5.0, 0.0)).norm() < 1e-2, "{p}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn ses_record_times_are_placed_on_the_local_clock() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Scooter drives along +x: at 1 s it is at DR (0.1, 0), at 3 s at (0.3, 0).
+        for k in 0..=30 {
+            let x = 0.01 * f64::from(k);
+            b.handle_odometry(
+                &Odometry {
+                    pose: Isometry2::new(Vector2::new(x, 0.0), 0.0),
+                    ..Odometry::origin()
+                },
+                t(100 * u64::try_from(k).unwrap()),
+            );
+        }
+        // Skeeter's clock is 1000 s ahead; the record was sensed 2 s before sending, which
+        // arrives at our 3 s: sensed at our 1 s, when DR was (0.1, 0).
+        let sk = |ms: u64| Instant::from_millis(1_000_000 + ms);
+        let f = form(
+            vec![
+                rec("scooter", 0.0, Some(2.0), sk(1000)),
+                rec(RED, 90.0, Some(2.0), sk(1000)),
+            ],
+            sk(3000),
+        );
+        assert!(b.handle_ses(&f, t(3000)));
+        match b.plan() {
+            // Target relative to Scooter then: (−2, 2); DR (0.1, 0) + that.
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(-1.9, 2.0)).norm() < 1e-6, "{p}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn lost_timer_requests_a_heading_coasts_then_stops() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.set_target(RED, t(0));
+        // No sample yet: request at once, standing still.
+        let out = b.step(t(0));
+        assert_eq!(out.behaviour, Behaviour::RequestHeading);
+        assert!(out.messages.contains(&ScooterSay::RequestHeading));
+        assert_eq!(out.command, VelocityCommand::ZERO);
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 179.0, None, t(0))],
+            t(0),
+        );
+        assert!(b.handle_ses(&f, t(100)));
+        b.handle_compass(b.desired_heading().unwrap(), t(150));
+        let out = b.step(t(200));
+        assert_eq!(out.behaviour, Behaviour::FollowHeading);
+        // 13 s later: stale (lost_after 12 s), requests again, coasts on the old heading.
+        let out = b.step(t(13_200));
+        assert_eq!(out.behaviour, Behaviour::RequestHeading);
+        assert!(out.messages.contains(&ScooterSay::RequestHeading));
+        assert!(out.command.v_m_s > 0.0, "coasting");
+        // Not re-requested before another 12 s.
+        let out = b.step(t(14_000));
+        assert!(!out.messages.contains(&ScooterSay::RequestHeading));
+        let out = b.step(t(25_300));
+        assert!(out.messages.contains(&ScooterSay::RequestHeading));
+        // Past coast_for (30 s after the sample): stand still.
+        let out = b.step(t(31_000));
+        assert_eq!(out.behaviour, Behaviour::RequestHeading);
+        assert_eq!(out.command, VelocityCommand::ZERO);
+    }
+
+    #[test]
+    fn called_back_goes_home_until_found() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.set_target(RED, t(0));
+        // Skeeter sees Scooter at 90°: home is at 270° = −90° from Scooter.
+        let f = form(
+            vec![rec("scooter", 90.0, None, t(0)), rec(RED, 0.0, None, t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        b.step(t(0));
+        b.handle_broadcast(
+            &Broadcast::emergency("skeeter", Emergency::ScooterLost),
+            t(100),
+        );
+        let out = b.step(t(100));
+        assert_eq!(out.behaviour, Behaviour::MoveToHome);
+        assert!(out.command.omega_rad_s < 0.0, "turning clockwise toward −90°");
+        b.handle_broadcast(
+            &Broadcast::emergency("skeeter", Emergency::ScooterFound),
+            t(200),
+        );
+        let out = b.step(t(200));
+        assert_eq!(out.behaviour, Behaviour::FollowHeading);
+    }
+
+    #[test]
+    fn homing_with_ranges_stops_short_of_skeeter() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 0.0, Some(1.0), t(0)), rec(RED, 90.0, Some(3.0), t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        b.handle_heard(&ScooterHeard::ScooterLost, t(0));
+        let out = b.step(t(0));
+        assert_eq!(out.behaviour, Behaviour::MoveToHome);
+        assert_eq!(out.command, VelocityCommand::ZERO, "1 m < home_stop_distance");
+    }
+
+    #[test]
+    fn answers_target_queries_and_keeps_moving() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 175.0, None, t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        b.handle_compass(b.desired_heading().unwrap(), t(0));
+        let out = b.step(t(0));
+        assert_eq!(out.behaviour, Behaviour::FollowHeading);
+        let q = Broadcast::emergency(
+            "skeeter",
+            Emergency::TargetQuery {
+                colour: RED.to_owned(),
+            },
+        );
+        assert!(b.handle_broadcast(&q, t(50)));
+        let out = b.step(t(50));
+        assert_eq!(out.behaviour, Behaviour::ReplyTargetQuery);
+        assert!(out.messages.contains(&ScooterSay::TargetReply {
+            colour: RED.to_owned(),
+            seen: false
+        }));
+        assert!(out.command.v_m_s > 0.0, "replying does not stop the wheels");
+        let out = b.step(t(100));
+        assert_eq!(out.behaviour, Behaviour::FollowHeading);
+        // Unknown colour, no target in view: no.
+        b.handle_heard(
+            &ScooterHeard::TargetQuery {
+                colour: "blue".to_owned(),
+            },
+            t(150),
+        );
+        let out = b.step(t(150));
+        assert!(out.messages.contains(&ScooterSay::TargetReply {
+            colour: "blue".to_owned(),
+            seen: false
+        }));
+    }
+
+    #[test]
+    fn finds_the_target_with_the_laser_notifies_once_and_stops() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Scooter at (−1.5, 0) facing +x; target at (−0.5, 0) — 1 m ahead.
+        let f = form(
+            vec![rec("scooter", 180.0, Some(1.5), t(0)), rec(RED, 180.0, Some(0.5), t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        let mut w = Mini {
+            x: -1.5,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([-0.5, 0.0], 0.15)],
+        };
+        let mount = b.config().laser_mount;
+        b.handle_laser(&w.scan(&mount), t(0));
+        let out = b.step(t(0));
+        assert_eq!(out.behaviour, Behaviour::MoveToTarget);
+        let mut reached = 0;
+        let mut now = 0;
+        for _ in 0..400 {
+            now += 50;
+            w.advance(b.step(t(now)).command, 0.05);
+            b.handle_odometry(&w.odo((-1.5, 0.0, 0.0)), t(now));
+            b.handle_laser(&w.scan(&mount), t(now));
+            let out = b.step(t(now));
+            reached += out
+                .messages
+                .iter()
+                .filter(|m| matches!(m, ScooterSay::TargetReached { .. }))
+                .count();
+            if b.reached() {
+                assert_eq!(out.behaviour, Behaviour::NotifySkeeter);
+                assert_eq!(out.command, VelocityCommand::ZERO);
+            }
+        }
+        assert_eq!(reached, 1);
+        let d = (w.x + 0.5).hypot(w.y);
+        assert!(d <= b.config().reach_distance_m + 0.05 && d > 0.55, "{d}");
+        let out = b.step(t(now + 50));
+        assert_eq!(out.behaviour, Behaviour::NotifySkeeter);
+        assert!(out.messages.iter().all(|m| matches!(m, ScooterSay::Status { .. })));
+    }
+
+    #[test]
+    fn a_post_off_the_expected_position_is_not_the_target() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 180.0, Some(3.0), t(0)), rec(RED, 90.0, Some(3.0), t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        // A post 1 m straight ahead; the target is expected up and to the left.
+        let w = Mini {
+            x: -3.0,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([-2.0, 0.0], 0.15)],
+        };
+        b.handle_laser(&w.scan(&b.config().laser_mount), t(0));
+        let out = b.step(t(0));
+        assert_ne!(out.behaviour, Behaviour::MoveToTarget);
+    }
+
+    /// Drive past a barrel standing on the straight path to the target: the avoider takes
+    /// over, the turn rate's sign changes at most twice (away, then back), no collision, and
+    /// the target is reached.
+    #[test]
+    fn avoids_an_obstacle_smoothly_and_resumes() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Scooter at (−4, 0) facing +x, target at (1, 0.0), barrel (r 0.3) at (−1.5, 0.05).
+        let f = form(
+            vec![rec("scooter", 180.0, Some(4.0), t(0)), rec(RED, 0.0, Some(1.0), t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        let mut w = Mini {
+            x: -4.0,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([1.0, 0.0], 0.15), ([-1.5, 0.05], 0.3)],
+        };
+        let mount = b.config().laser_mount;
+        let mut now = 0;
+        let mut omegas = Vec::new();
+        let mut saw_avoid = false;
+        let mut min_clear = f64::INFINITY;
+        for _ in 0..1200 {
+            now += 50;
+            b.handle_odometry(&w.odo((-4.0, 0.0, 0.0)), t(now));
+            b.handle_compass(w.th, t(now));
+            b.handle_laser(&w.scan(&mount), t(now));
+            let out = b.step(t(now));
+            if out.behaviour == Behaviour::AvoidObstacle {
+                saw_avoid = true;
+            }
+            if out.command.omega_rad_s.abs() > 0.02 {
+                omegas.push(out.command.omega_rad_s.signum());
+            }
+            w.advance(out.command, 0.05);
+            min_clear = min_clear.min((w.x + 1.5).hypot(w.y - 0.05) - 0.3 - 0.4);
+            if b.reached() {
+                break;
+            }
+            // A new sample every 5 s, exact.
+            if now % 5000 == 0 {
+                let (sx, sy) = (w.x, w.y);
+                let f = form(
+                    vec![
+                        rec("scooter", sy.atan2(sx).to_degrees(), Some(sx.hypot(sy)), t(now)),
+                        rec(RED, 0.0, Some(1.0), t(now)),
+                    ],
+                    t(now),
+                );
+                b.handle_ses(&f, t(now));
+            }
+        }
+        assert!(saw_avoid, "the barrel triggered avoid-obstacle");
+        assert!(b.reached(), "target reached after the detour");
+        assert!(min_clear > 0.0, "no collision: clearance {min_clear}");
+        let flips = omegas.windows(2).filter(|p| p[0] != p[1]).count();
+        assert!(flips <= 3, "turn-rate sign flipped {flips} times: {omegas:?}");
+    }
+
+    #[test]
+    fn heading_sources_compass_odometry_fused() {
+        let mk = |src| {
+            let mut b = ScooterBrain::new(ScooterConfig {
+                heading_source: src,
+                fusion_gain: 0.5,
+                odometry_heading_offset_rad: 0.1,
+                ..ScooterConfig::default()
+            });
+            b.handle_odometry(&Odometry::origin(), t(0));
+            b.handle_compass(0.3, t(0));
+            b.handle_odometry(
+                &Odometry {
+                    pose: Isometry2::new(Vector2::zeros(), 0.2),
+                    ..Odometry::origin()
+                },
+                t(10),
+            );
+            b.handle_compass(0.5, t(20));
+            b.heading().unwrap()
+        };
+        assert!((mk(HeadingSource::Compass) - 0.5).abs() < 1e-12);
+        assert!((mk(HeadingSource::Odometry) - 0.3).abs() < 1e-12);
+        // Fused: starts at the odometry heading 0.1, +0.2 odometry turn… then the compass
+        // pulls: first reading 0.3 → 0.1 + 0.5·0.2 = 0.2; +0.2 → 0.4; reading 0.5 → 0.45.
+        assert!((mk(HeadingSource::Fused) - 0.45).abs() < 1e-12);
+    }
+
+    #[test]
+    fn dead_reckoning_rotates_odometry_by_the_heading() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.handle_compass(PI / 2.0, t(0));
+        b.handle_odometry(
+            &Odometry {
+                pose: Isometry2::new(Vector2::new(1.0, 0.0), 0.0),
+                ..Odometry::origin()
+            },
+            t(100),
+        );
+        // Odometry says 1 m forward; the compass says we face +y.
+        assert!((b.dr_position() - Vector2::new(0.0, 1.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn turn_in_place_hysteresis() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        // θd = 135°. Error 135°: in place.
+        assert_eq!(b.step(t(0)).command.v_m_s, 0.0);
+        // Error 20° (< enter 30°) but still > exit 8°: still in place.
+        b.handle_compass(115f64.to_radians(), t(50));
+        assert_eq!(b.step(t(50)).command.v_m_s, 0.0);
+        // Error 5°: drive; then 20° again: keeps driving (below enter).
+        b.handle_compass(130f64.to_radians(), t(100));
+        assert!(b.step(t(100)).command.v_m_s > 0.0);
+        b.handle_compass(115f64.to_radians(), t(150));
+        assert!(b.step(t(150)).command.v_m_s > 0.0);
+    }
+
+    #[test]
+    fn laser_clusters_measure_width_and_centre() {
+        let w = Mini {
+            x: 0.0,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([1.2, 0.0], 0.15), ([1.5, 1.5], 0.4)],
+        };
+        let mount = Isometry2::new(Vector2::new(0.2, 0.0), 0.0);
+        let cs = laser_clusters(&w.scan(&mount), &mount, 8.0, 0.1, 0.15);
+        let c = cs
+            .iter()
+            .find(|c| (c.centre - Point2::new(1.2, 0.0)).norm() < 0.05)
+            .unwrap();
+        assert!((c.width_m - 0.3).abs() < 0.1, "{c:?}");
+        assert!(cs.iter().any(|c| c.width_m > 0.5));
+    }
+
+    #[test]
+    fn broadcast_mapping_both_ways() {
+        let acc = Broadcast::new_target(RED);
+        assert_eq!(
+            ScooterHeard::from_broadcast(&acc, "scooter"),
+            Some(ScooterHeard::TargetAccepted {
+                colour: RED.to_owned()
+            })
+        );
+        let done = Broadcast::mission("skeeter", MissionEvent::Accomplished, RED);
+        assert_eq!(
+            ScooterHeard::from_broadcast(&done, "scooter"),
+            Some(ScooterHeard::MissionEnded {
+                colour: RED.to_owned()
+            })
+        );
+        let own = Broadcast::emergency(
+            "scooter",
+            Emergency::TargetReached {
+                colour: RED.to_owned(),
+            },
+        );
+        assert_eq!(ScooterHeard::from_broadcast(&own, "scooter"), None);
+        let say = ScooterSay::TargetReply {
+            colour: RED.to_owned(),
+            seen: true,
+        };
+        let b = say.to_broadcast("scooter", "").unwrap();
+        assert_eq!(b.to_wire(1).code(), b.to_wire(2).code());
+        match b {
+            Broadcast::Emergency { emergency, .. } => assert_eq!(emergency.text(), "red yes"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(ScooterSay::RequestHeading.to_broadcast("scooter", ""), None);
+        let st = ScooterSay::Status {
+            behaviour: Behaviour::AvoidObstacle,
+            pose: (1.0, -2.0, 0.5),
+        }
+        .to_broadcast("scooter", "path-clear");
+        match st {
+            Some(Broadcast::Status {
+                behaviour, pose, ..
+            }) => {
+                assert_eq!(behaviour, "avoid-obstacle");
+                assert_eq!(
+                    pose,
+                    Some(Pose {
+                        x_mm: 1000,
+                        y_mm: -2000,
+                        theta_mrad: 500
+                    })
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn mission_end_of_another_colour_is_ignored_and_repeated_acceptance_does_not_restart() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.handle_heard(
+            &ScooterHeard::TargetAccepted {
+                colour: RED.to_owned(),
+            },
+            t(0),
+        );
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        b.handle_heard(
+            &ScooterHeard::TargetAccepted {
+                colour: RED.to_owned(),
+            },
+            t(10),
+        );
+        assert!(b.plan().is_some(), "Skeeter's echo of the acceptance keeps the plan");
+        b.handle_heard(
+            &ScooterHeard::MissionEnded {
+                colour: "blue".to_owned(),
+            },
+            t(20),
+        );
+        assert_eq!(b.target(), Some(RED));
+        b.handle_heard(
+            &ScooterHeard::MissionEnded {
+                colour: RED.to_owned(),
+            },
+            t(30),
+        );
+        assert_eq!(b.target(), None);
+        assert_eq!(b.step(t(40)).behaviour, Behaviour::Idle);
+    }
 }

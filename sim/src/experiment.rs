@@ -1,0 +1,616 @@
+//! The thesis's heading experiment (MISSION.md, "The heading algorithm and how it was
+//! scored"), in virtual time with the full brain and sensor models.
+//!
+//! # Setup
+//!
+//! Skeeter stands at the origin facing +x (so the world frame is the common frame). Scooter
+//! starts at `(−Ds, 0)` facing +x — both robots face the common initial heading, and Scooter
+//! faces Skeeter from the perimeter. The target (a 0.30 m coloured post) stands at distance
+//! `Dt` from Skeeter at bearing `180° − θ`, so the angle Scooter–Skeeter–target is `θ`.
+//! The sweep: `θ ∈ {45°, 90°, 135°}`, `Ds, Dt ∈ {2, 3, 4, 5}` m, for each rule. Scooter
+//! cruises at a constant `v = 0.05 m/s`; Skeeter's SES sample arrives at `t = 0` and then
+//! after every full scan (every 5 s).
+//!
+//! # Scoring
+//!
+//! A run ends when the brain sends `target-reached` (its laser sees the target within
+//! [`ScooterConfig::reach_distance_m`](ima_agents::mission::scooter::ScooterConfig) of its
+//! centre) or at the time cap `timeout_factor · t_min,expected` (then `f = 0`, reason
+//! `timeout`). With `d_actual` the path length, `t_actual` the time, `d_min` the straight
+//! distance from the start to the point where the target was reached and `t_min = d_min/v`:
+//!
+//! ```text
+//! f = (d_min / d_actual) · (t_min / t_actual)
+//! ```
+//!
+//! Time starts when Scooter receives its first heading (`t = 0`), so the initial turn toward
+//! it counts against `f`.
+//!
+//! Each configuration has its own seed derived from the sweep seed, the same for both rules,
+//! so the rules see the same noise draws at the start.
+
+use core::fmt::Write as _;
+use core::time::Duration;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use ima_agents::mission::scooter::HeadingRule;
+use ima_mock_devices::world::{ColoredObject, RobotSpec, World};
+use serde::Serialize;
+
+use crate::{EndReason, ScooterSim, SimConfig};
+
+/// Angles Scooter–Skeeter–target of the sweep, degrees.
+pub const ANGLES_DEG: [f64; 3] = [45.0, 90.0, 135.0];
+/// Skeeter–Scooter and Skeeter–target distances of the sweep, metres.
+pub const DISTANCES_M: [f64; 4] = [2.0, 3.0, 4.0, 5.0];
+/// The target's colour in the experiment world.
+pub const TARGET_COLOUR: &str = "red";
+/// The target's radius, metres.
+pub const TARGET_RADIUS_M: f64 = 0.15;
+
+/// Sweep parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepConfig {
+    /// Rules to run (each runs all 48 configurations).
+    pub rules: Vec<HeadingRule>,
+    /// Sweep seed.
+    pub seed: u64,
+    /// Scooter's constant cruise speed, m/s.
+    pub speed_m_s: f64,
+    /// Time cap as a multiple of the expected `t_min`.
+    pub timeout_factor: f64,
+    /// Worker threads.
+    pub threads: usize,
+    /// Keep every n-th trajectory point in the results.
+    pub trajectory_stride: usize,
+    /// The simulation template (its seed and the brain's rule and speed are overridden).
+    pub sim: SimConfig,
+}
+
+impl Default for SweepConfig {
+    fn default() -> Self {
+        let mut sim = SimConfig::default();
+        // Scooter turns briskly in place and drives slowly: the thesis's 0.05 m/s.
+        sim.brain.max_turn_rate_rad_s = 1.5;
+        sim.brain.steering_gain = 3.0;
+        Self {
+            rules: vec![HeadingRule::Thesis, HeadingRule::RangeAware],
+            seed: 1,
+            speed_m_s: 0.05,
+            timeout_factor: 10.0,
+            threads: 2,
+            trajectory_stride: 20,
+            sim,
+        }
+    }
+}
+
+/// One run of the sweep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunSpec {
+    /// Heading rule.
+    pub rule: HeadingRule,
+    /// Angle Scooter–Skeeter–target, degrees.
+    pub angle_deg: f64,
+    /// Skeeter–Scooter distance, metres.
+    pub ds_m: f64,
+    /// Skeeter–target distance, metres.
+    pub dt_m: f64,
+    /// The run's seed.
+    pub seed: u64,
+}
+
+/// The result of one run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunResult {
+    /// `"thesis"` or `"range-aware"`.
+    pub rule: &'static str,
+    /// Angle Scooter–Skeeter–target, degrees.
+    pub angle_deg: f64,
+    /// Skeeter–Scooter distance, metres.
+    pub ds_m: f64,
+    /// Skeeter–target distance, metres.
+    pub dt_m: f64,
+    /// The run's seed.
+    pub seed: u64,
+    /// Performance index (0 on timeout).
+    pub f: f64,
+    /// Straight distance start → reach point, metres.
+    pub d_min_m: f64,
+    /// Path length, metres.
+    pub d_actual_m: f64,
+    /// `d_min / v`, seconds.
+    pub t_min_s: f64,
+    /// Time to reach (or to the cap), seconds.
+    pub t_actual_s: f64,
+    /// `"reached"` or `"timeout"`.
+    pub reason: &'static str,
+    /// SES samples delivered.
+    pub samples: u32,
+    /// Scooter's start `[x, y]`.
+    pub start: [f64; 2],
+    /// The target's centre `[x, y]`.
+    pub target: [f64; 2],
+    /// Scooter's true path (every `trajectory_stride`-th step).
+    #[serde(skip)]
+    pub trajectory: Vec<[f64; 2]>,
+}
+
+/// The 48 configurations for each rule, in table order (angle, then Dt, then Ds).
+#[must_use]
+pub fn configurations(rules: &[HeadingRule], seed: u64) -> Vec<RunSpec> {
+    let mut out = Vec::new();
+    for &rule in rules {
+        let mut k = 0_u64;
+        for angle_deg in ANGLES_DEG {
+            for dt_m in DISTANCES_M {
+                for ds_m in DISTANCES_M {
+                    k += 1;
+                    out.push(RunSpec {
+                        rule,
+                        angle_deg,
+                        ds_m,
+                        dt_m,
+                        seed: splitmix64(seed ^ k.wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Scooter's start and the target's centre for a configuration (see the module docs).
+#[must_use]
+pub fn geometry(angle_deg: f64, ds_m: f64, dt_m: f64) -> ([f64; 2], [f64; 2]) {
+    let b = (180.0 - angle_deg).to_radians();
+    ([-ds_m, 0.0], [dt_m * b.cos(), dt_m * b.sin()])
+}
+
+/// The experiment world of a configuration: Skeeter, Scooter and one target; no walls.
+#[must_use]
+pub fn world_for(angle_deg: f64, ds_m: f64, dt_m: f64, seed: u64) -> World {
+    let base = World::default_world();
+    let mut w = World::new();
+    w.set_seed(seed);
+    let (start, target) = geometry(angle_deg, ds_m, dt_m);
+    for r in base.robots() {
+        let mut spec: RobotSpec = r.spec().clone();
+        if spec.name == "scooter" {
+            spec.x_m = start[0];
+            spec.y_m = start[1];
+        } else {
+            spec.x_m = 0.0;
+            spec.y_m = 0.0;
+        }
+        spec.theta_deg = 0.0;
+        let _ = w.add_robot(spec);
+    }
+    let _ = w.add_object(ColoredObject {
+        color: TARGET_COLOUR.to_owned(),
+        rgb: [220, 30, 30],
+        center: target,
+        radius_m: TARGET_RADIUS_M,
+    });
+    w
+}
+
+/// Run one configuration.
+#[must_use]
+pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
+    let (start, target) = geometry(spec.angle_deg, spec.ds_m, spec.dt_m);
+    let mut sim_cfg = cfg.sim.clone();
+    sim_cfg.seed = spec.seed;
+    sim_cfg.brain.heading_rule = spec.rule;
+    sim_cfg.brain.cruise_speed_m_s = cfg.speed_m_s;
+    let v = cfg.speed_m_s;
+    let expected_d =
+        ((target[0] - start[0]).hypot(target[1] - start[1]) - sim_cfg.brain.reach_distance_m)
+            .max(0.1);
+    let cap = Duration::from_secs_f64((cfg.timeout_factor * expected_d / v).clamp(1.0, 1e6));
+    let world = world_for(spec.angle_deg, spec.ds_m, spec.dt_m, spec.seed);
+    let stride = cfg.trajectory_stride.max(1);
+    let (outcome, samples, trajectory) = match ScooterSim::new(world, TARGET_COLOUR, sim_cfg) {
+        Ok(mut sim) => {
+            let o = sim.run(cap);
+            let traj = sim.trajectory().iter().step_by(stride).copied().collect();
+            (Some(o), sim.samples(), traj)
+        }
+        Err(_) => (None, 0, Vec::new()),
+    };
+    let (f, d_min, d_actual, t_min, t_actual, reason) = match outcome {
+        Some(o) if o.reason == EndReason::Reached => {
+            let d_min = (o.end[0] - o.start[0]).hypot(o.end[1] - o.start[1]);
+            let t_min = d_min / v;
+            let f = if o.distance_m > 0.0 && o.time_s > 0.0 {
+                (d_min / o.distance_m).min(1.0) * (t_min / o.time_s).min(1.0)
+            } else {
+                0.0
+            };
+            (f, d_min, o.distance_m, t_min, o.time_s, "reached")
+        }
+        Some(o) => (
+            0.0,
+            expected_d,
+            o.distance_m,
+            expected_d / v,
+            o.time_s,
+            "timeout",
+        ),
+        None => (0.0, expected_d, 0.0, expected_d / v, 0.0, "setup-error"),
+    };
+    RunResult {
+        rule: spec.rule.as_str(),
+        angle_deg: spec.angle_deg,
+        ds_m: spec.ds_m,
+        dt_m: spec.dt_m,
+        seed: spec.seed,
+        f,
+        d_min_m: d_min,
+        d_actual_m: d_actual,
+        t_min_s: t_min,
+        t_actual_s: t_actual,
+        reason,
+        samples,
+        start,
+        target,
+        trajectory,
+    }
+}
+
+/// Run the whole sweep on `cfg.threads` threads; `progress(done, total)` is called after
+/// each run (from the worker threads). Results come back in [`configurations`] order.
+pub fn run_sweep(cfg: &SweepConfig, progress: &(dyn Fn(usize, usize) + Sync)) -> Vec<RunResult> {
+    let specs = configurations(&cfg.rules, cfg.seed);
+    let total = specs.len();
+    let next = AtomicUsize::new(0);
+    let done = AtomicUsize::new(0);
+    let slots: Mutex<Vec<Option<RunResult>>> = Mutex::new(vec![None; total]);
+    std::thread::scope(|s| {
+        for _ in 0..cfg.threads.max(1) {
+            s.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(spec) = specs.get(i) else { break };
+                    let r = run_one(spec, cfg);
+                    if let Ok(mut v) = slots.lock()
+                        && let Some(slot) = v.get_mut(i)
+                    {
+                        *slot = Some(r);
+                    }
+                    progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+                }
+            });
+        }
+    });
+    slots
+        .into_inner()
+        .unwrap_or_default()
+        .into_iter()
+        .flatten()
+        .collect()
+}
+
+fn find<'a>(
+    results: &'a [RunResult],
+    rule: &str,
+    angle: f64,
+    ds: f64,
+    dt: f64,
+) -> Option<&'a RunResult> {
+    results
+        .iter()
+        .find(|r| r.rule == rule && r.angle_deg == angle && r.ds_m == ds && r.dt_m == dt)
+}
+
+/// One Markdown table per angle for `rule`, like the thesis: rows Skeeter–target `Dt`,
+/// columns Skeeter–Scooter `Ds`, cells `f` to two decimals (`—` where no run exists).
+#[must_use]
+pub fn markdown_tables(results: &[RunResult], rule: &str) -> String {
+    let mut s = String::new();
+    for angle in ANGLES_DEG {
+        let _ = writeln!(s, "**{rule}, θ = {angle:.0}°** (f; rows Dt, columns Ds)\n");
+        s.push_str("| Dt \\ Ds |");
+        for ds in DISTANCES_M {
+            let _ = write!(s, " {ds:.0} m |");
+        }
+        s.push_str("\n|---|");
+        for _ in DISTANCES_M {
+            s.push_str("---:|");
+        }
+        s.push('\n');
+        for dt in DISTANCES_M {
+            let _ = write!(s, "| {dt:.0} m |");
+            for ds in DISTANCES_M {
+                match find(results, rule, angle, ds, dt) {
+                    Some(r) => {
+                        let _ = write!(s, " {:.2} |", r.f);
+                    }
+                    None => s.push_str(" — |"),
+                }
+            }
+            s.push('\n');
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Summary line per rule: minimum, mean, timeouts.
+#[must_use]
+pub fn summary(results: &[RunResult]) -> String {
+    let mut s = String::new();
+    for rule in ["thesis", "range-aware"] {
+        let rs: Vec<&RunResult> = results.iter().filter(|r| r.rule == rule).collect();
+        if rs.is_empty() {
+            continue;
+        }
+        let min = rs.iter().map(|r| r.f).fold(f64::INFINITY, f64::min);
+        let mean = rs.iter().map(|r| r.f).sum::<f64>() / rs.len() as f64;
+        let timeouts = rs.iter().filter(|r| r.reason != "reached").count();
+        let _ = writeln!(
+            s,
+            "{rule}: {} runs, f min {min:.3}, mean {mean:.3}, {timeouts} not reached",
+            rs.len()
+        );
+        for angle in ANGLES_DEG {
+            let a: Vec<f64> = rs
+                .iter()
+                .filter(|r| r.angle_deg == angle)
+                .map(|r| r.f)
+                .collect();
+            if !a.is_empty() {
+                let _ = writeln!(
+                    s,
+                    "  θ = {angle:.0}°: mean f {:.3}",
+                    a.iter().sum::<f64>() / a.len() as f64
+                );
+            }
+        }
+    }
+    s
+}
+
+/// CSV, one line per run, with a header.
+#[must_use]
+pub fn csv(results: &[RunResult]) -> String {
+    let mut s = String::from(
+        "rule,angle_deg,ds_m,dt_m,seed,f,d_min_m,d_actual_m,t_min_s,t_actual_s,reason,samples\n",
+    );
+    for r in results {
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{:.4},{:.4},{:.4},{:.2},{:.2},{},{}",
+            r.rule,
+            r.angle_deg,
+            r.ds_m,
+            r.dt_m,
+            r.seed,
+            r.f,
+            r.d_min_m,
+            r.d_actual_m,
+            r.t_min_s,
+            r.t_actual_s,
+            r.reason,
+            r.samples
+        );
+    }
+    s
+}
+
+/// JSON: `{"speed_m_s", "seed", "runs": [...]}` (trajectories left out).
+#[must_use]
+pub fn json(results: &[RunResult], cfg: &SweepConfig) -> serde_json::Value {
+    serde_json::json!({
+        "experiment": "heading",
+        "seed": cfg.seed,
+        "speed_m_s": cfg.speed_m_s,
+        "scan_period_s": cfg.sim.scan_period.as_secs_f64(),
+        "runs": results,
+    })
+}
+
+fn colour_for(f: f64) -> String {
+    // Red (0) → yellow (0.5) → green (1).
+    let f = f.clamp(0.0, 1.0);
+    let (r, g) = if f < 0.5 {
+        (220.0, 40.0 + 360.0 * f)
+    } else {
+        (220.0 - 380.0 * (f - 0.5), 220.0)
+    };
+    format!("rgb({:.0},{:.0},60)", r.max(0.0), g.min(220.0))
+}
+
+/// An SVG of `f` per configuration: one 4×4 grid per rule and angle (rows Dt, columns Ds),
+/// cells coloured red → green with the value written in.
+#[must_use]
+pub fn svg_f(results: &[RunResult]) -> String {
+    let rules: Vec<&str> = ["thesis", "range-aware"]
+        .into_iter()
+        .filter(|r| results.iter().any(|x| x.rule == *r))
+        .collect();
+    let cell = 46.0;
+    let (pad_l, pad_t, gap) = (60.0, 50.0, 40.0);
+    let panel = cell * 4.0;
+    let width = pad_l + 3.0 * (panel + gap) + 10.0;
+    let height = pad_t + rules.len() as f64 * (panel + gap + 30.0) + 10.0;
+    let mut s = svg_header(width, height);
+    let _ = writeln!(
+        s,
+        r#"<text x="10" y="22" font-size="16">Performance index f per configuration (rows: Skeeter–target Dt, columns: Skeeter–Scooter Ds, 2–5 m)</text>"#
+    );
+    for (ri, rule) in rules.iter().enumerate() {
+        let y0 = pad_t + ri as f64 * (panel + gap + 30.0) + 20.0;
+        let _ = writeln!(
+            s,
+            r#"<text x="10" y="{:.0}" font-size="14" font-weight="bold">{rule}</text>"#,
+            y0 - 8.0
+        );
+        for (ai, angle) in ANGLES_DEG.iter().enumerate() {
+            let x0 = pad_l + ai as f64 * (panel + gap);
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.0}" y="{:.0}" font-size="12">θ = {angle:.0}°</text>"#,
+                x0 + panel / 2.0 - 20.0,
+                y0 + panel + 16.0
+            );
+            for (row, dt) in DISTANCES_M.iter().enumerate() {
+                if ai == 0 {
+                    let _ = writeln!(
+                        s,
+                        r#"<text x="{:.0}" y="{:.0}" font-size="11">Dt {dt:.0}</text>"#,
+                        x0 - 40.0,
+                        y0 + row as f64 * cell + cell / 2.0 + 4.0
+                    );
+                }
+                for (col, ds) in DISTANCES_M.iter().enumerate() {
+                    let (x, y) = (x0 + col as f64 * cell, y0 + row as f64 * cell);
+                    let f = find(results, rule, *angle, *ds, *dt).map(|r| r.f);
+                    let fill = f.map_or_else(|| "#ddd".to_owned(), colour_for);
+                    let _ = writeln!(
+                        s,
+                        r#"<rect x="{x:.0}" y="{y:.0}" width="{cell:.0}" height="{cell:.0}" fill="{fill}" stroke="white"/>"#
+                    );
+                    if let Some(f) = f {
+                        let _ = writeln!(
+                            s,
+                            r#"<text x="{:.0}" y="{:.0}" font-size="12" text-anchor="middle">{f:.2}</text>"#,
+                            x + cell / 2.0,
+                            y + cell / 2.0 + 4.0
+                        );
+                    }
+                }
+            }
+            for (col, ds) in DISTANCES_M.iter().enumerate() {
+                let _ = writeln!(
+                    s,
+                    r#"<text x="{:.0}" y="{:.0}" font-size="10" text-anchor="middle">Ds {ds:.0}</text>"#,
+                    x0 + col as f64 * cell + cell / 2.0,
+                    y0 - 2.0
+                );
+            }
+        }
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+fn svg_header(w: f64, h: f64) -> String {
+    format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w:.0}\" height=\"{h:.0}\" \
+         viewBox=\"0 0 {w:.0} {h:.0}\" font-family=\"sans-serif\">\n\
+         <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
+    )
+}
+
+/// An SVG of trajectories for one angle: Skeeter at the origin, every run of that angle
+/// with `Ds, Dt ∈ {2, 5}` (four configurations) for each rule present; thesis paths
+/// dashed orange, range-aware paths solid blue; targets as red dots, starts as squares.
+#[must_use]
+pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
+    let runs: Vec<&RunResult> = results
+        .iter()
+        .filter(|r| {
+            r.angle_deg == angle_deg
+                && (r.ds_m == 2.0 || r.ds_m == 5.0)
+                && (r.dt_m == 2.0 || r.dt_m == 5.0)
+        })
+        .collect();
+    // World window: [-6, 6] × [-1, 6] (targets lie at y ≥ 0), scaled 50 px/m.
+    let scale = 50.0;
+    let (xmin, xmax, ymin, ymax) = (-6.0, 6.0, -2.0, 6.0);
+    let (w, h) = ((xmax - xmin) * scale + 20.0, (ymax - ymin) * scale + 50.0);
+    let px = |x: f64| (x - xmin) * scale + 10.0;
+    let py = |y: f64| (ymax - y) * scale + 40.0;
+    let mut s = svg_header(w, h);
+    let _ = writeln!(
+        s,
+        r#"<text x="10" y="22" font-size="15">Trajectories, θ = {angle_deg:.0}° (Ds, Dt ∈ {{2, 5}} m): thesis dashed orange, range-aware solid blue; grid 1 m</text>"#
+    );
+    for gx in (xmin as i32)..=(xmax as i32) {
+        let x = f64::from(gx);
+        let _ = writeln!(
+            s,
+            "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#eee\"/>",
+            px(x),
+            py(ymin),
+            px(x),
+            py(ymax)
+        );
+    }
+    for gy in (ymin as i32)..=(ymax as i32) {
+        let y = f64::from(gy);
+        let _ = writeln!(
+            s,
+            "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" stroke=\"#eee\"/>",
+            px(xmin),
+            py(y),
+            px(xmax),
+            py(y)
+        );
+    }
+    // SES circles of the target distances.
+    for d in [2.0, 5.0] {
+        let _ = writeln!(
+            s,
+            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"{:.1}\" fill=\"none\" stroke=\"#ccc\" stroke-dasharray=\"2,4\"/>",
+            px(0.0),
+            py(0.0),
+            d * scale
+        );
+    }
+    let _ = writeln!(
+        s,
+        "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"{:.1}\" fill=\"#555\"/><text x=\"{:.1}\" y=\"{:.1}\" font-size=\"11\">Skeeter</text>",
+        px(0.0),
+        py(0.0),
+        0.33 * scale,
+        px(0.0) + 18.0,
+        py(0.0) + 4.0
+    );
+    for r in &runs {
+        let (colour, dash) = if r.rule == "thesis" {
+            ("#e07b00", " stroke-dasharray=\"6,3\"")
+        } else {
+            ("#1f5fbf", "")
+        };
+        let mut d = String::new();
+        for (i, p) in r.trajectory.iter().enumerate() {
+            let _ = write!(
+                d,
+                "{}{:.1},{:.1} ",
+                if i == 0 { "M" } else { "L" },
+                px(p[0]),
+                py(p[1])
+            );
+        }
+        let _ = writeln!(
+            s,
+            "<path d=\"{d}\" fill=\"none\" stroke=\"{colour}\" stroke-width=\"1.6\"{dash}><title>{} Ds {} Dt {} f {:.2}</title></path>",
+            r.rule, r.ds_m, r.dt_m, r.f
+        );
+        let _ = writeln!(
+            s,
+            "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"{:.1}\" fill=\"#d22\"/>",
+            px(r.target[0]),
+            py(r.target[1]),
+            TARGET_RADIUS_M * scale
+        );
+        let _ = writeln!(
+            s,
+            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"8\" height=\"8\" fill=\"#333\"/>",
+            px(r.start[0]) - 4.0,
+            py(r.start[1]) - 4.0
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}

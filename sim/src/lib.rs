@@ -1,0 +1,488 @@
+//! `ima-sim`: the mission in one process, in virtual time — no ptys, no sockets.
+//!
+//! A [`ScooterSim`] owns a mock-devices [`World`] and Scooter's
+//! [`ScooterBrain`](ima_agents::mission::scooter::ScooterBrain) and steps both at a fixed
+//! `dt`:
+//!
+//! 1. **Skeeter's observations** (the SES samples). Skeeter's 7-camera head is modelled as 7
+//!    sectors of 360°/7 centred on 0°, 51.4°, … of Skeeter's frame. One camera grabs every
+//!    `scan_period / 7`; it records every coloured object
+//!    ([`World::visible_objects`], occlusion included) and Scooter (a ray to Scooter must hit
+//!    Scooter first) whose bearing falls in its sector, with Gaussian bearing noise and, when
+//!    [`SimConfig::ses_ranges`] is on, a range with relative Gaussian noise (Skeeter's range
+//!    estimate from a blob's apparent width). After the 7th camera the sample — records
+//!    time-stamped at their own grab — is delivered to the brain. At `t = 0` a complete sample
+//!    of the initial world is delivered (the scan that answered the commander's request).
+//!    This is the **geometric** observation model; the rendered-camera pipeline
+//!    (`mock_devices::camera` + the agents' vision) is not wired in here yet.
+//! 2. **Scooter's sensors**: odometry = the true pose relative to the start pose (the mock
+//!    world's wheels do not slip, so odometry is exact); compass = the true common-frame
+//!    heading + Gaussian noise; laser = [`LaserModel`] (SICK LMS: 181 beams, 1°) every
+//!    `laser_period` from [`ScooterConfig::laser_mount`](ima_agents::mission::scooter::ScooterConfig).
+//! 3. The brain's velocity command goes to [`World::command`] as a twist; the world moves
+//!    by `dt` (wheel acceleration limits included).
+//!
+//! Frames: the world's frame is the common frame when Skeeter's heading is 0 (the usual
+//! case); in general common-frame angles are world angles minus Skeeter's heading.
+//! Everything random comes from one seeded `SmallRng`: the same seed gives the same run.
+//!
+//! [`experiment`] runs the thesis's heading sweep on top.
+
+#![warn(missing_docs)]
+
+pub mod experiment;
+
+use core::f64::consts::PI;
+use core::time::Duration;
+
+use ima_agents::mission::scooter::{ScooterBrain, ScooterConfig, ScooterOutput, ScooterSay};
+use ima_agents::ses::Direction;
+use ima_agents::ses::shared::{SharedForm, SharedRecord};
+use ima_hal::base::Odometry;
+use ima_hal::laser::{BeamFlags, LaserScan};
+use ima_hal::{Instant, normalize_angle};
+use ima_mock_devices::world::{DriveCommand, LaserModel, RobotId, Target, World, gaussian};
+use rand::SeedableRng;
+use rand::rngs::SmallRng;
+
+/// Number of cameras on Skeeter's head.
+pub const CAMERAS: u32 = 7;
+
+/// Simulation parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimConfig {
+    /// Seed of every noise source.
+    pub seed: u64,
+    /// Fixed time step.
+    pub dt: Duration,
+    /// One full 7-camera scan (the SES refresh period).
+    pub scan_period: Duration,
+    /// Laser scan period.
+    pub laser_period: Duration,
+    /// Skeeter's cameras see this far, metres.
+    pub camera_range_m: f64,
+    /// Standard deviation of SES bearings, radians.
+    pub bearing_noise_rad: f64,
+    /// SES records carry ranges (estimated from the apparent width).
+    pub ses_ranges: bool,
+    /// Relative standard deviation of SES ranges (0.05 = 5 %).
+    pub range_noise_rel: f64,
+    /// Standard deviation of the compass, radians.
+    pub compass_noise_rad: f64,
+    /// The laser.
+    pub laser: LaserModel,
+    /// Scooter's brain.
+    pub brain: ScooterConfig,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            dt: Duration::from_millis(50),
+            scan_period: Duration::from_secs(5),
+            laser_period: Duration::from_millis(200),
+            camera_range_m: 6.0,
+            bearing_noise_rad: 0.5f64.to_radians(),
+            ses_ranges: true,
+            range_noise_rel: 0.05,
+            compass_noise_rad: 0.5f64.to_radians(),
+            laser: LaserModel::default(),
+            brain: ScooterConfig::default(),
+        }
+    }
+}
+
+/// Why a simulation could not be built.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SimError {
+    /// The world has no robot of this name.
+    NoRobot(&'static str),
+    /// The world has no object of this colour.
+    NoTarget(String),
+    /// `dt` or `scan_period` is zero.
+    BadPeriod,
+}
+
+impl core::fmt::Display for SimError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::NoRobot(n) => write!(f, "the world has no robot named `{n}`"),
+            Self::NoTarget(c) => write!(f, "the world has no `{c}` object"),
+            Self::BadPeriod => f.write_str("dt and scan_period must be positive"),
+        }
+    }
+}
+
+impl std::error::Error for SimError {}
+
+/// How a [`ScooterSim::run`] ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    /// The brain sent `target-reached`.
+    Reached,
+    /// The time cap passed first.
+    Timeout,
+}
+
+impl EndReason {
+    /// `"reached"` or `"timeout"`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Reached => "reached",
+            Self::Timeout => "timeout",
+        }
+    }
+}
+
+/// The outcome of [`ScooterSim::run`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outcome {
+    /// How it ended.
+    pub reason: EndReason,
+    /// Virtual time from the start, seconds.
+    pub time_s: f64,
+    /// Path length Scooter drove, metres (true pose).
+    pub distance_m: f64,
+    /// Scooter's true start position `[x, y]`.
+    pub start: [f64; 2],
+    /// Scooter's true position at the end.
+    pub end: [f64; 2],
+}
+
+/// Scooter driven by its brain in a mock world, in virtual time. See the [crate docs](crate).
+#[derive(Debug)]
+pub struct ScooterSim {
+    world: World,
+    skeeter: RobotId,
+    scooter: RobotId,
+    cfg: SimConfig,
+    brain: ScooterBrain,
+    rng: SmallRng,
+    start: ima_hal::Isometry2,
+    skeeter_heading: f64,
+    camera_period: Duration,
+    next_grab: Instant,
+    grab_index: u32,
+    pending: Vec<SharedRecord>,
+    next_laser: Instant,
+    laser_buf: Vec<Option<f64>>,
+    scan: LaserScan,
+    trajectory: Vec<[f64; 2]>,
+    distance_m: f64,
+    reached_at: Option<Instant>,
+    reached_pos: [f64; 2],
+    reached_distance_m: f64,
+    t0: Instant,
+    samples: u32,
+    last: Option<ScooterOutput>,
+}
+
+impl ScooterSim {
+    /// A simulation of `world` (robots named `skeeter` and `scooter`) with `target` as the
+    /// accepted target colour at `t = 0`.
+    ///
+    /// # Errors
+    /// [`SimError`] when a robot or the target is missing, or a period is zero.
+    pub fn new(world: World, target: &str, cfg: SimConfig) -> Result<Self, SimError> {
+        let skeeter = world
+            .robot_id("skeeter")
+            .ok_or(SimError::NoRobot("skeeter"))?;
+        let scooter = world
+            .robot_id("scooter")
+            .ok_or(SimError::NoRobot("scooter"))?;
+        if !world.objects().iter().any(|o| o.color == target) {
+            return Err(SimError::NoTarget(target.to_owned()));
+        }
+        if cfg.dt.is_zero() || cfg.scan_period.is_zero() {
+            return Err(SimError::BadPeriod);
+        }
+        let skeeter_heading = world
+            .robot(skeeter)
+            .map_or(0.0, |r| r.pose().theta_rad);
+        let start_pose = world
+            .robot(scooter)
+            .map(|r| r.pose())
+            .unwrap_or_default();
+        let mut brain_cfg = cfg.brain.clone();
+        brain_cfg.odometry_heading_offset_rad =
+            normalize_angle(start_pose.theta_rad - skeeter_heading);
+        let mut brain = ScooterBrain::new(brain_cfg);
+        let now = world.time();
+        brain.set_target(target, now);
+        let camera_period = cfg.scan_period / CAMERAS;
+        let mut sim = Self {
+            skeeter,
+            scooter,
+            rng: SmallRng::seed_from_u64(cfg.seed),
+            start: start_pose.to_isometry(),
+            skeeter_heading,
+            camera_period,
+            next_grab: now + camera_period,
+            grab_index: 0,
+            pending: Vec::new(),
+            next_laser: now,
+            laser_buf: Vec::new(),
+            scan: LaserScan::new(cfg.laser.start_rad, cfg.laser.step_rad),
+            trajectory: vec![[start_pose.x_m, start_pose.y_m]],
+            distance_m: 0.0,
+            reached_at: None,
+            reached_pos: [start_pose.x_m, start_pose.y_m],
+            reached_distance_m: 0.0,
+            t0: now,
+            samples: 0,
+            last: None,
+            brain,
+            cfg,
+            world,
+        };
+        // The scan that answered the commander: every camera, now.
+        let mut first = Vec::new();
+        for c in 0..CAMERAS {
+            sim.observe(c, now, &mut first);
+        }
+        sim.deliver(first, now);
+        Ok(sim)
+    }
+
+    /// The world.
+    #[must_use]
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The world, mutably (to add obstacles or move things between steps).
+    pub fn world_mut(&mut self) -> &mut World {
+        &mut self.world
+    }
+
+    /// The brain.
+    #[must_use]
+    pub fn brain(&self) -> &ScooterBrain {
+        &self.brain
+    }
+
+    /// The brain, mutably (to inject broadcasts).
+    pub fn brain_mut(&mut self) -> &mut ScooterBrain {
+        &mut self.brain
+    }
+
+    /// Virtual time.
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        self.world.time()
+    }
+
+    /// Scooter's true positions, one per step.
+    #[must_use]
+    pub fn trajectory(&self) -> &[[f64; 2]] {
+        &self.trajectory
+    }
+
+    /// SES samples delivered so far.
+    #[must_use]
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// The brain's output of the last step.
+    #[must_use]
+    pub fn last_output(&self) -> Option<&ScooterOutput> {
+        self.last.as_ref()
+    }
+
+    /// When the brain reported the target reached.
+    #[must_use]
+    pub fn reached_at(&self) -> Option<Instant> {
+        self.reached_at
+    }
+
+    /// Camera `c`'s sector contains common-frame bearing `b`.
+    fn camera_of(b: f64) -> u32 {
+        let sector = 2.0 * PI / f64::from(CAMERAS);
+        let k = (normalize_angle(b) / sector).round();
+        (k.rem_euclid(f64::from(CAMERAS))) as u32
+    }
+
+    fn noisy_range(&mut self, r: f64) -> Option<f64> {
+        self.cfg
+            .ses_ranges
+            .then(|| (r * (1.0 + self.cfg.range_noise_rel * gaussian(&mut self.rng))).max(0.0))
+    }
+
+    /// What camera `c` sees now, appended to `out`.
+    fn observe(&mut self, c: u32, now: Instant, out: &mut Vec<SharedRecord>) {
+        let Some(sk) = self.world.robot(self.skeeter).map(|r| r.pose()) else {
+            return;
+        };
+        let sightings =
+            self.world
+                .visible_objects(sk, PI, self.cfg.camera_range_m, Some(self.skeeter));
+        for s in sightings {
+            if Self::camera_of(s.bearing_rad) != c {
+                continue;
+            }
+            let Some(colour) = self.world.objects().get(s.object).map(|o| o.color.clone()) else {
+                continue;
+            };
+            let bearing = s.bearing_rad + self.cfg.bearing_noise_rad * gaussian(&mut self.rng);
+            let range_m = self.noisy_range(s.range_m);
+            out.push(SharedRecord {
+                object: colour,
+                bearing: Direction::horizontal(bearing),
+                range_m,
+                confidence: 1.0,
+                time: now,
+            });
+        }
+        if let Some(sc) = self.world.robot(self.scooter).map(|r| r.pose()) {
+            let (ex, ey) = (sc.x_m - sk.x_m, sc.y_m - sk.y_m);
+            let range = ex.hypot(ey);
+            let abs_dir = ey.atan2(ex);
+            let bearing = normalize_angle(abs_dir - sk.theta_rad);
+            let visible = range <= self.cfg.camera_range_m
+                && self
+                    .world
+                    .cast_ignoring(sk.point(), abs_dir, range, Some(self.skeeter))
+                    .is_some_and(|h| h.target == Target::Robot(self.scooter));
+            if visible && Self::camera_of(bearing) == c {
+                let b = bearing + self.cfg.bearing_noise_rad * gaussian(&mut self.rng);
+                let range_m = self.noisy_range(range);
+                out.push(SharedRecord {
+                    object: self.brain.config().robot_name.clone(),
+                    bearing: Direction::horizontal(b),
+                    range_m,
+                    confidence: 1.0,
+                    time: now,
+                });
+            }
+        }
+    }
+
+    fn deliver(&mut self, records: Vec<SharedRecord>, now: Instant) {
+        let form = SharedForm {
+            source_robot: "skeeter".to_owned(),
+            sent_at: now,
+            records,
+        };
+        self.samples += 1;
+        self.brain.handle_ses(&form, now);
+    }
+
+    /// One step of `dt`: sensors → brain → world.
+    pub fn step(&mut self) -> &ScooterOutput {
+        let now = self.world.time();
+        // Skeeter's cameras.
+        while self.next_grab <= now {
+            let at = self.next_grab;
+            let mut recs = std::mem::take(&mut self.pending);
+            self.observe(self.grab_index, at, &mut recs);
+            self.grab_index += 1;
+            if self.grab_index >= CAMERAS {
+                self.grab_index = 0;
+                self.deliver(recs, now);
+            } else {
+                self.pending = recs;
+            }
+            self.next_grab = at + self.camera_period;
+        }
+        // Scooter's sensors.
+        if let Some(r) = self.world.robot(self.scooter) {
+            let pose = r.pose();
+            let (v, w) = r.velocity();
+            let odo = Odometry {
+                pose: self.start.inverse() * pose.to_isometry(),
+                v_m_s: v,
+                omega_rad_s: w,
+            };
+            self.brain.handle_odometry(&odo, now);
+            let compass = pose.theta_rad - self.skeeter_heading
+                + self.cfg.compass_noise_rad * gaussian(&mut self.rng);
+            self.brain.handle_compass(normalize_angle(compass), now);
+        }
+        if self.next_laser <= now {
+            self.next_laser = now + self.cfg.laser_period;
+            let mount = self.brain.config().laser_mount;
+            self.cfg.laser.scan(
+                &self.world,
+                self.scooter,
+                &mount,
+                &mut self.rng,
+                &mut self.laser_buf,
+            );
+            self.scan
+                .reset(self.cfg.laser.start_rad, self.cfg.laser.step_rad);
+            for r in &self.laser_buf {
+                let _ = match r {
+                    Some(m) => self.scan.push(*m as f32, BeamFlags::VALID),
+                    None => self.scan.push(f32::NAN, BeamFlags::NO_RETURN),
+                };
+            }
+            self.brain.handle_laser(&self.scan, now);
+        }
+        let out = self.brain.step(now);
+        if self.reached_at.is_none()
+            && out
+                .messages
+                .iter()
+                .any(|m| matches!(m, ScooterSay::TargetReached { .. }))
+        {
+            self.reached_at = Some(now);
+            self.reached_pos = self.position();
+            self.reached_distance_m = self.distance_m;
+        }
+        self.world.command(
+            self.scooter,
+            DriveCommand::Twist {
+                v_m_s: out.command.v_m_s,
+                omega_rad_s: out.command.omega_rad_s,
+            },
+        );
+        let before = self.position();
+        self.world.step(self.cfg.dt);
+        let after = self.position();
+        self.distance_m += (after[0] - before[0]).hypot(after[1] - before[1]);
+        self.trajectory.push(after);
+        self.last.insert(out)
+    }
+
+    fn position(&self) -> [f64; 2] {
+        self.world
+            .robot(self.scooter)
+            .map_or([0.0, 0.0], |r| [r.pose().x_m, r.pose().y_m])
+    }
+
+    /// Step until the brain reports the target reached or `max` virtual time has passed
+    /// since the start.
+    pub fn run(&mut self, max: Duration) -> Outcome {
+        let t0 = self.t0;
+        let start = self.trajectory.first().copied().unwrap_or_default();
+        loop {
+            if self.reached_at.is_some() {
+                break;
+            }
+            if self.world.time().saturating_duration_since(t0) >= max {
+                break;
+            }
+            self.step();
+        }
+        let end_t = self.reached_at.unwrap_or(self.world.time());
+        let (end, distance_m) = if self.reached_at.is_some() {
+            (self.reached_pos, self.reached_distance_m)
+        } else {
+            (self.position(), self.distance_m)
+        };
+        Outcome {
+            reason: if self.reached_at.is_some() {
+                EndReason::Reached
+            } else {
+                EndReason::Timeout
+            },
+            time_s: end_t.saturating_duration_since(t0).as_secs_f64(),
+            distance_m,
+            start,
+            end,
+        }
+    }
+}
