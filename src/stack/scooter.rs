@@ -47,31 +47,6 @@ pub fn brain_config(cfg: &RobotConfig, odometry_offset_rad: f64) -> ScooterConfi
     }
 }
 
-/// What the brain hears of a broadcast (`None`: nothing for Scooter).
-pub fn heard(b: &Broadcast) -> Option<ScooterHeard> {
-    match b {
-        Broadcast::Mission {
-            robot,
-            event,
-            target,
-        } if robot == SKEETER => Some(match event {
-            MissionEvent::Accepted => ScooterHeard::TargetAccepted {
-                colour: target.clone(),
-            },
-            _ => ScooterHeard::MissionEnded,
-        }),
-        Broadcast::Emergency { emergency, .. } => match emergency {
-            Emergency::ScooterLost => Some(ScooterHeard::ScooterLost),
-            Emergency::ScooterFound => Some(ScooterHeard::ScooterFound),
-            Emergency::TargetQuery { colour } => Some(ScooterHeard::TargetQuery {
-                colour: colour.clone(),
-            }),
-            _ => None,
-        },
-        _ => None,
-    }
-}
-
 /// The compass heading in the common frame (radians, counter-clockwise).
 fn common_heading(h: &ima_hal::compass::Heading, cfg: &RobotConfig) -> f64 {
     let common_yaw = normalize_angle((90.0 - cfg.agent.common_heading_deg).to_radians());
@@ -151,7 +126,9 @@ pub async fn run(
 
     // SES subscription with reconnect/retry.
     let (ses_tx, mut ses_rx) = mpsc::channel::<SharedForm>(8);
+    let (rerequest_tx, rerequest_rx) = mpsc::channel::<()>(1);
     let ses_task = tokio::spawn(ses_loop(
+        rerequest_rx,
         cfg.clone(),
         net.clone(),
         key,
@@ -195,7 +172,9 @@ pub async fn run(
         let now = clock.now();
         while let Ok(b) = heard_rx.try_recv() {
             events.emit(&clock, &me, "heard", json!(b.to_string()));
-            let Some(h) = heard(&b) else { continue };
+            let Some(h) = ScooterHeard::from_broadcast(&b, &me) else {
+                continue;
+            };
             match &h {
                 // Repeats of the current target (several copies are sent) change nothing.
                 ScooterHeard::TargetAccepted { colour } if brain.target() == Some(colour) => {}
@@ -210,7 +189,7 @@ pub async fn run(
                         events.emit(&clock, &me, "ses", json!({"records": form.records.len(), "planned": planned, "target": colour}));
                     }
                 }
-                ScooterHeard::MissionEnded => {
+                ScooterHeard::MissionEnded { .. } => {
                     brain.handle_heard(&h, now);
                     reached = None;
                 }
@@ -262,30 +241,20 @@ pub async fn run(
             last_behaviour = b;
         }
         for say in out.messages {
-            let msg = match say {
-                ScooterSay::TargetReached { colour } => {
-                    Broadcast::emergency(&me, Emergency::TargetReached { colour })
-                }
-                ScooterSay::TargetReply { colour, seen } => {
-                    Broadcast::emergency(&me, Emergency::TargetReply { colour, seen })
-                }
-                ScooterSay::Status { behaviour, pose } => Broadcast::status(
-                    &me,
-                    behaviour.as_str(),
-                    "",
-                    Some(Pose {
-                        x_mm: (pose.0 * 1000.0) as i32,
-                        y_mm: (pose.1 * 1000.0) as i32,
-                        theta_mrad: (pose.2 * 1000.0) as i32,
-                    }),
-                ),
-                ScooterSay::RequestHeading => {
-                    events.emit(&clock, &me, "request-heading", json!(null));
-                    continue;
-                }
+            if let ScooterSay::TargetReached { colour } = &say {
+                reached = Some(colour.clone());
+            }
+            let Some(msg) = say.to_broadcast(&me, &brain.san_summary()) else {
+                // RequestHeading: ask Skeeter's manager again (a fresh grant makes Skeeter
+                // scan and publish).
+                events.emit(&clock, &me, "request-heading", json!(null));
+                let _ = rerequest_tx.try_send(());
+                continue;
             };
-            events.emit(&clock, &me, "say", json!(msg.to_string()));
-            // Target notifications must not be lost: send them three times.
+            if !matches!(msg, Broadcast::Status { .. }) {
+                events.emit(&clock, &me, "say", json!(msg.to_string()));
+            }
+            // Target notifications must not be lost: three copies (receivers are idempotent).
             let times = if matches!(msg, Broadcast::Status { .. }) {
                 1
             } else {
@@ -303,6 +272,7 @@ pub async fn run(
 }
 
 async fn ses_loop(
+    mut rerequest: mpsc::Receiver<()>,
     cfg: RobotConfig,
     net: ima_agents::peer::net::PeerNetConfig,
     key: GroupKey,

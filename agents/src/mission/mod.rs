@@ -40,6 +40,8 @@
 //! send what `poll_broadcast()` gives, feed every broadcast heard to `handle_broadcast`,
 //! call `handle_timeout` when `poll_timeout()` is due, stop when `is_finished()`.
 
+#![allow(clippy::module_name_repetitions)]
+
 pub mod avoid;
 pub mod commander;
 pub mod msg;
