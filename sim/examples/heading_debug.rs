@@ -2,8 +2,8 @@
 //! `cargo run --release -p ima-sim --example heading_debug -- thesis 135 3 3`.
 
 use ima_agents::mission::scooter::HeadingRule;
-use ima_sim::experiment::{SweepConfig, TARGET_COLOUR, world_for};
 use ima_sim::ScooterSim;
+use ima_sim::experiment::{SweepConfig, TARGET_COLOUR, world_for};
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();
@@ -21,16 +21,31 @@ fn main() {
     let mut sim = ScooterSim::new(world_for(angle, ds, dt, 1), TARGET_COLOUR, sim_cfg).unwrap();
     for k in 0..40_000 {
         let out = sim.step().clone();
-        if k % 50 == 0 || !out.messages.iter().all(|m| matches!(m, ima_agents::mission::scooter::ScooterSay::Status { .. })) {
+        if k % 50 == 0
+            || !out
+                .messages
+                .iter()
+                .all(|m| matches!(m, ima_agents::mission::scooter::ScooterSay::Status { .. }))
+        {
             let p = sim.trajectory().last().copied().unwrap_or_default();
             println!(
                 "t {:7.1} pos ({:6.2},{:6.2}) dr ({:6.2},{:6.2}) h {:7.1} hd {:?} beh {:?} cmd ({:.2},{:.2}) plan {:?} msgs {:?}",
-                sim.now().as_secs_f64(), p[0], p[1], sim.brain().dr_position().x, sim.brain().dr_position().y,
+                sim.now().as_secs_f64(),
+                p[0],
+                p[1],
+                sim.brain().dr_position().x,
+                sim.brain().dr_position().y,
                 sim.brain().heading().unwrap_or(0.0).to_degrees(),
                 sim.brain().desired_heading().map(f64::to_degrees),
-                out.behaviour, out.command.v_m_s, out.command.omega_rad_s, sim.brain().plan(), out.messages
+                out.behaviour,
+                out.command.v_m_s,
+                out.command.omega_rad_s,
+                sim.brain().plan(),
+                out.messages
             );
         }
-        if sim.reached_at().is_some() { break; }
+        if sim.reached_at().is_some() {
+            break;
+        }
     }
 }

@@ -10,5 +10,9 @@ fn main() {
     println!("{}", markdown_tables(&results, "thesis"));
     println!("{}", markdown_tables(&results, "range-aware"));
     println!("{}", summary(&results));
-    println!("{} runs in {:.1} s", results.len(), t.elapsed().as_secs_f64());
+    println!(
+        "{} runs in {:.1} s",
+        results.len(),
+        t.elapsed().as_secs_f64()
+    );
 }

@@ -212,9 +212,9 @@ pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
     sim_cfg.brain.heading_rule = spec.rule;
     sim_cfg.brain.cruise_speed_m_s = cfg.speed_m_s;
     let v = cfg.speed_m_s;
-    let expected_d =
-        ((target[0] - start[0]).hypot(target[1] - start[1]) - sim_cfg.brain.reach_distance_m)
-            .max(0.1);
+    let expected_d = ((target[0] - start[0]).hypot(target[1] - start[1])
+        - sim_cfg.brain.reach_distance_m)
+        .max(0.1);
     let cap = Duration::from_secs_f64((cfg.timeout_factor * expected_d / v).clamp(1.0, 1e6));
     let world = world_for(spec.angle_deg, spec.ds_m, spec.dt_m, spec.seed);
     let stride = cfg.trajectory_stride.max(1);

@@ -198,13 +198,8 @@ impl ScooterSim {
         if cfg.dt.is_zero() || cfg.scan_period.is_zero() {
             return Err(SimError::BadPeriod);
         }
-        let skeeter_heading = world
-            .robot(skeeter)
-            .map_or(0.0, |r| r.pose().theta_rad);
-        let start_pose = world
-            .robot(scooter)
-            .map(|r| r.pose())
-            .unwrap_or_default();
+        let skeeter_heading = world.robot(skeeter).map_or(0.0, |r| r.pose().theta_rad);
+        let start_pose = world.robot(scooter).map(|r| r.pose()).unwrap_or_default();
         let mut brain_cfg = cfg.brain.clone();
         brain_cfg.odometry_heading_offset_rad =
             normalize_angle(start_pose.theta_rad - skeeter_heading);

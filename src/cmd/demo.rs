@@ -134,11 +134,21 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             let world = world.clone();
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
-                    let wt = world.with(|w| w.time()).as_secs_f64();
+                    let (wt, truth) = world.with(|w| {
+                        let p = w
+                            .robot_id(&e.robot)
+                            .and_then(|id| w.robot(id))
+                            .map(|r| r.pose());
+                        (w.time().as_secs_f64(), p)
+                    });
                     if json_out {
                         let mut v = serde_json::to_value(&e).unwrap_or_default();
                         v["kind"] = json!(e.kind);
                         v["world_t_s"] = json!(wt);
+                        if let Some(p) = truth {
+                            v["truth"] =
+                                json!({"x_m": p.x_m, "y_m": p.y_m, "theta_rad": p.theta_rad});
+                        }
                         println!("{v}");
                     } else {
                         print_live(wt, &e);
@@ -273,7 +283,10 @@ fn summarise(
             continue;
         };
         let d = scooter.length_between(t0, t1);
-        let d_min = match (position_at(t0), objects.iter().find(|x| x.color == o.target)) {
+        let d_min = match (
+            position_at(t0),
+            objects.iter().find(|x| x.color == o.target),
+        ) {
             (Some((x, y)), Some(obj)) => {
                 ((obj.center[0] - x).hypot(obj.center[1] - y) - reach_m()).max(0.0)
             }
@@ -284,8 +297,10 @@ fn summarise(
         } else {
             0.0
         };
-        rows.push(json!({"target": o.target, "state": o.state, "time_s": t1 - t0,
-            "distance_m": d, "d_min_m": d_min, "performance": f}));
+        rows.push(
+            json!({"target": o.target, "state": o.state, "time_s": t1 - t0,
+            "distance_m": d, "d_min_m": d_min, "performance": f}),
+        );
     }
     let done = outcomes
         .iter()

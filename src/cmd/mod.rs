@@ -16,7 +16,7 @@ pub mod mock;
 pub mod mock_rflex;
 pub mod mock_sick;
 pub mod mock_world;
-pub mod run;
 pub mod peer;
+pub mod run;
 pub mod san;
 pub mod scan;

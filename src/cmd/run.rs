@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 
-use crate::config::{Role, RobotConfig};
+use crate::config::{RobotConfig, Role};
 use crate::stack::{Events, devices, net};
 
 /// Arguments of `ima run`.

@@ -64,7 +64,9 @@ pub async fn run(
         );
         bus.send(&request).await;
         let deadline = tokio::time::Instant::now() + clock.real(timeout);
-        let resend = clock.real(Duration::from_secs(3)).max(Duration::from_millis(300));
+        let resend = clock
+            .real(Duration::from_secs(3))
+            .max(Duration::from_millis(300));
         let mut next_resend = tokio::time::Instant::now() + resend;
         let mut accepted_s = None;
         let outcome = loop {
@@ -157,6 +159,8 @@ pub fn broadcast_json(b: &Broadcast) -> serde_json::Value {
             robot,
             event,
             target,
-        } => json!({"type": "mission", "robot": robot, "event": format!("{event:?}").to_lowercase(), "target": target}),
+        } => {
+            json!({"type": "mission", "robot": robot, "event": format!("{event:?}").to_lowercase(), "target": target})
+        }
     }
 }

@@ -48,8 +48,10 @@ pub async fn open_p2os(d: &BaseDevice) -> Result<P2os> {
         .with_context(|| format!("connecting to the P2OS base on {}", d.port))
 }
 
-/// Connect to an rFLEX base and release its brake.
-pub async fn open_rflex(d: &BaseDevice) -> Result<Rflex> {
+/// Connect to an rFLEX base and release its brake. `time_scale` > 1 (a sped-up simulated
+/// world) widens the driver's odometry plausibility limits by that factor, since the world
+/// moves that much faster per real second.
+pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
     anyhow::ensure!(
         d.kind == BaseKind::Rflex,
         "the base on {} is not configured as rflex",
@@ -57,13 +59,17 @@ pub async fn open_rflex(d: &BaseDevice) -> Result<Rflex> {
     );
     let port = ima_rflex::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the rFLEX base port {}", d.port))?;
-    let mut base = Rflex::connect(
-        port,
-        ima_rflex::machine::Config::default(),
-        secs(d.connect_timeout_s),
-    )
-    .await
-    .with_context(|| format!("connecting to the rFLEX base on {}", d.port))?;
+    let mut cfg = ima_rflex::machine::Config::default();
+    let k = if time_scale.is_finite() {
+        time_scale.max(1.0)
+    } else {
+        1.0
+    };
+    cfg.limits.max_v_m_s *= k;
+    cfg.limits.max_omega_rad_s *= k;
+    let mut base = Rflex::connect(port, cfg, secs(d.connect_timeout_s))
+        .await
+        .with_context(|| format!("connecting to the rFLEX base on {}", d.port))?;
     base.enable_motors(true)
         .await
         .with_context(|| format!("releasing the brake of the rFLEX base on {}", d.port))?;
@@ -203,7 +209,11 @@ pub async fn open_scooter(cfg: &RobotConfig) -> Result<ScooterDevices> {
             None => Ok(None),
         }
     };
-    let (base, laser, compass) = tokio::join!(open_rflex(base), open_laser(laser), compass);
+    let (base, laser, compass) = tokio::join!(
+        open_rflex(base, cfg.agent.time_scale),
+        open_laser(laser),
+        compass
+    );
     Ok(ScooterDevices {
         base: base?,
         laser: laser?,

@@ -109,6 +109,6 @@ impl Events {
             .clone()
     }
 }
-pub mod scooter;
 pub mod commander;
+pub mod scooter;
 pub mod skeeter;

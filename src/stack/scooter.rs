@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use anyhow::Result;
-use ima_agents::mission::msg::{Broadcast, Emergency, MissionEvent, Pose, SES_SOURCE, SKEETER};
+use ima_agents::mission::msg::{Broadcast, SES_SOURCE};
 use ima_agents::mission::scooter::{
     HeadingRule, HeadingSource, ScooterBrain, ScooterConfig, ScooterHeard, ScooterSay,
 };
@@ -156,6 +156,7 @@ pub async fn run(
     let mut last_behaviour = String::new();
     let mut last_ses: Option<(ima_hal::Instant, SharedForm)> = None;
     let mut reached: Option<String> = None;
+    let mut last_control: Option<ima_hal::Instant> = None;
     let lost_after = Duration::from_secs_f64(cfg.agent.lost_timeout_s);
     let mut last_odo_at = None;
     let mut last_compass_at = None;
@@ -235,6 +236,20 @@ pub async fn run(
         if let Err(e) = base.set_velocity(command).await {
             tracing::warn!("base: {e:?}");
         }
+        if last_control.is_none_or(|t| now.saturating_duration_since(t) >= Duration::from_secs(2)) {
+            last_control = Some(now);
+            let dr = brain.dr_position();
+            events.emit(
+                &clock,
+                &me,
+                "control",
+                json!({
+                    "v_m_s": command.v_m_s, "omega_rad_s": command.omega_rad_s,
+                    "heading_rad": brain.heading(), "desired_rad": brain.desired_heading(),
+                    "dr": [dr.x, dr.y], "behaviour": out.behaviour.as_str(),
+                }),
+            );
+        }
         let b = out.behaviour.as_str().to_owned();
         if b != last_behaviour {
             events.emit(&clock, &me, "behaviour", json!(b));
@@ -301,7 +316,22 @@ async fn ses_loop(
                 "peer",
                 json!({"granted": SES_SOURCE, "manager": addr}),
             );
-            while let Some(ev) = sub.next().await {
+            loop {
+                let ev = tokio::select! {
+                    ev = sub.next() => ev,
+                    Some(()) = rerequest.recv() => {
+                        // A fresh request: disconnect and ask again (Skeeter answers a new
+                        // grant with its latest SES).
+                        let _ = client.disconnect(SES_SOURCE).await;
+                        sub = client
+                            .request(SES_SOURCE, prio)
+                            .await
+                            .map_err(|e| e.to_string())?;
+                        events.emit(&clock, &me, "peer", json!({"granted": SES_SOURCE, "again": true}));
+                        continue;
+                    }
+                };
+                let Some(ev) = ev else { break };
                 match ev {
                     SubscriptionEvent::Sample { payload, .. } => match SharedForm::decode(&payload)
                     {

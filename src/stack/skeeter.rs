@@ -1,200 +1,29 @@
-//! Skeeter's stack: continuous sweeps of the camera head with the Scan node
-//! ([`ima_agents::mission::scan`]) over the video switcher and the frame source, each sweep's
-//! SES published as the Peer Agent source `ses` on Skeeter's manager, and the mission logic
-//! on the broadcast channel ([`SkeeterMission`]).
+//! Skeeter's stack: [`SkeeterBrain`] (its SAN) fed by the broadcast channel, by the Scan
+//! node's sweeps ([`ima_agents::mission::scan`] over the video switcher and the frame
+//! source, run in their own task) and by its Peer Agent manager's grants of the `ses`
+//! source; the brain's outputs go to the broadcast channel, to the scanner and to the `ses`
+//! source's publisher.
 
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use ima_agents::mission::msg::{
-    Broadcast, COMMANDER, Emergency, MissionEvent, SCOOTER_TAG, SES_SOURCE, SES_SOURCE_KIND,
-    SES_SOURCE_SCHEMA,
+    Broadcast, SCOOTER_TAG, SES_SOURCE, SES_SOURCE_KIND, SES_SOURCE_SCHEMA,
 };
 use ima_agents::mission::scan::{ScanConfig, ScanReport, Scanner, run_scan};
+use ima_agents::mission::skeeter::{SkeeterBrain, SkeeterConfig, SkeeterOutput};
 use ima_agents::mission::vision::{ColourDb, ColourSpec, HeadGeometry};
-use ima_agents::peer::manager::FixedSelfAgent;
-use ima_agents::peer::net::spawn_manager;
+use ima_agents::peer::manager::{FixedSelfAgent, ManagerEvent, Outcome};
+use ima_agents::peer::net::{ManagerNetEvent, spawn_manager};
 use ima_agents::peer::wire::{GroupKey, SourceInfo};
-use ima_hal::Instant;
 use ima_hal::base::DifferentialBase;
 use serde_json::json;
-use tokio::sync::watch;
+use tokio::sync::{mpsc, watch};
 
 use super::devices::SkeeterDevices;
 use super::net::{Bus, net_config};
 use super::{Events, MissionClock};
 use crate::config::RobotConfig;
-
-/// Sweeps in a row without Scooter before the stress call `scooter-lost`.
-pub const LOST_AFTER_SWEEPS: u32 = 2;
-/// Sweeps in a row without the target before Skeeter asks Scooter (`target-query`).
-pub const QUERY_AFTER_SWEEPS: u32 = 2;
-
-/// Skeeter's mission logic (sans-IO): targets from the commander, scan reports, Scooter's
-/// broadcasts in; broadcasts out. Time is the mission clock.
-#[derive(Debug)]
-pub struct SkeeterMission {
-    robot: String,
-    timeout: Duration,
-    target: Option<Target>,
-    scooter_missing: u32,
-    scooter_lost: bool,
-    outbox: Vec<Broadcast>,
-}
-
-#[derive(Debug, Clone)]
-struct Target {
-    colour: String,
-    since: Instant,
-    missing: u32,
-    queried: bool,
-}
-
-impl SkeeterMission {
-    /// The logic of robot `robot`; a target fails after `timeout`.
-    pub fn new(robot: &str, timeout: Duration) -> Self {
-        Self {
-            robot: robot.to_owned(),
-            timeout,
-            target: None,
-            scooter_missing: 0,
-            scooter_lost: false,
-            outbox: Vec::new(),
-        }
-    }
-
-    /// The current target.
-    pub fn target(&self) -> Option<&str> {
-        self.target.as_ref().map(|t| t.colour.as_str())
-    }
-
-    /// The running behaviour (for status broadcasts).
-    pub fn behaviour(&self) -> &'static str {
-        match &self.target {
-            None => "idle",
-            Some(_) if self.scooter_lost => "call-scooter-back",
-            Some(t) if t.queried => "ask-scooter",
-            Some(_) => "share-ses",
-        }
-    }
-
-    fn say(&mut self, b: Broadcast) {
-        self.outbox.push(b);
-    }
-
-    fn end(&mut self, event: MissionEvent) {
-        if let Some(t) = self.target.take() {
-            let b = Broadcast::mission(&self.robot, event, &t.colour);
-            self.say(b);
-        }
-    }
-
-    /// A broadcast heard.
-    pub fn handle_broadcast(&mut self, b: &Broadcast, now: Instant) {
-        match b {
-            Broadcast::Mission {
-                robot,
-                event: MissionEvent::Accepted,
-                target,
-            } if robot == COMMANDER => match &self.target {
-                // A repeat of the current target: confirm again.
-                Some(t) if &t.colour == target => {
-                    let b = Broadcast::mission(&self.robot, MissionEvent::Accepted, target);
-                    self.say(b);
-                }
-                Some(_) => {} // one target at a time; the commander waits
-                None => {
-                    self.target = Some(Target {
-                        colour: target.clone(),
-                        since: now,
-                        missing: 0,
-                        queried: false,
-                    });
-                    let b = Broadcast::mission(&self.robot, MissionEvent::Accepted, target);
-                    self.say(b);
-                }
-            },
-            Broadcast::Emergency {
-                emergency: Emergency::TargetReached { colour },
-                ..
-            } if self.target() == Some(colour.as_str()) => {
-                self.end(MissionEvent::Accomplished);
-            }
-            Broadcast::Emergency {
-                emergency: Emergency::TargetReply { colour, seen },
-                ..
-            } if self.target() == Some(colour.as_str()) => {
-                if let Some(t) = &mut self.target
-                    && t.missing >= QUERY_AFTER_SWEEPS
-                {
-                    if *seen {
-                        // Scooter sees it: keep going, ask again later.
-                        t.queried = false;
-                        t.missing = 0;
-                    } else {
-                        // Neither sees the target.
-                        self.end(MissionEvent::Failed);
-                    }
-                }
-            }
-            _ => {}
-        }
-    }
-
-    /// A full sweep's report.
-    pub fn handle_scan(&mut self, report: &ScanReport, now: Instant) {
-        if report.sees(SCOOTER_TAG) {
-            self.scooter_missing = 0;
-            if self.scooter_lost {
-                self.scooter_lost = false;
-                let b = Broadcast::emergency(&self.robot, Emergency::ScooterFound);
-                self.say(b);
-            }
-        } else {
-            self.scooter_missing = self.scooter_missing.saturating_add(1);
-            if self.target.is_some()
-                && !self.scooter_lost
-                && self.scooter_missing >= LOST_AFTER_SWEEPS
-            {
-                self.scooter_lost = true;
-                let b = Broadcast::emergency(&self.robot, Emergency::ScooterLost);
-                self.say(b);
-            }
-        }
-        let mut query = None;
-        if let Some(t) = &mut self.target {
-            if report.sees(&t.colour) {
-                t.missing = 0;
-                t.queried = false;
-            } else {
-                t.missing = t.missing.saturating_add(1);
-                if t.missing >= QUERY_AFTER_SWEEPS && !t.queried {
-                    t.queried = true;
-                    query = Some(t.colour.clone());
-                }
-            }
-        }
-        if let Some(colour) = query {
-            let b = Broadcast::emergency(&self.robot, Emergency::TargetQuery { colour });
-            self.say(b);
-        }
-        self.handle_timeout(now);
-    }
-
-    /// Time passes: a target older than the timeout fails.
-    pub fn handle_timeout(&mut self, now: Instant) {
-        if let Some(t) = &self.target
-            && now.saturating_duration_since(t.since) >= self.timeout
-        {
-            self.end(MissionEvent::Failed);
-        }
-    }
-
-    /// Broadcasts to send, oldest first.
-    pub fn take_outbox(&mut self) -> Vec<Broadcast> {
-        std::mem::take(&mut self.outbox)
-    }
-}
 
 /// The colour database of the configuration (the built-in one when empty).
 pub fn colour_db(cfg: &RobotConfig) -> Result<ColourDb> {
@@ -212,26 +41,6 @@ pub fn colour_db(cfg: &RobotConfig) -> Result<ColourDb> {
         colours.extend(d.colours.into_iter().filter(|c| c.name == SCOOTER_TAG));
     }
     ColourDb::new(colours).map_err(|e| anyhow::anyhow!("agent.colours: {e:?}"))
-}
-
-async fn flush(
-    mission: &mut SkeeterMission,
-    bus: &Bus,
-    events: &Events,
-    clock: &MissionClock,
-    me: &str,
-) {
-    for b in mission.take_outbox() {
-        events.emit(clock, me, "say", json!(b.to_string()));
-        // Mission events and emergencies must not be lost: three copies (receivers are
-        // idempotent).
-        let times = if matches!(b, Broadcast::Status { .. }) {
-            1
-        } else {
-            3
-        };
-        bus.send_repeated(&b, times, Duration::from_millis(30)).await;
-    }
 }
 
 /// Run Skeeter until `stop` turns true.
@@ -258,6 +67,7 @@ pub async fn run(
         .await
         .map_err(|e| anyhow::anyhow!("{e}"))
         .context("starting Skeeter's Peer Agent manager")?;
+    let mut grants = manager.events();
     let ses = manager.publisher(SourceInfo {
         name: SES_SOURCE.to_owned(),
         kind: SES_SOURCE_KIND.to_owned(),
@@ -288,11 +98,32 @@ pub async fn run(
     scan_cfg.step_timeout = scan_cfg.step_timeout.mul_f64(scale);
     let mut scanner = Scanner::with_default_ses(scan_cfg, colour_db(&cfg)?)
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let mut mission = SkeeterMission::new(
-        &me,
-        Duration::from_secs_f64(cfg.agent.target_timeout_s),
-    );
-    let (heard_tx, mut heard_rx) = tokio::sync::mpsc::channel::<Broadcast>(64);
+    // The scanner task: one sweep per request.
+    let (scan_req_tx, mut scan_req_rx) = mpsc::channel::<()>(1);
+    let (report_tx, mut report_rx) = mpsc::channel::<Option<ScanReport>>(1);
+    let scan_task = tokio::spawn(async move {
+        while scan_req_rx.recv().await.is_some() {
+            let r = run_scan(
+                &mut scanner,
+                &mut mux,
+                &mut frames,
+                |d| tokio::time::sleep(d.div_f64(scale)),
+                || clock.now(),
+            )
+            .await;
+            if report_tx.send(r).await.is_err() {
+                return;
+            }
+        }
+    });
+    let mut brain = SkeeterBrain::new(SkeeterConfig {
+        robot: me.clone(),
+        target_timeout: Duration::from_secs_f64(cfg.agent.target_timeout_s),
+        stress_repeat: Duration::from_secs(10),
+        ..SkeeterConfig::default()
+    })
+    .map_err(|e| anyhow::anyhow!("Skeeter's SAN: {e:?}"))?;
+    let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
     let bus_rx = bus.clone();
     let rx_task = tokio::spawn(async move {
         while let Ok(b) = bus_rx.recv().await {
@@ -301,174 +132,93 @@ pub async fn run(
             }
         }
     });
-    let mut last_status = None::<Instant>;
+    brain.start(clock.now());
+    let mut last_behaviour = String::new();
     let result: Result<()> = loop {
-        if *stop.borrow() {
-            break Ok(());
-        }
-        // One sweep; broadcasts heard meanwhile are handled at once.
-        let sweep = run_scan(
-            &mut scanner,
-            &mut mux,
-            &mut frames,
-            |d| tokio::time::sleep(d.div_f64(scale)),
-            || clock.now(),
-        );
-        tokio::pin!(sweep);
-        let report = loop {
-            tokio::select! {
-                r = &mut sweep => break Some(r),
-                Some(b) = heard_rx.recv() => {
-                    events.emit(&clock, &me, "heard", json!(b.to_string()));
-                    mission.handle_broadcast(&b, clock.now());
-                    flush(&mut mission, &bus, &events, &clock, &me).await;
-                }
-                _ = stop.changed() => break None,
-            }
-        };
-        let Some(report) = report else {
-            break Ok(());
-        };
-        let now = clock.now();
-        if let Some(report) = report {
-            match report.shared.to_bytes() {
-                Ok(bytes) => {
-                    if let Err(e) = ses.publish(now.as_micros(), &bytes) {
-                        tracing::warn!("publishing the SES: {e}");
+        // Carry out the brain's outputs.
+        while let Some(out) = brain.poll_output() {
+            match out {
+                SkeeterOutput::Broadcast(b) => {
+                    let status = matches!(b, Broadcast::Status { .. });
+                    if !status {
+                        events.emit(&clock, &me, "say", json!(b.to_string()));
                     }
+                    // Mission events and emergencies must not be lost: three copies
+                    // (receivers are idempotent).
+                    bus.send_repeated(&b, if status { 1 } else { 3 }, Duration::from_millis(30))
+                        .await;
                 }
-                Err(e) => tracing::warn!("encoding the SES: {e:?}"),
+                SkeeterOutput::StartScan => {
+                    let _ = scan_req_tx.try_send(());
+                }
+                SkeeterOutput::PublishSes(form) => match form.to_bytes() {
+                    Ok(bytes) => {
+                        if let Err(e) = ses.publish(clock.now().as_micros(), &bytes) {
+                            tracing::warn!("publishing the SES: {e}");
+                        }
+                    }
+                    Err(e) => tracing::warn!("encoding the SES: {e:?}"),
+                },
             }
-            events.emit(
-                &clock,
-                &me,
-                "scan",
-                json!({
-                    "seen": report.detections.iter().map(|d| d.tag().to_owned()).collect::<Vec<_>>(),
-                    "cameras_ok": report.cameras_ok,
-                    "cameras_failed": report.cameras_failed,
-                }),
-            );
-            mission.handle_scan(&report, now);
-        } else {
-            mission.handle_timeout(now);
         }
-        flush(&mut mission, &bus, &events, &clock, &me).await;
-        if last_status.is_none_or(|t| now.saturating_duration_since(t) >= Duration::from_secs(2))
-        {
-            last_status = Some(now);
-            let target = mission.target().unwrap_or("-").to_owned();
-            bus.send(&Broadcast::status(
-                &me,
-                mission.behaviour(),
-                &format!("target {target}"),
-                None,
-            ))
-            .await;
+        let b = brain.behaviour().to_owned();
+        if b != last_behaviour {
+            events.emit(&clock, &me, "behaviour", json!(b));
+            last_behaviour = b;
+        }
+        let wake = brain.poll_timeout().map(|t| {
+            let wait = t.saturating_duration_since(clock.now());
+            tokio::time::Instant::now() + clock.real(wait)
+        });
+        tokio::select! {
+            Some(report) = report_rx.recv() => {
+                let now = clock.now();
+                match report {
+                    Some(report) => {
+                        events.emit(
+                            &clock,
+                            &me,
+                            "scan",
+                            json!({
+                                "seen": report.detections.iter().map(|d| d.tag().to_owned()).collect::<Vec<_>>(),
+                                "scooter": report.sees(SCOOTER_TAG),
+                                "cameras_ok": report.cameras_ok,
+                                "cameras_failed": report.cameras_failed,
+                            }),
+                        );
+                        brain.handle_scan(&report, now);
+                    }
+                    None => brain.handle_timeout(now),
+                }
+            }
+            Some(b) = heard_rx.recv() => {
+                events.emit(&clock, &me, "heard", json!(b.to_string()));
+                brain.handle_broadcast(&b, clock.now());
+            }
+            ev = grants.recv() => {
+                if let Ok(ManagerNetEvent::Core(ManagerEvent::Decision(d))) = ev
+                    && d.source == SES_SOURCE
+                    && d.outcome == Outcome::Granted
+                {
+                    events.emit(&clock, &me, "peer", json!({"granted": SES_SOURCE, "to": d.robot}));
+                    brain.handle_heading_request(clock.now());
+                }
+            }
+            () = async {
+                match wake {
+                    Some(w) => tokio::time::sleep_until(w).await,
+                    None => std::future::pending().await,
+                }
+            } => brain.handle_timeout(clock.now()),
+            r = stop.changed() => {
+                if r.is_err() || *stop.borrow() {
+                    break Ok(());
+                }
+            }
         }
     };
+    scan_task.abort();
     rx_task.abort();
     manager.shutdown().await;
     result
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn t(s: u64) -> Instant {
-        Instant::from_millis(s * 1000)
-    }
-
-    #[test]
-    fn accepts_confirms_repeats_and_accomplishes() {
-        let mut m = SkeeterMission::new("skeeter", Duration::from_secs(100));
-        m.handle_broadcast(&Broadcast::new_target("red"), t(1));
-        let out = m.take_outbox();
-        assert_eq!(
-            out,
-            vec![Broadcast::mission("skeeter", MissionEvent::Accepted, "red")]
-        );
-        // A repeat is confirmed again; another colour waits.
-        m.handle_broadcast(&Broadcast::new_target("red"), t(2));
-        m.handle_broadcast(&Broadcast::new_target("blue"), t(2));
-        assert_eq!(m.take_outbox().len(), 1);
-        assert_eq!(m.target(), Some("red"));
-        m.handle_broadcast(
-            &Broadcast::emergency(
-                "scooter",
-                Emergency::TargetReached {
-                    colour: "red".into(),
-                },
-            ),
-            t(3),
-        );
-        assert_eq!(
-            m.take_outbox(),
-            vec![Broadcast::mission(
-                "skeeter",
-                MissionEvent::Accomplished,
-                "red"
-            )]
-        );
-        assert_eq!(m.target(), None);
-    }
-
-    #[test]
-    fn times_out() {
-        let mut m = SkeeterMission::new("skeeter", Duration::from_secs(10));
-        m.handle_broadcast(&Broadcast::new_target("red"), t(1));
-        m.take_outbox();
-        m.handle_timeout(t(5));
-        assert!(m.take_outbox().is_empty());
-        m.handle_timeout(t(11));
-        assert_eq!(
-            m.take_outbox(),
-            vec![Broadcast::mission("skeeter", MissionEvent::Failed, "red")]
-        );
-    }
-
-    #[test]
-    fn target_not_seen_asks_scooter_and_fails_if_neither_sees_it() {
-        let mut m = SkeeterMission::new("skeeter", Duration::from_secs(100));
-        m.handle_broadcast(&Broadcast::new_target("red"), t(1));
-        m.take_outbox();
-        let empty = ScanReport {
-            started: t(1),
-            finished: t(2),
-            detections: Vec::new(),
-            cameras_ok: 7,
-            cameras_failed: 0,
-            shared: ima_agents::ses::shared::SharedForm {
-                source_robot: "skeeter".into(),
-                sent_at: t(2),
-                records: Vec::new(),
-            },
-        };
-        m.handle_scan(&empty, t(2));
-        m.handle_scan(&empty, t(3));
-        let out = m.take_outbox();
-        assert!(out.contains(&Broadcast::emergency(
-            "skeeter",
-            Emergency::TargetQuery {
-                colour: "red".into()
-            }
-        )));
-        // Scooter was not seen either: the stress call.
-        assert!(out.contains(&Broadcast::emergency("skeeter", Emergency::ScooterLost)));
-        m.handle_broadcast(
-            &Broadcast::emergency(
-                "scooter",
-                Emergency::TargetReply {
-                    colour: "red".into(),
-                    seen: false,
-                },
-            ),
-            t(4),
-        );
-        assert_eq!(
-            m.take_outbox(),
-            vec![Broadcast::mission("skeeter", MissionEvent::Failed, "red")]
-        );
-    }
 }

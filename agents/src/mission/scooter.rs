@@ -298,7 +298,10 @@ impl ScooterSay {
             Self::Status { behaviour, pose } => {
                 let fix = |v: f64| {
                     if v.is_finite() {
-                        (v * 1000.0).round().clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+                        (v * 1000.0)
+                            .round()
+                            .clamp(f64::from(i32::MIN), f64::from(i32::MAX))
+                            as i32
                     } else {
                         0
                     }
@@ -754,10 +757,7 @@ impl ScooterBrain {
             Some(prev) => {
                 let d = pose.translation.vector - prev.translation.vector;
                 let pth = prev.rotation.angle();
-                (
-                    d.x * pth.cos() + d.y * pth.sin(),
-                    normalize_angle(th - pth),
-                )
+                (d.x * pth.cos() + d.y * pth.sin(), normalize_angle(th - pth))
             }
             None => (0.0, 0.0),
         };
@@ -818,9 +818,10 @@ impl ScooterBrain {
         };
         // Sensing time on our clock: now − (sent_at − time).
         let age = form.sent_at.saturating_duration_since(me.time);
-        let seen_at = Instant::from_micros(now.as_micros().saturating_sub(
-            u64::try_from(age.as_micros()).unwrap_or(u64::MAX),
-        ));
+        let seen_at = Instant::from_micros(
+            now.as_micros()
+                .saturating_sub(u64::try_from(age.as_micros()).unwrap_or(u64::MAX)),
+        );
         let theta1 = me.bearing.azimuth_rad;
         let theta2 = tg.bearing.azimuth_rad;
         let p_rec = self.dr_at(seen_at);
@@ -983,9 +984,8 @@ impl ScooterBrain {
     /// [`ScooterBrain::step`].
     fn select(&mut self) -> Behaviour {
         let trace = self.san.step();
-        let allowed = |b: &Behaviour| {
-            !matches!(b, Behaviour::ReplyTargetQuery | Behaviour::NotifySkeeter)
-        };
+        let allowed =
+            |b: &Behaviour| !matches!(b, Behaviour::ReplyTargetQuery | Behaviour::NotifySkeeter);
         if let Some(b) = trace
             .fired
             .as_deref()
@@ -1043,8 +1043,7 @@ impl ScooterBrain {
         let chosen = self.select();
         let motion = if self.reached && self.target.is_some() {
             Behaviour::NotifySkeeter
-        } else if self.target.is_none() && !(self.called_back && chosen == Behaviour::MoveToHome)
-        {
+        } else if self.target.is_none() && !(self.called_back && chosen == Behaviour::MoveToHome) {
             Behaviour::Idle
         } else {
             chosen
@@ -1357,7 +1356,10 @@ mod tests {
         let out = b.step(t(50));
         assert_eq!(out.behaviour, Behaviour::FollowHeading);
         assert_eq!(out.command.v_m_s, 0.0, "turns in place first");
-        assert!(out.command.omega_rad_s > 0.0, "counter-clockwise toward 135°");
+        assert!(
+            out.command.omega_rad_s > 0.0,
+            "counter-clockwise toward 135°"
+        );
     }
 
     #[test]
@@ -1377,7 +1379,10 @@ mod tests {
             Some(Plan::Point(p)) => assert!((p - Vector2::new(-2.0, 5.0)).norm() < 1e-3),
             other => panic!("{other:?}"),
         }
-        assert!(close_deg(b.desired_heading().unwrap(), 5f64.atan2(-2.0).to_degrees()));
+        assert!(close_deg(
+            b.desired_heading().unwrap(),
+            5f64.atan2(-2.0).to_degrees()
+        ));
     }
 
     #[test]
@@ -1398,7 +1403,10 @@ mod tests {
         b.set_target(RED, t(0));
         // Scooter at (1, 0) in the common frame; Skeeter sees it at 0°.
         let f0 = form(
-            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 180.0, Some(4.0), t(0))],
+            vec![
+                rec("scooter", 0.0, None, t(0)),
+                rec(RED, 180.0, Some(4.0), t(0)),
+            ],
             t(0),
         );
         assert!(b.handle_ses(&f0, t(0)));
@@ -1420,7 +1428,10 @@ mod tests {
             t(2000),
         );
         let f1 = form(
-            vec![rec("scooter", 45.0, None, t(2000)), rec(RED, 180.0, Some(4.0), t(2000))],
+            vec![
+                rec("scooter", 45.0, None, t(2000)),
+                rec(RED, 180.0, Some(4.0), t(2000)),
+            ],
             t(2000),
         );
         assert!(b.handle_ses(&f1, t(2000)));
@@ -1514,7 +1525,10 @@ mod tests {
         );
         let out = b.step(t(100));
         assert_eq!(out.behaviour, Behaviour::MoveToHome);
-        assert!(out.command.omega_rad_s < 0.0, "turning clockwise toward −90°");
+        assert!(
+            out.command.omega_rad_s < 0.0,
+            "turning clockwise toward −90°"
+        );
         b.handle_broadcast(
             &Broadcast::emergency("skeeter", Emergency::ScooterFound),
             t(200),
@@ -1528,14 +1542,21 @@ mod tests {
         let mut b = brain(HeadingRule::RangeAware);
         b.set_target(RED, t(0));
         let f = form(
-            vec![rec("scooter", 0.0, Some(1.0), t(0)), rec(RED, 90.0, Some(3.0), t(0))],
+            vec![
+                rec("scooter", 0.0, Some(1.0), t(0)),
+                rec(RED, 90.0, Some(3.0), t(0)),
+            ],
             t(0),
         );
         b.handle_ses(&f, t(0));
         b.handle_heard(&ScooterHeard::ScooterLost, t(0));
         let out = b.step(t(0));
         assert_eq!(out.behaviour, Behaviour::MoveToHome);
-        assert_eq!(out.command, VelocityCommand::ZERO, "1 m < home_stop_distance");
+        assert_eq!(
+            out.command,
+            VelocityCommand::ZERO,
+            "1 m < home_stop_distance"
+        );
     }
 
     #[test]
@@ -1586,7 +1607,10 @@ mod tests {
         b.set_target(RED, t(0));
         // Scooter at (−1.5, 0) facing +x; target at (−0.5, 0) — 1 m ahead.
         let f = form(
-            vec![rec("scooter", 180.0, Some(1.5), t(0)), rec(RED, 180.0, Some(0.5), t(0))],
+            vec![
+                rec("scooter", 180.0, Some(1.5), t(0)),
+                rec(RED, 180.0, Some(0.5), t(0)),
+            ],
             t(0),
         );
         b.handle_ses(&f, t(0));
@@ -1623,7 +1647,11 @@ mod tests {
         assert!(d <= b.config().reach_distance_m + 0.05 && d > 0.55, "{d}");
         let out = b.step(t(now + 50));
         assert_eq!(out.behaviour, Behaviour::NotifySkeeter);
-        assert!(out.messages.iter().all(|m| matches!(m, ScooterSay::Status { .. })));
+        assert!(
+            out.messages
+                .iter()
+                .all(|m| matches!(m, ScooterSay::Status { .. }))
+        );
     }
 
     #[test]
@@ -1631,7 +1659,10 @@ mod tests {
         let mut b = brain(HeadingRule::RangeAware);
         b.set_target(RED, t(0));
         let f = form(
-            vec![rec("scooter", 180.0, Some(3.0), t(0)), rec(RED, 90.0, Some(3.0), t(0))],
+            vec![
+                rec("scooter", 180.0, Some(3.0), t(0)),
+                rec(RED, 90.0, Some(3.0), t(0)),
+            ],
             t(0),
         );
         b.handle_ses(&f, t(0));
@@ -1656,7 +1687,10 @@ mod tests {
         b.set_target(RED, t(0));
         // Scooter at (−4, 0) facing +x, target at (1, 0.0), barrel (r 0.3) at (−1.5, 0.05).
         let f = form(
-            vec![rec("scooter", 180.0, Some(4.0), t(0)), rec(RED, 0.0, Some(1.0), t(0))],
+            vec![
+                rec("scooter", 180.0, Some(4.0), t(0)),
+                rec(RED, 0.0, Some(1.0), t(0)),
+            ],
             t(0),
         );
         b.handle_ses(&f, t(0));
@@ -1693,7 +1727,12 @@ mod tests {
                 let (sx, sy) = (w.x, w.y);
                 let f = form(
                     vec![
-                        rec("scooter", sy.atan2(sx).to_degrees(), Some(sx.hypot(sy)), t(now)),
+                        rec(
+                            "scooter",
+                            sy.atan2(sx).to_degrees(),
+                            Some(sx.hypot(sy)),
+                            t(now),
+                        ),
                         rec(RED, 0.0, Some(1.0), t(now)),
                     ],
                     t(now),
@@ -1705,7 +1744,10 @@ mod tests {
         assert!(b.reached(), "target reached after the detour");
         assert!(min_clear > 0.0, "no collision: clearance {min_clear}");
         let flips = omegas.windows(2).filter(|p| p[0] != p[1]).count();
-        assert!(flips <= 3, "turn-rate sign flipped {flips} times: {omegas:?}");
+        assert!(
+            flips <= 3,
+            "turn-rate sign flipped {flips} times: {omegas:?}"
+        );
     }
 
     #[test]
@@ -1867,7 +1909,10 @@ mod tests {
             },
             t(10),
         );
-        assert!(b.plan().is_some(), "Skeeter's echo of the acceptance keeps the plan");
+        assert!(
+            b.plan().is_some(),
+            "Skeeter's echo of the acceptance keeps the plan"
+        );
         b.handle_heard(
             &ScooterHeard::MissionEnded {
                 colour: "blue".to_owned(),
