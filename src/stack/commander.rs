@@ -1,11 +1,13 @@
-//! The commander: joins the broadcast group, sends the targets one at a time as
-//! `Mission { commander, Accepted, colour }`, follows Skeeter's answers (Accepted, then
-//! Accomplished or Failed) and reports every broadcast it hears.
+//! The commander's runtime: joins the broadcast group and drives
+//! [`ima_agents::mission::commander::Commander`] (targets sent one at a time as
+//! `Mission { commander, Accepted, colour }`, resent until Skeeter accepts, progress from
+//! Skeeter's mission events), reporting every broadcast it hears.
 
 use std::time::Duration;
 
 use anyhow::Result;
-use ima_agents::mission::msg::{Broadcast, MissionEvent, SKEETER};
+use ima_agents::mission::commander::{Commander, CommanderConfig, TargetState as CoreState};
+use ima_agents::mission::msg::Broadcast;
 use ima_agents::peer::wire::GroupKey;
 use serde_json::json;
 
@@ -40,8 +42,8 @@ pub struct TargetOutcome {
     pub reason: Option<String>,
 }
 
-/// Run the commander over `targets`; events go to `events` (kinds `target` and
-/// `broadcast`).
+/// Run the commander ([`Commander`], the Commander Interface Agent's logic) over `targets`;
+/// events go to `events` (kinds `target` on every state change, and `broadcast`).
 pub async fn run(
     cfg: &RobotConfig,
     key: GroupKey,
@@ -51,95 +53,72 @@ pub async fn run(
     let clock = MissionClock::new(cfg.agent.time_scale);
     let me = cfg.robot.clone();
     let bus = Bus::bind(cfg, key)?;
-    let timeout = Duration::from_secs_f64(cfg.agent.target_timeout_s);
-    let mut outcomes = Vec::new();
-    for target in targets {
-        let sent_s = clock.secs();
-        let request = Broadcast::new_target(target);
-        events.emit(
-            &clock,
-            &me,
-            "target",
-            json!({"target": target, "state": "sent"}),
-        );
-        bus.send(&request).await;
-        let deadline = tokio::time::Instant::now() + clock.real(timeout);
-        let resend = clock
-            .real(Duration::from_secs(3))
-            .max(Duration::from_millis(300));
-        let mut next_resend = tokio::time::Instant::now() + resend;
-        let mut accepted_s = None;
-        let outcome = loop {
-            let wait = next_resend.min(deadline);
-            let b = tokio::select! {
-                r = bus.recv() => r?,
-                () = tokio::time::sleep_until(wait) => {
-                    let now = tokio::time::Instant::now();
-                    if now >= deadline {
-                        break TargetOutcome {
-                            target: target.clone(),
-                            state: TargetState::Failed,
-                            sent_s,
-                            accepted_s,
-                            ended_s: clock.secs(),
-                            reason: Some("timed out at the commander".into()),
-                        };
-                    }
-                    if accepted_s.is_none() {
-                        // Skeeter has not answered yet: say it again.
-                        bus.send(&request).await;
-                    }
-                    next_resend = now + resend;
-                    continue;
+    let mut cmd = Commander::new(
+        targets,
+        CommanderConfig {
+            robot: me.clone(),
+            resend: Duration::from_secs(3),
+            give_up_after: Some(Duration::from_secs_f64(cfg.agent.target_timeout_s)),
+            ..CommanderConfig::default()
+        },
+    );
+    let mut shown: Vec<CoreState> = cmd.targets().iter().map(|t| t.state).collect();
+    cmd.start(clock.now());
+    loop {
+        while let Some(b) = cmd.poll_broadcast() {
+            bus.send(&b).await;
+        }
+        for (t, old) in cmd.targets().iter().zip(shown.iter_mut()) {
+            if t.state != *old {
+                *old = t.state;
+                let time_s = t.duration().map(|d| d.as_secs_f64());
+                let mut d = json!({"target": t.colour, "state": t.state.as_str()});
+                if t.state.is_final() {
+                    d["time_s"] = json!(time_s);
+                    d["given_up"] = json!(t.given_up);
                 }
-            };
-            events.emit(&clock, &me, "broadcast", broadcast_json(&b));
-            if let Broadcast::Mission {
-                robot,
-                event,
-                target: t,
-            } = &b
-                && robot == SKEETER
-                && t == target
-            {
-                match event {
-                    MissionEvent::Accepted => {
-                        if accepted_s.is_none() {
-                            accepted_s = Some(clock.secs());
-                            events.emit(
-                                &clock,
-                                &me,
-                                "target",
-                                json!({"target": target, "state": "processing"}),
-                            );
-                        }
-                    }
-                    MissionEvent::Accomplished | MissionEvent::Failed => {
-                        break TargetOutcome {
-                            target: target.clone(),
-                            state: if *event == MissionEvent::Accomplished {
-                                TargetState::Done
-                            } else {
-                                TargetState::Failed
-                            },
-                            sent_s,
-                            accepted_s,
-                            ended_s: clock.secs(),
-                            reason: None,
-                        };
-                    }
-                }
+                events.emit(&clock, &me, "target", d);
             }
-        };
-        events.emit(
-            &clock,
-            &me,
-            "target",
-            json!({"target": target, "state": outcome.state, "time_s": outcome.ended_s - outcome.sent_s, "reason": outcome.reason}),
-        );
-        outcomes.push(outcome);
+        }
+        if cmd.is_finished() {
+            break;
+        }
+        let wake = cmd.poll_timeout().map(|t| {
+            tokio::time::Instant::now() + clock.real(t.saturating_duration_since(clock.now()))
+        });
+        tokio::select! {
+            r = bus.recv() => {
+                let b = r?;
+                events.emit(&clock, &me, "broadcast", broadcast_json(&b));
+                cmd.handle_broadcast(&b, clock.now());
+            }
+            () = async {
+                match wake {
+                    Some(w) => tokio::time::sleep_until(w).await,
+                    None => std::future::pending().await,
+                }
+            } => cmd.handle_timeout(clock.now()),
+        }
     }
-    Ok(outcomes)
+    let secs = |i: Option<ima_hal::Instant>| i.map(ima_hal::Instant::as_secs_f64);
+    Ok(cmd
+        .targets()
+        .iter()
+        .map(|t| TargetOutcome {
+            target: t.colour.clone(),
+            state: if t.state == CoreState::Done {
+                TargetState::Done
+            } else {
+                TargetState::Failed
+            },
+            sent_s: secs(t.sent_at).unwrap_or(0.0),
+            accepted_s: secs(t.accepted_at),
+            ended_s: secs(t.finished_at).unwrap_or(0.0),
+            reason: t
+                .given_up
+                .then(|| "no word from Skeeter: given up".to_owned()),
+        })
+        .collect())
 }
 
 /// A broadcast as JSON for the event stream.

@@ -1,11 +1,21 @@
-//! The robots' runtime: device wiring from configuration and (as the mission pieces land)
-//! the robot stacks as tokio tasks.
+//! The robots' runtime: device wiring from configuration and the robot stacks as tokio
+//! tasks.
+//!
+//! * [`devices`] — the hal handles of a robot from its configuration;
+//! * [`net`] — the Peer Agent configuration, group key and typed broadcast channel;
+//! * [`skeeter`], [`scooter`], [`commander`] — the three processes' stacks;
+//! * [`report`] — trajectories, performance index and the SVG of a run.
+//!
+//! Every stack keeps a [`MissionClock`]: mission time is real time × `agent.time_scale`, so
+//! a world sped up K times (`ima mock world --speed K`) sees timeouts and timers in its own
+//! time.
 
+pub mod commander;
 pub mod devices;
 pub mod net;
 pub mod report;
-
-use std::sync::{Arc, Mutex, PoisonError};
+pub mod scooter;
+pub mod skeeter;
 
 use ima_hal::Instant;
 use serde::Serialize;
@@ -61,11 +71,11 @@ pub struct Event {
     pub detail: serde_json::Value,
 }
 
-/// Where stacks report their events: a bounded log plus an optional live sink.
+/// Where stacks report their events: the log (`tracing`, level info) and an optional live
+/// sink.
 #[derive(Clone, Default)]
 pub struct Events {
     sink: Option<tokio::sync::mpsc::UnboundedSender<Event>>,
-    log: Arc<Mutex<Vec<Event>>>,
 }
 
 impl std::fmt::Debug for Events {
@@ -77,10 +87,7 @@ impl std::fmt::Debug for Events {
 impl Events {
     /// Events forwarded to `sink` too.
     pub fn with_sink(sink: tokio::sync::mpsc::UnboundedSender<Event>) -> Self {
-        Self {
-            sink: Some(sink),
-            log: Arc::default(),
-        }
+        Self { sink: Some(sink) }
     }
 
     /// Report an event.
@@ -93,22 +100,7 @@ impl Events {
         };
         tracing::info!(robot, kind, detail = %e.detail, "event");
         if let Some(s) = &self.sink {
-            let _ = s.send(e.clone());
+            let _ = s.send(e);
         }
-        let mut log = self.log.lock().unwrap_or_else(PoisonError::into_inner);
-        if log.len() < 100_000 {
-            log.push(e);
-        }
-    }
-
-    /// Every event so far.
-    pub fn snapshot(&self) -> Vec<Event> {
-        self.log
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone()
     }
 }
-pub mod commander;
-pub mod scooter;
-pub mod skeeter;

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_agents::mission::msg::{Broadcast, Emergency};
+use ima_agents::mission::msg::Broadcast;
 use ima_agents::peer::net::{
     BroadcastChannel, BroadcastMode, PeerNetConfig, insecure_key, load_key_file,
 };
@@ -120,15 +120,6 @@ impl Bus {
         if let Err(e) = r {
             tracing::warn!("broadcast not sent: {e}");
         }
-    }
-
-    /// Send an emergency of this robot.
-    pub async fn emergency(&self, e: Emergency) {
-        self.send(&Broadcast::Emergency {
-            robot: String::new(),
-            emergency: e,
-        })
-        .await;
     }
 
     /// The next mission broadcast from another robot (unknown or malformed ones are skipped

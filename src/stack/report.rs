@@ -65,23 +65,6 @@ pub fn performance_index(d_min: f64, d_actual: f64, t_actual: f64, cruise_m_s: f
     ((d_min / d_actual) * (t_min / t_actual)).clamp(0.0, 1.0)
 }
 
-/// The outcome of one target.
-#[derive(Debug, Clone, Serialize)]
-pub struct TargetResult {
-    /// Colour.
-    pub target: String,
-    /// `done` or `failed`.
-    pub state: String,
-    /// Mission time from acceptance to the end, seconds.
-    pub time_s: f64,
-    /// Scooter's distance driven, metres.
-    pub distance_m: f64,
-    /// Shortest distance (start to the target's reach circle), metres.
-    pub d_min_m: f64,
-    /// Performance index (0 when failed).
-    pub performance: f64,
-}
-
 fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
