@@ -272,6 +272,9 @@ pub struct AgentConfig {
     pub control_hz: f64,
     /// Skeeter: a target not accomplished within this many (mission) seconds fails.
     pub target_timeout_s: f64,
+    /// Scooter: the target counts as reached when its centre is this close to Scooter's
+    /// centre, metres (ATRV-Jr radius 0.4 m + object radius 0.15 m + clearance).
+    pub reach_distance_m: f64,
     /// Scooter: seconds without a fresh SES before the lost timer fires.
     pub lost_timeout_s: f64,
     /// Mission clocks run this many times faster than real time. 1 on a real robot; the
@@ -300,6 +303,7 @@ impl Default for AgentConfig {
             max_turn_rad_s: 0.8,
             control_hz: 10.0,
             target_timeout_s: 180.0,
+            reach_distance_m: 1.0,
             lost_timeout_s: 20.0,
             time_scale: 1.0,
             network: None,
@@ -401,6 +405,7 @@ impl RobotConfig {
             ("agent.control_hz", a.control_hz),
             ("agent.target_timeout_s", a.target_timeout_s),
             ("agent.lost_timeout_s", a.lost_timeout_s),
+            ("agent.reach_distance_m", a.reach_distance_m),
             ("agent.time_scale", a.time_scale),
             ("mock_world.speed", self.mock_world.speed),
         ];

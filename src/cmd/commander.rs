@@ -3,6 +3,7 @@
 
 use std::io::Write;
 use std::path::PathBuf;
+use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -20,6 +21,12 @@ pub struct CommanderArgs {
     /// Target colours, in order.
     #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]
     targets: Vec<String>,
+    /// Robots to hear on the broadcast channel before the first target is sent.
+    #[arg(long, value_delimiter = ',', default_value = "skeeter,scooter")]
+    wait_for: Vec<String>,
+    /// Longest wait for them, seconds (then the targets go anyway).
+    #[arg(long, default_value_t = 60.0)]
+    wait_timeout: f64,
     /// One JSON object per line instead of text.
     #[arg(long)]
     json: bool,
@@ -85,9 +92,16 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
                 print_event(&e, json);
             }
         });
-        let r = crate::stack::commander::run(&cfg, key, &args.targets, Events::with_sink(tx))
-            .await
-            .context("commanding");
+        let wait = Duration::try_from_secs_f64(args.wait_timeout.max(0.0)).unwrap_or_default();
+        let r = crate::stack::commander::run(
+            &cfg,
+            key,
+            &args.targets,
+            (&args.wait_for, wait),
+            Events::with_sink(tx),
+        )
+        .await
+        .context("commanding");
         let _ = printer.await;
         r
     })?;

@@ -198,9 +198,15 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             events.clone(),
             stop_rx,
         ));
-        // Let the robots come up and Skeeter finish a first scan before the first target.
-        tokio::time::sleep(Duration::from_millis(500)).await;
-        let outcomes = crate::stack::commander::run(&cmd, key, &args.targets, events.clone()).await;
+        let robots = ["skeeter".to_owned(), "scooter".to_owned()];
+        let outcomes = crate::stack::commander::run(
+            &cmd,
+            key,
+            &args.targets,
+            (&robots, Duration::from_secs(30)),
+            events.clone(),
+        )
+        .await;
         let _ = stop_tx.send(true);
         for (name, h) in [("skeeter", skeeter), ("scooter", scooter)] {
             match tokio::time::timeout(Duration::from_secs(5), h).await {
@@ -235,9 +241,9 @@ fn print_live(world_t: f64, e: &Event) {
     eprintln!("[{world_t:7.1}s] {text}");
 }
 
-/// Scooter's reach distance (target centre to Scooter's centre), as the brain uses it.
+/// Scooter's reach distance (target centre to Scooter's centre), as configured.
 fn reach_m() -> f64 {
-    ima_agents::mission::scooter::ScooterConfig::default().reach_distance_m
+    crate::config::AgentConfig::default().reach_distance_m
 }
 
 /// The summary: per target, and the SVG.

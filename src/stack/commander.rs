@@ -44,15 +44,37 @@ pub struct TargetOutcome {
 
 /// Run the commander ([`Commander`], the Commander Interface Agent's logic) over `targets`;
 /// events go to `events` (kinds `target` on every state change, and `broadcast`).
+///
+/// Before the first target it waits (at most `wait.1`, real time) until every robot of
+/// `wait.0` has been heard on the broadcast channel, so that no robot misses it.
 pub async fn run(
     cfg: &RobotConfig,
     key: GroupKey,
     targets: &[String],
+    wait: (&[String], Duration),
     events: Events,
 ) -> Result<Vec<TargetOutcome>> {
     let clock = MissionClock::new(cfg.agent.time_scale);
     let me = cfg.robot.clone();
     let bus = Bus::bind(cfg, key)?;
+    let mut missing: Vec<&String> = wait.0.iter().collect();
+    if !missing.is_empty() {
+        events.emit(&clock, &me, "waiting", json!({"for": missing}));
+        let deadline = tokio::time::Instant::now() + wait.1;
+        while !missing.is_empty() {
+            tokio::select! {
+                r = bus.recv() => {
+                    let b = r?;
+                    events.emit(&clock, &me, "broadcast", broadcast_json(&b));
+                    missing.retain(|m| m.as_str() != b.robot());
+                }
+                () = tokio::time::sleep_until(deadline) => {
+                    events.emit(&clock, &me, "waiting", json!({"gave_up_on": missing}));
+                    break;
+                }
+            }
+        }
+    }
     let mut cmd = Commander::new(
         targets,
         CommanderConfig {

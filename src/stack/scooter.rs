@@ -42,6 +42,10 @@ pub fn brain_config(cfg: &RobotConfig, odometry_offset_rad: f64) -> ScooterConfi
         cruise_speed_m_s: a.cruise_speed_m_s,
         max_turn_rate_rad_s: a.max_turn_rad_s,
         lost_after: Duration::from_secs_f64(a.lost_timeout_s),
+        reach_distance_m: a.reach_distance_m,
+        see_distance_m: ScooterConfig::default()
+            .see_distance_m
+            .max(a.reach_distance_m + 0.6),
         odometry_heading_offset_rad: odometry_offset_rad,
         ..ScooterConfig::default()
     }
