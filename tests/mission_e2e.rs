@@ -282,3 +282,85 @@ fn a_robot_without_its_devices_fails_with_the_port_named() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("key_file"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn mock_world_prints_its_endpoints_and_writes_configs() {
+    let dir = scratch_dir("mock-world");
+    let mut mock = Child(
+        ima()
+            .args([
+                "mock",
+                "world",
+                "--speed",
+                "2",
+                "--seed",
+                "3",
+                "--write-configs",
+            ])
+            .arg(&dir)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut line = String::new();
+    BufReader::new(mock.0.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+    assert_eq!(v["kind"], "world");
+    for p in [
+        &v["skeeter"]["base"],
+        &v["skeeter"]["video_mux"],
+        &v["scooter"]["base"],
+        &v["scooter"]["laser"],
+        &v["scooter"]["compass"],
+    ] {
+        let p = p.as_str().unwrap();
+        assert!(p.starts_with("/dev/") && Path::new(p).exists(), "{p}");
+    }
+    let frames = v["skeeter"]["frames"].as_str().unwrap();
+    assert!(std::net::TcpStream::connect(frames).is_ok());
+    let skeeter = std::fs::read_to_string(dir.join("skeeter.toml")).unwrap();
+    assert!(skeeter.contains(v["skeeter"]["base"].as_str().unwrap()));
+    assert!(skeeter.contains(frames));
+    assert!(skeeter.contains("time_scale = 2.0"));
+    let scooter = std::fs::read_to_string(dir.join("scooter.toml")).unwrap();
+    assert!(scooter.contains(v["scooter"]["laser"].as_str().unwrap()));
+    assert!(dir.join("commander.toml").exists());
+    let key = std::fs::read_to_string(dir.join("group.key")).unwrap();
+    assert_eq!(key.trim().len(), 64);
+    drop(mock);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn run_with_mock_true_serves_its_own_world() {
+    let dir = scratch_dir("run-mock");
+    let cfg = dir.join("skeeter.toml");
+    std::fs::write(
+        &cfg,
+        "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n[mock_world]\nspeed = 2.0\n\
+         [peer]\ninsecure = true\nlisten = \"127.0.0.1:0\"\ndata_listen = \"127.0.0.1:0\"\n\
+         broadcast_group = \"\"\nbroadcast_bind = \"127.0.0.1:0\"\n",
+    )
+    .unwrap();
+    let mut run = Child(
+        ima()
+            .args(["run", "--json", "--config"])
+            .arg(&cfg)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let out = BufReader::new(run.0.stdout.take().unwrap());
+    let mut kinds = Vec::new();
+    for line in out.lines().take(2) {
+        let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
+        kinds.push(v["kind"].as_str().unwrap().to_owned());
+    }
+    assert_eq!(kinds, ["connected", "behaviour"]);
+    drop(run);
+    let _ = std::fs::remove_dir_all(&dir);
+}

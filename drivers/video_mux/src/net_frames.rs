@@ -1,7 +1,7 @@
 //! Frames over TCP: a tiny request/response protocol that lets one process own a frame
 //! grabber (the mock camera head of `ima mock world`, or a real grabber's server) and other
 //! processes grab frames from it. The sans-IO part ([`Request`], [`Header`]) is here under
-//! feature `std`; the client [`NetFrames`], an [`ima_hal::camera::FrameSource`], needs feature
+//! feature `std`; the client `NetFrames`, an [`ima_hal::camera::FrameSource`], needs feature
 //! `tokio`.
 //!
 //! # Protocol (version 1)
