@@ -7,9 +7,10 @@
 //!   its [shared form](ses::shared), the binary list of observations robots exchange.
 //! * [`san`] — a Spreading Activation Network after Maes (1989), loaded from TOML.
 //! * [`heading`] — the thesis's isosceles heading rule and a range-aware rule.
-//! * [`peer`] — the Peer Agent core: manager, client, broadcast channel, authenticated frames.
+//! * [`peer`] — the Peer Agent: sans-IO core (manager, client, broadcast channel,
+//!   authenticated frames) and, with feature `net`, its tokio TCP/UDP shell.
 //! * [`mission`] — the demonstration's pure decision logic: inter-robot vocabulary, vision,
-//!   the Scan node, Skeeter's brain, the commander.
+//!   the Scan node, Skeeter's and Scooter's brains, obstacle avoidance, the commander.
 //!
 //! Everything is `f64`, SI units, radians; degrees appear only at API edges that say so.
 #![warn(missing_docs)]

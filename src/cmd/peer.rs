@@ -355,12 +355,7 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     let mut events = m.events();
     let mut tasks = Vec::new();
     for s in &synthetic {
-        let p = m.publisher(SourceInfo {
-            name: s.name.clone(),
-            kind: s.generator.clone(),
-            schema: 1,
-            rate_mhz: (s.rate_hz * 1000.0).clamp(0.0, f64::from(u32::MAX)) as u32,
-        });
+        let p = m.publisher(SourceInfo::new(&s.name, &s.generator, 1, s.rate_hz));
         tasks.push(run_source(s, p)?);
     }
     line(&json!({

@@ -89,7 +89,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
             Role::Commander => bail!("role commander: use `ima commander --config …`"),
         };
         signal.abort();
-        let _ = printer.await;
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), printer).await;
         r
     })
 }

@@ -150,6 +150,19 @@ pub struct SourceInfo {
     pub rate_mhz: u32,
 }
 
+impl SourceInfo {
+    /// A source description; `rate_hz` is stored in millihertz (saturating).
+    #[must_use]
+    pub fn new(name: &str, kind: &str, schema: u16, rate_hz: f64) -> Self {
+        Self {
+            name: name.to_owned(),
+            kind: kind.to_owned(),
+            schema,
+            rate_mhz: (rate_hz * 1000.0).clamp(0.0, f64::from(u32::MAX)) as u32,
+        }
+    }
+}
+
 /// Why a registration was declined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DeclineReason {

@@ -579,7 +579,8 @@ impl ClientTask {
             }
             ClientEvent::SourcesChanged { .. } => {}
             ClientEvent::SourceGone { source } => self.close_data(&source),
-            ClientEvent::ManagerLost(_) => {
+            ClientEvent::ManagerLost(why) => {
+                tracing::warn!(error = ?why, "peer client: manager lost");
                 if let Some(r) = self.reg_reply.take() {
                     let _ = r.send(Err(NetError::ManagerLost));
                 }

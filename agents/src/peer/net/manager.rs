@@ -559,6 +559,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                     self.data.remove(&id);
                 }
                 if let DataClose::Wire(e) = reason {
+                    tracing::warn!(error = ?e, "peer data server: session closed on a bad frame");
                     self.data_rejects.count(e);
                 }
             }
@@ -650,7 +651,14 @@ impl<A: SelfAgent> ManagerTask<A> {
             while let Some(e) = self.core.poll_event() {
                 progressed = true;
                 match &e {
-                    ManagerEvent::ClosePeer { peer, .. } => self.close_session(*peer),
+                    ManagerEvent::ClosePeer {
+                        peer,
+                        reason,
+                        clients,
+                    } => {
+                        tracing::warn!(peer, ?reason, ?clients, "peer manager: session closed");
+                        self.close_session(*peer);
+                    }
                     ManagerEvent::Decision(d) => {
                         let reason = match d.outcome {
                             Outcome::Revoked(r) => Some(r),

@@ -26,7 +26,7 @@ pub use client::{EndReason, LossReason, PeerClientHandle, Subscription, Subscrip
 pub use config::{
     BroadcastConfig, BroadcastMode, ManagerNetConfig, PeerNetConfig, SyntheticSource,
 };
-pub use key::{INSECURE_KEY, insecure_key, load_key_file, parse_key};
+pub use key::{INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, parse_key};
 pub use manager::{
     ManagerHandle, ManagerNetEvent, ManagerNetStats, SourcePublisher, spawn_manager,
 };
