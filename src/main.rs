@@ -48,6 +48,9 @@ enum Command {
     /// Spreading Activation Network tools.
     #[command(subcommand)]
     San(SanCommand),
+    /// Experiments in virtual time (the thesis's heading evaluation).
+    #[command(subcommand)]
+    Experiment(cmd::experiment::ExperimentCommand),
 }
 
 #[derive(Debug, Subcommand)]
@@ -77,6 +80,7 @@ fn main() -> ExitCode {
         Command::Commander(a) => cmd::commander::run(&a),
         Command::Run(a) => cmd::run::run(&a),
         Command::Peer(c) => cmd::peer::run(&c),
+        Command::Experiment(c) => cmd::experiment::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

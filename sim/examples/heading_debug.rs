@@ -18,6 +18,9 @@ fn main() {
     let mut sim_cfg = cfg.sim.clone();
     sim_cfg.brain.heading_rule = rule;
     sim_cfg.brain.cruise_speed_m_s = cfg.speed_m_s;
+    if a.get(5).map(String::as_str) == Some("camera") {
+        sim_cfg.observer = ima_sim::Observer::Camera;
+    }
     let mut sim = ScooterSim::new(world_for(angle, ds, dt, 1), TARGET_COLOUR, sim_cfg).unwrap();
     for k in 0..40_000 {
         let out = sim.step().clone();

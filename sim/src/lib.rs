@@ -1,7 +1,7 @@
 //! `ima-sim`: the mission in one process, in virtual time — no ptys, no sockets.
 //!
 //! A [`ScooterSim`] owns a mock-devices [`World`] and Scooter's
-//! [`ScooterBrain`](ima_agents::mission::scooter::ScooterBrain) and steps both at a fixed
+//! [`ScooterBrain`] and steps both at a fixed
 //! `dt`:
 //!
 //! 1. **Skeeter's observations** (the SES samples). Skeeter's 7-camera head is modelled as 7
@@ -13,8 +13,13 @@
 //!    estimate from a blob's apparent width). After the 7th camera the sample — records
 //!    time-stamped at their own grab — is delivered to the brain. At `t = 0` a complete sample
 //!    of the initial world is delivered (the scan that answered the commander's request).
-//!    This is the **geometric** observation model; the rendered-camera pipeline
-//!    (`mock_devices::camera` + the agents' vision) is not wired in here yet.
+//!    This is the **geometric** observation model ([`Observer::Geometric`], the default and
+//!    the fast one). [`Observer::Camera`] instead renders each camera's frame with the mock
+//!    camera head (`mock_devices::camera::CameraHead`: 320×240, 60° lenses, pixel noise,
+//!    objects and Scooter's marker drawn with their true angular width) and runs the
+//!    agents' vision on it (`mission::vision::observe_frame`: colour blobs → bearing, range
+//!    from the apparent width) — Skeeter's real perception pipeline, minus the video-mux
+//!    serial link and the frame-settle timing, about 10× slower.
 //! 2. **Scooter's sensors**: odometry = the true pose relative to the start pose (the mock
 //!    world's wheels do not slip, so odometry is exact); compass = the true common-frame
 //!    heading + Gaussian noise; laser = [`LaserModel`] (SICK LMS: 181 beams, 1°) every
@@ -36,17 +41,30 @@ use core::f64::consts::PI;
 use core::time::Duration;
 
 use ima_agents::mission::scooter::{ScooterBrain, ScooterConfig, ScooterOutput, ScooterSay};
+use ima_agents::mission::vision::{ColourDb, DetectorConfig, HeadGeometry, observe_frame};
 use ima_agents::ses::Direction;
 use ima_agents::ses::shared::{SharedForm, SharedRecord};
 use ima_hal::base::Odometry;
 use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_hal::{Instant, normalize_angle};
-use ima_mock_devices::world::{DriveCommand, LaserModel, RobotId, Target, World, gaussian};
+use ima_mock_devices::camera::{CameraConfig, CameraHead};
+use ima_mock_devices::world::{
+    DriveCommand, LaserModel, RobotId, SharedWorld, Target, World, gaussian,
+};
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
 
 /// Number of cameras on Skeeter's head.
 pub const CAMERAS: u32 = 7;
+
+/// How Skeeter's observations are made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Observer {
+    /// Geometry with Gaussian noise (bearing and relative range).
+    Geometric,
+    /// Rendered frames from the mock camera head through the agents' blob detector.
+    Camera,
+}
 
 /// Simulation parameters.
 #[derive(Debug, Clone, PartialEq)]
@@ -73,6 +91,8 @@ pub struct SimConfig {
     pub laser: LaserModel,
     /// Scooter's brain.
     pub brain: ScooterConfig,
+    /// Skeeter's observation model.
+    pub observer: Observer,
 }
 
 impl Default for SimConfig {
@@ -89,6 +109,7 @@ impl Default for SimConfig {
             compass_noise_rad: 0.5f64.to_radians(),
             laser: LaserModel::default(),
             brain: ScooterConfig::default(),
+            observer: Observer::Geometric,
         }
     }
 }
@@ -177,6 +198,23 @@ pub struct ScooterSim {
     t0: Instant,
     samples: u32,
     last: Option<ScooterOutput>,
+    camera: Option<CameraRig>,
+}
+
+/// The camera pipeline: a copy of the world the mock head renders from, the head, and the
+/// vision's colour database.
+struct CameraRig {
+    world: SharedWorld,
+    head: CameraHead,
+    db: ColourDb,
+    geometry: HeadGeometry,
+    detector: DetectorConfig,
+}
+
+impl core::fmt::Debug for CameraRig {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("CameraRig").finish_non_exhaustive()
+    }
 }
 
 impl ScooterSim {
@@ -207,7 +245,26 @@ impl ScooterSim {
         let now = world.time();
         brain.set_target(target, now);
         let camera_period = cfg.scan_period / CAMERAS;
+        let camera = (cfg.observer == Observer::Camera).then(|| {
+            let shared = SharedWorld::new(world.clone());
+            let cam_cfg = CameraConfig {
+                seed: cfg.seed,
+                ..CameraConfig::default()
+            };
+            CameraRig {
+                head: CameraHead::new(cam_cfg, shared.clone(), skeeter),
+                world: shared,
+                db: ColourDb::default(),
+                geometry: HeadGeometry {
+                    cameras: cam_cfg.cameras,
+                    fov_deg: cam_cfg.fov_deg,
+                    first_yaw_deg: 0.0,
+                },
+                detector: DetectorConfig::default(),
+            }
+        });
         let mut sim = Self {
+            camera,
             skeeter,
             scooter,
             rng: SmallRng::seed_from_u64(cfg.seed),
@@ -306,8 +363,27 @@ impl ScooterSim {
             .then(|| (r * (1.0 + self.cfg.range_noise_rel * gaussian(&mut self.rng))).max(0.0))
     }
 
-    /// What camera `c` sees now, appended to `out`.
+    /// What camera `c` (0-based; mux channel `c + 1`) sees now, appended to `out`.
     fn observe(&mut self, c: u32, now: Instant, out: &mut Vec<SharedRecord>) {
+        if let Some(rig) = self.camera.as_mut() {
+            *rig.world.lock() = self.world.clone();
+            let channel = u8::try_from(c + 1).unwrap_or(1);
+            let settled = Duration::from_secs(1);
+            if let Some(frame) = rig.head.render(channel, settled) {
+                for o in observe_frame(&frame, channel, &rig.db, &rig.geometry, &rig.detector) {
+                    let confidence = o.confidence();
+                    out.push(SharedRecord {
+                        object: o.tag,
+                        // Skeeter's robot frame is the common frame.
+                        bearing: Direction::horizontal(o.bearing_rad),
+                        range_m: if self.cfg.ses_ranges { o.range_m } else { None },
+                        confidence,
+                        time: now,
+                    });
+                }
+            }
+            return;
+        }
         let Some(sk) = self.world.robot(self.skeeter).map(|r| r.pose()) else {
             return;
         };

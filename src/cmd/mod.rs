@@ -12,6 +12,7 @@ pub mod demo;
 pub mod demo_square;
 pub mod drive;
 pub mod drive_rflex;
+pub mod experiment;
 pub mod mock;
 pub mod mock_rflex;
 pub mod mock_sick;

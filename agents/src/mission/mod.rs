@@ -7,6 +7,8 @@
 //!
 //! * [`msg`] — the typed inter-robot vocabulary (broadcast channel traffic and the SES
 //!   source's name) with conversions to and from [`crate::peer::wire::Msg`].
+//! * [`scooter`] — Scooter's brain: heading rules, SAN, laser target finder, controller.
+//! * [`avoid`] — smooth laser obstacle avoidance (locked side, hysteresis).
 //! * [`vision`] — Skeeter's colour database, blob detector and pinhole geometry (blob
 //!   column → bearing, apparent width → range).
 //! * [`scan`] — the Scan node: one sweep of the camera head (switch, settle, grab, detect,
@@ -17,8 +19,6 @@
 //!   map every SAN condition to the input that feeds it and every module to its action.
 //! * [`commander`] — the Commander Interface Agent's logic: a series of targets sent one at
 //!   a time, each target's progress from Skeeter's mission events, a log of broadcasts.
-//! * [`scooter`] — Scooter's brain: heading rules, SAN, laser target finder, controller.
-//! * [`avoid`] — smooth laser obstacle avoidance (locked side, hysteresis).
 //!
 //! # How a runtime drives Skeeter
 //!
@@ -39,6 +39,20 @@
 //! The commander: `Commander::new(&colours, CommanderConfig::default())`, `start(now)`,
 //! send what `poll_broadcast()` gives, feed every broadcast heard to `handle_broadcast`,
 //! call `handle_timeout` when `poll_timeout()` is due, stop when `is_finished()`.
+//!
+//! # How a runtime drives Scooter
+//!
+//! 1. `let mut brain = ScooterBrain::new(ScooterConfig::default())` (choose
+//!    [`scooter::HeadingRule`] and [`scooter::HeadingSource`] in the config; set
+//!    `odometry_heading_offset_rad` to Scooter's common-frame heading at the odometry reset).
+//! 2. Feed the sensors as they arrive: `handle_odometry(&odo, now)`,
+//!    `handle_compass(heading_in_common_frame, now)`, `handle_laser(&scan, now)`; every
+//!    sample of Skeeter's `ses` source: `handle_ses(&SharedForm::decode(bytes)?, now)`;
+//!    every broadcast heard: `handle_broadcast(&b, now)`.
+//! 3. At the control rate (e.g. 10–20 Hz) call `step(now)`: send `out.command` to the
+//!    base; for every message `say` in `out.messages`, send
+//!    `say.to_broadcast("scooter", &brain.san_summary())` on the broadcast channel, and
+//!    on [`scooter::ScooterSay::RequestHeading`] re-request the `ses` source.
 
 #![allow(clippy::module_name_repetitions)]
 

@@ -37,10 +37,30 @@
 //!   and the heading to it is recomputed at every step from dead reckoning. Without ranges
 //!   it falls back to the thesis rule.
 //!
+//! A sample without both Scooter and the target keeps the previous plan and does not reset
+//! the lost timer; one where the rule is degenerate (the thesis rule with θ1 = θ2) keeps
+//! the previous plan.
+//!
 //! The controller turns toward θd: in place while the error exceeds
 //! [`ScooterConfig::turn_in_place_enter_rad`] (until it is below `…_exit_rad`), otherwise
-//! it drives at the cruise speed with proportional steering; the turn rate is rate-limited
-//! and low-pass filtered.
+//! it drives at the cruise speed with proportional steering, the turn rate clamped to
+//! [`ScooterConfig::max_turn_rate_rad_s`] (an optional low-pass, `turn_filter_s`, is off by
+//! default: its lag made the robot overshoot after turning in place).
+//!
+//! # Smooth avoidance
+//!
+//! The [avoider](super::avoid) locks the side it goes round an obstacle on and has
+//! enter/exit hysteresis; the brain low-pass filters its steering direction in the common
+//! frame ([`ScooterConfig::avoid_smoothing_s`]) so the candidate search's 3° steps and laser
+//! noise at a corridor's edge never reach the wheels. In the simulation (`ima-sim` test
+//! `a_barrel_on_the_way_is_avoided_smoothly_with_the_real_laser_model`) the turn rate
+//! changes sign once while going round a barrel: away, then back.
+//!
+//! # Ranges
+//!
+//! Scooter's range from Skeeter comes, best first, from its own laser (a cluster of
+//! Skeeter's diameter where θ1 + 180° says Skeeter is, fresh within 3 s), from the SES
+//! record, or from triangulation over two samples.
 //!
 //! # Behaviours (MISSION.md, "Scooter's SAN"; `agents/networks/scooter.toml`)
 //!
@@ -159,6 +179,13 @@ pub struct ScooterConfig {
     /// Point plans: a cluster is the target when its centre is within this of the expected
     /// target position, metres.
     pub match_radius_m: f64,
+    /// Skeeter's footprint diameter, metres: the range-aware rule ranges Skeeter with the
+    /// laser when it is in view (a cluster of this width where Skeeter's bearing says it is).
+    pub skeeter_diameter_m: f64,
+    /// Accepted difference between a cluster's width and Skeeter's diameter, metres.
+    pub skeeter_diameter_tolerance_m: f64,
+    /// A Skeeter cluster must lie within this of the direction θ1 + 180°, radians.
+    pub skeeter_bearing_tolerance_rad: f64,
     /// Largest range jump between neighbouring beams of one cluster, metres.
     pub cluster_gap_m: f64,
     /// The laser's pose on the robot.
@@ -179,6 +206,10 @@ pub struct ScooterConfig {
     pub home_stop_distance_m: f64,
     /// At most this many samples are averaged into the target position estimate.
     pub max_target_samples: usize,
+    /// Time constant smoothing the avoider's steering direction (in the common frame), so
+    /// that the 3° steps of its candidate search and laser noise at a corridor's edge do not
+    /// reach the wheels, seconds (0 = none).
+    pub avoid_smoothing_s: f64,
     /// Obstacle avoidance.
     pub avoid: AvoidConfig,
 }
@@ -194,7 +225,7 @@ impl Default for ScooterConfig {
             steering_gain: 1.5,
             turn_in_place_enter_rad: 30f64.to_radians(),
             turn_in_place_exit_rad: 8f64.to_radians(),
-            turn_filter_s: 0.2,
+            turn_filter_s: 0.0,
             lost_after: Duration::from_secs(12),
             reach_distance_m: 0.8,
             see_distance_m: 1.6,
@@ -202,6 +233,9 @@ impl Default for ScooterConfig {
             diameter_tolerance_m: 0.15,
             bearing_tolerance_rad: 40f64.to_radians(),
             match_radius_m: 0.8,
+            skeeter_diameter_m: 0.66,
+            skeeter_diameter_tolerance_m: 0.2,
+            skeeter_bearing_tolerance_rad: 15f64.to_radians(),
             cluster_gap_m: 0.10,
             laser_mount: Isometry2::new(Vector2::new(0.2, 0.0), 0.0),
             laser_max_range_m: 8.0,
@@ -211,6 +245,7 @@ impl Default for ScooterConfig {
             coast_for: Duration::from_secs(30),
             home_stop_distance_m: 1.2,
             max_target_samples: 12,
+            avoid_smoothing_s: 0.6,
             avoid: AvoidConfig::default(),
         }
     }
@@ -438,8 +473,8 @@ pub struct Cluster {
 }
 
 /// Split a scan into clusters of neighbouring valid returns (range jumps ≤ `gap_m`); each
-/// cluster's centre is its returns' mean pushed back by `radius_m` along the line of sight
-/// (a round object's near surface is what the laser sees). Clusters touching the first or
+/// cluster's centre is taken `radius_m` behind its nearest return, in the direction of its
+/// returns' mean (a round object's near surface is what the laser sees). Clusters touching the first or
 /// last beam are dropped (they may be cut by the field of view).
 #[must_use]
 pub fn laser_clusters(
@@ -461,10 +496,16 @@ pub fn laser_clusters(
         {
             let width_m = (b - a).norm();
             let mean = cur.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / cur.len() as f64;
+            // Direction: the returns' mean; distance: the nearest return (the point of a
+            // round object nearest the sensor lies on the line to its centre) + radius.
             let origin = mount.translation.vector;
             let los = mean - origin;
-            let centre = if los.norm() > 1e-9 {
-                Point2::from(mean + los.normalize() * radius_m)
+            let nearest = cur
+                .iter()
+                .map(|p| (p.coords - origin).norm())
+                .fold(f64::INFINITY, f64::min);
+            let centre = if los.norm() > 1e-9 && nearest.is_finite() {
+                Point2::from(origin + los.normalize() * (nearest + radius_m))
             } else {
                 Point2::from(mean)
             };
@@ -536,6 +577,8 @@ pub struct ScooterBrain {
     // Laser.
     points: Vec<Point2>,
     target_fix: Option<(Instant, Vector2)>,
+    skeeter_fix: Option<(Instant, Vector2)>,
+    avoid_heading: Option<f64>,
     laser_at: Option<Instant>,
     // Controller.
     last_step: Option<Instant>,
@@ -594,6 +637,8 @@ impl ScooterBrain {
             history: VecDeque::new(),
             points: Vec::new(),
             target_fix: None,
+            skeeter_fix: None,
+            avoid_heading: None,
             laser_at: None,
             last_step: None,
             omega: 0.0,
@@ -836,9 +881,19 @@ impl ScooterBrain {
                 .map(Plan::Heading),
             HeadingRule::RangeAware => {
                 let valid = |r: Option<f64>| r.filter(|m| m.is_finite() && *m >= 0.0);
-                let scout = valid(me.range_m).map(|metres| Range {
-                    metres,
-                    source: RangeSource::Ses,
+                // Scooter's own laser fix on Skeeter (fresh) beats Skeeter's estimate.
+                let laser = self
+                    .skeeter_fix
+                    .filter(|(at, _)| now.saturating_duration_since(*at) <= TARGET_FIX_TTL)
+                    .map(|(_, s)| Range {
+                        metres: (s - p_rec).norm(),
+                        source: RangeSource::Sensor,
+                    });
+                let scout = laser.or_else(|| {
+                    valid(me.range_m).map(|metres| Range {
+                        metres,
+                        source: RangeSource::Ses,
+                    })
                 });
                 let scout = scout.or_else(|| {
                     let prev = previous?;
@@ -895,6 +950,31 @@ impl ScooterBrain {
         let Some(h) = self.heading() else {
             return;
         };
+        if let Some(fix) = self.last_fix {
+            let expected = normalize_angle(fix.scout_bearing + PI);
+            let sr = self.cfg.skeeter_diameter_m / 2.0;
+            let best = laser_clusters(
+                scan,
+                &self.cfg.laser_mount,
+                self.cfg.laser_max_range_m,
+                self.cfg.cluster_gap_m,
+                sr,
+            )
+            .into_iter()
+            .filter(|c| {
+                (c.width_m - self.cfg.skeeter_diameter_m).abs()
+                    <= self.cfg.skeeter_diameter_tolerance_m
+            })
+            .filter_map(|c| {
+                let d = nalgebra_rotate(h, c.centre.coords);
+                let err = normalize_angle(d.y.atan2(d.x) - expected).abs();
+                (err <= self.cfg.skeeter_bearing_tolerance_rad).then_some((self.dr + d, err))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+            if let Some((p, _)) = best {
+                self.skeeter_fix = Some((now, p));
+            }
+        }
         if self.target.is_none() || self.reached {
             return;
         }
@@ -1038,7 +1118,29 @@ impl ScooterBrain {
                 None
             }
         };
-        let steer = obstacle.filter(|d| d.active).map(|d| d.steer_rad);
+        let raw = obstacle.filter(|d| d.active).map(|d| d.steer_rad);
+        // Smooth the avoider's direction in the common frame (first-order, τ).
+        let steer = match (raw, h) {
+            (Some(s), Some(h)) => {
+                let target = normalize_angle(h + s);
+                let tau = self.cfg.avoid_smoothing_s.max(0.0);
+                let k = if tau > 0.0 && dt > 0.0 {
+                    dt / (tau + dt)
+                } else {
+                    1.0
+                };
+                let f = match self.avoid_heading {
+                    Some(f) => normalize_angle(f + k * normalize_angle(target - f)),
+                    None => target,
+                };
+                self.avoid_heading = Some(f);
+                Some(normalize_angle(f - h))
+            }
+            _ => {
+                self.avoid_heading = None;
+                raw
+            }
+        };
         self.feed_san(now, steer.is_some());
         let chosen = self.select();
         let motion = if self.reached && self.target.is_some() {
@@ -1652,6 +1754,43 @@ mod tests {
                 .iter()
                 .all(|m| matches!(m, ScooterSay::Status { .. }))
         );
+    }
+
+    #[test]
+    fn range_aware_rule_ranges_skeeter_with_the_laser() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Bearings only: Scooter at 180°, target at 90°.
+        let f0 = form(
+            vec![
+                rec("scooter", 180.0, None, t(0)),
+                rec(RED, 90.0, Some(3.0), t(0)),
+            ],
+            t(0),
+        );
+        b.handle_ses(&f0, t(0));
+        assert!(matches!(b.plan(), Some(Plan::Heading(_))));
+        // Scooter at (−2.5, 0) facing +x sees Skeeter (r 0.33) at the origin.
+        let w = Mini {
+            x: -2.5,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([0.0, 0.0], 0.33)],
+        };
+        b.handle_laser(&w.scan(&b.config().laser_mount), t(100));
+        let f1 = form(
+            vec![
+                rec("scooter", 180.0, None, t(200)),
+                rec(RED, 90.0, Some(3.0), t(200)),
+            ],
+            t(200),
+        );
+        b.handle_ses(&f1, t(200));
+        // Target (0, 3) from Scooter (−2.5, 0): DR (2.5, 3).
+        match b.plan() {
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(2.5, 3.0)).norm() < 0.05, "{p}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

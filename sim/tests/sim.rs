@@ -1,0 +1,264 @@
+//! The simulation and the heading experiment, end to end (debug builds: a few runs only).
+
+use core::time::Duration;
+
+use ima_agents::mission::scooter::{Behaviour, HeadingRule, ScooterHeard};
+use ima_mock_devices::world::World;
+use ima_sim::experiment::{
+    RunResult, RunSpec, SweepConfig, TARGET_COLOUR, configurations, csv, json, markdown_tables,
+    run_one, summary, svg_f, svg_trajectories, world_for,
+};
+use ima_sim::{EndReason, ScooterSim, SimConfig, SimError};
+
+fn spec(rule: HeadingRule, angle_deg: f64, ds_m: f64, dt_m: f64, seed: u64) -> RunSpec {
+    RunSpec {
+        rule,
+        angle_deg,
+        ds_m,
+        dt_m,
+        seed,
+    }
+}
+
+#[test]
+fn range_aware_runs_score_high_and_the_thesis_rule_is_exact_on_a_short_chord() {
+    let cfg = SweepConfig::default();
+    for (rule, angle, ds, dt) in [
+        (HeadingRule::RangeAware, 90.0, 2.0, 4.0),
+        (HeadingRule::RangeAware, 135.0, 5.0, 2.0),
+        (HeadingRule::Thesis, 45.0, 2.0, 2.0),
+    ] {
+        let r = run_one(&spec(rule, angle, ds, dt, 7), &cfg);
+        assert_eq!(r.reason, "reached", "{r:?}");
+        assert!(r.f >= 0.9, "{rule:?} {angle} {ds} {dt}: f = {}", r.f);
+        assert!(r.d_actual_m >= r.d_min_m - 1e-9);
+        assert!(r.samples >= 2);
+    }
+}
+
+#[test]
+fn the_thesis_rule_spirals_inward_when_the_target_is_farther_than_scooter() {
+    // Target 5 m out, Scooter 2 m out, 135° apart: the isosceles rule keeps aiming at
+    // Scooter's own (shrinking) circle and ripples along the target's bearing line.
+    let cfg = SweepConfig::default();
+    let thesis = run_one(&spec(HeadingRule::Thesis, 135.0, 2.0, 5.0, 3), &cfg);
+    let range = run_one(&spec(HeadingRule::RangeAware, 135.0, 2.0, 5.0, 3), &cfg);
+    assert!(thesis.f < 0.5 * range.f, "{} vs {}", thesis.f, range.f);
+}
+
+#[test]
+fn runs_are_reproducible_from_the_seed() {
+    let cfg = SweepConfig::default();
+    let s = spec(HeadingRule::RangeAware, 45.0, 3.0, 2.0, 11);
+    let a = run_one(&s, &cfg);
+    let b = run_one(&s, &cfg);
+    assert_eq!(a, b);
+    let c = run_one(&RunSpec { seed: 12, ..s }, &cfg);
+    assert_ne!(a.trajectory, c.trajectory, "another seed, other noise");
+    // Configuration seeds derive from the sweep seed, the same for both rules.
+    let k = configurations(&[HeadingRule::Thesis, HeadingRule::RangeAware], 5);
+    assert_eq!(k.len(), 96);
+    assert_eq!(k[0].seed, k[48].seed);
+    assert_ne!(k[0].seed, k[1].seed);
+    assert_ne!(
+        configurations(&[HeadingRule::Thesis], 5)[0].seed,
+        configurations(&[HeadingRule::Thesis], 6)[0].seed
+    );
+}
+
+#[test]
+fn ses_samples_arrive_at_start_and_after_every_full_scan() {
+    let mut sim = ScooterSim::new(
+        world_for(90.0, 3.0, 3.0, 1),
+        TARGET_COLOUR,
+        SimConfig::default(),
+    )
+    .unwrap();
+    assert_eq!(sim.samples(), 1);
+    // 10 s at 50 ms: scans complete at 5 s and 10 s (the 10 s one on the step at 10 s).
+    for _ in 0..=200 {
+        sim.step();
+    }
+    assert_eq!(sim.samples(), 3);
+    assert!(sim.brain().plan().is_some());
+}
+
+#[test]
+fn setup_errors_are_typed() {
+    let w = world_for(90.0, 3.0, 3.0, 1);
+    assert_eq!(
+        ScooterSim::new(w.clone(), "blue", SimConfig::default()).unwrap_err(),
+        SimError::NoTarget("blue".to_owned())
+    );
+    assert_eq!(
+        ScooterSim::new(World::new(), "red", SimConfig::default()).unwrap_err(),
+        SimError::NoRobot("skeeter")
+    );
+    let bad = SimConfig {
+        dt: Duration::ZERO,
+        ..SimConfig::default()
+    };
+    assert_eq!(
+        ScooterSim::new(w, "red", bad).unwrap_err(),
+        SimError::BadPeriod
+    );
+}
+
+#[test]
+fn called_back_scooter_drives_toward_skeeter() {
+    let mut sim = ScooterSim::new(
+        world_for(90.0, 4.0, 4.0, 1),
+        TARGET_COLOUR,
+        SimConfig::default(),
+    )
+    .unwrap();
+    for _ in 0..100 {
+        sim.step();
+    }
+    let now = sim.now();
+    sim.brain_mut()
+        .handle_heard(&ScooterHeard::ScooterLost, now);
+    let dist = |s: &ScooterSim| {
+        let p = s.trajectory().last().copied().unwrap();
+        p[0].hypot(p[1])
+    };
+    let before = dist(&sim);
+    for _ in 0..200 {
+        sim.step();
+    }
+    assert_eq!(sim.last_output().unwrap().behaviour, Behaviour::MoveToHome);
+    assert!(dist(&sim) < before - 0.5, "{} → {}", before, dist(&sim));
+}
+
+#[test]
+fn default_world_mission_reaches_a_ring_object() {
+    // The demo world: six posts 3 m round Skeeter, Scooter 4 m out; go to green (60°).
+    let mut sim = ScooterSim::new(World::default_world(), "green", SimConfig::default()).unwrap();
+    let o = sim.run(Duration::from_secs(120));
+    assert_eq!(o.reason, EndReason::Reached, "{o:?}");
+    let end = o.end;
+    let green = [
+        3.0 * 60f64.to_radians().cos(),
+        3.0 * 60f64.to_radians().sin(),
+    ];
+    assert!(
+        (end[0] - green[0]).hypot(end[1] - green[1]) < 1.0,
+        "{end:?}"
+    );
+}
+
+fn fake(rule: &'static str, angle_deg: f64, ds_m: f64, dt_m: f64, f: f64) -> RunResult {
+    RunResult {
+        rule,
+        angle_deg,
+        ds_m,
+        dt_m,
+        seed: 1,
+        f,
+        d_min_m: 1.0,
+        d_actual_m: 1.25,
+        t_min_s: 20.0,
+        t_actual_s: 25.0,
+        reason: "reached",
+        samples: 5,
+        start: [-ds_m, 0.0],
+        target: [0.0, dt_m],
+        trajectory: vec![[-ds_m, 0.0], [0.0, dt_m]],
+    }
+}
+
+#[test]
+fn table_csv_json_and_svg_writers() {
+    let results = vec![
+        fake("thesis", 45.0, 2.0, 3.0, 0.5),
+        fake("thesis", 45.0, 5.0, 2.0, 0.25),
+        fake("range-aware", 90.0, 2.0, 5.0, 0.99),
+    ];
+    let t = markdown_tables(&results, "thesis");
+    // Row Dt = 3, column Ds = 2; row Dt = 2, column Ds = 5 (the last cell of its row).
+    assert!(t.contains("| 3 m | 0.50 | — | — | — |"), "{t}");
+    assert!(t.contains("| 2 m | — | — | — | 0.25 |"), "{t}");
+    assert!(t.contains("**thesis, θ = 135°**"));
+    assert_eq!(t.matches("| Dt \\ Ds | 2 m | 3 m | 4 m | 5 m |").count(), 3);
+    let c = csv(&results);
+    let lines: Vec<&str> = c.lines().collect();
+    assert_eq!(lines.len(), 4);
+    assert!(lines[0].starts_with("rule,angle_deg,ds_m,dt_m,seed,f,"));
+    assert_eq!(
+        lines[1],
+        "thesis,45,2,3,1,0.5000,1.0000,1.2500,20.00,25.00,reached,5"
+    );
+    let j = json(&results, &SweepConfig::default());
+    assert_eq!(j["runs"].as_array().unwrap().len(), 3);
+    assert_eq!(j["runs"][2]["rule"], "range-aware");
+    assert!(j["runs"][0].get("trajectory").is_none());
+    assert_eq!(j["speed_m_s"], 0.05);
+    let s = summary(&results);
+    assert!(s.contains("thesis: 2 runs, f min 0.250"), "{s}");
+    for svg in [svg_f(&results), svg_trajectories(&results, 45.0)] {
+        assert!(svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\""));
+        assert!(svg.trim_end().ends_with("</svg>"));
+    }
+    assert!(svg_f(&results).contains(">0.99</text>"));
+    // Only (Ds 5, Dt 2) is among the plotted corner configurations at 45°.
+    assert_eq!(svg_trajectories(&results, 45.0).matches("<path").count(), 1);
+}
+
+#[test]
+fn camera_observer_runs_the_real_vision_pipeline() {
+    let mut cfg = SweepConfig::default();
+    cfg.sim.observer = ima_sim::Observer::Camera;
+    let r = run_one(&spec(HeadingRule::RangeAware, 90.0, 2.0, 2.0, 1), &cfg);
+    assert_eq!(r.reason, "reached", "{r:?}");
+    assert!(r.f >= 0.9, "f = {}", r.f);
+}
+
+#[test]
+fn a_barrel_on_the_way_is_avoided_smoothly_with_the_real_laser_model() {
+    use ima_mock_devices::world::Circle;
+    // Range-aware, 90°, Ds = Dt = 4: the straight path from (−4, 0) to (0, 4) passes
+    // (−2, 2); a barrel of radius 0.3 stands there.
+    let mut world = world_for(90.0, 4.0, 4.0, 1);
+    world
+        .add_circle(Circle {
+            center: [-2.0, 2.0],
+            radius_m: 0.3,
+        })
+        .unwrap();
+    let mut cfg = SweepConfig::default().sim;
+    cfg.brain.heading_rule = HeadingRule::RangeAware;
+    let mut sim = ScooterSim::new(world, TARGET_COLOUR, cfg).unwrap();
+    let mut signs = Vec::new();
+    let mut avoided = false;
+    let mut clearance = f64::INFINITY;
+    for _ in 0..6000 {
+        let out = sim.step().clone();
+        avoided |= out.behaviour == Behaviour::AvoidObstacle;
+        // Turning while avoiding, ignoring the small corrections of compass noise.
+        if out.behaviour == Behaviour::AvoidObstacle && out.command.omega_rad_s.abs() > 0.1 {
+            signs.push((out.command.omega_rad_s * 100.0).round() / 100.0);
+        }
+        let p = *sim.trajectory().last().unwrap();
+        clearance = clearance.min((p[0] + 2.0).hypot(p[1] - 2.0) - 0.3 - 0.4);
+        if sim.reached_at().is_some() {
+            break;
+        }
+    }
+    assert!(avoided, "the barrel made Scooter avoid");
+    assert!(
+        sim.reached_at().is_some(),
+        "and it still reached the target"
+    );
+    assert!(clearance > 0.0, "never touched the barrel: {clearance}");
+    assert!(signs.len() > 10, "it turned while avoiding: {signs:?}");
+    let flips = signs
+        .windows(2)
+        .filter(|w| w[0].signum() != w[1].signum())
+        .count();
+    eprintln!("avoidance turn rates: {signs:?}");
+    // Away from the barrel, then back toward the goal: one change of sign (two allowed).
+    assert!(
+        flips <= 2,
+        "turn-rate sign flipped {flips} times while avoiding: {signs:?}"
+    );
+}

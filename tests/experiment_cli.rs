@@ -1,0 +1,68 @@
+//! `ima experiment heading`: the range-aware half of the sweep through the CLI, its files,
+//! and the done criterion (f ≥ 0.9 in every configuration).
+
+mod common;
+
+use common::ima;
+
+#[test]
+fn experiment_heading_range_aware_json_and_files() {
+    let dir = std::env::temp_dir().join(format!("ima-experiment-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = ima()
+        .args([
+            "experiment",
+            "heading",
+            "--rule",
+            "range-aware",
+            "--seed",
+            "1",
+            "--json",
+        ])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("48/48 runs"), "progress bar: {stderr}");
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let runs = doc["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 48);
+    for r in runs {
+        assert_eq!(r["rule"], "range-aware");
+        assert_eq!(r["reason"], "reached", "{r}");
+        let f = r["f"].as_f64().unwrap();
+        assert!(f >= 0.9, "f = {f} in {r}");
+    }
+    for name in [
+        "heading.csv",
+        "heading.json",
+        "tables.md",
+        "f.svg",
+        "trajectories-45.svg",
+        "trajectories-90.svg",
+        "trajectories-135.svg",
+    ] {
+        let text = std::fs::read_to_string(dir.join(name)).unwrap();
+        assert!(!text.is_empty(), "{name}");
+    }
+    let csv = std::fs::read_to_string(dir.join("heading.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 49);
+    let tables = std::fs::read_to_string(dir.join("tables.md")).unwrap();
+    assert!(tables.contains("**range-aware, θ = 135°**"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn experiment_heading_rejects_an_unknown_rule() {
+    let out = ima()
+        .args(["experiment", "heading", "--rule", "sideways"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}
