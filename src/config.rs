@@ -275,6 +275,10 @@ pub struct AgentConfig {
     /// Scooter: the target counts as reached when its centre is this close to Scooter's
     /// centre, metres (ATRV-Jr radius 0.4 m + object radius 0.15 m + clearance).
     pub reach_distance_m: f64,
+    /// Scooter, range-aware rule: also range Skeeter with the laser (a cluster of Skeeter's
+    /// diameter where its bearing says). Off by default: in the real-time runtime the laser
+    /// fix led Scooter astray (targets reached late or falsely; see the CHANGELOG).
+    pub laser_ranges_skeeter: bool,
     /// Scooter: seconds without a fresh SES before the lost timer fires.
     pub lost_timeout_s: f64,
     /// Mission clocks run this many times faster than real time. 1 on a real robot; the
@@ -304,6 +308,7 @@ impl Default for AgentConfig {
             control_hz: 10.0,
             target_timeout_s: 180.0,
             reach_distance_m: 1.0,
+            laser_ranges_skeeter: false,
             lost_timeout_s: 20.0,
             time_scale: 1.0,
             network: None,

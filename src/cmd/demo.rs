@@ -281,7 +281,9 @@ fn summarise(
     let objects = served.world().with(|w| w.objects().to_vec());
     let mut rows = Vec::new();
     for o in outcomes {
-        let start = world_time(&o.target, &["processing"]).or(world_time(&o.target, &["sent"]));
+        // From the commander's send: Scooter may start on the commander's request before
+        // Skeeter's acceptance reaches the commander.
+        let start = world_time(&o.target, &["sent"]);
         let end = world_time(&o.target, &["done", "failed"]);
         let (Some(t0), Some(t1)) = (start, end) else {
             rows.push(json!({"target": o.target, "state": o.state, "time_s": null,

@@ -43,6 +43,12 @@ pub fn brain_config(cfg: &RobotConfig, odometry_offset_rad: f64) -> ScooterConfi
         max_turn_rate_rad_s: a.max_turn_rad_s,
         lost_after: Duration::from_secs_f64(a.lost_timeout_s),
         reach_distance_m: a.reach_distance_m,
+        // A negative tolerance accepts no laser cluster as Skeeter: the laser fix is off.
+        skeeter_diameter_tolerance_m: if a.laser_ranges_skeeter {
+            ScooterConfig::default().skeeter_diameter_tolerance_m
+        } else {
+            -1.0
+        },
         see_distance_m: ScooterConfig::default()
             .see_distance_m
             .max(a.reach_distance_m + 0.6),
