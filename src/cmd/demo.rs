@@ -183,20 +183,21 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let (sk_dev, sc_dev) = tokio::join!(devices::open_skeeter(&sk), devices::open_scooter(&sc));
         let sk_dev = sk_dev.context("opening Skeeter's devices")?;
         let sc_dev = sc_dev.context("opening Scooter's devices")?;
-        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);
+        let (stop_sc, stop_rx_sc) = tokio::sync::watch::channel(false);
         let skeeter = tokio::spawn(crate::stack::skeeter::run(
             sk.clone(),
             key.clone(),
             sk_dev,
             events.clone(),
-            stop_rx.clone(),
+            stop_rx_sk,
         ));
         let scooter = tokio::spawn(crate::stack::scooter::run(
             sc.clone(),
             key.clone(),
             sc_dev,
             events.clone(),
-            stop_rx,
+            stop_rx_sc,
         ));
         let robots = ["skeeter".to_owned(), "scooter".to_owned()];
         let outcomes = crate::stack::commander::run(
@@ -207,8 +208,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             events.clone(),
         )
         .await;
-        let _ = stop_tx.send(true);
-        for (name, h) in [("skeeter", skeeter), ("scooter", scooter)] {
+        // Scooter (the client) first, then Skeeter (its manager).
+        for (name, stop, h) in [("scooter", stop_sc, scooter), ("skeeter", stop_sk, skeeter)] {
+            let _ = stop.send(true);
             match tokio::time::timeout(Duration::from_secs(5), h).await {
                 Ok(Ok(Ok(()))) => {}
                 Ok(Ok(Err(e))) => eprintln!("ima demo: {name} stopped with an error: {e:#}"),
@@ -230,13 +232,22 @@ fn print_live(world_t: f64, e: &Event) {
     let d = &e.detail;
     let text = match e.kind.as_str() {
         "target" => format!(
-            "target {} → {}",
+            "TARGET {:<7} {}",
             d["target"].as_str().unwrap_or("?"),
             d["state"].as_str().unwrap_or("?")
         ),
-        "behaviour" => format!("{}: {}", e.robot, d.as_str().unwrap_or("?")),
-        "broadcast" | "heard" | "ses" | "request-heading" => return,
-        _ => format!("{} {}: {}", e.robot, e.kind, d),
+        "behaviour" => format!("{:<8} → {}", e.robot, d.as_str().unwrap_or("?")),
+        "say" => {
+            let said = d.as_str().unwrap_or("?");
+            let said = said.split_once(": ").map_or(said, |(_, rest)| rest);
+            format!("{:<8} says {said}", e.robot)
+        }
+        "connected" => format!("{:<8} up", e.robot),
+        "waiting" if d.get("for").is_some() => format!("{:<8} waits for {}", e.robot, d["for"]),
+        "peer" if d.get("granted").is_some() && d.get("manager").is_some() => {
+            format!("{:<8} granted Skeeter's ses source", e.robot)
+        }
+        _ => return,
     };
     eprintln!("[{world_t:7.1}s] {text}");
 }
