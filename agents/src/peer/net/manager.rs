@@ -447,13 +447,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     };
     let tasks = vec![
         tokio::spawn(task.run(ctl_rx, io_rx)),
-        tokio::spawn(accept_sessions(
-            listener,
-            io_tx,
-            ev_tx.clone(),
-            session_queue,
-            max_body,
-        )),
+        tokio::spawn(accept_sessions(listener, io_tx, session_queue, max_body)),
         tokio::spawn(accept_data(
             data_listener,
             ctl_tx.clone(),
@@ -710,7 +704,6 @@ impl<A: SelfAgent> ManagerTask<A> {
 async fn accept_sessions(
     listener: TcpListener,
     io: mpsc::Sender<Io>,
-    events: broadcast::Sender<ManagerNetEvent>,
     session_queue: usize,
     max_body: usize,
 ) {
@@ -758,7 +751,6 @@ async fn accept_sessions(
             reader.abort();
             return;
         }
-        let _ = &events;
     }
 }
 

@@ -13,6 +13,37 @@
 //! * [`PeerNetConfig`]: the serde configuration (TOML), [`load_key_file`] the group key.
 //!
 //! Details, defaults and the key-file format are in the [module docs](super) of `peer`.
+//!
+//! ```no_run
+//! use ima_agents::peer::manager::FixedSelfAgent;
+//! use ima_agents::peer::net::{
+//!     PeerClientHandle, PeerNetConfig, SubscriptionEvent, load_key_file, spawn_manager,
+//! };
+//! use ima_agents::peer::wire::SourceInfo;
+//!
+//! # async fn demo() -> Result<(), ima_agents::peer::net::NetError> {
+//! let key = load_key_file("group.key".as_ref())?;
+//! // Skeeter: a manager with one source.
+//! let cfg = PeerNetConfig::loopback("skeeter");
+//! let manager = spawn_manager(&cfg, key.clone(), FixedSelfAgent::default()).await?;
+//! let ses = manager.publisher(SourceInfo::new("ses", "ses", 1, 0.2));
+//! ses.publish(0, b"one full scan")?;
+//! // Scooter: a client of Skeeter's manager.
+//! let client =
+//!     PeerClientHandle::connect(manager.local_addr(), &PeerNetConfig::loopback("scooter"), key)
+//!         .await?;
+//! client.register().await?;
+//! let mut sub = client.request("ses", 1).await?;
+//! while let Some(event) = sub.next().await {
+//!     match event {
+//!         SubscriptionEvent::Sample { payload, .. } => println!("{} bytes", payload.len()),
+//!         SubscriptionEvent::Lost { reason } => println!("paused: {reason:?}"),
+//!         SubscriptionEvent::Closed { reason } => println!("gone: {reason:?}"),
+//!     }
+//! }
+//! # Ok(())
+//! # }
+//! ```
 
 mod broadcast;
 mod client;
