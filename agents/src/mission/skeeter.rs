@@ -6,10 +6,13 @@
 //!
 //! # Inputs → conditions (the detect/find nodes)
 //!
+//! The detect/find nodes read the scan report, whose detections are exactly the Scan node's
+//! SES entries after the sweep ([`super::scan`] removes what a sweep did not see).
+//!
 //! | input | conditions it feeds |
 //! |---|---|
 //! | commander's `Mission{commander, Accepted, colour}` ([`SkeeterBrain::handle_broadcast`]) | a target starts (one at a time; others wait in a queue): `target-requested` ↑, `mission-reported` ↓, the target timer starts |
-//! | a [`ScanReport`] ([`SkeeterBrain::handle_scan`]) | `scanner-idle` ↑; with a target: `scan-done` ↑, `target-in-view` / `target-not-in-view` (find-target node), `scooter-in-view` / `scooter-lost` (detect-Scooter node); `heading-requested` ↑ only when [`SkeeterConfig::publish_every_scan`] is off |
+//! | a [`ScanReport`] ([`SkeeterBrain::handle_scan`]) | `scanner-idle` ↑; with a target: `scan-done` ↑, `target-in-view` / `target-not-in-view` (find-target node), `heading-requested` ↑ only when [`SkeeterConfig::publish_every_scan`] is off; always `scooter-in-view`, with a target `scooter-lost` (detect-Scooter node) |
 //! | Scooter's `target-reached` (colour = target) | `scooter-reached-target` ↑ |
 //! | Scooter's `target-reply` (colour = target, after a query) | `scooter-cannot-see-target` = not seen |
 //! | Scooter's client asks for the SES ([`SkeeterBrain::handle_heading_request`]) | `heading-requested` ↑ |
@@ -60,9 +63,9 @@
 //! robot's **behaviour** ([`SkeeterBrain::behaviour`]; `idle` with no target), broadcast in
 //! a `Status` when it changes and every [`SkeeterConfig::status_interval`].
 //!
-//! If the network has an executable module but none fires within 64 steps (its activation
-//! stays at zero), the executable module with the highest activation is taken, so that the
-//! brain never stalls on a network's parameters.
+//! If the network has an executable module but none fires within 64 steps (a threshold the
+//! activations never reach, say), the executable module with the highest activation is
+//! taken, so that the brain never stalls on a network's parameters.
 
 use std::collections::VecDeque;
 use std::time::Duration;

@@ -775,6 +775,9 @@ mod tests {
     }
 
     proptest! {
+        // Each case renders and searches a full frame: fewer cases keep debug runs short.
+        #![proptest_config(ProptestConfig::with_cases(96))]
+
         /// The bearing of a rendered disc is within half a pixel's angle of the truth,
         /// for any disc wholly in view, 1–5 m away, and any camera.
         #[test]
