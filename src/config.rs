@@ -284,7 +284,8 @@ pub struct AgentConfig {
     /// Mission clocks run this many times faster than real time. 1 on a real robot; the
     /// world's speed factor with `ima mock world --speed`.
     pub time_scale: f64,
-    /// SAN network file (TOML); the built-in one of the role when absent.
+    /// Skeeter: SAN network file (TOML, `agents/networks/skeeter.toml` format); the built-in
+    /// network when absent. (Scooter's brain always runs its built-in network.)
     pub network: Option<PathBuf>,
     /// Compass heading (degrees clockwise from north) of the robots' common initial heading,
     /// i.e. the way Skeeter faces; 90 (east) in the built-in arena.
@@ -454,6 +455,9 @@ impl RobotConfig {
                 }
             }
             Role::Scooter => {
+                if a.network.is_some() {
+                    bail!("agent.network: Scooter's brain runs its built-in network");
+                }
                 need("base", d.base.is_some())?;
                 need("laser", d.laser.is_some())?;
                 if a.heading_source != HeadingSource::Odometry {

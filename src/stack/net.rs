@@ -151,3 +151,54 @@ impl Bus {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(peer: &str) -> RobotConfig {
+        RobotConfig::from_toml_str(&format!(
+            "robot = \"skeeter\"\nrole = \"commander\"\n[peer]\ninsecure = true\n{peer}"
+        ))
+        .unwrap()
+    }
+
+    #[test]
+    fn peer_settings_map_onto_the_net_config() {
+        let n = net_config(&cfg("")).unwrap();
+        assert_eq!(n.robot, "skeeter");
+        assert_eq!(n.broadcast.mode, BroadcastMode::Multicast);
+        assert_eq!(
+            (n.broadcast.group.as_str(), n.broadcast.port),
+            ("239.255.73.77", 7601)
+        );
+        let n = net_config(&cfg(
+            "listen = \"127.0.0.1:7600\"\nbroadcast_group = \"\"\nbroadcast_peers = [\"127.0.0.1:9\"]\nbroadcast_bind = \"127.0.0.1:7602\"\nheartbeat_ms = 250\n[peer.priorities]\nscooter = 2\n",
+        ))
+        .unwrap();
+        assert_eq!(n.broadcast.mode, BroadcastMode::Unicast);
+        assert_eq!(n.broadcast.peers, ["127.0.0.1:9"]);
+        assert_eq!(
+            (n.broadcast.bind.as_str(), n.broadcast.port),
+            ("127.0.0.1", 7602)
+        );
+        assert_eq!(n.broadcast.interface, "127.0.0.1");
+        assert_eq!(n.manager.listen, "127.0.0.1:7600");
+        assert_eq!(n.manager.robot_priorities.get("scooter"), Some(&2));
+        assert_eq!(n.heartbeat_ms, 250);
+        let n = net_config(&cfg("broadcast_peers = [\"10.0.0.2:7601\"]\n")).unwrap();
+        assert_eq!(n.broadcast.mode, BroadcastMode::Both);
+        assert!(net_config(&cfg("broadcast_group = \"nonsense\"\n")).is_err());
+    }
+
+    #[test]
+    fn keys_come_from_the_file_or_the_insecure_switch() {
+        assert!(group_key(&cfg(""), None).is_ok());
+        let mut c = cfg("");
+        c.peer.insecure = false;
+        assert!(group_key(&c, None).is_err());
+        c.peer.key_file = Some("/nonexistent/ima.key".into());
+        let e = group_key(&c, None).unwrap_err();
+        assert!(format!("{e:#}").contains("/nonexistent/ima.key"), "{e:#}");
+    }
+}

@@ -58,9 +58,15 @@ pub fn brain_config(cfg: &RobotConfig, odometry_offset_rad: f64) -> ScooterConfi
 }
 
 /// The compass heading in the common frame (radians, counter-clockwise).
+/// The configured installation deviation (degrees east) is added to the compass heading.
 fn common_heading(h: &ima_hal::compass::Heading, cfg: &RobotConfig) -> f64 {
     let common_yaw = normalize_angle((90.0 - cfg.agent.common_heading_deg).to_radians());
-    normalize_angle(h.yaw_enu_rad() - common_yaw)
+    let deviation = cfg
+        .devices
+        .compass
+        .as_ref()
+        .map_or(0.0, |c| c.deviation_deg.to_radians());
+    normalize_angle(h.yaw_enu_rad() - deviation - common_yaw)
 }
 
 /// Run Scooter until `stop` turns true (or a fatal error).
@@ -370,5 +376,58 @@ async fn ses_loop(
             return;
         }
         tokio::time::sleep(Duration::from_secs(1)).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ima_hal::compass::{Heading, HeadingReference};
+
+    fn cfg() -> RobotConfig {
+        RobotConfig::from_toml_str(
+            "robot = \"scooter\"\nrole = \"scooter\"\nmock = true\n[peer]\nconnect = \"127.0.0.1:1\"\n",
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn compass_headings_map_to_the_common_frame() {
+        let mut c = cfg();
+        // Compass 60° (clockwise from north) = yaw 30° ENU; common heading east (90°).
+        let h = Heading::new(60f64.to_radians(), HeadingReference::Magnetic);
+        assert!((common_heading(&h, &c).to_degrees() - 30.0).abs() < 1e-9);
+        // Common heading north: Scooter is 60° clockwise of it, i.e. −60° counter-clockwise.
+        c.agent.common_heading_deg = 0.0;
+        assert!((common_heading(&h, &c).to_degrees() + 60.0).abs() < 1e-9);
+        // A deviation of 4° east turns the true heading 4° clockwise.
+        c.agent.common_heading_deg = 90.0;
+        c.devices.compass = Some(crate::config::CompassDeviceConfig {
+            port: "x".into(),
+            baud: 4800,
+            dialect: crate::config::CompassDialect::Kvh,
+            deviation_deg: 4.0,
+        });
+        assert!((common_heading(&h, &c).to_degrees() - 26.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn brain_config_follows_the_robot_config() {
+        let mut c = cfg();
+        c.agent.heading_rule = crate::config::HeadingRule::Thesis;
+        c.agent.heading_source = crate::config::HeadingSource::Odometry;
+        c.agent.cruise_speed_m_s = 0.05;
+        let b = brain_config(&c, 0.5);
+        assert_eq!(b.heading_rule, HeadingRule::Thesis);
+        assert_eq!(b.heading_source, HeadingSource::Odometry);
+        assert!((b.cruise_speed_m_s - 0.05).abs() < 1e-12);
+        assert!((b.odometry_heading_offset_rad - 0.5).abs() < 1e-12);
+        assert!((b.reach_distance_m - 1.0).abs() < 1e-12);
+        assert!(
+            b.skeeter_diameter_tolerance_m < 0.0,
+            "laser fix on Skeeter off"
+        );
+        c.agent.laser_ranges_skeeter = true;
+        assert!(brain_config(&c, 0.0).skeeter_diameter_tolerance_m > 0.0);
     }
 }

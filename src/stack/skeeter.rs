@@ -116,13 +116,18 @@ pub async fn run(
             }
         }
     });
-    let mut brain = SkeeterBrain::new(SkeeterConfig {
+    let mut brain_cfg = SkeeterConfig {
         robot: me.clone(),
         target_timeout: Duration::from_secs_f64(cfg.agent.target_timeout_s),
         stress_repeat: Duration::from_secs(10),
         ..SkeeterConfig::default()
-    })
-    .map_err(|e| anyhow::anyhow!("Skeeter's SAN: {e:?}"))?;
+    };
+    if let Some(path) = &cfg.agent.network {
+        brain_cfg.network = std::fs::read_to_string(path)
+            .with_context(|| format!("reading the SAN network {}", path.display()))?;
+    }
+    let mut brain =
+        SkeeterBrain::new(brain_cfg).map_err(|e| anyhow::anyhow!("Skeeter's SAN: {e:?}"))?;
     let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
     let bus_rx = bus.clone();
     let rx_task = tokio::spawn(async move {
