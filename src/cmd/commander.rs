@@ -88,7 +88,17 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
         let json = args.json;
         let printer = tokio::spawn(async move {
+            // Text mode: a robot's status is shown when its behaviour changes, not every second.
+            let mut last: std::collections::BTreeMap<String, String> = Default::default();
             while let Some(e) = rx.recv().await {
+                if !json && e.kind == "broadcast" && e.detail["type"] == "status" {
+                    let robot = e.detail["robot"].as_str().unwrap_or("").to_owned();
+                    let b = e.detail["behaviour"].as_str().unwrap_or("").to_owned();
+                    if last.get(&robot) == Some(&b) {
+                        continue;
+                    }
+                    last.insert(robot, b);
+                }
                 print_event(&e, json);
             }
         });
