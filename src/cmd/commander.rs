@@ -85,7 +85,7 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
     let rt = tokio::runtime::Runtime::new()?;
     let outcomes = rt.block_on(async {
         let key = net::group_key(&cfg, None)?;
-        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
         let json = args.json;
         let printer = tokio::spawn(async move {
             // Text mode: a robot's status is shown when its behaviour changes, not every second.
