@@ -7,6 +7,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod cmd;
+mod config;
+mod stack;
 
 /// Drivers, mock devices and agents for a Pioneer 2-AT (P2OS) and an ATRV-Jr (rFLEX).
 #[derive(Debug, Parser)]
@@ -21,7 +23,7 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Run the demonstration on built-in mock devices (no hardware).
+    /// The mission on built-in mock devices (no hardware): both robots and the commander.
     Demo(cmd::demo::DemoArgs),
     /// Serve a mock device on a pseudo-terminal and print its path.
     Mock(cmd::mock::MockArgs),
@@ -36,6 +38,10 @@ enum Command {
     Camera(cmd::camera::CameraCommand),
     /// Connect to a SICK LMS laser scanner, print scans, optionally write one as SVG.
     Scan(cmd::scan::ScanArgs),
+    /// Run one robot's stack (Skeeter or Scooter) from a configuration file.
+    Run(cmd::run::RunArgs),
+    /// Send targets to the robots over the broadcast channel and follow the mission live.
+    Commander(cmd::commander::CommanderArgs),
     /// Peer Agent over IP: standalone manager, client, broadcast listener and sender.
     #[command(subcommand)]
     Peer(cmd::peer::PeerCommand),
@@ -71,8 +77,10 @@ fn main() -> ExitCode {
         Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
         Command::Compass(a) => cmd::compass::run(&a),
         Command::Camera(c) => cmd::camera::run(&c),
-        Command::Experiment(c) => cmd::experiment::run(&c),
+        Command::Commander(a) => cmd::commander::run(&a),
+        Command::Run(a) => cmd::run::run(&a),
         Command::Peer(c) => cmd::peer::run(&c),
+        Command::Experiment(c) => cmd::experiment::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

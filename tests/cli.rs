@@ -96,7 +96,7 @@ fn decode_reads_hex_from_stdin_and_reports_bad_frames() {
 #[test]
 fn demo_drives_a_square_with_odometry_matching_ground_truth() {
     let out = ima()
-        .args(["demo", "--side", "0.4", "--json"])
+        .args(["demo", "square", "--side", "0.4", "--json"])
         .output()
         .unwrap();
     assert!(

@@ -10,7 +10,7 @@
 //! * [`peer`] — the Peer Agent: sans-IO core (manager, client, broadcast channel,
 //!   authenticated frames) and, with feature `net`, its tokio TCP/UDP shell.
 //! * [`mission`] — the demonstration's pure decision logic: inter-robot vocabulary, vision,
-//!   the Scan node, Skeeter's brain, the commander.
+//!   the Scan node, Skeeter's and Scooter's brains, obstacle avoidance, the commander.
 //!
 //! Everything is `f64`, SI units, radians; degrees appear only at API edges that say so.
 #![warn(missing_docs)]

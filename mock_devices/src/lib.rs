@@ -59,6 +59,7 @@ pub mod model;
 pub mod p2os;
 pub mod pty;
 pub mod rflex;
+pub mod served;
 pub mod sick_lms;
 pub mod stepper;
 pub mod video_mux;

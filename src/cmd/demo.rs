@@ -1,205 +1,380 @@
-//! `ima demo`: the demonstration on built-in mock devices.
+//! `ima demo`: the mission of the thesis on built-in mock devices, in one process and with no
+//! hardware. A simulated world serves every device of both robots on its own pseudo-terminal
+//! (and Skeeter's frames on a TCP frame server); Skeeter's and Scooter's stacks open them
+//! through their real drivers exactly as on the robots; the three Peer Agents (Skeeter's
+//! manager, Scooter's client and manager, the commander) talk over loopback sockets with a
+//! random in-memory group key; the commander sends the targets one at a time.
 //!
-//! For now (issue 2): a simulated Pioneer 2-AT is served on a pseudo-terminal, the real P2OS
-//! driver connects to it through the pty exactly as it would to `/dev/ttyS0`, drives a square
-//! closed-loop on its odometry, and the program prints the driver's odometry against the
-//! simulated world's ground truth at every corner.
+//! Live progress goes to stderr (`--json`: JSON events on stdout). At the end: a summary per
+//! target (state, time, distance, performance index `f = (d_min/d)·(t_min/t)` at Scooter's
+//! cruise speed) and an SVG of the world with both robots' trajectories.
+//!
+//! `ima demo square` is the issue-2 demonstration (one P2OS robot driving a square).
 
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use clap::Args;
-use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
-use ima_hal::normalize_angle;
-use ima_p2os::shell::{LinkStatus, P2os, open_port};
+use clap::{Args, Subcommand};
+use ima_agents::peer::wire::GroupKey;
+use ima_mock_devices::served::{ServeOptions, ServedWorld};
 use serde_json::json;
+
+use crate::stack::commander::{TargetOutcome, TargetState};
+use crate::stack::report::{Trajectory, performance_index, svg};
+use crate::stack::{Event, Events, devices};
 
 /// Arguments of `ima demo`.
 #[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct DemoArgs {
-    /// Side of the square, metres.
-    #[arg(long, default_value_t = 1.0)]
-    side: f64,
-    /// Cruise speed, m/s.
-    #[arg(long, default_value_t = 0.5)]
+    /// The issue-2 demonstration instead.
+    #[command(subcommand)]
+    sub: Option<DemoCommand>,
+    /// World time runs this many times faster than real time.
+    #[arg(long, default_value_t = 4.0)]
     speed: f64,
-    /// Seed for sensor noise and faults.
+    /// Seed for sensor noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Faults on the robot's serial line, e.g. `corrupt=0.01` (see `ima mock --help`).
-    #[arg(long, default_value = "")]
-    faults: String,
-    /// Print machine-readable JSON lines instead of a table.
+    /// Target colours, in order.
+    #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]
+    targets: Vec<String>,
+    /// World file (TOML); the built-in thesis arena when absent.
+    #[arg(long)]
+    world: Option<PathBuf>,
+    /// Scooter's cruise speed, m/s.
+    #[arg(long, default_value_t = 0.3)]
+    cruise: f64,
+    /// A target not accomplished within this many mission seconds fails.
+    #[arg(long, default_value_t = 240.0)]
+    target_timeout: f64,
+    /// Where to write the SVG of the world and the trajectories.
+    #[arg(long, default_value = "ima-demo.svg")]
+    svg: PathBuf,
+    /// Machine-readable JSON events on stdout instead of the live display.
     #[arg(long)]
     json: bool,
 }
 
+/// `ima demo` sub-commands.
+#[derive(Debug, Subcommand)]
+pub enum DemoCommand {
+    /// The issue-2 demonstration: a simulated Pioneer 2-AT drives a square over a pty.
+    Square(super::demo_square::SquareArgs),
+}
+
 /// Run `ima demo`.
 pub fn run(args: &DemoArgs) -> Result<()> {
+    if let Some(DemoCommand::Square(a)) = &args.sub {
+        return super::demo_square::run(a);
+    }
     anyhow::ensure!(
-        args.side.is_finite() && args.side > 0.0 && args.side <= 3.0,
-        "--side must be in (0, 3] m"
+        args.speed.is_finite() && args.speed > 0.0 && args.speed <= 20.0,
+        "--speed must be in (0, 20]"
     );
     anyhow::ensure!(
-        args.speed.is_finite() && args.speed > 0.0 && args.speed <= 1.0,
-        "--speed must be in (0, 1] m/s"
+        args.cruise.is_finite() && args.cruise > 0.0 && args.cruise <= 1.0,
+        "--cruise must be in (0, 1] m/s"
     );
-    let world = super::mock::load_world(None, args.seed)?;
-    let dev = super::mock::serve_p2os(&world, "skeeter", args.seed, &args.faults, 9600, true)?;
-    let id = world
-        .with(|w| w.robot_id("skeeter"))
-        .context("no skeeter in the arena")?;
-    let truth = move || {
-        world.with(|w| {
-            w.robot(id)
-                .map(|r| {
-                    let p = r.pose();
-                    (p.x_m, p.y_m, p.theta_rad)
-                })
-                .unwrap_or_default()
-        })
-    };
+    anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
+    let started = std::time::Instant::now();
+    let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
+    for t in &args.targets {
+        let known = world.with(|w| w.objects().iter().any(|o| &o.color == t));
+        anyhow::ensure!(known, "the world has no {t:?} object");
+    }
+    let served = ServedWorld::start(
+        world.clone(),
+        &ServeOptions {
+            seed: args.seed,
+            speed: args.speed,
+            ..ServeOptions::default()
+        },
+    )
+    .context("serving the world")?;
+    let [mut sk, mut sc, mut cmd] =
+        super::mock_world::loopback_configs(served.endpoints(), args.speed, None)?;
+    for c in [&mut sk, &mut sc, &mut cmd] {
+        c.peer.insecure = false;
+        c.agent.cruise_speed_m_s = args.cruise;
+        c.agent.target_timeout_s = args.target_timeout;
+    }
+    // The commander waits a little longer than Skeeter, whose timeout decides.
+    cmd.agent.target_timeout_s = args.target_timeout * 1.25 + 30.0;
     if !args.json {
-        println!(
-            "ima demo: a simulated Pioneer 2-AT on {} (P2OS over a pseudo-terminal)",
-            dev.path().display()
+        let e = served.endpoints();
+        eprintln!(
+            "ima demo: world ×{} (seed {}); Skeeter: P2OS {} · switcher {} · frames {}; Scooter: rFLEX {} · LMS {} · compass {}",
+            args.speed,
+            args.seed,
+            e.skeeter.base.display(),
+            e.skeeter.video_mux.display(),
+            e.skeeter.frames,
+            e.scooter.base.display(),
+            e.scooter.laser.display(),
+            e.scooter.compass.display()
         );
     }
+    let key = GroupKey::from_array(super::mock_world::random_key()?);
     let rt = tokio::runtime::Runtime::new()?;
-    let path = dev.path().to_string_lossy().into_owned();
-    let rows = rt.block_on(square(args, &path, &truth))?;
-    let status = dev.status();
-    drop(dev);
-    let max_pos = rows.iter().map(|r| r.pos_err_m).fold(0.0, f64::max);
-    let max_head = rows
-        .iter()
-        .map(|r| r.head_err_deg.abs())
-        .fold(0.0, f64::max);
-    if args.json {
-        println!(
-            "{}",
-            json!({"kind": "summary", "corners": rows.len(), "max_position_error_m": max_pos,
-                "max_heading_error_deg": max_head, "link": format!("{:?}", status.counters)})
-        );
-    } else {
-        println!(
-            "done: {} corners, largest odometry error {:.1} mm / {:.2}°",
-            rows.len(),
-            max_pos * 1000.0,
-            max_head
-        );
-    }
-    Ok(())
-}
-
-struct Row {
-    pos_err_m: f64,
-    head_err_deg: f64,
-}
-
-async fn square(
-    args: &DemoArgs,
-    path: &str,
-    truth: &(dyn Fn() -> (f64, f64, f64) + Sync),
-) -> Result<Vec<Row>> {
-    let port = open_port(path, 9600)?;
-    let mut robot = P2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10))
-        .await
-        .context("connecting to the simulated robot")?;
-    if let (LinkStatus::Connected { identity, baud }, false) = (robot.link(), args.json) {
-        println!(
-            "connected to {} ({} {}) at {baud} baud; motors on",
-            identity.name, identity.class, identity.subclass
-        );
-    }
-    robot.enable_motors(true).await?;
-    robot.reset_odometry().await?;
-    let t0 = truth();
-    // Ground truth in the frame of the start pose, to compare with odometry.
-    let rel = |t: (f64, f64, f64)| {
-        let (s, c) = (-t0.2).sin_cos();
-        let (dx, dy) = (t.0 - t0.0, t.1 - t0.1);
-        (
-            c * dx - s * dy,
-            s * dx + c * dy,
-            normalize_angle(t.2 - t0.2),
+    let log: Arc<Mutex<Vec<(f64, Event)>>> = Arc::default();
+    let json_out = args.json;
+    let paths: Arc<Mutex<[Trajectory; 2]>> = Arc::new(Mutex::new([
+        Trajectory::new("skeeter"),
+        Trajectory::new("scooter"),
+    ]));
+    let outcomes = rt.block_on(async {
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
+        let events = Events::with_sink(tx);
+        // Events stamped with world time as they arrive; printed live.
+        let printer = {
+            let log = Arc::clone(&log);
+            let world = world.clone();
+            tokio::spawn(async move {
+                while let Some(e) = rx.recv().await {
+                    let (wt, truth) = world.with(|w| {
+                        let p = w
+                            .robot_id(&e.robot)
+                            .and_then(|id| w.robot(id))
+                            .map(|r| r.pose());
+                        (w.time().as_secs_f64(), p)
+                    });
+                    if json_out {
+                        let mut v = serde_json::to_value(&e).unwrap_or_default();
+                        v["kind"] = json!(e.kind);
+                        v["world_t_s"] = json!(wt);
+                        if let Some(p) = truth {
+                            v["truth"] =
+                                json!({"x_m": p.x_m, "y_m": p.y_m, "theta_rad": p.theta_rad});
+                        }
+                        println!("{v}");
+                    } else {
+                        print_live(wt, &e);
+                    }
+                    log.lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .push((wt, e));
+                }
+            })
+        };
+        // Ground-truth trajectories.
+        let sampler = {
+            let world = world.clone();
+            let paths = Arc::clone(&paths);
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(Duration::from_millis(50));
+                loop {
+                    tick.tick().await;
+                    let mut tr = paths.lock().unwrap_or_else(PoisonError::into_inner);
+                    world.with(|w| {
+                        let t = w.time().as_secs_f64();
+                        for tj in tr.iter_mut() {
+                            if let Some(r) = w.robot_id(&tj.robot).and_then(|id| w.robot(id)) {
+                                let p = r.pose();
+                                tj.push(t, p.x_m, p.y_m);
+                            }
+                        }
+                    });
+                }
+            })
+        };
+        let (sk_dev, sc_dev) = tokio::join!(devices::open_skeeter(&sk), devices::open_scooter(&sc));
+        let sk_dev = sk_dev.context("opening Skeeter's devices")?;
+        let sc_dev = sc_dev.context("opening Scooter's devices")?;
+        let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);
+        let (stop_sc, stop_rx_sc) = tokio::sync::watch::channel(false);
+        let skeeter = tokio::spawn(crate::stack::skeeter::run(
+            sk.clone(),
+            key.clone(),
+            sk_dev,
+            events.clone(),
+            stop_rx_sk,
+        ));
+        let scooter = tokio::spawn(crate::stack::scooter::run(
+            sc.clone(),
+            key.clone(),
+            sc_dev,
+            events.clone(),
+            stop_rx_sc,
+        ));
+        let robots = ["skeeter".to_owned(), "scooter".to_owned()];
+        let outcomes = crate::stack::commander::run(
+            &cmd,
+            key,
+            &args.targets,
+            (&robots, Duration::from_secs(30)),
+            events.clone(),
         )
+        .await;
+        // Scooter (the client) first, then Skeeter (its manager).
+        for (name, stop, h) in [("scooter", stop_sc, scooter), ("skeeter", stop_sk, skeeter)] {
+            let _ = stop.send(true);
+            match tokio::time::timeout(Duration::from_secs(5), h).await {
+                Ok(Ok(Ok(()))) => {}
+                Ok(Ok(Err(e))) => eprintln!("ima demo: {name} stopped with an error: {e:#}"),
+                Ok(Err(e)) => eprintln!("ima demo: {name} task failed: {e}"),
+                Err(_) => eprintln!("ima demo: {name} did not stop in time"),
+            }
+        }
+        sampler.abort();
+        drop(events);
+        let _ = tokio::time::timeout(Duration::from_secs(1), printer).await;
+        outcomes
+    })?;
+    let log = log.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    let paths = paths.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    summarise(args, &served, &outcomes, &log, &paths, started.elapsed())
+}
+
+fn print_live(world_t: f64, e: &Event) {
+    let d = &e.detail;
+    let text = match e.kind.as_str() {
+        "target" => format!(
+            "TARGET {:<7} {}",
+            d["target"].as_str().unwrap_or("?"),
+            d["state"].as_str().unwrap_or("?")
+        ),
+        "behaviour" => format!("{:<8} → {}", e.robot, d.as_str().unwrap_or("?")),
+        "say" => {
+            let said = d.as_str().unwrap_or("?");
+            let said = said.split_once(": ").map_or(said, |(_, rest)| rest);
+            format!("{:<8} says {said}", e.robot)
+        }
+        "connected" => format!("{:<8} up", e.robot),
+        "waiting" if d.get("for").is_some() => format!("{:<8} waits for {}", e.robot, d["for"]),
+        "peer" if d.get("granted").is_some() && d.get("manager").is_some() => {
+            format!("{:<8} granted Skeeter's ses source", e.robot)
+        }
+        _ => return,
     };
-    if !args.json {
-        println!(
-            "{:>6} | {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} | {:>8} {:>7}",
-            "corner", "odo x", "odo y", "odo θ°", "true x", "true y", "true θ°", "err mm", "err °"
-        );
-    }
+    eprintln!("[{world_t:7.1}s] {text}");
+}
+
+/// Scooter's reach distance (target centre to Scooter's centre), as configured.
+fn reach_m() -> f64 {
+    crate::config::AgentConfig::default().reach_distance_m
+}
+
+/// The summary: per target, and the SVG.
+fn summarise(
+    args: &DemoArgs,
+    served: &ServedWorld,
+    outcomes: &[TargetOutcome],
+    log: &[(f64, Event)],
+    paths: &[Trajectory; 2],
+    wall: Duration,
+) -> Result<()> {
+    let scooter = &paths[1];
+    // World times of the commander's "processing" and final events per target.
+    let world_time = |target: &str, states: &[&str]| {
+        log.iter()
+            .filter(|(_, e)| {
+                e.kind == "target"
+                    && e.detail["target"].as_str() == Some(target)
+                    && e.detail["state"]
+                        .as_str()
+                        .is_some_and(|s| states.contains(&s))
+            })
+            .map(|(t, _)| *t)
+            .next()
+    };
+    let position_at = |t: f64| {
+        scooter
+            .points
+            .iter()
+            .take_while(|p| p.0 <= t)
+            .last()
+            .or(scooter.points.first())
+            .map(|p| (p.1, p.2))
+    };
+    let objects = served.world().with(|w| w.objects().to_vec());
     let mut rows = Vec::new();
-    for corner in 1..=4 {
-        let o = robot.odometry().await?.value;
-        let (sx, sy) = (o.x_m(), o.y_m());
-        // Straight side, slowing down near its end; one command per SIP (10 Hz).
-        let mut at = robot.odometry().await?.at;
-        loop {
-            let s = robot.next_odometry(at).await?;
-            at = s.at;
-            let o = s.value;
-            let d = (o.x_m() - sx).hypot(o.y_m() - sy);
-            if d >= args.side {
-                break;
+    for o in outcomes {
+        // From the commander's send: Scooter may start on the commander's request before
+        // Skeeter's acceptance reaches the commander.
+        let start = world_time(&o.target, &["sent"]);
+        let end = world_time(&o.target, &["done", "failed"]);
+        let (Some(t0), Some(t1)) = (start, end) else {
+            rows.push(json!({"target": o.target, "state": o.state, "time_s": null,
+                "distance_m": null, "d_min_m": null, "performance": 0.0}));
+            continue;
+        };
+        let d = scooter.length_between(t0, t1);
+        let d_min = match (
+            position_at(t0),
+            objects.iter().find(|x| x.color == o.target),
+        ) {
+            (Some((x, y)), Some(obj)) => {
+                ((obj.center[0] - x).hypot(obj.center[1] - y) - reach_m()).max(0.0)
             }
-            let v = ((args.side - d) * 1.5).clamp(0.03, args.speed);
-            robot.set_velocity(VelocityCommand::new(v, 0.0)).await?;
-        }
-        // Turn to the next multiple of 90°.
-        let goal = normalize_angle(f64::from(corner) * std::f64::consts::FRAC_PI_2);
-        loop {
-            let s = robot.next_odometry(at).await?;
-            at = s.at;
-            let e = normalize_angle(goal - s.value.theta_rad());
-            if e.abs() < 0.5f64.to_radians() {
-                break;
-            }
-            let w = (e * 1.5).clamp(-0.8, 0.8);
-            let w = if w.abs() < 0.05 { 0.05 * w.signum() } else { w };
-            robot.set_velocity(VelocityCommand::new(0.0, w)).await?;
-        }
-        robot.stop().await?;
-        tokio::time::sleep(Duration::from_millis(400)).await;
-        let o = robot.odometry().await?.value;
-        let t = rel(truth());
-        let pos_err = (o.x_m() - t.0).hypot(o.y_m() - t.1);
-        let head_err = normalize_angle(o.theta_rad() - t.2).to_degrees();
-        if args.json {
-            println!(
-                "{}",
-                json!({"kind": "corner", "corner": corner,
-                    "odometry": {"x_m": o.x_m(), "y_m": o.y_m(), "theta_rad": o.theta_rad()},
-                    "truth": {"x_m": t.0, "y_m": t.1, "theta_rad": t.2},
-                    "position_error_m": pos_err, "heading_error_deg": head_err})
-            );
+            _ => 0.0,
+        };
+        let f = if o.state == TargetState::Done {
+            performance_index(d_min, d, t1 - t0, args.cruise)
         } else {
-            println!(
-                "{corner:>6} | {:>8.3} {:>8.3} {:>8.2} | {:>8.3} {:>8.3} {:>8.2} | {:>8.1} {:>7.2}",
-                o.x_m(),
-                o.y_m(),
-                o.theta_rad().to_degrees(),
-                t.0,
-                t.1,
-                t.2.to_degrees(),
-                pos_err * 1000.0,
-                head_err
-            );
-        }
-        rows.push(Row {
-            pos_err_m: pos_err,
-            head_err_deg: head_err,
-        });
-    }
-    let st = robot.stats();
-    if !args.json {
-        println!(
-            "link: {} SIPs, {} frames sent, {} bad checksums, {} implausible SIPs dropped",
-            st.sips, st.frames_sent, st.framer.bad_checksums, st.implausible_sips
+            0.0
+        };
+        rows.push(
+            json!({"target": o.target, "state": o.state, "time_s": t1 - t0,
+            "distance_m": d, "d_min_m": d_min, "performance": f}),
         );
     }
-    robot.close().await.ok();
-    Ok(rows)
+    let done = outcomes
+        .iter()
+        .filter(|o| o.state == TargetState::Done)
+        .count();
+    let failed = outcomes.len() - done;
+    let world_s = served.world().with(|w| w.time()).as_secs_f64();
+    let title = format!(
+        "ima demo, seed {}: {done}/{} targets done ({}); mission {world_s:.0} s",
+        args.seed,
+        outcomes.len(),
+        args.targets.join(", ")
+    );
+    let picture = served.world().with(|w| svg(w, paths, &title));
+    std::fs::write(&args.svg, picture)
+        .with_context(|| format!("writing {}", args.svg.display()))?;
+    let summary = json!({
+        "kind": "summary",
+        "seed": args.seed,
+        "speed": args.speed,
+        "done": done,
+        "failed": failed,
+        "targets": rows,
+        "mission_time_s": world_s,
+        "wall_time_s": wall.as_secs_f64(),
+        "scooter_distance_m": scooter.length(),
+        "svg": args.svg,
+    });
+    if args.json {
+        println!("{summary}");
+    } else {
+        println!("\nima demo summary (seed {}, ×{}):", args.seed, args.speed);
+        println!(
+            "{:<8} {:>7} {:>9} {:>10} {:>9} {:>6}",
+            "target", "state", "time s", "distance m", "d_min m", "f"
+        );
+        for r in &rows {
+            let num = |k: &str| r[k].as_f64().map_or("-".to_owned(), |v| format!("{v:.2}"));
+            println!(
+                "{:<8} {:>7} {:>9} {:>10} {:>9} {:>6}",
+                r["target"].as_str().unwrap_or("?"),
+                r["state"].as_str().unwrap_or("?"),
+                num("time_s"),
+                num("distance_m"),
+                num("d_min_m"),
+                num("performance")
+            );
+        }
+        println!(
+            "{done} done, {failed} failed; mission time {world_s:.1} s, wall time {:.1} s; Scooter drove {:.2} m; trajectories in {}",
+            wall.as_secs_f64(),
+            scooter.length(),
+            args.svg.display()
+        );
+    }
+    anyhow::ensure!(failed == 0, "{failed} target(s) failed");
+    Ok(())
 }

@@ -25,6 +25,9 @@ pub enum Device {
     Rflex,
     /// A SICK LMS 200 laser scanner (on Scooter by default).
     SickLms,
+    /// The whole world: every device of both robots (ptys and the TCP frame server); prints
+    /// one JSON line of endpoints.
+    World,
 }
 
 /// Arguments of `ima mock`.
@@ -70,6 +73,16 @@ pub struct MockArgs {
     /// Video mux: speak Kramer Protocol 2000 instead of Extron SIS.
     #[arg(long)]
     kramer: bool,
+    /// World: world time runs this many times faster than real time.
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// World: address of the TCP frame server (port 0: any free port).
+    #[arg(long, default_value = "127.0.0.1:0")]
+    frames_addr: std::net::SocketAddr,
+    /// World: write skeeter.toml, scooter.toml, commander.toml and group.key into this
+    /// directory, ready for `ima run` / `ima commander`.
+    #[arg(long)]
+    write_configs: Option<PathBuf>,
 }
 
 /// Load the world of `--world`, or the built-in arena, with `seed`.
@@ -161,6 +174,15 @@ pub fn run(args: &MockArgs) -> Result<()> {
                 &args.faults,
                 args.baud,
             );
+        }
+        Device::World => {
+            return super::mock_world::run(&super::mock_world::WorldOptions {
+                world: args.world.clone(),
+                seed: args.seed,
+                speed: args.speed,
+                frames_addr: args.frames_addr,
+                write_configs: args.write_configs.clone(),
+            });
         }
         Device::P2os => serve_p2os(
             &world,

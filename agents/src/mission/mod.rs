@@ -64,6 +64,7 @@
         clippy::indexing_slicing
     )
 )]
+#![allow(clippy::module_name_repetitions)]
 
 pub mod avoid;
 pub mod commander;

@@ -93,3 +93,21 @@ pub fn video_mux_replies(data: &[u8]) {
         let _ = m.stats();
     }
 }
+
+/// Bytes from a frame server (`net_frames`, feature `std`): parsed as a request and as a
+/// header at every offset; a header that parses must emit and parse back to itself, and its
+/// payload length must fit the size limit.
+#[cfg(feature = "std")]
+pub fn video_mux_net_frames(data: &[u8]) {
+    use crate::net_frames::{Header, MAX_SIDE, Request};
+    for start in 0..data.len().min(64) {
+        let rest = data.get(start..).unwrap_or_default();
+        if let Ok(r) = Request::parse(rest) {
+            assert_eq!(Request::parse(&r.emit()), Ok(r));
+        }
+        if let Ok(h) = Header::parse(rest) {
+            assert_eq!(Header::parse(&h.emit()), Ok(h));
+            assert!(u64::from(h.payload_len()) <= u64::from(MAX_SIDE) * u64::from(MAX_SIDE) * 3);
+        }
+    }
+}

@@ -44,6 +44,8 @@ pub mod driver;
 pub mod framer;
 pub mod fuzz_harness;
 pub mod machine;
+#[cfg(feature = "std")]
+pub mod net_frames;
 #[cfg(feature = "tokio")]
 pub mod shell;
 pub mod wire;

@@ -1,0 +1,502 @@
+//! One simulated world serving every device of both robots: the world stepped in real time
+//! × a speed factor, every serial device on its own pseudo-terminal, and Skeeter's frame
+//! grabber on a TCP frame server (protocol: `ima_video_mux::net_frames`).
+//!
+//! [`ServedWorld::start`] is what `ima mock world`, `ima demo` and the mission tests run:
+//!
+//! | robot | device | served as |
+//! |---|---|---|
+//! | Skeeter | P2OS base (and sonar) | pty |
+//! | Skeeter | Extron video switcher | pty, sharing a [`VideoBus`] with the camera head |
+//! | Skeeter | 7-camera head + frame grabber | TCP frame server ([`FrameServer`]) |
+//! | Scooter | rFLEX base (and sonar) | pty |
+//! | Scooter | SICK LMS 200 | pty |
+//! | Scooter | KVH C100 compass (NMEA) | pty |
+//!
+//! Device timing (SIP period, scan rate, switch delay, frame clock) stays real time; only the
+//! world's motion runs `speed` times faster. Robots' agents that want mission time to match
+//! the world's use the same factor on their clocks.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use ima_hal::camera::FrameSource;
+use ima_video_mux::net_frames::{HEADER_LEN, Header, REQUEST_LEN, Request, Status};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+use crate::camera::{CameraConfig, CameraError, MockCameraHead};
+use crate::compass::{CompassDevice, CompassModelConfig};
+use crate::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use crate::pty::{PtyDevice, PtyError, PtyOptions};
+use crate::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use crate::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
+use crate::video_mux::{MuxDevice, MuxModelConfig, VideoBus};
+use crate::world::SharedWorld;
+
+/// Errors starting a served world.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// The world has no robot of that name.
+    #[error("the world has no robot named {0:?}")]
+    NoRobot(String),
+    /// The speed factor is not in (0, 100].
+    #[error("speed factor must be in (0, 100], not {0}")]
+    BadSpeed(f64),
+    /// A pty could not be served.
+    #[error("{0}")]
+    Pty(#[from] PtyError),
+    /// The frame server could not start.
+    #[error("frame server: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Options of [`ServedWorld::start`].
+#[derive(Debug, Clone)]
+pub struct ServeOptions {
+    /// Seed of every device's noise.
+    pub seed: u64,
+    /// World time runs this many times faster than real time.
+    pub speed: f64,
+    /// Name of the robot with the P2OS base, switcher and camera head.
+    pub skeeter: String,
+    /// Name of the robot with the rFLEX base, laser and compass.
+    pub scooter: String,
+    /// Address the frame server binds (port 0: any free port).
+    pub frames_addr: SocketAddr,
+    /// The camera head.
+    pub camera: CameraConfig,
+}
+
+impl Default for ServeOptions {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            speed: 1.0,
+            skeeter: "skeeter".into(),
+            scooter: "scooter".into(),
+            frames_addr: SocketAddr::from(([127, 0, 0, 1], 0)),
+            camera: CameraConfig::default(),
+        }
+    }
+}
+
+/// Where each device is served (serialisable, e.g. as the JSON line of `ima mock world`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Endpoints {
+    /// Skeeter's devices.
+    pub skeeter: SkeeterEndpoints,
+    /// Scooter's devices.
+    pub scooter: ScooterEndpoints,
+}
+
+/// Skeeter's device paths.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SkeeterEndpoints {
+    /// The P2OS base (9600 baud).
+    pub base: PathBuf,
+    /// The Extron switcher (9600 baud).
+    pub video_mux: PathBuf,
+    /// The frame server, `host:port`.
+    pub frames: String,
+}
+
+/// Scooter's device paths.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ScooterEndpoints {
+    /// The rFLEX base (115200 baud).
+    pub base: PathBuf,
+    /// The SICK LMS (powers up at 9600 baud).
+    pub laser: PathBuf,
+    /// The KVH C100 compass (NMEA, 4800 baud).
+    pub compass: PathBuf,
+}
+
+/// A world and every device of both robots, served until dropped.
+#[derive(Debug)]
+pub struct ServedWorld {
+    world: SharedWorld,
+    endpoints: Endpoints,
+    // Field order = drop order: the stepper stops first, then the devices.
+    _stepper: ScaledStepper,
+    _frames: FrameServer,
+    _p2os: PtyDevice<P2osDevice>,
+    _mux: PtyDevice<MuxDevice>,
+    _rflex: PtyDevice<RflexDevice>,
+    _laser: PtyDevice<SickLmsDevice>,
+    _compass: PtyDevice<CompassDevice>,
+}
+
+impl ServedWorld {
+    /// Serve `world` with `opts`.
+    pub fn start(world: SharedWorld, opts: &ServeOptions) -> Result<Self, ServeError> {
+        if !(opts.speed.is_finite() && opts.speed > 0.0 && opts.speed <= 100.0) {
+            return Err(ServeError::BadSpeed(opts.speed));
+        }
+        let id = |name: &str| {
+            world
+                .with(|w| w.robot_id(name))
+                .ok_or_else(|| ServeError::NoRobot(name.to_owned()))
+        };
+        let (sk, sc) = (id(&opts.skeeter)?, id(&opts.scooter)?);
+        let seed = opts.seed;
+        let pty = PtyOptions::default;
+        let cap = |s: &str| {
+            let mut c = s.chars();
+            c.next()
+                .map(|f| f.to_uppercase().chain(c).collect::<String>())
+                .unwrap_or_default()
+        };
+        let p2os = PtyDevice::spawn(
+            P2osDevice::new(
+                P2osModelConfig {
+                    name: cap(&opts.skeeter),
+                    ..P2osModelConfig::default()
+                },
+                WorldBody::new(world.clone(), sk, seed),
+            ),
+            pty(),
+        )?;
+        let bus = VideoBus::new(None);
+        let mux = PtyDevice::spawn(
+            MuxDevice::new(MuxModelConfig::default(), bus.clone()),
+            pty(),
+        )?;
+        let rflex = PtyDevice::spawn(
+            RflexDevice::new(
+                RflexModelConfig::default(),
+                RflexWorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
+            ),
+            pty(),
+        )?;
+        let laser = PtyDevice::spawn(
+            SickLmsDevice::new(
+                SickLmsModelConfig::default(),
+                Box::new(WorldLaser::new(world.clone(), sc, seed.wrapping_add(2))),
+                ima_hal::Instant::ZERO,
+            ),
+            pty(),
+        )?;
+        let compass = PtyDevice::spawn(
+            CompassDevice::new(
+                CompassModelConfig {
+                    seed: seed.wrapping_add(3),
+                    ..CompassModelConfig::default()
+                },
+                world.clone(),
+                sc,
+            ),
+            pty(),
+        )?;
+        let camera = CameraConfig {
+            seed: seed.wrapping_add(4),
+            ..opts.camera
+        };
+        let frames = FrameServer::spawn(opts.frames_addr, camera, world.clone(), sk, bus)?;
+        let stepper = ScaledStepper::spawn(world.clone(), opts.speed)?;
+        let endpoints = Endpoints {
+            skeeter: SkeeterEndpoints {
+                base: p2os.path().to_path_buf(),
+                video_mux: mux.path().to_path_buf(),
+                frames: frames.addr().to_string(),
+            },
+            scooter: ScooterEndpoints {
+                base: rflex.path().to_path_buf(),
+                laser: laser.path().to_path_buf(),
+                compass: compass.path().to_path_buf(),
+            },
+        };
+        Ok(Self {
+            world,
+            endpoints,
+            _stepper: stepper,
+            _frames: frames,
+            _p2os: p2os,
+            _mux: mux,
+            _rflex: rflex,
+            _laser: laser,
+            _compass: compass,
+        })
+    }
+
+    /// The world.
+    #[must_use]
+    pub fn world(&self) -> &SharedWorld {
+        &self.world
+    }
+
+    /// Where each device is served.
+    #[must_use]
+    pub fn endpoints(&self) -> &Endpoints {
+        &self.endpoints
+    }
+}
+
+/// A thread stepping a world every 10 ms by the real elapsed time × `speed`.
+#[derive(Debug)]
+pub struct ScaledStepper {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl ScaledStepper {
+    /// Start stepping.
+    pub fn spawn(world: SharedWorld, speed: f64) -> std::io::Result<Self> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&stop);
+        let speed = if speed.is_finite() && speed > 0.0 {
+            speed
+        } else {
+            1.0
+        };
+        let thread = std::thread::Builder::new()
+            .name("ima-world-stepper".into())
+            .spawn(move || {
+                let mut last = std::time::Instant::now();
+                while !flag.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(10));
+                    let now = std::time::Instant::now();
+                    let dt = now.saturating_duration_since(last).mul_f64(speed);
+                    last = now;
+                    // Sub-steps of at most 10 ms of world time keep the dynamics stable.
+                    let n = (dt.as_secs_f64() / 0.01).ceil().clamp(1.0, 1000.0);
+                    let sub = dt.div_f64(n);
+                    world.with(|w| {
+                        for _ in 0..(n as u32) {
+                            w.step(sub);
+                        }
+                    });
+                }
+            })?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for ScaledStepper {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The frame server: a thread running a small tokio runtime that serves the camera head's
+/// frames over TCP (protocol: `ima_video_mux::net_frames`). Grabs from all connections are
+/// serialised (one grabber). Stops when dropped.
+#[derive(Debug)]
+pub struct FrameServer {
+    addr: SocketAddr,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl FrameServer {
+    /// Bind `addr` and serve the head `cfg` on `robot` of `world`, reading the channel from
+    /// `bus`.
+    pub fn spawn(
+        addr: SocketAddr,
+        cfg: CameraConfig,
+        world: SharedWorld,
+        robot: crate::world::RobotId,
+        bus: VideoBus,
+    ) -> std::io::Result<Self> {
+        let std_listener = std::net::TcpListener::bind(addr)?;
+        std_listener.set_nonblocking(true)?;
+        let addr = std_listener.local_addr()?;
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        let thread = std::thread::Builder::new()
+            .name("ima-frame-server".into())
+            .spawn(move || {
+                rt.block_on(async move {
+                    let Ok(listener) = tokio::net::TcpListener::from_std(std_listener) else {
+                        return;
+                    };
+                    let head = Arc::new(tokio::sync::Mutex::new(MockCameraHead::new(
+                        cfg, world, robot, bus,
+                    )));
+                    let accept = async {
+                        while let Ok((sock, _)) = listener.accept().await {
+                            let _ = sock.set_nodelay(true);
+                            tokio::spawn(serve_frames(sock, Arc::clone(&head)));
+                        }
+                    };
+                    tokio::select! {
+                        () = accept => {}
+                        _ = rx => {}
+                    }
+                });
+            })?;
+        Ok(Self {
+            addr,
+            shutdown: Some(tx),
+            thread: Some(thread),
+        })
+    }
+
+    /// The bound address.
+    #[must_use]
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+}
+
+impl Drop for FrameServer {
+    fn drop(&mut self) {
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+async fn serve_frames(
+    mut sock: tokio::net::TcpStream,
+    head: Arc<tokio::sync::Mutex<MockCameraHead>>,
+) {
+    let mut req = [0u8; REQUEST_LEN];
+    loop {
+        if sock.read_exact(&mut req).await.is_err() {
+            return;
+        }
+        if Request::parse(&req).is_err() {
+            tracing::debug!("frame server: bad request; closing");
+            return;
+        }
+        let (grabbed, sent) = {
+            let mut h = head.lock().await;
+            let g = h.grab().await;
+            (g, h.now())
+        };
+        let (header, pixels) = match grabbed {
+            Ok(f) => (
+                Header {
+                    status: Status::Ok,
+                    channel: f.value.channel,
+                    width: f.value.width,
+                    height: f.value.height,
+                    exposed_us: f.at.as_micros(),
+                    sent_us: sent.as_micros(),
+                },
+                f.value.pixels,
+            ),
+            Err(e) => (
+                Header {
+                    status: match e {
+                        CameraError::NoSignal => Status::NoSignal,
+                        CameraError::BadChannel(_) => Status::BadChannel,
+                    },
+                    channel: None,
+                    width: 0,
+                    height: 0,
+                    exposed_us: sent.as_micros(),
+                    sent_us: sent.as_micros(),
+                },
+                Vec::new(),
+            ),
+        };
+        let hb: [u8; HEADER_LEN] = header.emit();
+        if sock.write_all(&hb).await.is_err() || sock.write_all(&pixels).await.is_err() {
+            return;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::World;
+
+    #[test]
+    fn frame_server_serves_the_selected_camera() {
+        let world = SharedWorld::new(World::default_world());
+        let sk = world.with(|w| w.robot_id("skeeter")).unwrap();
+        let bus = VideoBus::new(None);
+        let cfg = CameraConfig::default();
+        let srv = FrameServer::spawn(
+            SocketAddr::from(([127, 0, 0, 1], 0)),
+            cfg,
+            world,
+            sk,
+            bus.clone(),
+        )
+        .unwrap();
+        let mut s = std::net::TcpStream::connect(srv.addr()).unwrap();
+        use std::io::{Read, Write};
+        s.write_all(&Request::Grab.emit()).unwrap();
+        let mut hb = [0u8; HEADER_LEN];
+        s.read_exact(&mut hb).unwrap();
+        assert_eq!(Header::parse(&hb).unwrap().status, Status::NoSignal);
+        bus.switch(1);
+        std::thread::sleep(cfg.settle_time + Duration::from_millis(50));
+        s.write_all(&Request::Grab.emit()).unwrap();
+        s.read_exact(&mut hb).unwrap();
+        let h = Header::parse(&hb).unwrap();
+        assert_eq!(h.status, Status::Ok);
+        assert_eq!((h.width, h.height, h.channel), (320, 240, Some(1)));
+        let mut px = vec![0u8; h.payload_len() as usize];
+        s.read_exact(&mut px).unwrap();
+        let frame = ima_hal::camera::Frame {
+            width: 320,
+            height: 240,
+            channel: Some(1),
+            pixels: px,
+        };
+        // The red object straight ahead of Skeeter is in the middle of channel 1.
+        let (col, _) = crate::camera::find_color(&frame, [220, 30, 30], 12).unwrap();
+        assert!((col - 160.0).abs() < 2.0, "{col}");
+        // A bad request closes the connection.
+        s.write_all(b"NOPE!!").unwrap();
+        assert_eq!(s.read(&mut hb).unwrap_or(0), 0);
+    }
+
+    #[test]
+    fn served_world_starts_every_device_and_steps_faster() {
+        let world = SharedWorld::new(World::default_world());
+        let opts = ServeOptions {
+            speed: 4.0,
+            ..ServeOptions::default()
+        };
+        let served = ServedWorld::start(world, &opts).unwrap();
+        let e = served.endpoints().clone();
+        for p in [
+            &e.skeeter.base,
+            &e.skeeter.video_mux,
+            &e.scooter.base,
+            &e.scooter.laser,
+            &e.scooter.compass,
+        ] {
+            assert!(p.exists(), "{}", p.display());
+        }
+        let start = std::time::Instant::now();
+        std::thread::sleep(Duration::from_millis(300));
+        let t = served.world().with(|w| w.time());
+        let real = start.elapsed();
+        // World time is ahead of real time (4× nominal; only "ahead" is asserted).
+        assert!(
+            t.as_micros() > u64::try_from(real.as_micros()).unwrap(),
+            "{t:?} vs {real:?}"
+        );
+        assert!(
+            ServedWorld::start(
+                SharedWorld::new(World::default_world()),
+                &ServeOptions {
+                    speed: 0.0,
+                    ..ServeOptions::default()
+                }
+            )
+            .is_err()
+        );
+    }
+}

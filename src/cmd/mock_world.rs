@@ -1,0 +1,240 @@
+//! `ima mock world`: one simulated world serving every device of both robots (ptys and the
+//! TCP frame server), one JSON line of endpoints on stdout, and optionally ready-to-use robot
+//! configurations for `ima run` / `ima commander`.
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use ima_mock_devices::served::{Endpoints, ServeOptions, ServedWorld};
+
+use crate::config::{
+    BaseDevice, BaseKind, CompassDeviceConfig, CompassDialect, Devices, FramesSource, LaserDevice,
+    MuxDevice, MuxDialect, PeerConfig, RobotConfig, Role, key_to_hex,
+};
+
+/// Options of `ima mock world` (a subset of `ima mock`'s flags).
+#[derive(Debug, Clone)]
+pub struct WorldOptions {
+    /// World file; the thesis arena when absent.
+    pub world: Option<PathBuf>,
+    /// Seed.
+    pub seed: u64,
+    /// Speed-up factor.
+    pub speed: f64,
+    /// Where to bind the frame server.
+    pub frames_addr: SocketAddr,
+    /// Write skeeter.toml, scooter.toml, commander.toml and group.key here.
+    pub write_configs: Option<PathBuf>,
+}
+
+/// Start the world and its devices.
+pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
+    let world = super::mock::load_world(opts.world.as_ref(), opts.seed)?;
+    ServedWorld::start(
+        world,
+        &ServeOptions {
+            seed: opts.seed,
+            speed: opts.speed,
+            frames_addr: opts.frames_addr,
+            ..ServeOptions::default()
+        },
+    )
+    .context("serving the world")
+}
+
+/// A free local port (bound and released; another process may take it meanwhile, which only
+/// makes the later bind fail with a clear error).
+pub fn free_port(udp: bool) -> Result<u16> {
+    let port = if udp {
+        std::net::UdpSocket::bind("127.0.0.1:0")?
+            .local_addr()?
+            .port()
+    } else {
+        std::net::TcpListener::bind("127.0.0.1:0")?
+            .local_addr()?
+            .port()
+    };
+    Ok(port)
+}
+
+/// 32 random bytes from the operating system.
+pub fn random_key() -> Result<[u8; 32]> {
+    use std::io::Read;
+    let mut key = [0u8; 32];
+    std::fs::File::open("/dev/urandom")
+        .and_then(|mut f| f.read_exact(&mut key))
+        .context("reading /dev/urandom for a group key")?;
+    Ok(key)
+}
+
+/// The three processes' configurations for a served world: devices on its endpoints, peers on
+/// loopback (fresh ports; broadcast over unicast peers), mission clocks at the world's speed.
+pub fn loopback_configs(
+    e: &Endpoints,
+    speed: f64,
+    key_file: Option<&Path>,
+) -> Result<[RobotConfig; 3]> {
+    let skeeter_mgr = free_port(false)?;
+    let scooter_mgr = free_port(false)?;
+    let bcast = [free_port(true)?, free_port(true)?, free_port(true)?];
+    let peer = |i: usize, listen: Option<u16>, connect: Option<u16>| {
+        let others: Vec<String> = bcast
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(_, p)| format!("127.0.0.1:{p}"))
+            .collect();
+        PeerConfig {
+            listen: listen.map(|p| format!("127.0.0.1:{p}")).unwrap_or_default(),
+            data_listen: "127.0.0.1:0".into(),
+            connect: connect.map(|p| format!("127.0.0.1:{p}")),
+            key_file: key_file.map(Path::to_path_buf),
+            insecure: key_file.is_none(),
+            broadcast_group: String::new(),
+            broadcast_peers: others,
+            broadcast_bind: bcast.get(i).map(|p| format!("127.0.0.1:{p}")),
+            ..PeerConfig::default()
+        }
+    };
+    let mut base = RobotConfig {
+        robot: String::new(),
+        role: Role::Commander,
+        mock: false,
+        mock_world: Default::default(),
+        devices: Devices::default(),
+        agent: Default::default(),
+        peer: PeerConfig::default(),
+    };
+    base.agent.time_scale = speed;
+    let mut skeeter = base.clone();
+    skeeter.robot = "skeeter".into();
+    skeeter.role = Role::Skeeter;
+    skeeter.devices.base = Some(BaseDevice {
+        kind: BaseKind::P2os,
+        port: e.skeeter.base.display().to_string(),
+        baud: 9600,
+        connect_timeout_s: 10.0,
+    });
+    skeeter.devices.video_mux = Some(MuxDevice {
+        port: e.skeeter.video_mux.display().to_string(),
+        baud: 9600,
+        dialect: MuxDialect::Extron,
+        cameras: 7,
+        fov_deg: 60.0,
+    });
+    skeeter.devices.frames = Some(FramesSource {
+        addr: e.skeeter.frames.clone(),
+        timeout_ms: 2000,
+    });
+    skeeter.peer = peer(0, Some(skeeter_mgr), None);
+    skeeter.peer.priorities = [("scooter".to_owned(), 2), ("commander".to_owned(), 1)].into();
+    let mut scooter = base.clone();
+    scooter.robot = "scooter".into();
+    scooter.role = Role::Scooter;
+    scooter.devices.base = Some(BaseDevice {
+        kind: BaseKind::Rflex,
+        port: e.scooter.base.display().to_string(),
+        baud: 115_200,
+        connect_timeout_s: 10.0,
+    });
+    scooter.devices.laser = Some(LaserDevice {
+        port: e.scooter.laser.display().to_string(),
+        // The mock LMS has an RS-422 link: 500 000 baud gives 75 scans/s, which a sped-up
+        // world needs (38 400 baud gives about 5).
+        baud: 500_000,
+        rs422: true,
+        power_up_wait_s: 0.0,
+    });
+    scooter.devices.compass = Some(CompassDeviceConfig {
+        port: e.scooter.compass.display().to_string(),
+        baud: 4800,
+        dialect: CompassDialect::Kvh,
+        deviation_deg: 0.0,
+    });
+    scooter.peer = peer(1, Some(scooter_mgr), Some(skeeter_mgr));
+    let mut commander = base;
+    commander.robot = "commander".into();
+    commander.role = Role::Commander;
+    commander.peer = peer(2, None, None);
+    Ok([skeeter, scooter, commander])
+}
+
+/// Write the three configurations and a fresh `group.key` into `dir`.
+pub fn write_configs(dir: &Path, e: &Endpoints, speed: f64) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let key_path = dir.join("group.key");
+    std::fs::write(&key_path, key_to_hex(&random_key()?))
+        .with_context(|| format!("writing {}", key_path.display()))?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&key_path, std::fs::Permissions::from_mode(0o600))
+            .with_context(|| format!("chmod 600 {}", key_path.display()))?;
+    }
+    let key_path = std::fs::canonicalize(&key_path).unwrap_or(key_path);
+    for c in loopback_configs(e, speed, Some(&key_path))? {
+        let path = dir.join(format!("{}.toml", c.robot));
+        let text = format!(
+            "# Written by `ima mock world --write-configs` for the world it serves.\n{}",
+            c.to_toml()?
+        );
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// Run `ima mock world` until SIGINT/SIGTERM.
+pub fn run(opts: &WorldOptions) -> Result<()> {
+    let served = serve(opts)?;
+    let e = served.endpoints().clone();
+    if let Some(dir) = &opts.write_configs {
+        write_configs(dir, &e, opts.speed)?;
+    }
+    {
+        let line = serde_json::json!({
+            "kind": "world",
+            "seed": opts.seed,
+            "speed": opts.speed,
+            "skeeter": e.skeeter,
+            "scooter": e.scooter,
+            "configs": opts.write_configs,
+        });
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{line}")?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving the world ×{} (seed {}): skeeter base {} mux {} frames {}; scooter base {} laser {} compass {}; Ctrl-C to stop",
+        opts.speed,
+        opts.seed,
+        e.skeeter.base.display(),
+        e.skeeter.video_mux.display(),
+        e.skeeter.frames,
+        e.scooter.base.display(),
+        e.scooter.laser.display(),
+        e.scooter.compass.display()
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(wait_for_signal())?;
+    drop(served);
+    Ok(())
+}
+
+/// Wait for SIGINT or SIGTERM.
+pub async fn wait_for_signal() -> Result<()> {
+    #[cfg(unix)]
+    {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+        tokio::select! {
+            r = tokio::signal::ctrl_c() => r?,
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    tokio::signal::ctrl_c().await?;
+    Ok(())
+}

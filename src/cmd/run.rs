@@ -1,0 +1,95 @@
+//! `ima run --config FILE.toml`: run one robot's stack (Skeeter or Scooter) on the configured
+//! serial ports, or on an in-process simulated world when the configuration says `mock = true`.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+use crate::config::{RobotConfig, Role};
+use crate::stack::{Events, devices, net};
+
+/// Arguments of `ima run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Configuration file (see `configs/skeeter.toml`, `configs/scooter.toml`).
+    #[arg(long)]
+    config: PathBuf,
+    /// Print events as JSON lines on stdout (else as text on stderr).
+    #[arg(long)]
+    json: bool,
+    /// Use the documented insecure all-zero key when the configuration names no key file.
+    #[arg(long)]
+    insecure: bool,
+}
+
+/// Point the devices of `cfg` at a world served in this process (`mock = true`).
+fn serve_mock(cfg: &mut RobotConfig) -> Result<ima_mock_devices::served::ServedWorld> {
+    let served = super::mock_world::serve(&super::mock_world::WorldOptions {
+        world: cfg.mock_world.world.clone(),
+        seed: cfg.mock_world.seed,
+        speed: cfg.mock_world.speed,
+        frames_addr: "127.0.0.1:0".parse()?,
+        write_configs: None,
+    })?;
+    let [sk, sc, _] = super::mock_world::loopback_configs(served.endpoints(), 1.0, None)?;
+    cfg.devices = match cfg.role {
+        Role::Skeeter => sk.devices,
+        Role::Scooter => sc.devices,
+        Role::Commander => bail!("a commander has no devices; use `ima commander`"),
+    };
+    cfg.agent.time_scale = cfg.mock_world.speed;
+    Ok(served)
+}
+
+/// Run `ima run`.
+pub fn run(args: &RunArgs) -> Result<()> {
+    let mut cfg = RobotConfig::load(&args.config)?;
+    if args.insecure && cfg.peer.key_file.is_none() {
+        cfg.peer.insecure = true;
+    }
+    let _served = if cfg.mock {
+        Some(serve_mock(&mut cfg)?)
+    } else {
+        None
+    };
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(async {
+        let key = net::group_key(&cfg, None)?;
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let json = args.json;
+        let printer = tokio::spawn(async move {
+            while let Some(e) = rx.recv().await {
+                if json {
+                    super::commander::print_event(&e, true);
+                } else {
+                    eprintln!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.kind, e.detail);
+                }
+            }
+        });
+        let events = Events::with_sink(tx);
+        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let signal = tokio::spawn(async move {
+            let _ = super::mock_world::wait_for_signal().await;
+            let _ = stop_tx.send(true);
+        });
+        let r = match cfg.role {
+            Role::Scooter => {
+                let dev = devices::open_scooter(&cfg)
+                    .await
+                    .context("opening Scooter's devices")?;
+                crate::stack::scooter::run(cfg.clone(), key, dev, events, stop_rx).await
+            }
+            Role::Skeeter => {
+                let dev = devices::open_skeeter(&cfg)
+                    .await
+                    .context("opening Skeeter's devices")?;
+                crate::stack::skeeter::run(cfg.clone(), key, dev, events, stop_rx).await
+            }
+            Role::Commander => bail!("role commander: use `ima commander --config …`"),
+        };
+        signal.abort();
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), printer).await;
+        r
+    })
+}

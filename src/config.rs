@@ -1,0 +1,536 @@
+//! Robot configuration files (TOML) for `ima run`, `ima commander` and `ima mock world
+//! --write-configs`.
+//!
+//! One file per process. Examples with real-port defaults and comments:
+//! `configs/skeeter.toml`, `configs/scooter.toml`, `configs/commander.toml`.
+//!
+//! ```toml
+//! robot = "skeeter"          # name on the broadcast channel
+//! role = "skeeter"           # skeeter | scooter | commander
+//! mock = false               # true: serve a simulated world in-process, ignore the ports
+//!
+//! [devices.base]             # P2OS (Skeeter) or rFLEX (Scooter)
+//! kind = "p2os"
+//! port = "/dev/ttyS0"
+//! baud = 9600
+//!
+//! [agent]
+//! cruise_speed_m_s = 0.3
+//!
+//! [peer]
+//! listen = "0.0.0.0:7600"
+//! key_file = "/etc/ima/group.key"
+//! ```
+//!
+//! Unknown keys are errors (a typo must not silently fall back to a default).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+
+/// What a process is in the mission.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Role {
+    /// The observer: P2OS base, camera head, SES, Peer Agent manager with the `ses` source.
+    Skeeter,
+    /// The mover: rFLEX base, laser, compass, Peer Agent client of Skeeter's `ses`.
+    Scooter,
+    /// The operator: joins the broadcast group and sends targets.
+    Commander,
+}
+
+/// One process's configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// Name on the broadcast channel and in logs (`skeeter`, `scooter`, `commander`).
+    pub robot: String,
+    /// The process's part in the mission.
+    pub role: Role,
+    /// Spawn a simulated world and its mock devices in-process instead of opening the
+    /// configured ports (the `[devices]` ports are then ignored).
+    #[serde(default)]
+    pub mock: bool,
+    /// The simulated world used when `mock = true`.
+    #[serde(default)]
+    pub mock_world: MockWorldConfig,
+    /// Serial devices and the frame source.
+    #[serde(default)]
+    pub devices: Devices,
+    /// Agent (brain) settings.
+    #[serde(default)]
+    pub agent: AgentConfig,
+    /// Peer Agent settings.
+    #[serde(default)]
+    pub peer: PeerConfig,
+}
+
+/// The simulated world of `mock = true`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MockWorldConfig {
+    /// World file (TOML); the built-in thesis arena when absent.
+    pub world: Option<PathBuf>,
+    /// Seed of the sensor noise.
+    pub seed: u64,
+    /// World time runs this many times faster than real time.
+    pub speed: f64,
+}
+
+impl Default for MockWorldConfig {
+    fn default() -> Self {
+        Self {
+            world: None,
+            seed: 1,
+            speed: 1.0,
+        }
+    }
+}
+
+/// The devices of a robot. A role needs some of them: Skeeter `base`, `video_mux`,
+/// `frames`; Scooter `base`, `laser`, `compass` (the compass is optional when the heading
+/// source is odometry).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Devices {
+    /// The mobile base.
+    pub base: Option<BaseDevice>,
+    /// The video switcher of the camera head.
+    pub video_mux: Option<MuxDevice>,
+    /// Where frames come from.
+    pub frames: Option<FramesSource>,
+    /// The SICK LMS laser scanner.
+    pub laser: Option<LaserDevice>,
+    /// The serial compass.
+    pub compass: Option<CompassDeviceConfig>,
+}
+
+/// Base protocols.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BaseKind {
+    /// Pioneer 2-AT on P2OS (Skeeter).
+    P2os,
+    /// ATRV-Jr on rFLEX (Scooter).
+    Rflex,
+}
+
+/// A mobile base on a serial port.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaseDevice {
+    /// Protocol.
+    pub kind: BaseKind,
+    /// Serial port, e.g. `/dev/ttyS0`.
+    pub port: String,
+    /// Line speed (P2OS: 9600, the driver also tries the robot's other rates; rFLEX: 115200).
+    pub baud: u32,
+    /// Seconds to wait for the base to answer.
+    #[serde(default = "default_connect_timeout")]
+    pub connect_timeout_s: f64,
+}
+
+/// Video switcher dialects.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MuxDialect {
+    /// Extron SIS.
+    #[default]
+    Extron,
+    /// Kramer Protocol 2000.
+    Kramer,
+}
+
+/// The video switcher.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MuxDevice {
+    /// Serial port.
+    pub port: String,
+    /// Line speed (Extron default 9600).
+    pub baud: u32,
+    /// Protocol.
+    #[serde(default)]
+    pub dialect: MuxDialect,
+    /// Cameras on the switcher's inputs `1..=cameras`, counter-clockwise from forward.
+    #[serde(default = "default_cameras")]
+    pub cameras: u8,
+    /// Horizontal field of view of each camera, degrees.
+    #[serde(default = "default_fov")]
+    pub fov_deg: f64,
+}
+
+/// A frame source.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FramesSource {
+    /// A frame server (`ima_video_mux::net_frames` protocol), `host:port`. On the robot this
+    /// is the grabber's server; with the mocks, the address `ima mock world` prints.
+    pub addr: String,
+    /// Per-grab timeout, milliseconds.
+    #[serde(default = "default_grab_timeout")]
+    pub timeout_ms: u64,
+}
+
+/// The SICK LMS.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LaserDevice {
+    /// Serial port.
+    pub port: String,
+    /// Rate to run at after the probe (9600, 19200, 38400 or 500000).
+    pub baud: u32,
+    /// An RS-422 link is fitted (500 000 baud possible).
+    #[serde(default)]
+    pub rs422: bool,
+    /// Seconds to wait for the unit's power-on telegram (units powered with the port).
+    #[serde(default)]
+    pub power_up_wait_s: f64,
+}
+
+/// Compass dialects.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CompassDialect {
+    /// KVH C100 (configured to NMEA at 10 Hz).
+    #[default]
+    Kvh,
+    /// Any NMEA 0183 heading source, listen only.
+    Nmea,
+    /// PNI TCM2.
+    Tcm2,
+}
+
+/// The serial compass.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CompassDeviceConfig {
+    /// Serial port.
+    pub port: String,
+    /// Line speed (NMEA/KVH 4800, TCM2 9600).
+    pub baud: u32,
+    /// Dialect.
+    #[serde(default)]
+    pub dialect: CompassDialect,
+    /// Installation deviation, degrees east (heading = compass + deviation).
+    #[serde(default)]
+    pub deviation_deg: f64,
+}
+
+/// Heading-calculation rules (issue 8 / thesis).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HeadingRule {
+    /// The thesis's isosceles rule.
+    Thesis,
+    /// The range-aware rule (uses Skeeter's range estimates).
+    #[default]
+    RangeAware,
+}
+
+/// Where Scooter's heading comes from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HeadingSource {
+    /// The compass only.
+    Compass,
+    /// Odometry only.
+    Odometry,
+    /// Both (odometry, corrected by the compass).
+    #[default]
+    Both,
+}
+
+/// A colour of the colour database.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColourEntry {
+    /// Name (the target's name for the commander).
+    pub name: String,
+    /// Reference colour.
+    pub rgb: [u8; 3],
+    /// Diameter of objects of that colour, metres (for range estimates).
+    pub diameter_m: f64,
+}
+
+/// Agent (brain) settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AgentConfig {
+    /// Scooter: heading-calculation rule.
+    pub heading_rule: HeadingRule,
+    /// Scooter: heading source.
+    pub heading_source: HeadingSource,
+    /// Scooter: cruise speed, m/s.
+    pub cruise_speed_m_s: f64,
+    /// Scooter: largest turn rate, rad/s.
+    pub max_turn_rad_s: f64,
+    /// Scooter: brain steps per second.
+    pub control_hz: f64,
+    /// Skeeter: a target not accomplished within this many (mission) seconds fails.
+    pub target_timeout_s: f64,
+    /// Scooter: the target counts as reached when its centre is this close to Scooter's
+    /// centre, metres (ATRV-Jr radius 0.4 m + object radius 0.15 m + clearance).
+    pub reach_distance_m: f64,
+    /// Scooter, range-aware rule: also range Skeeter with the laser (a cluster of Skeeter's
+    /// diameter where its bearing says). Off by default: in the real-time runtime the laser
+    /// fix led Scooter astray (targets reached late or falsely; see the CHANGELOG).
+    pub laser_ranges_skeeter: bool,
+    /// Scooter: seconds without a fresh SES before the lost timer fires.
+    pub lost_timeout_s: f64,
+    /// Mission clocks run this many times faster than real time. 1 on a real robot; the
+    /// world's speed factor with `ima mock world --speed`.
+    pub time_scale: f64,
+    /// Skeeter: SAN network file (TOML, `agents/networks/skeeter.toml` format); the built-in
+    /// network when absent. (Scooter's brain always runs its built-in network.)
+    pub network: Option<PathBuf>,
+    /// Compass heading (degrees clockwise from north) of the robots' common initial heading,
+    /// i.e. the way Skeeter faces; 90 (east) in the built-in arena.
+    pub common_heading_deg: f64,
+    /// Scooter without a compass: its heading at start in the common frame, degrees
+    /// counter-clockwise (with a compass the first reading gives it).
+    pub initial_heading_deg: Option<f64>,
+    /// Scooter: priority of its request for Skeeter's `ses` source.
+    pub ses_request_priority: u8,
+    /// Skeeter: the colour database (empty: the built-in thesis colours).
+    pub colours: Vec<ColourEntry>,
+}
+
+impl Default for AgentConfig {
+    fn default() -> Self {
+        Self {
+            heading_rule: HeadingRule::default(),
+            heading_source: HeadingSource::default(),
+            cruise_speed_m_s: 0.3,
+            max_turn_rad_s: 0.8,
+            control_hz: 10.0,
+            target_timeout_s: 180.0,
+            reach_distance_m: 1.0,
+            laser_ranges_skeeter: false,
+            lost_timeout_s: 20.0,
+            time_scale: 1.0,
+            network: None,
+            common_heading_deg: 90.0,
+            initial_heading_deg: None,
+            ses_request_priority: 5,
+            colours: Vec::new(),
+        }
+    }
+}
+
+/// Peer Agent settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PeerConfig {
+    /// This robot's manager listens here (TCP); empty: no manager (the commander).
+    pub listen: String,
+    /// The manager's data server (TCP) listens here (port 0: any free port).
+    pub data_listen: String,
+    /// The data address put in grants (set it on a LAN when `data_listen` is `0.0.0.0`).
+    pub data_advertise: Option<String>,
+    /// The manager whose sources this robot requests (Scooter: Skeeter's manager).
+    pub connect: Option<String>,
+    /// The group key file (32 random bytes, or 64 hex characters). Required unless
+    /// `insecure`.
+    pub key_file: Option<PathBuf>,
+    /// Run with a well-known all-zero key (tests and local experiments only).
+    pub insecure: bool,
+    /// Broadcast multicast group and port, `239.x.y.z:port`; empty: unicast only.
+    pub broadcast_group: String,
+    /// Unicast broadcast peers (`host:port`), the fallback where multicast is not routed.
+    pub broadcast_peers: Vec<String>,
+    /// Local address the broadcast socket binds, `ip:port`. Default: all interfaces on the
+    /// group's port. With unicast peers on one host every process needs its own port.
+    pub broadcast_bind: Option<String>,
+    /// Robot priorities of the manager's three-part priority (higher wins).
+    pub priorities: BTreeMap<String, u8>,
+    /// Heartbeat period, milliseconds.
+    pub heartbeat_ms: u64,
+}
+
+impl Default for PeerConfig {
+    fn default() -> Self {
+        Self {
+            listen: String::new(),
+            data_listen: "0.0.0.0:0".into(),
+            data_advertise: None,
+            connect: None,
+            key_file: None,
+            insecure: false,
+            broadcast_group: "239.255.73.77:7601".into(),
+            broadcast_peers: Vec::new(),
+            broadcast_bind: None,
+            priorities: BTreeMap::new(),
+            heartbeat_ms: 100,
+        }
+    }
+}
+
+fn default_connect_timeout() -> f64 {
+    10.0
+}
+fn default_cameras() -> u8 {
+    7
+}
+fn default_fov() -> f64 {
+    60.0
+}
+fn default_grab_timeout() -> u64 {
+    2000
+}
+
+impl RobotConfig {
+    /// Parse and check a configuration.
+    pub fn from_toml_str(s: &str) -> Result<Self> {
+        let c: Self = toml::from_str(s).context("parsing the configuration")?;
+        c.check()?;
+        Ok(c)
+    }
+
+    /// Read, parse and check a configuration file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let s =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        Self::from_toml_str(&s).with_context(|| format!("in {}", path.display()))
+    }
+
+    /// The configuration as TOML.
+    pub fn to_toml(&self) -> Result<String> {
+        toml::to_string_pretty(self).context("writing the configuration")
+    }
+
+    /// Check values and that the role's devices are configured (unless `mock`).
+    pub fn check(&self) -> Result<()> {
+        let a = &self.agent;
+        let positive = [
+            ("agent.cruise_speed_m_s", a.cruise_speed_m_s),
+            ("agent.max_turn_rad_s", a.max_turn_rad_s),
+            ("agent.control_hz", a.control_hz),
+            ("agent.target_timeout_s", a.target_timeout_s),
+            ("agent.lost_timeout_s", a.lost_timeout_s),
+            ("agent.reach_distance_m", a.reach_distance_m),
+            ("agent.time_scale", a.time_scale),
+            ("mock_world.speed", self.mock_world.speed),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("{name} must be a positive number, not {v}");
+            }
+        }
+        if a.cruise_speed_m_s > 1.0 {
+            bail!("agent.cruise_speed_m_s must be at most 1 m/s");
+        }
+        if self.robot.trim().is_empty() {
+            bail!("robot must be a non-empty name");
+        }
+        if !self.peer.insecure && self.peer.key_file.is_none() && !self.mock {
+            bail!("peer.key_file is required (or peer.insecure = true for local tests)");
+        }
+        if self.mock {
+            return Ok(());
+        }
+        let d = &self.devices;
+        let need = |what: &str, present: bool| {
+            if present {
+                Ok(())
+            } else {
+                Err(anyhow::anyhow!(
+                    "role {:?} needs [devices.{what}] (or mock = true)",
+                    self.role
+                ))
+            }
+        };
+        match self.role {
+            Role::Skeeter => {
+                need("base", d.base.is_some())?;
+                need("video_mux", d.video_mux.is_some())?;
+                need("frames", d.frames.is_some())?;
+                if let Some(b) = &d.base
+                    && b.kind != BaseKind::P2os
+                {
+                    bail!("Skeeter's base is a P2OS robot (devices.base.kind = \"p2os\")");
+                }
+            }
+            Role::Scooter => {
+                if a.network.is_some() {
+                    bail!("agent.network: Scooter's brain runs its built-in network");
+                }
+                need("base", d.base.is_some())?;
+                need("laser", d.laser.is_some())?;
+                if a.heading_source != HeadingSource::Odometry {
+                    need("compass", d.compass.is_some())?;
+                }
+                if let Some(b) = &d.base
+                    && b.kind != BaseKind::Rflex
+                {
+                    bail!("Scooter's base is an rFLEX robot (devices.base.kind = \"rflex\")");
+                }
+                if self.peer.connect.is_none() {
+                    bail!("Scooter needs peer.connect (Skeeter's manager address)");
+                }
+            }
+            Role::Commander => {}
+        }
+        Ok(())
+    }
+}
+
+/// Write `key` as 64 hex characters and a newline.
+pub fn key_to_hex(key: &[u8; 32]) -> String {
+    let mut s: String = key.iter().map(|b| format!("{b:02x}")).collect();
+    s.push('\n');
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn example(name: &str) -> String {
+        std::fs::read_to_string(format!("{}/configs/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+    }
+
+    #[test]
+    fn example_configs_parse_and_check() {
+        let sk = RobotConfig::from_toml_str(&example("skeeter.toml")).unwrap();
+        assert_eq!(sk.role, Role::Skeeter);
+        assert_eq!(sk.devices.base.as_ref().unwrap().port, "/dev/ttyS0");
+        let sc = RobotConfig::from_toml_str(&example("scooter.toml")).unwrap();
+        assert_eq!(sc.role, Role::Scooter);
+        assert_eq!(sc.devices.base.as_ref().unwrap().kind, BaseKind::Rflex);
+        let c = RobotConfig::from_toml_str(&example("commander.toml")).unwrap();
+        assert_eq!(c.role, Role::Commander);
+        // Round trip through TOML.
+        assert_eq!(
+            RobotConfig::from_toml_str(&sc.to_toml().unwrap()).unwrap(),
+            sc
+        );
+    }
+
+    #[test]
+    fn mistakes_are_reported() {
+        let base = "robot = \"skeeter\"\nrole = \"skeeter\"\n[peer]\ninsecure = true\n";
+        let e = RobotConfig::from_toml_str(base).unwrap_err();
+        assert!(format!("{e:#}").contains("devices.base"), "{e:#}");
+        let typo = format!("{base}\n[agent]\ncruise_sped_m_s = 1.0\n");
+        assert!(RobotConfig::from_toml_str(&typo).is_err());
+        let slow =
+            "robot = \"x\"\nrole = \"commander\"\nmock = true\n[agent]\ncruise_speed_m_s = -1\n";
+        assert!(RobotConfig::from_toml_str(slow).is_err());
+        let nokey = "robot = \"c\"\nrole = \"commander\"\n";
+        let e = RobotConfig::from_toml_str(nokey).unwrap_err();
+        assert!(format!("{e:#}").contains("key_file"), "{e:#}");
+        let mock = "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n";
+        assert!(RobotConfig::from_toml_str(mock).unwrap().mock);
+    }
+
+    #[test]
+    fn hex_keys_are_what_the_peer_agent_reads() {
+        let raw = [7u8; 32];
+        assert!(ima_agents::peer::net::parse_key(key_to_hex(&raw).as_bytes()).is_ok());
+        assert!(ima_agents::peer::net::parse_key(b"0123").is_err());
+    }
+}

@@ -1,0 +1,88 @@
+//! `ima demo` (issue 8) accomplishes every target on a handful of seeds: the whole mission in
+//! one process (world, every mock device on a pty, both robots' stacks through their real
+//! drivers, the three Peer Agents on loopback), sped up four times. The default seed and 20
+//! others: `scripts/demo-seeds.sh`.
+
+mod common;
+use common::{ima, json_lines};
+
+fn demo(seed: u64, svg: &std::path::Path) -> serde_json::Value {
+    let out = ima()
+        .args([
+            "demo",
+            "--json",
+            "--speed",
+            "4",
+            "--seed",
+            &seed.to_string(),
+            "--svg",
+        ])
+        .arg(svg)
+        .output()
+        .unwrap();
+    let lines = json_lines(&out.stdout);
+    let summary = lines
+        .iter()
+        .find(|l| l["kind"] == "summary")
+        .cloned()
+        .unwrap_or_else(|| {
+            panic!(
+                "seed {seed}: no summary; {}",
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    assert!(out.status.success(), "seed {seed}: {summary}");
+    // Live events came first: targets went processing → done, robots changed behaviour.
+    assert!(
+        lines
+            .iter()
+            .any(|l| l["kind"] == "target" && l["detail"]["state"] == "processing")
+    );
+    assert!(lines.iter().any(|l| l["kind"] == "behaviour"
+        && l["robot"] == "scooter"
+        && l["detail"] == "move-to-target"));
+    summary
+}
+
+#[test]
+fn demo_accomplishes_every_target_on_several_seeds() {
+    let dir = std::env::temp_dir().join(format!("ima-demo-seeds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let seeds = [1u64, 7, 13];
+    let runs: Vec<_> = seeds
+        .iter()
+        .map(|&s| {
+            let svg = dir.join(format!("demo-{s}.svg"));
+            std::thread::spawn(move || (s, demo(s, &svg), svg))
+        })
+        .collect();
+    for r in runs {
+        let (seed, summary, svg) = r.join().unwrap();
+        assert_eq!(summary["done"], 3, "seed {seed}: {summary}");
+        assert_eq!(summary["failed"], 0, "seed {seed}: {summary}");
+        for t in summary["targets"].as_array().unwrap() {
+            assert_eq!(t["state"], "done", "seed {seed}: {t}");
+            let f = t["performance"].as_f64().unwrap();
+            assert!(f > 0.0 && f <= 1.0, "seed {seed}: {t}");
+            assert!(t["distance_m"].as_f64().unwrap() > 0.5, "seed {seed}: {t}");
+        }
+        let picture = std::fs::read_to_string(&svg).unwrap();
+        assert!(picture.starts_with("<svg") && picture.contains("<polyline"));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn demo_square_is_still_there() {
+    let out = ima()
+        .args(["demo", "square", "--side", "0.3", "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = json_lines(&out.stdout);
+    assert_eq!(v.iter().filter(|x| x["kind"] == "corner").count(), 4);
+}
