@@ -1,5 +1,7 @@
 //! Loopback tests of the Peer Agent net shell (feature `net`): real sockets on 127.0.0.1.
-//! No timing assertions beyond generous "reported within" bounds.
+//! No timing assertions: every wait is bounded by a generous timeout so that a failure fails
+//! instead of hanging, and heartbeats are long (500 ms) so that a loaded CI machine does not
+//! declare a live peer lost; only the loss-detection test uses a shorter interval.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -17,7 +19,10 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::time::timeout;
 
-const GENEROUS: Duration = Duration::from_secs(5);
+const GENEROUS: Duration = Duration::from_secs(20);
+
+/// Heartbeat interval of every test but the loss-detection one (loss window 1.5 s).
+const HEARTBEAT_MS: u64 = 500;
 
 fn key() -> GroupKey {
     GroupKey::from_array(*b"group key of the test fleet, 32b")
@@ -25,8 +30,16 @@ fn key() -> GroupKey {
 
 fn cfg(robot: &str) -> PeerNetConfig {
     let mut c = PeerNetConfig::loopback(robot);
-    c.heartbeat_ms = 50;
+    c.heartbeat_ms = HEARTBEAT_MS;
     c
+}
+
+/// Awaits `f` for at most [`GENEROUS`]; a hang becomes a failure.
+async fn within<T>(what: &str, f: impl std::future::Future<Output = T>) -> T {
+    match timeout(GENEROUS, f).await {
+        Ok(v) => v,
+        Err(_) => panic!("timed out waiting for {what}"),
+    }
 }
 
 fn info(name: &str) -> SourceInfo {
@@ -96,25 +109,29 @@ async fn client_streams_a_source_end_to_end() {
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
-    let sources = c.register().await.unwrap();
+    let sources = within("register", c.register()).await.unwrap();
     assert!(sources.iter().any(|s| s.name == "counter"));
-    let mut sub = c.request("counter", 1).await.unwrap();
+    let mut sub = within("request", c.request("counter", 1)).await.unwrap();
     expect_samples(&mut sub, 20).await;
     assert!(matches!(
-        c.request("counter", 1).await,
+        within("request", c.request("counter", 1)).await,
         Err(NetError::AlreadySubscribed)
     ));
     assert!(matches!(
-        c.request("nope", 1).await,
+        within("request", c.request("nope", 1)).await,
         Err(NetError::Denied(_))
     ));
-    let st = m.stats().await.unwrap();
+    let st = within("stats", m.stats()).await.unwrap();
     assert_eq!(st.clients, 1);
     assert_eq!(st.data_sessions, 1);
-    c.disconnect("counter").await.unwrap();
+    within("disconnect", c.disconnect("counter")).await.unwrap();
     assert_eq!(end_of(&mut sub).await, EndReason::Disconnected);
-    assert!(sub.next().await.is_none());
-    c.unregister().await.unwrap();
+    assert!(
+        within("end of the subscription", sub.next())
+            .await
+            .is_none()
+    );
+    within("unregister", c.unregister()).await.unwrap();
 }
 
 #[tokio::test]
@@ -123,7 +140,7 @@ async fn sources_added_and_removed_at_runtime() {
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
-    assert!(c.register().await.unwrap().is_empty());
+    assert!(within("register", c.register()).await.unwrap().is_empty());
     let p = m.publisher(info("late"));
     timeout(GENEROUS, async {
         while !c
@@ -140,7 +157,7 @@ async fn sources_added_and_removed_at_runtime() {
     .await
     .unwrap();
     let pumping = pump(p);
-    let mut sub = c.request("late", 0).await.unwrap();
+    let mut sub = within("request", c.request("late", 0)).await.unwrap();
     expect_samples(&mut sub, 3).await;
     pumping.abort(); // drops the publisher: the source is gone
     assert_eq!(
@@ -173,10 +190,10 @@ async fn task_priority_gates_revokes_and_regrants() {
             .await
             .unwrap(),
     );
-    c.register().await.unwrap();
+    within("register", c.register()).await.unwrap();
     // Priority 3 < task 5: pending until the task priority falls.
     let c2 = c.clone();
-    let req = tokio::spawn(async move { c2.request("ses", 3).await });
+    let req = tokio::spawn(async move { within("request", c2.request("ses", 3)).await });
     tokio::time::sleep(Duration::from_millis(100)).await;
     assert!(!req.is_finished(), "a pending request waits");
     m.set_task_priority(Some(2));
@@ -247,7 +264,13 @@ async fn silent_manager_is_declared_lost_within_three_heartbeats() {
     let data_up = Arc::new(Mutex::new(None));
     let req_proxy = proxy(req_up.clone(), cut.clone()).await;
     let data_proxy = proxy(data_up.clone(), cut.clone()).await;
-    let mut mc = cfg("skeeter");
+    // The one test with a short heartbeat: 200 ms (0.6 s loss window).
+    let short = |robot: &str| {
+        let mut c = cfg(robot);
+        c.heartbeat_ms = 200;
+        c
+    };
+    let mut mc = short("skeeter");
     mc.manager.data_advertise = Some(data_proxy.to_string());
     let m = spawn_manager(&mc, key(), FixedSelfAgent::new(0, Vec::new()))
         .await
@@ -255,14 +278,13 @@ async fn silent_manager_is_declared_lost_within_three_heartbeats() {
     *req_up.lock().unwrap() = Some(m.local_addr());
     *data_up.lock().unwrap() = Some(m.data_addr());
     let _p = pump(m.publisher(info("counter")));
-    let c = PeerClientHandle::connect(req_proxy, &cfg("scooter"), key())
+    let c = PeerClientHandle::connect(req_proxy, &short("scooter"), key())
         .await
         .unwrap();
-    c.register().await.unwrap();
-    let mut sub = c.request("counter", 0).await.unwrap();
+    within("register", c.register()).await.unwrap();
+    let mut sub = within("request", c.request("counter", 0)).await.unwrap();
     expect_samples(&mut sub, 5).await;
     cut.store(true, Ordering::SeqCst);
-    let t0 = tokio::time::Instant::now();
     let reason = end_of(&mut sub).await;
     assert!(
         matches!(
@@ -271,8 +293,7 @@ async fn silent_manager_is_declared_lost_within_three_heartbeats() {
         ),
         "{reason:?}"
     );
-    // Reported (generous bound: 3 heartbeats are 150 ms here).
-    assert!(t0.elapsed() < Duration::from_secs(3));
+    // Reported: `end_of` bounds the wait generously; no assertion on the elapsed time.
     // The client's side goes on running: its handle answers, with the loss.
     timeout(GENEROUS, async {
         while !c.is_lost() {
@@ -281,16 +302,19 @@ async fn silent_manager_is_declared_lost_within_three_heartbeats() {
     })
     .await
     .unwrap();
-    assert!(matches!(c.register().await, Err(NetError::ManagerLost)));
+    assert!(matches!(
+        within("register", c.register()).await,
+        Err(NetError::ManagerLost)
+    ));
     // The manager, too, saw the silent client go.
     timeout(GENEROUS, async {
-        while m.stats().await.unwrap().clients != 0 {
+        while within("stats", m.stats()).await.unwrap().clients != 0 {
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
     })
     .await
     .unwrap();
-    assert!(m.stats().await.unwrap().core.lost >= 1);
+    assert!(within("stats", m.stats()).await.unwrap().core.lost >= 1);
 }
 
 #[tokio::test]
@@ -301,9 +325,9 @@ async fn killed_manager_closes_every_session() {
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
-    c.register().await.unwrap();
-    let mut a = c.request("a", 0).await.unwrap();
-    let mut b = c.request("b", 0).await.unwrap();
+    within("register", c.register()).await.unwrap();
+    let mut a = within("request", c.request("a", 0)).await.unwrap();
+    let mut b = within("request", c.request("b", 0)).await.unwrap();
     expect_samples(&mut a, 2).await;
     expect_samples(&mut b, 2).await;
     m.abort();
@@ -323,18 +347,12 @@ async fn orderly_shutdown_revokes_grants() {
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
-    c.register().await.unwrap();
-    let mut a = c.request("a", 0).await.unwrap();
+    within("register", c.register()).await.unwrap();
+    let mut a = within("request", c.request("a", 0)).await.unwrap();
     expect_samples(&mut a, 2).await;
-    m.shutdown().await;
+    within("shutdown", m.shutdown()).await;
     let r = end_of(&mut a).await;
-    assert!(
-        matches!(
-            r,
-            EndReason::Revoked(RevokeReason::Shutdown) | EndReason::ManagerLost
-        ),
-        "{r:?}"
-    );
+    assert_eq!(r, EndReason::Revoked(RevokeReason::Shutdown));
 }
 
 async fn closed_by_peer(mut s: TcpStream) -> bool {
@@ -358,8 +376,8 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
     let good = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
-    good.register().await.unwrap();
-    let mut sub = good.request("counter", 0).await.unwrap();
+    within("register", good.register()).await.unwrap();
+    let mut sub = within("request", good.request("counter", 0)).await.unwrap();
     expect_samples(&mut sub, 3).await;
 
     let register = |client| Msg::Register {
@@ -388,7 +406,7 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
     let mut s1 = TcpStream::connect(m.local_addr()).await.unwrap();
     s1.write_all(&recorded).await.unwrap();
     let mut buf = [0u8; 512];
-    let n = timeout(GENEROUS, s1.read(&mut buf)).await.unwrap().unwrap();
+    let n = within("Registered", s1.read(&mut buf)).await.unwrap();
     assert!(n > 0, "the original frame is answered (Registered)");
     let mut s2 = TcpStream::connect(m.local_addr()).await.unwrap();
     s2.write_all(&recorded).await.unwrap();
@@ -431,7 +449,7 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
         Err(NetError::ManagerLost)
     ));
 
-    let st = m.stats().await.unwrap();
+    let st = within("stats", m.stats()).await.unwrap();
     let r = st.core.rejects;
     assert!(r.bad_mac >= 2, "{r:?}");
     assert!(r.bad_magic >= 1, "{r:?}");
@@ -440,7 +458,7 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
     assert!(st.data_bad_tickets >= 1, "{st:?}");
     timeout(GENEROUS, async {
         loop {
-            let d = m.stats().await.unwrap().data_rejects;
+            let d = within("stats", m.stats()).await.unwrap().data_rejects;
             if d.bad_magic >= 1 && d.bad_mac >= 1 {
                 break;
             }
@@ -455,12 +473,21 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_hundred_clients_register_at_once() {
-    let m = manager("skeeter").await;
+    // Long heartbeats (3 s loss window) and generous waits: 400 sessions on a loaded
+    // 2-core machine must not be declared lost while they queue.
+    let slow = |robot: &str| {
+        let mut c = cfg(robot);
+        c.heartbeat_ms = 1000;
+        c
+    };
+    let m = spawn_manager(&slow("skeeter"), key(), FixedSelfAgent::new(0, Vec::new()))
+        .await
+        .unwrap();
     let addr = m.local_addr();
     let mut tasks = Vec::new();
     for i in 0..200 {
         tasks.push(tokio::spawn(async move {
-            let c = PeerClientHandle::connect(addr, &cfg(&format!("r{i}")), key())
+            let c = PeerClientHandle::connect(addr, &slow(&format!("r{i}")), key())
                 .await
                 .unwrap();
             let r = c.register().await;
@@ -469,29 +496,43 @@ async fn two_hundred_clients_register_at_once() {
     }
     let mut clients = Vec::new();
     for t in tasks {
-        let (c, r) = timeout(Duration::from_secs(30), t).await.unwrap().unwrap();
+        let (c, r) = timeout(Duration::from_secs(120), t)
+            .await
+            .expect("a registration in time")
+            .unwrap();
         r.unwrap();
         clients.push(c);
     }
-    let st = m.stats().await.unwrap();
+    let st = within("stats", m.stats()).await.unwrap();
     assert_eq!(st.clients, 200);
     assert_eq!(st.sessions, 200);
     let ids: std::collections::BTreeSet<u64> = {
         let mut v = std::collections::BTreeSet::new();
         for c in &clients {
-            v.insert(c.sources().await.unwrap().0);
+            v.insert(within("sources", c.sources()).await.unwrap().0);
         }
         v
     };
     assert_eq!(ids.len(), 200);
 }
 
+/// A UDP port that no other test of this process was given: the channels share ports
+/// through `SO_REUSEPORT`, so two tests handed the same free port would hear each other.
+/// The port is free when picked (a socket without `SO_REUSE*` got it from the kernel) and
+/// never handed out twice in this process.
 fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    static GIVEN: Mutex<std::collections::BTreeSet<u16>> =
+        Mutex::new(std::collections::BTreeSet::new());
+    loop {
+        let port = std::net::UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        if GIVEN.lock().unwrap().insert(port) {
+            return port;
+        }
+    }
 }
 
 fn bcfg(robot: &str, mode: BroadcastMode, port: u16, peers: &[u16]) -> PeerNetConfig {

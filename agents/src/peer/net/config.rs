@@ -114,6 +114,13 @@ impl PeerNetConfig {
     pub fn heartbeat(&self) -> Duration {
         Duration::from_millis(self.heartbeat_ms.max(1))
     }
+
+    /// The loss window: `missed_heartbeats` heartbeat intervals.
+    #[must_use]
+    pub fn loss_window(&self) -> Duration {
+        self.heartbeat()
+            .saturating_mul(self.missed_heartbeats.max(1))
+    }
 }
 
 /// The manager's sockets and rules.

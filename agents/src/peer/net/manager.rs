@@ -153,8 +153,12 @@ enum Ctl {
     SetTaskPriority(Option<u8>),
     Stats(oneshot::Sender<ManagerNetStats>),
     Status(oneshot::Sender<Vec<ClientStatus>>),
-    Shutdown(oneshot::Sender<()>),
+    /// Answered with the writer tasks of the closed sessions, to be awaited.
+    Shutdown(oneshot::Sender<Vec<JoinHandle<()>>>),
 }
+
+/// Data-session tasks, kept so that shutdown can await their last frames.
+type DataTasks = Arc<Mutex<Vec<JoinHandle<()>>>>;
 
 enum Io {
     Accepted {
@@ -162,6 +166,7 @@ enum Io {
         addr: SocketAddr,
         tx: mpsc::Sender<Vec<u8>>,
         reader: AbortHandle,
+        writer: JoinHandle<()>,
     },
     Frame {
         peer: PeerId,
@@ -256,6 +261,8 @@ pub struct ManagerHandle {
     events: broadcast::Sender<ManagerNetEvent>,
     shared: Arc<SharedRef>,
     tasks: Vec<JoinHandle<()>>,
+    data_tasks: DataTasks,
+    flush_limit: Duration,
     data_queue: usize,
     max_payload: usize,
 }
@@ -339,22 +346,50 @@ impl ManagerHandle {
         rx.await.map_err(|_| NetError::Closed)
     }
 
-    /// Orderly shutdown: every grant is revoked (`Shutdown`), queued frames are written,
-    /// then every socket is closed.
+    /// Orderly shutdown: every grant is revoked (`Shutdown`) on the request channel and
+    /// on every data session, and this returns only once those frames are written and the
+    /// sockets closed (or after the loss window, at least 1 s, for a peer that does not
+    /// read); then every task is stopped.
     pub async fn shutdown(mut self) {
+        let limit = self.flush_limit;
         let (tx, rx) = oneshot::channel();
-        if self.ctl.send(Ctl::Shutdown(tx)).is_ok() {
-            let _ = tokio::time::timeout(Duration::from_secs(2), rx).await;
+        let mut writers = Vec::new();
+        if self.ctl.send(Ctl::Shutdown(tx)).is_ok()
+            && let Ok(Ok(w)) = tokio::time::timeout(limit, rx).await
+        {
+            writers = w;
         }
+        // The accept loops stop taking new sessions.
         for t in self.tasks.drain(..) {
             t.abort();
+        }
+        let data: Vec<JoinHandle<()>> = std::mem::take(&mut *lock(&self.data_tasks));
+        let mut set = tokio::task::JoinSet::new();
+        let mut aborts = Vec::new();
+        for h in writers.into_iter().chain(data) {
+            aborts.push(h.abort_handle());
+            set.spawn(async move {
+                let _ = h.await;
+            });
+        }
+        let _ =
+            tokio::time::timeout(limit, async { while set.join_next().await.is_some() {} }).await;
+        for a in aborts {
+            a.abort();
         }
     }
 
     /// Abrupt stop, as if the process died: every task is aborted and every socket closed
     /// without a word to the clients.
     pub fn abort(mut self) {
+        self.stop();
+    }
+
+    fn stop(&mut self) {
         for t in self.tasks.drain(..) {
+            t.abort();
+        }
+        for t in lock(&self.data_tasks).drain(..) {
             t.abort();
         }
     }
@@ -362,9 +397,7 @@ impl ManagerHandle {
 
 impl Drop for ManagerHandle {
     fn drop(&mut self) {
-        for t in self.tasks.drain(..) {
-            t.abort();
-        }
+        self.stop();
     }
 }
 
@@ -425,6 +458,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     let (io_tx, io_rx) = mpsc::channel(IO_QUEUE);
     let (ev_tx, _) = broadcast::channel(EVENT_QUEUE);
     let max_body = cfg.max_body;
+    let data_tasks: DataTasks = Arc::default();
     let session_queue = cfg.manager.session_queue.max(1);
     let mut dcfg = DataConfig::new(0);
     dcfg.heartbeat = hb;
@@ -454,6 +488,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
             ev_tx.clone(),
             key,
             dcfg,
+            data_tasks.clone(),
         )),
     ];
     Ok(ManagerHandle {
@@ -463,6 +498,8 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         events: ev_tx,
         shared: Arc::new(SharedRef(shared)),
         tasks,
+        data_tasks,
+        flush_limit: cfg.loss_window().max(Duration::from_secs(1)),
         data_queue: cfg.manager.data_queue,
         max_payload: max_body.saturating_sub(SAMPLE_OVERHEAD),
     })
@@ -471,6 +508,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
 struct SessionRec {
     tx: mpsc::Sender<Vec<u8>>,
     reader: AbortHandle,
+    writer: JoinHandle<()>,
 }
 
 struct ManagerTask<A: SelfAgent> {
@@ -502,8 +540,8 @@ impl<A: SelfAgent> ManagerTask<A> {
             tokio::select! {
                 c = ctl.recv() => match c {
                     Some(Ctl::Shutdown(done)) => {
-                        self.shutdown();
-                        let _ = done.send(());
+                        let writers = self.shutdown();
+                        let _ = done.send(writers);
                         return;
                     }
                     Some(c) => self.handle_ctl(c),
@@ -594,8 +632,10 @@ impl<A: SelfAgent> ManagerTask<A> {
                 addr,
                 tx,
                 reader,
+                writer,
             } => {
-                self.sessions.insert(peer, SessionRec { tx, reader });
+                self.sessions
+                    .insert(peer, SessionRec { tx, reader, writer });
                 self.core.connect(peer, now);
                 let _ = self
                     .events
@@ -613,11 +653,13 @@ impl<A: SelfAgent> ManagerTask<A> {
         }
     }
 
-    fn close_session(&mut self, peer: PeerId) {
-        if let Some(s) = self.sessions.remove(&peer) {
-            // Dropping the sender lets the writer flush what is queued, then close.
+    /// Closes a session; returns its writer task, which flushes what is queued and then
+    /// closes the socket (dropping the sender ends it).
+    fn close_session(&mut self, peer: PeerId) -> Option<JoinHandle<()>> {
+        self.sessions.remove(&peer).map(|s| {
             s.reader.abort();
-        }
+            s.writer
+        })
     }
 
     fn flush(&mut self) {
@@ -634,7 +676,7 @@ impl<A: SelfAgent> ManagerTask<A> {
             }
             for peer in slow {
                 if self.sessions.contains_key(&peer) {
-                    self.close_session(peer);
+                    let _ = self.close_session(peer);
                     self.slow_closed = self.slow_closed.saturating_add(1);
                     self.core.disconnect(peer, self.clock.now());
                     let _ = self
@@ -651,7 +693,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                         clients,
                     } => {
                         tracing::warn!(peer, ?reason, ?clients, "peer manager: session closed");
-                        self.close_session(*peer);
+                        let _ = self.close_session(*peer);
                     }
                     ManagerEvent::Decision(d) => {
                         let reason = match d.outcome {
@@ -687,7 +729,9 @@ impl<A: SelfAgent> ManagerTask<A> {
         }
     }
 
-    fn shutdown(&mut self) {
+    /// Revokes everything (`Shutdown`), queues the frames and closes every session;
+    /// returns the writer tasks still flushing.
+    fn shutdown(&mut self) -> Vec<JoinHandle<()>> {
         let now = self.clock.now();
         self.core.shutdown(now);
         self.flush();
@@ -695,9 +739,10 @@ impl<A: SelfAgent> ManagerTask<A> {
             let _ = tx.send(RevokeReason::Shutdown);
         }
         let peers: Vec<PeerId> = self.sessions.keys().copied().collect();
-        for p in peers {
-            self.close_session(p);
-        }
+        peers
+            .into_iter()
+            .filter_map(|p| self.close_session(p))
+            .collect()
     }
 }
 
@@ -722,7 +767,7 @@ async fn accept_sessions(
         let peer = next;
         let (mut rd, wr) = stream.into_split();
         let (tx, rx) = mpsc::channel(session_queue);
-        tokio::spawn(write_frames(wr, rx));
+        let writer = tokio::spawn(write_frames(wr, rx));
         let io2 = io.clone();
         let reader = tokio::spawn(async move {
             let mut fr = FrameReader::new(max_body);
@@ -746,6 +791,7 @@ async fn accept_sessions(
             addr,
             tx,
             reader: reader.abort_handle(),
+            writer,
         };
         if io.send(accepted).await.is_err() {
             reader.abort();
@@ -760,6 +806,7 @@ async fn accept_data(
     events: broadcast::Sender<ManagerNetEvent>,
     key: GroupKey,
     dcfg: DataConfig,
+    tasks: DataTasks,
 ) {
     loop {
         let stream = match listener.accept().await {
@@ -774,13 +821,16 @@ async fn accept_data(
         let mut cfg = dcfg.clone();
         cfg.node = random_u64();
         cfg.first_counter = unix_micros();
-        tokio::spawn(serve_data(
+        let h = tokio::spawn(serve_data(
             stream,
             ctl.clone(),
             events.clone(),
             key.clone(),
             cfg,
         ));
+        let mut t = lock(&tasks);
+        t.retain(|h| !h.is_finished());
+        t.push(h);
     }
 }
 
