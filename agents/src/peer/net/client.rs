@@ -382,7 +382,10 @@ impl ClientTask {
         let mut lost = false;
         while !lost {
             let sleep = tokio::time::sleep_until(deadline(&self.clock, self.core.poll_timeout()));
+            // Biased: input before timers, so that a task that was starved of CPU first
+            // takes what its peer sent and only then looks at its deadlines.
             tokio::select! {
+                biased;
                 r = reader.read_from(&mut rd) => match r {
                     Ok(0) | Err(_) => self.core.closed(),
                     Ok(_) => {
@@ -397,7 +400,19 @@ impl ClientTask {
                     None => break,
                 },
                 Some(d) = drx.recv() => self.data_end(d),
-                () = sleep => self.core.handle_timeout(self.clock.now()),
+                () = sleep => {
+                    let now = self.clock.now();
+                    match reader.try_read_from(&rd) {
+                        Ok(Some(0)) | Err(_) => self.core.closed(),
+                        Ok(Some(_)) => {
+                            while let Some(f) = reader.next_frame() {
+                                self.core.handle_frame(f, now);
+                            }
+                        }
+                        Ok(None) => {}
+                    }
+                    self.core.handle_timeout(self.clock.now());
+                }
             }
             while let Some(n) = self.core.poll_transmit(&mut buf) {
                 if let Some(f) = buf.get(..n)
@@ -722,6 +737,7 @@ async fn run_data(t: &mut DataTask) -> DataClose {
         }
         let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));
         tokio::select! {
+            biased;
             r = reader.read_from(&mut rd) => match r {
                 Ok(0) | Err(_) => return DataClose::Lost,
                 Ok(_) => {
@@ -739,7 +755,27 @@ async fn run_data(t: &mut DataTask) -> DataClose {
                 }
             },
             _ = &mut t.close => s.close(),
-            () = sleep => s.handle_timeout(clock.now()),
+            () = sleep => {
+                // Input that waited while this task was starved goes in first.
+                match reader.try_read_from(&rd) {
+                    Ok(Some(0)) | Err(_) => return DataClose::Lost,
+                    Ok(Some(_)) => {
+                        let now = clock.now();
+                        while let Some(f) = reader.next_frame() {
+                            s.handle_frame(f, now);
+                        }
+                        t.sub.push_all(core::iter::from_fn(|| s.pop_sample()).map(|x| {
+                            SubscriptionEvent::Sample {
+                                seq: x.seq,
+                                stamp_us: x.stamp_us,
+                                payload: x.payload,
+                            }
+                        }));
+                    }
+                    Ok(None) => {}
+                }
+                s.handle_timeout(clock.now());
+            }
         }
     }
 }

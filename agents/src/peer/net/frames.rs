@@ -1,7 +1,7 @@
 //! Cutting frames out of a TCP byte stream (header-checked, bounded).
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
-use tokio::net::tcp::OwnedWriteHalf;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::sync::mpsc;
 
 use crate::peer::wire::{self, HEADER_LEN, MAC_LEN};
@@ -34,17 +34,47 @@ impl FrameReader {
         }
     }
 
-    /// Reads more bytes (cancel-safe). `Ok(0)` is end of stream.
-    pub(crate) async fn read_from<R: AsyncRead + Unpin>(
-        &mut self,
-        r: &mut R,
-    ) -> std::io::Result<usize> {
+    fn make_room(&mut self) {
         if self.start > 0 && (self.start == self.buf.len() || self.start > self.buf.len() / 2) {
             self.buf.drain(..self.start);
             self.start = 0;
         }
         self.buf.reserve(16 * 1024);
+    }
+
+    /// Whether a bad header was met (the session is over; nothing more is read).
+    #[cfg(test)]
+    pub(crate) fn is_poisoned(&self) -> bool {
+        self.poisoned
+    }
+
+    /// Reads more bytes (cancel-safe). `Ok(0)` is end of stream; once poisoned (a bad
+    /// header was yielded) this reads nothing more and answers `Ok(0)` at once, so a
+    /// sender of garbage cannot keep the session's task busy.
+    pub(crate) async fn read_from<R: AsyncRead + Unpin>(
+        &mut self,
+        r: &mut R,
+    ) -> std::io::Result<usize> {
+        if self.poisoned {
+            return Ok(0);
+        }
+        self.make_room();
         r.read_buf(&mut self.buf).await
+    }
+
+    /// Takes what the socket already holds, without waiting: `Ok(None)` when nothing is
+    /// pending, `Ok(Some(0))` at the end of the stream (or once poisoned). Used before a
+    /// timeout is handled, so that a starved task does not declare a live peer lost.
+    pub(crate) fn try_read_from(&mut self, r: &OwnedReadHalf) -> std::io::Result<Option<usize>> {
+        if self.poisoned {
+            return Ok(Some(0));
+        }
+        self.make_room();
+        match r.try_read_buf(&mut self.buf) {
+            Ok(n) => Ok(Some(n)),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(None),
+            Err(e) => Err(e),
+        }
     }
 
     /// The next complete frame (or a bad header), if buffered.
@@ -112,5 +142,20 @@ mod tests {
         r.buf.extend_from_slice(&[0u8; 30]);
         assert_eq!(r.next_frame().map(<[u8]>::len), Some(HEADER_LEN));
         assert_eq!(r.next_frame(), None);
+        assert!(r.is_poisoned());
+    }
+
+    #[tokio::test]
+    async fn a_poisoned_reader_reads_no_more() {
+        let mut r = FrameReader::new(8192);
+        let mut input: &[u8] = &[0x55; 64];
+        assert_eq!(r.read_from(&mut input).await.unwrap(), 64);
+        assert_eq!(r.next_frame().map(<[u8]>::len), Some(HEADER_LEN));
+        assert!(r.is_poisoned());
+        // More bytes are waiting, but nothing is read: the session is over.
+        let mut more: &[u8] = &[0x55; 1000];
+        assert_eq!(r.read_from(&mut more).await.unwrap(), 0);
+        assert_eq!(more.len(), 1000);
+        assert!(r.buf.len() <= 64);
     }
 }

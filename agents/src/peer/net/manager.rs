@@ -537,7 +537,11 @@ impl<A: SelfAgent> ManagerTask<A> {
     async fn run(mut self, mut ctl: mpsc::UnboundedReceiver<Ctl>, mut io: mpsc::Receiver<Io>) {
         loop {
             let sleep = tokio::time::sleep_until(deadline(&self.clock, self.core.poll_timeout()));
+            // Biased: control (low volume, so it cannot starve the rest), then client
+            // input, then timers; and the input that queued up is taken before a timeout is
+            // handled, so that a starved task does not declare a live client lost.
             tokio::select! {
+                biased;
                 c = ctl.recv() => match c {
                     Some(Ctl::Shutdown(done)) => {
                         let writers = self.shutdown();
@@ -549,6 +553,9 @@ impl<A: SelfAgent> ManagerTask<A> {
                 },
                 Some(m) = io.recv() => self.handle_io(m),
                 () = sleep => {
+                    while let Ok(m) = io.try_recv() {
+                        self.handle_io(m);
+                    }
                     let now = self.clock.now();
                     self.core.handle_timeout(now);
                 }
@@ -927,6 +934,7 @@ async fn serve_data(
         }
         let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));
         tokio::select! {
+            biased;
             r = reader.read_from(&mut rd) => {
                 match r {
                     Ok(0) | Err(_) => {
@@ -981,7 +989,31 @@ async fn serve_data(
                     s.revoke(reason);
                 }
             }
-            () = sleep => s.handle_timeout(clock.now()),
+            () = sleep => {
+                // Input that waited while this task was starved goes in first (a client's
+                // heartbeat must not be taken for silence).
+                // (Only once streaming: an OpenData needs the manager task, which the
+                // read arm asks.)
+                let pending = if s.is_streaming() {
+                    reader.try_read_from(&rd)
+                } else {
+                    Ok(None)
+                };
+                match pending {
+                    Ok(Some(0)) | Err(_) => {
+                        end = DataClose::Lost;
+                        break 'run;
+                    }
+                    Ok(Some(_)) => {
+                        let now = clock.now();
+                        while let Some(f) = reader.next_frame() {
+                            s.handle_frame(f, &mut Prefetched(None), now);
+                        }
+                    }
+                    Ok(None) => {}
+                }
+                s.handle_timeout(clock.now());
+            }
         }
     }
     let _ = wr.shutdown().await;
