@@ -689,3 +689,40 @@ async fn broadcast_rejections_are_counted() {
     assert!(st.wire.truncated >= 1, "{st:?}");
     assert_eq!(st.receiver.accepted, 2);
 }
+
+#[tokio::test]
+async fn connections_beyond_the_cap_wait_until_one_closes() {
+    let mut mc = cfg("skeeter");
+    mc.manager.max_connections = 2;
+    // Idle sessions must outlive the test: a 15 s loss window.
+    mc.heartbeat_ms = 5000;
+    let m = spawn_manager(&mc, key(), FixedSelfAgent::new(0, Vec::new()))
+        .await
+        .unwrap();
+    // Two silent connections hold both permits.
+    let idle1 = TcpStream::connect(m.local_addr()).await.unwrap();
+    let _idle2 = TcpStream::connect(m.local_addr()).await.unwrap();
+    within("two sessions", async {
+        while m.stats().await.unwrap().sessions < 2 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    // A third one is not served while they stay open (its frame is not even read)...
+    let mut third = TcpStream::connect(m.local_addr()).await.unwrap();
+    let register = Msg::Register {
+        client: 42,
+        robot: "third".into(),
+    };
+    third
+        .write_all(&Signer::new(key(), 90, 1).seal_vec(&register).unwrap())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(within("stats", m.stats()).await.unwrap().sessions, 2);
+    // ...and is served once one of them closes.
+    drop(idle1);
+    let mut buf = [0u8; 512];
+    let n = within("Registered", third.read(&mut buf)).await.unwrap();
+    assert!(n > 0, "the third connection is answered");
+}

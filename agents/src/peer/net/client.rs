@@ -375,7 +375,11 @@ impl ClientTask {
         let max_body = self.dcfg.max_body;
         let (mut rd, wr) = stream.into_split();
         let (wtx, wrx) = mpsc::channel(1024);
-        let writer = tokio::spawn(write_frames(wr, wrx));
+        let window = self
+            .dcfg
+            .heartbeat
+            .saturating_mul(self.dcfg.missed_heartbeats.max(1));
+        let writer = tokio::spawn(write_frames(wr, wrx, window));
         let (dtx, mut drx) = mpsc::unbounded_channel::<DataEnd>();
         let mut reader = FrameReader::new(max_body);
         let mut buf = vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN];
@@ -722,7 +726,14 @@ async fn run_data(t: &mut DataTask) -> DataClose {
                 None => break,
             }
         }
-        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+        // A write outside the select: bounded by the loss window (a manager that reads
+        // nothing is lost).
+        if !out.is_empty()
+            && !matches!(
+                tokio::time::timeout(window, wr.write_all(&out)).await,
+                Ok(Ok(()))
+            )
+        {
             return DataClose::Lost;
         }
         while let Some(e) = s.poll_event() {
@@ -732,7 +743,7 @@ async fn run_data(t: &mut DataTask) -> DataClose {
             }
         }
         if closing {
-            let _ = wr.shutdown().await;
+            let _ = tokio::time::timeout(window, wr.shutdown()).await;
             return end;
         }
         let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));

@@ -144,6 +144,10 @@ pub struct ManagerNetConfig {
     pub data_queue: usize,
     /// Frames queued per client session before it is closed as too slow (default 1024).
     pub session_queue: usize,
+    /// Open connections per listener (request channel and data server each), counted from
+    /// `accept`, authenticated or not; further connections wait in the kernel's backlog
+    /// until one closes (default 1024).
+    pub max_connections: usize,
     /// Task priority of the built-in `FixedSelfAgent` (default 0).
     pub task_priority: u8,
     /// Robot priorities; a leader gets the highest (default empty).
@@ -163,6 +167,7 @@ impl Default for ManagerNetConfig {
             max_clients: 1024,
             data_queue: 64,
             session_queue: 1024,
+            max_connections: 1024,
             task_priority: 0,
             robot_priorities: BTreeMap::new(),
             unknown_robot_priority: 0,

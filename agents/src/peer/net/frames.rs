@@ -4,6 +4,12 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::sync::mpsc;
 
+/// Read chunk of a session that has not yet sent a whole frame: a stranger's connection
+/// costs little memory until it sends a frame that passes the header check.
+const FIRST_CHUNK: usize = 1024;
+/// Read chunk once frames flow.
+const CHUNK: usize = 16 * 1024;
+
 use crate::peer::wire::{self, HEADER_LEN, MAC_LEN};
 
 /// Bytes written to a socket in one call at most (frames are batched up to this).
@@ -22,15 +28,17 @@ pub(crate) struct FrameReader {
     start: usize,
     max_body: usize,
     poisoned: bool,
+    chunk: usize,
 }
 
 impl FrameReader {
     pub(crate) fn new(max_body: usize) -> Self {
         Self {
-            buf: Vec::with_capacity(16 * 1024),
+            buf: Vec::new(),
             start: 0,
             max_body,
             poisoned: false,
+            chunk: FIRST_CHUNK,
         }
     }
 
@@ -39,7 +47,7 @@ impl FrameReader {
             self.buf.drain(..self.start);
             self.start = 0;
         }
-        self.buf.reserve(16 * 1024);
+        self.buf.reserve(self.chunk);
     }
 
     /// Whether a bad header was met (the session is over; nothing more is read).
@@ -86,6 +94,7 @@ impl FrameReader {
         match wire::frame_len(pending, self.max_body) {
             Ok(None) => None,
             Ok(Some(n)) if pending.len() >= n => {
+                self.chunk = CHUNK;
                 let s = self.start;
                 self.start += n;
                 self.buf.get(s..s + n)
@@ -102,8 +111,14 @@ impl FrameReader {
 }
 
 /// Writes the frames of `rx`, batched, until the channel closes; then shuts the socket
-/// down (the remote sees the end of the stream).
-pub(crate) async fn write_frames(mut wr: OwnedWriteHalf, mut rx: mpsc::Receiver<Vec<u8>>) {
+/// down (the remote sees the end of the stream). A write that does not complete within
+/// `limit` (the loss window: the peer reads nothing) ends the task and closes the socket;
+/// the session's owner then sees its queue closed.
+pub(crate) async fn write_frames(
+    mut wr: OwnedWriteHalf,
+    mut rx: mpsc::Receiver<Vec<u8>>,
+    limit: std::time::Duration,
+) {
     let mut batch = Vec::with_capacity(WRITE_BATCH);
     while let Some(f) = rx.recv().await {
         batch.clear();
@@ -114,11 +129,12 @@ pub(crate) async fn write_frames(mut wr: OwnedWriteHalf, mut rx: mpsc::Receiver<
                 Err(_) => break,
             }
         }
-        if wr.write_all(&batch).await.is_err() {
-            return;
+        match tokio::time::timeout(limit, wr.write_all(&batch)).await {
+            Ok(Ok(())) => {}
+            Ok(Err(_)) | Err(_) => return,
         }
     }
-    let _ = wr.shutdown().await;
+    let _ = tokio::time::timeout(limit, wr.shutdown()).await;
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use ima_hal::Instant;
 use ima_hal::time::TokioClock;
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, oneshot};
 use tokio::task::{AbortHandle, JoinHandle};
 
 use super::config::{PeerNetConfig, parse_addr};
@@ -29,10 +29,17 @@ type SampleItem = (u64, Arc<[u8]>);
 
 /// Frames from all client sessions waiting for the manager task.
 const IO_QUEUE: usize = 4096;
+/// Frames of one client session in the shared queue at most: one peer cannot fill the
+/// queue that every session shares (each frame carries one of the session's credits back
+/// to it once the manager task has handled it).
+const SESSION_CREDITS: usize = 4;
 /// Events kept for slow `events()` subscribers.
 const EVENT_QUEUE: usize = 1024;
 /// Per-sample overhead of a Sample body: seq 8, stamp 8, length 2.
 const SAMPLE_OVERHEAD: usize = 18;
+/// Body room of the data server's output buffer before a ticket was accepted (control
+/// frames only).
+const PRE_STREAM_BODY: usize = 1024;
 
 /// What the manager shell reports on [`ManagerHandle::events`].
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -171,6 +178,8 @@ enum Io {
     Frame {
         peer: PeerId,
         bytes: Vec<u8>,
+        /// Released when the frame has been handled.
+        _credit: OwnedSemaphorePermit,
     },
     Closed {
         peer: PeerId,
@@ -460,6 +469,8 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     let max_body = cfg.max_body;
     let data_tasks: DataTasks = Arc::default();
     let session_queue = cfg.manager.session_queue.max(1);
+    let max_conns = cfg.manager.max_connections.max(1);
+    let window = cfg.loss_window();
     let mut dcfg = DataConfig::new(0);
     dcfg.heartbeat = hb;
     dcfg.missed_heartbeats = cfg.missed_heartbeats;
@@ -481,7 +492,16 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     };
     let tasks = vec![
         tokio::spawn(task.run(ctl_rx, io_rx)),
-        tokio::spawn(accept_sessions(listener, io_tx, session_queue, max_body)),
+        tokio::spawn(accept_sessions(
+            listener,
+            io_tx,
+            SessionLimits {
+                queue: session_queue,
+                max_body,
+                window,
+                conns: Arc::new(Semaphore::new(max_conns)),
+            },
+        )),
         tokio::spawn(accept_data(
             data_listener,
             ctl_tx.clone(),
@@ -489,6 +509,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
             key,
             dcfg,
             data_tasks.clone(),
+            Arc::new(Semaphore::new(max_conns)),
         )),
     ];
     Ok(ManagerHandle {
@@ -648,7 +669,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                     .events
                     .send(ManagerNetEvent::SessionOpened { peer, addr });
             }
-            Io::Frame { peer, bytes } => self.core.handle_frame(peer, &bytes, now),
+            Io::Frame { peer, bytes, .. } => self.core.handle_frame(peer, &bytes, now),
             Io::Closed { peer } => {
                 if self.sessions.remove(&peer).is_some() {
                     self.core.disconnect(peer, now);
@@ -753,14 +774,21 @@ impl<A: SelfAgent> ManagerTask<A> {
     }
 }
 
-async fn accept_sessions(
-    listener: TcpListener,
-    io: mpsc::Sender<Io>,
-    session_queue: usize,
+/// Limits of the request-channel sessions.
+struct SessionLimits {
+    queue: usize,
     max_body: usize,
-) {
+    window: Duration,
+    conns: Arc<Semaphore>,
+}
+
+async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: SessionLimits) {
     let mut next: PeerId = 0;
     loop {
+        // At most `max_connections` sessions: the next accept waits for a permit.
+        let Ok(permit) = lim.conns.clone().acquire_owned().await else {
+            return;
+        };
         let (stream, addr) = match listener.accept().await {
             Ok(s) => s,
             Err(e) => {
@@ -773,10 +801,14 @@ async fn accept_sessions(
         next = next.wrapping_add(1);
         let peer = next;
         let (mut rd, wr) = stream.into_split();
-        let (tx, rx) = mpsc::channel(session_queue);
-        let writer = tokio::spawn(write_frames(wr, rx));
+        let (tx, rx) = mpsc::channel(lim.queue);
+        let writer = tokio::spawn(write_frames(wr, rx, lim.window));
         let io2 = io.clone();
+        let max_body = lim.max_body;
         let reader = tokio::spawn(async move {
+            // Held as long as the session's reader runs (dropped when it ends or is aborted).
+            let _permit = permit;
+            let credits = Arc::new(Semaphore::new(SESSION_CREDITS));
             let mut fr = FrameReader::new(max_body);
             loop {
                 match fr.read_from(&mut rd).await {
@@ -784,7 +816,15 @@ async fn accept_sessions(
                     Ok(_) => {
                         while let Some(f) = fr.next_frame() {
                             let bytes = f.to_vec();
-                            if io2.send(Io::Frame { peer, bytes }).await.is_err() {
+                            let Ok(credit) = credits.clone().acquire_owned().await else {
+                                return;
+                            };
+                            let frame = Io::Frame {
+                                peer,
+                                bytes,
+                                _credit: credit,
+                            };
+                            if io2.send(frame).await.is_err() {
                                 return;
                             }
                         }
@@ -814,8 +854,13 @@ async fn accept_data(
     key: GroupKey,
     dcfg: DataConfig,
     tasks: DataTasks,
+    conns: Arc<Semaphore>,
 ) {
     loop {
+        // At most `max_connections` data sessions: the next accept waits for a permit.
+        let Ok(permit) = conns.clone().acquire_owned().await else {
+            return;
+        };
         let stream = match listener.accept().await {
             Ok((s, _)) => s,
             Err(e) => {
@@ -828,13 +873,11 @@ async fn accept_data(
         let mut cfg = dcfg.clone();
         cfg.node = random_u64();
         cfg.first_counter = unix_micros();
-        let h = tokio::spawn(serve_data(
-            stream,
-            ctl.clone(),
-            events.clone(),
-            key.clone(),
-            cfg,
-        ));
+        let (ctl, events, key) = (ctl.clone(), events.clone(), key.clone());
+        let h = tokio::spawn(async move {
+            let _permit = permit;
+            serve_data(stream, ctl, events, key, cfg).await;
+        });
         let mut t = lock(&tasks);
         t.retain(|h| !h.is_finished());
         t.push(h);
@@ -888,6 +931,7 @@ async fn serve_data(
 ) {
     let clock = TokioClock::new();
     let max_body = cfg.max_body;
+    let window = cfg.heartbeat.saturating_mul(cfg.missed_heartbeats.max(1));
     let mut s = DataServerSession::new(cfg, key.clone(), clock.now());
     let (mut rd, mut wr) = stream.into_split();
     let mut reader = FrameReader::new(max_body);
@@ -895,8 +939,10 @@ async fn serve_data(
     let mut revoke: Option<oneshot::Receiver<RevokeReason>> = None;
     let mut id = None;
     let mut source: Option<String> = None;
-    let mut buf = vec![0u8; max_frame(usize::from(u16::MAX))];
-    let mut out: Vec<u8> = Vec::with_capacity(WRITE_BATCH);
+    // Small buffers until a ticket was accepted (control frames are small): a stranger's
+    // connection costs little memory.
+    let mut buf = vec![0u8; max_frame(PRE_STREAM_BODY)];
+    let mut out: Vec<u8> = Vec::new();
     let mut end = DataClose::Lost;
     'run: loop {
         while let Some(ev) = s.poll_event() {
@@ -914,6 +960,9 @@ async fn serve_data(
                 DataEvent::Closed(why) => end = why,
             }
         }
+        if s.is_streaming() && buf.len() < max_frame(usize::from(u16::MAX)) {
+            buf.resize(max_frame(usize::from(u16::MAX)), 0);
+        }
         let now = clock.now();
         out.clear();
         while out.len() < WRITE_BATCH {
@@ -922,7 +971,14 @@ async fn serve_data(
                 None => break,
             }
         }
-        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+        // A write outside the select: bounded by the loss window (a client that reads
+        // nothing is lost, and this task does not hang on it).
+        if !out.is_empty()
+            && !matches!(
+                tokio::time::timeout(window, wr.write_all(&out)).await,
+                Ok(Ok(()))
+            )
+        {
             end = DataClose::Lost;
             break;
         }
@@ -1016,7 +1072,7 @@ async fn serve_data(
             }
         }
     }
-    let _ = wr.shutdown().await;
+    let _ = tokio::time::timeout(window, wr.shutdown()).await;
     let _ = ctl.send(Ctl::DataEnded { id, reason: end });
     let _ = events.send(ManagerNetEvent::DataClosed {
         source,
