@@ -12,7 +12,7 @@ use ima_agents::peer::manager::FixedSelfAgent;
 use ima_agents::peer::net::{
     BroadcastChannel, BroadcastMode, EndReason, LossReason, ManagerHandle, NetError,
     PeerClientHandle, PeerNetConfig, SourcePublisher, Subscription, SubscriptionEvent,
-    spawn_manager,
+    spawn_manager, unix_micros,
 };
 use ima_agents::peer::wire::{GroupKey, MissionEvent, Msg, RevokeReason, Signer, SourceInfo};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -387,9 +387,13 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
     // Unauthenticated: sealed under another key.
     let mut s = TcpStream::connect(m.local_addr()).await.unwrap();
     let wrong = GroupKey::from_array([9; 32]);
-    s.write_all(&Signer::new(wrong, 77, 1).seal_vec(&register(1)).unwrap())
-        .await
-        .unwrap();
+    s.write_all(
+        &Signer::new(wrong, 77, unix_micros() + 1)
+            .seal_vec(&register(1))
+            .unwrap(),
+    )
+    .await
+    .unwrap();
     assert!(closed_by_peer(s).await);
     // Malformed: garbage.
     let mut s = TcpStream::connect(m.local_addr()).await.unwrap();
@@ -397,12 +401,16 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
     assert!(closed_by_peer(s).await);
     // Oversized: a header that claims a 60 000-byte body.
     let mut s = TcpStream::connect(m.local_addr()).await.unwrap();
-    let mut big = Signer::new(key(), 78, 1).seal_vec(&Msg::Heartbeat).unwrap();
+    let mut big = Signer::new(key(), 78, unix_micros() + 1)
+        .seal_vec(&Msg::Heartbeat)
+        .unwrap();
     big[4..6].copy_from_slice(&60_000u16.to_le_bytes());
     s.write_all(&big).await.unwrap();
     assert!(closed_by_peer(s).await);
     // Replayed: a good frame recorded on one session, played again on another.
-    let recorded = Signer::new(key(), 79, 1).seal_vec(&register(5)).unwrap();
+    let recorded = Signer::new(key(), 79, unix_micros() + 1)
+        .seal_vec(&register(5))
+        .unwrap();
     let mut s1 = TcpStream::connect(m.local_addr()).await.unwrap();
     s1.write_all(&recorded).await.unwrap();
     let mut buf = [0u8; 512];
@@ -418,16 +426,20 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
         source: "counter".into(),
         ticket: [0; 32],
     };
-    d.write_all(&Signer::new(key(), 80, 1).seal_vec(&open).unwrap())
-        .await
-        .unwrap();
+    d.write_all(
+        &Signer::new(key(), 80, unix_micros() + 1)
+            .seal_vec(&open)
+            .unwrap(),
+    )
+    .await
+    .unwrap();
     assert!(closed_by_peer(d).await);
     // Garbage and a wrong-key frame on the data server.
     let mut d = TcpStream::connect(m.data_addr()).await.unwrap();
     d.write_all(&[0xAA; 40]).await.unwrap();
     assert!(closed_by_peer(d).await);
     let mut d = TcpStream::connect(m.data_addr()).await.unwrap();
-    let stranger_open = Signer::new(GroupKey::from_array([4; 32]), 81, 1)
+    let stranger_open = Signer::new(GroupKey::from_array([4; 32]), 81, unix_micros() + 1)
         .seal_vec(&Msg::OpenData {
             client: 5,
             source: "counter".into(),
@@ -666,7 +678,7 @@ async fn broadcast_rejections_are_counted() {
     .unwrap();
     stranger.send_emergency("fake", "x").await.unwrap();
     tx.send_raw(&[1, 2, 3]).await.unwrap();
-    let mut s = Signer::new(key(), 4242, 10);
+    let mut s = Signer::new(key(), 4242, unix_micros() + 10);
     let frame = s
         .seal_vec(&Msg::Emergency {
             robot: "replayer".into(),
@@ -715,7 +727,11 @@ async fn connections_beyond_the_cap_wait_until_one_closes() {
         robot: "third".into(),
     };
     third
-        .write_all(&Signer::new(key(), 90, 1).seal_vec(&register).unwrap())
+        .write_all(
+            &Signer::new(key(), 90, unix_micros() + 1)
+                .seal_vec(&register)
+                .unwrap(),
+        )
         .await
         .unwrap();
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -725,4 +741,61 @@ async fn connections_beyond_the_cap_wait_until_one_closes() {
     let mut buf = [0u8; 512];
     let n = within("Registered", third.read(&mut buf)).await.unwrap();
     assert!(n > 0, "the third connection is answered");
+}
+
+#[tokio::test]
+async fn a_first_counter_far_from_the_clock_is_refused_as_a_replay() {
+    // A frame recorded a minute ago (before a restart, say): the manager has never heard
+    // its sender, and its counter (UNIX µs) lies outside now ± 30 s.
+    let m = manager("skeeter").await;
+    let old = Signer::new(key(), 91, unix_micros() - 60_000_000)
+        .seal_vec(&Msg::Register {
+            client: 7,
+            robot: "ghost".into(),
+        })
+        .unwrap();
+    let mut s = TcpStream::connect(m.local_addr()).await.unwrap();
+    s.write_all(&old).await.unwrap();
+    assert!(closed_by_peer(s).await);
+    // So is one from the far future.
+    let future = Signer::new(key(), 92, unix_micros() + 60_000_000)
+        .seal_vec(&Msg::Heartbeat)
+        .unwrap();
+    let mut s = TcpStream::connect(m.local_addr()).await.unwrap();
+    s.write_all(&future).await.unwrap();
+    assert!(closed_by_peer(s).await);
+    let r = within("stats", m.stats()).await.unwrap().core.rejects;
+    assert_eq!(r.replay, 2, "{r:?}");
+    // A fresh one is served.
+    let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
+        .await
+        .unwrap();
+    within("register", c.register()).await.unwrap();
+
+    // The broadcast receiver applies the same rule.
+    let rx = BroadcastChannel::bind(
+        &bcfg("commander", BroadcastMode::Unicast, free_udp_port(), &[]),
+        "commander",
+        key(),
+    )
+    .unwrap();
+    let port = rx.local_addr().unwrap().port();
+    let tx = BroadcastChannel::bind(
+        &bcfg("skeeter", BroadcastMode::Unicast, free_udp_port(), &[port]),
+        "skeeter",
+        key(),
+    )
+    .unwrap();
+    let stale = Signer::new(key(), 93, unix_micros() - 60_000_000)
+        .seal_vec(&Msg::Emergency {
+            robot: "ghost".into(),
+            seq: 1,
+            kind: "old".into(),
+            text: "t".into(),
+        })
+        .unwrap();
+    tx.send_raw(&stale).await.unwrap();
+    tx.send_emergency("fresh", "t").await.unwrap();
+    assert!(matches!(recv(&rx).await, Msg::Emergency { kind, .. } if kind == "fresh"));
+    assert_eq!(rx.stats().wire.replay, 1);
 }

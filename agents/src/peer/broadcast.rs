@@ -36,6 +36,11 @@ impl Broadcaster {
         }
     }
 
+    /// Moves the frame counter up to `counter` (see [`Signer::advance_to`]).
+    pub fn advance_counter(&mut self, counter: u64) {
+        self.signer.advance_to(counter);
+    }
+
     fn next_seq(&mut self) -> u64 {
         let s = self.seq;
         self.seq = self.seq.wrapping_add(1);
@@ -195,6 +200,12 @@ impl BroadcastReceiver {
     #[must_use]
     pub fn wire_rejects(&self) -> super::wire::RejectCounts {
         self.verifier.rejects
+    }
+
+    /// Bounds for the first counter of an unknown sender (see
+    /// [`super::wire::Verifier::set_first_counter_window`]).
+    pub fn set_first_counter_window(&mut self, window: Option<(u64, u64)>) {
+        self.verifier.set_first_counter_window(window);
     }
 
     /// One datagram. Returns the message if it is new.

@@ -474,6 +474,12 @@ impl<A: SelfAgent> PeerManager<A> {
         self.drop_session(peer, None, now);
     }
 
+    /// Bounds for the first counter of an unknown sender (see
+    /// [`super::wire::Verifier::set_first_counter_window`]); the shell passes its clock.
+    pub fn set_first_counter_window(&mut self, window: Option<(u64, u64)>) {
+        self.verifier.set_first_counter_window(window);
+    }
+
     /// One frame from session `peer`. A frame that fails to open, or a message a client may
     /// not send, closes that session ([`ManagerEvent::ClosePeer`]); others are unaffected.
     pub fn handle_frame(&mut self, peer: PeerId, frame: &[u8], now: Instant) {

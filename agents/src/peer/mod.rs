@@ -76,6 +76,16 @@
 //!   draws its sender ID from the OS random source and starts its frame counter (and the
 //!   broadcast sequence) at the UNIX time in µs, so a restarted process is not taken for a
 //!   replayer. The manager's ticket key is 32 random bytes drawn at start-up.
+//! * **Replay after a restart** — a verifier remembers counters only while it runs, so a
+//!   frame recorded before the receiver restarted would otherwise open. The shell therefore
+//!   refuses the FIRST counter of a sender it does not remember unless it lies within
+//!   `now ± max_clock_skew_ms` (default 30 000 ms; 0 turns the check off) of the receiver's
+//!   UNIX clock, counted as `Replay`. This applies to the manager's request channel and to
+//!   the broadcast receiver; senders move their counter up to their clock before sealing
+//!   (`Signer::advance_to`), so a long-running sender stays inside the window. The cores stay
+//!   clock-free: the shell passes the bounds in (`wire::Verifier::set_first_counter_window`).
+//!   Robots of one group therefore need clocks within the skew of each other (NTP or
+//!   similar).
 //!
 //! ## Configuration (`net::PeerNetConfig`, TOML)
 //!
@@ -86,6 +96,7 @@
 //! | `heartbeat_ms` | 100 | heartbeat on every channel |
 //! | `missed_heartbeats` | 3 | intervals without a frame before the peer is lost |
 //! | `max_body` | 8192 | body-size limit of incoming frames |
+//! | `max_clock_skew_ms` | 30000 | window around the receiver's clock for an unknown sender's first counter (0: off) |
 //! | `manager.listen` | `0.0.0.0:7400` | request channel |
 //! | `manager.data_listen` | `0.0.0.0:0` | data server |
 //! | `manager.data_advertise` | listener address (0.0.0.0 → 127.0.0.1) | address put in grants; set it on a LAN |
@@ -94,6 +105,7 @@
 //! | `manager.max_clients` | 1024 | registered clients at most |
 //! | `manager.data_queue` | 64 | samples queued per data session and per subscription |
 //! | `manager.session_queue` | 1024 | frames queued per client session |
+//! | `manager.max_connections` | 1024 | open connections per listener (request channel, data server), authenticated or not |
 //! | `manager.task_priority` | 0 | task priority of the tools' `FixedSelfAgent` |
 //! | `manager.robot_priorities` | empty | table robot → priority (a leader highest) |
 //! | `manager.unknown_robot_priority` | 0 | robots not listed |

@@ -1415,3 +1415,35 @@ mod data_sessions {
         assert_eq!(c.poll_event(), Some(DataEvent::Closed(DataClose::Lost)));
     }
 }
+
+#[test]
+fn first_counter_window_applies_to_unknown_senders_only() {
+    let mut s = Signer::new(key(), 5, 1_000);
+    let a = s.seal_vec(&Msg::Heartbeat).unwrap();
+    let mut v = Verifier::new(key());
+    v.set_first_counter_window(Some((2_000, 3_000)));
+    assert_eq!(
+        v.open(&a).map(|_| ()),
+        Err(WireError::Replay {
+            sender: 5,
+            last: 2_000,
+            got: 1_000
+        })
+    );
+    let mut late = Signer::new(key(), 6, 4_000);
+    assert!(matches!(
+        v.open(&late.seal_vec(&Msg::Heartbeat).unwrap()),
+        Err(WireError::Replay { last: 3_000, .. })
+    ));
+    // Inside the window: accepted; afterwards only the per-sender rule applies.
+    s.advance_to(2_500);
+    assert_eq!(s.next_counter(), 2_500);
+    s.advance_to(10); // never down
+    assert_eq!(s.next_counter(), 2_500);
+    v.open(&s.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
+    v.set_first_counter_window(Some((9_000, 9_500)));
+    v.open(&s.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
+    v.set_first_counter_window(None);
+    v.open(&late.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
+    assert_eq!(v.rejects.replay, 2);
+}

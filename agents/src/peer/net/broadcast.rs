@@ -48,6 +48,8 @@ pub struct BroadcastChannel {
     receive_own: bool,
     clock: TokioClock,
     max_body: usize,
+    /// Allowed skew of an unknown sender's first counter, µs (0: off).
+    skew_us: u64,
 }
 
 impl core::fmt::Debug for BroadcastChannel {
@@ -132,6 +134,7 @@ impl BroadcastChannel {
             receive_own: b.receive_own,
             clock: TokioClock::new(),
             max_body: cfg.max_body,
+            skew_us: cfg.max_clock_skew_ms.saturating_mul(1000),
         })
     }
 
@@ -149,6 +152,16 @@ impl BroadcastChannel {
         &self.dests
     }
 
+    fn first_window(&self) -> Option<(u64, u64)> {
+        (self.skew_us > 0).then(|| {
+            let now = unix_micros();
+            (
+                now.saturating_sub(self.skew_us),
+                now.saturating_add(self.skew_us),
+            )
+        })
+    }
+
     fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
         self.inner.lock().unwrap_or_else(PoisonError::into_inner)
     }
@@ -160,6 +173,9 @@ impl BroadcastChannel {
         let mut buf = vec![0u8; HEADER_LEN + self.max_body + MAC_LEN];
         let n = {
             let mut g = self.lock();
+            // Counters are UNIX µs: a receiver that never heard us checks them against
+            // its clock.
+            g.tx.advance_counter(unix_micros());
             seal(&mut g.tx, &mut buf)
                 .map_err(|e| NetError::Config(format!("cannot encode broadcast: {e}")))?
         };
@@ -242,6 +258,7 @@ impl BroadcastChannel {
             let frame = buf.get(..n).unwrap_or_default();
             let now = self.clock.now();
             let mut g = self.lock();
+            g.rx.set_first_counter_window(self.first_window());
             if let Ok(msg) = g.rx.handle_datagram(frame, now) {
                 let sender = match &msg {
                     Msg::Status { robot, .. }

@@ -56,6 +56,10 @@ pub struct PeerNetConfig {
     pub missed_heartbeats: u32,
     /// Body-size limit of incoming frames (default 8192).
     pub max_body: usize,
+    /// Clock skew allowed for the FIRST frame counter of a sender not heard before, ms
+    /// (default 30 000; 0 turns the check off). Counters are UNIX µs, so a frame recorded
+    /// before a restart of the receiver is refused as a replay (see the `peer` module docs).
+    pub max_clock_skew_ms: u64,
     /// Manager side.
     pub manager: ManagerNetConfig,
     /// Broadcast channel.
@@ -70,6 +74,7 @@ impl Default for PeerNetConfig {
             heartbeat_ms: 100,
             missed_heartbeats: 3,
             max_body: crate::peer::wire::DEFAULT_MAX_BODY,
+            max_clock_skew_ms: 30_000,
             manager: ManagerNetConfig::default(),
             broadcast: BroadcastConfig::default(),
         }

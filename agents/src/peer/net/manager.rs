@@ -489,6 +489,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         data_bad_tickets: 0,
         slow_closed: 0,
         out: vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN],
+        skew_us: cfg.max_clock_skew_ms.saturating_mul(1000),
     };
     let tasks = vec![
         tokio::spawn(task.run(ctl_rx, io_rx)),
@@ -544,6 +545,7 @@ struct ManagerTask<A: SelfAgent> {
     data_bad_tickets: u64,
     slow_closed: u64,
     out: Vec<u8>,
+    skew_us: u64,
 }
 
 fn deadline(clock: &TokioClock, at: Option<Instant>) -> tokio::time::Instant {
@@ -669,7 +671,11 @@ impl<A: SelfAgent> ManagerTask<A> {
                     .events
                     .send(ManagerNetEvent::SessionOpened { peer, addr });
             }
-            Io::Frame { peer, bytes, .. } => self.core.handle_frame(peer, &bytes, now),
+            Io::Frame { peer, bytes, .. } => {
+                let window = self.skew_window();
+                self.core.set_first_counter_window(window);
+                self.core.handle_frame(peer, &bytes, now);
+            }
             Io::Closed { peer } => {
                 if self.sessions.remove(&peer).is_some() {
                     self.core.disconnect(peer, now);
@@ -683,6 +689,17 @@ impl<A: SelfAgent> ManagerTask<A> {
 
     /// Closes a session; returns its writer task, which flushes what is queued and then
     /// closes the socket (dropping the sender ends it).
+    /// `now ± skew` in UNIX µs for the first counter of an unknown client.
+    fn skew_window(&self) -> Option<(u64, u64)> {
+        (self.skew_us > 0).then(|| {
+            let now = unix_micros();
+            (
+                now.saturating_sub(self.skew_us),
+                now.saturating_add(self.skew_us),
+            )
+        })
+    }
+
     fn close_session(&mut self, peer: PeerId) -> Option<JoinHandle<()>> {
         self.sessions.remove(&peer).map(|s| {
             s.reader.abort();
