@@ -99,7 +99,7 @@
 //! | `max_clock_skew_ms` | 30000 | window around the receiver's clock for an unknown sender's first counter (0: off) |
 //! | `manager.listen` | `0.0.0.0:7400` | request channel |
 //! | `manager.data_listen` | `0.0.0.0:0` | data server |
-//! | `manager.data_advertise` | listener address (0.0.0.0 → 127.0.0.1) | address put in grants; set it on a LAN |
+//! | `manager.data_advertise` | listener address (0.0.0.0 → the local IP each client reached) | address put in grants |
 //! | `manager.rescan_ms` | 1000 | source re-scan interval |
 //! | `manager.ticket_lifetime_ms` | 5000 | time to open the data session after a grant |
 //! | `manager.max_clients` | 1024 | registered clients at most |

@@ -1447,3 +1447,23 @@ fn first_counter_window_applies_to_unknown_senders_only() {
     v.open(&late.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
     assert_eq!(v.rejects.replay, 2);
 }
+
+#[test]
+fn a_session_data_address_overrides_the_configured_one_in_grants() {
+    let mut n = Net::new(0, |_| {});
+    let a = n.add("scout", 1, ms(0));
+    let b = n.add("pioneer", 2, ms(0));
+    n.m.set_data_address(a as u64, "192.168.1.5:7401".into());
+    for c in [a, b] {
+        n.register(c, ms(0));
+        n.events(c);
+        n.clients[c].request("sonar", 3).unwrap();
+    }
+    n.pump(ms(10));
+    let addr_of = |ev: Vec<ClientEvent>| match &ev[..] {
+        [ClientEvent::Granted { address, .. }] => address.clone(),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(addr_of(n.events(a)), "192.168.1.5:7401");
+    assert_eq!(addr_of(n.events(b)), ADDR);
+}

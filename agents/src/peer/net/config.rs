@@ -23,7 +23,8 @@ use super::NetError;
 /// listen = "127.0.0.1:7400"       # request channel; default 0.0.0.0:7400
 /// data_listen = "127.0.0.1:0"     # data server; default 0.0.0.0:0 (any free port)
 /// # data_advertise = "10.0.0.5:7401"  # address put in grants; default: the data
-/// #                                  # listener's address (127.0.0.1 when bound to 0.0.0.0)
+/// #                                  # listener's address (bound to 0.0.0.0: the local IP
+/// #                                  # each client reached the request channel on)
 /// rescan_ms = 1000
 /// ticket_lifetime_ms = 5000
 /// max_clients = 1024
@@ -136,8 +137,9 @@ pub struct ManagerNetConfig {
     pub listen: String,
     /// Data-server listen address (default `0.0.0.0:0`).
     pub data_listen: String,
-    /// Data address put in grants (default: the data listener's address, with an
-    /// unspecified IP replaced by 127.0.0.1 — set this on a LAN).
+    /// Data address put in grants (default: the data listener's address; when that is
+    /// unspecified, e.g. `0.0.0.0`, each client is given the local IP it reached the request
+    /// channel on, with the data port).
     pub data_advertise: Option<String>,
     /// Source re-scan interval, ms (default 1000).
     pub rescan_ms: u64,

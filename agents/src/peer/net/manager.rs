@@ -174,6 +174,8 @@ enum Io {
         tx: mpsc::Sender<Vec<u8>>,
         reader: AbortHandle,
         writer: JoinHandle<()>,
+        /// Data address for this session's grants (see `SessionLimits::advertise_port`).
+        data_address: Option<String>,
     },
     Frame {
         peer: PeerId,
@@ -497,6 +499,9 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
             listener,
             io_tx,
             SessionLimits {
+                advertise_port: (cfg.manager.data_advertise.is_none()
+                    && data_addr.ip().is_unspecified())
+                .then_some(data_addr.port()),
                 queue: session_queue,
                 max_body,
                 window,
@@ -663,10 +668,14 @@ impl<A: SelfAgent> ManagerTask<A> {
                 tx,
                 reader,
                 writer,
+                data_address,
             } => {
                 self.sessions
                     .insert(peer, SessionRec { tx, reader, writer });
                 self.core.connect(peer, now);
+                if let Some(a) = data_address {
+                    self.core.set_data_address(peer, a);
+                }
                 let _ = self
                     .events
                     .send(ManagerNetEvent::SessionOpened { peer, addr });
@@ -793,6 +802,9 @@ impl<A: SelfAgent> ManagerTask<A> {
 
 /// Limits of the request-channel sessions.
 struct SessionLimits {
+    /// Data-server port, when grants must carry the local IP each client reached (no
+    /// `data_advertise` and the data server bound to an unspecified address).
+    advertise_port: Option<u16>,
     queue: usize,
     max_body: usize,
     window: Duration,
@@ -815,6 +827,12 @@ async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: Sessi
             }
         };
         let _ = stream.set_nodelay(true);
+        // On a LAN the data server bound to 0.0.0.0 is reached at the IP this client
+        // reached us on.
+        let data_address = lim.advertise_port.and_then(|port| {
+            let local = stream.local_addr().ok()?;
+            (!local.ip().is_unspecified()).then(|| SocketAddr::new(local.ip(), port).to_string())
+        });
         next = next.wrapping_add(1);
         let peer = next;
         let (mut rd, wr) = stream.into_split();
@@ -856,6 +874,7 @@ async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: Sessi
             tx,
             reader: reader.abort_handle(),
             writer,
+            data_address,
         };
         if io.send(accepted).await.is_err() {
             reader.abort();
