@@ -799,3 +799,34 @@ async fn a_first_counter_far_from_the_clock_is_refused_as_a_replay() {
     assert!(matches!(recv(&rx).await, Msg::Emergency { kind, .. } if kind == "fresh"));
     assert_eq!(rx.stats().wire.replay, 1);
 }
+
+#[tokio::test]
+async fn dropping_a_subscription_disconnects_and_dropping_the_handle_closes_the_rest() {
+    let m = manager("skeeter").await;
+    let _p = pump(m.publisher(info("a")));
+    let _q = pump(m.publisher(info("b")));
+    let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
+        .await
+        .unwrap();
+    within("register", c.register()).await.unwrap();
+    let mut a = within("request", c.request("a", 0)).await.unwrap();
+    let mut b = within("request", c.request("b", 0)).await.unwrap();
+    expect_samples(&mut a, 2).await;
+    expect_samples(&mut b, 2).await;
+    drop(a);
+    // The manager hears the Disconnect: one data session left, and "a" can be asked again.
+    within("one data session", async {
+        while m.stats().await.unwrap().data_sessions != 1 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await;
+    let mut a = within("request", c.request("a", 0)).await.unwrap();
+    expect_samples(&mut a, 2).await;
+    // Dropping the handle ends every subscription with Closed (not a hang).
+    drop(c);
+    for s in [&mut a, &mut b] {
+        assert_eq!(end_of(s).await, EndReason::Disconnected);
+        assert!(within("end", s.next()).await.is_none());
+    }
+}

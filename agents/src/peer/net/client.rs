@@ -129,6 +129,12 @@ impl SubShared {
             if matches!(e, SubscriptionEvent::Closed { .. }) {
                 st.done = true;
             }
+            // Interruptions not yet taken collapse into the latest one.
+            if matches!(e, SubscriptionEvent::Lost { .. })
+                && matches!(st.queue.back(), Some(SubscriptionEvent::Lost { .. }))
+            {
+                st.queue.pop_back();
+            }
             st.queue.push_back(e);
             any = true;
         }
@@ -140,10 +146,26 @@ impl SubShared {
 }
 
 /// The receiving end of a granted request: samples (latest-value: a slow reader loses the
-/// oldest), interruptions and the end.
+/// oldest), interruptions and the end. Dropping it before its end disconnects the source
+/// (as [`PeerClientHandle::disconnect`] would).
 pub struct Subscription {
     source: String,
     shared: Arc<SubShared>,
+    cmd: mpsc::WeakUnboundedSender<Cmd>,
+}
+
+impl Drop for Subscription {
+    fn drop(&mut self) {
+        if self.shared.lock().done {
+            return;
+        }
+        if let Some(cmd) = self.cmd.upgrade() {
+            let _ = cmd.send(Cmd::Dropped {
+                source: core::mem::take(&mut self.source),
+                shared: self.shared.clone(),
+            });
+        }
+    }
 }
 
 impl core::fmt::Debug for Subscription {
@@ -220,6 +242,11 @@ enum Cmd {
         reply: Reply<()>,
     },
     Sources(oneshot::Sender<(u64, Vec<SourceInfo>)>),
+    /// A subscription was dropped before its end: disconnect its source.
+    Dropped {
+        source: String,
+        shared: Arc<SubShared>,
+    },
 }
 
 struct DataEnd {
@@ -229,17 +256,12 @@ struct DataEnd {
 }
 
 /// A client session to one manager. Dropping the handle ends the session (and every data
-/// session opened through it).
+/// session opened through it); every live subscription then ends with
+/// [`EndReason::Disconnected`].
 #[derive(Debug)]
 pub struct PeerClientHandle {
     cmd: mpsc::UnboundedSender<Cmd>,
     task: JoinHandle<()>,
-}
-
-impl Drop for PeerClientHandle {
-    fn drop(&mut self) {
-        self.task.abort();
-    }
 }
 
 impl PeerClientHandle {
@@ -269,6 +291,7 @@ impl PeerClientHandle {
         let core = PeerClient::new(ccfg, key.clone(), clock.now());
         let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
         let task = ClientTask {
+            cmd: cmd_tx.downgrade(),
             core,
             clock,
             key,
@@ -359,6 +382,8 @@ struct SubRec {
 }
 
 struct ClientTask {
+    /// For the subscriptions (weak: the handle's drop still closes the channel).
+    cmd: mpsc::WeakUnboundedSender<Cmd>,
     core: PeerClient,
     clock: TokioClock,
     key: GroupKey,
@@ -436,13 +461,19 @@ impl ClientTask {
             }
         }
         // Lost or dropped: every data session ends with the session.
+        let reason = if lost {
+            EndReason::ManagerLost
+        } else {
+            EndReason::Disconnected
+        };
         for (_, sub) in std::mem::take(&mut self.subs) {
             if let Some((_, close)) = sub.data {
                 let _ = close.send(());
             }
-            sub.shared.push(SubscriptionEvent::Closed {
-                reason: EndReason::ManagerLost,
-            });
+            sub.shared.push(SubscriptionEvent::Closed { reason });
+        }
+        for (_, w) in std::mem::take(&mut self.req_replies) {
+            let _ = w.send(Err(NetError::Closed));
         }
         drop(wtx);
         let _ = writer.await;
@@ -495,6 +526,16 @@ impl ClientTask {
             }
             Cmd::Sources(reply) => {
                 let _ = reply.send((self.core.id(), self.core.sources().to_vec()));
+            }
+            Cmd::Dropped { source, shared } => {
+                if self
+                    .subs
+                    .get(&source)
+                    .is_some_and(|s| Arc::ptr_eq(&s.shared, &shared))
+                {
+                    let _ = self.core.disconnect(&source);
+                    self.end_sub(&source, EndReason::Disconnected);
+                }
             }
         }
     }
@@ -630,6 +671,7 @@ impl ClientTask {
             let s = Subscription {
                 source: source.clone(),
                 shared: sub.shared.clone(),
+                cmd: self.cmd.clone(),
             };
             if r.send(Ok(s)).is_err() {
                 // The requester went away: withdraw.
@@ -791,5 +833,31 @@ async fn run_data(t: &mut DataTask) -> DataClose {
                 s.handle_timeout(clock.now());
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pending_interruptions_collapse_into_the_latest() {
+        let s = SubShared::new(4);
+        let lost = SubscriptionEvent::Lost {
+            reason: LossReason::Revoked(RevokeReason::TaskPriority),
+        };
+        s.push(lost.clone());
+        s.push(lost.clone());
+        s.push(SubscriptionEvent::Sample {
+            seq: 1,
+            stamp_us: 0,
+            payload: Vec::new(),
+        });
+        s.push(lost.clone());
+        s.push(lost.clone());
+        let q: Vec<_> = s.lock().queue.iter().cloned().collect();
+        assert_eq!(q.len(), 3, "{q:?}");
+        assert_eq!(q.first(), Some(&lost));
+        assert_eq!(q.last(), Some(&lost));
     }
 }
