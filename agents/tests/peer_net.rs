@@ -105,7 +105,7 @@ async fn end_of(sub: &mut Subscription) -> EndReason {
 #[tokio::test]
 async fn client_streams_a_source_end_to_end() {
     let m = manager("skeeter").await;
-    let _p = pump(m.publisher(info("counter")));
+    let _p = pump(m.publisher(info("counter")).unwrap());
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
@@ -141,7 +141,7 @@ async fn sources_added_and_removed_at_runtime() {
         .await
         .unwrap();
     assert!(within("register", c.register()).await.unwrap().is_empty());
-    let p = m.publisher(info("late"));
+    let p = m.publisher(info("late")).unwrap();
     timeout(GENEROUS, async {
         while !c
             .sources()
@@ -183,7 +183,7 @@ async fn sources_added_and_removed_at_runtime() {
 #[tokio::test]
 async fn task_priority_gates_revokes_and_regrants() {
     let m = manager("skeeter").await;
-    let _p = pump(m.publisher(info("ses")));
+    let _p = pump(m.publisher(info("ses")).unwrap());
     m.set_task_priority(Some(5));
     let c = Arc::new(
         PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
@@ -277,7 +277,7 @@ async fn silent_manager_is_declared_lost_within_three_heartbeats() {
         .unwrap();
     *req_up.lock().unwrap() = Some(m.local_addr());
     *data_up.lock().unwrap() = Some(m.data_addr());
-    let _p = pump(m.publisher(info("counter")));
+    let _p = pump(m.publisher(info("counter")).unwrap());
     let c = PeerClientHandle::connect(req_proxy, &short("scooter"), key())
         .await
         .unwrap();
@@ -320,8 +320,8 @@ async fn silent_manager_is_declared_lost_within_three_heartbeats() {
 #[tokio::test]
 async fn killed_manager_closes_every_session() {
     let m = manager("skeeter").await;
-    let _p = pump(m.publisher(info("a")));
-    let _q = pump(m.publisher(info("b")));
+    let _p = pump(m.publisher(info("a")).unwrap());
+    let _q = pump(m.publisher(info("b")).unwrap());
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
@@ -343,7 +343,7 @@ async fn killed_manager_closes_every_session() {
 #[tokio::test]
 async fn orderly_shutdown_revokes_grants() {
     let m = manager("skeeter").await;
-    let _p = pump(m.publisher(info("a")));
+    let _p = pump(m.publisher(info("a")).unwrap());
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
@@ -372,7 +372,7 @@ async fn closed_by_peer(mut s: TcpStream) -> bool {
 #[tokio::test]
 async fn bad_frames_are_rejected_counted_and_others_served() {
     let m = manager("skeeter").await;
-    let _p = pump(m.publisher(info("counter")));
+    let _p = pump(m.publisher(info("counter")).unwrap());
     let good = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
@@ -803,8 +803,8 @@ async fn a_first_counter_far_from_the_clock_is_refused_as_a_replay() {
 #[tokio::test]
 async fn dropping_a_subscription_disconnects_and_dropping_the_handle_closes_the_rest() {
     let m = manager("skeeter").await;
-    let _p = pump(m.publisher(info("a")));
-    let _q = pump(m.publisher(info("b")));
+    let _p = pump(m.publisher(info("a")).unwrap());
+    let _q = pump(m.publisher(info("b")).unwrap());
     let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
         .await
         .unwrap();
@@ -829,4 +829,56 @@ async fn dropping_a_subscription_disconnects_and_dropping_the_handle_closes_the_
         assert_eq!(end_of(s).await, EndReason::Disconnected);
         assert!(within("end", s.next()).await.is_none());
     }
+}
+
+#[tokio::test]
+async fn publisher_refuses_what_the_competency_list_cannot_carry() {
+    let m = manager("skeeter").await;
+    let long = "x".repeat(256);
+    assert!(matches!(m.publisher(info(&long)), Err(NetError::Config(_))));
+    let mut kind = info("k");
+    kind.kind = long.clone();
+    assert!(matches!(m.publisher(kind), Err(NetError::Config(_))));
+    assert!(matches!(m.publisher(info("")), Err(NetError::Config(_))));
+    // 255-byte names: the list outgrows max_body (8192) long before 255 sources.
+    let name = |i: usize| format!("{i:0>255}");
+    let mut kept = Vec::new();
+    let mut refused = None;
+    for i in 0..40 {
+        match m.publisher(info(&name(i))) {
+            Ok(p) => kept.push(p),
+            Err(e) => {
+                refused = Some((i, e));
+                break;
+            }
+        }
+    }
+    let (i, e) = refused.expect("the list fills up");
+    assert!(i > 20 && i < 40, "{i}");
+    assert!(matches!(e, NetError::Config(_)));
+    // Clients can still register and get the whole list.
+    let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
+        .await
+        .unwrap();
+    assert_eq!(within("register", c.register()).await.unwrap().len(), i);
+}
+
+#[tokio::test]
+async fn a_call_the_manager_never_answers_times_out() {
+    // A "manager" that accepts and reads but never answers.
+    let l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr().unwrap();
+    tokio::spawn(async move {
+        let (mut s, _) = l.accept().await.unwrap();
+        let mut buf = [0u8; 1024];
+        while s.read(&mut buf).await.is_ok_and(|n| n > 0) {}
+    });
+    let mut c = cfg("scooter");
+    c.heartbeat_ms = 60_000; // the loss window would end it otherwise
+    c.call_timeout_ms = 200;
+    let h = PeerClientHandle::connect(addr, &c, key()).await.unwrap();
+    assert!(matches!(
+        within("register", h.register()).await,
+        Err(NetError::Timeout)
+    ));
 }

@@ -355,7 +355,9 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     let mut events = m.events();
     let mut tasks = Vec::new();
     for s in &synthetic {
-        let p = m.publisher(SourceInfo::new(&s.name, &s.generator, 1, s.rate_hz));
+        let p = m
+            .publisher(SourceInfo::new(&s.name, &s.generator, 1, s.rate_hz))
+            .map_err(|e| anyhow::anyhow!("source {:?}: {e}", s.name))?;
         tasks.push(run_source(s, p)?);
     }
     line(&json!({

@@ -262,6 +262,7 @@ struct DataEnd {
 pub struct PeerClientHandle {
     cmd: mpsc::UnboundedSender<Cmd>,
     task: JoinHandle<()>,
+    call_timeout: Option<std::time::Duration>,
 }
 
 impl PeerClientHandle {
@@ -303,13 +304,26 @@ impl PeerClientHandle {
             generation: 0,
         };
         let task = tokio::spawn(task.run(stream, cmd_rx));
-        Ok(Self { cmd: cmd_tx, task })
+        Ok(Self {
+            cmd: cmd_tx,
+            task,
+            call_timeout: (cfg.call_timeout_ms > 0)
+                .then(|| std::time::Duration::from_millis(cfg.call_timeout_ms)),
+        })
     }
 
     async fn call<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, NetError> {
         let (tx, rx) = oneshot::channel();
         self.cmd.send(make(tx)).map_err(|_| NetError::ManagerLost)?;
-        rx.await.map_err(|_| NetError::ManagerLost)?
+        match self.call_timeout {
+            // On a timeout the reply's receiver is dropped: the task withdraws a request
+            // granted later.
+            Some(t) => tokio::time::timeout(t, rx)
+                .await
+                .map_err(|_| NetError::Timeout)?
+                .map_err(|_| NetError::ManagerLost)?,
+            None => rx.await.map_err(|_| NetError::ManagerLost)?,
+        }
     }
 
     /// Procedure *register*: returns the manager's competency list. A duplicate ID is

@@ -61,6 +61,10 @@ pub struct PeerNetConfig {
     /// (default 30 000; 0 turns the check off). Counters are UNIX µs, so a frame recorded
     /// before a restart of the receiver is refused as a replay (see the `peer` module docs).
     pub max_clock_skew_ms: u64,
+    /// How long a client's `register`, `unregister`, `request` (until granted) and
+    /// `disconnect` wait for the manager's answer before failing with `NetError::Timeout`,
+    /// ms (default 10 000; 0: no limit). A request that times out is withdrawn.
+    pub call_timeout_ms: u64,
     /// Manager side.
     pub manager: ManagerNetConfig,
     /// Broadcast channel.
@@ -76,6 +80,7 @@ impl Default for PeerNetConfig {
             missed_heartbeats: 3,
             max_body: crate::peer::wire::DEFAULT_MAX_BODY,
             max_clock_skew_ms: 30_000,
+            call_timeout_ms: 10_000,
             manager: ManagerNetConfig::default(),
             broadcast: BroadcastConfig::default(),
         }

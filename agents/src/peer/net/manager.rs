@@ -276,6 +276,7 @@ pub struct ManagerHandle {
     flush_limit: Duration,
     data_queue: usize,
     max_payload: usize,
+    max_body: usize,
 }
 
 impl ManagerHandle {
@@ -293,8 +294,37 @@ impl ManagerHandle {
 
     /// Adds (or replaces) a source and returns its publisher. Registered clients are told
     /// at once (`SourcesChanged`).
-    #[must_use]
-    pub fn publisher(&self, info: SourceInfo) -> SourcePublisher {
+    ///
+    /// # Errors
+    /// [`NetError::Config`] when the name is empty, the name or kind is longer than 255
+    /// bytes, the competency list would hold more than 255 sources, or its encoding would
+    /// not fit in one frame of `max_body` bytes (clients could not register).
+    pub fn publisher(&self, info: SourceInfo) -> Result<SourcePublisher, NetError> {
+        if info.name.is_empty() || info.name.len() > 255 || info.kind.len() > 255 {
+            return Err(NetError::Config(format!(
+                "source name (1..=255 bytes) or kind (0..=255 bytes) out of range: {:?}/{:?}",
+                info.name.len(),
+                info.kind.len()
+            )));
+        }
+        {
+            let map = lock(&self.shared.0.sources);
+            let others = map.values().filter(|e| e.info.name != info.name);
+            let count = others.clone().count().saturating_add(1);
+            // Registered body: client 8, count 1, per source: name 1+n, kind 1+k, 2, 4.
+            let size = others
+                .map(|e| &e.info)
+                .chain(core::iter::once(&info))
+                .map(|s| 8 + s.name.len() + s.kind.len())
+                .fold(9usize, usize::saturating_add);
+            if count > 255 || size > self.max_body {
+                return Err(NetError::Config(format!(
+                    "competency list full: {count} sources, {size} bytes encoded (limits 255 \
+                     and max_body {})",
+                    self.max_body
+                )));
+            }
+        }
         let id = {
             let mut n = lock(&self.shared.0.next_id);
             *n = n.wrapping_add(1);
@@ -310,14 +340,14 @@ impl ManagerHandle {
             },
         );
         let _ = self.ctl.send(Ctl::Rescan);
-        SourcePublisher {
+        Ok(SourcePublisher {
             id,
             name: info.name,
             tx,
             shared: self.shared.clone(),
             ctl: self.ctl.clone(),
             max_payload: self.max_payload,
-        }
+        })
     }
 
     /// Overrides the Self Agent's task priority (`None`: ask the Self Agent again). Grants
@@ -529,6 +559,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         flush_limit: cfg.loss_window().max(Duration::from_secs(1)),
         data_queue: cfg.manager.data_queue,
         max_payload: max_body.saturating_sub(SAMPLE_OVERHEAD),
+        max_body,
     })
 }
 

@@ -26,7 +26,7 @@
 //! // Skeeter: a manager with one source.
 //! let cfg = PeerNetConfig::loopback("skeeter");
 //! let manager = spawn_manager(&cfg, key.clone(), FixedSelfAgent::default()).await?;
-//! let ses = manager.publisher(SourceInfo::new("ses", "ses", 1, 0.2));
+//! let ses = manager.publisher(SourceInfo::new("ses", "ses", 1, 0.2))?;
 //! ses.publish(0, b"one full scan")?;
 //! // Scooter: a client of Skeeter's manager.
 //! let client =
@@ -88,6 +88,8 @@ pub enum NetError {
     ManagerLost,
     /// The task behind this handle has ended.
     Closed,
+    /// The manager did not answer within `call_timeout_ms` (the procedure is withdrawn).
+    Timeout,
 }
 
 impl core::fmt::Display for NetError {
@@ -103,6 +105,7 @@ impl core::fmt::Display for NetError {
             NetError::Revoked(r) => write!(f, "request revoked: {r:?}"),
             NetError::ManagerLost => f.write_str("manager lost"),
             NetError::Closed => f.write_str("the peer task has ended"),
+            NetError::Timeout => f.write_str("the manager did not answer in time"),
         }
     }
 }
