@@ -106,7 +106,8 @@ fn key_files_are_required_private_and_must_match() {
     let key = dir.join("group.key");
     std::fs::write(&key, format!("# test key\n{}\n", "5a".repeat(32))).unwrap();
     std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o644)).unwrap();
-    let cfg = manager_config(&dir, &format!("key_file = {:?}", key.to_str().unwrap()));
+    // Relative to the config file's directory (not to the working directory).
+    let cfg = manager_config(&dir, "key_file = \"group.key\"");
     let out = ima()
         .args(["peer", "manager", "--config"])
         .arg(&cfg)

@@ -214,9 +214,17 @@ fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSourc
         Some(v) => v.try_into().context("[[synthetic]] sources")?,
         None => Vec::new(),
     };
-    let cfg: PeerNetConfig = toml::Value::Table(table)
+    let mut cfg: PeerNetConfig = toml::Value::Table(table)
         .try_into()
         .with_context(|| format!("{}", path.display()))?;
+    // A relative `key_file` is relative to the config file's directory, not to the
+    // working directory.
+    if let Some(k) = &cfg.key_file
+        && k.is_relative()
+        && let Some(dir) = path.parent()
+    {
+        cfg.key_file = Some(dir.join(k));
+    }
     Ok((cfg, synthetic))
 }
 

@@ -100,6 +100,7 @@ impl BroadcastChannel {
     /// # Errors
     /// [`NetError::Config`] (bad addresses), [`NetError::Io`] (socket options, bind).
     pub fn bind(cfg: &PeerNetConfig, robot: &str, key: GroupKey) -> Result<Self, NetError> {
+        cfg.validate()?;
         let b = &cfg.broadcast;
         let sock = udp_socket(b)?;
         let socket = UdpSocket::from_std(sock.into())?;

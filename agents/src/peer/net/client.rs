@@ -276,6 +276,7 @@ impl PeerClientHandle {
         cfg: &PeerNetConfig,
         key: GroupKey,
     ) -> Result<Self, NetError> {
+        cfg.validate()?;
         let stream = TcpStream::connect(addr).await?;
         let _ = stream.set_nodelay(true);
         let clock = TokioClock::new();

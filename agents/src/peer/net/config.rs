@@ -10,6 +10,10 @@ use serde::{Deserialize, Serialize};
 
 use super::NetError;
 
+/// Upper bound of `manager.data_queue` and `manager.session_queue` (see
+/// [`PeerNetConfig::validate`]).
+pub const MAX_QUEUE: usize = 65_536;
+
 /// Configuration of one robot's Peer Agent over IP.
 ///
 /// ```toml
@@ -45,7 +49,7 @@ use super::NetError;
 /// loopback = true
 /// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PeerNetConfig {
     /// This robot's name (sent on registration, used as broadcast sender name).
     pub robot: String,
@@ -88,12 +92,53 @@ impl Default for PeerNetConfig {
 }
 
 impl PeerNetConfig {
-    /// Parses TOML.
+    /// Parses TOML (unknown keys are refused) and [validates](Self::validate) it.
     ///
     /// # Errors
     /// [`NetError::Config`].
     pub fn from_toml(text: &str) -> Result<Self, NetError> {
-        toml::from_str(text).map_err(|e| NetError::Config(e.to_string()))
+        let c: Self = toml::from_str(text).map_err(|e| NetError::Config(e.to_string()))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// Checks the limits: `max_body` in 256..=65 535 (the wire's body length is a u16),
+    /// `heartbeat_ms` and `missed_heartbeats` at least 1, `manager.data_queue` and
+    /// `manager.session_queue` in 1..=[`MAX_QUEUE`], `manager.max_clients` and
+    /// `manager.max_connections` at least 1. [`super::spawn_manager`],
+    /// [`super::PeerClientHandle::connect`] and [`super::BroadcastChannel::bind`] call it.
+    ///
+    /// # Errors
+    /// [`NetError::Config`] naming the first bad key.
+    pub fn validate(&self) -> Result<(), NetError> {
+        let bad = |key: &str, v: &dyn core::fmt::Display, range: &str| {
+            Err(NetError::Config(format!(
+                "{key} = {v} is out of range ({range})"
+            )))
+        };
+        if !(256..=usize::from(u16::MAX)).contains(&self.max_body) {
+            return bad("max_body", &self.max_body, "256..=65535");
+        }
+        if self.heartbeat_ms == 0 {
+            return bad("heartbeat_ms", &self.heartbeat_ms, "at least 1");
+        }
+        if self.missed_heartbeats == 0 {
+            return bad("missed_heartbeats", &self.missed_heartbeats, "at least 1");
+        }
+        let m = &self.manager;
+        if !(1..=MAX_QUEUE).contains(&m.data_queue) {
+            return bad("manager.data_queue", &m.data_queue, "1..=65536");
+        }
+        if !(1..=MAX_QUEUE).contains(&m.session_queue) {
+            return bad("manager.session_queue", &m.session_queue, "1..=65536");
+        }
+        if m.max_clients == 0 {
+            return bad("manager.max_clients", &m.max_clients, "at least 1");
+        }
+        if m.max_connections == 0 {
+            return bad("manager.max_connections", &m.max_connections, "at least 1");
+        }
+        Ok(())
     }
 
     /// Reads and parses a TOML file.
@@ -286,6 +331,13 @@ mod tests {
         assert_eq!(c.broadcast.mode, BroadcastMode::Both);
         assert_eq!(c.broadcast.port, 7477);
         assert!(PeerNetConfig::from_toml("[manager]\nbogus = 1\n").is_err());
+        assert!(PeerNetConfig::from_toml("bogus = 1\n").is_err());
+        assert!(PeerNetConfig::from_toml("max_body = 65536\n").is_err());
+        assert!(PeerNetConfig::from_toml("max_body = 65535\n").is_ok());
+        assert!(PeerNetConfig::from_toml("heartbeat_ms = 0\n").is_err());
+        assert!(PeerNetConfig::from_toml("[manager]\ndata_queue = 0\n").is_err());
+        assert!(PeerNetConfig::from_toml("[manager]\nsession_queue = 100000000\n").is_err());
+        assert!(PeerNetConfig::from_toml("[manager]\nmax_connections = 0\n").is_err());
         assert_eq!(
             PeerNetConfig::from_toml("").unwrap(),
             PeerNetConfig::default()

@@ -465,6 +465,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     key: GroupKey,
     agent: A,
 ) -> Result<ManagerHandle, NetError> {
+    cfg.validate()?;
     let listen = parse_addr(&cfg.manager.listen, "manager.listen")?;
     let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen")?;
     let listener = TcpListener::bind(listen).await?;

@@ -55,7 +55,7 @@ mod manager;
 pub use broadcast::{BroadcastChannel, BroadcastStats};
 pub use client::{EndReason, LossReason, PeerClientHandle, Subscription, SubscriptionEvent};
 pub use config::{
-    BroadcastConfig, BroadcastMode, ManagerNetConfig, PeerNetConfig, SyntheticSource,
+    BroadcastConfig, BroadcastMode, MAX_QUEUE, ManagerNetConfig, PeerNetConfig, SyntheticSource,
 };
 pub use key::{INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, parse_key};
 pub use manager::{
