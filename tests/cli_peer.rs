@@ -327,3 +327,70 @@ fn listener_prints_broadcasts_of_two_managers_and_a_sender() {
         );
     }
 }
+
+fn manager_fails_with(dir: &str, toml: &str, expect: &str) {
+    let dir = temp_dir(dir);
+    let p = dir.join("bad.toml");
+    std::fs::write(&p, toml).unwrap();
+    let out = ima()
+        .args(["peer", "manager", "--insecure", "--config"])
+        .arg(&p)
+        .stdout(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(expect), "{err}");
+}
+
+#[test]
+fn bad_synthetic_sources_are_refused() {
+    let src = |g: &str, rate: &str| {
+        format!(
+            "[manager]\nlisten = \"127.0.0.1:0\"\ndata_listen = \"127.0.0.1:0\"\n\
+             [[synthetic]]\nname = \"s\"\ngenerator = \"{g}\"\nrate_hz = {rate}\n"
+        )
+    };
+    manager_fails_with("rate0", &src("counter", "0.0"), "rate_hz");
+    manager_fails_with("rateneg", &src("counter", "-5.0"), "rate_hz");
+    manager_fails_with("ratenan", &src("counter", "nan"), "rate_hz");
+    manager_fails_with("blobbig", &src("blob100000", "1.0"), "payload limit");
+    manager_fails_with("unknown", "bogus_key = 1\n", "bogus_key");
+}
+
+#[test]
+fn insecure_manager_defaults_to_loopback() {
+    let dir = temp_dir("loopdefault");
+    let p = dir.join("any.toml");
+    // listen on every interface (port 0) unless --insecure narrows it.
+    std::fs::write(
+        &p,
+        "[manager]\nlisten = \"0.0.0.0:0\"\ndata_listen = \"0.0.0.0:0\"\n",
+    )
+    .unwrap();
+    let (_m, addr, _out) = spawn_manager(&["--insecure", "--config", p.to_str().unwrap()]);
+    assert!(addr.starts_with("127.0.0.1:"), "{addr}");
+}
+
+#[test]
+fn send_without_destinations_fails() {
+    let out = ima()
+        .args([
+            "peer",
+            "send",
+            "--insecure",
+            "--mode",
+            "unicast",
+            "--port",
+            "0",
+        ])
+        .args(["emergency", "--kind", "k"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("nowhere to send"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
