@@ -636,13 +636,12 @@ async fn unicast_fallback_and_both_modes() {
     exchange(sk, sc, cmd.clone()).await;
 
     // Both: the same message arrives twice; the copy is dropped as a duplicate.
+    // The sender binds its own port, so the listener alone owns port d and gets both the
+    // multicast copy and the unicast one.
     let d = free_udp_port();
-    let both = BroadcastChannel::bind(
-        &bcfg("skeeter2", BroadcastMode::Both, d, &[c]),
-        "skeeter2",
-        key.clone(),
-    )
-    .unwrap();
+    let mut both_cfg = bcfg("skeeter2", BroadcastMode::Both, d, &[c, d]);
+    both_cfg.broadcast.bind_port = Some(0);
+    let both = BroadcastChannel::bind(&both_cfg, "skeeter2", key.clone()).unwrap();
     let mut mc = bcfg("commander", BroadcastMode::Multicast, d, &[]);
     mc.broadcast.receive_own = true;
     let listener = BroadcastChannel::bind(&mc, "commander", key).unwrap();
@@ -653,6 +652,11 @@ async fn unicast_fallback_and_both_modes() {
     assert!(
         matches!(recv(&listener).await, Msg::Emergency { kind, .. } if kind == "scooter-found")
     );
+    // The copies were counted as duplicates, not as replays.
+    let st = listener.stats();
+    assert!(st.receiver.duplicate >= 1, "{st:?}");
+    assert_eq!(st.wire.replay, 0, "{st:?}");
+    assert_eq!(st.receiver.accepted, 2, "{st:?}");
 }
 
 #[tokio::test]
@@ -679,27 +683,34 @@ async fn broadcast_rejections_are_counted() {
     stranger.send_emergency("fake", "x").await.unwrap();
     tx.send_raw(&[1, 2, 3]).await.unwrap();
     let mut s = Signer::new(key(), 4242, unix_micros() + 10);
-    let frame = s
-        .seal_vec(&Msg::Emergency {
+    let mut emergency = |seq| {
+        s.seal_vec(&Msg::Emergency {
             robot: "replayer".into(),
-            seq: 1,
+            seq,
             kind: "k".into(),
             text: "t".into(),
         })
-        .unwrap();
-    tx.send_raw(&frame).await.unwrap();
-    tx.send_raw(&frame).await.unwrap(); // replay
+        .unwrap()
+    };
+    let (first, second) = (emergency(1), emergency(2));
+    tx.send_raw(&first).await.unwrap();
+    tx.send_raw(&second).await.unwrap();
+    tx.send_raw(&first).await.unwrap(); // replay of an older frame
+    tx.send_raw(&second).await.unwrap(); // a copy of the last one: a duplicate
     tx.send_mission(MissionEvent::Failed, "blue").await.unwrap();
     let mut got = Vec::new();
-    got.push(recv(&rx).await);
-    got.push(recv(&rx).await);
-    assert!(matches!(&got[0], Msg::Emergency { robot, .. } if robot == "replayer"));
-    assert!(matches!(&got[1], Msg::Mission { robot, .. } if robot == "skeeter"));
+    for _ in 0..3 {
+        got.push(recv(&rx).await);
+    }
+    assert!(matches!(&got[0], Msg::Emergency { robot, seq: 1, .. } if robot == "replayer"));
+    assert!(matches!(&got[1], Msg::Emergency { robot, seq: 2, .. } if robot == "replayer"));
+    assert!(matches!(&got[2], Msg::Mission { robot, .. } if robot == "skeeter"));
     let st = rx.stats();
     assert_eq!(st.wire.bad_mac, 1, "{st:?}");
     assert_eq!(st.wire.replay, 1, "{st:?}");
+    assert_eq!(st.receiver.duplicate, 1, "{st:?}");
     assert!(st.wire.truncated >= 1, "{st:?}");
-    assert_eq!(st.receiver.accepted, 2);
+    assert_eq!(st.receiver.accepted, 3);
 }
 
 #[tokio::test]
@@ -881,4 +892,27 @@ async fn a_call_the_manager_never_answers_times_out() {
         within("register", h.register()).await,
         Err(NetError::Timeout)
     ));
+}
+
+#[tokio::test]
+async fn own_messages_are_recognised_by_node_not_by_robot_name() {
+    let port = free_udp_port();
+    let a = BroadcastChannel::bind(
+        &bcfg("twin", BroadcastMode::Multicast, port, &[]),
+        "twin",
+        key(),
+    )
+    .unwrap();
+    let b = BroadcastChannel::bind(
+        &bcfg("twin", BroadcastMode::Multicast, port, &[]),
+        "twin",
+        key(),
+    )
+    .unwrap();
+    a.send_emergency("from-a", "").await.unwrap();
+    // b hears a (same robot name, another node); a drops its own looped-back copy.
+    assert!(matches!(recv(&b).await, Msg::Emergency { kind, .. } if kind == "from-a"));
+    b.send_emergency("from-b", "").await.unwrap();
+    assert!(matches!(recv(&a).await, Msg::Emergency { kind, .. } if kind == "from-b"));
+    assert_eq!(a.stats().own, 1);
 }

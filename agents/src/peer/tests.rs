@@ -860,10 +860,12 @@ fn broadcast_rejects_strangers_and_replays() {
         rx.handle_datagram(&f, ms(0)),
         Ok(Msg::Emergency { seq: 1, .. })
     ));
-    assert!(matches!(
+    // An exact copy of the frame last accepted (mode `both` sends two): a duplicate.
+    assert_eq!(
         rx.handle_datagram(&f, ms(1)),
-        Err(Rejection::Wire(WireError::Replay { .. }))
-    ));
+        Err(Rejection::Duplicate { seq: 1 })
+    );
+    assert_eq!(rx.wire_rejects().replay, 0);
     let mut stranger = Broadcaster::new(
         "skeeter",
         GroupKey::new(b"not the group key!").unwrap(),
@@ -883,8 +885,14 @@ fn broadcast_rejects_strangers_and_replays() {
         rx.handle_datagram(&buf[..n], ms(3)),
         Ok(Msg::Mission { seq: 2, .. })
     ));
+    // The older frame played again: a replay.
+    assert!(matches!(
+        rx.handle_datagram(&f, ms(4)),
+        Err(Rejection::Wire(WireError::Replay { .. }))
+    ));
     assert_eq!(rx.wire_rejects().bad_mac, 1);
     assert_eq!(rx.wire_rejects().replay, 1);
+    assert_eq!(rx.stats().duplicate, 1);
 }
 
 // ---- wire ----

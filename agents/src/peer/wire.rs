@@ -1028,6 +1028,12 @@ impl Verifier {
         }
     }
 
+    /// Whether a counter of `sender` is remembered.
+    #[must_use]
+    pub fn knows(&self, sender: u64) -> bool {
+        self.last.contains_key(&sender)
+    }
+
     /// Bounds (inclusive) for the first counter of a sender this verifier does not
     /// remember; `None` (the default) accepts any. A shell whose counters are clock values
     /// passes `now ± skew` here before opening frames, so that a frame recorded before a

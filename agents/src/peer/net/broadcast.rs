@@ -261,13 +261,9 @@ impl BroadcastChannel {
             let mut g = self.lock();
             g.rx.set_first_counter_window(self.first_window());
             if let Ok(msg) = g.rx.handle_datagram(frame, now) {
-                let sender = match &msg {
-                    Msg::Status { robot, .. }
-                    | Msg::Emergency { robot, .. }
-                    | Msg::Mission { robot, .. } => robot.as_str(),
-                    _ => "",
-                };
-                if !self.receive_own && sender == self.robot {
+                // Own messages (looped back by multicast) are recognised by this channel's
+                // node ID: another process may use the same robot name.
+                if !self.receive_own && g.rx.last_sender() == Some(g.tx.node()) {
                     g.own = g.own.saturating_add(1);
                     continue;
                 }

@@ -94,6 +94,9 @@ pub struct ManagerNetStats {
     pub data_bad_tickets: u64,
     /// Sessions closed by the shell because they could not keep up.
     pub slow_closed: u64,
+    /// Samples data sessions missed because they fell behind their source's queue (the
+    /// oldest are dropped: latest-value semantics).
+    pub lagged_samples: u64,
     /// The task priority in force.
     pub task_priority: u8,
     /// The competency list.
@@ -157,6 +160,8 @@ enum Ctl {
         reason: DataClose,
     },
     Rescan,
+    /// A data session fell behind its source by this many samples.
+    Lagged(u64),
     SetTaskPriority(Option<u8>),
     Stats(oneshot::Sender<ManagerNetStats>),
     Status(oneshot::Sender<Vec<ClientStatus>>),
@@ -521,6 +526,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         data_rejects: RejectCounts::default(),
         data_bad_tickets: 0,
         slow_closed: 0,
+        lagged_samples: 0,
         out: vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN],
         skew_us: cfg.max_clock_skew_ms.saturating_mul(1000),
     };
@@ -581,6 +587,7 @@ struct ManagerTask<A: SelfAgent> {
     data_rejects: RejectCounts,
     data_bad_tickets: u64,
     slow_closed: u64,
+    lagged_samples: u64,
     out: Vec<u8>,
     skew_us: u64,
 }
@@ -663,6 +670,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                 }
             }
             Ctl::Rescan => self.core.rescan(now),
+            Ctl::Lagged(n) => self.lagged_samples = self.lagged_samples.saturating_add(n),
             Ctl::SetTaskPriority(p) => {
                 self.core.agent_mut().task_override = p;
                 self.core.handle_timeout(now);
@@ -686,6 +694,7 @@ impl<A: SelfAgent> ManagerTask<A> {
             data_rejects: self.data_rejects,
             data_bad_tickets: self.data_bad_tickets,
             slow_closed: self.slow_closed,
+            lagged_samples: self.lagged_samples,
             task_priority: self.core.task_priority(),
             sources: self.core.sources().to_vec(),
         }
@@ -1101,7 +1110,9 @@ async fn serve_data(
                         }
                     }
                 }
-                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    let _ = ctl.send(Ctl::Lagged(n));
+                }
                 Err(broadcast::error::RecvError::Closed) => {
                     samples = None;
                     s.revoke(RevokeReason::SourceGone);
