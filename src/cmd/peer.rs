@@ -68,7 +68,7 @@ pub struct BroadcastArgs {
     /// Multicast interface address, e.g. 127.0.0.1 (overrides `broadcast.interface`).
     #[arg(long)]
     interface: Option<String>,
-    /// Unicast peer `host:port` (repeatable; replaces `broadcast.peers`).
+    /// Unicast peer `ip:port` (repeatable; replaces `broadcast.peers`).
     #[arg(long = "peer")]
     peers: Vec<String>,
 }

@@ -7,7 +7,7 @@ use ima_hal::time::TokioClock;
 use socket2::{Domain, Protocol, Socket, Type};
 use tokio::net::UdpSocket;
 
-use super::config::{BroadcastConfig, BroadcastMode, PeerNetConfig, parse_addr};
+use super::config::{BroadcastConfig, BroadcastMode, PeerNetConfig, parse_ip_addr};
 use super::{NetError, random_u64, unix_micros};
 use crate::peer::broadcast::{BroadcastReceiver, Broadcaster, ReceiverConfig, ReceiverStats};
 use crate::peer::wire::{
@@ -113,7 +113,8 @@ impl BroadcastChannel {
         }
         if b.mode != BroadcastMode::Multicast {
             for p in &b.peers {
-                dests.push(parse_addr(p, "broadcast.peers")?);
+                // IP literals only: `bind` is synchronous and must not block on DNS.
+                dests.push(parse_ip_addr(p, "broadcast.peers")?);
             }
         }
         let start = unix_micros();

@@ -277,7 +277,16 @@ impl PeerClientHandle {
         key: GroupKey,
     ) -> Result<Self, NetError> {
         cfg.validate()?;
-        let stream = TcpStream::connect(addr).await?;
+        // Bounded like the procedures (`call_timeout_ms`): a black-holed address fails
+        // with `Timeout` instead of waiting for the OS (minutes).
+        let stream = if cfg.call_timeout_ms > 0 {
+            let limit = std::time::Duration::from_millis(cfg.call_timeout_ms);
+            tokio::time::timeout(limit, TcpStream::connect(addr))
+                .await
+                .map_err(|_| NetError::Timeout)??
+        } else {
+            TcpStream::connect(addr).await?
+        };
         let _ = stream.set_nodelay(true);
         let clock = TokioClock::new();
         let mut ccfg = ClientConfig::new(&cfg.robot, random_u64(), random_u64());

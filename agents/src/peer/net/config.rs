@@ -265,7 +265,8 @@ pub struct BroadcastConfig {
     /// Port to bind when it differs from `port` (default: `port`); `0` binds any free
     /// port, for send-only tools and for unicast receivers that list their own port.
     pub bind_port: Option<u16>,
-    /// Unicast peers `host:port` (fallback where multicast is blocked).
+    /// Unicast peers `ip:port` (fallback where multicast is blocked); IP literals only (no
+    /// name lookup: binding never blocks on DNS).
     pub peers: Vec<String>,
     /// Multicast TTL (default 1: the local segment only).
     pub ttl: u32,
@@ -304,9 +305,23 @@ pub struct SyntheticSource {
     pub rate_hz: f64,
 }
 
-pub(crate) fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
-    use std::net::ToSocketAddrs;
-    s.to_socket_addrs()
+/// `ip:port` (an IP literal; no name lookup, so it never blocks).
+pub(crate) fn parse_ip_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
+    s.parse().map_err(|e| {
+        NetError::Config(format!(
+            "{what} {s:?}: {e} (an IP address and port, e.g. 192.168.1.12:7477)"
+        ))
+    })
+}
+
+/// `host:port`: an IP literal at once, else a name resolved without blocking the runtime
+/// (`tokio::net::lookup_host`).
+pub(crate) async fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
+    if let Ok(a) = s.parse() {
+        return Ok(a);
+    }
+    tokio::net::lookup_host(s)
+        .await
         .map_err(|e| NetError::Config(format!("{what} {s:?}: {e}")))?
         .next()
         .ok_or_else(|| NetError::Config(format!("{what} {s:?}: no address")))
@@ -332,6 +347,8 @@ mod tests {
         assert_eq!(c.broadcast.port, 7477);
         assert!(PeerNetConfig::from_toml("[manager]\nbogus = 1\n").is_err());
         assert!(PeerNetConfig::from_toml("bogus = 1\n").is_err());
+        assert!(parse_ip_addr("127.0.0.1:9", "x").is_ok());
+        assert!(parse_ip_addr("localhost:9", "x").is_err());
         assert!(PeerNetConfig::from_toml("max_body = 65536\n").is_err());
         assert!(PeerNetConfig::from_toml("max_body = 65535\n").is_ok());
         assert!(PeerNetConfig::from_toml("heartbeat_ms = 0\n").is_err());

@@ -471,8 +471,8 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     agent: A,
 ) -> Result<ManagerHandle, NetError> {
     cfg.validate()?;
-    let listen = parse_addr(&cfg.manager.listen, "manager.listen")?;
-    let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen")?;
+    let listen = parse_addr(&cfg.manager.listen, "manager.listen").await?;
+    let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen").await?;
     let listener = TcpListener::bind(listen).await?;
     let data_listener = TcpListener::bind(data_listen).await?;
     let local_addr = listener.local_addr()?;
