@@ -76,6 +76,20 @@
 //!   draws its sender ID from the OS random source and starts its frame counter (and the
 //!   broadcast sequence) at the UNIX time in µs, so a restarted process is not taken for a
 //!   replayer. The manager's ticket key is 32 random bytes drawn at start-up.
+//! * **Robustness of the shell** — every session loop polls input before timers
+//!   (`select!` is biased) and takes input already queued before it handles a timeout, so a
+//!   task starved of CPU does not declare a live peer lost. Each listener serves at most
+//!   `manager.max_connections` connections (more wait in the kernel backlog); a connection
+//!   costs small buffers until it sends a whole frame (data server: until a ticket is
+//!   accepted); each client session has at most 4 frames in the manager's shared input
+//!   queue; a bad header stops reading a session at once; every socket write is bounded by
+//!   the loss window (a peer that reads nothing is lost, and the writer does not hang).
+//!   `ManagerHandle::shutdown` returns after the `Revoked(Shutdown)` frames are written (or
+//!   the loss window passed). Dropping a `Subscription` disconnects its source; dropping a
+//!   `PeerClientHandle` ends every subscription with `Closed { Disconnected }`.
+//!   `ManagerHandle::publisher` refuses names/kinds over 255 bytes and a competency list
+//!   that would not fit in one frame. Broadcast receivers drop their own messages by node
+//!   ID (not robot name), and count the second copy of a frame (mode `both`) as a duplicate.
 //! * **Replay after a restart** — a verifier remembers counters only while it runs, so a
 //!   frame recorded before the receiver restarted would otherwise open. The shell therefore
 //!   refuses the FIRST counter of a sender it does not remember unless it lies within
@@ -97,6 +111,7 @@
 //! | `missed_heartbeats` | 3 | intervals without a frame before the peer is lost |
 //! | `max_body` | 8192 | body-size limit of incoming frames |
 //! | `max_clock_skew_ms` | 30000 | window around the receiver's clock for an unknown sender's first counter (0: off) |
+//! | `call_timeout_ms` | 10000 | client `connect`, `register`, `unregister`, `request` (until granted), `disconnect` fail with `NetError::Timeout` after this (0: no limit); a timed-out request is withdrawn |
 //! | `manager.listen` | `0.0.0.0:7400` | request channel |
 //! | `manager.data_listen` | `0.0.0.0:0` | data server |
 //! | `manager.data_advertise` | listener address (0.0.0.0 → the local IP each client reached) | address put in grants |
