@@ -916,3 +916,35 @@ async fn own_messages_are_recognised_by_node_not_by_robot_name() {
     assert!(matches!(recv(&a).await, Msg::Emergency { kind, .. } if kind == "from-b"));
     assert_eq!(a.stats().own, 1);
 }
+
+#[tokio::test] // current-thread runtime: nothing else runs while the loop publishes
+async fn samples_a_data_session_missed_are_counted() {
+    let mut mc = cfg("skeeter");
+    mc.manager.data_queue = 4;
+    let m = spawn_manager(&mc, key(), FixedSelfAgent::new(0, Vec::new()))
+        .await
+        .unwrap();
+    let p = m.publisher(info("burst")).unwrap();
+    let c = PeerClientHandle::connect(m.local_addr(), &cfg("scooter"), key())
+        .await
+        .unwrap();
+    within("register", c.register()).await.unwrap();
+    let mut sub = within("request", c.request("burst", 0)).await.unwrap();
+    within("streaming", async {
+        while p.subscribers() == 0 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await;
+    for i in 0..100u64 {
+        let _ = p.publish(i, &i.to_le_bytes());
+    }
+    within("lag counted", async {
+        while m.stats().await.unwrap().lagged_samples == 0 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    })
+    .await;
+    // The newest samples still arrive.
+    let _ = next(&mut sub).await;
+}
