@@ -6,6 +6,7 @@ mod common;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{ChildStdout, Stdio};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use common::{Child, ima, json_lines};
@@ -22,7 +23,7 @@ fn manager_config(dir: &std::path::Path, extra: &str) -> PathBuf {
     std::fs::write(
         &p,
         format!(
-            "robot = \"skeeter\"\nheartbeat_ms = 100\n{extra}\n[manager]\nlisten = \"127.0.0.1:0\"\n\
+            "robot = \"skeeter\"\nheartbeat_ms = 500\n{extra}\n[manager]\nlisten = \"127.0.0.1:0\"\n\
              data_listen = \"127.0.0.1:0\"\n[[synthetic]]\nname = \"counter\"\n\
              generator = \"counter\"\nrate_hz = 100\n[[synthetic]]\nname = \"blob64\"\n\
              generator = \"blob64\"\nrate_hz = 100\n"
@@ -105,7 +106,8 @@ fn key_files_are_required_private_and_must_match() {
     let key = dir.join("group.key");
     std::fs::write(&key, format!("# test key\n{}\n", "5a".repeat(32))).unwrap();
     std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o644)).unwrap();
-    let cfg = manager_config(&dir, &format!("key_file = {:?}", key.to_str().unwrap()));
+    // Relative to the config file's directory (not to the working directory).
+    let cfg = manager_config(&dir, "key_file = \"group.key\"");
     let out = ima()
         .args(["peer", "manager", "--config"])
         .arg(&cfg)
@@ -143,14 +145,14 @@ fn key_files_are_required_private_and_must_match() {
 }
 
 /// Streams from a manager, does `act` to the manager process, and returns the client's
-/// output and how long the loss took to report.
-fn client_sees_loss(act: &str) -> (Vec<Value>, Duration) {
+/// output after the manager's end (no timing is asserted: the client must end by itself).
+fn client_sees_loss(act: &str) -> Vec<Value> {
     let dir = temp_dir(act);
     let cfg = manager_config(&dir, "");
     let (m, addr, _out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
     let mut client = Child(
         ima()
-            .args(["peer", "client", "--insecure", "--heartbeat-ms", "100"])
+            .args(["peer", "client", "--insecure", "--heartbeat-ms", "500"])
             .args(["--connect", &addr, "--request", "counter"])
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -162,14 +164,18 @@ fn client_sees_loss(act: &str) -> (Vec<Value>, Duration) {
     let mut l = String::new();
     while lines.len() < 5 {
         l.clear();
-        out.read_line(&mut l).unwrap();
-        let v: Value = serde_json::from_str(&l).unwrap();
+        let n = out.read_line(&mut l).unwrap();
+        assert!(
+            n > 0,
+            "the client ended before streaming 5 samples; got {lines:?}"
+        );
+        let v: Value = serde_json::from_str(&l)
+            .unwrap_or_else(|e| panic!("client output is not JSON ({e}): {l:?}"));
         if v.get("seq").is_some() {
             lines.push(v);
         }
     }
     let pid = m.0.id().to_string();
-    let t0 = Instant::now();
     let status = std::process::Command::new("kill")
         .args([act, &pid])
         .status()
@@ -183,7 +189,6 @@ fn client_sees_loss(act: &str) -> (Vec<Value>, Duration) {
         }
         rest.push_str(&l);
     }
-    let took = t0.elapsed();
     let code = client.0.wait().unwrap();
     assert!(!code.success(), "the client reports the end of its source");
     if act == "-STOP" {
@@ -192,20 +197,19 @@ fn client_sees_loss(act: &str) -> (Vec<Value>, Duration) {
             .status();
     }
     drop(m);
-    (json_lines(rest.as_bytes()), took)
+    json_lines(rest.as_bytes())
 }
 
 #[test]
 fn killed_manager_process_is_reported() {
-    let (lines, took) = client_sees_loss("-KILL");
+    let lines = client_sees_loss("-KILL");
     let last = lines.last().expect("a closing line");
     assert_eq!(last["event"], "closed");
-    assert!(took < Duration::from_secs(5));
 }
 
 #[test]
 fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
-    let (lines, took) = client_sees_loss("-STOP");
+    let lines = client_sees_loss("-STOP");
     let last = lines.last().expect("a closing line");
     assert_eq!(last["event"], "closed");
     let reason = last["reason"].as_str().unwrap();
@@ -213,21 +217,47 @@ fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
         reason == "ManagerLost" || reason == "Data(Lost)",
         "{reason}"
     );
-    // 3 heartbeats are 300 ms; generous bound for a loaded machine.
-    assert!(took < Duration::from_secs(5), "{took:?}");
 }
 
-fn free_udp_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+/// Reads `out` line by line on a thread, so that the test can wait with a deadline.
+fn line_channel(out: BufReader<ChildStdout>) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for l in out.lines() {
+            let Ok(l) = l else { return };
+            if tx.send(l).is_err() {
+                return;
+            }
+        }
+    });
+    rx
 }
 
 #[test]
 fn listener_prints_broadcasts_of_two_managers_and_a_sender() {
-    let port = free_udp_port().to_string();
+    // The listener binds port 0 and the others join the port it got: no "free port" guess
+    // that another test could be handed too.
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--insecure", "--port", "0"])
+            .args(["--interface", "127.0.0.1", "--group", "239.255.73.79"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let rx = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
+    let first = rx
+        .recv_timeout(Duration::from_secs(30))
+        .expect("the listener's first line");
+    let first: Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(first["event"], "listening");
+    let port = first["addr"]
+        .as_str()
+        .and_then(|a| a.rsplit(':').next())
+        .expect("listening address")
+        .to_owned();
+    assert_ne!(port, "0");
     let bcast = [
         "--insecure",
         "--port",
@@ -237,19 +267,6 @@ fn listener_prints_broadcasts_of_two_managers_and_a_sender() {
         "--group",
         "239.255.73.79",
     ];
-    let mut listener = Child(
-        ima()
-            .args(["peer", "listen", "--count", "6"])
-            .args(bcast)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut out = BufReader::new(listener.0.stdout.take().unwrap());
-    let mut first = String::new();
-    out.read_line(&mut first).unwrap();
-    assert!(first.contains("listening"));
     let dir = temp_dir("bcast");
     let cfg = manager_config(&dir, "");
     let mut managers = Vec::new();
@@ -259,40 +276,121 @@ fn listener_prints_broadcasts_of_two_managers_and_a_sender() {
         args.extend(bcast);
         managers.push(spawn_manager(&args));
     }
-    let sent = ima()
-        .args(["peer", "send", "--robot", "commander"])
-        .args(bcast)
-        .args(["mission", "--event", "accepted", "--target", "red"])
+    // Collect until both managers' status and the commander's mission were heard (the
+    // mission is sent again while unheard: UDP gives no delivery guarantee).
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut lines: Vec<Value> = Vec::new();
+    let heard = |lines: &[Value]| {
+        let status = |r: &str| {
+            lines
+                .iter()
+                .any(|l| l["type"] == "status" && l["robot"] == r)
+        };
+        let mission = lines
+            .iter()
+            .any(|l| l["type"] == "mission" && l["robot"] == "commander" && l["target"] == "red");
+        (status("skeeter") && status("scooter"), mission)
+    };
+    let mut next_send = Instant::now();
+    loop {
+        let (statuses, mission) = heard(&lines);
+        if statuses && mission {
+            break;
+        }
+        assert!(Instant::now() < deadline, "not all heard: {lines:?}");
+        if !mission && Instant::now() >= next_send {
+            let sent = ima()
+                .args(["peer", "send", "--robot", "commander"])
+                .args(bcast)
+                .args(["mission", "--event", "accepted", "--target", "red"])
+                .output()
+                .unwrap();
+            assert!(
+                sent.status.success(),
+                "{}",
+                String::from_utf8_lossy(&sent.stderr)
+            );
+            next_send = Instant::now() + Duration::from_secs(5);
+        }
+        if let Ok(l) = rx.recv_timeout(Duration::from_millis(200)) {
+            let v: Value = serde_json::from_str(&l)
+                .unwrap_or_else(|e| panic!("listener output is not JSON ({e}): {l:?}"));
+            lines.push(v);
+        }
+    }
+    // Every line is a broadcast of one of the three senders.
+    for l in &lines {
+        let robot = l["robot"].as_str().unwrap_or_default();
+        assert!(
+            ["skeeter", "scooter", "commander"].contains(&robot),
+            "{l:?}"
+        );
+    }
+}
+
+fn manager_fails_with(dir: &str, toml: &str, expect: &str) {
+    let dir = temp_dir(dir);
+    let p = dir.join("bad.toml");
+    std::fs::write(&p, toml).unwrap();
+    let out = ima()
+        .args(["peer", "manager", "--insecure", "--config"])
+        .arg(&p)
+        .stdout(Stdio::null())
         .output()
         .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(expect), "{err}");
+}
+
+#[test]
+fn bad_synthetic_sources_are_refused() {
+    let src = |g: &str, rate: &str| {
+        format!(
+            "[manager]\nlisten = \"127.0.0.1:0\"\ndata_listen = \"127.0.0.1:0\"\n\
+             [[synthetic]]\nname = \"s\"\ngenerator = \"{g}\"\nrate_hz = {rate}\n"
+        )
+    };
+    manager_fails_with("rate0", &src("counter", "0.0"), "rate_hz");
+    manager_fails_with("rateneg", &src("counter", "-5.0"), "rate_hz");
+    manager_fails_with("ratenan", &src("counter", "nan"), "rate_hz");
+    manager_fails_with("blobbig", &src("blob100000", "1.0"), "payload limit");
+    manager_fails_with("unknown", "bogus_key = 1\n", "bogus_key");
+}
+
+#[test]
+fn insecure_manager_defaults_to_loopback() {
+    let dir = temp_dir("loopdefault");
+    let p = dir.join("any.toml");
+    // listen on every interface (port 0) unless --insecure narrows it.
+    std::fs::write(
+        &p,
+        "[manager]\nlisten = \"0.0.0.0:0\"\ndata_listen = \"0.0.0.0:0\"\n",
+    )
+    .unwrap();
+    let (_m, addr, _out) = spawn_manager(&["--insecure", "--config", p.to_str().unwrap()]);
+    assert!(addr.starts_with("127.0.0.1:"), "{addr}");
+}
+
+#[test]
+fn send_without_destinations_fails() {
+    let out = ima()
+        .args([
+            "peer",
+            "send",
+            "--insecure",
+            "--mode",
+            "unicast",
+            "--port",
+            "0",
+        ])
+        .args(["emergency", "--kind", "k"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
     assert!(
-        sent.status.success(),
+        String::from_utf8_lossy(&out.stderr).contains("nowhere to send"),
         "{}",
-        String::from_utf8_lossy(&sent.stderr)
+        String::from_utf8_lossy(&out.stderr)
     );
-    let mut rest = String::new();
-    let mut l = String::new();
-    while out.read_line(&mut l).unwrap() > 0 {
-        rest.push_str(&l);
-        l.clear();
-    }
-    let lines = json_lines(rest.as_bytes());
-    let robots: std::collections::BTreeSet<&str> = lines
-        .iter()
-        .filter(|l| l["type"] == "status")
-        .map(|l| l["robot"].as_str().unwrap())
-        .collect();
-    assert!(
-        robots.contains("skeeter") && robots.contains("scooter"),
-        "{lines:?}"
-    );
-    assert!(
-        lines
-            .iter()
-            .any(|l| l["type"] == "mission" && l["robot"] == "commander" && l["target"] == "red"),
-        "{lines:?}"
-    );
-    let stats = lines.last().unwrap();
-    assert_eq!(stats["event"], "stats");
-    assert_eq!(stats["accepted"].as_u64(), Some(6));
 }

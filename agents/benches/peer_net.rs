@@ -75,7 +75,7 @@ async fn round_trips(n: usize) {
     let m = spawn_manager(&cfg, key(), FixedSelfAgent::default())
         .await
         .unwrap();
-    let _p = m.publisher(info("ses"));
+    let _p = m.publisher(info("ses")).unwrap();
     let c = PeerClientHandle::connect(m.local_addr(), &PeerNetConfig::loopback("scooter"), key())
         .await
         .unwrap();
@@ -101,7 +101,7 @@ async fn throughput(size: usize, secs: f64) {
     let m = spawn_manager(&cfg, key(), FixedSelfAgent::default())
         .await
         .unwrap();
-    let p = m.publisher(info("blob"));
+    let p = m.publisher(info("blob")).unwrap();
     let c = PeerClientHandle::connect(m.local_addr(), &PeerNetConfig::loopback("scooter"), key())
         .await
         .unwrap();
@@ -232,7 +232,7 @@ async fn thousand_clients(n: usize, trips: usize) {
     let m = spawn_manager(&cfg, key(), FixedSelfAgent::default())
         .await
         .unwrap();
-    let _p = m.publisher(info("ses"));
+    let _p = m.publisher(info("ses")).unwrap();
     let addr = m.local_addr();
     let before = rss_bytes();
     // Raw clients: one socket and one sealed Register each, so this process's growth is the
@@ -332,7 +332,7 @@ async fn loss_detection(trials: usize) {
             .unwrap();
         *req_up.lock().unwrap() = Some(m.local_addr());
         *data_up.lock().unwrap() = Some(m.data_addr());
-        let p = m.publisher(info("counter"));
+        let p = m.publisher(info("counter")).unwrap();
         let c = PeerClientHandle::connect(req_proxy, &PeerNetConfig::loopback("scooter"), key())
             .await
             .unwrap();
@@ -385,7 +385,7 @@ fn publish_64b(b: divan::Bencher) {
         )
         .await
         .unwrap();
-        let p = m.publisher(info("blob"));
+        let p = m.publisher(info("blob")).unwrap();
         let c = PeerClientHandle::connect(m.local_addr(), &PeerNetConfig::loopback("c"), key())
             .await
             .unwrap();

@@ -68,7 +68,7 @@ pub struct BroadcastArgs {
     /// Multicast interface address, e.g. 127.0.0.1 (overrides `broadcast.interface`).
     #[arg(long)]
     interface: Option<String>,
-    /// Unicast peer `host:port` (repeatable; replaces `broadcast.peers`).
+    /// Unicast peer `ip:port` (repeatable; replaces `broadcast.peers`).
     #[arg(long = "peer")]
     peers: Vec<String>,
 }
@@ -214,9 +214,17 @@ fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSourc
         Some(v) => v.try_into().context("[[synthetic]] sources")?,
         None => Vec::new(),
     };
-    let cfg: PeerNetConfig = toml::Value::Table(table)
+    let mut cfg: PeerNetConfig = toml::Value::Table(table)
         .try_into()
         .with_context(|| format!("{}", path.display()))?;
+    // A relative `key_file` is relative to the config file's directory, not to the
+    // working directory.
+    if let Some(k) = &cfg.key_file
+        && k.is_relative()
+        && let Some(dir) = path.parent()
+    {
+        cfg.key_file = Some(dir.join(k));
+    }
     Ok((cfg, synthetic))
 }
 
@@ -319,9 +327,35 @@ fn synth(generator: &str, i: u64, t: f64) -> Result<Vec<u8>> {
     })
 }
 
+/// Checks a synthetic source before it is published: a finite positive rate, a known
+/// generator, and a sample that fits in one data frame (`max_payload`).
+fn check_synthetic(s: &SyntheticSource, max_payload: usize) -> Result<()> {
+    if !(s.rate_hz.is_finite() && s.rate_hz > 0.0) {
+        bail!(
+            "synthetic source {:?}: rate_hz = {} must be a finite number above 0",
+            s.name,
+            s.rate_hz
+        );
+    }
+    if let Some(n) = s
+        .generator
+        .strip_prefix("blob")
+        .and_then(|n| n.parse::<usize>().ok())
+        && n > max_payload
+    {
+        bail!(
+            "synthetic source {:?}: {} bytes per sample, above the payload limit of {max_payload} \
+             (raise max_body)",
+            s.name,
+            n
+        );
+    }
+    synth(&s.generator, 0, 0.0).map(|_| ())
+}
+
 fn run_source(s: &SyntheticSource, p: SourcePublisher) -> Result<tokio::task::JoinHandle<()>> {
     let generator = s.generator.clone();
-    synth(&generator, 0, 0.0)?;
+    check_synthetic(s, p.max_payload())?;
     let period = Duration::from_secs_f64(1.0 / s.rate_hz.clamp(0.001, 100_000.0));
     Ok(tokio::spawn(async move {
         let start = std::time::Instant::now();
@@ -343,6 +377,19 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     let (mut cfg, mut synthetic, key) = setup(&a.common)?;
     if let Some(l) = &a.listen {
         cfg.manager.listen.clone_from(l);
+    } else if a.common.insecure && a.common.key_file.is_none() && cfg.key_file.is_none() {
+        // The all-zero key lets anyone in: stay on loopback unless told otherwise.
+        for addr in [&mut cfg.manager.listen, &mut cfg.manager.data_listen] {
+            if let Ok(mut sa) = addr.parse::<std::net::SocketAddr>()
+                && sa.ip().is_unspecified()
+            {
+                sa.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+                *addr = sa.to_string();
+            }
+        }
+        eprintln!(
+            "ima: --insecure: listening on 127.0.0.1 only (pass --listen to choose the address)"
+        );
     }
     apply_broadcast(&mut cfg, &a.broadcast);
     if synthetic.is_empty() {
@@ -355,7 +402,10 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     let mut events = m.events();
     let mut tasks = Vec::new();
     for s in &synthetic {
-        let p = m.publisher(SourceInfo::new(&s.name, &s.generator, 1, s.rate_hz));
+        check_synthetic(s, cfg.max_body.saturating_sub(18))?;
+        let p = m
+            .publisher(SourceInfo::new(&s.name, &s.generator, 1, s.rate_hz))
+            .map_err(|e| anyhow::anyhow!("source {:?}: {e}", s.name))?;
         tasks.push(run_source(s, p)?);
     }
     line(&json!({
@@ -366,8 +416,11 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
         "sources": synthetic.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
     }))?;
     if a.status_ms > 0 {
+        // The status channel only sends: it binds any free port, not the shared one.
+        let mut bcfg = cfg.clone();
+        bcfg.broadcast.bind_port = Some(0);
         let ch =
-            BroadcastChannel::bind(&cfg, &cfg.robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
+            BroadcastChannel::bind(&bcfg, &cfg.robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
         let period = Duration::from_millis(a.status_ms);
         tasks.push(tokio::spawn(async move {
             let mut tick = tokio::time::interval(period);
@@ -525,6 +578,9 @@ async fn send(a: &SendArgs) -> Result<()> {
     cfg.broadcast.bind_port = Some(0);
     let robot = a.common.robot.clone().unwrap_or_else(|| cfg.robot.clone());
     let ch = BroadcastChannel::bind(&cfg, &robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
+    if ch.destinations().is_empty() {
+        bail!("nowhere to send: unicast mode with no --peer (or broadcast.peers)");
+    }
     let r = match &a.what {
         SendWhat::Status { behaviour, san } => ch.send_status(behaviour, san, None).await,
         SendWhat::Emergency { kind, text } => ch.send_emergency(kind, text).await,
@@ -538,6 +594,9 @@ async fn send(a: &SendArgs) -> Result<()> {
         }
     };
     let n = r.map_err(|e| anyhow::anyhow!("{e}"))?;
+    if n == 0 {
+        bail!("the message reached no destination");
+    }
     line(&json!({ "event": "sent", "destinations": n }))?;
     Ok(())
 }

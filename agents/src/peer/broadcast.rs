@@ -15,7 +15,9 @@ use std::time::Duration;
 
 use ima_hal::Instant;
 
-use super::wire::{GroupKey, MissionEvent, Msg, Pose, Signer, Verifier, WireError};
+use super::wire::{
+    GroupKey, MissionEvent, Msg, Pose, Signer, Verifier, WireError, parse_unauthenticated,
+};
 
 /// Numbers and seals this robot's broadcasts.
 #[derive(Debug, Clone)]
@@ -34,6 +36,17 @@ impl Broadcaster {
             seq: first_seq,
             signer: Signer::new(key, node, first_counter),
         }
+    }
+
+    /// Moves the frame counter up to `counter` (see [`Signer::advance_to`]).
+    pub fn advance_counter(&mut self, counter: u64) {
+        self.signer.advance_to(counter);
+    }
+
+    /// The sender (node) ID its frames carry.
+    #[must_use]
+    pub fn node(&self) -> u64 {
+        self.signer.sender()
     }
 
     fn next_seq(&mut self) -> u64 {
@@ -171,6 +184,7 @@ pub struct BroadcastReceiver {
     /// robot → (last seq, last heard)
     robots: BTreeMap<String, (u64, Instant)>,
     stats: ReceiverStats,
+    last_sender: Option<u64>,
 }
 
 impl BroadcastReceiver {
@@ -182,7 +196,16 @@ impl BroadcastReceiver {
             cfg,
             robots: BTreeMap::new(),
             stats: ReceiverStats::default(),
+            last_sender: None,
         }
+    }
+
+    /// Sender (node) ID of the message last returned by
+    /// [`BroadcastReceiver::handle_datagram`] (a shell drops its own messages by this ID,
+    /// not by robot name, which another process may share).
+    #[must_use]
+    pub fn last_sender(&self) -> Option<u64> {
+        self.last_sender
     }
 
     /// Counters.
@@ -195,6 +218,12 @@ impl BroadcastReceiver {
     #[must_use]
     pub fn wire_rejects(&self) -> super::wire::RejectCounts {
         self.verifier.rejects
+    }
+
+    /// Bounds for the first counter of an unknown sender (see
+    /// [`super::wire::Verifier::set_first_counter_window`]).
+    pub fn set_first_counter_window(&mut self, window: Option<(u64, u64)>) {
+        self.verifier.set_first_counter_window(window);
     }
 
     /// One datagram. Returns the message if it is new.
@@ -216,7 +245,27 @@ impl BroadcastReceiver {
     }
 
     fn accept(&mut self, frame: &[u8], now: Instant) -> Result<Msg, Rejection> {
-        let o = self.verifier.open(frame).map_err(Rejection::Wire)?;
+        let o = match self.verifier.open(frame) {
+            Ok(o) => o,
+            // The frame last accepted from this sender, again (authentic: the MAC is checked
+            // before the counter): a second copy, e.g. multicast plus unicast in mode
+            // `both`. Counted as a duplicate, not as a replay.
+            Err(WireError::Replay { sender, last, got })
+                if got == last && self.verifier.knows(sender) =>
+            {
+                self.verifier.rejects.replay = self.verifier.rejects.replay.saturating_sub(1);
+                let seq = match parse_unauthenticated(frame, self.cfg.max_body).map(|o| o.msg) {
+                    Ok(
+                        Msg::Status { seq, .. }
+                        | Msg::Emergency { seq, .. }
+                        | Msg::Mission { seq, .. },
+                    ) => seq,
+                    _ => 0,
+                };
+                return Err(Rejection::Duplicate { seq });
+            }
+            Err(e) => return Err(Rejection::Wire(e)),
+        };
         let (robot, seq) = match &o.msg {
             Msg::Status { robot, seq, .. }
             | Msg::Emergency { robot, seq, .. }
@@ -244,6 +293,7 @@ impl BroadcastReceiver {
             }
         }
         self.robots.insert(robot, (seq, now));
+        self.last_sender = Some(o.sender);
         Ok(o.msg)
     }
 }

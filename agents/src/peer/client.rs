@@ -525,6 +525,12 @@ impl PeerClient {
         })
     }
 
+    /// Moves the frame counter up to `counter` (see [`super::wire::Signer::advance_to`]);
+    /// a shell with clock-valued counters calls it with its clock before transmitting.
+    pub fn advance_counter(&mut self, counter: u64) {
+        self.signer.advance_to(counter);
+    }
+
     /// The next frame for the manager, sealed into `buf`; returns its length.
     pub fn poll_transmit(&mut self, buf: &mut [u8]) -> Option<usize> {
         while let Some(m) = self.outbox.pop_front() {

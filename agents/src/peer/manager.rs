@@ -319,6 +319,8 @@ struct Session {
     last_heard: Instant,
     next_heartbeat: Instant,
     slow: bool,
+    /// Data-server address for the grants of this session (`None`: the configured one).
+    data_address: Option<String>,
 }
 
 #[derive(Debug, Clone)]
@@ -465,13 +467,28 @@ impl<A: SelfAgent> PeerManager<A> {
                 last_heard: now,
                 next_heartbeat: now,
                 slow: false,
+                data_address: None,
             },
         );
+    }
+
+    /// Sets the data-server address put in the grants sent on session `peer` (e.g. the
+    /// local IP the client reached, when the data server listens on every interface).
+    pub fn set_data_address(&mut self, peer: PeerId, address: String) {
+        if let Some(s) = self.sessions.get_mut(&peer) {
+            s.data_address = Some(address);
+        }
     }
 
     /// The shell saw the session close: its clients, requests and grants are dropped.
     pub fn disconnect(&mut self, peer: PeerId, now: Instant) {
         self.drop_session(peer, None, now);
+    }
+
+    /// Bounds for the first counter of an unknown sender (see
+    /// [`super::wire::Verifier::set_first_counter_window`]); the shell passes its clock.
+    pub fn set_first_counter_window(&mut self, window: Option<(u64, u64)>) {
+        self.verifier.set_first_counter_window(window);
     }
 
     /// One frame from session `peer`. A frame that fails to open, or a message a client may
@@ -693,12 +710,17 @@ impl<A: SelfAgent> PeerManager<A> {
         r.redeemed = false;
         let priority = r.priority;
         if let Some(peer) = self.clients.get(&client).map(|c| c.peer) {
+            let address = self
+                .sessions
+                .get(&peer)
+                .and_then(|s| s.data_address.clone())
+                .unwrap_or_else(|| self.cfg.data_address.clone());
             self.send(
                 peer,
                 Msg::Granted {
                     client,
                     source: source.to_owned(),
-                    address: self.cfg.data_address.clone(),
+                    address,
                     ticket,
                 },
             );

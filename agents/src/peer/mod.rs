@@ -76,6 +76,30 @@
 //!   draws its sender ID from the OS random source and starts its frame counter (and the
 //!   broadcast sequence) at the UNIX time in µs, so a restarted process is not taken for a
 //!   replayer. The manager's ticket key is 32 random bytes drawn at start-up.
+//! * **Robustness of the shell** — every session loop polls input before timers
+//!   (`select!` is biased) and takes input already queued before it handles a timeout, so a
+//!   task starved of CPU does not declare a live peer lost. Each listener serves at most
+//!   `manager.max_connections` connections (more wait in the kernel backlog); a connection
+//!   costs small buffers until it sends a whole frame (data server: until a ticket is
+//!   accepted); each client session has at most 4 frames in the manager's shared input
+//!   queue; a bad header stops reading a session at once; every socket write is bounded by
+//!   the loss window (a peer that reads nothing is lost, and the writer does not hang).
+//!   `ManagerHandle::shutdown` returns after the `Revoked(Shutdown)` frames are written (or
+//!   the loss window passed). Dropping a `Subscription` disconnects its source; dropping a
+//!   `PeerClientHandle` ends every subscription with `Closed { Disconnected }`.
+//!   `ManagerHandle::publisher` refuses names/kinds over 255 bytes and a competency list
+//!   that would not fit in one frame. Broadcast receivers drop their own messages by node
+//!   ID (not robot name), and count the second copy of a frame (mode `both`) as a duplicate.
+//! * **Replay after a restart** — a verifier remembers counters only while it runs, so a
+//!   frame recorded before the receiver restarted would otherwise open. The shell therefore
+//!   refuses the FIRST counter of a sender it does not remember unless it lies within
+//!   `now ± max_clock_skew_ms` (default 30 000 ms; 0 turns the check off) of the receiver's
+//!   UNIX clock, counted as `Replay`. This applies to the manager's request channel and to
+//!   the broadcast receiver; senders move their counter up to their clock before sealing
+//!   (`Signer::advance_to`), so a long-running sender stays inside the window. The cores stay
+//!   clock-free: the shell passes the bounds in (`wire::Verifier::set_first_counter_window`).
+//!   Robots of one group therefore need clocks within the skew of each other (NTP or
+//!   similar).
 //!
 //! ## Configuration (`net::PeerNetConfig`, TOML)
 //!
@@ -86,14 +110,17 @@
 //! | `heartbeat_ms` | 100 | heartbeat on every channel |
 //! | `missed_heartbeats` | 3 | intervals without a frame before the peer is lost |
 //! | `max_body` | 8192 | body-size limit of incoming frames |
+//! | `max_clock_skew_ms` | 30000 | window around the receiver's clock for an unknown sender's first counter (0: off) |
+//! | `call_timeout_ms` | 10000 | client `connect`, `register`, `unregister`, `request` (until granted), `disconnect` fail with `NetError::Timeout` after this (0: no limit); a timed-out request is withdrawn |
 //! | `manager.listen` | `0.0.0.0:7400` | request channel |
 //! | `manager.data_listen` | `0.0.0.0:0` | data server |
-//! | `manager.data_advertise` | listener address (0.0.0.0 → 127.0.0.1) | address put in grants; set it on a LAN |
+//! | `manager.data_advertise` | listener address (0.0.0.0 → the local IP each client reached) | address put in grants |
 //! | `manager.rescan_ms` | 1000 | source re-scan interval |
 //! | `manager.ticket_lifetime_ms` | 5000 | time to open the data session after a grant |
 //! | `manager.max_clients` | 1024 | registered clients at most |
 //! | `manager.data_queue` | 64 | samples queued per data session and per subscription |
 //! | `manager.session_queue` | 1024 | frames queued per client session |
+//! | `manager.max_connections` | 1024 | open connections per listener (request channel, data server), authenticated or not |
 //! | `manager.task_priority` | 0 | task priority of the tools' `FixedSelfAgent` |
 //! | `manager.robot_priorities` | empty | table robot → priority (a leader highest) |
 //! | `manager.unknown_robot_priority` | 0 | robots not listed |

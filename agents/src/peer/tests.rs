@@ -860,10 +860,12 @@ fn broadcast_rejects_strangers_and_replays() {
         rx.handle_datagram(&f, ms(0)),
         Ok(Msg::Emergency { seq: 1, .. })
     ));
-    assert!(matches!(
+    // An exact copy of the frame last accepted (mode `both` sends two): a duplicate.
+    assert_eq!(
         rx.handle_datagram(&f, ms(1)),
-        Err(Rejection::Wire(WireError::Replay { .. }))
-    ));
+        Err(Rejection::Duplicate { seq: 1 })
+    );
+    assert_eq!(rx.wire_rejects().replay, 0);
     let mut stranger = Broadcaster::new(
         "skeeter",
         GroupKey::new(b"not the group key!").unwrap(),
@@ -883,8 +885,14 @@ fn broadcast_rejects_strangers_and_replays() {
         rx.handle_datagram(&buf[..n], ms(3)),
         Ok(Msg::Mission { seq: 2, .. })
     ));
+    // The older frame played again: a replay.
+    assert!(matches!(
+        rx.handle_datagram(&f, ms(4)),
+        Err(Rejection::Wire(WireError::Replay { .. }))
+    ));
     assert_eq!(rx.wire_rejects().bad_mac, 1);
     assert_eq!(rx.wire_rejects().replay, 1);
+    assert_eq!(rx.stats().duplicate, 1);
 }
 
 // ---- wire ----
@@ -1414,4 +1422,56 @@ mod data_sessions {
         c.handle_timeout(ms(1200));
         assert_eq!(c.poll_event(), Some(DataEvent::Closed(DataClose::Lost)));
     }
+}
+
+#[test]
+fn first_counter_window_applies_to_unknown_senders_only() {
+    let mut s = Signer::new(key(), 5, 1_000);
+    let a = s.seal_vec(&Msg::Heartbeat).unwrap();
+    let mut v = Verifier::new(key());
+    v.set_first_counter_window(Some((2_000, 3_000)));
+    assert_eq!(
+        v.open(&a).map(|_| ()),
+        Err(WireError::Replay {
+            sender: 5,
+            last: 2_000,
+            got: 1_000
+        })
+    );
+    let mut late = Signer::new(key(), 6, 4_000);
+    assert!(matches!(
+        v.open(&late.seal_vec(&Msg::Heartbeat).unwrap()),
+        Err(WireError::Replay { last: 3_000, .. })
+    ));
+    // Inside the window: accepted; afterwards only the per-sender rule applies.
+    s.advance_to(2_500);
+    assert_eq!(s.next_counter(), 2_500);
+    s.advance_to(10); // never down
+    assert_eq!(s.next_counter(), 2_500);
+    v.open(&s.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
+    v.set_first_counter_window(Some((9_000, 9_500)));
+    v.open(&s.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
+    v.set_first_counter_window(None);
+    v.open(&late.seal_vec(&Msg::Heartbeat).unwrap()).unwrap();
+    assert_eq!(v.rejects.replay, 2);
+}
+
+#[test]
+fn a_session_data_address_overrides_the_configured_one_in_grants() {
+    let mut n = Net::new(0, |_| {});
+    let a = n.add("scout", 1, ms(0));
+    let b = n.add("pioneer", 2, ms(0));
+    n.m.set_data_address(a as u64, "192.168.1.5:7401".into());
+    for c in [a, b] {
+        n.register(c, ms(0));
+        n.events(c);
+        n.clients[c].request("sonar", 3).unwrap();
+    }
+    n.pump(ms(10));
+    let addr_of = |ev: Vec<ClientEvent>| match &ev[..] {
+        [ClientEvent::Granted { address, .. }] => address.clone(),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(addr_of(n.events(a)), "192.168.1.5:7401");
+    assert_eq!(addr_of(n.events(b)), ADDR);
 }

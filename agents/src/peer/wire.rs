@@ -893,6 +893,14 @@ impl Signer {
         self.counter
     }
 
+    /// Moves the next counter up to `counter` (never down). A shell whose counters are
+    /// clock values calls this with the current clock before sealing, so that a receiver
+    /// that never heard this sender finds a counter close to its own clock (see
+    /// [`Verifier::set_first_counter_window`]).
+    pub fn advance_to(&mut self, counter: u64) {
+        self.counter = self.counter.max(counter);
+    }
+
     /// Writes `msg` as one authenticated frame into `out`; returns the frame length. The
     /// counter advances only on success.
     ///
@@ -993,6 +1001,8 @@ pub struct Verifier {
     /// sender → (last counter, order of last acceptance)
     last: BTreeMap<u64, (u64, u64)>,
     tick: u64,
+    /// Bounds (inclusive) of the first counter accepted from an unknown sender.
+    first_window: Option<(u64, u64)>,
     /// Rejected frames by class.
     pub rejects: RejectCounts,
 }
@@ -1013,8 +1023,24 @@ impl Verifier {
             max_senders: max_senders.max(1),
             last: BTreeMap::new(),
             tick: 0,
+            first_window: None,
             rejects: RejectCounts::default(),
         }
+    }
+
+    /// Whether a counter of `sender` is remembered.
+    #[must_use]
+    pub fn knows(&self, sender: u64) -> bool {
+        self.last.contains_key(&sender)
+    }
+
+    /// Bounds (inclusive) for the first counter of a sender this verifier does not
+    /// remember; `None` (the default) accepts any. A shell whose counters are clock values
+    /// passes `now ± skew` here before opening frames, so that a frame recorded before a
+    /// restart (when the verifier forgot every sender) is refused as a
+    /// [`WireError::Replay`]. The verifier itself stays clock-free.
+    pub fn set_first_counter_window(&mut self, window: Option<(u64, u64)>) {
+        self.first_window = window;
     }
 
     /// The body-size limit.
@@ -1053,14 +1079,26 @@ impl Verifier {
         let mut mac = self.key.mac();
         mac.update(data);
         mac.verify_slice(tag).map_err(|_| WireError::BadMac)?;
-        if let Some(&(last, _)) = self.last.get(&h.sender)
-            && h.counter <= last
-        {
-            return Err(WireError::Replay {
-                sender: h.sender,
-                last,
-                got: h.counter,
-            });
+        match self.last.get(&h.sender) {
+            Some(&(last, _)) if h.counter <= last => {
+                return Err(WireError::Replay {
+                    sender: h.sender,
+                    last,
+                    got: h.counter,
+                });
+            }
+            None => {
+                if let Some((lo, hi)) = self.first_window
+                    && (h.counter < lo || h.counter > hi)
+                {
+                    return Err(WireError::Replay {
+                        sender: h.sender,
+                        last: if h.counter < lo { lo } else { hi },
+                        got: h.counter,
+                    });
+                }
+            }
+            Some(_) => {}
         }
         let body = data.get(HEADER_LEN..).unwrap_or_default();
         let msg = Msg::parse_body(h.code, body)?;

@@ -7,7 +7,7 @@ use ima_hal::time::TokioClock;
 use socket2::{Domain, Protocol, Socket, Type};
 use tokio::net::UdpSocket;
 
-use super::config::{BroadcastConfig, BroadcastMode, PeerNetConfig, parse_addr};
+use super::config::{BroadcastConfig, BroadcastMode, PeerNetConfig, parse_ip_addr};
 use super::{NetError, random_u64, unix_micros};
 use crate::peer::broadcast::{BroadcastReceiver, Broadcaster, ReceiverConfig, ReceiverStats};
 use crate::peer::wire::{
@@ -48,6 +48,8 @@ pub struct BroadcastChannel {
     receive_own: bool,
     clock: TokioClock,
     max_body: usize,
+    /// Allowed skew of an unknown sender's first counter, µs (0: off).
+    skew_us: u64,
 }
 
 impl core::fmt::Debug for BroadcastChannel {
@@ -98,6 +100,7 @@ impl BroadcastChannel {
     /// # Errors
     /// [`NetError::Config`] (bad addresses), [`NetError::Io`] (socket options, bind).
     pub fn bind(cfg: &PeerNetConfig, robot: &str, key: GroupKey) -> Result<Self, NetError> {
+        cfg.validate()?;
         let b = &cfg.broadcast;
         let sock = udp_socket(b)?;
         let socket = UdpSocket::from_std(sock.into())?;
@@ -110,7 +113,8 @@ impl BroadcastChannel {
         }
         if b.mode != BroadcastMode::Multicast {
             for p in &b.peers {
-                dests.push(parse_addr(p, "broadcast.peers")?);
+                // IP literals only: `bind` is synchronous and must not block on DNS.
+                dests.push(parse_ip_addr(p, "broadcast.peers")?);
             }
         }
         let start = unix_micros();
@@ -132,6 +136,7 @@ impl BroadcastChannel {
             receive_own: b.receive_own,
             clock: TokioClock::new(),
             max_body: cfg.max_body,
+            skew_us: cfg.max_clock_skew_ms.saturating_mul(1000),
         })
     }
 
@@ -149,6 +154,16 @@ impl BroadcastChannel {
         &self.dests
     }
 
+    fn first_window(&self) -> Option<(u64, u64)> {
+        (self.skew_us > 0).then(|| {
+            let now = unix_micros();
+            (
+                now.saturating_sub(self.skew_us),
+                now.saturating_add(self.skew_us),
+            )
+        })
+    }
+
     fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
         self.inner.lock().unwrap_or_else(PoisonError::into_inner)
     }
@@ -160,6 +175,9 @@ impl BroadcastChannel {
         let mut buf = vec![0u8; HEADER_LEN + self.max_body + MAC_LEN];
         let n = {
             let mut g = self.lock();
+            // Counters are UNIX µs: a receiver that never heard us checks them against
+            // its clock.
+            g.tx.advance_counter(unix_micros());
             seal(&mut g.tx, &mut buf)
                 .map_err(|e| NetError::Config(format!("cannot encode broadcast: {e}")))?
         };
@@ -242,14 +260,11 @@ impl BroadcastChannel {
             let frame = buf.get(..n).unwrap_or_default();
             let now = self.clock.now();
             let mut g = self.lock();
+            g.rx.set_first_counter_window(self.first_window());
             if let Ok(msg) = g.rx.handle_datagram(frame, now) {
-                let sender = match &msg {
-                    Msg::Status { robot, .. }
-                    | Msg::Emergency { robot, .. }
-                    | Msg::Mission { robot, .. } => robot.as_str(),
-                    _ => "",
-                };
-                if !self.receive_own && sender == self.robot {
+                // Own messages (looped back by multicast) are recognised by this channel's
+                // node ID: another process may use the same robot name.
+                if !self.receive_own && g.rx.last_sender() == Some(g.tx.node()) {
                     g.own = g.own.saturating_add(1);
                     continue;
                 }

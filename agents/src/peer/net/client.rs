@@ -129,6 +129,12 @@ impl SubShared {
             if matches!(e, SubscriptionEvent::Closed { .. }) {
                 st.done = true;
             }
+            // Interruptions not yet taken collapse into the latest one.
+            if matches!(e, SubscriptionEvent::Lost { .. })
+                && matches!(st.queue.back(), Some(SubscriptionEvent::Lost { .. }))
+            {
+                st.queue.pop_back();
+            }
             st.queue.push_back(e);
             any = true;
         }
@@ -140,10 +146,26 @@ impl SubShared {
 }
 
 /// The receiving end of a granted request: samples (latest-value: a slow reader loses the
-/// oldest), interruptions and the end.
+/// oldest), interruptions and the end. Dropping it before its end disconnects the source
+/// (as [`PeerClientHandle::disconnect`] would).
 pub struct Subscription {
     source: String,
     shared: Arc<SubShared>,
+    cmd: mpsc::WeakUnboundedSender<Cmd>,
+}
+
+impl Drop for Subscription {
+    fn drop(&mut self) {
+        if self.shared.lock().done {
+            return;
+        }
+        if let Some(cmd) = self.cmd.upgrade() {
+            let _ = cmd.send(Cmd::Dropped {
+                source: core::mem::take(&mut self.source),
+                shared: self.shared.clone(),
+            });
+        }
+    }
 }
 
 impl core::fmt::Debug for Subscription {
@@ -220,6 +242,11 @@ enum Cmd {
         reply: Reply<()>,
     },
     Sources(oneshot::Sender<(u64, Vec<SourceInfo>)>),
+    /// A subscription was dropped before its end: disconnect its source.
+    Dropped {
+        source: String,
+        shared: Arc<SubShared>,
+    },
 }
 
 struct DataEnd {
@@ -229,17 +256,13 @@ struct DataEnd {
 }
 
 /// A client session to one manager. Dropping the handle ends the session (and every data
-/// session opened through it).
+/// session opened through it); every live subscription then ends with
+/// [`EndReason::Disconnected`].
 #[derive(Debug)]
 pub struct PeerClientHandle {
     cmd: mpsc::UnboundedSender<Cmd>,
     task: JoinHandle<()>,
-}
-
-impl Drop for PeerClientHandle {
-    fn drop(&mut self) {
-        self.task.abort();
-    }
+    call_timeout: Option<std::time::Duration>,
 }
 
 impl PeerClientHandle {
@@ -253,7 +276,17 @@ impl PeerClientHandle {
         cfg: &PeerNetConfig,
         key: GroupKey,
     ) -> Result<Self, NetError> {
-        let stream = TcpStream::connect(addr).await?;
+        cfg.validate()?;
+        // Bounded like the procedures (`call_timeout_ms`): a black-holed address fails
+        // with `Timeout` instead of waiting for the OS (minutes).
+        let stream = if cfg.call_timeout_ms > 0 {
+            let limit = std::time::Duration::from_millis(cfg.call_timeout_ms);
+            tokio::time::timeout(limit, TcpStream::connect(addr))
+                .await
+                .map_err(|_| NetError::Timeout)??
+        } else {
+            TcpStream::connect(addr).await?
+        };
         let _ = stream.set_nodelay(true);
         let clock = TokioClock::new();
         let mut ccfg = ClientConfig::new(&cfg.robot, random_u64(), random_u64());
@@ -269,6 +302,7 @@ impl PeerClientHandle {
         let core = PeerClient::new(ccfg, key.clone(), clock.now());
         let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
         let task = ClientTask {
+            cmd: cmd_tx.downgrade(),
             core,
             clock,
             key,
@@ -280,13 +314,26 @@ impl PeerClientHandle {
             generation: 0,
         };
         let task = tokio::spawn(task.run(stream, cmd_rx));
-        Ok(Self { cmd: cmd_tx, task })
+        Ok(Self {
+            cmd: cmd_tx,
+            task,
+            call_timeout: (cfg.call_timeout_ms > 0)
+                .then(|| std::time::Duration::from_millis(cfg.call_timeout_ms)),
+        })
     }
 
     async fn call<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, NetError> {
         let (tx, rx) = oneshot::channel();
         self.cmd.send(make(tx)).map_err(|_| NetError::ManagerLost)?;
-        rx.await.map_err(|_| NetError::ManagerLost)?
+        match self.call_timeout {
+            // On a timeout the reply's receiver is dropped: the task withdraws a request
+            // granted later.
+            Some(t) => tokio::time::timeout(t, rx)
+                .await
+                .map_err(|_| NetError::Timeout)?
+                .map_err(|_| NetError::ManagerLost)?,
+            None => rx.await.map_err(|_| NetError::ManagerLost)?,
+        }
     }
 
     /// Procedure *register*: returns the manager's competency list. A duplicate ID is
@@ -359,6 +406,8 @@ struct SubRec {
 }
 
 struct ClientTask {
+    /// For the subscriptions (weak: the handle's drop still closes the channel).
+    cmd: mpsc::WeakUnboundedSender<Cmd>,
     core: PeerClient,
     clock: TokioClock,
     key: GroupKey,
@@ -375,14 +424,21 @@ impl ClientTask {
         let max_body = self.dcfg.max_body;
         let (mut rd, wr) = stream.into_split();
         let (wtx, wrx) = mpsc::channel(1024);
-        let writer = tokio::spawn(write_frames(wr, wrx));
+        let window = self
+            .dcfg
+            .heartbeat
+            .saturating_mul(self.dcfg.missed_heartbeats.max(1));
+        let writer = tokio::spawn(write_frames(wr, wrx, window));
         let (dtx, mut drx) = mpsc::unbounded_channel::<DataEnd>();
         let mut reader = FrameReader::new(max_body);
         let mut buf = vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN];
         let mut lost = false;
         while !lost {
             let sleep = tokio::time::sleep_until(deadline(&self.clock, self.core.poll_timeout()));
+            // Biased: input before timers, so that a task that was starved of CPU first
+            // takes what its peer sent and only then looks at its deadlines.
             tokio::select! {
+                biased;
                 r = reader.read_from(&mut rd) => match r {
                     Ok(0) | Err(_) => self.core.closed(),
                     Ok(_) => {
@@ -397,8 +453,23 @@ impl ClientTask {
                     None => break,
                 },
                 Some(d) = drx.recv() => self.data_end(d),
-                () = sleep => self.core.handle_timeout(self.clock.now()),
+                () = sleep => {
+                    let now = self.clock.now();
+                    match reader.try_read_from(&rd) {
+                        Ok(Some(0)) | Err(_) => self.core.closed(),
+                        Ok(Some(_)) => {
+                            while let Some(f) = reader.next_frame() {
+                                self.core.handle_frame(f, now);
+                            }
+                        }
+                        Ok(None) => {}
+                    }
+                    self.core.handle_timeout(self.clock.now());
+                }
             }
+            // Counters are UNIX µs: keep them close to the clock (the manager checks the
+            // first one it hears against its own).
+            self.core.advance_counter(unix_micros());
             while let Some(n) = self.core.poll_transmit(&mut buf) {
                 if let Some(f) = buf.get(..n)
                     && wtx.try_send(f.to_vec()).is_err()
@@ -414,13 +485,19 @@ impl ClientTask {
             }
         }
         // Lost or dropped: every data session ends with the session.
+        let reason = if lost {
+            EndReason::ManagerLost
+        } else {
+            EndReason::Disconnected
+        };
         for (_, sub) in std::mem::take(&mut self.subs) {
             if let Some((_, close)) = sub.data {
                 let _ = close.send(());
             }
-            sub.shared.push(SubscriptionEvent::Closed {
-                reason: EndReason::ManagerLost,
-            });
+            sub.shared.push(SubscriptionEvent::Closed { reason });
+        }
+        for (_, w) in std::mem::take(&mut self.req_replies) {
+            let _ = w.send(Err(NetError::Closed));
         }
         drop(wtx);
         let _ = writer.await;
@@ -473,6 +550,16 @@ impl ClientTask {
             }
             Cmd::Sources(reply) => {
                 let _ = reply.send((self.core.id(), self.core.sources().to_vec()));
+            }
+            Cmd::Dropped { source, shared } => {
+                if self
+                    .subs
+                    .get(&source)
+                    .is_some_and(|s| Arc::ptr_eq(&s.shared, &shared))
+                {
+                    let _ = self.core.disconnect(&source);
+                    self.end_sub(&source, EndReason::Disconnected);
+                }
             }
         }
     }
@@ -608,6 +695,7 @@ impl ClientTask {
             let s = Subscription {
                 source: source.clone(),
                 shared: sub.shared.clone(),
+                cmd: self.cmd.clone(),
             };
             if r.send(Ok(s)).is_err() {
                 // The requester went away: withdraw.
@@ -707,7 +795,14 @@ async fn run_data(t: &mut DataTask) -> DataClose {
                 None => break,
             }
         }
-        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+        // A write outside the select: bounded by the loss window (a manager that reads
+        // nothing is lost).
+        if !out.is_empty()
+            && !matches!(
+                tokio::time::timeout(window, wr.write_all(&out)).await,
+                Ok(Ok(()))
+            )
+        {
             return DataClose::Lost;
         }
         while let Some(e) = s.poll_event() {
@@ -717,11 +812,12 @@ async fn run_data(t: &mut DataTask) -> DataClose {
             }
         }
         if closing {
-            let _ = wr.shutdown().await;
+            let _ = tokio::time::timeout(window, wr.shutdown()).await;
             return end;
         }
         let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));
         tokio::select! {
+            biased;
             r = reader.read_from(&mut rd) => match r {
                 Ok(0) | Err(_) => return DataClose::Lost,
                 Ok(_) => {
@@ -739,7 +835,53 @@ async fn run_data(t: &mut DataTask) -> DataClose {
                 }
             },
             _ = &mut t.close => s.close(),
-            () = sleep => s.handle_timeout(clock.now()),
+            () = sleep => {
+                // Input that waited while this task was starved goes in first.
+                match reader.try_read_from(&rd) {
+                    Ok(Some(0)) | Err(_) => return DataClose::Lost,
+                    Ok(Some(_)) => {
+                        let now = clock.now();
+                        while let Some(f) = reader.next_frame() {
+                            s.handle_frame(f, now);
+                        }
+                        t.sub.push_all(core::iter::from_fn(|| s.pop_sample()).map(|x| {
+                            SubscriptionEvent::Sample {
+                                seq: x.seq,
+                                stamp_us: x.stamp_us,
+                                payload: x.payload,
+                            }
+                        }));
+                    }
+                    Ok(None) => {}
+                }
+                s.handle_timeout(clock.now());
+            }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pending_interruptions_collapse_into_the_latest() {
+        let s = SubShared::new(4);
+        let lost = SubscriptionEvent::Lost {
+            reason: LossReason::Revoked(RevokeReason::TaskPriority),
+        };
+        s.push(lost.clone());
+        s.push(lost.clone());
+        s.push(SubscriptionEvent::Sample {
+            seq: 1,
+            stamp_us: 0,
+            payload: Vec::new(),
+        });
+        s.push(lost.clone());
+        s.push(lost.clone());
+        let q: Vec<_> = s.lock().queue.iter().cloned().collect();
+        assert_eq!(q.len(), 3, "{q:?}");
+        assert_eq!(q.first(), Some(&lost));
+        assert_eq!(q.last(), Some(&lost));
     }
 }

@@ -10,6 +10,10 @@ use serde::{Deserialize, Serialize};
 
 use super::NetError;
 
+/// Upper bound of `manager.data_queue` and `manager.session_queue` (see
+/// [`PeerNetConfig::validate`]).
+pub const MAX_QUEUE: usize = 65_536;
+
 /// Configuration of one robot's Peer Agent over IP.
 ///
 /// ```toml
@@ -23,7 +27,8 @@ use super::NetError;
 /// listen = "127.0.0.1:7400"       # request channel; default 0.0.0.0:7400
 /// data_listen = "127.0.0.1:0"     # data server; default 0.0.0.0:0 (any free port)
 /// # data_advertise = "10.0.0.5:7401"  # address put in grants; default: the data
-/// #                                  # listener's address (127.0.0.1 when bound to 0.0.0.0)
+/// #                                  # listener's address (bound to 0.0.0.0: the local IP
+/// #                                  # each client reached the request channel on)
 /// rescan_ms = 1000
 /// ticket_lifetime_ms = 5000
 /// max_clients = 1024
@@ -44,7 +49,7 @@ use super::NetError;
 /// loopback = true
 /// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PeerNetConfig {
     /// This robot's name (sent on registration, used as broadcast sender name).
     pub robot: String,
@@ -56,6 +61,14 @@ pub struct PeerNetConfig {
     pub missed_heartbeats: u32,
     /// Body-size limit of incoming frames (default 8192).
     pub max_body: usize,
+    /// Clock skew allowed for the FIRST frame counter of a sender not heard before, ms
+    /// (default 30 000; 0 turns the check off). Counters are UNIX µs, so a frame recorded
+    /// before a restart of the receiver is refused as a replay (see the `peer` module docs).
+    pub max_clock_skew_ms: u64,
+    /// How long a client's `register`, `unregister`, `request` (until granted) and
+    /// `disconnect` wait for the manager's answer before failing with `NetError::Timeout`,
+    /// ms (default 10 000; 0: no limit). A request that times out is withdrawn.
+    pub call_timeout_ms: u64,
     /// Manager side.
     pub manager: ManagerNetConfig,
     /// Broadcast channel.
@@ -70,6 +83,8 @@ impl Default for PeerNetConfig {
             heartbeat_ms: 100,
             missed_heartbeats: 3,
             max_body: crate::peer::wire::DEFAULT_MAX_BODY,
+            max_clock_skew_ms: 30_000,
+            call_timeout_ms: 10_000,
             manager: ManagerNetConfig::default(),
             broadcast: BroadcastConfig::default(),
         }
@@ -77,12 +92,53 @@ impl Default for PeerNetConfig {
 }
 
 impl PeerNetConfig {
-    /// Parses TOML.
+    /// Parses TOML (unknown keys are refused) and [validates](Self::validate) it.
     ///
     /// # Errors
     /// [`NetError::Config`].
     pub fn from_toml(text: &str) -> Result<Self, NetError> {
-        toml::from_str(text).map_err(|e| NetError::Config(e.to_string()))
+        let c: Self = toml::from_str(text).map_err(|e| NetError::Config(e.to_string()))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// Checks the limits: `max_body` in 256..=65 535 (the wire's body length is a u16),
+    /// `heartbeat_ms` and `missed_heartbeats` at least 1, `manager.data_queue` and
+    /// `manager.session_queue` in 1..=[`MAX_QUEUE`], `manager.max_clients` and
+    /// `manager.max_connections` at least 1. [`super::spawn_manager`],
+    /// [`super::PeerClientHandle::connect`] and [`super::BroadcastChannel::bind`] call it.
+    ///
+    /// # Errors
+    /// [`NetError::Config`] naming the first bad key.
+    pub fn validate(&self) -> Result<(), NetError> {
+        let bad = |key: &str, v: &dyn core::fmt::Display, range: &str| {
+            Err(NetError::Config(format!(
+                "{key} = {v} is out of range ({range})"
+            )))
+        };
+        if !(256..=usize::from(u16::MAX)).contains(&self.max_body) {
+            return bad("max_body", &self.max_body, "256..=65535");
+        }
+        if self.heartbeat_ms == 0 {
+            return bad("heartbeat_ms", &self.heartbeat_ms, "at least 1");
+        }
+        if self.missed_heartbeats == 0 {
+            return bad("missed_heartbeats", &self.missed_heartbeats, "at least 1");
+        }
+        let m = &self.manager;
+        if !(1..=MAX_QUEUE).contains(&m.data_queue) {
+            return bad("manager.data_queue", &m.data_queue, "1..=65536");
+        }
+        if !(1..=MAX_QUEUE).contains(&m.session_queue) {
+            return bad("manager.session_queue", &m.session_queue, "1..=65536");
+        }
+        if m.max_clients == 0 {
+            return bad("manager.max_clients", &m.max_clients, "at least 1");
+        }
+        if m.max_connections == 0 {
+            return bad("manager.max_connections", &m.max_connections, "at least 1");
+        }
+        Ok(())
     }
 
     /// Reads and parses a TOML file.
@@ -114,6 +170,13 @@ impl PeerNetConfig {
     pub fn heartbeat(&self) -> Duration {
         Duration::from_millis(self.heartbeat_ms.max(1))
     }
+
+    /// The loss window: `missed_heartbeats` heartbeat intervals.
+    #[must_use]
+    pub fn loss_window(&self) -> Duration {
+        self.heartbeat()
+            .saturating_mul(self.missed_heartbeats.max(1))
+    }
 }
 
 /// The manager's sockets and rules.
@@ -124,8 +187,9 @@ pub struct ManagerNetConfig {
     pub listen: String,
     /// Data-server listen address (default `0.0.0.0:0`).
     pub data_listen: String,
-    /// Data address put in grants (default: the data listener's address, with an
-    /// unspecified IP replaced by 127.0.0.1 — set this on a LAN).
+    /// Data address put in grants (default: the data listener's address; when that is
+    /// unspecified, e.g. `0.0.0.0`, each client is given the local IP it reached the request
+    /// channel on, with the data port).
     pub data_advertise: Option<String>,
     /// Source re-scan interval, ms (default 1000).
     pub rescan_ms: u64,
@@ -137,6 +201,10 @@ pub struct ManagerNetConfig {
     pub data_queue: usize,
     /// Frames queued per client session before it is closed as too slow (default 1024).
     pub session_queue: usize,
+    /// Open connections per listener (request channel and data server each), counted from
+    /// `accept`, authenticated or not; further connections wait in the kernel's backlog
+    /// until one closes (default 1024).
+    pub max_connections: usize,
     /// Task priority of the built-in `FixedSelfAgent` (default 0).
     pub task_priority: u8,
     /// Robot priorities; a leader gets the highest (default empty).
@@ -156,6 +224,7 @@ impl Default for ManagerNetConfig {
             max_clients: 1024,
             data_queue: 64,
             session_queue: 1024,
+            max_connections: 1024,
             task_priority: 0,
             robot_priorities: BTreeMap::new(),
             unknown_robot_priority: 0,
@@ -196,7 +265,8 @@ pub struct BroadcastConfig {
     /// Port to bind when it differs from `port` (default: `port`); `0` binds any free
     /// port, for send-only tools and for unicast receivers that list their own port.
     pub bind_port: Option<u16>,
-    /// Unicast peers `host:port` (fallback where multicast is blocked).
+    /// Unicast peers `ip:port` (fallback where multicast is blocked); IP literals only (no
+    /// name lookup: binding never blocks on DNS).
     pub peers: Vec<String>,
     /// Multicast TTL (default 1: the local segment only).
     pub ttl: u32,
@@ -235,9 +305,23 @@ pub struct SyntheticSource {
     pub rate_hz: f64,
 }
 
-pub(crate) fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
-    use std::net::ToSocketAddrs;
-    s.to_socket_addrs()
+/// `ip:port` (an IP literal; no name lookup, so it never blocks).
+pub(crate) fn parse_ip_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
+    s.parse().map_err(|e| {
+        NetError::Config(format!(
+            "{what} {s:?}: {e} (an IP address and port, e.g. 192.168.1.12:7477)"
+        ))
+    })
+}
+
+/// `host:port`: an IP literal at once, else a name resolved without blocking the runtime
+/// (`tokio::net::lookup_host`).
+pub(crate) async fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetError> {
+    if let Ok(a) = s.parse() {
+        return Ok(a);
+    }
+    tokio::net::lookup_host(s)
+        .await
         .map_err(|e| NetError::Config(format!("{what} {s:?}: {e}")))?
         .next()
         .ok_or_else(|| NetError::Config(format!("{what} {s:?}: no address")))
@@ -262,6 +346,15 @@ mod tests {
         assert_eq!(c.broadcast.mode, BroadcastMode::Both);
         assert_eq!(c.broadcast.port, 7477);
         assert!(PeerNetConfig::from_toml("[manager]\nbogus = 1\n").is_err());
+        assert!(PeerNetConfig::from_toml("bogus = 1\n").is_err());
+        assert!(parse_ip_addr("127.0.0.1:9", "x").is_ok());
+        assert!(parse_ip_addr("localhost:9", "x").is_err());
+        assert!(PeerNetConfig::from_toml("max_body = 65536\n").is_err());
+        assert!(PeerNetConfig::from_toml("max_body = 65535\n").is_ok());
+        assert!(PeerNetConfig::from_toml("heartbeat_ms = 0\n").is_err());
+        assert!(PeerNetConfig::from_toml("[manager]\ndata_queue = 0\n").is_err());
+        assert!(PeerNetConfig::from_toml("[manager]\nsession_queue = 100000000\n").is_err());
+        assert!(PeerNetConfig::from_toml("[manager]\nmax_connections = 0\n").is_err());
         assert_eq!(
             PeerNetConfig::from_toml("").unwrap(),
             PeerNetConfig::default()

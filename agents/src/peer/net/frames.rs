@@ -1,8 +1,14 @@
 //! Cutting frames out of a TCP byte stream (header-checked, bounded).
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWriteExt};
-use tokio::net::tcp::OwnedWriteHalf;
+use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::sync::mpsc;
+
+/// Read chunk of a session that has not yet sent a whole frame: a stranger's connection
+/// costs little memory until it sends a frame that passes the header check.
+const FIRST_CHUNK: usize = 1024;
+/// Read chunk once frames flow.
+const CHUNK: usize = 16 * 1024;
 
 use crate::peer::wire::{self, HEADER_LEN, MAC_LEN};
 
@@ -22,29 +28,61 @@ pub(crate) struct FrameReader {
     start: usize,
     max_body: usize,
     poisoned: bool,
+    chunk: usize,
 }
 
 impl FrameReader {
     pub(crate) fn new(max_body: usize) -> Self {
         Self {
-            buf: Vec::with_capacity(16 * 1024),
+            buf: Vec::new(),
             start: 0,
             max_body,
             poisoned: false,
+            chunk: FIRST_CHUNK,
         }
     }
 
-    /// Reads more bytes (cancel-safe). `Ok(0)` is end of stream.
-    pub(crate) async fn read_from<R: AsyncRead + Unpin>(
-        &mut self,
-        r: &mut R,
-    ) -> std::io::Result<usize> {
+    fn make_room(&mut self) {
         if self.start > 0 && (self.start == self.buf.len() || self.start > self.buf.len() / 2) {
             self.buf.drain(..self.start);
             self.start = 0;
         }
-        self.buf.reserve(16 * 1024);
+        self.buf.reserve(self.chunk);
+    }
+
+    /// Whether a bad header was met (the session is over; nothing more is read).
+    #[cfg(test)]
+    pub(crate) fn is_poisoned(&self) -> bool {
+        self.poisoned
+    }
+
+    /// Reads more bytes (cancel-safe). `Ok(0)` is end of stream; once poisoned (a bad
+    /// header was yielded) this reads nothing more and answers `Ok(0)` at once, so a
+    /// sender of garbage cannot keep the session's task busy.
+    pub(crate) async fn read_from<R: AsyncRead + Unpin>(
+        &mut self,
+        r: &mut R,
+    ) -> std::io::Result<usize> {
+        if self.poisoned {
+            return Ok(0);
+        }
+        self.make_room();
         r.read_buf(&mut self.buf).await
+    }
+
+    /// Takes what the socket already holds, without waiting: `Ok(None)` when nothing is
+    /// pending, `Ok(Some(0))` at the end of the stream (or once poisoned). Used before a
+    /// timeout is handled, so that a starved task does not declare a live peer lost.
+    pub(crate) fn try_read_from(&mut self, r: &OwnedReadHalf) -> std::io::Result<Option<usize>> {
+        if self.poisoned {
+            return Ok(Some(0));
+        }
+        self.make_room();
+        match r.try_read_buf(&mut self.buf) {
+            Ok(n) => Ok(Some(n)),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(None),
+            Err(e) => Err(e),
+        }
     }
 
     /// The next complete frame (or a bad header), if buffered.
@@ -56,6 +94,7 @@ impl FrameReader {
         match wire::frame_len(pending, self.max_body) {
             Ok(None) => None,
             Ok(Some(n)) if pending.len() >= n => {
+                self.chunk = CHUNK;
                 let s = self.start;
                 self.start += n;
                 self.buf.get(s..s + n)
@@ -72,8 +111,14 @@ impl FrameReader {
 }
 
 /// Writes the frames of `rx`, batched, until the channel closes; then shuts the socket
-/// down (the remote sees the end of the stream).
-pub(crate) async fn write_frames(mut wr: OwnedWriteHalf, mut rx: mpsc::Receiver<Vec<u8>>) {
+/// down (the remote sees the end of the stream). A write that does not complete within
+/// `limit` (the loss window: the peer reads nothing) ends the task and closes the socket;
+/// the session's owner then sees its queue closed.
+pub(crate) async fn write_frames(
+    mut wr: OwnedWriteHalf,
+    mut rx: mpsc::Receiver<Vec<u8>>,
+    limit: std::time::Duration,
+) {
     let mut batch = Vec::with_capacity(WRITE_BATCH);
     while let Some(f) = rx.recv().await {
         batch.clear();
@@ -84,11 +129,12 @@ pub(crate) async fn write_frames(mut wr: OwnedWriteHalf, mut rx: mpsc::Receiver<
                 Err(_) => break,
             }
         }
-        if wr.write_all(&batch).await.is_err() {
-            return;
+        match tokio::time::timeout(limit, wr.write_all(&batch)).await {
+            Ok(Ok(())) => {}
+            Ok(Err(_)) | Err(_) => return,
         }
     }
-    let _ = wr.shutdown().await;
+    let _ = tokio::time::timeout(limit, wr.shutdown()).await;
 }
 
 #[cfg(test)]
@@ -112,5 +158,20 @@ mod tests {
         r.buf.extend_from_slice(&[0u8; 30]);
         assert_eq!(r.next_frame().map(<[u8]>::len), Some(HEADER_LEN));
         assert_eq!(r.next_frame(), None);
+        assert!(r.is_poisoned());
+    }
+
+    #[tokio::test]
+    async fn a_poisoned_reader_reads_no_more() {
+        let mut r = FrameReader::new(8192);
+        let mut input: &[u8] = &[0x55; 64];
+        assert_eq!(r.read_from(&mut input).await.unwrap(), 64);
+        assert_eq!(r.next_frame().map(<[u8]>::len), Some(HEADER_LEN));
+        assert!(r.is_poisoned());
+        // More bytes are waiting, but nothing is read: the session is over.
+        let mut more: &[u8] = &[0x55; 1000];
+        assert_eq!(r.read_from(&mut more).await.unwrap(), 0);
+        assert_eq!(more.len(), 1000);
+        assert!(r.buf.len() <= 64);
     }
 }

@@ -1,8 +1,9 @@
 //! Group-key files.
 //!
 //! A key file holds either **hex** (64 or more hex digits, i.e. at least 32 bytes; spaces,
-//! newlines and `#` comment lines are ignored) or **raw** bytes (at least 32 of them; a file
-//! that is not valid hex is taken as raw). Generate one with
+//! newlines and `#` comment lines are ignored) or **raw** bytes (at least 32 of them). A file
+//! that is valid UTF-8 text is read as hex, and malformed hex is an error (never silently
+//! taken as raw bytes); only content that is not UTF-8 is taken as raw. Generate one with
 //! `head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > group.key && chmod 600 group.key`.
 //! A file readable by group or others is refused on Unix (a shared secret should not be
 //! world-readable); `chmod 600` it.
@@ -25,12 +26,17 @@ pub fn insecure_key() -> GroupKey {
     GroupKey::from_array(INSECURE_KEY)
 }
 
-/// Parses the contents of a key file (hex, else raw bytes; see the module docs).
+/// Parses the contents of a key file (UTF-8 text: hex; otherwise raw bytes; see the module
+/// docs).
 ///
 /// # Errors
-/// [`NetError::Key`] when fewer than [`KEY_FILE_MIN_LEN`] bytes result.
+/// [`NetError::Key`] when text is not well-formed hex, or fewer than [`KEY_FILE_MIN_LEN`]
+/// bytes result.
 pub fn parse_key(contents: &[u8]) -> Result<GroupKey, NetError> {
-    let bytes = parse_hex(contents).unwrap_or_else(|| contents.to_vec());
+    let bytes = match core::str::from_utf8(contents) {
+        Ok(text) => parse_hex(text)?,
+        Err(_) => contents.to_vec(),
+    };
     if bytes.len() < KEY_FILE_MIN_LEN {
         return Err(NetError::Key(format!(
             "{} bytes of key material, need at least {KEY_FILE_MIN_LEN}",
@@ -40,22 +46,32 @@ pub fn parse_key(contents: &[u8]) -> Result<GroupKey, NetError> {
     GroupKey::new(&bytes).ok_or_else(|| NetError::Key("key too short".into()))
 }
 
-fn parse_hex(contents: &[u8]) -> Option<Vec<u8>> {
-    let text = core::str::from_utf8(contents).ok()?;
+fn parse_hex(text: &str) -> Result<Vec<u8>, NetError> {
     let digits: Vec<u8> = text
         .lines()
         .filter(|l| !l.trim_start().starts_with('#'))
         .flat_map(|l| l.bytes())
         .filter(|b| !b.is_ascii_whitespace())
         .collect();
-    if digits.is_empty() || !digits.len().is_multiple_of(2) {
-        return None;
+    if let Some(b) = digits.iter().find(|b| !b.is_ascii_hexdigit()) {
+        return Err(NetError::Key(format!(
+            "the key file is text but not hex (found {:?}); write the key as hex digits",
+            char::from(*b)
+        )));
+    }
+    if !digits.len().is_multiple_of(2) {
+        return Err(NetError::Key(format!(
+            "odd number of hex digits ({})",
+            digits.len()
+        )));
     }
     digits
         .chunks(2)
         .map(|p| {
-            let s = core::str::from_utf8(p).ok()?;
-            u8::from_str_radix(s, 16).ok()
+            core::str::from_utf8(p)
+                .ok()
+                .and_then(|s| u8::from_str_radix(s, 16).ok())
+                .ok_or_else(|| NetError::Key("bad hex digit".into()))
         })
         .collect()
 }
@@ -65,8 +81,12 @@ fn parse_hex(contents: &[u8]) -> Option<Vec<u8>> {
 /// # Errors
 /// [`NetError::Key`] (missing, unreadable, too permissive, too short).
 pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
-    let meta =
-        std::fs::metadata(path).map_err(|e| NetError::Key(format!("{}: {e}", path.display())))?;
+    use std::io::Read;
+    let err = |e: std::io::Error| NetError::Key(format!("{}: {e}", path.display()));
+    // The permissions are checked on the opened handle, so the file read is the file
+    // checked (no swap between a check by path and the open).
+    let file = std::fs::File::open(path).map_err(err)?;
+    let meta = file.metadata().map_err(err)?;
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
@@ -81,8 +101,17 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
     }
     #[cfg(not(unix))]
     let _ = meta;
-    let contents =
-        std::fs::read(path).map_err(|e| NetError::Key(format!("{}: {e}", path.display())))?;
+    if !meta.is_file() {
+        return Err(NetError::Key(format!(
+            "{}: not a regular file",
+            path.display()
+        )));
+    }
+    let mut contents = Vec::new();
+    // A key file is small: read at most 64 KiB.
+    file.take(64 * 1024)
+        .read_to_end(&mut contents)
+        .map_err(err)?;
     parse_key(&contents)
 }
 
@@ -94,8 +123,19 @@ mod tests {
     fn hex_and_raw_keys() {
         let hex = "# test key\n".to_owned() + &"ab".repeat(32) + "\n";
         assert!(parse_key(hex.as_bytes()).is_ok());
-        assert!(parse_key(&[7u8; 40]).is_ok());
+        // Raw bytes only when the content is not UTF-8.
+        assert!(parse_key(&[0xffu8; 40]).is_ok());
         assert!(matches!(parse_key(b"abcd"), Err(NetError::Key(_))));
+        // Malformed hex text is a hex error, not a raw key.
+        let typo = "ab".repeat(31) + "zz";
+        match parse_key(typo.as_bytes()) {
+            Err(NetError::Key(m)) => assert!(m.contains("hex"), "{m}"),
+            other => panic!("{other:?}"),
+        }
+        let odd = "ab".repeat(32) + "a";
+        assert!(matches!(parse_key(odd.as_bytes()), Err(NetError::Key(_))));
+        let text = "this is a passphrase of more than thirty-two bytes";
+        assert!(matches!(parse_key(text.as_bytes()), Err(NetError::Key(_))));
         assert!(matches!(
             parse_key(&"ab".repeat(8).into_bytes()),
             Err(NetError::Key(_))

@@ -9,7 +9,7 @@ use ima_hal::Instant;
 use ima_hal::time::TokioClock;
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, oneshot};
 use tokio::task::{AbortHandle, JoinHandle};
 
 use super::config::{PeerNetConfig, parse_addr};
@@ -29,10 +29,17 @@ type SampleItem = (u64, Arc<[u8]>);
 
 /// Frames from all client sessions waiting for the manager task.
 const IO_QUEUE: usize = 4096;
+/// Frames of one client session in the shared queue at most: one peer cannot fill the
+/// queue that every session shares (each frame carries one of the session's credits back
+/// to it once the manager task has handled it).
+const SESSION_CREDITS: usize = 4;
 /// Events kept for slow `events()` subscribers.
 const EVENT_QUEUE: usize = 1024;
 /// Per-sample overhead of a Sample body: seq 8, stamp 8, length 2.
 const SAMPLE_OVERHEAD: usize = 18;
+/// Body room of the data server's output buffer before a ticket was accepted (control
+/// frames only).
+const PRE_STREAM_BODY: usize = 1024;
 
 /// What the manager shell reports on [`ManagerHandle::events`].
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -87,6 +94,9 @@ pub struct ManagerNetStats {
     pub data_bad_tickets: u64,
     /// Sessions closed by the shell because they could not keep up.
     pub slow_closed: u64,
+    /// Samples data sessions missed because they fell behind their source's queue (the
+    /// oldest are dropped: latest-value semantics).
+    pub lagged_samples: u64,
     /// The task priority in force.
     pub task_priority: u8,
     /// The competency list.
@@ -150,11 +160,17 @@ enum Ctl {
         reason: DataClose,
     },
     Rescan,
+    /// A data session fell behind its source by this many samples.
+    Lagged(u64),
     SetTaskPriority(Option<u8>),
     Stats(oneshot::Sender<ManagerNetStats>),
     Status(oneshot::Sender<Vec<ClientStatus>>),
-    Shutdown(oneshot::Sender<()>),
+    /// Answered with the writer tasks of the closed sessions, to be awaited.
+    Shutdown(oneshot::Sender<Vec<JoinHandle<()>>>),
 }
+
+/// Data-session tasks, kept so that shutdown can await their last frames.
+type DataTasks = Arc<Mutex<Vec<JoinHandle<()>>>>;
 
 enum Io {
     Accepted {
@@ -162,10 +178,15 @@ enum Io {
         addr: SocketAddr,
         tx: mpsc::Sender<Vec<u8>>,
         reader: AbortHandle,
+        writer: JoinHandle<()>,
+        /// Data address for this session's grants (see `SessionLimits::advertise_port`).
+        data_address: Option<String>,
     },
     Frame {
         peer: PeerId,
         bytes: Vec<u8>,
+        /// Released when the frame has been handled.
+        _credit: OwnedSemaphorePermit,
     },
     Closed {
         peer: PeerId,
@@ -256,8 +277,11 @@ pub struct ManagerHandle {
     events: broadcast::Sender<ManagerNetEvent>,
     shared: Arc<SharedRef>,
     tasks: Vec<JoinHandle<()>>,
+    data_tasks: DataTasks,
+    flush_limit: Duration,
     data_queue: usize,
     max_payload: usize,
+    max_body: usize,
 }
 
 impl ManagerHandle {
@@ -275,8 +299,37 @@ impl ManagerHandle {
 
     /// Adds (or replaces) a source and returns its publisher. Registered clients are told
     /// at once (`SourcesChanged`).
-    #[must_use]
-    pub fn publisher(&self, info: SourceInfo) -> SourcePublisher {
+    ///
+    /// # Errors
+    /// [`NetError::Config`] when the name is empty, the name or kind is longer than 255
+    /// bytes, the competency list would hold more than 255 sources, or its encoding would
+    /// not fit in one frame of `max_body` bytes (clients could not register).
+    pub fn publisher(&self, info: SourceInfo) -> Result<SourcePublisher, NetError> {
+        if info.name.is_empty() || info.name.len() > 255 || info.kind.len() > 255 {
+            return Err(NetError::Config(format!(
+                "source name (1..=255 bytes) or kind (0..=255 bytes) out of range: {:?}/{:?}",
+                info.name.len(),
+                info.kind.len()
+            )));
+        }
+        {
+            let map = lock(&self.shared.0.sources);
+            let others = map.values().filter(|e| e.info.name != info.name);
+            let count = others.clone().count().saturating_add(1);
+            // Registered body: client 8, count 1, per source: name 1+n, kind 1+k, 2, 4.
+            let size = others
+                .map(|e| &e.info)
+                .chain(core::iter::once(&info))
+                .map(|s| 8 + s.name.len() + s.kind.len())
+                .fold(9usize, usize::saturating_add);
+            if count > 255 || size > self.max_body {
+                return Err(NetError::Config(format!(
+                    "competency list full: {count} sources, {size} bytes encoded (limits 255 \
+                     and max_body {})",
+                    self.max_body
+                )));
+            }
+        }
         let id = {
             let mut n = lock(&self.shared.0.next_id);
             *n = n.wrapping_add(1);
@@ -292,14 +345,14 @@ impl ManagerHandle {
             },
         );
         let _ = self.ctl.send(Ctl::Rescan);
-        SourcePublisher {
+        Ok(SourcePublisher {
             id,
             name: info.name,
             tx,
             shared: self.shared.clone(),
             ctl: self.ctl.clone(),
             max_payload: self.max_payload,
-        }
+        })
     }
 
     /// Overrides the Self Agent's task priority (`None`: ask the Self Agent again). Grants
@@ -339,22 +392,50 @@ impl ManagerHandle {
         rx.await.map_err(|_| NetError::Closed)
     }
 
-    /// Orderly shutdown: every grant is revoked (`Shutdown`), queued frames are written,
-    /// then every socket is closed.
+    /// Orderly shutdown: every grant is revoked (`Shutdown`) on the request channel and
+    /// on every data session, and this returns only once those frames are written and the
+    /// sockets closed (or after the loss window, at least 1 s, for a peer that does not
+    /// read); then every task is stopped.
     pub async fn shutdown(mut self) {
+        let limit = self.flush_limit;
         let (tx, rx) = oneshot::channel();
-        if self.ctl.send(Ctl::Shutdown(tx)).is_ok() {
-            let _ = tokio::time::timeout(Duration::from_secs(2), rx).await;
+        let mut writers = Vec::new();
+        if self.ctl.send(Ctl::Shutdown(tx)).is_ok()
+            && let Ok(Ok(w)) = tokio::time::timeout(limit, rx).await
+        {
+            writers = w;
         }
+        // The accept loops stop taking new sessions.
         for t in self.tasks.drain(..) {
             t.abort();
+        }
+        let data: Vec<JoinHandle<()>> = std::mem::take(&mut *lock(&self.data_tasks));
+        let mut set = tokio::task::JoinSet::new();
+        let mut aborts = Vec::new();
+        for h in writers.into_iter().chain(data) {
+            aborts.push(h.abort_handle());
+            set.spawn(async move {
+                let _ = h.await;
+            });
+        }
+        let _ =
+            tokio::time::timeout(limit, async { while set.join_next().await.is_some() {} }).await;
+        for a in aborts {
+            a.abort();
         }
     }
 
     /// Abrupt stop, as if the process died: every task is aborted and every socket closed
     /// without a word to the clients.
     pub fn abort(mut self) {
+        self.stop();
+    }
+
+    fn stop(&mut self) {
         for t in self.tasks.drain(..) {
+            t.abort();
+        }
+        for t in lock(&self.data_tasks).drain(..) {
             t.abort();
         }
     }
@@ -362,9 +443,7 @@ impl ManagerHandle {
 
 impl Drop for ManagerHandle {
     fn drop(&mut self) {
-        for t in self.tasks.drain(..) {
-            t.abort();
-        }
+        self.stop();
     }
 }
 
@@ -391,8 +470,9 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     key: GroupKey,
     agent: A,
 ) -> Result<ManagerHandle, NetError> {
-    let listen = parse_addr(&cfg.manager.listen, "manager.listen")?;
-    let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen")?;
+    cfg.validate()?;
+    let listen = parse_addr(&cfg.manager.listen, "manager.listen").await?;
+    let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen").await?;
     let listener = TcpListener::bind(listen).await?;
     let data_listener = TcpListener::bind(data_listen).await?;
     let local_addr = listener.local_addr()?;
@@ -425,7 +505,10 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     let (io_tx, io_rx) = mpsc::channel(IO_QUEUE);
     let (ev_tx, _) = broadcast::channel(EVENT_QUEUE);
     let max_body = cfg.max_body;
+    let data_tasks: DataTasks = Arc::default();
     let session_queue = cfg.manager.session_queue.max(1);
+    let max_conns = cfg.manager.max_connections.max(1);
+    let window = cfg.loss_window();
     let mut dcfg = DataConfig::new(0);
     dcfg.heartbeat = hb;
     dcfg.missed_heartbeats = cfg.missed_heartbeats;
@@ -443,17 +526,33 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         data_rejects: RejectCounts::default(),
         data_bad_tickets: 0,
         slow_closed: 0,
+        lagged_samples: 0,
         out: vec![0u8; HEADER_LEN + usize::from(u16::MAX) + MAC_LEN],
+        skew_us: cfg.max_clock_skew_ms.saturating_mul(1000),
     };
     let tasks = vec![
         tokio::spawn(task.run(ctl_rx, io_rx)),
-        tokio::spawn(accept_sessions(listener, io_tx, session_queue, max_body)),
+        tokio::spawn(accept_sessions(
+            listener,
+            io_tx,
+            SessionLimits {
+                advertise_port: (cfg.manager.data_advertise.is_none()
+                    && data_addr.ip().is_unspecified())
+                .then_some(data_addr.port()),
+                queue: session_queue,
+                max_body,
+                window,
+                conns: Arc::new(Semaphore::new(max_conns)),
+            },
+        )),
         tokio::spawn(accept_data(
             data_listener,
             ctl_tx.clone(),
             ev_tx.clone(),
             key,
             dcfg,
+            data_tasks.clone(),
+            Arc::new(Semaphore::new(max_conns)),
         )),
     ];
     Ok(ManagerHandle {
@@ -463,14 +562,18 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         events: ev_tx,
         shared: Arc::new(SharedRef(shared)),
         tasks,
+        data_tasks,
+        flush_limit: cfg.loss_window().max(Duration::from_secs(1)),
         data_queue: cfg.manager.data_queue,
         max_payload: max_body.saturating_sub(SAMPLE_OVERHEAD),
+        max_body,
     })
 }
 
 struct SessionRec {
     tx: mpsc::Sender<Vec<u8>>,
     reader: AbortHandle,
+    writer: JoinHandle<()>,
 }
 
 struct ManagerTask<A: SelfAgent> {
@@ -484,7 +587,9 @@ struct ManagerTask<A: SelfAgent> {
     data_rejects: RejectCounts,
     data_bad_tickets: u64,
     slow_closed: u64,
+    lagged_samples: u64,
     out: Vec<u8>,
+    skew_us: u64,
 }
 
 fn deadline(clock: &TokioClock, at: Option<Instant>) -> tokio::time::Instant {
@@ -499,11 +604,15 @@ impl<A: SelfAgent> ManagerTask<A> {
     async fn run(mut self, mut ctl: mpsc::UnboundedReceiver<Ctl>, mut io: mpsc::Receiver<Io>) {
         loop {
             let sleep = tokio::time::sleep_until(deadline(&self.clock, self.core.poll_timeout()));
+            // Biased: control (low volume, so it cannot starve the rest), then client
+            // input, then timers; and the input that queued up is taken before a timeout is
+            // handled, so that a starved task does not declare a live client lost.
             tokio::select! {
+                biased;
                 c = ctl.recv() => match c {
                     Some(Ctl::Shutdown(done)) => {
-                        self.shutdown();
-                        let _ = done.send(());
+                        let writers = self.shutdown();
+                        let _ = done.send(writers);
                         return;
                     }
                     Some(c) => self.handle_ctl(c),
@@ -511,6 +620,9 @@ impl<A: SelfAgent> ManagerTask<A> {
                 },
                 Some(m) = io.recv() => self.handle_io(m),
                 () = sleep => {
+                    while let Ok(m) = io.try_recv() {
+                        self.handle_io(m);
+                    }
                     let now = self.clock.now();
                     self.core.handle_timeout(now);
                 }
@@ -558,6 +670,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                 }
             }
             Ctl::Rescan => self.core.rescan(now),
+            Ctl::Lagged(n) => self.lagged_samples = self.lagged_samples.saturating_add(n),
             Ctl::SetTaskPriority(p) => {
                 self.core.agent_mut().task_override = p;
                 self.core.handle_timeout(now);
@@ -581,6 +694,7 @@ impl<A: SelfAgent> ManagerTask<A> {
             data_rejects: self.data_rejects,
             data_bad_tickets: self.data_bad_tickets,
             slow_closed: self.slow_closed,
+            lagged_samples: self.lagged_samples,
             task_priority: self.core.task_priority(),
             sources: self.core.sources().to_vec(),
         }
@@ -594,14 +708,24 @@ impl<A: SelfAgent> ManagerTask<A> {
                 addr,
                 tx,
                 reader,
+                writer,
+                data_address,
             } => {
-                self.sessions.insert(peer, SessionRec { tx, reader });
+                self.sessions
+                    .insert(peer, SessionRec { tx, reader, writer });
                 self.core.connect(peer, now);
+                if let Some(a) = data_address {
+                    self.core.set_data_address(peer, a);
+                }
                 let _ = self
                     .events
                     .send(ManagerNetEvent::SessionOpened { peer, addr });
             }
-            Io::Frame { peer, bytes } => self.core.handle_frame(peer, &bytes, now),
+            Io::Frame { peer, bytes, .. } => {
+                let window = self.skew_window();
+                self.core.set_first_counter_window(window);
+                self.core.handle_frame(peer, &bytes, now);
+            }
             Io::Closed { peer } => {
                 if self.sessions.remove(&peer).is_some() {
                     self.core.disconnect(peer, now);
@@ -613,11 +737,24 @@ impl<A: SelfAgent> ManagerTask<A> {
         }
     }
 
-    fn close_session(&mut self, peer: PeerId) {
-        if let Some(s) = self.sessions.remove(&peer) {
-            // Dropping the sender lets the writer flush what is queued, then close.
+    /// Closes a session; returns its writer task, which flushes what is queued and then
+    /// closes the socket (dropping the sender ends it).
+    /// `now ± skew` in UNIX µs for the first counter of an unknown client.
+    fn skew_window(&self) -> Option<(u64, u64)> {
+        (self.skew_us > 0).then(|| {
+            let now = unix_micros();
+            (
+                now.saturating_sub(self.skew_us),
+                now.saturating_add(self.skew_us),
+            )
+        })
+    }
+
+    fn close_session(&mut self, peer: PeerId) -> Option<JoinHandle<()>> {
+        self.sessions.remove(&peer).map(|s| {
             s.reader.abort();
-        }
+            s.writer
+        })
     }
 
     fn flush(&mut self) {
@@ -634,7 +771,7 @@ impl<A: SelfAgent> ManagerTask<A> {
             }
             for peer in slow {
                 if self.sessions.contains_key(&peer) {
-                    self.close_session(peer);
+                    let _ = self.close_session(peer);
                     self.slow_closed = self.slow_closed.saturating_add(1);
                     self.core.disconnect(peer, self.clock.now());
                     let _ = self
@@ -651,7 +788,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                         clients,
                     } => {
                         tracing::warn!(peer, ?reason, ?clients, "peer manager: session closed");
-                        self.close_session(*peer);
+                        let _ = self.close_session(*peer);
                     }
                     ManagerEvent::Decision(d) => {
                         let reason = match d.outcome {
@@ -687,7 +824,9 @@ impl<A: SelfAgent> ManagerTask<A> {
         }
     }
 
-    fn shutdown(&mut self) {
+    /// Revokes everything (`Shutdown`), queues the frames and closes every session;
+    /// returns the writer tasks still flushing.
+    fn shutdown(&mut self) -> Vec<JoinHandle<()>> {
         let now = self.clock.now();
         self.core.shutdown(now);
         self.flush();
@@ -695,20 +834,31 @@ impl<A: SelfAgent> ManagerTask<A> {
             let _ = tx.send(RevokeReason::Shutdown);
         }
         let peers: Vec<PeerId> = self.sessions.keys().copied().collect();
-        for p in peers {
-            self.close_session(p);
-        }
+        peers
+            .into_iter()
+            .filter_map(|p| self.close_session(p))
+            .collect()
     }
 }
 
-async fn accept_sessions(
-    listener: TcpListener,
-    io: mpsc::Sender<Io>,
-    session_queue: usize,
+/// Limits of the request-channel sessions.
+struct SessionLimits {
+    /// Data-server port, when grants must carry the local IP each client reached (no
+    /// `data_advertise` and the data server bound to an unspecified address).
+    advertise_port: Option<u16>,
+    queue: usize,
     max_body: usize,
-) {
+    window: Duration,
+    conns: Arc<Semaphore>,
+}
+
+async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: SessionLimits) {
     let mut next: PeerId = 0;
     loop {
+        // At most `max_connections` sessions: the next accept waits for a permit.
+        let Ok(permit) = lim.conns.clone().acquire_owned().await else {
+            return;
+        };
         let (stream, addr) = match listener.accept().await {
             Ok(s) => s,
             Err(e) => {
@@ -718,13 +868,23 @@ async fn accept_sessions(
             }
         };
         let _ = stream.set_nodelay(true);
+        // On a LAN the data server bound to 0.0.0.0 is reached at the IP this client
+        // reached us on.
+        let data_address = lim.advertise_port.and_then(|port| {
+            let local = stream.local_addr().ok()?;
+            (!local.ip().is_unspecified()).then(|| SocketAddr::new(local.ip(), port).to_string())
+        });
         next = next.wrapping_add(1);
         let peer = next;
         let (mut rd, wr) = stream.into_split();
-        let (tx, rx) = mpsc::channel(session_queue);
-        tokio::spawn(write_frames(wr, rx));
+        let (tx, rx) = mpsc::channel(lim.queue);
+        let writer = tokio::spawn(write_frames(wr, rx, lim.window));
         let io2 = io.clone();
+        let max_body = lim.max_body;
         let reader = tokio::spawn(async move {
+            // Held as long as the session's reader runs (dropped when it ends or is aborted).
+            let _permit = permit;
+            let credits = Arc::new(Semaphore::new(SESSION_CREDITS));
             let mut fr = FrameReader::new(max_body);
             loop {
                 match fr.read_from(&mut rd).await {
@@ -732,7 +892,15 @@ async fn accept_sessions(
                     Ok(_) => {
                         while let Some(f) = fr.next_frame() {
                             let bytes = f.to_vec();
-                            if io2.send(Io::Frame { peer, bytes }).await.is_err() {
+                            let Ok(credit) = credits.clone().acquire_owned().await else {
+                                return;
+                            };
+                            let frame = Io::Frame {
+                                peer,
+                                bytes,
+                                _credit: credit,
+                            };
+                            if io2.send(frame).await.is_err() {
                                 return;
                             }
                         }
@@ -746,6 +914,8 @@ async fn accept_sessions(
             addr,
             tx,
             reader: reader.abort_handle(),
+            writer,
+            data_address,
         };
         if io.send(accepted).await.is_err() {
             reader.abort();
@@ -760,8 +930,14 @@ async fn accept_data(
     events: broadcast::Sender<ManagerNetEvent>,
     key: GroupKey,
     dcfg: DataConfig,
+    tasks: DataTasks,
+    conns: Arc<Semaphore>,
 ) {
     loop {
+        // At most `max_connections` data sessions: the next accept waits for a permit.
+        let Ok(permit) = conns.clone().acquire_owned().await else {
+            return;
+        };
         let stream = match listener.accept().await {
             Ok((s, _)) => s,
             Err(e) => {
@@ -774,13 +950,14 @@ async fn accept_data(
         let mut cfg = dcfg.clone();
         cfg.node = random_u64();
         cfg.first_counter = unix_micros();
-        tokio::spawn(serve_data(
-            stream,
-            ctl.clone(),
-            events.clone(),
-            key.clone(),
-            cfg,
-        ));
+        let (ctl, events, key) = (ctl.clone(), events.clone(), key.clone());
+        let h = tokio::spawn(async move {
+            let _permit = permit;
+            serve_data(stream, ctl, events, key, cfg).await;
+        });
+        let mut t = lock(&tasks);
+        t.retain(|h| !h.is_finished());
+        t.push(h);
     }
 }
 
@@ -831,6 +1008,7 @@ async fn serve_data(
 ) {
     let clock = TokioClock::new();
     let max_body = cfg.max_body;
+    let window = cfg.heartbeat.saturating_mul(cfg.missed_heartbeats.max(1));
     let mut s = DataServerSession::new(cfg, key.clone(), clock.now());
     let (mut rd, mut wr) = stream.into_split();
     let mut reader = FrameReader::new(max_body);
@@ -838,8 +1016,10 @@ async fn serve_data(
     let mut revoke: Option<oneshot::Receiver<RevokeReason>> = None;
     let mut id = None;
     let mut source: Option<String> = None;
-    let mut buf = vec![0u8; max_frame(usize::from(u16::MAX))];
-    let mut out: Vec<u8> = Vec::with_capacity(WRITE_BATCH);
+    // Small buffers until a ticket was accepted (control frames are small): a stranger's
+    // connection costs little memory.
+    let mut buf = vec![0u8; max_frame(PRE_STREAM_BODY)];
+    let mut out: Vec<u8> = Vec::new();
     let mut end = DataClose::Lost;
     'run: loop {
         while let Some(ev) = s.poll_event() {
@@ -857,6 +1037,9 @@ async fn serve_data(
                 DataEvent::Closed(why) => end = why,
             }
         }
+        if s.is_streaming() && buf.len() < max_frame(usize::from(u16::MAX)) {
+            buf.resize(max_frame(usize::from(u16::MAX)), 0);
+        }
         let now = clock.now();
         out.clear();
         while out.len() < WRITE_BATCH {
@@ -865,7 +1048,14 @@ async fn serve_data(
                 None => break,
             }
         }
-        if !out.is_empty() && wr.write_all(&out).await.is_err() {
+        // A write outside the select: bounded by the loss window (a client that reads
+        // nothing is lost, and this task does not hang on it).
+        if !out.is_empty()
+            && !matches!(
+                tokio::time::timeout(window, wr.write_all(&out)).await,
+                Ok(Ok(()))
+            )
+        {
             end = DataClose::Lost;
             break;
         }
@@ -877,6 +1067,7 @@ async fn serve_data(
         }
         let sleep = tokio::time::sleep_until(deadline(&clock, s.poll_timeout()));
         tokio::select! {
+            biased;
             r = reader.read_from(&mut rd) => {
                 match r {
                     Ok(0) | Err(_) => {
@@ -919,7 +1110,9 @@ async fn serve_data(
                         }
                     }
                 }
-                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    let _ = ctl.send(Ctl::Lagged(n));
+                }
                 Err(broadcast::error::RecvError::Closed) => {
                     samples = None;
                     s.revoke(RevokeReason::SourceGone);
@@ -931,10 +1124,34 @@ async fn serve_data(
                     s.revoke(reason);
                 }
             }
-            () = sleep => s.handle_timeout(clock.now()),
+            () = sleep => {
+                // Input that waited while this task was starved goes in first (a client's
+                // heartbeat must not be taken for silence).
+                // (Only once streaming: an OpenData needs the manager task, which the
+                // read arm asks.)
+                let pending = if s.is_streaming() {
+                    reader.try_read_from(&rd)
+                } else {
+                    Ok(None)
+                };
+                match pending {
+                    Ok(Some(0)) | Err(_) => {
+                        end = DataClose::Lost;
+                        break 'run;
+                    }
+                    Ok(Some(_)) => {
+                        let now = clock.now();
+                        while let Some(f) = reader.next_frame() {
+                            s.handle_frame(f, &mut Prefetched(None), now);
+                        }
+                    }
+                    Ok(None) => {}
+                }
+                s.handle_timeout(clock.now());
+            }
         }
     }
-    let _ = wr.shutdown().await;
+    let _ = tokio::time::timeout(window, wr.shutdown()).await;
     let _ = ctl.send(Ctl::DataEnded { id, reason: end });
     let _ = events.send(ManagerNetEvent::DataClosed {
         source,

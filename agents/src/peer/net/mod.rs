@@ -26,7 +26,7 @@
 //! // Skeeter: a manager with one source.
 //! let cfg = PeerNetConfig::loopback("skeeter");
 //! let manager = spawn_manager(&cfg, key.clone(), FixedSelfAgent::default()).await?;
-//! let ses = manager.publisher(SourceInfo::new("ses", "ses", 1, 0.2));
+//! let ses = manager.publisher(SourceInfo::new("ses", "ses", 1, 0.2))?;
 //! ses.publish(0, b"one full scan")?;
 //! // Scooter: a client of Skeeter's manager.
 //! let client =
@@ -55,7 +55,7 @@ mod manager;
 pub use broadcast::{BroadcastChannel, BroadcastStats};
 pub use client::{EndReason, LossReason, PeerClientHandle, Subscription, SubscriptionEvent};
 pub use config::{
-    BroadcastConfig, BroadcastMode, ManagerNetConfig, PeerNetConfig, SyntheticSource,
+    BroadcastConfig, BroadcastMode, MAX_QUEUE, ManagerNetConfig, PeerNetConfig, SyntheticSource,
 };
 pub use key::{INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, parse_key};
 pub use manager::{
@@ -88,6 +88,8 @@ pub enum NetError {
     ManagerLost,
     /// The task behind this handle has ended.
     Closed,
+    /// The manager did not answer within `call_timeout_ms` (the procedure is withdrawn).
+    Timeout,
 }
 
 impl core::fmt::Display for NetError {
@@ -103,6 +105,7 @@ impl core::fmt::Display for NetError {
             NetError::Revoked(r) => write!(f, "request revoked: {r:?}"),
             NetError::ManagerLost => f.write_str("manager lost"),
             NetError::Closed => f.write_str("the peer task has ended"),
+            NetError::Timeout => f.write_str("the manager did not answer in time"),
         }
     }
 }
