@@ -68,12 +68,15 @@ pub async fn run(
         .map_err(|e| anyhow::anyhow!("{e}"))
         .context("starting Skeeter's Peer Agent manager")?;
     let mut grants = manager.events();
-    let ses = manager.publisher(SourceInfo {
-        name: SES_SOURCE.to_owned(),
-        kind: SES_SOURCE_KIND.to_owned(),
-        schema: SES_SOURCE_SCHEMA,
-        rate_mhz: 300,
-    });
+    let ses = manager
+        .publisher(SourceInfo {
+            name: SES_SOURCE.to_owned(),
+            kind: SES_SOURCE_KIND.to_owned(),
+            schema: SES_SOURCE_SCHEMA,
+            rate_mhz: 300,
+        })
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .context("registering Skeeter's `ses` source")?;
     events.emit(
         &clock,
         &me,
