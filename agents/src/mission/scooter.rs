@@ -75,9 +75,10 @@
 //! | `heading-known` | a plan exists and is not stale |
 //! | `target-in-view` | a laser cluster of the target's diameter where Scooter expects the target |
 //! | `obstacle-near` / `path-clear` | the [avoider](super::avoid) (hysteresis) |
-//! | `called-back` / `skeeter-in-view` | broadcast `scooter-lost` / `scooter-found` |
+//! | `called-back` / `skeeter-in-view` | broadcast `scooter-lost` / `scooter-found`, or an SES sample with a fresh `scooter` record (ends the call-back; the broadcast may be lost) |
 //! | `asked-for-target` | broadcast `target-query` |
 //! | `at-target` | the target cluster within [`ScooterConfig::reach_distance_m`] |
+//! | `path-clear` needs eyes | no usable scan for [`ScooterConfig::laser_stale_after`]: forward speed 0 (turning in place allowed) |
 //! | `skeeter-notified` | `target-reached` sent |
 //!
 //! | module | action |
@@ -88,7 +89,7 @@
 //! | `avoid-obstacle` | steer round the obstacle on a locked side |
 //! | `move-to-home` | drive toward Skeeter (DR position when known, else θ1 + 180°) and stop 1.2 m short |
 //! | `reply-target-query` | send [`ScooterSay::TargetReply`] (motion continues) |
-//! | `notify-skeeter` | send [`ScooterSay::TargetReached`] once and stop |
+//! | `notify-skeeter` | send [`ScooterSay::TargetReached`] and stop; resent every [`ScooterConfig::status_period`] until the target's `Accomplished`/`Failed` (or a new target) is heard |
 //!
 //! Without a target the brain is [`Behaviour::Idle`] (not a SAN module) and stands still.
 
@@ -212,6 +213,21 @@ pub struct ScooterConfig {
     pub avoid_smoothing_s: f64,
     /// Obstacle avoidance.
     pub avoid: AvoidConfig,
+    /// The laser is *missing* when its last usable scan is older than this: Scooter then
+    /// commands zero forward speed (turning in place stays allowed), because an unseen path
+    /// is not a clear one.
+    pub laser_stale_after: Duration,
+    /// A scan is usable when at least this fraction of its beams is usable (a valid
+    /// measurement, or — with [`ScooterConfig::laser_no_return_is_clear`] — a clean "no
+    /// return"); a blinded scan (dazzled, read errors, empty) counts as no scan at all.
+    pub laser_min_usable_fraction: f64,
+    /// A beam flagged only `NO_RETURN`/`ABOVE_MAX_RANGE` means "nothing within range" (the
+    /// SICK in an open field), so it counts as usable. Off: only valid measurements count.
+    pub laser_no_return_is_clear: bool,
+    /// A `scooter` record in an SES sample at most this old (its sensing time against the
+    /// sample's send time) means Skeeter sees Scooter: a call-back ends even if the
+    /// `scooter-found` broadcast was lost.
+    pub found_record_max_age: Duration,
 }
 
 impl Default for ScooterConfig {
@@ -247,6 +263,10 @@ impl Default for ScooterConfig {
             max_target_samples: 12,
             avoid_smoothing_s: 0.6,
             avoid: AvoidConfig::default(),
+            laser_stale_after: Duration::from_millis(500),
+            laser_min_usable_fraction: 0.5,
+            laser_no_return_is_clear: true,
+            found_record_max_age: Duration::from_secs(10),
         }
     }
 }
@@ -579,7 +599,9 @@ pub struct ScooterBrain {
     target_fix: Option<(Instant, Vector2)>,
     skeeter_fix: Option<(Instant, Vector2)>,
     avoid_heading: Option<f64>,
+    /// When the last *usable* scan arrived.
     laser_at: Option<Instant>,
+    last_notify_at: Option<Instant>,
     // Controller.
     last_step: Option<Instant>,
     omega: f64,
@@ -640,6 +662,7 @@ impl ScooterBrain {
             skeeter_fix: None,
             avoid_heading: None,
             laser_at: None,
+            last_notify_at: None,
             last_step: None,
             omega: 0.0,
             turning_in_place: false,
@@ -724,6 +747,7 @@ impl ScooterBrain {
         self.last_request_at = None;
         self.reached = false;
         self.notified = false;
+        self.last_notify_at = None;
         self.target_fix = None;
         self.avoider.reset();
     }
@@ -755,7 +779,9 @@ impl ScooterBrain {
     pub fn handle_heard(&mut self, heard: &ScooterHeard, now: Instant) {
         match heard {
             ScooterHeard::TargetAccepted { colour } => {
-                if self.target.as_deref() != Some(colour.as_str()) || self.reached {
+                // Also while reached: the commander polls a processing target, and Skeeter
+                // echoes it, until the outcome comes; that must not restart the search.
+                if self.target.as_deref() != Some(colour.as_str()) {
                     self.set_target(colour, now);
                 }
             }
@@ -851,7 +877,20 @@ impl ScooterBrain {
 
     /// A sample of Skeeter's SES: the heading-calculation agent computes a new plan when it
     /// holds both Scooter and the current target. Returns whether a plan was made.
+    ///
+    /// A fresh `scooter` record ([`ScooterConfig::found_record_max_age`]) also ends a
+    /// call-back: Skeeter sees Scooter, whether or not its `scooter-found` arrived.
     pub fn handle_ses(&mut self, form: &SharedForm, now: Instant) -> bool {
+        if self.called_back
+            && form.records.iter().any(|r| {
+                r.object == self.cfg.robot_name
+                    && r.bearing.azimuth_rad.is_finite()
+                    && form.sent_at.saturating_duration_since(r.time)
+                        <= self.cfg.found_record_max_age
+            })
+        {
+            self.called_back = false;
+        }
         let Some(colour) = self.target.clone() else {
             return false;
         };
@@ -944,7 +983,13 @@ impl ScooterBrain {
     }
 
     /// A laser scan: obstacle points for the avoider, and the target search.
+    ///
+    /// A scan that is not usable ([`ScooterConfig::laser_min_usable_fraction`]) is dropped:
+    /// it neither clears the path nor refreshes the laser's age.
     pub fn handle_laser(&mut self, scan: &LaserScan, now: Instant) {
+        if !self.scan_usable(scan) {
+            return;
+        }
         avoid_points(scan, &self.cfg, &mut self.points);
         self.laser_at = Some(now);
         let Some(h) = self.heading() else {
@@ -1020,6 +1065,46 @@ impl ScooterBrain {
         if let Some((p, _)) = best {
             self.target_fix = Some((now, p));
         }
+    }
+
+    /// Whether enough of a scan's beams are usable (see [`ScooterConfig`]).
+    fn scan_usable(&self, scan: &LaserScan) -> bool {
+        use ima_hal::laser::BeamFlags;
+        let n = scan.len();
+        if n == 0 {
+            return false;
+        }
+        let errors = [
+            BeamFlags::DAZZLED,
+            BeamFlags::OVERFLOW,
+            BeamFlags::LOW_SIGNAL,
+            BeamFlags::READ_ERROR,
+            BeamFlags::RESERVED,
+        ];
+        let usable = scan
+            .beams()
+            .filter(|(_, r, f)| {
+                if f.is_valid() {
+                    r.is_finite() && *r >= 0.0
+                } else {
+                    self.cfg.laser_no_return_is_clear && !errors.iter().any(|e| f.contains(*e))
+                }
+            })
+            .count();
+        let need = self.cfg.laser_min_usable_fraction;
+        let need = if need.is_finite() {
+            need.clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        usable > 0 && usable as f64 >= need * n as f64
+    }
+
+    /// Whether a usable scan came within [`ScooterConfig::laser_stale_after`].
+    #[must_use]
+    pub fn laser_fresh(&self, now: Instant) -> bool {
+        self.laser_at
+            .is_some_and(|t| now.saturating_duration_since(t) <= self.cfg.laser_stale_after)
     }
 
     fn target_in_view(&self, now: Instant) -> Option<Vector2> {
@@ -1171,10 +1256,16 @@ impl ScooterBrain {
                 }
             }
             Behaviour::NotifySkeeter => {
-                if !self.notified
+                // Sent at once, then again every status period until the mission event
+                // for this target (or a new target) arrives: a broadcast may be lost.
+                let due = self
+                    .last_notify_at
+                    .is_none_or(|t| now.saturating_duration_since(t) >= self.cfg.status_period);
+                if (!self.notified || due)
                     && let Some(colour) = self.target.clone()
                 {
                     self.notified = true;
+                    self.last_notify_at = Some(now);
                     self.outbox.push(ScooterSay::TargetReached { colour });
                 }
                 self.omega = 0.0;
@@ -1187,6 +1278,10 @@ impl ScooterBrain {
                 command = self.drive(self.goal_for(motion, now), h, steer, dt);
             }
             Behaviour::Idle | Behaviour::ReplyTargetQuery => self.omega = 0.0,
+        }
+        // Blind (no usable scan lately): never drive forward into an unseen path.
+        if !self.laser_fresh(now) {
+            command.v_m_s = 0.0;
         }
         let mut behaviour = motion;
         if let Some(colour) = self.query.take() {
@@ -1350,16 +1445,84 @@ mod tests {
         }
     }
 
+    /// A brain whose laser never goes stale after one clear scan at t = 0 (tests that are
+    /// not about the laser's age; `blind_scooter_does_not_drive_forward` uses the default).
     fn brain(rule: HeadingRule) -> ScooterBrain {
         let cfg = ScooterConfig {
             heading_rule: rule,
             heading_source: HeadingSource::Compass,
+            laser_stale_after: Duration::MAX,
             ..ScooterConfig::default()
         };
         let mut b = ScooterBrain::new(cfg);
         b.handle_compass(0.0, t(0));
         b.handle_odometry(&Odometry::origin(), t(0));
+        b.handle_laser(&clear_scan(), t(0));
         b
+    }
+
+    /// 181 beams, nothing within range.
+    fn clear_scan() -> LaserScan {
+        let mut s = LaserScan::new(-PI / 2.0, PI / 180.0);
+        for _ in 0..181 {
+            s.push(f32::NAN, BeamFlags::NO_RETURN).unwrap();
+        }
+        s
+    }
+
+    /// 181 beams, all dazzled.
+    fn blinded_scan() -> LaserScan {
+        let mut s = LaserScan::new(-PI / 2.0, PI / 180.0);
+        for _ in 0..181 {
+            s.push(f32::NAN, BeamFlags::DAZZLED).unwrap();
+        }
+        s
+    }
+
+    #[test]
+    fn blind_scooter_does_not_drive_forward() {
+        let mut b = ScooterBrain::new(ScooterConfig {
+            heading_rule: HeadingRule::Thesis,
+            heading_source: HeadingSource::Compass,
+            ..ScooterConfig::default()
+        });
+        b.handle_compass(0.0, t(0));
+        b.handle_odometry(&Odometry::origin(), t(0));
+        b.set_target(RED, t(0));
+        // θd = 180° + 0° − 88° … a plan almost straight ahead: θ1 = 0°, θ2 = 179° → 90.5°;
+        // face it so that the controller drives rather than turns in place.
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 179.0, None, t(0))],
+            t(0),
+        );
+        assert!(b.handle_ses(&f, t(0)));
+        b.handle_compass(b.desired_heading().unwrap(), t(0));
+        // No scan ever: no forward speed.
+        let out = b.step(t(100));
+        assert_eq!(out.behaviour, Behaviour::FollowHeading);
+        assert_eq!(out.command.v_m_s, 0.0, "no laser yet");
+        // A clear scan: drive.
+        b.handle_laser(&clear_scan(), t(200));
+        let out = b.step(t(300));
+        assert!(out.command.v_m_s > 0.0);
+        // 0.5 s later still fresh, 0.6 s later stale.
+        assert!(b.step(t(700)).command.v_m_s > 0.0);
+        assert_eq!(b.step(t(800)).command.v_m_s, 0.0, "stale laser");
+        // A blinded scan does not count as a clear path.
+        b.handle_laser(&blinded_scan(), t(900));
+        assert_eq!(b.step(t(950)).command.v_m_s, 0.0, "blinded scan");
+        // Turning in place stays allowed while blind.
+        b.handle_compass(b.desired_heading().unwrap() + 1.0, t(1000));
+        let out = b.step(t(1000));
+        assert_eq!(out.command.v_m_s, 0.0);
+        assert!(out.command.omega_rad_s < 0.0, "turns back toward θd");
+        // A configurable age.
+        let mut b2 = ScooterBrain::new(ScooterConfig {
+            laser_stale_after: Duration::from_secs(2),
+            ..b.config().clone()
+        });
+        b2.handle_laser(&clear_scan(), t(0));
+        assert!(b2.laser_fresh(t(1900)) && !b2.laser_fresh(t(2100)));
     }
 
     fn close_deg(a: f64, b_deg: f64) -> bool {
@@ -1704,7 +1867,7 @@ mod tests {
     }
 
     #[test]
-    fn finds_the_target_with_the_laser_notifies_once_and_stops() {
+    fn finds_the_target_with_the_laser_notifies_until_the_outcome_and_stops() {
         let mut b = brain(HeadingRule::RangeAware);
         b.set_target(RED, t(0));
         // Scooter at (−1.5, 0) facing +x; target at (−0.5, 0) — 1 m ahead.
@@ -1726,34 +1889,112 @@ mod tests {
         b.handle_laser(&w.scan(&mount), t(0));
         let out = b.step(t(0));
         assert_eq!(out.behaviour, Behaviour::MoveToTarget);
-        let mut reached = 0;
+        let mut reached: Vec<u64> = Vec::new();
         let mut now = 0;
         for _ in 0..400 {
             now += 50;
-            w.advance(b.step(t(now)).command, 0.05);
+            let first = b.step(t(now));
+            w.advance(first.command, 0.05);
             b.handle_odometry(&w.odo((-1.5, 0.0, 0.0)), t(now));
             b.handle_laser(&w.scan(&mount), t(now));
-            let out = b.step(t(now));
-            reached += out
+            let mut out = b.step(t(now));
+            out.messages.extend(first.messages);
+            if out
                 .messages
                 .iter()
-                .filter(|m| matches!(m, ScooterSay::TargetReached { .. }))
-                .count();
+                .any(|m| matches!(m, ScooterSay::TargetReached { .. }))
+            {
+                reached.push(now);
+            }
             if b.reached() {
                 assert_eq!(out.behaviour, Behaviour::NotifySkeeter);
                 assert_eq!(out.command, VelocityCommand::ZERO);
             }
         }
-        assert_eq!(reached, 1);
+        // Sent when reached, then again every status period (1 s): it may be lost.
+        assert!(reached.len() >= 3, "{reached:?}");
+        for w2 in reached.windows(2) {
+            assert!((1000..=1050).contains(&(w2[1] - w2[0])), "{reached:?}");
+        }
         let d = (w.x + 0.5).hypot(w.y);
         assert!(d <= b.config().reach_distance_m + 0.05 && d > 0.55, "{d}");
-        let out = b.step(t(now + 50));
-        assert_eq!(out.behaviour, Behaviour::NotifySkeeter);
-        assert!(
-            out.messages
-                .iter()
-                .all(|m| matches!(m, ScooterSay::Status { .. }))
+        // Skeeter's echo of the acceptance (a commander poll) does not restart the target.
+        b.handle_heard(
+            &ScooterHeard::TargetAccepted {
+                colour: RED.to_owned(),
+            },
+            t(now + 10),
         );
+        assert!(b.reached());
+        // The outcome ends the repeats.
+        b.handle_heard(
+            &ScooterHeard::MissionEnded {
+                colour: RED.to_owned(),
+            },
+            t(now + 20),
+        );
+        for k in 1..40 {
+            let out = b.step(t(now + 50 * k));
+            assert_eq!(out.behaviour, Behaviour::Idle);
+            assert_eq!(out.command, VelocityCommand::ZERO);
+            assert!(
+                out.messages
+                    .iter()
+                    .all(|m| matches!(m, ScooterSay::Status { .. }))
+            );
+        }
+    }
+
+    #[test]
+    fn a_new_target_stops_the_target_reached_repeats() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        b.reached = true;
+        let out = b.step(t(0));
+        assert!(out.messages.contains(&ScooterSay::TargetReached {
+            colour: RED.to_owned()
+        }));
+        b.handle_heard(
+            &ScooterHeard::TargetAccepted {
+                colour: "blue".to_owned(),
+            },
+            t(500),
+        );
+        for k in 1..60 {
+            let out = b.step(t(500 + 50 * k));
+            assert!(
+                !out.messages
+                    .iter()
+                    .any(|m| matches!(m, ScooterSay::TargetReached { .. }))
+            );
+        }
+    }
+
+    #[test]
+    fn a_fresh_scooter_record_ends_a_call_back_when_scooter_found_is_lost() {
+        let mut b = brain(HeadingRule::Thesis);
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 90.0, None, t(0)), rec(RED, 0.0, None, t(0))],
+            t(0),
+        );
+        b.handle_ses(&f, t(0));
+        b.handle_heard(&ScooterHeard::ScooterLost, t(100));
+        assert_eq!(b.step(t(100)).behaviour, Behaviour::MoveToHome);
+        // A sample without Scooter (or with a stale record) keeps it homing.
+        b.handle_ses(&form(vec![rec(RED, 0.0, None, t(200))], t(200)), t(200));
+        assert_eq!(b.step(t(200)).behaviour, Behaviour::MoveToHome);
+        let stale = form(vec![rec("scooter", 90.0, None, t(300))], t(20_300));
+        b.handle_ses(&stale, t(20_300));
+        assert_eq!(b.step(t(20_300)).behaviour, Behaviour::MoveToHome);
+        // `scooter-found` was lost, but the next sample holds a fresh Scooter record.
+        let f = form(
+            vec![rec("scooter", 90.0, None, t(20_400))],
+            t(20_500),
+        );
+        b.handle_ses(&f, t(20_500));
+        assert_ne!(b.step(t(20_500)).behaviour, Behaviour::MoveToHome);
+        assert!(!b.san_summary().contains("called-back"));
     }
 
     #[test]
