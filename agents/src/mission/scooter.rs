@@ -54,7 +54,10 @@
 //! frame ([`ScooterConfig::avoid_smoothing_s`]) so the candidate search's 3° steps and laser
 //! noise at a corridor's edge never reach the wheels. In the simulation (`ima-sim` test
 //! `a_barrel_on_the_way_is_avoided_smoothly_with_the_real_laser_model`) the turn rate
-//! changes sign once while going round a barrel: away, then back.
+//! changes sign once while going round a barrel: away, then back. Going round a wide
+//! obstacle (a wall with the target behind it) the avoider keeps its side locked while the
+//! goal is out of the laser's view, and obstacle points that leave the view are remembered
+//! ([`ScooterConfig::obstacle_memory_m`]) so that the post beside Scooter is not forgotten.
 //!
 //! # Ranges
 //!
@@ -213,6 +216,11 @@ pub struct ScooterConfig {
     pub avoid_smoothing_s: f64,
     /// Obstacle avoidance.
     pub avoid: AvoidConfig,
+    /// Obstacle points that leave the laser's field of view (beside and behind Scooter)
+    /// are remembered, carried by dead reckoning, while within this distance of Scooter,
+    /// metres (0 = no memory). Without it, going round the end of a wall the avoider no
+    /// longer sees the post beside it, turns toward it, sees it again, turns away: chatter.
+    pub obstacle_memory_m: f64,
     /// The laser is *missing* when its last usable scan is older than this: Scooter then
     /// commands zero forward speed (turning in place stays allowed), because an unseen path
     /// is not a clear one.
@@ -263,6 +271,7 @@ impl Default for ScooterConfig {
             max_target_samples: 12,
             avoid_smoothing_s: 0.6,
             avoid: AvoidConfig::default(),
+            obstacle_memory_m: 1.5,
             laser_stale_after: Duration::from_millis(500),
             laser_min_usable_fraction: 0.5,
             laser_no_return_is_clear: true,
@@ -596,6 +605,8 @@ pub struct ScooterBrain {
     history: VecDeque<(Instant, Vector2)>,
     // Laser.
     points: Vec<Point2>,
+    /// Obstacle points of the last scan and the memory, DR frame.
+    seen_dr: Vec<Vector2>,
     target_fix: Option<(Instant, Vector2)>,
     skeeter_fix: Option<(Instant, Vector2)>,
     avoid_heading: Option<f64>,
@@ -658,6 +669,7 @@ impl ScooterBrain {
             dr: Vector2::zeros(),
             history: VecDeque::new(),
             points: Vec::new(),
+            seen_dr: Vec::new(),
             target_fix: None,
             skeeter_fix: None,
             avoid_heading: None,
@@ -993,8 +1005,10 @@ impl ScooterBrain {
         avoid_points(scan, &self.cfg, &mut self.points);
         self.laser_at = Some(now);
         let Some(h) = self.heading() else {
+            self.seen_dr.clear();
             return;
         };
+        self.remember_obstacles(scan, h);
         if let Some(fix) = self.last_fix {
             let expected = normalize_angle(fix.scout_bearing + PI);
             let sr = self.cfg.skeeter_diameter_m / 2.0;
@@ -1064,6 +1078,45 @@ impl ScooterBrain {
             .min_by(|a, b| a.1.total_cmp(&b.1));
         if let Some((p, _)) = best {
             self.target_fix = Some((now, p));
+        }
+    }
+
+    /// Add the remembered obstacle points that are out of the laser's view now to
+    /// `self.points` ([`ScooterConfig::obstacle_memory_m`]); remember this scan's points.
+    fn remember_obstacles(&mut self, scan: &LaserScan, h: f64) {
+        const MAX_MEMORY: usize = 4096;
+        let radius = self.cfg.obstacle_memory_m;
+        if !(radius.is_finite() && radius > 0.0) || scan.is_empty() {
+            self.seen_dr.clear();
+            return;
+        }
+        let first = scan.angle_rad(0);
+        let last = scan.angle_rad(scan.len().saturating_sub(1));
+        let (lo, hi) = (first.min(last), first.max(last));
+        let margin = 1f64.to_radians();
+        let mount_inv = self.cfg.laser_mount.inverse();
+        let dr = self.dr;
+        let kept: Vec<(Vector2, Point2)> = self
+            .seen_dr
+            .iter()
+            .filter_map(|m| {
+                let rel = m - dr;
+                if !(rel.norm() <= radius) {
+                    return None;
+                }
+                let robot = Point2::from(nalgebra_rotate(-h, rel));
+                let in_laser = mount_inv * robot;
+                let a = in_laser.y.atan2(in_laser.x);
+                (a < lo - margin || a > hi + margin).then_some((*m, robot))
+            })
+            .take(MAX_MEMORY)
+            .collect();
+        self.seen_dr.clear();
+        self.seen_dr
+            .extend(self.points.iter().map(|p| dr + nalgebra_rotate(h, p.coords)));
+        for (m, robot) in kept {
+            self.seen_dr.push(m);
+            self.points.push(robot);
         }
     }
 
@@ -2126,6 +2179,79 @@ mod tests {
         let flips = omegas.windows(2).filter(|p| p[0] != p[1]).count();
         assert!(
             flips <= 3,
+            "turn-rate sign flipped {flips} times: {omegas:?}"
+        );
+    }
+
+    /// A wall of posts across the way with the target just behind it: going round the
+    /// wall's end takes the target more than 90° off Scooter's nose. The avoider keeps its
+    /// side locked until the target is in view and free, so the turn rate does not chatter.
+    #[test]
+    fn goes_round_a_wide_obstacle_without_turn_rate_chatter() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        // Scooter at (−4, 0) facing +x; a wall of posts at x = −1.5, y ∈ [−2.5, 1.5];
+        // the target at (−0.6, 0).
+        let target = [-0.6, 0.0];
+        let sample = |now: u64, sx: f64, sy: f64| {
+            form(
+                vec![
+                    rec(
+                        "scooter",
+                        sy.atan2(sx).to_degrees(),
+                        Some(sx.hypot(sy)),
+                        t(now),
+                    ),
+                    rec(RED, 180.0, Some(0.6), t(now)),
+                ],
+                t(now),
+            )
+        };
+        b.handle_ses(&sample(0, -4.0, 0.0), t(0));
+        let mut circles = vec![(target, 0.15)];
+        for k in 0..=20 {
+            circles.push(([-1.5, -2.5 + f64::from(k) * 0.2], 0.12));
+        }
+        let mut w = Mini {
+            x: -4.0,
+            y: 0.0,
+            th: 0.0,
+            circles,
+        };
+        let mount = b.config().laser_mount;
+        let mut now = 0;
+        let mut omegas = Vec::new();
+        let mut out_of_view = false;
+        for _ in 0..4000 {
+            now += 50;
+            b.handle_odometry(&w.odo((-4.0, 0.0, 0.0)), t(now));
+            b.handle_compass(w.th, t(now));
+            b.handle_laser(&w.scan(&mount), t(now));
+            let out = b.step(t(now));
+            let g = normalize_angle((target[1] - w.y).atan2(target[0] - w.x) - w.th);
+            if out.behaviour == Behaviour::AvoidObstacle && g.abs() > PI / 2.0 {
+                out_of_view = true;
+            }
+            if out.command.omega_rad_s.abs() > 0.02 {
+                omegas.push(out.command.omega_rad_s.signum());
+            }
+            w.advance(out.command, 0.05);
+            for (c, r) in w.circles.iter().skip(1) {
+                let clear = (w.x - c[0]).hypot(w.y - c[1]) - r - 0.4;
+                assert!(clear > 0.0, "hit a post at {:.2},{:.2}", w.x, w.y);
+            }
+            if b.reached() {
+                break;
+            }
+            if now % 5000 == 0 {
+                b.handle_ses(&sample(now, w.x, w.y), t(now));
+            }
+        }
+        assert!(out_of_view, "the detour took the target out of view");
+        assert!(b.reached(), "target reached round the wall: at {:.2},{:.2}", w.x, w.y);
+        let flips = omegas.windows(2).filter(|p| p[0] != p[1]).count();
+        assert!(
+            flips <= 4,
             "turn-rate sign flipped {flips} times: {omegas:?}"
         );
     }
