@@ -91,7 +91,7 @@
 //! | `move-to-target` | drive to the laser cluster |
 //! | `avoid-obstacle` | steer round the obstacle on a locked side |
 //! | `move-to-home` | drive toward Skeeter (DR position when known, else θ1 + 180°) and stop 1.2 m short |
-//! | `reply-target-query` | send [`ScooterSay::TargetReply`] (motion continues) |
+//! | `reply-target-query` | send [`ScooterSay::TargetReply`] (motion continues): "yes" when the laser tracks the target, it was reached, or a fresh plan for it exists (Skeeter's view of the target may just be hidden by Scooter); "no" otherwise |
 //! | `notify-skeeter` | send [`ScooterSay::TargetReached`] and stop; resent every [`ScooterConfig::status_period`] until the target's `Accomplished`/`Failed` (or a new target) is heard |
 //!
 //! Without a target the brain is [`Behaviour::Idle`] (not a SAN module) and stands still.
@@ -318,7 +318,8 @@ pub enum ScooterSay {
     TargetReply {
         /// Colour asked about.
         colour: String,
-        /// Whether Scooter's laser sees it.
+        /// Whether Scooter sees it with its laser, has reached it, or holds a fresh plan
+        /// for it (a sample with the target within [`ScooterConfig::lost_after`]).
         seen: bool,
     },
     /// Periodic `Status`.
@@ -1338,8 +1339,12 @@ impl ScooterBrain {
         }
         let mut behaviour = motion;
         if let Some(colour) = self.query.take() {
+            // "Yes" when the laser tracks the target, or while a fresh plan for it exists:
+            // Skeeter may just not see the target because Scooter stands in front of it.
             let seen = self.target.as_deref() == Some(colour.as_str())
-                && self.target_in_view(now).is_some();
+                && (self.target_in_view(now).is_some()
+                    || (self.plan.is_some() && !self.heading_stale(now))
+                    || self.reached);
             self.outbox.push(ScooterSay::TargetReply { colour, seen });
             behaviour = Behaviour::ReplyTargetQuery;
         }
@@ -1898,9 +1903,11 @@ mod tests {
         assert!(b.handle_broadcast(&q, t(50)));
         let out = b.step(t(50));
         assert_eq!(out.behaviour, Behaviour::ReplyTargetQuery);
+        // Not in the laser's sight, but a fresh plan for red: "yes" (Scooter may simply be
+        // hiding the target from Skeeter).
         assert!(out.messages.contains(&ScooterSay::TargetReply {
             colour: RED.to_owned(),
-            seen: false
+            seen: true
         }));
         assert!(out.command.v_m_s > 0.0, "replying does not stop the wheels");
         let out = b.step(t(100));
@@ -1915,6 +1922,18 @@ mod tests {
         let out = b.step(t(150));
         assert!(out.messages.contains(&ScooterSay::TargetReply {
             colour: "blue".to_owned(),
+            seen: false
+        }));
+        // The plan gone stale (no sample with red for lost_after = 12 s): no.
+        b.handle_heard(
+            &ScooterHeard::TargetQuery {
+                colour: RED.to_owned(),
+            },
+            t(12_100),
+        );
+        let out = b.step(t(12_100));
+        assert!(out.messages.contains(&ScooterSay::TargetReply {
+            colour: RED.to_owned(),
             seen: false
         }));
     }
