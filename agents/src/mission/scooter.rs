@@ -777,14 +777,17 @@ impl ScooterBrain {
         }
     }
 
-    /// A one-line SAN summary for status broadcasts: the true conditions.
+    /// A one-line SAN summary for status broadcasts: the true conditions, cut to
+    /// [`super::msg::MAX_WIRE_STR`] bytes at a char boundary.
     #[must_use]
     pub fn san_summary(&self) -> String {
-        self.san
+        let s = self
+            .san
             .condition_names()
             .filter(|c| self.san.condition(c) == Some(true))
             .collect::<Vec<_>>()
-            .join(",")
+            .join(",");
+        super::msg::truncate_wire_str(&s).to_owned()
     }
 
     /// A broadcast heard (already typed). A repeated acceptance of the current target

@@ -329,7 +329,8 @@ impl SkeeterBrain {
         self.firings
     }
 
-    /// A one-line SAN summary: the target and the true conditions.
+    /// A one-line SAN summary: the target and the true conditions, cut to
+    /// [`super::msg::MAX_WIRE_STR`] bytes at a char boundary (it travels in a `Status`).
     #[must_use]
     pub fn san_summary(&self) -> String {
         let conds: Vec<&str> = self
@@ -337,11 +338,12 @@ impl SkeeterBrain {
             .condition_names()
             .filter(|c| self.net.condition(c) == Some(true))
             .collect();
-        format!(
+        let s = format!(
             "target={} conditions={}",
             self.target().unwrap_or("-"),
             conds.join(",")
-        )
+        );
+        super::msg::truncate_wire_str(&s).to_owned()
     }
 
     /// The next output.
@@ -1266,5 +1268,15 @@ mod tests {
         assert!(actions(&mut b).contains(&mission(MissionEvent::Failed, "blue")));
         b.handle_broadcast(&Broadcast::new_target("blue"), t(205));
         assert_eq!(actions(&mut b), [mission(MissionEvent::Failed, "blue")]);
+    }
+
+    #[test]
+    fn the_san_summary_fits_a_wire_string() {
+        let mut b = brain();
+        let long = "ü".repeat(200);
+        b.handle_target(&long, t(0));
+        let sum = b.san_summary();
+        assert!(sum.len() <= crate::mission::msg::MAX_WIRE_STR, "{}", sum.len());
+        assert!(sum.starts_with("target=ü"));
     }
 }
