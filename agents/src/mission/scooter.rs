@@ -848,6 +848,12 @@ impl ScooterBrain {
             }
             None => (0.0, 0.0),
         };
+        // A jump too big to be finite is a reset of the odometry, not a motion.
+        let (ds, dth) = if ds.is_finite() && dth.is_finite() {
+            (ds, dth)
+        } else {
+            (0.0, 0.0)
+        };
         self.odo_prev = Some(pose);
         self.odo_theta = Some(odo_theta);
         if let Some(f) = self.fused.as_mut() {
@@ -856,7 +862,10 @@ impl ScooterBrain {
             self.fused = Some(odo_theta);
         }
         if let Some(h) = self.heading() {
-            self.dr += unit(h - dth / 2.0) * ds;
+            let next = self.dr + unit(h - dth / 2.0) * ds;
+            if next.iter().all(|c| c.is_finite()) {
+                self.dr = next;
+            }
         }
         if self.history.len() >= HISTORY_LEN {
             self.history.pop_front();
@@ -931,11 +940,12 @@ impl ScooterBrain {
         });
         self.last_ses_at = Some(now);
         let plan = match self.cfg.heading_rule {
+            _ if !(theta1.is_finite() && theta2.is_finite()) => None,
             HeadingRule::Thesis => heading::thesis_heading(theta1, theta2)
                 .ok()
                 .map(Plan::Heading),
             HeadingRule::RangeAware => {
-                let valid = |r: Option<f64>| r.filter(|m| m.is_finite() && *m >= 0.0);
+                let valid = |r: Option<f64>| r.filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m));
                 // Scooter's own laser fix on Skeeter (fresh) beats Skeeter's estimate.
                 let laser = self
                     .skeeter_fix
@@ -954,6 +964,7 @@ impl ScooterBrain {
                     let prev = previous?;
                     heading::triangulate_scout_range(prev.scout_bearing, theta1, p_rec - prev.p_rec)
                         .ok()
+                        .filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m))
                         .map(|metres| Range {
                             metres,
                             source: RangeSource::Triangulated,
@@ -964,7 +975,11 @@ impl ScooterBrain {
                     source: RangeSource::Ses,
                 });
                 match (scout, target) {
-                    (Some(s), Some(t)) => {
+                    (Some(s), Some(t))
+                        if (p_rec + unit(theta2) * t.metres - unit(theta1) * s.metres)
+                            .iter()
+                            .all(|c| c.is_finite()) =>
+                    {
                         let rel = unit(theta2) * t.metres - unit(theta1) * s.metres;
                         self.skeeter_dr = Some(p_rec - unit(theta1) * s.metres);
                         if self.target_samples.len() >= self.cfg.max_target_samples.max(1) {
@@ -990,11 +1005,11 @@ impl ScooterBrain {
             }
         };
         match plan {
-            Some(p) => {
+            Some(p) if plan_is_finite(p) => {
                 self.plan = Some(p);
                 true
             }
-            None => false,
+            _ => false,
         }
     }
 
@@ -1340,6 +1355,7 @@ impl ScooterBrain {
         if !self.laser_fresh(now) {
             command.v_m_s = 0.0;
         }
+        let command = self.sanitize(command);
         let mut behaviour = motion;
         if let Some(colour) = self.query.take() {
             // "Yes" when the laser tracks the target, or while a fresh plan for it exists:
@@ -1368,6 +1384,18 @@ impl ScooterBrain {
             behaviour,
             messages: std::mem::take(&mut self.outbox),
         }
+    }
+
+    /// The last guard before the wheels: a command that is not finite is no motion, and
+    /// speeds are clamped to [0, cruise] and ±max turn rate.
+    fn sanitize(&mut self, c: VelocityCommand) -> VelocityCommand {
+        let max_v = finite_or_zero(self.cfg.cruise_speed_m_s).abs();
+        let max_w = finite_or_zero(self.cfg.max_turn_rate_rad_s).abs();
+        if !(c.v_m_s.is_finite() && c.omega_rad_s.is_finite()) {
+            self.omega = 0.0;
+            return VelocityCommand::ZERO;
+        }
+        VelocityCommand::new(c.v_m_s.clamp(0.0, max_v), c.omega_rad_s.clamp(-max_w, max_w))
     }
 
     fn home_goal(&self) -> Option<Goal> {
@@ -1464,6 +1492,20 @@ impl ScooterBrain {
             self.cfg.cruise_speed_m_s
         };
         VelocityCommand::new(v, self.omega)
+    }
+}
+
+/// Ranges (SES, triangulated) beyond this are not believed, metres.
+const MAX_RANGE_M: f64 = 1000.0;
+
+fn finite_or_zero(v: f64) -> f64 {
+    if v.is_finite() { v } else { 0.0 }
+}
+
+fn plan_is_finite(p: Plan) -> bool {
+    match p {
+        Plan::Heading(h) => h.is_finite(),
+        Plan::Point(v) => v.iter().all(|c| c.is_finite()),
     }
 }
 
