@@ -385,7 +385,10 @@ mod tests {
         let d = a.decide(&[], -120f64.to_radians(), f64::INFINITY, None);
         assert!(d.active);
         assert_eq!(d.side, Some(Side::Left));
-        assert!(d.steer_rad < -FRAC_PI_2 + 0.1 && d.steer_rad >= -FRAC_PI_2, "{d:?}");
+        assert!(
+            d.steer_rad < -FRAC_PI_2 + 0.1 && d.steer_rad >= -FRAC_PI_2,
+            "{d:?}"
+        );
         // The goal in view and free: done.
         let d = a.decide(&[], -60f64.to_radians(), f64::INFINITY, None);
         assert!(!d.active);

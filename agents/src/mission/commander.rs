@@ -260,8 +260,8 @@ impl Commander {
         let give_up = self.cfg.give_up_after.map(|d| self.last_word + d);
         let resend = (t.state == TargetState::Sent
             || (t.state == TargetState::Processing && self.cfg.poll_processing.is_some()))
-            .then_some(self.next_send)
-            .flatten();
+        .then_some(self.next_send)
+        .flatten();
         match (resend, give_up) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
@@ -459,7 +459,11 @@ mod tests {
         assert_eq!(c.targets()[0].sent_at, Some(t(0)), "first send kept");
         c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(3));
         c.handle_timeout(t(7));
-        assert_eq!(drain(&mut c), [], "no resend once accepted (only the 5 s poll)");
+        assert_eq!(
+            drain(&mut c),
+            [],
+            "no resend once accepted (only the 5 s poll)"
+        );
         assert_eq!(c.targets()[0].accepted_at, Some(t(3)));
     }
 

@@ -1050,7 +1050,11 @@ mod tests {
         assert_eq!(report.cameras_ok, 6);
         assert_eq!(report.cameras_failed, 1, "camera 4 refused");
         assert!(report.sees("red") && report.sees("blue") && report.sees("scooter"));
-        assert_eq!(s.settle_time(), Duration::from_millis(200), "the mux's wins");
+        assert_eq!(
+            s.settle_time(),
+            Duration::from_millis(200),
+            "the mux's wins"
+        );
         assert_eq!(
             s.config().settle,
             Duration::from_millis(150),

@@ -945,7 +945,8 @@ impl ScooterBrain {
                 .ok()
                 .map(Plan::Heading),
             HeadingRule::RangeAware => {
-                let valid = |r: Option<f64>| r.filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m));
+                let valid =
+                    |r: Option<f64>| r.filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m));
                 // Scooter's own laser fix on Skeeter (fresh) beats Skeeter's estimate.
                 let laser = self
                     .skeeter_fix
@@ -1120,7 +1121,8 @@ impl ScooterBrain {
             .iter()
             .filter_map(|m| {
                 let rel = m - dr;
-                if !(rel.norm() <= radius) {
+                let dist = rel.norm();
+                if dist.is_nan() || dist > radius {
                     return None;
                 }
                 let robot = Point2::from(nalgebra_rotate(-h, rel));
@@ -1131,8 +1133,11 @@ impl ScooterBrain {
             .take(MAX_MEMORY)
             .collect();
         self.seen_dr.clear();
-        self.seen_dr
-            .extend(self.points.iter().map(|p| dr + nalgebra_rotate(h, p.coords)));
+        self.seen_dr.extend(
+            self.points
+                .iter()
+                .map(|p| dr + nalgebra_rotate(h, p.coords)),
+        );
         for (m, robot) in kept {
             self.seen_dr.push(m);
             self.points.push(robot);
@@ -1395,7 +1400,10 @@ impl ScooterBrain {
             self.omega = 0.0;
             return VelocityCommand::ZERO;
         }
-        VelocityCommand::new(c.v_m_s.clamp(0.0, max_v), c.omega_rad_s.clamp(-max_w, max_w))
+        VelocityCommand::new(
+            c.v_m_s.clamp(0.0, max_v),
+            c.omega_rad_s.clamp(-max_w, max_w),
+        )
     }
 
     fn home_goal(&self) -> Option<Goal> {
@@ -2105,10 +2113,7 @@ mod tests {
         b.handle_ses(&stale, t(20_300));
         assert_eq!(b.step(t(20_300)).behaviour, Behaviour::MoveToHome);
         // `scooter-found` was lost, but the next sample holds a fresh Scooter record.
-        let f = form(
-            vec![rec("scooter", 90.0, None, t(20_400))],
-            t(20_500),
-        );
+        let f = form(vec![rec("scooter", 90.0, None, t(20_400))], t(20_500));
         b.handle_ses(&f, t(20_500));
         assert_ne!(b.step(t(20_500)).behaviour, Behaviour::MoveToHome);
         assert!(!b.san_summary().contains("called-back"));
@@ -2312,7 +2317,12 @@ mod tests {
             }
         }
         assert!(out_of_view, "the detour took the target out of view");
-        assert!(b.reached(), "target reached round the wall: at {:.2},{:.2}", w.x, w.y);
+        assert!(
+            b.reached(),
+            "target reached round the wall: at {:.2},{:.2}",
+            w.x,
+            w.y
+        );
         let flips = omegas.windows(2).filter(|p| p[0] != p[1]).count();
         assert!(
             flips <= 4,

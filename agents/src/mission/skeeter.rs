@@ -1276,7 +1276,11 @@ mod tests {
         let long = "ü".repeat(200);
         b.handle_target(&long, t(0));
         let sum = b.san_summary();
-        assert!(sum.len() <= crate::mission::msg::MAX_WIRE_STR, "{}", sum.len());
+        assert!(
+            sum.len() <= crate::mission::msg::MAX_WIRE_STR,
+            "{}",
+            sum.len()
+        );
         assert!(sum.starts_with("target=ü"));
     }
 }
