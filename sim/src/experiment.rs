@@ -79,7 +79,7 @@ pub struct SweepConfig {
     pub speed_m_s: f64,
     /// Time cap as a multiple of the expected `t_min`.
     pub timeout_factor: f64,
-    /// Worker threads.
+    /// Worker threads (capped at the number of runs and the available cores).
     pub threads: usize,
     /// Keep every n-th trajectory point in the results.
     pub trajectory_stride: usize,
@@ -285,7 +285,20 @@ pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
     }
 }
 
-/// Run the whole sweep on `cfg.threads` threads; `progress(done, total)` is called after
+/// The machine's cores ([`std::thread::available_parallelism`]; 1 when unknown).
+#[must_use]
+pub fn available_cores() -> usize {
+    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+}
+
+/// Worker threads for a sweep: the requested count, capped at the number of runs and the
+/// available cores, at least 1 (a `--threads 64` on a 2-core machine starts 2 workers).
+#[must_use]
+pub fn worker_count(requested: usize, runs: usize, cores: usize) -> usize {
+    requested.min(runs).min(cores).max(1)
+}
+
+/// Run the whole sweep on `cfg.threads` threads (capped by [`worker_count`]); `progress(done, total)` is called after
 /// each run (from the worker threads). Results come back in [`configurations`] order.
 pub fn run_sweep(cfg: &SweepConfig, progress: &(dyn Fn(usize, usize) + Sync)) -> Vec<RunResult> {
     let specs = configurations(&cfg.rules, cfg.seed);
@@ -293,8 +306,9 @@ pub fn run_sweep(cfg: &SweepConfig, progress: &(dyn Fn(usize, usize) + Sync)) ->
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
     let slots: Mutex<Vec<Option<RunResult>>> = Mutex::new(vec![None; total]);
+    let workers = worker_count(cfg.threads, total, available_cores());
     std::thread::scope(|s| {
-        for _ in 0..cfg.threads.max(1) {
+        for _ in 0..workers {
             s.spawn(|| {
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
@@ -632,4 +646,19 @@ pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
     }
     s.push_str("</svg>\n");
     s
+}
+
+#[cfg(test)]
+mod worker_tests {
+    use super::*;
+
+    #[test]
+    fn threads_are_capped_at_runs_and_cores() {
+        assert_eq!(worker_count(64, 96, 2), 2, "cores");
+        assert_eq!(worker_count(64, 3, 8), 3, "runs");
+        assert_eq!(worker_count(4, 96, 8), 4, "as asked");
+        assert_eq!(worker_count(0, 96, 8), 1, "at least one");
+        assert_eq!(worker_count(8, 0, 8), 1, "at least one");
+        assert!(available_cores() >= 1);
+    }
 }

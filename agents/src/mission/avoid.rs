@@ -6,7 +6,10 @@
 //! 1. **Side flipping.** A reactive rule that turns away from the nearer side flips its sign
 //!    every time the obstacle's nearest point crosses the robot's axis. Here the side is
 //!    **chosen once** when avoidance starts (the side whose first free direction deviates
-//!    least from the goal) and **locked** until the path toward the goal is clear again.
+//!    least from the goal) and **locked** until the path toward the goal is clear again —
+//!    which needs the goal direction to be **in view** (within ±`search_limit_rad`) *and*
+//!    free: a detour of more than 90° keeps the lock (steering at the free direction in view
+//!    nearest the goal) instead of turning back into the obstacle.
 //! 2. **On/off chatter.** Avoidance starts when the free corridor toward the goal is shorter
 //!    than [`AvoidConfig::enter_distance_m`] and ends only when it is longer than
 //!    [`AvoidConfig::exit_distance_m`] (> enter): hysteresis.
@@ -237,7 +240,9 @@ impl Avoider {
                 }
             }
             Some(_) => {
-                if !visible || goal_free >= self.cfg.exit_distance_m || goal_free >= reach {
+                // Keep the lock while the goal is out of view: a detour of more than 90°
+                // must not turn back into the obstacle it is going round.
+                if visible && (goal_free >= self.cfg.exit_distance_m || goal_free >= reach) {
                     self.side = None;
                     return AvoidDecision {
                         active: false,
@@ -366,5 +371,32 @@ mod tests {
         assert_eq!(out.len(), 2);
         assert!((out[0] - Point2::new(0.2, -1.0)).norm() < 1e-9);
         assert!((out[1] - Point2::new(0.2, 2.0)).norm() < 1e-9);
+    }
+
+    #[test]
+    fn the_lock_holds_while_the_goal_is_out_of_view() {
+        let cfg = AvoidConfig::default();
+        let mut a = Avoider::new(cfg);
+        let pts = wall_ahead(0.5, -1.5, 0.6);
+        let d = a.decide(&pts, 0.0, f64::INFINITY, None);
+        assert_eq!(d.side, Some(Side::Left));
+        // Going round, the goal is 120° to the right (out of view) and nothing is in front:
+        // still avoiding on the left side, steering at the in-view direction nearest the goal.
+        let d = a.decide(&[], -120f64.to_radians(), f64::INFINITY, None);
+        assert!(d.active);
+        assert_eq!(d.side, Some(Side::Left));
+        assert!(
+            d.steer_rad < -FRAC_PI_2 + 0.1 && d.steer_rad >= -FRAC_PI_2,
+            "{d:?}"
+        );
+        // The goal in view and free: done.
+        let d = a.decide(&[], -60f64.to_radians(), f64::INFINITY, None);
+        assert!(!d.active);
+        // In view but blocked (0.8 m, between enter and exit): still locked.
+        let mut a = Avoider::new(cfg);
+        a.decide(&pts, 0.0, f64::INFINITY, None);
+        let blocked = [Point2::new(0.8 + cfg.robot_radius_m + cfg.margin_m, 0.0)];
+        let d = a.decide(&blocked, 0.0, f64::INFINITY, None);
+        assert!(d.active);
     }
 }

@@ -11,7 +11,10 @@
 //! (Skeeter) answers with its own `Accepted` ([`TargetState::Processing`]), then
 //! [`TargetState::Done`] on its `Accomplished` or [`TargetState::Failed`] on its `Failed`;
 //! then the next target goes out. Broadcasts travel by datagram and may be lost, so an
-//! unanswered target is sent again every [`CommanderConfig::resend`]. If the observer says
+//! unanswered target is sent again every [`CommanderConfig::resend`], and a target being
+//! processed is polled (its `Accepted` sent again) every [`CommanderConfig::poll_processing`]:
+//! Skeeter answers a poll about a target it has just finished with its outcome, so a lost
+//! `Accomplished`/`Failed` does not leave the series hanging until the give-up timer. If the observer says
 //! nothing at all about a target for [`CommanderConfig::give_up_after`] (a dead robot), the
 //! commander marks it failed itself. Every broadcast heard is kept in a log.
 
@@ -36,6 +39,11 @@ pub struct CommanderConfig {
     pub give_up_after: Option<Duration>,
     /// Most broadcasts kept in the log (the oldest go first).
     pub max_log: usize,
+    /// While a target is [`TargetState::Processing`], its `Accepted` is sent again (a poll)
+    /// this often, so that a lost `Accomplished`/`Failed` is recovered: Skeeter answers a
+    /// poll of the target it works on with `Accepted`, and a poll of the target it has just
+    /// finished with that target's outcome (`None`: no polling).
+    pub poll_processing: Option<Duration>,
 }
 
 impl Default for CommanderConfig {
@@ -46,6 +54,7 @@ impl Default for CommanderConfig {
             resend: Duration::from_secs(2),
             give_up_after: Some(Duration::from_secs(240)),
             max_log: 10_000,
+            poll_processing: Some(Duration::from_secs(5)),
         }
     }
 }
@@ -249,9 +258,10 @@ impl Commander {
     pub fn poll_timeout(&self) -> Option<Instant> {
         let t = self.targets.get(self.current?)?;
         let give_up = self.cfg.give_up_after.map(|d| self.last_word + d);
-        let resend = (t.state == TargetState::Sent)
-            .then_some(self.next_send)
-            .flatten();
+        let resend = (t.state == TargetState::Sent
+            || (t.state == TargetState::Processing && self.cfg.poll_processing.is_some()))
+        .then_some(self.next_send)
+        .flatten();
         match (resend, give_up) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
@@ -277,10 +287,18 @@ impl Commander {
             return;
         }
         if let Some(t) = self.targets.get(i)
-            && t.state == TargetState::Sent
             && self.next_send.is_some_and(|n| now >= n)
         {
-            self.send(i, now);
+            match t.state {
+                TargetState::Sent => self.send(i, now),
+                TargetState::Processing => {
+                    if let Some(period) = self.cfg.poll_processing {
+                        self.send(i, now);
+                        self.next_send = Some(now + period);
+                    }
+                }
+                _ => {}
+            }
         }
     }
 
@@ -321,6 +339,7 @@ impl Commander {
                 if t.state == TargetState::Sent {
                     t.state = TargetState::Processing;
                     t.accepted_at = Some(now);
+                    self.next_send = self.cfg.poll_processing.map(|d| now + d);
                 }
             }
             MissionEvent::Accomplished | MissionEvent::Failed => {
@@ -439,8 +458,12 @@ mod tests {
         assert_eq!(c.targets()[0].sends, 2);
         assert_eq!(c.targets()[0].sent_at, Some(t(0)), "first send kept");
         c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(3));
-        c.handle_timeout(t(10));
-        assert_eq!(drain(&mut c), [], "no resend once accepted");
+        c.handle_timeout(t(7));
+        assert_eq!(
+            drain(&mut c),
+            [],
+            "no resend once accepted (only the 5 s poll)"
+        );
         assert_eq!(c.targets()[0].accepted_at, Some(t(3)));
     }
 
@@ -473,6 +496,7 @@ mod tests {
             CommanderConfig {
                 give_up_after: Some(Duration::from_secs(60)),
                 resend: Duration::from_secs(100),
+                poll_processing: None,
                 ..CommanderConfig::default()
             },
         );
@@ -509,5 +533,44 @@ mod tests {
         let empty = Commander::new::<&str>(&[], CommanderConfig::default());
         assert!(empty.is_finished());
         assert_eq!(empty.summary(), Summary::default());
+    }
+
+    #[test]
+    fn a_processing_target_is_polled_so_a_lost_outcome_is_recovered() {
+        let mut c = Commander::new(&["red", "blue"], CommanderConfig::default());
+        c.start(t(0));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("red")]);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(1));
+        // Polled every 5 s while processing.
+        assert_eq!(c.poll_timeout(), Some(t(6)));
+        c.handle_timeout(t(4));
+        assert_eq!(drain(&mut c), []);
+        c.handle_timeout(t(6));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("red")]);
+        assert_eq!(c.poll_timeout(), Some(t(11)));
+        // Skeeter's echo keeps it processing; the outcome (Skeeter's answer to a poll after
+        // the first broadcast of it was lost) ends it.
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(7));
+        assert_eq!(states(&c), ["processing", "waiting"]);
+        c.handle_timeout(t(11));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("red")]);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "red"), t(11));
+        assert_eq!(states(&c), ["done", "sent"]);
+        assert_eq!(drain(&mut c), [Broadcast::new_target("blue")]);
+        // No polling when switched off.
+        let mut c = Commander::new(
+            &["red"],
+            CommanderConfig {
+                poll_processing: None,
+                give_up_after: None,
+                ..CommanderConfig::default()
+            },
+        );
+        c.start(t(0));
+        drain(&mut c);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(1));
+        assert_eq!(c.poll_timeout(), None);
+        c.handle_timeout(t(100));
+        assert_eq!(drain(&mut c), []);
     }
 }

@@ -40,6 +40,17 @@
 //! send what `poll_broadcast()` gives, feed every broadcast heard to `handle_broadcast`,
 //! call `handle_timeout` when `poll_timeout()` is due, stop when `is_finished()`.
 //!
+//! # Lossy broadcasts
+//!
+//! The broadcast channel is UDP: any message may be lost, so every message whose loss
+//! would stall the mission is repeated until its effect is seen. The commander resends an
+//! unanswered target and polls a processing one ([`commander::CommanderConfig::poll_processing`]);
+//! Skeeter answers a poll of the target it has just finished with its outcome
+//! ([`skeeter::SkeeterConfig::outcome_memory`]) and repeats `scooter-found`
+//! ([`skeeter::SkeeterConfig::found_repeats`]) and the stress call; Scooter resends
+//! `target-reached` every status period until the outcome is heard, and ends a call-back
+//! also on an SES sample that shows it ([`scooter::ScooterConfig::found_record_max_age`]).
+//!
 //! # How a runtime drives Scooter
 //!
 //! 1. `let mut brain = ScooterBrain::new(ScooterConfig::default())` (choose
@@ -49,6 +60,9 @@
 //!    `handle_compass(heading_in_common_frame, now)`, `handle_laser(&scan, now)`; every
 //!    sample of Skeeter's `ses` source: `handle_ses(&SharedForm::decode(bytes)?, now)`;
 //!    every broadcast heard: `handle_broadcast(&b, now)`.
+//!    The laser must keep coming: without a usable scan within
+//!    [`scooter::ScooterConfig::laser_stale_after`] (0.5 s) Scooter commands no forward
+//!    speed (it may still turn in place).
 //! 3. At the control rate (e.g. 10–20 Hz) call `step(now)`: send `out.command` to the
 //!    base; for every message `say` in `out.messages`, send
 //!    `say.to_broadcast("scooter", &brain.san_summary())` on the broadcast channel, and

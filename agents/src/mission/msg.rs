@@ -50,6 +50,23 @@ pub const SES_SOURCE_KIND: &str = "ses";
 /// ([`crate::ses::shared::VERSION`]).
 pub const SES_SOURCE_SCHEMA: u16 = crate::ses::shared::VERSION as u16;
 
+/// Longest string field of a wire message, bytes (its length travels in one byte).
+pub const MAX_WIRE_STR: usize = 255;
+
+/// `s` cut to at most [`MAX_WIRE_STR`] bytes, at a char boundary (a longer string could
+/// not be sent: emitting the message would fail with `FieldTooLong`).
+#[must_use]
+pub fn truncate_wire_str(s: &str) -> &str {
+    if s.len() <= MAX_WIRE_STR {
+        return s;
+    }
+    let mut end = MAX_WIRE_STR;
+    while end > 0 && !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    s.get(..end).unwrap_or("")
+}
+
 /// Emergency kind string of [`Emergency::ScooterLost`].
 pub const KIND_SCOOTER_LOST: &str = "scooter-lost";
 /// Emergency kind string of [`Emergency::ScooterFound`].
@@ -194,13 +211,14 @@ pub enum Broadcast {
 }
 
 impl Broadcast {
-    /// A status broadcast.
+    /// A status broadcast. Its text fields are cut to [`MAX_WIRE_STR`] bytes at a char
+    /// boundary ([`truncate_wire_str`]), so that it can always be sent.
     #[must_use]
     pub fn status(robot: &str, behaviour: &str, san: &str, pose: Option<Pose>) -> Self {
         Broadcast::Status {
-            robot: robot.to_owned(),
-            behaviour: behaviour.to_owned(),
-            san: san.to_owned(),
+            robot: truncate_wire_str(robot).to_owned(),
+            behaviour: truncate_wire_str(behaviour).to_owned(),
+            san: truncate_wire_str(san).to_owned(),
             pose,
         }
     }
@@ -434,6 +452,28 @@ mod tests {
             assert_eq!(back, m);
             assert_eq!(Broadcast::from_wire(&back), Ok(b));
         }
+    }
+
+    #[test]
+    fn long_status_texts_are_cut_at_a_char_boundary_and_still_emit() {
+        assert_eq!(truncate_wire_str("short"), "short");
+        // 254 ASCII bytes then a 3-byte char across the 255 limit.
+        let s = format!("{}€tail", "a".repeat(254));
+        let cut = truncate_wire_str(&s);
+        assert_eq!(cut.len(), 254);
+        assert!(cut.chars().all(|c| c == 'a'));
+        let exact = "b".repeat(255);
+        assert_eq!(truncate_wire_str(&exact), exact);
+        let long = "é".repeat(400);
+        let b = Broadcast::status("skeeter", "scan-for-target", &long, None);
+        let Broadcast::Status { san, .. } = &b else {
+            panic!("a status")
+        };
+        assert!(san.len() <= MAX_WIRE_STR && san.len() >= MAX_WIRE_STR - 1);
+        let mut buf = [0u8; 1024];
+        let m = b.to_wire(1);
+        let n = m.emit_body(&mut buf).unwrap();
+        assert_eq!(Msg::parse_body(m.code(), &buf[..n]).unwrap(), m);
     }
 
     #[test]

@@ -212,6 +212,9 @@ pub struct Scanner {
     ok: u8,
     failed: u8,
     sweeps: u64,
+    /// A lower bound on the settle wait for the sweep under way (set by [`run_scan`] from
+    /// the mux's own settle time; zero otherwise), so the configuration is never changed.
+    settle_floor: Duration,
 }
 
 impl Scanner {
@@ -230,6 +233,7 @@ impl Scanner {
             ok: 0,
             failed: 0,
             sweeps: 0,
+            settle_floor: Duration::ZERO,
         }
     }
 
@@ -296,6 +300,7 @@ impl Scanner {
             return false;
         }
         self.found.clear();
+        self.settle_floor = Duration::ZERO;
         self.started = now;
         self.ok = 0;
         self.failed = 0;
@@ -329,6 +334,13 @@ impl Scanner {
         }
     }
 
+    /// The settle wait of the sweep under way: [`ScanConfig::settle`], or more when
+    /// [`run_scan`] raised it to the mux's settle time for this sweep.
+    #[must_use]
+    pub fn settle_time(&self) -> Duration {
+        self.cfg.settle.max(self.settle_floor)
+    }
+
     /// The mux confirmed the switch to `channel` at `now`; the settle wait begins. A
     /// confirmation for another channel, or when none is awaited, is ignored.
     pub fn handle_switched(&mut self, channel: Channel, now: Instant) {
@@ -337,7 +349,7 @@ impl Scanner {
         {
             self.state = State::Settling {
                 ch,
-                until: now + self.cfg.settle,
+                until: now + self.settle_time(),
             };
         }
     }
@@ -519,7 +531,19 @@ async fn or_timeout<T>(
 /// Run one full sweep of `scanner` with a video mux and a frame source. `sleep(d)` must wait
 /// `d` (e.g. `tokio::time::sleep`), `now()` read the clock the SES times use. Every mux or
 /// frame-source call is bounded by the node's step timeout. The settle wait is the larger
-/// of [`ScanConfig::settle`] and the mux's [`CameraMux::settle_time`].
+/// of [`ScanConfig::settle`] and the mux's [`CameraMux::settle_time`], for this sweep only
+/// ([`Scanner::settle_time`]; the configuration is not changed).
+///
+/// # Cancel safety
+///
+/// On a step timeout the pending `mux.select(ch)` or `frames.grab()` future is **dropped**
+/// (the camera counts as failed and the sweep goes on). So both must be cancel-safe: a
+/// call dropped half-way (a command written but its reply not read, a frame half
+/// received) must leave the device usable for the next call — e.g. the driver discards
+/// stale bytes or a stale reply at its next call, or resynchronises its framer. A driver
+/// that is not cancel-safe makes every camera after a timeout fail or see the wrong
+/// channel. Likewise, dropping the `run_scan` future itself leaves the sweep under way in
+/// the scanner: call [`Scanner::cancel`] before the next one.
 ///
 /// Returns the [`ScanReport`], or `None` if a sweep was already under way (it is left
 /// alone). Per-camera events are drained and dropped; use the state machine directly to
@@ -538,11 +562,11 @@ where
     SF: Future<Output = ()>,
     C: FnMut() -> Instant,
 {
-    let settle = mux.settle_time().max(scanner.cfg.settle);
-    scanner.cfg.settle = settle;
     if !scanner.start(now()) {
         return None;
     }
+    // For this sweep only: the configuration is left as it was.
+    scanner.settle_floor = mux.settle_time();
     let step = scanner.cfg.step_timeout;
     loop {
         while let Some(cmd) = scanner.poll_command() {
@@ -1027,10 +1051,20 @@ mod tests {
         assert_eq!(report.cameras_failed, 1, "camera 4 refused");
         assert!(report.sees("red") && report.sees("blue") && report.sees("scooter"));
         assert_eq!(
-            s.config().settle,
+            s.settle_time(),
             Duration::from_millis(200),
-            "the mux's settle time wins"
+            "the mux's wins"
         );
+        assert_eq!(
+            s.config().settle,
+            Duration::from_millis(150),
+            "for the sweep only: the configuration is unchanged"
+        );
+        // A sweep driven without run_scan waits the configured time again.
+        let mut s2 = scanner();
+        s2.settle_floor = Duration::from_millis(900);
+        assert!(s2.start(Instant::ZERO));
+        assert_eq!(s2.settle_time(), Duration::from_millis(150));
         // 6 × (20 + 200 + 40) + 20 for the refused camera
         assert_eq!(report.started, Instant::from_millis(5000));
         assert_eq!(

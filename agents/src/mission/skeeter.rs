@@ -27,7 +27,12 @@
 //! otherwise), if it has not been called back yet or the last call is older than
 //! [`SkeeterConfig::stress_repeat`] (a broadcast may be lost). When a sweep sees Scooter
 //! again after a call-back, the brain broadcasts `scooter-found` at once (Scooter resumes its
-//! mission) and clears `scooter-called-back`.
+//! mission), repeats it with the next [`SkeeterConfig::found_repeats`] periodic `Status` broadcasts (a
+//! datagram may be lost), and clears `scooter-called-back`.
+//!
+//! A commander `Accepted` for the target that has just ended is answered with its outcome
+//! again ([`SkeeterBrain::handle_target`]): the commander polls a processing target, so a
+//! lost `Accomplished`/`Failed` is recovered.
 //!
 //! # Publishing the SES
 //!
@@ -135,6 +140,14 @@ pub struct SkeeterConfig {
     pub publish_every_scan: bool,
     /// The network, TOML ([`crate::san::spec`]).
     pub network: String,
+    /// After `scooter-found`, the call is repeated with this many following periodic
+    /// `Status` broadcasts ([`SkeeterConfig::status_interval`]; none without it) (a datagram may be lost; Scooter would otherwise home for ever).
+    pub found_repeats: u32,
+    /// A commander `Accepted` for the target that ended last, within this long of its end, is
+    /// answered with that target's outcome (the commander polls because it missed it)
+    /// instead of starting the target again. A series asking for the same colour twice in a
+    /// row within this window gets the first outcome for the second: keep it short.
+    pub outcome_memory: Duration,
 }
 
 impl Default for SkeeterConfig {
@@ -157,6 +170,8 @@ impl Default for SkeeterConfig {
             lost_after_scans: 2,
             publish_every_scan: true,
             network: SKEETER_NETWORK.to_owned(),
+            found_repeats: 2,
+            outcome_memory: Duration::from_secs(20),
         }
     }
 }
@@ -231,6 +246,7 @@ pub struct SkeeterBrain {
     out: VecDeque<SkeeterOutput>,
     outcomes: Vec<TargetOutcome>,
     firings: u64,
+    found_left: u32,
 }
 
 impl SkeeterBrain {
@@ -260,6 +276,7 @@ impl SkeeterBrain {
             out: VecDeque::new(),
             outcomes: Vec::new(),
             firings: 0,
+            found_left: 0,
         };
         b.set("scanner-idle", true);
         Ok(b)
@@ -312,7 +329,8 @@ impl SkeeterBrain {
         self.firings
     }
 
-    /// A one-line SAN summary: the target and the true conditions.
+    /// A one-line SAN summary: the target and the true conditions, cut to
+    /// [`super::msg::MAX_WIRE_STR`] bytes at a char boundary (it travels in a `Status`).
     #[must_use]
     pub fn san_summary(&self) -> String {
         let conds: Vec<&str> = self
@@ -320,11 +338,12 @@ impl SkeeterBrain {
             .condition_names()
             .filter(|c| self.net.condition(c) == Some(true))
             .collect();
-        format!(
+        let s = format!(
             "target={} conditions={}",
             self.target().unwrap_or("-"),
             conds.join(",")
-        )
+        );
+        super::msg::truncate_wire_str(&s).to_owned()
     }
 
     /// The next output.
@@ -355,6 +374,10 @@ impl SkeeterBrain {
     /// [`SkeeterBrain::handle_broadcast`]). The target being processed is answered again with
     /// `Accepted` (the commander resends when it missed the answer); one already waiting is
     /// ignored; otherwise it is queued, and started at once if nothing is being processed.
+    ///
+    /// The target that ended last, asked for again within [`SkeeterConfig::outcome_memory`]
+    /// of its end, is answered with its outcome again (the commander polls a target it
+    /// believes is processing; the outcome broadcast was lost) and is not run again.
     pub fn handle_target(&mut self, colour: &str, now: Instant) {
         if self.target() == Some(colour) {
             self.broadcast(Broadcast::mission(
@@ -362,6 +385,15 @@ impl SkeeterBrain {
                 MissionEvent::Accepted,
                 colour,
             ));
+            return;
+        }
+        if let Some(last) = self.outcomes.last()
+            && last.target == colour
+            && now.saturating_duration_since(last.ended) <= self.cfg.outcome_memory
+            && !self.queue.iter().any(|q| q == colour)
+        {
+            let event = last.event;
+            self.broadcast(Broadcast::mission(&self.cfg.robot, event, colour));
             return;
         }
         if self.queue.iter().any(|q| q == colour) || self.queue.len() >= self.cfg.max_queue {
@@ -444,6 +476,7 @@ impl SkeeterBrain {
             if self.is("scooter-called-back") {
                 self.set("scooter-called-back", false);
                 self.last_call = None;
+                self.found_left = self.cfg.found_repeats;
                 self.broadcast(Broadcast::emergency(
                     &self.cfg.robot,
                     Emergency::ScooterFound,
@@ -471,6 +504,13 @@ impl SkeeterBrain {
             self.set("timeout", true);
         }
         if self.next_status.is_some_and(|t| now >= t) {
+            if self.found_left > 0 {
+                self.found_left -= 1;
+                self.broadcast(Broadcast::emergency(
+                    &self.cfg.robot,
+                    Emergency::ScooterFound,
+                ));
+            }
             self.status(now);
         }
         self.decide(now);
@@ -631,6 +671,7 @@ impl SkeeterBrain {
                 self.set("scooter-lost", false);
                 self.set("scooter-called-back", true);
                 self.last_call = Some(now);
+                self.found_left = 0;
                 self.broadcast(Broadcast::emergency(
                     &self.cfg.robot,
                     Emergency::ScooterLost,
@@ -1162,5 +1203,84 @@ mod tests {
         b.handle_target("red", t(0));
         let out = actions(&mut b);
         assert!(out.contains(&SkeeterOutput::StartScan), "{out:?}");
+    }
+
+    #[test]
+    fn scooter_found_is_repeated_on_the_next_status_periods() {
+        let mut b = SkeeterBrain::new(SkeeterConfig::default()).unwrap();
+        b.start(t(0));
+        b.handle_broadcast(&Broadcast::new_target("red"), t(0));
+        b.handle_scan(&report(&["red"], t(3)), t(3));
+        b.handle_scan(&report(&["red"], t(6)), t(6));
+        assert!(drain(&mut b).contains(&emergency(Emergency::ScooterLost)));
+        b.handle_scan(&report(&["red", "scooter"], t(9)), t(9));
+        assert!(drain(&mut b).contains(&emergency(Emergency::ScooterFound)));
+        let founds = |b: &mut SkeeterBrain| {
+            drain(b)
+                .iter()
+                .filter(|o| **o == emergency(Emergency::ScooterFound))
+                .count()
+        };
+        // Status every 1 s: found again with the next two, then no more.
+        let mut seen = Vec::new();
+        for s in 10..16 {
+            b.handle_timeout(t(s));
+            seen.push(founds(&mut b));
+        }
+        assert_eq!(seen, [1, 1, 0, 0, 0, 0]);
+        // A new call-back cancels pending repeats.
+        b.handle_scan(&report(&["red", "scooter"], t(16)), t(16));
+        b.found_left = 2;
+        b.handle_scan(&report(&["red"], t(17)), t(17));
+        b.handle_scan(&report(&["red"], t(18)), t(18));
+        assert!(drain(&mut b).contains(&emergency(Emergency::ScooterLost)));
+        b.handle_timeout(t(19));
+        assert_eq!(founds(&mut b), 0);
+    }
+
+    #[test]
+    fn a_poll_for_a_just_finished_target_is_answered_with_its_outcome() {
+        let mut b = started("red");
+        b.handle_broadcast(
+            &from_scooter(Emergency::TargetReached {
+                colour: "red".into(),
+            }),
+            t(5),
+        );
+        assert!(actions(&mut b).contains(&mission(MissionEvent::Accomplished, "red")));
+        assert_eq!(b.outcomes().len(), 1);
+        // The outcome was lost; the commander polls: the outcome again, no new run.
+        b.handle_broadcast(&Broadcast::new_target("red"), t(10));
+        assert_eq!(
+            actions(&mut b),
+            [mission(MissionEvent::Accomplished, "red")]
+        );
+        assert_eq!(b.target(), None);
+        assert_eq!(b.outcomes().len(), 1);
+        // Long after (outcome_memory 20 s): a new request for red runs again.
+        b.handle_broadcast(&Broadcast::new_target("red"), t(40));
+        let out = actions(&mut b);
+        assert_eq!(out[0], mission(MissionEvent::Accepted, "red"));
+        assert_eq!(b.target(), Some("red"));
+        // A failed target is answered with Failed.
+        let mut b = started("blue");
+        b.handle_timeout(t(200));
+        assert!(actions(&mut b).contains(&mission(MissionEvent::Failed, "blue")));
+        b.handle_broadcast(&Broadcast::new_target("blue"), t(205));
+        assert_eq!(actions(&mut b), [mission(MissionEvent::Failed, "blue")]);
+    }
+
+    #[test]
+    fn the_san_summary_fits_a_wire_string() {
+        let mut b = brain();
+        let long = "ü".repeat(200);
+        b.handle_target(&long, t(0));
+        let sum = b.san_summary();
+        assert!(
+            sum.len() <= crate::mission::msg::MAX_WIRE_STR,
+            "{}",
+            sum.len()
+        );
+        assert!(sum.starts_with("target=ü"));
     }
 }
