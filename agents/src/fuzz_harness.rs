@@ -7,10 +7,14 @@ use crate::ses::shared::SharedForm;
 /// `ses_shared_form`: parse any bytes as a shared form; must never panic. When the bytes
 /// parse, asserts the round trip: re-encoding succeeds, the re-encoding parses back to the
 /// same form, and it equals the input except for the CRC (which fuzz builds do not check).
+///
+/// A decoded form is also handed to a [`ScooterBrain`](crate::mission::scooter::ScooterBrain)
+/// with a target, as Skeeter's SES sample would be: the brain's next command must be finite.
 pub fn ses_shared_form(data: &[u8]) {
     let Ok(form) = SharedForm::decode(data) else {
         return;
     };
+    scooter_takes(&form);
     let bytes = match form.to_bytes() {
         Ok(b) => b,
         Err(e) => panic!("a decoded form must re-encode: {e}"),
@@ -28,6 +32,45 @@ pub fn ses_shared_form(data: &[u8]) {
             .map(<[u8]>::to_vec)
     };
     assert_eq!(body(&bytes), body(data), "re-encoding changed the body");
+}
+
+/// Feeds a received SES form to a Scooter brain that is looking for `red` and steps it.
+fn scooter_takes(form: &SharedForm) {
+    use crate::mission::scooter::{ScooterBrain, ScooterConfig};
+    use ima_hal::Instant;
+    let mut brain = ScooterBrain::new(ScooterConfig::default());
+    let t0 = Instant::from_millis(1_000);
+    brain.set_target("red", t0);
+    let _ = brain.handle_ses(form, t0);
+    for ms in [1_100, 1_200, 6_000] {
+        let out = brain.step(Instant::from_millis(ms));
+        assert!(
+            out.command.v_m_s.is_finite() && out.command.omega_rad_s.is_finite(),
+            "non-finite command {:?}",
+            out.command
+        );
+    }
+}
+
+/// A broadcast message as the mission sees it: typed conversion, then both brains hear it.
+fn mission_hears(msg: &crate::peer::wire::Msg) {
+    use crate::mission::msg::Broadcast;
+    use crate::mission::scooter::{ScooterBrain, ScooterConfig};
+    use crate::mission::skeeter::{SkeeterBrain, SkeeterConfig};
+    use ima_hal::Instant;
+    let Ok(b) = Broadcast::from_wire(msg) else {
+        return;
+    };
+    let now = Instant::from_millis(1_000);
+    let mut scooter = ScooterBrain::new(ScooterConfig::default());
+    let _ = scooter.handle_broadcast(&b, now);
+    let out = scooter.step(Instant::from_millis(1_100));
+    assert!(out.command.v_m_s.is_finite() && out.command.omega_rad_s.is_finite());
+    if let Ok(mut skeeter) = SkeeterBrain::new(SkeeterConfig::default()) {
+        skeeter.start(now);
+        skeeter.handle_broadcast(&b, now);
+        while skeeter.poll_output().is_some() {}
+    }
 }
 
 /// Group key of the `peer_frames` target and its corpus.
@@ -63,6 +106,7 @@ pub fn peer_frames(data: &[u8]) {
     };
     let _ = Verifier::new(key.clone()).open(rest);
     if let Ok(o) = parse_unauthenticated(rest, DEFAULT_MAX_BODY) {
+        mission_hears(&o.msg);
         let f = match Signer::new(key.clone(), o.sender, o.counter).seal_vec(&o.msg) {
             Ok(f) => f,
             Err(e) => panic!("a parsed message must re-seal: {e}"),
