@@ -88,8 +88,8 @@ async fn round_trips(n: usize) {
         let t = Instant::now();
         let sub = c.request("ses", 1).await.unwrap();
         grant.push(t.elapsed());
+        // Dropping the subscription disconnects the source.
         drop(sub);
-        c.disconnect("ses").await.unwrap();
         c.unregister().await.unwrap();
     }
     report("register round trip", &mut reg);
@@ -238,9 +238,14 @@ async fn thousand_clients(n: usize, trips: usize) {
     // Raw clients: one socket and one sealed Register each, so this process's growth is the
     // manager's (the client side holds only the sockets).
     let mut socks = Vec::with_capacity(n);
+    // Counters start at the clock (µs since the UNIX epoch), as every real sender's do: the
+    // manager refuses a first counter farther than `max_clock_skew_ms` from its clock.
+    let now_us = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(1, |d| d.as_micros() as u64);
     for i in 0..n {
         let mut s = TcpStream::connect(addr).await.unwrap();
-        let mut signer = Signer::new(key(), 1_000_000 + i as u64, 1);
+        let mut signer = Signer::new(key(), 1_000_000 + i as u64, now_us);
         let f = signer
             .seal_vec(&Msg::Register {
                 client: 10_000 + i as u64,
@@ -272,8 +277,8 @@ async fn thousand_clients(n: usize, trips: usize) {
         let t = Instant::now();
         let sub = c.request("ses", 1).await.unwrap();
         grant.push(t.elapsed());
+        // Dropping the subscription disconnects the source.
         drop(sub);
-        c.disconnect("ses").await.unwrap();
     }
     report(
         &format!("request -> grant with {n} clients registered"),
