@@ -65,6 +65,10 @@ fn demo_accomplishes_every_target_on_several_seeds() {
             let f = t["performance"].as_f64().unwrap();
             assert!(f > 0.0 && f <= 1.0, "seed {seed}: {t}");
             assert!(t["distance_m"].as_f64().unwrap() > 0.5, "seed {seed}: {t}");
+            // Ground truth, not Scooter's word: it stopped next to the target (reach 1.0 m
+            // from the target's centre, plus the laser's and the stop's slack).
+            let gap = t["end_gap_m"].as_f64().unwrap();
+            assert!(gap < 1.5, "seed {seed}: Scooter ended {gap:.2} m from {t}");
         }
         let picture = std::fs::read_to_string(&svg).unwrap();
         assert!(picture.starts_with("<svg") && picture.contains("<polyline"));

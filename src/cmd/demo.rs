@@ -316,9 +316,17 @@ fn summarise(
         } else {
             0.0
         };
+        // Ground truth at the end: Scooter's centre to the target's centre, metres.
+        let end_gap = match (
+            position_at(t1),
+            objects.iter().find(|x| x.color == o.target),
+        ) {
+            (Some((x, y)), Some(obj)) => Some((obj.center[0] - x).hypot(obj.center[1] - y)),
+            _ => None,
+        };
         rows.push(
             json!({"target": o.target, "state": o.state, "time_s": t1 - t0,
-            "distance_m": d, "d_min_m": d_min, "performance": f}),
+            "distance_m": d, "d_min_m": d_min, "performance": f, "end_gap_m": end_gap}),
         );
     }
     let done = outcomes
