@@ -150,7 +150,7 @@ pub enum MuxDialect {
 pub struct MuxDevice {
     /// Serial port.
     pub port: String,
-    /// Line speed (Extron default 9600).
+    /// Line speed (required; Extron switchers ship at 9600).
     pub baud: u32,
     /// Protocol.
     #[serde(default)]
@@ -325,7 +325,9 @@ impl Default for AgentConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PeerConfig {
-    /// This robot's manager listens here (TCP); empty: no manager (the commander).
+    /// This robot's manager listens here (TCP). Skeeter always runs one (empty: the Peer
+    /// Agent's default `0.0.0.0:7400`); for Scooter empty means no manager of its own; the
+    /// commander never runs one.
     pub listen: String,
     /// The manager's data server (TCP) listens here (port 0: any free port).
     pub data_listen: String,
@@ -402,31 +404,74 @@ impl RobotConfig {
         toml::to_string_pretty(self).context("writing the configuration")
     }
 
+    /// Ranges of the configured devices' timing and geometry values.
+    fn check_devices(&self) -> Result<()> {
+        let d = &self.devices;
+        if let Some(b) = &d.base {
+            let t = b.connect_timeout_s;
+            if !(t.is_finite() && t > 0.0 && t <= 600.0) {
+                bail!("devices.base.connect_timeout_s must be in (0, 600], not {t}");
+            }
+        }
+        if let Some(m) = &d.video_mux {
+            if !(1..=16).contains(&m.cameras) {
+                bail!(
+                    "devices.video_mux.cameras must be 1 to 16, not {}",
+                    m.cameras
+                );
+            }
+            if !(m.fov_deg.is_finite() && m.fov_deg > 0.0 && m.fov_deg <= 360.0) {
+                bail!(
+                    "devices.video_mux.fov_deg must be in (0, 360], not {}",
+                    m.fov_deg
+                );
+            }
+        }
+        if let Some(f) = &d.frames
+            && !(1..=60_000).contains(&f.timeout_ms)
+        {
+            bail!(
+                "devices.frames.timeout_ms must be 1 to 60000, not {}",
+                f.timeout_ms
+            );
+        }
+        if let Some(l) = &d.laser {
+            let w = l.power_up_wait_s;
+            if !(w.is_finite() && (0.0..=120.0).contains(&w)) {
+                bail!("devices.laser.power_up_wait_s must be in [0, 120], not {w}");
+            }
+        }
+        Ok(())
+    }
+
     /// Check values and that the role's devices are configured (unless `mock`).
     pub fn check(&self) -> Result<()> {
         let a = &self.agent;
-        let positive = [
-            ("agent.cruise_speed_m_s", a.cruise_speed_m_s),
-            ("agent.max_turn_rad_s", a.max_turn_rad_s),
-            ("agent.control_hz", a.control_hz),
-            ("agent.target_timeout_s", a.target_timeout_s),
-            ("agent.lost_timeout_s", a.lost_timeout_s),
-            ("agent.reach_distance_m", a.reach_distance_m),
-            ("agent.time_scale", a.time_scale),
-            ("mock_world.speed", self.mock_world.speed),
+        // (name, value, smallest, largest): bounded so that every duration derived from them
+        // is representable.
+        let bounded = [
+            ("agent.cruise_speed_m_s", a.cruise_speed_m_s, 1e-3, 1.0),
+            ("agent.max_turn_rad_s", a.max_turn_rad_s, 1e-3, 10.0),
+            ("agent.control_hz", a.control_hz, 0.1, 1000.0),
+            ("agent.target_timeout_s", a.target_timeout_s, 1e-3, 1e6),
+            ("agent.lost_timeout_s", a.lost_timeout_s, 1e-3, 1e6),
+            ("agent.reach_distance_m", a.reach_distance_m, 1e-3, 10.0),
+            ("agent.time_scale", a.time_scale, 0.01, 100.0),
+            ("mock_world.speed", self.mock_world.speed, 0.01, 100.0),
         ];
-        for (name, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                bail!("{name} must be a positive number, not {v}");
+        for (name, v, lo, hi) in bounded {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                bail!("{name} must be a number in [{lo}, {hi}], not {v}");
             }
         }
+        self.check_devices()?;
         if a.cruise_speed_m_s > 1.0 {
             bail!("agent.cruise_speed_m_s must be at most 1 m/s");
         }
         if self.robot.trim().is_empty() {
             bail!("robot must be a non-empty name");
         }
-        if !self.peer.insecure && self.peer.key_file.is_none() && !self.mock {
+        if !self.peer.insecure && self.peer.key_file.is_none() {
             bail!("peer.key_file is required (or peer.insecure = true for local tests)");
         }
         if self.mock {
@@ -524,7 +569,22 @@ mod tests {
         let e = RobotConfig::from_toml_str(nokey).unwrap_err();
         assert!(format!("{e:#}").contains("key_file"), "{e:#}");
         let mock = "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n";
-        assert!(RobotConfig::from_toml_str(mock).unwrap().mock);
+        let e = RobotConfig::from_toml_str(mock).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("key_file"),
+            "a mock run needs a key too: {e:#}"
+        );
+        let mock = format!("{mock}[peer]\ninsecure = true\n");
+        assert!(RobotConfig::from_toml_str(&mock).unwrap().mock);
+        for bad in [
+            "[agent]\ntime_scale = 1e-300\n",
+            "[agent]\ncontrol_hz = 1e-300\n",
+            "[agent]\nlost_timeout_s = 1e300\n",
+            "[agent]\ntarget_timeout_s = nan\n",
+        ] {
+            let cfg = format!("{mock}{bad}");
+            assert!(RobotConfig::from_toml_str(&cfg).is_err(), "accepted {bad}");
+        }
     }
 
     #[test]

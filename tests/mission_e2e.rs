@@ -255,6 +255,17 @@ fn three_processes_accomplish_every_target() {
         scooter_log.contains("\"granted\":\"ses\""),
         "Scooter was never granted the ses source"
     );
+    // ...and samples of it arrived with observations in them.
+    let samples_with_records = scooter_log
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter(|e| e["kind"] == "ses")
+        .filter(|e| e["detail"]["records"].as_u64().unwrap_or(0) > 0)
+        .count();
+    assert!(
+        samples_with_records > 0,
+        "no SES sample with observations reached Scooter"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

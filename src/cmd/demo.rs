@@ -78,6 +78,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         args.cruise.is_finite() && args.cruise > 0.0 && args.cruise <= 1.0,
         "--cruise must be in (0, 1] m/s"
     );
+    anyhow::ensure!(
+        args.target_timeout.is_finite() && args.target_timeout > 0.0 && args.target_timeout <= 1e5,
+        "--target-timeout must be in (0, 100000] s"
+    );
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
     let started = std::time::Instant::now();
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;

@@ -45,7 +45,8 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
         let (ip, port) =
             split_addr(bind).with_context(|| format!("peer.broadcast_bind {bind:?}"))?;
         b.bind = ip.clone();
-        b.port = port;
+        // The local port only: the multicast group keeps its own port as the destination.
+        b.bind_port = Some(port);
         if ip.starts_with("127.") {
             b.interface = ip;
         }
@@ -179,8 +180,8 @@ mod tests {
         assert_eq!(n.broadcast.mode, BroadcastMode::Unicast);
         assert_eq!(n.broadcast.peers, ["127.0.0.1:9"]);
         assert_eq!(
-            (n.broadcast.bind.as_str(), n.broadcast.port),
-            ("127.0.0.1", 7602)
+            (n.broadcast.bind.as_str(), n.broadcast.bind_port),
+            ("127.0.0.1", Some(7602))
         );
         assert_eq!(n.broadcast.interface, "127.0.0.1");
         assert_eq!(n.manager.listen, "127.0.0.1:7600");

@@ -157,9 +157,18 @@ pub async fn run(
     let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
     let bus_rx = bus.clone();
     let rx_task = tokio::spawn(async move {
-        while let Ok(b) = bus_rx.recv().await {
-            if heard_tx.send(b).await.is_err() {
-                return;
+        loop {
+            match bus_rx.recv().await {
+                Ok(b) => {
+                    if heard_tx.send(b).await.is_err() {
+                        return;
+                    }
+                }
+                // A socket error is not the end of the mission: say so and listen on.
+                Err(e) => {
+                    tracing::warn!("broadcast channel: {e:#}");
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
             }
         }
     });
@@ -386,7 +395,7 @@ mod tests {
 
     fn cfg() -> RobotConfig {
         RobotConfig::from_toml_str(
-            "robot = \"scooter\"\nrole = \"scooter\"\nmock = true\n[peer]\nconnect = \"127.0.0.1:1\"\n",
+            "robot = \"scooter\"\nrole = \"scooter\"\nmock = true\n[peer]\ninsecure = true\nconnect = \"127.0.0.1:1\"\n",
         )
         .unwrap()
     }

@@ -134,9 +134,18 @@ pub async fn run(
     let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
     let bus_rx = bus.clone();
     let rx_task = tokio::spawn(async move {
-        while let Ok(b) = bus_rx.recv().await {
-            if heard_tx.send(b).await.is_err() {
-                return;
+        loop {
+            match bus_rx.recv().await {
+                Ok(b) => {
+                    if heard_tx.send(b).await.is_err() {
+                        return;
+                    }
+                }
+                // A socket error is not the end of the mission: say so and listen on.
+                Err(e) => {
+                    tracing::warn!("broadcast channel: {e:#}");
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
             }
         }
     });
@@ -203,15 +212,23 @@ pub async fn run(
                 events.emit(&clock, &me, "heard", json!(b.to_string()));
                 brain.handle_broadcast(&b, clock.now());
             }
-            ev = grants.recv() => {
-                if let Ok(ManagerNetEvent::Core(ManagerEvent::Decision(d))) = ev
-                    && d.source == SES_SOURCE
-                    && d.outcome == Outcome::Granted
+            ev = grants.recv() => match ev {
+                Ok(ManagerNetEvent::Core(ManagerEvent::Decision(d)))
+                    if d.source == SES_SOURCE && d.outcome == Outcome::Granted =>
                 {
                     events.emit(&clock, &me, "peer", json!({"granted": SES_SOURCE, "to": d.robot}));
                     brain.handle_heading_request(clock.now());
                 }
-            }
+                Ok(_) => {}
+                // Some manager events were missed: a grant may be among them, so answer as if.
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                    tracing::warn!("missed {n} Peer Agent manager events");
+                    brain.handle_heading_request(clock.now());
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => {
+                    break Err(anyhow::anyhow!("Skeeter's Peer Agent manager stopped"));
+                }
+            },
             () = async {
                 match wake {
                     Some(w) => tokio::time::sleep_until(w).await,
