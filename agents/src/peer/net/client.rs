@@ -12,7 +12,7 @@ use tokio::task::JoinHandle;
 
 use super::NetError;
 use super::config::PeerNetConfig;
-use super::frames::{FrameReader, WRITE_BATCH, max_frame, write_frames};
+use super::frames::{FrameReader, max_frame, write_batch, write_frames};
 use super::{random_u64, unix_micros};
 use crate::peer::client::{ClientConfig, ClientEvent, PeerClient};
 use crate::peer::data::{DataClientSession, DataClose, DataConfig, DataEvent};
@@ -788,20 +788,12 @@ async fn run_data(t: &mut DataTask) -> DataClose {
     let mut closing = false;
     loop {
         let now = clock.now();
-        out.clear();
-        while out.len() < WRITE_BATCH {
-            match s.poll_transmit(&mut buf, now) {
-                Some(n) => out.extend_from_slice(buf.get(..n).unwrap_or_default()),
-                None => break,
-            }
-        }
-        // A write outside the select: bounded by the loss window (a manager that reads
+        // A write outside the select, bounded by the loss window (a manager that reads
         // nothing is lost).
-        if !out.is_empty()
-            && !matches!(
-                tokio::time::timeout(window, wr.write_all(&out)).await,
-                Ok(Ok(()))
-            )
+        if !write_batch(&mut wr, &mut buf, &mut out, window, |b| {
+            s.poll_transmit(b, now)
+        })
+        .await
         {
             return DataClose::Lost;
         }

@@ -137,6 +137,31 @@ pub(crate) async fn write_frames(
     let _ = tokio::time::timeout(limit, wr.shutdown()).await;
 }
 
+/// Drains a data session's pending frames (`poll` is its `poll_transmit` at one instant)
+/// into `out`, up to [`WRITE_BATCH`] bytes, and writes them in one call bounded by `limit`
+/// (the loss window: a peer that reads nothing is lost, and the task does not hang on it).
+/// `out` is left holding what was written; `false` means the write failed or timed out.
+pub(crate) async fn write_batch<W: tokio::io::AsyncWrite + Unpin>(
+    wr: &mut W,
+    buf: &mut [u8],
+    out: &mut Vec<u8>,
+    limit: std::time::Duration,
+    mut poll: impl FnMut(&mut [u8]) -> Option<usize>,
+) -> bool {
+    out.clear();
+    while out.len() < WRITE_BATCH {
+        match poll(buf) {
+            Some(n) => out.extend_from_slice(buf.get(..n).unwrap_or_default()),
+            None => break,
+        }
+    }
+    out.is_empty()
+        || matches!(
+            tokio::time::timeout(limit, wr.write_all(out)).await,
+            Ok(Ok(()))
+        )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

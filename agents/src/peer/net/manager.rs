@@ -13,7 +13,7 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, oneshot};
 use tokio::task::{AbortHandle, JoinHandle};
 
 use super::config::{PeerNetConfig, parse_addr};
-use super::frames::{FrameReader, WRITE_BATCH, max_frame, write_frames};
+use super::frames::{FrameReader, max_frame, write_batch, write_frames};
 use super::{NetError, random_key32, random_u64, unix_micros};
 use crate::peer::data::{DataClose, DataConfig, DataEvent, DataServerSession, TicketAuthority};
 use crate::peer::manager::{
@@ -1041,20 +1041,12 @@ async fn serve_data(
             buf.resize(max_frame(usize::from(u16::MAX)), 0);
         }
         let now = clock.now();
-        out.clear();
-        while out.len() < WRITE_BATCH {
-            match s.poll_transmit(&mut buf, now) {
-                Some(n) => out.extend_from_slice(buf.get(..n).unwrap_or_default()),
-                None => break,
-            }
-        }
-        // A write outside the select: bounded by the loss window (a client that reads
+        // A write outside the select, bounded by the loss window (a client that reads
         // nothing is lost, and this task does not hang on it).
-        if !out.is_empty()
-            && !matches!(
-                tokio::time::timeout(window, wr.write_all(&out)).await,
-                Ok(Ok(()))
-            )
+        if !write_batch(&mut wr, &mut buf, &mut out, window, |b| {
+            s.poll_transmit(b, now)
+        })
+        .await
         {
             end = DataClose::Lost;
             break;
