@@ -140,6 +140,35 @@ impl Bus {
         }
     }
 
+    /// A task that hands every mission broadcast heard to a bounded queue (what the robot's
+    /// main loop selects on). A socket error is logged and listening goes on; the task ends
+    /// when the queue's receiver is dropped.
+    pub fn spawn_reader(
+        &self,
+    ) -> (
+        tokio::sync::mpsc::Receiver<Broadcast>,
+        tokio::task::JoinHandle<()>,
+    ) {
+        let (tx, rx) = tokio::sync::mpsc::channel::<Broadcast>(64);
+        let bus = self.clone();
+        let task = tokio::spawn(async move {
+            loop {
+                match bus.recv().await {
+                    Ok(b) => {
+                        if tx.send(b).await.is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        tracing::warn!("broadcast channel: {e:#}");
+                        tokio::time::sleep(Duration::from_millis(200)).await;
+                    }
+                }
+            }
+        });
+        (rx, task)
+    }
+
     /// Send `b` `times` times `gap` apart (for the few messages that must not be lost; the
     /// receivers drop duplicates by sequence number only, so repeats are new messages and
     /// receivers must be idempotent).

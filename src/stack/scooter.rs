@@ -154,24 +154,7 @@ pub async fn run(
     ));
 
     // Broadcasts.
-    let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
-    let bus_rx = bus.clone();
-    let rx_task = tokio::spawn(async move {
-        loop {
-            match bus_rx.recv().await {
-                Ok(b) => {
-                    if heard_tx.send(b).await.is_err() {
-                        return;
-                    }
-                }
-                // A socket error is not the end of the mission: say so and listen on.
-                Err(e) => {
-                    tracing::warn!("broadcast channel: {e:#}");
-                    tokio::time::sleep(Duration::from_millis(200)).await;
-                }
-            }
-        }
-    });
+    let (mut heard_rx, rx_task) = bus.spawn_reader();
 
     // The brain steps at control_hz of mission time (at most 50 Hz real).
     let period = Duration::from_secs_f64(1.0 / (cfg.agent.control_hz * cfg.agent.time_scale))

@@ -131,24 +131,7 @@ pub async fn run(
     }
     let mut brain =
         SkeeterBrain::new(brain_cfg).map_err(|e| anyhow::anyhow!("Skeeter's SAN: {e:?}"))?;
-    let (heard_tx, mut heard_rx) = mpsc::channel::<Broadcast>(64);
-    let bus_rx = bus.clone();
-    let rx_task = tokio::spawn(async move {
-        loop {
-            match bus_rx.recv().await {
-                Ok(b) => {
-                    if heard_tx.send(b).await.is_err() {
-                        return;
-                    }
-                }
-                // A socket error is not the end of the mission: say so and listen on.
-                Err(e) => {
-                    tracing::warn!("broadcast channel: {e:#}");
-                    tokio::time::sleep(Duration::from_millis(200)).await;
-                }
-            }
-        }
-    });
+    let (mut heard_rx, rx_task) = bus.spawn_reader();
     brain.start(clock.now());
     let mut last_behaviour = String::new();
     let result: Result<()> = loop {
