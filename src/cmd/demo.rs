@@ -306,28 +306,19 @@ fn summarise(
             continue;
         };
         let d = scooter.length_between(t0, t1);
-        let d_min = match (
-            position_at(t0),
-            objects.iter().find(|x| x.color == o.target),
-        ) {
-            (Some((x, y)), Some(obj)) => {
-                ((obj.center[0] - x).hypot(obj.center[1] - y) - reach_m()).max(0.0)
-            }
-            _ => 0.0,
+        // Ground truth: Scooter's centre to the target's centre at mission time `t`, metres.
+        let gap_at = |t: f64| {
+            let (x, y) = position_at(t)?;
+            let obj = objects.iter().find(|ob| ob.color == o.target)?;
+            Some((obj.center[0] - x).hypot(obj.center[1] - y))
         };
+        let d_min = gap_at(t0).map_or(0.0, |g| (g - reach_m()).max(0.0));
         let f = if o.state == TargetState::Done {
             performance_index(d_min, d, t1 - t0, args.cruise)
         } else {
             0.0
         };
-        // Ground truth at the end: Scooter's centre to the target's centre, metres.
-        let end_gap = match (
-            position_at(t1),
-            objects.iter().find(|x| x.color == o.target),
-        ) {
-            (Some((x, y)), Some(obj)) => Some((obj.center[0] - x).hypot(obj.center[1] - y)),
-            _ => None,
-        };
+        let end_gap = gap_at(t1);
         rows.push(
             json!({"target": o.target, "state": o.state, "time_s": t1 - t0,
             "distance_m": d, "d_min_m": d_min, "performance": f, "end_gap_m": end_gap}),
