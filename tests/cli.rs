@@ -5,23 +5,15 @@ use std::io::Write;
 use std::process::Stdio;
 
 mod common;
-use common::{ima, spawn_mock};
+use common::{ima, run_ok, spawn_mock};
 
 #[test]
 fn mock_and_drive_talk_over_a_pty_in_separate_processes() {
     let (_mock, path) = spawn_mock(&["p2os", "--seed", "3"]);
     let path = path.as_str();
-    let out = ima()
-        .args([
-            "drive", "--port", path, "--vel", "0.3", "--turn", "0", "--for", "1.5", "--json",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = run_ok(ima().args([
+        "drive", "--port", path, "--vel", "0.3", "--turn", "0", "--for", "1.5", "--json",
+    ]));
     let lines: Vec<serde_json::Value> = String::from_utf8(out.stdout)
         .unwrap()
         .lines()
@@ -95,15 +87,7 @@ fn decode_reads_hex_from_stdin_and_reports_bad_frames() {
 
 #[test]
 fn demo_drives_a_square_with_odometry_matching_ground_truth() {
-    let out = ima()
-        .args(["demo", "square", "--side", "0.4", "--json"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = run_ok(ima().args(["demo", "square", "--side", "0.4", "--json"]));
     let v: Vec<serde_json::Value> = String::from_utf8(out.stdout)
         .unwrap()
         .lines()

@@ -9,7 +9,7 @@ use std::process::{ChildStdout, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::{Child, ima, json_lines};
+use common::{Child, ima, json_lines, run_ok};
 use serde_json::Value;
 
 fn temp_dir(tag: &str) -> PathBuf {
@@ -72,15 +72,10 @@ fn insecure_manager_serves_a_client_that_prints_json_samples() {
     let dir = temp_dir("insecure");
     let cfg = manager_config(&dir, "");
     let (_m, addr, _out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
-    let out = ima()
-        .args(["peer", "client", "--insecure", "--connect", &addr])
-        .args(["--request", "blob64", "--count", "7"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = run_ok(
+        ima()
+            .args(["peer", "client", "--insecure", "--connect", &addr])
+            .args(["--request", "blob64", "--count", "7"]),
     );
     let lines = json_lines(&out.stdout);
     assert_eq!(lines[0]["event"], "registered");
@@ -117,16 +112,11 @@ fn key_files_are_required_private_and_must_match() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("chmod 600"));
     std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
     let (_m, addr, _out) = spawn_manager(&["--config", cfg.to_str().unwrap()]);
-    let out = ima()
-        .args(["peer", "client", "--key-file"])
-        .arg(&key)
-        .args(["--connect", &addr, "--request", "counter", "--count", "3"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = run_ok(
+        ima()
+            .args(["peer", "client", "--key-file"])
+            .arg(&key)
+            .args(["--connect", &addr, "--request", "counter", "--count", "3"]),
     );
     assert_eq!(
         json_lines(&out.stdout)

@@ -5,7 +5,7 @@ use std::io::Write;
 use std::process::Stdio;
 
 mod common;
-use common::{ima, json_lines, spawn_mock};
+use common::{ima, json_lines, run_ok, spawn_mock};
 
 #[test]
 fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
@@ -20,24 +20,16 @@ fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
             "--seed",
             "5",
         ]);
-        let out = ima()
-            .args([
-                "compass",
-                "--port",
-                &path,
-                "--dialect",
-                drv_dialect,
-                "--count",
-                "20",
-                "--json",
-            ])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let out = run_ok(ima().args([
+            "compass",
+            "--port",
+            &path,
+            "--dialect",
+            drv_dialect,
+            "--count",
+            "20",
+            "--json",
+        ]));
         let lines = json_lines(&out.stdout);
         assert_eq!(lines.len(), 20);
         let mean: f64 = lines
@@ -89,15 +81,10 @@ fn camera_grab_writes_a_png_with_the_expected_blob() {
     let dir = std::env::temp_dir().join(format!("ima-camera-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("ch1.png");
-    let out = ima()
-        .args(["camera", "grab", "--channel", "1", "--out"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        ima()
+            .args(["camera", "grab", "--channel", "1", "--out"])
+            .arg(&file),
     );
     let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&file).unwrap()));
     let mut reader = decoder.read_info().unwrap();

@@ -4,7 +4,7 @@
 //! others: `scripts/demo-seeds.sh`.
 
 mod common;
-use common::{ima, json_lines};
+use common::{ima, json_lines, run_ok};
 
 fn demo(seed: u64, svg: &std::path::Path) -> serde_json::Value {
     let out = ima()
@@ -78,15 +78,7 @@ fn demo_accomplishes_every_target_on_several_seeds() {
 
 #[test]
 fn demo_square_is_still_there() {
-    let out = ima()
-        .args(["demo", "square", "--side", "0.3", "--json"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = run_ok(ima().args(["demo", "square", "--side", "0.3", "--json"]));
     let v = json_lines(&out.stdout);
     assert_eq!(v.iter().filter(|x| x["kind"] == "corner").count(), 4);
 }

@@ -3,30 +3,25 @@
 
 mod common;
 
-use common::ima;
+use common::{ima, run_ok};
 
 #[test]
 fn experiment_heading_range_aware_json_and_files() {
     let dir = std::env::temp_dir().join(format!("ima-experiment-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let out = ima()
-        .args([
-            "experiment",
-            "heading",
-            "--rule",
-            "range-aware",
-            "--seed",
-            "1",
-            "--json",
-        ])
-        .arg("--out")
-        .arg(&dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = run_ok(
+        ima()
+            .args([
+                "experiment",
+                "heading",
+                "--rule",
+                "range-aware",
+                "--seed",
+                "1",
+                "--json",
+            ])
+            .arg("--out")
+            .arg(&dir),
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("48/48 runs"), "progress bar: {stderr}");

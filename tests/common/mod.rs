@@ -9,6 +9,18 @@ pub fn ima() -> Command {
     Command::new(env!("CARGO_BIN_EXE_ima"))
 }
 
+/// Run `cmd` to the end and return its output; fails the test, showing stderr, when the
+/// command does not succeed.
+pub fn run_ok(cmd: &mut Command) -> std::process::Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// Kills the child when dropped, so a failing test leaves no process behind.
 pub struct Child(pub std::process::Child);
 
