@@ -108,17 +108,11 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     // The commander waits a little longer than Skeeter, whose timeout decides.
     cmd.agent.target_timeout_s = args.target_timeout * 1.25 + 30.0;
     if !args.json {
-        let e = served.endpoints();
         eprintln!(
-            "ima demo: world ×{} (seed {}); Skeeter: P2OS {} · switcher {} · frames {}; Scooter: rFLEX {} · LMS {} · compass {}",
+            "ima demo: world ×{} (seed {}); {}",
             args.speed,
             args.seed,
-            e.skeeter.base.display(),
-            e.skeeter.video_mux.display(),
-            e.skeeter.frames,
-            e.scooter.base.display(),
-            e.scooter.laser.display(),
-            e.scooter.compass.display()
+            super::mock_world::describe(served.endpoints())
         );
     }
     let key = GroupKey::from_array(super::mock_world::random_key()?);

@@ -185,6 +185,19 @@ pub fn write_configs(dir: &Path, e: &Endpoints, speed: f64) -> Result<()> {
     Ok(())
 }
 
+/// One line naming where every served device is, for people.
+pub fn describe(e: &Endpoints) -> String {
+    format!(
+        "Skeeter: P2OS {} · switcher {} · frames {}; Scooter: rFLEX {} · LMS {} · compass {}",
+        e.skeeter.base.display(),
+        e.skeeter.video_mux.display(),
+        e.skeeter.frames,
+        e.scooter.base.display(),
+        e.scooter.laser.display(),
+        e.scooter.compass.display()
+    )
+}
+
 /// Run `ima mock world` until SIGINT/SIGTERM.
 pub fn run(opts: &WorldOptions) -> Result<()> {
     let served = serve(opts)?;
@@ -206,15 +219,10 @@ pub fn run(opts: &WorldOptions) -> Result<()> {
         out.flush()?;
     }
     eprintln!(
-        "serving the world ×{} (seed {}): skeeter base {} mux {} frames {}; scooter base {} laser {} compass {}; Ctrl-C to stop",
+        "serving the world ×{} (seed {}): {}; Ctrl-C to stop",
         opts.speed,
         opts.seed,
-        e.skeeter.base.display(),
-        e.skeeter.video_mux.display(),
-        e.skeeter.frames,
-        e.scooter.base.display(),
-        e.scooter.laser.display(),
-        e.scooter.compass.display()
+        describe(&e)
     );
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
