@@ -169,13 +169,19 @@ impl Bus {
         (rx, task)
     }
 
-    /// Send `b` `times` times `gap` apart (for the few messages that must not be lost; the
-    /// receivers drop duplicates by sequence number only, so repeats are new messages and
-    /// receivers must be idempotent).
-    pub async fn send_repeated(&self, b: &Broadcast, times: u32, gap: Duration) {
-        for i in 0..times.max(1) {
+    /// Send what a robot's brain says: a status once; every other message (mission events,
+    /// emergencies, target notices — the ones that must not be lost) three times 30 ms
+    /// apart. Receivers drop duplicates by sequence number only, so the copies are new
+    /// messages and the receivers are idempotent.
+    pub async fn say(&self, b: &Broadcast) {
+        let copies = if matches!(b, Broadcast::Status { .. }) {
+            1
+        } else {
+            3
+        };
+        for i in 0..copies {
             if i > 0 {
-                tokio::time::sleep(gap).await;
+                tokio::time::sleep(Duration::from_millis(30)).await;
             }
             self.send(b).await;
         }

@@ -277,14 +277,7 @@ pub async fn run(
             if !matches!(msg, Broadcast::Status { .. }) {
                 events.emit(&clock, &me, "say", json!(msg.to_string()));
             }
-            // Target notifications must not be lost: three copies (receivers are idempotent).
-            let times = if matches!(msg, Broadcast::Status { .. }) {
-                1
-            } else {
-                3
-            };
-            bus.send_repeated(&msg, times, Duration::from_millis(30))
-                .await;
+            bus.say(&msg).await;
         }
     };
     laser_task.abort();

@@ -143,10 +143,7 @@ pub async fn run(
                     if !status {
                         events.emit(&clock, &me, "say", json!(b.to_string()));
                     }
-                    // Mission events and emergencies must not be lost: three copies
-                    // (receivers are idempotent).
-                    bus.send_repeated(&b, if status { 1 } else { 3 }, Duration::from_millis(30))
-                        .await;
+                    bus.say(&b).await;
                 }
                 SkeeterOutput::StartScan => {
                     let _ = scan_req_tx.try_send(());
