@@ -2,12 +2,14 @@
 //!
 //! Sub-commands grow with the issues; see `ima --help` and the README.
 
+use std::io::Write as _;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
 mod cmd;
 mod config;
+mod safety;
 mod stack;
 
 /// Drivers, mock devices and agents for a Pioneer 2-AT (P2OS) and an ATRV-Jr (rFLEX).
@@ -60,6 +62,8 @@ enum SanCommand {
 }
 
 fn main() -> ExitCode {
+    // Before anything can move a robot: the panic hook and the signal thread.
+    safety::install();
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -82,11 +86,9 @@ fn main() -> ExitCode {
         Command::Peer(c) => cmd::peer::run(&c),
         Command::Experiment(c) => cmd::experiment::run(&c),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("ima: error: {e:#}");
-            ExitCode::FAILURE
-        }
+    let (code, message) = safety::exit_status(&result);
+    if let Some(m) = message {
+        let _ = writeln!(std::io::stderr(), "ima: error: {m}");
     }
+    ExitCode::from(code)
 }

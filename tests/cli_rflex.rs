@@ -137,7 +137,11 @@ fn drive_atrv_jr_rejects_a_bad_calibration() {
         ])
         .output()
         .unwrap();
-    assert!(!out.status.success());
+    // Refused at parse time (exit 2), with the flag named.
+    assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("--kd must be a positive number"), "{err}");
+    assert!(
+        err.contains("--kd") && err.contains("must be more than 0"),
+        "{err}"
+    );
 }

@@ -30,6 +30,8 @@ pub mod compass;
 pub mod error;
 pub mod laser;
 pub mod power;
+#[cfg(feature = "std")]
+pub mod safety;
 pub mod sonar;
 pub mod time;
 

@@ -81,6 +81,42 @@ pub struct PtyOptions {
     pub step_world: Option<SharedWorld>,
     /// Period of that stepping (default 10 ms).
     pub step_period: Duration,
+    /// If set, every chunk the host writes is recorded here with the (wall-clock monotonic)
+    /// instant of its arrival, so a test can check what reached the device and when.
+    pub host_log: Option<HostLog>,
+}
+
+/// The bytes a host wrote to a [`PtyDevice`], chunk by chunk, each with the
+/// [`std::time::Instant`] of its arrival (comparable across devices and with a test's own
+/// clock). Cheap to clone; clones share the record.
+#[derive(Debug, Clone, Default)]
+pub struct HostLog(Arc<Mutex<Vec<HostChunk>>>);
+
+/// One chunk of a [`HostLog`]: when it arrived and its bytes.
+pub type HostChunk = (std::time::Instant, Vec<u8>);
+
+impl HostLog {
+    /// An empty record.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A copy of everything recorded so far.
+    #[must_use]
+    pub fn snapshot(&self) -> Vec<HostChunk> {
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    fn push(&self, at: std::time::Instant, bytes: &[u8]) {
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push((at, bytes.to_vec()));
+    }
 }
 
 impl Default for PtyOptions {
@@ -90,6 +126,7 @@ impl Default for PtyOptions {
             poll_period: Duration::from_millis(5),
             step_world: None,
             step_period: WorldStepper::DEFAULT_PERIOD,
+            host_log: None,
         }
     }
 }
@@ -135,12 +172,21 @@ impl<M: DeviceModel + 'static> PtyDevice<M> {
             status: Mutex::new(RunnerStatus::default()),
         });
         let link = DeviceLink::new(model, &opts.faults, clock.now());
+        let host_log = opts.host_log.clone();
         let thread_shared = Arc::clone(&shared);
         let poll_period = opts.poll_period.max(Duration::from_millis(1));
         let name = format!("ima-pty-{}", link.model().name());
         let thread = std::thread::Builder::new().name(name).spawn(move || {
             // The slave lives (open) exactly as long as the serving thread.
-            serve(link, master, slave, clock, poll_period, &thread_shared)
+            serve(
+                link,
+                master,
+                slave,
+                clock,
+                poll_period,
+                &thread_shared,
+                host_log.as_ref(),
+            )
         })?;
         tracing::debug!(path = %path.display(), "pty device serving");
         Ok(Self {
@@ -227,6 +273,7 @@ fn serve<M: DeviceModel>(
     clock: MonotonicClock,
     poll_period: Duration,
     shared: &Shared,
+    host_log: Option<&HostLog>,
 ) -> M {
     let mut buf = vec![0u8; 4096];
     let mut write_drops = 0u64;
@@ -291,6 +338,9 @@ fn serve<M: DeviceModel>(
                     link.model_mut().set_host_baud(baud);
                 }
                 if let Some(bytes) = buf.get(..n) {
+                    if let Some(log) = host_log {
+                        log.push(std::time::Instant::now(), bytes);
+                    }
                     link.from_host(bytes, clock.now());
                 }
             }

@@ -31,7 +31,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use crate::camera::{CameraConfig, CameraError, MockCameraHead};
 use crate::compass::{CompassDevice, CompassModelConfig};
 use crate::p2os::{P2osDevice, P2osModelConfig, WorldBody};
-use crate::pty::{PtyDevice, PtyError, PtyOptions};
+use crate::pty::{HostLog, PtyDevice, PtyError, PtyOptions};
 use crate::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
 use crate::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use crate::video_mux::{MuxDevice, MuxModelConfig, VideoBus};
@@ -69,6 +69,10 @@ pub struct ServeOptions {
     pub frames_addr: SocketAddr,
     /// The camera head.
     pub camera: CameraConfig,
+    /// If set, what the host writes to Skeeter's P2OS base is recorded here (tests).
+    pub skeeter_base_log: Option<HostLog>,
+    /// If set, what the host writes to Scooter's rFLEX base is recorded here (tests).
+    pub scooter_base_log: Option<HostLog>,
 }
 
 impl Default for ServeOptions {
@@ -80,6 +84,8 @@ impl Default for ServeOptions {
             scooter: "scooter".into(),
             frames_addr: SocketAddr::from(([127, 0, 0, 1], 0)),
             camera: CameraConfig::default(),
+            skeeter_base_log: None,
+            scooter_base_log: None,
         }
     }
 }
@@ -158,7 +164,10 @@ impl ServedWorld {
                 },
                 WorldBody::new(world.clone(), sk, seed),
             ),
-            pty(),
+            PtyOptions {
+                host_log: opts.skeeter_base_log.clone(),
+                ..pty()
+            },
         )?;
         let bus = VideoBus::new(None);
         let mux = PtyDevice::spawn(
@@ -170,7 +179,10 @@ impl ServedWorld {
                 RflexModelConfig::default(),
                 RflexWorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
             ),
-            pty(),
+            PtyOptions {
+                host_log: opts.scooter_base_log.clone(),
+                ..pty()
+            },
         )?;
         let laser = PtyDevice::spawn(
             SickLmsDevice::new(

@@ -5,8 +5,11 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
+use ima_hal::base::{DifferentialBase, VelocityCommand};
 use ima_p2os::shell::{P2os, open_port};
+
+use super::num;
+use crate::safety::{self, outln};
 
 /// Robot bases `ima drive` can drive.
 #[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
@@ -28,16 +31,16 @@ pub struct DriveArgs {
     robot: Robot,
     /// Line speed. P2OS: the first rate to try (default 9600; the others of 9600–115200 are
     /// probed after it). rFLEX: the rate (default 115200).
-    #[arg(long)]
+    #[arg(long, value_parser = num::baud)]
     baud: Option<u32>,
-    /// Forward speed, m/s.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    /// Forward speed, m/s (−10 to 10; capped at the robot's maximum with a warning).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = num::speed_m_s)]
     vel: f64,
-    /// Turn rate, rad/s (counter-clockwise positive).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    /// Turn rate, rad/s, counter-clockwise positive (−10 to 10; capped at the robot's maximum).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = num::turn_rad_s)]
     turn: f64,
-    /// How long to drive, seconds.
-    #[arg(long = "for", default_value_t = 3.0)]
+    /// How long to drive, seconds (0 to 86400).
+    #[arg(long = "for", default_value_t = 3.0, value_parser = num::seconds)]
     duration: f64,
     /// Print one JSON object per report instead of text.
     #[arg(long)]
@@ -47,27 +50,26 @@ pub struct DriveArgs {
     #[arg(long)]
     params: Option<String>,
     /// rFLEX only: translation units per metre (Kd; ATRV-Jr default 90810, calibrate it).
-    #[arg(long)]
+    #[arg(long, value_parser = num::positive_factor)]
     kd: Option<f64>,
     /// rFLEX only: rotation units per radian (Ka; ATRV-Jr default 37000, calibrate it).
-    #[arg(long)]
+    #[arg(long, value_parser = num::positive_factor)]
     ka: Option<f64>,
-    /// How long to wait for the robot to answer, seconds.
-    #[arg(long, default_value_t = 10.0)]
+    /// How long to wait for the robot to answer, seconds (more than 0, at most 3600).
+    #[arg(long, default_value_t = 10.0, value_parser = num::timeout_seconds)]
     connect_timeout: f64,
 }
 
+/// How long `ima drive` waits, after STOP, for the robot to report that it stands.
+pub const SETTLE_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// Below these a robot counts as standing (m/s, rad/s).
+pub const STANDING_V_M_S: f64 = 0.005;
+/// See [`STANDING_V_M_S`].
+pub const STANDING_OMEGA_RAD_S: f64 = 0.01;
+
 /// Run `ima drive`.
 pub fn run(args: &DriveArgs) -> Result<()> {
-    anyhow::ensure!(
-        args.vel.is_finite() && args.turn.is_finite(),
-        "--vel and --turn must be numbers"
-    );
-    anyhow::ensure!(
-        args.duration.is_finite() && args.duration >= 0.0,
-        "--for must be a non-negative number of seconds"
-    );
-    let rt = tokio::runtime::Runtime::new()?;
     if args.robot == Robot::AtrvJr {
         let opts = super::drive_rflex::DriveOptions {
             port: args.port.clone(),
@@ -80,9 +82,9 @@ pub fn run(args: &DriveArgs) -> Result<()> {
             kd: args.kd,
             ka: args.ka,
         };
-        return rt.block_on(super::drive_rflex::drive(&opts));
+        return safety::block_on(super::drive_rflex::drive(&opts));
     }
-    rt.block_on(drive(args))
+    safety::block_on(drive(args))
 }
 
 async fn drive(args: &DriveArgs) -> Result<()> {
@@ -102,8 +104,9 @@ async fn drive(args: &DriveArgs) -> Result<()> {
         cfg.params_override = Some(*p);
     }
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
-    let mut robot = P2os::connect(port, cfg, Duration::from_secs_f64(args.connect_timeout))
-        .await
+    let connect = P2os::connect(port, cfg, num::duration(args.connect_timeout));
+    let mut robot = safety::until_cancelled(connect)
+        .await?
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;
     if let ima_p2os::shell::LinkStatus::Connected { identity, baud } = robot.link() {
         eprintln!(
@@ -111,39 +114,110 @@ async fn drive(args: &DriveArgs) -> Result<()> {
             identity.name, identity.class, identity.subclass
         );
     }
-    robot.enable_motors(true).await.context("enabling motors")?;
-    let start = robot.now();
-    let cmd = VelocityCommand::new(args.vel, args.turn);
-    let end = start + Duration::from_secs_f64(args.duration);
-    let mut last = start;
-    loop {
-        let now = robot.now();
-        if now >= end {
-            break;
-        }
-        robot.set_velocity(cmd).await?;
-        let st = robot.next_state(last, Duration::from_secs(1)).await?;
-        last = st.odometry.at;
-        print_state(&st, start, args.json);
-    }
-    robot.stop().await?;
-    // Let the robot decelerate and report where it ended.
-    tokio::time::sleep(Duration::from_millis(500)).await;
-    let odo = robot.odometry().await?;
-    eprintln!(
-        "stopped at x={:.3} m y={:.3} m θ={:.1}°; {} SIPs, {} bad checksums, {} implausible",
-        odo.value.x_m(),
-        odo.value.y_m(),
-        odo.value.theta_rad().to_degrees(),
-        robot.stats().sips,
-        robot.stats().framer.bad_checksums,
-        robot.stats().implausible_sips
+    let limits = robot.limits();
+    let cmd = VelocityCommand::new(
+        num::cap("--vel", args.vel, limits.max_v_m_s, "m/s"),
+        num::cap("--turn", args.turn, limits.max_omega_rad_s, "rad/s"),
     );
-    robot.close().await.ok();
+    safety::until_cancelled(robot.enable_motors(true))
+        .await?
+        .context("enabling motors")?;
+    let start = robot.now();
+    let end = start + num::duration(args.duration);
+    let mut last = start;
+    let motion = async {
+        while robot.now() < end {
+            robot.set_velocity(cmd).await?;
+            let st = robot.next_state(last, Duration::from_secs(1)).await?;
+            last = st.odometry.at;
+            print_state(&st, start, args.json)?;
+        }
+        anyhow::Ok(())
+    };
+    let moved = safety::until_cancelled(motion).await;
+    if let Err(e) = &moved
+        && e.is::<safety::Interrupted>()
+    {
+        // The guard has already told the robot to stop and closed the session.
+        if let Some(st) = robot.latest() {
+            let o = st.odometry.value;
+            eprintln!(
+                "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
+                o.x_m(),
+                o.y_m(),
+                o.theta_rad().to_degrees(),
+                o.v_m_s
+            );
+        }
+    }
+    moved??;
+    robot.stop().await?;
+    report_end(&mut robot).await;
+    robot
+        .close()
+        .await
+        .context("closing the session (STOP, CLOSE)")?;
     Ok(())
 }
 
-fn print_state(st: &ima_p2os::machine::RobotState, start: ima_hal::Instant, json: bool) {
+/// After STOP: wait until the robot's SIPs say it stands (at most [`SETTLE_TIMEOUT`]) and
+/// report where, or say that it was still moving.
+async fn report_end(robot: &mut P2os) {
+    let deadline = robot.now() + SETTLE_TIMEOUT;
+    let mut after = robot.now();
+    let mut last = robot.latest();
+    let mut standing = false;
+    while robot.now() < deadline {
+        match safety::until_cancelled(robot.next_state(after, Duration::from_secs(1))).await {
+            Ok(Ok(st)) => {
+                after = st.odometry.at;
+                let o = st.odometry.value;
+                standing =
+                    o.v_m_s.abs() < STANDING_V_M_S && o.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
+                last = Some(st);
+                if standing {
+                    break;
+                }
+            }
+            Ok(Err(_)) | Err(_) => break,
+        }
+    }
+    let stats = robot.stats();
+    let counters = format!(
+        "{} SIPs, {} bad checksums, {} implausible",
+        stats.sips, stats.framer.bad_checksums, stats.implausible_sips
+    );
+    match last {
+        Some(st) if standing => {
+            let o = st.odometry.value;
+            eprintln!(
+                "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+                o.x_m(),
+                o.y_m(),
+                o.theta_rad().to_degrees()
+            );
+        }
+        Some(st) => {
+            let o = st.odometry.value;
+            eprintln!(
+                "still moving at {:.3} m/s {:.3} rad/s {:.1} s after STOP; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+                o.v_m_s,
+                o.omega_rad_s,
+                SETTLE_TIMEOUT.as_secs_f64(),
+                o.x_m(),
+                o.y_m(),
+                o.theta_rad().to_degrees()
+            );
+        }
+        None => eprintln!("no report from the robot after STOP; {counters}"),
+    }
+}
+
+fn print_state(
+    st: &ima_p2os::machine::RobotState,
+    start: ima_hal::Instant,
+    json: bool,
+) -> Result<()> {
     let t = st
         .odometry
         .at
@@ -158,7 +232,7 @@ fn print_state(st: &ima_p2os::machine::RobotState, start: ima_hal::Instant, json
             .iter()
             .map(|r| serde_json::json!({"index": r.index, "range_m": r.range_m}))
             .collect();
-        println!(
+        outln!(
             "{}",
             serde_json::json!({
                 "t_s": t, "x_m": o.x_m(), "y_m": o.y_m(), "theta_rad": o.theta_rad(),
@@ -166,7 +240,7 @@ fn print_state(st: &ima_p2os::machine::RobotState, start: ima_hal::Instant, json
                 "battery_v": st.power.value.battery_v, "motors_enabled": st.motors_enabled,
                 "sonar": sonar,
             })
-        );
+        )
     } else {
         let ranges: Vec<String> = st
             .sonar
@@ -176,7 +250,7 @@ fn print_state(st: &ima_p2os::machine::RobotState, start: ima_hal::Instant, json
             .filter(|r| r.index < 8)
             .map(|r| format!("{:.2}", r.range_m))
             .collect();
-        println!(
+        outln!(
             "t={t:6.2}s x={:+.3} y={:+.3} θ={:+6.1}° v={:+.2} ω={:+.2} batt={:.1}V front sonar [{}]",
             o.x_m(),
             o.y_m(),
@@ -185,6 +259,6 @@ fn print_state(st: &ima_p2os::machine::RobotState, start: ima_hal::Instant, json
             o.omega_rad_s,
             st.power.value.battery_v,
             ranges.join(" ")
-        );
+        )
     }
 }

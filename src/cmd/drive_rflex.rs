@@ -1,12 +1,14 @@
 //! `ima drive --robot atrv-jr`: drive an rFLEX base (ATRV-Jr) on a serial port, printing
 //! odometry, sonar and battery as it goes.
 
-use std::time::Duration;
-
 use anyhow::{Context, Result};
-use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
+use ima_hal::base::{DifferentialBase, Odometer, Odometry, VelocityCommand};
 use ima_hal::power::Power;
+use ima_hal::{Instant, Stamped};
 use ima_rflex::shell::{Rflex, open_port};
+
+use super::num;
+use crate::safety::{self, outln};
 
 /// What to do (from `ima drive`'s arguments).
 #[derive(Debug, Clone)]
@@ -41,74 +43,149 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
         }
     }
     let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
-    let mut base = Rflex::connect(port, cfg, Duration::from_secs_f64(o.connect_timeout_s))
-        .await
+    let connect = Rflex::connect(port, cfg, num::duration(o.connect_timeout_s));
+    let mut base = safety::until_cancelled(connect)
+        .await?
         .with_context(|| format!("connecting to an rFLEX base on {}", o.port))?;
     eprintln!("connected to an rFLEX base at {} baud", o.baud);
-    base.enable_motors(true)
-        .await
+    safety::until_cancelled(base.enable_motors(true))
+        .await?
         .context("releasing the brake")?;
+    let limits = base.limits();
+    let cmd = VelocityCommand::new(
+        num::cap("--vel", o.vel, limits.max_v_m_s, "m/s"),
+        num::cap("--turn", o.turn, limits.max_omega_rad_s, "rad/s"),
+    );
     let start = base.now();
-    let cmd = VelocityCommand::new(o.vel, o.turn);
-    let end = start + Duration::from_secs_f64(o.duration_s);
+    let end = start + num::duration(o.duration_s);
     let mut last = start;
-    while base.now() < end {
-        base.set_velocity(cmd).await?;
-        let odo = base.next_odometry(last).await?;
-        last = odo.at;
-        let t = odo.at.saturating_duration_since(start).as_secs_f64();
-        let v = odo.value;
-        let battery_v = base.power().await.ok().map(|p| p.value.battery_v);
-        let sonar = ima_hal::sonar::SonarArray::sonar(&mut base)
-            .await
-            .ok()
-            .map(|s| s.value);
-        if o.json {
-            let ranges: Vec<_> = sonar
-                .iter()
-                .flat_map(|s| s.readings.iter())
-                .map(|r| serde_json::json!({"index": r.index, "range_m": r.range_m}))
-                .collect();
-            println!(
-                "{}",
-                serde_json::json!({
-                    "t_s": t, "x_m": v.x_m(), "y_m": v.y_m(), "theta_rad": v.theta_rad(),
-                    "v_m_s": v.v_m_s, "omega_rad_s": v.omega_rad_s,
-                    "battery_v": battery_v, "sonar": ranges,
-                })
-            );
-        } else {
-            let front: Vec<String> = sonar
-                .iter()
-                .flat_map(|s| s.readings.iter())
-                .filter(|r| r.index <= 2 || r.index >= 15)
-                .map(|r| format!("{:.2}", r.range_m))
-                .collect();
-            println!(
-                "t={t:6.2}s x={:+.3} y={:+.3} θ={:+6.1}° v={:+.2} ω={:+.2} batt={} front sonar [{}]",
-                v.x_m(),
-                v.y_m(),
-                v.theta_rad().to_degrees(),
-                v.v_m_s,
-                v.omega_rad_s,
-                battery_v.map_or_else(|| "?".to_owned(), |b| format!("{b:.1}V")),
-                front.join(" ")
-            );
+    let mut latest = None;
+    let motion = async {
+        while base.now() < end {
+            base.set_velocity(cmd).await?;
+            let odo = base.next_odometry(last).await?;
+            last = odo.at;
+            latest = Some(odo.value);
+            report(&mut base, odo, start, o.json).await?;
+        }
+        anyhow::Ok(())
+    };
+    let moved = safety::until_cancelled(motion).await;
+    if let Err(e) = &moved
+        && e.is::<safety::Interrupted>()
+        && let Some(v) = latest
+    {
+        eprintln!(
+            "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
+            v.x_m(),
+            v.y_m(),
+            v.theta_rad().to_degrees(),
+            v.v_m_s
+        );
+    }
+    moved??;
+    base.stop().await?;
+    report_end(&mut base).await;
+    base.close()
+        .await
+        .context("shutting the base down (zero speed, brake)")?;
+    Ok(())
+}
+
+/// One line (or JSON object) per motion report.
+async fn report(
+    base: &mut Rflex,
+    odo: Stamped<Odometry>,
+    start: Instant,
+    json: bool,
+) -> Result<()> {
+    let t = odo.at.saturating_duration_since(start).as_secs_f64();
+    let v = odo.value;
+    let battery_v = base.power().await.ok().map(|p| p.value.battery_v);
+    let sonar = ima_hal::sonar::SonarArray::sonar(base)
+        .await
+        .ok()
+        .map(|s| s.value);
+    if json {
+        let ranges: Vec<_> = sonar
+            .iter()
+            .flat_map(|s| s.readings.iter())
+            .map(|r| serde_json::json!({"index": r.index, "range_m": r.range_m}))
+            .collect();
+        outln!(
+            "{}",
+            serde_json::json!({
+                "t_s": t, "x_m": v.x_m(), "y_m": v.y_m(), "theta_rad": v.theta_rad(),
+                "v_m_s": v.v_m_s, "omega_rad_s": v.omega_rad_s,
+                "battery_v": battery_v, "sonar": ranges,
+            })
+        )
+    } else {
+        let front: Vec<String> = sonar
+            .iter()
+            .flat_map(|s| s.readings.iter())
+            .filter(|r| r.index <= 2 || r.index >= 15)
+            .map(|r| format!("{:.2}", r.range_m))
+            .collect();
+        outln!(
+            "t={t:6.2}s x={:+.3} y={:+.3} θ={:+6.1}° v={:+.2} ω={:+.2} batt={} front sonar [{}]",
+            v.x_m(),
+            v.y_m(),
+            v.theta_rad().to_degrees(),
+            v.v_m_s,
+            v.omega_rad_s,
+            battery_v.map_or_else(|| "?".to_owned(), |b| format!("{b:.1}V")),
+            front.join(" ")
+        )
+    }
+}
+
+/// After the stop: wait until the base reports that it stands (at most
+/// [`super::drive::SETTLE_TIMEOUT`]) and say where, or that it was still moving.
+async fn report_end(base: &mut Rflex) {
+    use super::drive::{SETTLE_TIMEOUT, STANDING_OMEGA_RAD_S, STANDING_V_M_S};
+    let deadline = base.now() + SETTLE_TIMEOUT;
+    let mut after = base.now();
+    let mut last = None;
+    let mut standing = false;
+    while base.now() < deadline {
+        match safety::until_cancelled(base.next_odometry(after)).await {
+            Ok(Ok(odo)) => {
+                after = odo.at;
+                let v = odo.value;
+                standing =
+                    v.v_m_s.abs() < STANDING_V_M_S && v.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
+                last = Some(v);
+                if standing {
+                    break;
+                }
+            }
+            Ok(Err(_)) | Err(_) => break,
         }
     }
-    base.stop().await?;
-    tokio::time::sleep(Duration::from_millis(500)).await;
-    let odo = base.odometry().await?;
     let st = base.stats();
-    eprintln!(
-        "stopped at x={:.3} m y={:.3} m θ={:.1}°; {} frames, {} framing errors, {} odometry rejected",
-        odo.value.x_m(),
-        odo.value.y_m(),
-        odo.value.theta_rad().to_degrees(),
+    let counters = format!(
+        "{} frames, {} framing errors, {} odometry rejected",
         st.framer.frames,
         st.framer.errors(),
         st.session.odometry_rejected
     );
-    base.close().await.ok();
-    Ok(())
+    match last {
+        Some(v) if standing => eprintln!(
+            "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+            v.x_m(),
+            v.y_m(),
+            v.theta_rad().to_degrees()
+        ),
+        Some(v) => eprintln!(
+            "still moving at {:.3} m/s {:.3} rad/s {:.1} s after the stop; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+            v.v_m_s,
+            v.omega_rad_s,
+            SETTLE_TIMEOUT.as_secs_f64(),
+            v.x_m(),
+            v.y_m(),
+            v.theta_rad().to_degrees()
+        ),
+        None => eprintln!("no report from the base after the stop; {counters}"),
+    }
 }

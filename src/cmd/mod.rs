@@ -17,6 +17,7 @@ pub mod mock;
 pub mod mock_rflex;
 pub mod mock_sick;
 pub mod mock_world;
+pub mod num;
 pub mod peer;
 pub mod run;
 pub mod san;

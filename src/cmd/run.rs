@@ -53,8 +53,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     } else {
         None
     };
-    let rt = tokio::runtime::Runtime::new()?;
-    rt.block_on(async {
+    crate::safety::block_on(async {
         let key = net::group_key(&cfg, None)?;
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
         let json = args.json;
@@ -69,20 +68,21 @@ pub fn run(args: &RunArgs) -> Result<()> {
         });
         let events = Events::with_sink(tx);
         let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        // A signal has already halted the bases (the safety guard); the stack winds down.
         let signal = tokio::spawn(async move {
-            let _ = super::mock_world::wait_for_signal().await;
+            crate::safety::cancelled().await;
             let _ = stop_tx.send(true);
         });
         let r = match cfg.role {
             Role::Scooter => {
-                let dev = devices::open_scooter(&cfg)
-                    .await
+                let dev = crate::safety::until_cancelled(devices::open_scooter(&cfg))
+                    .await?
                     .context("opening Scooter's devices")?;
                 crate::stack::scooter::run(cfg.clone(), key, dev, events, stop_rx).await
             }
             Role::Skeeter => {
-                let dev = devices::open_skeeter(&cfg)
-                    .await
+                let dev = crate::safety::until_cancelled(devices::open_skeeter(&cfg))
+                    .await?
                     .context("opening Skeeter's devices")?;
                 crate::stack::skeeter::run(cfg.clone(), key, dev, events, stop_rx).await
             }

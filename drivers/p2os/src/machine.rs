@@ -442,6 +442,13 @@ impl Session {
         self.state == SessionState::Open
     }
 
+    /// Whether frames are queued that [`poll_transmit`](Self::poll_transmit) has not handed out
+    /// yet (a shell that closes keeps transmitting until this is false: STOP, then CLOSE).
+    #[must_use]
+    pub fn has_pending_transmit(&self) -> bool {
+        !self.tx.is_empty()
+    }
+
     // ----------------------------------------------------------------------------------------
     // Caller commands
     // ----------------------------------------------------------------------------------------

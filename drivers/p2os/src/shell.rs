@@ -15,6 +15,7 @@ use ima_hal::base::{
     BaseLimits, BumperState, Bumpers, DifferentialBase, Odometer, Odometry, VelocityCommand,
 };
 use ima_hal::power::{Power, PowerState};
+use ima_hal::safety::{HaltSignal, StopRegistry};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -83,6 +84,7 @@ pub struct P2os {
     params: RobotParams,
     transducers: Arc<[SonarTransducer]>,
     clock: TokioClock,
+    halt: HaltSignal,
 }
 
 impl std::fmt::Debug for Request {
@@ -94,9 +96,15 @@ impl std::fmt::Debug for Request {
 /// How long [`P2os::connect`] waits for the handshake by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up.
+const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
+
 impl P2os {
     /// Spawn the driver task on `stream` and wait until the robot is connected (or
     /// `connect_timeout` passes). Must be called inside a tokio runtime.
+    ///
+    /// The task registers its [`HaltSignal`] in [`StopRegistry::global`] at once, so a
+    /// program's exit guard can stop this robot (STOP, then CLOSE) from any exit path.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
@@ -112,9 +120,13 @@ impl P2os {
         let (stats_tx, stats) = watch::channel(SessionStats::default());
         let (config_tx, config) = watch::channel(None);
         let (params_tx, params_rx) = oneshot::channel();
+        let halt = HaltSignal::new();
+        StopRegistry::global().register("P2OS base", halt.clone());
         let task = Task {
             session: Session::new(cfg),
             clock,
+            halt: halt.clone(),
+            close_waiters: Vec::new(),
             rx,
             state_tx,
             link_tx,
@@ -157,7 +169,15 @@ impl P2os {
             params,
             transducers,
             clock,
+            halt,
         })
+    }
+
+    /// This driver's halt signal: [`HaltSignal::halt`] stops the robot and closes the session
+    /// from any thread without awaiting (the same as [`close`](Self::close), fire-and-forget).
+    #[must_use]
+    pub fn halt_signal(&self) -> HaltSignal {
+        self.halt.clone()
     }
 
     /// The parameter table in use.
@@ -234,9 +254,21 @@ impl P2os {
         }
     }
 
-    /// Stop the robot, close the session and end the driver task.
+    /// Stop the robot, close the session and end the driver task. Returns once the last
+    /// frames (STOP, then CLOSE) are written to the port, or with an error if they could not
+    /// be. Dropping every handle does the same in the background.
     pub async fn close(&self) -> Result<(), DriverError> {
-        self.request(Request::Close, Duration::from_secs(2)).await
+        if self.halt.is_done() {
+            return Ok(());
+        }
+        match self
+            .request(Request::Close, CLOSE_DRAIN_LIMIT + Duration::from_secs(1))
+            .await
+        {
+            // The task ended between the check and the request (a halt or the link).
+            Err(DriverError::Disconnected) if self.halt.is_done() => Ok(()),
+            r => r,
+        }
     }
 
     async fn wait_state(&mut self) -> Result<RobotState, DriverError> {
@@ -328,6 +360,8 @@ impl Power for P2os {
 struct Task {
     session: Session,
     clock: TokioClock,
+    halt: HaltSignal,
+    close_waiters: Vec<oneshot::Sender<Result<(), DriverError>>>,
     rx: mpsc::Receiver<Request>,
     state_tx: watch::Sender<Option<RobotState>>,
     link_tx: watch::Sender<LinkStatus>,
@@ -337,15 +371,33 @@ struct Task {
     motors_waiters: Vec<(bool, oneshot::Sender<Result<(), DriverError>>)>,
 }
 
+/// Answer a request that arrived after the session closed.
+fn reject(req: Request) {
+    match req {
+        Request::Velocity(_, tx)
+        | Request::Stop(tx)
+        | Request::EStop(tx)
+        | Request::Motors(_, tx)
+        | Request::Sonar(_, tx)
+        | Request::ResetOdometry(tx)
+        | Request::Close(tx) => {
+            let _ = tx.send(Err(DriverError::Disconnected));
+        }
+    }
+}
+
 impl Task {
     async fn run<S>(mut self, mut stream: S)
     where
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
+        // Every way out of this task (return, cancellation, panic) marks the halt done.
+        let _done = self.halt.done_on_drop();
         let mut rbuf = [0u8; 512];
         let mut tbuf = [0u8; crate::wire::MAX_FRAME_LEN];
         self.session.connect(self.clock.now());
-        let mut closing = false;
+        // Set when the task is closing: the instant after which it gives up draining.
+        let mut closing: Option<Instant> = None;
         loop {
             // Events first: they may ask for a baud change before the next write.
             if let Err(e) = self.drain_events(&mut stream) {
@@ -362,9 +414,13 @@ impl Task {
             }
             let _ = stream.flush().await;
             self.stats_tx.send_replace(self.session.stats());
-            if closing {
-                self.link_tx.send_replace(LinkStatus::Closed);
-                return;
+            if let Some(limit) = closing {
+                // Frames are paced, so STOP and CLOSE may need more than one pass.
+                let drained = !self.session.has_pending_transmit();
+                if drained || self.clock.now() >= limit {
+                    self.finish_close(drained);
+                    return;
+                }
             }
             let sleep_for = self
                 .session
@@ -373,6 +429,11 @@ impl Task {
                     t.saturating_duration_since(self.clock.now())
                 });
             tokio::select! {
+                biased;
+                () = self.halt.requested(), if closing.is_none() => {
+                    tracing::info!("p2os: halt requested; stopping the robot and closing");
+                    closing = Some(self.begin_close());
+                }
                 r = stream.read(&mut rbuf) => match r {
                     Ok(0) => { self.fail(DriverError::Disconnected); return; }
                     Ok(n) => {
@@ -385,12 +446,43 @@ impl Task {
                 () = tokio::time::sleep(sleep_for) => {
                     self.session.handle_timeout(self.clock.now());
                 }
-                req = self.rx.recv() => match req {
-                    None => { self.session.close(); closing = true; }
-                    Some(req) => closing = self.handle_request(req),
+                req = self.rx.recv(), if closing.is_none() => match req {
+                    None => closing = Some(self.begin_close()),
+                    Some(Request::Close(tx)) => {
+                        self.close_waiters.push(tx);
+                        closing = Some(self.begin_close());
+                    }
+                    Some(req) => self.handle_request(req),
                 },
             }
         }
+    }
+
+    /// Queue STOP and CLOSE; returns the instant after which draining gives up.
+    fn begin_close(&mut self) -> Instant {
+        self.session.close();
+        self.clock.now() + CLOSE_DRAIN_LIMIT
+    }
+
+    /// The last frames are written (or could not be within the limit): answer the waiters.
+    fn finish_close(&mut self, drained: bool) {
+        // Nothing more will be written: a waiting exit guard may go on.
+        self.halt.set_done();
+        let r = if drained {
+            Ok(())
+        } else {
+            tracing::warn!("p2os: the last frames (STOP, CLOSE) could not all be written");
+            Err(DriverError::Timeout)
+        };
+        for tx in self.close_waiters.drain(..) {
+            let _ = tx.send(r.clone());
+        }
+        // Requests that raced with the close get a clear answer rather than a dropped channel.
+        self.rx.close();
+        while let Ok(req) = self.rx.try_recv() {
+            reject(req);
+        }
+        self.link_tx.send_replace(LinkStatus::Closed);
     }
 
     fn fail(&mut self, e: DriverError) {
@@ -400,8 +492,7 @@ impl Task {
         self.link_tx.send_replace(LinkStatus::Failed(e));
     }
 
-    /// Returns true when the task should end after flushing.
-    fn handle_request(&mut self, req: Request) -> bool {
+    fn handle_request(&mut self, req: Request) {
         let now = self.clock.now();
         let map = |r: Result<(), SessionError>| r.map_err(DriverError::Session);
         match req {
@@ -428,12 +519,10 @@ impl Task {
                 }
             },
             Request::Close(tx) => {
-                self.session.close();
-                let _ = tx.send(Ok(()));
-                return true;
+                // Handled by the run loop (it drains before answering); not reached.
+                let _ = tx.send(Err(DriverError::Disconnected));
             }
         }
-        false
     }
 
     fn drain_events<S: BaudControl>(&mut self, stream: &mut S) -> io::Result<()> {

@@ -26,6 +26,7 @@ use ima_hal::base::{
     BaseLimits, BumperState, Bumpers, DifferentialBase, Odometer, Odometry, VelocityCommand,
 };
 use ima_hal::power::{Power, PowerState};
+use ima_hal::safety::{HaltSignal, StopRegistry};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -104,6 +105,7 @@ pub struct Rflex {
     limits: BaseLimits,
     transducers: Arc<[SonarTransducer]>,
     clock: TokioClock,
+    halt: HaltSignal,
 }
 
 /// How long [`Rflex::connect`] waits for the first motion report by default.
@@ -141,9 +143,12 @@ impl Rflex {
             .copied()
             .collect::<Vec<_>>()
             .into();
+        let halt = HaltSignal::new();
+        StopRegistry::global().register("rFLEX base", halt.clone());
         let task = Task {
             machine,
             clock,
+            halt: halt.clone(),
             rx,
             odo_tx,
             sonar_tx,
@@ -193,7 +198,16 @@ impl Rflex {
             limits,
             transducers,
             clock,
+            halt,
         })
+    }
+
+    /// This driver's halt signal: [`HaltSignal::halt`] stops the base and shuts the session
+    /// down from any thread without awaiting (the same as [`close`](Self::close),
+    /// fire-and-forget).
+    #[must_use]
+    pub fn halt_signal(&self) -> HaltSignal {
+        self.halt.clone()
     }
 
     /// Current link status.
@@ -245,7 +259,14 @@ impl Rflex {
 
     /// Send the shutdown sequence (§6), wait for it to go out, and end the driver task.
     pub async fn close(&self) -> Result<(), DriverError> {
-        self.request(Request::Close, Duration::from_secs(2)).await
+        if self.halt.is_done() {
+            return Ok(());
+        }
+        match self.request(Request::Close, Duration::from_secs(2)).await {
+            // The task ended between the check and the request (a halt or the link).
+            Err(DriverError::Disconnected) if self.halt.is_done() => Ok(()),
+            r => r,
+        }
     }
 }
 
@@ -349,6 +370,7 @@ impl Power for Rflex {
 }
 
 struct Task {
+    halt: HaltSignal,
     machine: Machine,
     clock: TokioClock,
     rx: mpsc::Receiver<Request>,
@@ -371,6 +393,8 @@ impl Task {
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
+        // Every way out of this task (return, cancellation, panic) marks the halt done.
+        let _done = self.halt.done_on_drop();
         let mut rbuf = [0u8; 512];
         let mut tbuf = [0u8; TX_BUF];
         let mut closing: Option<oneshot::Sender<Result<(), DriverError>>> = None;
@@ -396,6 +420,7 @@ impl Task {
             self.drain_events();
             self.publish_stats();
             if close_requested && self.machine.phase() == crate::machine::Phase::Closed {
+                self.halt.set_done();
                 if let Some(tx) = closing.take() {
                     let _ = tx.send(Ok(()));
                 }
@@ -410,6 +435,12 @@ impl Task {
                 t.saturating_duration_since(self.clock.now())
             });
             tokio::select! {
+                biased;
+                () = self.halt.requested(), if !close_requested => {
+                    tracing::info!("rflex: halt requested; stopping the base and shutting down");
+                    self.machine.shutdown(self.clock.now());
+                    close_requested = true;
+                }
                 r = stream.read(&mut rbuf) => match r {
                     Ok(0) => { self.fail(DriverError::Disconnected); return; }
                     Ok(n) => {

@@ -1,0 +1,148 @@
+//! Range-checked numeric flags: every number the command line takes goes through one of these
+//! parsers, so NaN, infinities and absurd magnitudes are refused at parse time with a message
+//! naming the accepted range (clap adds the flag's name), and no later `Duration` conversion,
+//! allocation or speed can be out of range.
+
+use std::time::Duration;
+
+/// The longest duration any flag accepts: one day.
+pub const MAX_SECONDS: f64 = 86_400.0;
+
+fn number(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s} is not a finite number"))
+    }
+}
+
+fn within(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
+    let v = number(s)?;
+    if (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{} is out of range: {lo}–{hi}{unit}", s.trim()))
+    }
+}
+
+/// A duration in seconds, 0 to one day.
+pub fn seconds(s: &str) -> Result<f64, String> {
+    within(s, 0.0, MAX_SECONDS, " s")
+}
+
+/// A timeout in seconds: more than zero, at most one hour.
+pub fn timeout_seconds(s: &str) -> Result<f64, String> {
+    let v = within(s, 0.0, 3_600.0, " s")?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err("a timeout must be more than 0 s".into())
+    }
+}
+
+/// A forward speed in m/s, −10 to 10 (a robot's own maximum caps it further, with a warning).
+pub fn speed_m_s(s: &str) -> Result<f64, String> {
+    within(s, -10.0, 10.0, " m/s")
+}
+
+/// A turn rate in rad/s, −10 to 10 (capped further by the robot's maximum, with a warning).
+pub fn turn_rad_s(s: &str) -> Result<f64, String> {
+    within(s, -10.0, 10.0, " rad/s")
+}
+
+/// A strictly positive calibration factor, at most 1e9.
+pub fn positive_factor(s: &str) -> Result<f64, String> {
+    let v = within(s, 0.0, 1e9, "")?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err("must be more than 0".into())
+    }
+}
+
+/// A serial line speed in baud, 50 to 4,000,000.
+pub fn baud(s: &str) -> Result<u32, String> {
+    let v: u32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a line speed in baud (a whole number)"))?;
+    if (50..=4_000_000).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is out of range: 50–4000000 baud"))
+    }
+}
+
+/// A duration for `Duration::from_secs_f64` that cannot panic (values come from the parsers
+/// above; anything else is clamped to 0–[`MAX_SECONDS`]).
+#[must_use]
+pub fn duration(secs: f64) -> Duration {
+    if secs.is_finite() {
+        Duration::from_secs_f64(secs.clamp(0.0, MAX_SECONDS))
+    } else {
+        Duration::ZERO
+    }
+}
+
+/// Clamp a speed to a robot's maximum, warning on stderr when it had to.
+#[must_use]
+pub fn cap(flag: &str, value: f64, max: f64, unit: &str) -> f64 {
+    if max.is_finite() && max > 0.0 && value.abs() > max {
+        let capped = value.clamp(-max, max);
+        eprintln!(
+            "warning: {flag} {value} {unit} is above this robot's maximum {max:.3} {unit}; using {capped:.3}"
+        );
+        capped
+    } else {
+        value
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_parser_refuses_nan_infinities_and_huge_values() {
+        type Parser = fn(&str) -> Result<f64, String>;
+        let parsers: [Parser; 6] = [
+            seconds,
+            timeout_seconds,
+            speed_m_s,
+            turn_rad_s,
+            positive_factor,
+            number,
+        ];
+        for p in parsers {
+            for bad in ["NaN", "nan", "inf", "-inf", "infinity", "1e400", "x", ""] {
+                assert!(p(bad).is_err(), "{bad} accepted");
+            }
+        }
+        for p in &parsers[..5] {
+            assert!(p("1e30").is_err());
+            assert!(p("-1e30").is_err());
+        }
+    }
+
+    #[test]
+    fn ranges_and_messages() {
+        assert_eq!(seconds("2.5"), Ok(2.5));
+        assert!(seconds("-1").unwrap_err().contains("0–86400 s"));
+        assert_eq!(
+            timeout_seconds("0").unwrap_err(),
+            "a timeout must be more than 0 s"
+        );
+        assert_eq!(speed_m_s("-0.2"), Ok(-0.2));
+        assert!(speed_m_s("11").is_err());
+        assert!(positive_factor("0").is_err());
+        assert_eq!(duration(f64::NAN), Duration::ZERO);
+        assert_eq!(duration(1e30), Duration::from_secs(86_400));
+        assert!((cap("--vel", 3.0, 0.75, "m/s") - 0.75).abs() < 1e-12);
+        assert!((cap("--vel", -3.0, 0.75, "m/s") + 0.75).abs() < 1e-12);
+        assert!((cap("--vel", 0.5, 0.75, "m/s") - 0.5).abs() < 1e-12);
+    }
+}

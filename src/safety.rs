@@ -1,0 +1,294 @@
+//! The program's stop guarantee: every device that can move a robot is stopped, and its session
+//! closed, on every exit path — a normal end, an error, SIGINT, SIGTERM, SIGHUP, a closed
+//! stdout, and a panic on any thread.
+//!
+//! The guarantee does not depend on each command remembering a `stop()`:
+//!
+//! * the drivers that can move a robot (`ima-p2os`, `ima-rflex`) register a
+//!   [`HaltSignal`](ima_hal::safety::HaltSignal) in the process-wide
+//!   [`StopRegistry`] as they start;
+//! * [`install`] (first thing in `main`) sets a panic hook that halts every registered device and
+//!   waits for its last frames, and a signal thread: the first SIGINT/SIGTERM/SIGHUP halts every
+//!   device at once and asks the command to wind down ([`cancelled`]); a second signal, or a
+//!   command that has not finished [`GRACE`] later, ends the process after the devices are done;
+//! * [`block_on`] is the only way a command runs async code: after the command's future ends
+//!   (for whatever reason) it halts every device and waits until their last frames are on the
+//!   wire before the runtime — and with it the driver tasks — goes away.
+//!
+//! What no program can cover is being killed outright (SIGKILL, a power cut): then only the
+//! robot's firmware watchdog stops it; the README's "Safety" section gives the times per robot.
+
+use std::future::Future;
+use std::io::Write as _;
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicI32, Ordering};
+use std::time::Duration;
+
+use anyhow::Result;
+use ima_hal::safety::StopRegistry;
+
+/// How long a command has after the first signal to wind down before the process ends anyway.
+pub const GRACE: Duration = Duration::from_secs(3);
+
+/// How long an exit path waits for every device's last frames.
+const DRAIN_WAIT: Duration = Duration::from_secs(2);
+
+/// The signal that interrupted the program (0: none).
+static SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+fn cancel_channel() -> &'static tokio::sync::watch::Sender<bool> {
+    static CANCEL: OnceLock<tokio::sync::watch::Sender<bool>> = OnceLock::new();
+    CANCEL.get_or_init(|| tokio::sync::watch::channel(false).0)
+}
+
+/// A signal that ends the program.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Signal {
+    /// SIGHUP (the terminal or SSH session closed).
+    Hup = 1,
+    /// SIGINT (Ctrl-C).
+    Int = 2,
+    /// SIGTERM.
+    Term = 15,
+}
+
+impl Signal {
+    fn from_number(n: i32) -> Option<Self> {
+        match n {
+            1 => Some(Self::Hup),
+            2 => Some(Self::Int),
+            15 => Some(Self::Term),
+            _ => None,
+        }
+    }
+
+    /// The signal's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Hup => "SIGHUP",
+            Self::Int => "SIGINT",
+            Self::Term => "SIGTERM",
+        }
+    }
+
+    /// The shell's exit status for a program ended by this signal (128 + its number).
+    pub fn exit_code(self) -> u8 {
+        128 + self as u8
+    }
+}
+
+/// The command was interrupted by a signal; the devices were halted.
+#[derive(Debug, thiserror::Error)]
+#[error("interrupted by {}; every device that could move was stopped", .0.name())]
+pub struct Interrupted(pub Signal);
+
+/// Standard output was closed by its reader (a pipe into `head`, a closed terminal).
+#[derive(Debug, thiserror::Error)]
+#[error("standard output was closed")]
+pub struct OutputClosed;
+
+/// The signal received so far, if any.
+pub fn signal() -> Option<Signal> {
+    Signal::from_number(SIGNAL.load(Ordering::SeqCst))
+}
+
+/// Resolves once the program has been asked to end (a signal, or a panic on another thread).
+pub async fn cancelled() {
+    let mut rx = cancel_channel().subscribe();
+    let _ = rx.wait_for(|c| *c).await;
+}
+
+/// Run `fut` unless the program is asked to end first; then Err([`Interrupted`]) at once (the
+/// devices have already been halted by the signal thread).
+pub async fn until_cancelled<T>(fut: impl Future<Output = T>) -> Result<T> {
+    tokio::select! {
+        biased;
+        () = cancelled() => Err(Interrupted(signal().unwrap_or(Signal::Int)).into()),
+        r = fut => Ok(r),
+    }
+}
+
+fn say(msg: std::fmt::Arguments<'_>) {
+    // stderr may be gone too; never panic here.
+    let _ = writeln!(std::io::stderr(), "ima: {msg}");
+}
+
+/// Halt every registered device from a thread outside any runtime (so the driver tasks are woken
+/// through the runtimes' shared queues), then wait up to `wait` for their last frames.
+fn halt_everything_blocking(wait: Duration) -> Vec<String> {
+    let reg = StopRegistry::global();
+    if !reg.any_running() {
+        return Vec::new();
+    }
+    let _ = std::thread::Builder::new()
+        .name("ima-halt".into())
+        .spawn(|| StopRegistry::global().halt_all())
+        .map(std::thread::JoinHandle::join);
+    reg.wait_blocking(wait)
+}
+
+/// Install the panic hook and the signal thread. Call once, first thing in `main`.
+pub fn install() {
+    let previous = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let pending = halt_everything_blocking(DRAIN_WAIT);
+        if !pending.is_empty() {
+            say(format_args!(
+                "panic: could not confirm the stop of {}",
+                pending.join(", ")
+            ));
+        }
+        cancel_channel().send_replace(true);
+        previous(info);
+    }));
+    #[cfg(unix)]
+    if let Err(e) = std::thread::Builder::new()
+        .name("ima-signals".into())
+        .spawn(signal_thread)
+    {
+        say(format_args!("cannot watch for signals: {e}"));
+    }
+}
+
+#[cfg(unix)]
+fn signal_thread() {
+    use tokio::signal::unix::{SignalKind, signal as listen};
+    let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    else {
+        say(format_args!("cannot watch for signals: no runtime"));
+        return;
+    };
+    rt.block_on(async {
+        let (Ok(mut int), Ok(mut term), Ok(mut hup)) = (
+            listen(SignalKind::interrupt()),
+            listen(SignalKind::terminate()),
+            listen(SignalKind::hangup()),
+        ) else {
+            say(format_args!("cannot watch for signals"));
+            return;
+        };
+        let first = next_signal(&mut int, &mut term, &mut hup).await;
+        SIGNAL.store(first as i32, Ordering::SeqCst);
+        // Safety first: every moving device is told to stop before anything else happens.
+        let halted = StopRegistry::global().halt_all();
+        cancel_channel().send_replace(true);
+        if halted > 0 {
+            say(format_args!(
+                "{}: stopping the robot ({} again to exit at once)",
+                first.name(),
+                if first == Signal::Int {
+                    "Ctrl-C"
+                } else {
+                    "a second signal"
+                }
+            ));
+        }
+        let code = tokio::select! {
+            s = next_signal(&mut int, &mut term, &mut hup) => s.exit_code(),
+            () = tokio::time::sleep(GRACE) => first.exit_code(),
+        };
+        // Either way the devices get their last frames out before the process ends.
+        let pending = halt_everything_blocking(Duration::from_millis(500));
+        if !pending.is_empty() {
+            say(format_args!(
+                "exiting; could not confirm the stop of {}",
+                pending.join(", ")
+            ));
+        }
+        std::process::exit(i32::from(code));
+    });
+}
+
+#[cfg(unix)]
+async fn next_signal(
+    int: &mut tokio::signal::unix::Signal,
+    term: &mut tokio::signal::unix::Signal,
+    hup: &mut tokio::signal::unix::Signal,
+) -> Signal {
+    tokio::select! {
+        _ = int.recv() => Signal::Int,
+        _ = term.recv() => Signal::Term,
+        _ = hup.recv() => Signal::Hup,
+    }
+}
+
+/// Run a command's async body on a multi-threaded tokio runtime under the stop guarantee: when
+/// the body ends — done, failed, or dropped [`GRACE`] after a signal it did not act on — every
+/// registered device is halted and its last frames are written before the runtime shuts down.
+pub fn block_on<T, F>(body: F) -> Result<T>
+where
+    F: Future<Output = Result<T>>,
+{
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(guarded(body))
+}
+
+async fn guarded<T, F>(body: F) -> Result<T>
+where
+    F: Future<Output = Result<T>>,
+{
+    let r = tokio::select! {
+        r = body => r,
+        () = async { cancelled().await; tokio::time::sleep(GRACE).await } => {
+            Err(Interrupted(signal().unwrap_or(Signal::Int)).into())
+        }
+    };
+    halt_and_wait().await;
+    r
+}
+
+/// Halt every registered device and wait (at most two seconds) until each has written its last
+/// frames. Called by [`block_on`] on every way out of a command.
+pub async fn halt_and_wait() {
+    let reg = StopRegistry::global();
+    if reg.halt_all() == 0 {
+        return;
+    }
+    let end = tokio::time::Instant::now() + DRAIN_WAIT;
+    while reg.any_running() && tokio::time::Instant::now() < end {
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let pending = reg.pending();
+    if !pending.is_empty() {
+        say(format_args!(
+            "could not confirm the stop of {}",
+            pending.join(", ")
+        ));
+    }
+}
+
+/// Write one line to standard output; a closed stdout becomes [`OutputClosed`] (never a panic).
+pub fn out_line(args: std::fmt::Arguments<'_>) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    match out.write_fmt(args).and_then(|()| out.write_all(b"\n")) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(OutputClosed.into()),
+        Err(e) => Err(anyhow::Error::new(e).context("writing to standard output")),
+    }
+}
+
+/// `println!` that returns a `Result` instead of panicking on a closed stdout.
+macro_rules! outln {
+    ($($arg:tt)*) => {
+        $crate::safety::out_line(format_args!($($arg)*))
+    };
+}
+pub(crate) use outln;
+
+/// The exit status and message for a command's result.
+pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
+    match result {
+        Ok(()) => (0, None),
+        Err(e) if e.chain().any(|c| c.is::<OutputClosed>()) => (141, None),
+        Err(e) => {
+            if let Some(Interrupted(s)) = e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
+                return (s.exit_code(), Some(format!("{e:#}")));
+            }
+            (1, Some(format!("{e:#}")))
+        }
+    }
+}

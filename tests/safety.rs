@@ -1,0 +1,465 @@
+//! The stop guarantee, proven from the mock robot's side (issue 13): `ima drive` against the
+//! mock Pioneer 2-AT (P2OS) and the mock ATRV-Jr (rFLEX) on real ptys, interrupted mid-motion
+//! by SIGINT, SIGTERM and SIGHUP, or by its stdout being closed. The test process serves the
+//! robot, so it sees every byte the host wrote (with its arrival time) and the world's ground
+//! truth, and asserts that a stop arrived within 0.3 s of the interruption, that the robot
+//! stood within 1.0 s, and that a P2OS session was closed with CLOSE.
+
+use std::io::{BufRead, BufReader};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::pty::{HostLog, PtyDevice, PtyOptions};
+use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, World};
+
+mod common;
+use common::{Child, ima};
+
+/// How soon after the interruption a stop must reach the robot.
+const STOP_WITHIN: Duration = Duration::from_millis(300);
+/// How soon after the interruption the robot must stand.
+const STAND_WITHIN: Duration = Duration::from_millis(1000);
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Base {
+    P2os,
+    Rflex,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Interruption {
+    Signal(&'static str),
+    ClosedStdout,
+}
+
+/// Either device, served with a host log; dropped (and stopped) with the test.
+enum Served {
+    P2os(PtyDevice<P2osDevice>),
+    Rflex(PtyDevice<RflexDevice>),
+}
+
+impl Served {
+    fn path(&self) -> String {
+        match self {
+            Self::P2os(d) => d.path().display().to_string(),
+            Self::Rflex(d) => d.path().display().to_string(),
+        }
+    }
+}
+
+fn serve(base: Base) -> (SharedWorld, RobotId, Served, HostLog) {
+    let mut w = World::new();
+    let mut spec = RobotSpec::new("robot", 0.0, 0.0, 0.0);
+    spec.max_wheel_speed_m_s = 1.0;
+    spec.max_wheel_accel_m_s2 = Some(1.0);
+    let id = w.add_robot(spec).unwrap();
+    let world = SharedWorld::new(w);
+    let log = HostLog::new();
+    let opts = PtyOptions {
+        faults: FaultPlan::none(),
+        step_world: Some(world.clone()),
+        host_log: Some(log.clone()),
+        ..PtyOptions::default()
+    };
+    let served = match base {
+        Base::P2os => Served::P2os(
+            PtyDevice::spawn(
+                P2osDevice::new(
+                    P2osModelConfig::default(),
+                    WorldBody::new(world.clone(), id, 3),
+                ),
+                opts,
+            )
+            .unwrap(),
+        ),
+        Base::Rflex => Served::Rflex(
+            PtyDevice::spawn(
+                RflexDevice::new(
+                    RflexModelConfig::default(),
+                    RflexWorldBody::new(world.clone(), id, 3),
+                ),
+                opts,
+            )
+            .unwrap(),
+        ),
+    };
+    (world, id, served, log)
+}
+
+fn wheel_speeds(world: &SharedWorld, id: RobotId) -> (f64, f64) {
+    world.with(|w| w.robot(id).unwrap().wheel_speeds())
+}
+
+fn commanded(world: &SharedWorld, id: RobotId) -> (f64, f64) {
+    world.with(|w| w.robot(id).unwrap().commanded_wheels())
+}
+
+/// The P2OS commands the host wrote, each named as `ima decode` names it, with the arrival time
+/// of the chunk that completed it.
+fn p2os_commands(log: &HostLog) -> Vec<(Instant, String)> {
+    let mut framer = ima_p2os::Framer::for_commands();
+    let mut out = Vec::new();
+    for (at, chunk) in log.snapshot() {
+        let mut input = chunk.as_slice();
+        loop {
+            let n = framer.feed(input);
+            input = input.get(n..).unwrap_or(&[]);
+            while let Some(ev) = framer.next_frame() {
+                if let ima_p2os::FrameEvent::Frame(p) = ev
+                    && let Ok(c) = ima_p2os::Command::parse(p)
+                {
+                    let name = match c {
+                        ima_p2os::Command::Int(i, v) => format!("{} {v}", i.name()),
+                        c => c.name().to_owned(),
+                    };
+                    out.push((at, name));
+                }
+            }
+            if input.is_empty() || n == 0 {
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// The rFLEX commands the host wrote (Debug form of the typed command), with arrival times.
+fn rflex_commands(log: &HostLog) -> Vec<(Instant, String)> {
+    let mut framer = ima_rflex::framer::Framer::strict();
+    let mut out = Vec::new();
+    for (at, chunk) in log.snapshot() {
+        let mut rest = chunk.as_slice();
+        while !rest.is_empty() {
+            let (used, item) = framer.decode(rest);
+            if let Some(Ok(raw)) = item
+                && let Ok(c) = ima_rflex::wire::Command::from_raw(&raw)
+            {
+                out.push((at, format!("{c:?}")));
+            }
+            if used == 0 {
+                break;
+            }
+            rest = rest.get(used..).unwrap_or(&[]);
+        }
+    }
+    out
+}
+
+fn wait_until(limit: Duration, what: &str, mut f: impl FnMut() -> bool) {
+    let end = Instant::now() + limit;
+    while !f() {
+        assert!(Instant::now() < end, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Drive at 0.3 m/s, interrupt, and check the stop from the robot's side.
+fn interrupt_drive(base: Base, how: Interruption) {
+    let (world, id, served, log) = serve(base);
+    let robot = match base {
+        Base::P2os => "p2at",
+        Base::Rflex => "atrv-jr",
+    };
+    let mut child = Child(
+        ima()
+            .args(["drive", "--robot", robot, "--port", &served.path()])
+            .args(["--vel", "0.3", "--for", "30", "--connect-timeout", "20"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut stdout = BufReader::new(child.0.stdout.take().unwrap());
+    let mut line = String::new();
+    // Two reports: connected, motors on, moving.
+    for _ in 0..2 {
+        line.clear();
+        assert!(
+            stdout.read_line(&mut line).unwrap() > 0,
+            "ima drive ended early"
+        );
+    }
+    wait_until(Duration::from_secs(20), "the robot to move", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l > 0.2 && r > 0.2
+    });
+    let t0 = Instant::now();
+    match how {
+        Interruption::Signal(sig) => {
+            let ok = std::process::Command::new("kill")
+                .args([&format!("-{sig}"), &child.0.id().to_string()])
+                .status()
+                .unwrap()
+                .success();
+            assert!(ok, "kill -{sig}");
+            // Keep reading so stdout never fills up.
+            std::thread::spawn(move || {
+                let mut sink = String::new();
+                while stdout.read_line(&mut sink).unwrap_or(0) > 0 {
+                    sink.clear();
+                }
+            });
+        }
+        Interruption::ClosedStdout => drop(stdout),
+    }
+    // Ground truth: the commanded wheel speeds drop to zero when a stop command is executed,
+    // and the wheels themselves reach zero when the robot stands.
+    wait_until(STAND_WITHIN * 3, "the robot to stand", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+    let stood = t0.elapsed();
+    let status = {
+        let end = Instant::now() + Duration::from_secs(15);
+        loop {
+            if let Some(s) = child.0.try_wait().unwrap() {
+                break s;
+            }
+            assert!(Instant::now() < end, "ima drive did not exit");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.0.stderr.take().unwrap(), &mut stderr).unwrap();
+    let expected_code = match how {
+        Interruption::Signal("INT") => 130,
+        Interruption::Signal("TERM") => 143,
+        Interruption::Signal("HUP") => 129,
+        Interruption::Signal(other) => panic!("no expectation for {other}"),
+        Interruption::ClosedStdout => 141,
+    };
+    assert_eq!(
+        status.code(),
+        Some(expected_code),
+        "{base:?} {how:?}: exit status {status}; stderr:\n{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(commanded(&world, id), (0.0, 0.0), "{base:?} {how:?}");
+    assert!(
+        stood <= STAND_WITHIN,
+        "{base:?} {how:?}: the robot stood {stood:?} after the interruption"
+    );
+    match base {
+        Base::P2os => {
+            let cmds = p2os_commands(&log);
+            let after: Vec<_> = cmds.iter().filter(|(at, _)| *at >= t0).collect();
+            let stop = after
+                .iter()
+                .find(|(_, n)| n == "stop" || n == "e_stop" || n == "vel 0")
+                .unwrap_or_else(|| panic!("{how:?}: no stop after the interruption: {after:?}"));
+            assert!(
+                stop.0.duration_since(t0) <= STOP_WITHIN,
+                "{how:?}: STOP arrived {:?} after the interruption",
+                stop.0.duration_since(t0)
+            );
+            let close = after
+                .iter()
+                .position(|(_, n)| n == "sync2_close")
+                .unwrap_or_else(|| panic!("{how:?}: no CLOSE: {after:?}"));
+            let stop_i = after.iter().position(|c| c == stop).unwrap();
+            assert!(stop_i < close, "STOP before CLOSE: {after:?}");
+            assert_eq!(
+                after.last().unwrap().1,
+                "sync2_close",
+                "CLOSE is the last frame"
+            );
+        }
+        Base::Rflex => {
+            let cmds = rflex_commands(&log);
+            let after: Vec<_> = cmds.iter().filter(|(at, _)| *at >= t0).collect();
+            // The shutdown sequence: zero speed on both axes first, the brake last.
+            let zero = after
+                .iter()
+                .find(|(_, c)| c.starts_with("SetDir") && c.contains("velocity: 0,"))
+                .unwrap_or_else(|| panic!("{how:?}: no zero speed: {after:?}"));
+            assert!(
+                zero.0.duration_since(t0) <= STOP_WITHIN,
+                "{how:?}: zero speed arrived {:?} after the interruption",
+                zero.0.duration_since(t0)
+            );
+            assert!(
+                after.iter().any(|(_, c)| c == "BrakeSet"),
+                "{how:?}: the brake was not set: {after:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn p2os_sigint_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Signal("INT"));
+}
+
+#[test]
+fn p2os_sigterm_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Signal("TERM"));
+}
+
+#[test]
+fn p2os_sighup_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Signal("HUP"));
+}
+
+#[test]
+fn p2os_closed_stdout_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::ClosedStdout);
+}
+
+#[test]
+fn rflex_sigint_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Signal("INT"));
+}
+
+#[test]
+fn rflex_sigterm_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Signal("TERM"));
+}
+
+#[test]
+fn rflex_sighup_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Signal("HUP"));
+}
+
+#[test]
+fn rflex_closed_stdout_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::ClosedStdout);
+}
+
+/// A normal end sends STOP, waits until the robot stands, reports where, and closes with CLOSE:
+/// the firmware's watchdog never has to trip.
+#[test]
+fn p2os_normal_end_closes_the_session() {
+    let (world, id, served, log) = serve(Base::P2os);
+    let out = ima()
+        .args([
+            "drive",
+            "--port",
+            &served.path(),
+            "--vel",
+            "0.3",
+            "--for",
+            "1",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("stopped at x="), "{stderr}");
+    let cmds = p2os_commands(&log);
+    assert_eq!(cmds.last().unwrap().1, "sync2_close", "{cmds:?}");
+    let (l, r) = wheel_speeds(&world, id);
+    assert!(l.abs() < 1e-3 && r.abs() < 1e-3);
+    // The reported pose is where the robot stands: the ground truth agrees within 2 cm.
+    let x = world.with(|w| w.robot(id).unwrap().pose().x_m);
+    let reported: f64 = stderr
+        .split("stopped at x=")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap();
+    assert!(
+        (reported - x).abs() < 0.02,
+        "reported {reported} m, truth {x} m"
+    );
+    let Served::P2os(dev) = served else {
+        unreachable!()
+    };
+    let model = dev.stop().unwrap();
+    assert_eq!(model.robot().stats().watchdog_trips, 0);
+}
+
+fn p2os_handle_test(close_explicitly: bool) {
+    let (world, id, served, log) = serve(Base::P2os);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        use ima_hal::base::{DifferentialBase, VelocityCommand};
+        let port = ima_p2os::shell::open_port(&served.path(), 9600).unwrap();
+        let mut robot = ima_p2os::shell::P2os::connect(
+            port,
+            ima_p2os::Config::default(),
+            Duration::from_secs(10),
+        )
+        .await
+        .unwrap();
+        robot.enable_motors(true).await.unwrap();
+        robot
+            .set_velocity(VelocityCommand::new(0.3, 0.0))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        if close_explicitly {
+            robot.close().await.unwrap();
+            // close() returned: STOP and CLOSE were written (the mock reads within its poll
+            // period), and nothing after them.
+        } else {
+            drop(robot);
+        }
+    });
+    // Keep the runtime alive while a dropped handle's task drains in the background.
+    wait_until(Duration::from_secs(2), "CLOSE at the mock", || {
+        p2os_commands(&log)
+            .last()
+            .is_some_and(|(_, n)| n == "sync2_close")
+    });
+    drop(rt);
+    let cmds: Vec<String> = p2os_commands(&log).into_iter().map(|(_, n)| n).collect();
+    let n = cmds.len();
+    assert_eq!(cmds[n - 2..], ["stop", "sync2_close"], "{cmds:?}");
+    wait_until(Duration::from_secs(2), "the robot to stand", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+}
+
+/// `P2os::close()` returns only once STOP and CLOSE are written — the frames are paced 5 ms
+/// apart, and a shell that makes one pass over its queue loses them.
+#[test]
+fn p2os_close_writes_stop_then_close() {
+    p2os_handle_test(true);
+}
+
+/// Dropping the last P2OS handle closes the session the same way, in the background.
+#[test]
+fn p2os_drop_writes_stop_then_close() {
+    p2os_handle_test(false);
+}
+
+/// A halt signal (what the exit guard and the panic hook use) stops and closes without awaiting
+/// anything, from a thread outside the runtime.
+#[test]
+fn p2os_halt_signal_from_another_thread() {
+    let (_world, _id, served, log) = serve(Base::P2os);
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let robot = rt.block_on(async {
+        let port = ima_p2os::shell::open_port(&served.path(), 9600).unwrap();
+        ima_p2os::shell::P2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10))
+            .await
+            .unwrap()
+    });
+    let halt = robot.halt_signal();
+    std::thread::spawn(move || halt.halt()).join().unwrap();
+    assert!(
+        robot
+            .halt_signal()
+            .wait_done_blocking(Duration::from_secs(2))
+    );
+    wait_until(Duration::from_secs(1), "CLOSE at the mock", || {
+        p2os_commands(&log)
+            .last()
+            .is_some_and(|(_, n)| n == "sync2_close")
+    });
+    // The closed handle says so rather than hanging.
+    let r = rt.block_on(async {
+        use ima_hal::base::DifferentialBase;
+        let mut r = robot.clone();
+        r.stop().await
+    });
+    assert!(r.is_err());
+    assert!(
+        rt.block_on(robot.close()).is_ok(),
+        "close after a halt is Ok"
+    );
+}
