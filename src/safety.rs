@@ -77,10 +77,51 @@ impl Signal {
     }
 }
 
-/// The command was interrupted by a signal; the devices were halted.
+/// Why a command was ended before its time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cause {
+    /// A signal.
+    Signal(Signal),
+    /// A panic on some thread of the process.
+    Panic,
+}
+
+impl std::fmt::Display for Cause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Signal(s) => write!(f, "interrupted by {}", s.name()),
+            Self::Panic => f.write_str("ended by a panic (a bug: please report it)"),
+        }
+    }
+}
+
+impl Cause {
+    /// The exit status: 128 + the signal's number, or 101 (Rust's status for a panic).
+    pub fn exit_code(self) -> u8 {
+        match self {
+            Self::Signal(s) => s.exit_code(),
+            Self::Panic => 101,
+        }
+    }
+}
+
+/// The command was ended by a signal or a panic; the devices were halted.
 #[derive(Debug, thiserror::Error)]
-#[error("interrupted by {}; every device that could move was stopped", .0.name())]
-pub struct Interrupted(pub Signal);
+#[error("{0}; every device that could move was stopped")]
+pub struct Interrupted(pub Cause);
+
+/// Set once a panic hook ran.
+static PANICKED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Why the program was asked to end (a signal first; else a panic; else SIGINT as a fallback
+/// for a cancellation with neither recorded yet).
+pub fn cause() -> Cause {
+    match signal() {
+        Some(s) => Cause::Signal(s),
+        None if PANICKED.load(Ordering::SeqCst) => Cause::Panic,
+        None => Cause::Signal(Signal::Int),
+    }
+}
 
 /// Standard output was closed by its reader (a pipe into `head`, a closed terminal).
 #[derive(Debug, thiserror::Error)]
@@ -103,7 +144,7 @@ pub async fn cancelled() {
 pub async fn until_cancelled<T>(fut: impl Future<Output = T>) -> Result<T> {
     tokio::select! {
         biased;
-        () = cancelled() => Err(Interrupted(signal().unwrap_or(Signal::Int)).into()),
+        () = cancelled() => Err(Interrupted(cause()).into()),
         r = fut => Ok(r),
     }
 }
@@ -131,6 +172,10 @@ fn halt_everything_blocking(wait: Duration) -> Vec<String> {
 pub fn install() {
     let previous = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
+        PANICKED.store(true, Ordering::SeqCst);
+        if StopRegistry::global().any_running() {
+            say(format_args!("panic: stopping every device that could move"));
+        }
         let pending = halt_everything_blocking(DRAIN_WAIT);
         if !pending.is_empty() {
             say(format_args!(
@@ -227,14 +272,33 @@ where
     rt.block_on(guarded(body))
 }
 
+/// Test hook: `IMA_INJECT_PANIC=SECONDS` makes a guarded command panic that long after it
+/// started, in the command's own code path, so tests can prove the panic path stops the robot.
+const INJECT_PANIC_ENV: &str = "IMA_INJECT_PANIC";
+
+async fn injected_panic() {
+    match std::env::var(INJECT_PANIC_ENV)
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s >= 0.0 && *s < 3600.0)
+    {
+        Some(secs) => {
+            tokio::time::sleep(Duration::from_secs_f64(secs)).await;
+            panic!("{INJECT_PANIC_ENV}: injected panic after {secs} s");
+        }
+        None => std::future::pending().await,
+    }
+}
+
 async fn guarded<T, F>(body: F) -> Result<T>
 where
     F: Future<Output = Result<T>>,
 {
     let r = tokio::select! {
+        () = injected_panic() => unreachable!("injected_panic never returns"),
         r = body => r,
         () = async { cancelled().await; tokio::time::sleep(GRACE).await } => {
-            Err(Interrupted(signal().unwrap_or(Signal::Int)).into())
+            Err(Interrupted(cause()).into())
         }
     };
     halt_and_wait().await;
@@ -285,8 +349,8 @@ pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
         Ok(()) => (0, None),
         Err(e) if e.chain().any(|c| c.is::<OutputClosed>()) => (141, None),
         Err(e) => {
-            if let Some(Interrupted(s)) = e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
-                return (s.exit_code(), Some(format!("{e:#}")));
+            if let Some(Interrupted(c)) = e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
+                return (c.exit_code(), Some(format!("{e:#}")));
             }
             (1, Some(format!("{e:#}")))
         }

@@ -33,6 +33,8 @@ enum Base {
 enum Interruption {
     Signal(&'static str),
     ClosedStdout,
+    /// A panic in the command's own code (`IMA_INJECT_PANIC`), seconds after the start.
+    Panic,
 }
 
 /// Either device, served with a host log; dropped (and stopped) with the test.
@@ -163,15 +165,26 @@ fn interrupt_drive(base: Base, how: Interruption) {
         Base::P2os => "p2at",
         Base::Rflex => "atrv-jr",
     };
-    let mut child = Child(
-        ima()
-            .args(["drive", "--robot", robot, "--port", &served.path()])
-            .args(["--vel", "0.3", "--for", "30", "--connect-timeout", "20"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
+    let mut cmd = ima();
+    cmd.args(["drive", "--robot", robot, "--port", &served.path()])
+        .args(["--vel", "0.3", "--for", "30", "--connect-timeout", "20"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    if let Interruption::Panic = how {
+        cmd.env("IMA_INJECT_PANIC", "4");
+    }
+    let mut child = Child(cmd.spawn().unwrap());
+    // Every stderr line with its arrival time.
+    let stderr_lines = std::sync::Arc::new(std::sync::Mutex::new(Vec::<(Instant, String)>::new()));
+    let stderr_reader = {
+        let lines = std::sync::Arc::clone(&stderr_lines);
+        let err = BufReader::new(child.0.stderr.take().unwrap());
+        std::thread::spawn(move || {
+            for l in err.lines().map_while(Result::ok) {
+                lines.lock().unwrap().push((Instant::now(), l));
+            }
+        })
+    };
     let mut stdout = BufReader::new(child.0.stdout.take().unwrap());
     let mut line = String::new();
     // Two reports: connected, motors on, moving.
@@ -186,7 +199,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
         let (l, r) = wheel_speeds(&world, id);
         l > 0.2 && r > 0.2
     });
-    let t0 = Instant::now();
+    let mut t0 = Instant::now();
     match how {
         Interruption::Signal(sig) => {
             let ok = std::process::Command::new("kill")
@@ -204,6 +217,29 @@ fn interrupt_drive(base: Base, how: Interruption) {
             });
         }
         Interruption::ClosedStdout => drop(stdout),
+        Interruption::Panic => {
+            wait_until(Duration::from_secs(20), "the injected panic", || {
+                stderr_lines
+                    .lock()
+                    .unwrap()
+                    .iter()
+                    .any(|(_, l)| l.contains("panic: stopping"))
+            });
+            t0 = stderr_lines
+                .lock()
+                .unwrap()
+                .iter()
+                .find(|(_, l)| l.contains("panic: stopping"))
+                .unwrap()
+                .0;
+            // The hook's line is printed just before the halt, so the stop follows t0.
+            std::thread::spawn(move || {
+                let mut sink = String::new();
+                while stdout.read_line(&mut sink).unwrap_or(0) > 0 {
+                    sink.clear();
+                }
+            });
+        }
     }
     // Ground truth: the commanded wheel speeds drop to zero when a stop command is executed,
     // and the wheels themselves reach zero when the robot stands.
@@ -222,21 +258,29 @@ fn interrupt_drive(base: Base, how: Interruption) {
             std::thread::sleep(Duration::from_millis(10));
         }
     };
-    let mut stderr = String::new();
-    std::io::Read::read_to_string(&mut child.0.stderr.take().unwrap(), &mut stderr).unwrap();
+    stderr_reader.join().unwrap();
+    let stderr: String = stderr_lines
+        .lock()
+        .unwrap()
+        .iter()
+        .map(|(_, l)| format!("{l}\n"))
+        .collect();
     let expected_code = match how {
         Interruption::Signal("INT") => 130,
         Interruption::Signal("TERM") => 143,
         Interruption::Signal("HUP") => 129,
         Interruption::Signal(other) => panic!("no expectation for {other}"),
         Interruption::ClosedStdout => 141,
+        Interruption::Panic => 101,
     };
     assert_eq!(
         status.code(),
         Some(expected_code),
         "{base:?} {how:?}: exit status {status}; stderr:\n{stderr}"
     );
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    if !matches!(how, Interruption::Panic) {
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
     assert_eq!(commanded(&world, id), (0.0, 0.0), "{base:?} {how:?}");
     assert!(
         stood <= STAND_WITHIN,
@@ -244,6 +288,11 @@ fn interrupt_drive(base: Base, how: Interruption) {
     );
     match base {
         Base::P2os => {
+            wait_until(Duration::from_secs(1), "CLOSE at the mock", || {
+                p2os_commands(&log)
+                    .last()
+                    .is_some_and(|(_, n)| n == "sync2_close")
+            });
             let cmds = p2os_commands(&log);
             let after: Vec<_> = cmds.iter().filter(|(at, _)| *at >= t0).collect();
             let stop = after
@@ -309,6 +358,16 @@ fn p2os_closed_stdout_stops_and_closes() {
 }
 
 #[test]
+fn p2os_panic_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Panic);
+}
+
+#[test]
+fn rflex_panic_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Panic);
+}
+
+#[test]
 fn rflex_sigint_stops_and_brakes() {
     interrupt_drive(Base::Rflex, Interruption::Signal("INT"));
 }
@@ -348,8 +407,12 @@ fn p2os_normal_end_closes_the_session() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("stopped at x="), "{stderr}");
-    let cmds = p2os_commands(&log);
-    assert_eq!(cmds.last().unwrap().1, "sync2_close", "{cmds:?}");
+    // Written before the process ended; the mock reads it within its poll period.
+    wait_until(Duration::from_secs(1), "CLOSE at the mock", || {
+        p2os_commands(&log)
+            .last()
+            .is_some_and(|(_, n)| n == "sync2_close")
+    });
     let (l, r) = wheel_speeds(&world, id);
     assert!(l.abs() < 1e-3 && r.abs() < 1e-3);
     // The reported pose is where the robot stands: the ground truth agrees within 2 cm.
