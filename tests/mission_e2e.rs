@@ -7,146 +7,18 @@
 //! every target done.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use ima_mock_devices::served::{Endpoints, ServeOptions, ServedWorld};
+use ima_mock_devices::served::{ServeOptions, ServedWorld};
 use ima_mock_devices::world::{SharedWorld, World};
 
 mod common;
+use common::mission::{scratch_dir, write_configs};
 use common::{Child, ima};
 
 const SPEED: f64 = 4.0;
-
-fn free_port(udp: bool) -> u16 {
-    if udp {
-        std::net::UdpSocket::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port()
-    } else {
-        std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port()
-    }
-}
-
-fn scratch_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ima-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// Write the three configurations and a key file, as an operator would.
-fn write_configs(dir: &Path, e: &Endpoints) -> [PathBuf; 3] {
-    let key = dir.join("group.key");
-    let hex: String = (0..32u8)
-        .map(|i| format!("{:02x}", i.wrapping_mul(37).wrapping_add(11)))
-        .collect();
-    std::fs::write(&key, format!("{hex}\n")).unwrap();
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
-    }
-    let (mgr, scooter_mgr) = (free_port(false), free_port(false));
-    let b = [free_port(true), free_port(true), free_port(true)];
-    let peers = |i: usize| {
-        b.iter()
-            .enumerate()
-            .filter(|(j, _)| *j != i)
-            .map(|(_, p)| format!("\"127.0.0.1:{p}\""))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let peer = |i: usize| {
-        format!(
-            "key_file = {key:?}\nbroadcast_group = \"\"\nbroadcast_peers = [{}]\nbroadcast_bind = \"127.0.0.1:{}\"\ndata_listen = \"127.0.0.1:0\"\n",
-            peers(i),
-            b[i]
-        )
-    };
-    let skeeter = format!(
-        r#"robot = "skeeter"
-role = "skeeter"
-
-[devices.base]
-kind = "p2os"
-port = {:?}
-baud = 9600
-
-[devices.video_mux]
-port = {:?}
-baud = 9600
-
-[devices.frames]
-addr = "{}"
-
-[agent]
-time_scale = {SPEED}
-target_timeout_s = 240.0
-
-[peer]
-listen = "127.0.0.1:{mgr}"
-{}"#,
-        e.skeeter.base,
-        e.skeeter.video_mux,
-        e.skeeter.frames,
-        peer(0)
-    );
-    let scooter = format!(
-        r#"robot = "scooter"
-role = "scooter"
-
-[devices.base]
-kind = "rflex"
-port = {:?}
-baud = 115200
-
-[devices.laser]
-port = {:?}
-baud = 500000
-rs422 = true
-
-[devices.compass]
-port = {:?}
-baud = 4800
-
-[agent]
-time_scale = {SPEED}
-
-[peer]
-listen = "127.0.0.1:{scooter_mgr}"
-connect = "127.0.0.1:{mgr}"
-{}"#,
-        e.scooter.base,
-        e.scooter.laser,
-        e.scooter.compass,
-        peer(1)
-    );
-    let commander = format!(
-        r#"robot = "commander"
-role = "commander"
-
-[agent]
-time_scale = {SPEED}
-target_timeout_s = 330.0
-
-[peer]
-{}"#,
-        peer(2)
-    );
-    let paths = ["skeeter", "scooter", "commander"].map(|n| dir.join(format!("{n}.toml")));
-    for (p, text) in paths.iter().zip([skeeter, scooter, commander]) {
-        std::fs::write(p, text).unwrap();
-    }
-    paths
-}
 
 fn run_robot(config: &Path, log: &Path) -> Child {
     Child(
@@ -173,7 +45,7 @@ fn three_processes_accomplish_every_target() {
     )
     .unwrap();
     let dir = scratch_dir("mission-e2e");
-    let [sk, sc, cmd] = write_configs(&dir, served.endpoints());
+    let [sk, sc, cmd] = write_configs(&dir, served.endpoints(), SPEED);
     let _skeeter = run_robot(&sk, &dir.join("skeeter.jsonl"));
     let _scooter = run_robot(&sc, &dir.join("scooter.jsonl"));
     let mut commander = Child(

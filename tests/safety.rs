@@ -526,3 +526,180 @@ fn p2os_halt_signal_from_another_thread() {
         "close after a halt is Ok"
     );
 }
+
+/// `ima run` for both robots and a commander on a served world: Scooter is interrupted while
+/// it drives to its target (a signal, or its JSON stdout closed), then Skeeter by a signal.
+fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
+    use ima_mock_devices::served::{ServeOptions, ServedWorld};
+    const SPEED: f64 = 4.0;
+    let world = SharedWorld::new(World::default_world());
+    let (sk_log, sc_log) = (HostLog::new(), HostLog::new());
+    let served = ServedWorld::start(
+        world.clone(),
+        &ServeOptions {
+            seed: 5,
+            speed: SPEED,
+            skeeter_base_log: Some(sk_log.clone()),
+            scooter_base_log: Some(sc_log.clone()),
+            ..ServeOptions::default()
+        },
+    )
+    .unwrap();
+    let scooter_id = world.with(|w| w.robot_id("scooter")).unwrap();
+    let dir = common::mission::scratch_dir(&format!("safety-{scooter_how:?}-{skeeter_signal}"));
+    let [sk, sc, cmd] = common::mission::write_configs(&dir, served.endpoints(), SPEED);
+    let run = |config: &std::path::Path, stdout: Stdio| {
+        Child(
+            ima()
+                .args(["run", "--json", "--config"])
+                .arg(config)
+                .stdout(stdout)
+                .stderr(std::fs::File::create(config.with_extension("err")).unwrap())
+                .spawn()
+                .unwrap(),
+        )
+    };
+    let mut skeeter = run(&sk, Stdio::null());
+    let mut scooter = run(&sc, Stdio::piped());
+    let scooter_out = scooter.0.stdout.take().unwrap();
+    let _commander = Child(
+        ima()
+            .args(["commander", "--json", "--targets", "red", "--config"])
+            .arg(&cmd)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    // Scooter's events are read until it moves; with a closed stdout the reader then drops
+    // the pipe.
+    let moving = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let reader = {
+        let moving = std::sync::Arc::clone(&moving);
+        let close = matches!(scooter_how, Interruption::ClosedStdout);
+        std::thread::spawn(move || {
+            let mut out = BufReader::new(scooter_out);
+            let mut l = String::new();
+            while out.read_line(&mut l).unwrap_or(0) > 0 {
+                l.clear();
+                if close && moving.load(std::sync::atomic::Ordering::SeqCst) {
+                    return; // drops the pipe's read end
+                }
+            }
+        })
+    };
+    wait_until(Duration::from_secs(240), "Scooter to drive", || {
+        let (l, r) = wheel_speeds(&world, scooter_id);
+        l.abs() + r.abs() > 0.1
+    });
+    moving.store(true, std::sync::atomic::Ordering::SeqCst);
+    let t0 = Instant::now();
+    let (stand_limit, code) = match scooter_how {
+        Interruption::Signal(sig) => {
+            assert!(
+                std::process::Command::new("kill")
+                    .args([&format!("-{sig}"), &scooter.0.id().to_string()])
+                    .status()
+                    .unwrap()
+                    .success()
+            );
+            (STAND_WITHIN, 128 + signal_number(sig))
+        }
+        // The closed pipe is found at Scooter's next event; give that a few seconds.
+        Interruption::ClosedStdout => (Duration::from_secs(10), 141),
+        Interruption::Panic => unimplemented!(),
+    };
+    wait_until(stand_limit * 3, "Scooter to stand", || {
+        let (l, r) = wheel_speeds(&world, scooter_id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+    let stood = t0.elapsed();
+    let status = wait_exit(&mut scooter, "Scooter's ima run");
+    let err = std::fs::read_to_string(sc.with_extension("err")).unwrap_or_default();
+    assert_eq!(
+        status.code(),
+        Some(code),
+        "Scooter: {status}; stderr:\n{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(stood <= stand_limit, "Scooter stood {stood:?} after");
+    let after: Vec<_> = rflex_commands(&sc_log)
+        .into_iter()
+        .filter(|(at, _)| *at >= t0)
+        .collect();
+    let zero = after
+        .iter()
+        .find(|(_, c)| c.starts_with("SetDir") && c.contains("velocity: 0,"))
+        .unwrap_or_else(|| panic!("no zero speed for Scooter: {after:?}"));
+    if let Interruption::Signal(_) = scooter_how {
+        assert!(
+            zero.0.duration_since(t0) <= STOP_WITHIN,
+            "Scooter's zero speed arrived {:?} after the signal",
+            zero.0.duration_since(t0)
+        );
+    }
+    assert!(after.iter().any(|(_, c)| c == "BrakeSet"), "{after:?}");
+    reader.join().unwrap();
+
+    // Skeeter: its P2OS base gets STOP, then CLOSE as the last frame.
+    let t1 = Instant::now();
+    assert!(
+        std::process::Command::new("kill")
+            .args([&format!("-{skeeter_signal}"), &skeeter.0.id().to_string()])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let status = wait_exit(&mut skeeter, "Skeeter's ima run");
+    let err = std::fs::read_to_string(sk.with_extension("err")).unwrap_or_default();
+    assert_eq!(
+        status.code(),
+        Some(128 + signal_number(skeeter_signal)),
+        "Skeeter: {status}; stderr:\n{err}"
+    );
+    wait_until(Duration::from_secs(1), "Skeeter's CLOSE", || {
+        p2os_commands(&sk_log)
+            .last()
+            .is_some_and(|(_, n)| n == "sync2_close")
+    });
+    let after: Vec<_> = p2os_commands(&sk_log)
+        .into_iter()
+        .filter(|(at, _)| *at >= t1)
+        .collect();
+    let stop = after
+        .iter()
+        .find(|(_, n)| n == "stop")
+        .unwrap_or_else(|| panic!("no STOP for Skeeter: {after:?}"));
+    assert!(stop.0.duration_since(t1) <= STOP_WITHIN);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn signal_number(sig: &str) -> i32 {
+    match sig {
+        "HUP" => 1,
+        "INT" => 2,
+        "TERM" => 15,
+        other => panic!("unknown signal {other}"),
+    }
+}
+
+fn wait_exit(child: &mut Child, what: &str) -> std::process::ExitStatus {
+    let end = Instant::now() + Duration::from_secs(15);
+    loop {
+        if let Some(s) = child.0.try_wait().unwrap() {
+            return s;
+        }
+        assert!(Instant::now() < end, "{what} did not exit");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn run_scooter_sigint_and_skeeter_sigterm_stop_their_bases() {
+    interrupt_mission(Interruption::Signal("INT"), "TERM");
+}
+
+#[test]
+fn run_scooter_closed_stdout_and_skeeter_sighup_stop_their_bases() {
+    interrupt_mission(Interruption::ClosedStdout, "HUP");
+}

@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use crate::config::{RobotConfig, Role};
+use crate::safety::outln;
 use crate::stack::{Events, devices, net};
 
 /// Arguments of `ima run`.
@@ -55,24 +56,40 @@ pub fn run(args: &RunArgs) -> Result<()> {
     };
     crate::safety::block_on(async {
         let key = net::group_key(&cfg, None)?;
-        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<crate::stack::Event>();
         let json = args.json;
-        let printer = tokio::spawn(async move {
-            while let Some(e) = rx.recv().await {
-                if json {
-                    super::commander::print_event(&e, true);
-                } else {
-                    eprintln!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.kind, e.detail);
-                }
-            }
-        });
-        let events = Events::with_sink(tx);
         let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let stop_tx = std::sync::Arc::new(stop_tx);
+        // The printer: a closed stdout ends the robot's run (the guard then stops the base).
+        let printer = {
+            let stop_tx = std::sync::Arc::clone(&stop_tx);
+            tokio::spawn(async move {
+                while let Some(e) = rx.recv().await {
+                    let written = if json {
+                        serde_json::to_string(&e)
+                            .map_err(anyhow::Error::from)
+                            .and_then(|l| outln!("{l}"))
+                    } else {
+                        eprintln!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.kind, e.detail);
+                        Ok(())
+                    };
+                    if let Err(err) = written {
+                        let _ = stop_tx.send(true);
+                        return Err(err);
+                    }
+                }
+                anyhow::Ok(())
+            })
+        };
+        let events = Events::with_sink(tx);
         // A signal has already halted the bases (the safety guard); the stack winds down.
-        let signal = tokio::spawn(async move {
-            crate::safety::cancelled().await;
-            let _ = stop_tx.send(true);
-        });
+        let signal = {
+            let stop_tx = std::sync::Arc::clone(&stop_tx);
+            tokio::spawn(async move {
+                crate::safety::cancelled().await;
+                let _ = stop_tx.send(true);
+            })
+        };
         let r = match cfg.role {
             Role::Scooter => {
                 let dev = crate::safety::until_cancelled(devices::open_scooter(&cfg))
@@ -89,7 +106,13 @@ pub fn run(args: &RunArgs) -> Result<()> {
             Role::Commander => bail!("role commander: use `ima commander --config …`"),
         };
         signal.abort();
-        let _ = tokio::time::timeout(std::time::Duration::from_secs(1), printer).await;
+        let printed = tokio::time::timeout(std::time::Duration::from_secs(1), printer).await;
+        if let Ok(Ok(Err(e))) = printed {
+            return Err(e);
+        }
+        if crate::safety::signal().is_some() {
+            return Err(crate::safety::Interrupted(crate::safety::cause()).into());
+        }
         r
     })
 }

@@ -1,6 +1,8 @@
 //! Helpers shared by the tests that run the `ima` program.
 #![allow(dead_code)] // each test binary uses a different subset
 
+pub mod mission;
+
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 
