@@ -703,3 +703,61 @@ fn run_scooter_sigint_and_skeeter_sigterm_stop_their_bases() {
 fn run_scooter_closed_stdout_and_skeeter_sighup_stop_their_bases() {
     interrupt_mission(Interruption::ClosedStdout, "HUP");
 }
+
+/// Ctrl-C while `ima run` is still opening its devices (a base that never answers) ends it at
+/// once, not after the connection timeout.
+#[test]
+fn run_answers_sigint_while_opening_its_devices() {
+    use ima_mock_devices::served::{Endpoints, ScooterEndpoints, SkeeterEndpoints};
+    let (_master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
+    let silent = std::path::PathBuf::from(serialport::SerialPort::name(&slave).unwrap());
+    let e = Endpoints {
+        skeeter: SkeeterEndpoints {
+            base: silent.clone(),
+            video_mux: silent.clone(),
+            frames: "127.0.0.1:9".into(),
+        },
+        scooter: ScooterEndpoints {
+            base: silent.clone(),
+            laser: silent.clone(),
+            compass: silent,
+        },
+    };
+    let dir = common::mission::scratch_dir("safety-opening");
+    let [_, sc, _] = common::mission::write_configs(&dir, &e, 1.0);
+    let text = std::fs::read_to_string(&sc).unwrap();
+    std::fs::write(
+        &sc,
+        text.replace(
+            "baud = 115200\n",
+            "baud = 115200\nconnect_timeout_s = 300\n",
+        ),
+    )
+    .unwrap();
+    let mut child = Child(
+        ima()
+            .args(["run", "--config"])
+            .arg(&sc)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    let t0 = Instant::now();
+    assert!(
+        std::process::Command::new("kill")
+            .args(["-INT", &child.0.id().to_string()])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let status = wait_exit(&mut child, "ima run");
+    // Far less than the 300 s connection timeout (generous for a loaded machine).
+    assert!(t0.elapsed() < Duration::from_secs(10));
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.0.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted by SIGINT"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
