@@ -761,3 +761,63 @@ fn run_answers_sigint_while_opening_its_devices() {
     assert!(err.contains("interrupted by SIGINT"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// What no program can prevent: after SIGKILL only the robot's own watchdog stops it. The
+/// mocks model the documented firmware behaviour (P2OS: 2 s without a command; rFLEX: a fail-
+/// safe after 1 s [inferred]); this measures time and distance to standstill, as the README's
+/// "Safety" section quotes them (`cargo test --test safety sigkill -- --nocapture`).
+fn sigkill(base: Base) {
+    let (world, id, served, _log) = serve(base);
+    let robot = match base {
+        Base::P2os => "p2at",
+        Base::Rflex => "atrv-jr",
+    };
+    let mut child = Child(
+        ima()
+            .args(["drive", "--robot", robot, "--port", &served.path()])
+            .args(["--vel", "0.3", "--for", "30", "--json"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let out = child.0.stdout.take().unwrap();
+    std::thread::spawn(move || {
+        let mut r = BufReader::new(out);
+        let mut l = String::new();
+        while r.read_line(&mut l).unwrap_or(0) > 0 {
+            l.clear();
+        }
+    });
+    wait_until(Duration::from_secs(20), "the robot to cruise", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l > 0.29 && r > 0.29
+    });
+    let x0 = world.with(|w| w.robot(id).unwrap().pose().x_m);
+    let t0 = Instant::now();
+    child.0.kill().unwrap();
+    wait_until(
+        Duration::from_secs(6),
+        "the watchdog to stop the robot",
+        || {
+            let (l, r) = wheel_speeds(&world, id);
+            l.abs() < 1e-3 && r.abs() < 1e-3
+        },
+    );
+    let (t, d) = (
+        t0.elapsed(),
+        world.with(|w| w.robot(id).unwrap().pose().x_m) - x0,
+    );
+    eprintln!("{base:?} after SIGKILL at 0.3 m/s: stands after {t:.2?}, {d:.2} m further");
+    assert!(d > 0.1, "the robot coasted on: only the watchdog stops it");
+}
+
+#[test]
+fn sigkill_p2os_only_the_firmware_watchdog_stops_it() {
+    sigkill(Base::P2os);
+}
+
+#[test]
+fn sigkill_rflex_only_the_firmware_failsafe_stops_it() {
+    sigkill(Base::Rflex);
+}
