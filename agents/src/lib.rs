@@ -15,6 +15,7 @@
 //! Everything is `f64`, SI units, radians; degrees appear only at API edges that say so.
 #![warn(missing_docs)]
 
+#[cfg(feature = "fuzzing")]
 pub mod fuzz_harness;
 pub mod heading;
 pub mod mission;

@@ -30,6 +30,7 @@ pub mod blocking;
 #[cfg(feature = "std")]
 pub mod driver;
 pub mod framer;
+#[cfg(feature = "fuzzing")]
 pub mod fuzz_harness;
 pub mod machine;
 pub mod params;

@@ -52,6 +52,7 @@
 )]
 
 pub mod framer;
+#[cfg(feature = "fuzzing")]
 pub mod fuzz_harness;
 pub mod machine;
 pub mod wire;

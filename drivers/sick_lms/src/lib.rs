@@ -84,6 +84,7 @@ pub mod decode;
 #[cfg(feature = "std")]
 pub mod driver;
 pub mod framer;
+#[cfg(feature = "fuzzing")]
 pub mod fuzz_harness;
 pub mod machine;
 #[cfg(feature = "tokio")]
