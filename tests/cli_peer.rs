@@ -210,7 +210,7 @@ fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
 }
 
 /// Reads `out` line by line on a thread, so that the test can wait with a deadline.
-fn line_channel(out: BufReader<ChildStdout>) -> mpsc::Receiver<String> {
+fn line_channel<R: std::io::Read + Send + 'static>(out: BufReader<R>) -> mpsc::Receiver<String> {
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
         for l in out.lines() {
@@ -383,4 +383,127 @@ fn send_without_destinations_fails() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// Writes a private hex key file of `byte` repeated.
+#[cfg(unix)]
+fn key_file(dir: &std::path::Path, name: &str, byte: u8) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let p = dir.join(name);
+    std::fs::write(&p, format!("{}\n", format!("{byte:02x}").repeat(32))).unwrap();
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
+    p
+}
+
+/// Issue 13: a client and a listener under another key than their peers say that frames
+/// failed authentication, name the address and point at the key file — instead of only
+/// "manager lost" or nothing at all.
+#[cfg(unix)]
+#[test]
+fn a_wrong_key_file_is_named_by_the_client_and_the_listener() {
+    let dir = temp_dir("wrongkey");
+    let key_a = key_file(&dir, "a.key", 0x5a);
+    let key_b = key_file(&dir, "b.key", 0xa5);
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, _out) = spawn_manager(&[
+        "--config",
+        cfg.to_str().unwrap(),
+        "--key-file",
+        key_a.to_str().unwrap(),
+    ]);
+    let out = ima()
+        .args(["peer", "client", "--key-file"])
+        .arg(&key_b)
+        .args(["--connect", &addr, "--request", "counter", "--count", "1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&addr), "{err}");
+    assert!(
+        err.contains("is the key file the same on every robot?"),
+        "{err}"
+    );
+
+    // The listener (key A) hears a sender under key B: it says so on stderr, with the
+    // sender's address, while stdout stays JSON.
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--key-file"])
+            .arg(&key_a)
+            .args(["--port", "0", "--interface", "127.0.0.1"])
+            .args(["--group", "239.255.73.80"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
+    let err = line_channel(BufReader::new(listener.0.stderr.take().unwrap()));
+    let first: Value = serde_json::from_str(
+        &out.recv_timeout(Duration::from_secs(30))
+            .expect("the listener's first line"),
+    )
+    .unwrap();
+    let port = first["addr"]
+        .as_str()
+        .and_then(|a| a.rsplit(':').next())
+        .expect("listening address")
+        .to_owned();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let warning = loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(&key_b)
+                .args(["--port", &port, "--interface", "127.0.0.1"])
+                .args(["--group", "239.255.73.80", "status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            break l;
+        }
+    };
+    assert!(warning.contains("from 127.0.0.1:"), "{warning}");
+    assert!(
+        warning.contains("is the key file the same on every robot?"),
+        "{warning}"
+    );
+    // Nothing under key B reached stdout.
+    while let Ok(l) = out.try_recv() {
+        let v: Value = serde_json::from_str(&l).unwrap();
+        assert_ne!(v["type"], "status", "{l}");
+    }
+}
+
+/// Issue 13: a key file of zeros is the documented insecure key; it is accepted, but as
+/// loudly as `--insecure`.
+#[cfg(unix)]
+#[test]
+fn an_all_zero_key_file_is_warned_about() {
+    let dir = temp_dir("zerokey");
+    let zero = key_file(&dir, "zero.key", 0);
+    let out = ima()
+        .args(["peer", "send", "--key-file"])
+        .arg(&zero)
+        .args(["--mode", "unicast", "--peer", "127.0.0.1:9"])
+        .args(["status", "--behaviour", "x"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("WARNING"), "{err}");
+    assert!(err.contains("all-zero key"), "{err}");
+    assert!(err.contains(zero.to_str().unwrap()), "{err}");
+    // A real key says nothing of the kind.
+    let real = key_file(&dir, "real.key", 0x42);
+    let out = ima()
+        .args(["peer", "send", "--key-file"])
+        .arg(&real)
+        .args(["--mode", "unicast", "--peer", "127.0.0.1:9"])
+        .args(["status", "--behaviour", "x"])
+        .output()
+        .unwrap();
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("all-zero"));
 }

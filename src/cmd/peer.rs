@@ -237,7 +237,11 @@ fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> 
         cfg.heartbeat_ms = h;
     }
     let key = if let Some(path) = c.key_file.as_ref().or(cfg.key_file.as_ref()) {
-        load_key_file(path).map_err(|e| anyhow::anyhow!("{e}"))?
+        let key = load_key_file(path).map_err(|e| anyhow::anyhow!("{e}"))?;
+        if key.is_insecure() {
+            eprintln!("ima: WARNING: {}", zero_key_warning(path));
+        }
+        key
     } else if c.insecure {
         eprintln!(
             "ima: WARNING: --insecure: using the all-zero group key. Anyone on the network can \
@@ -252,6 +256,16 @@ fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> 
         );
     };
     Ok((cfg, synthetic, key))
+}
+
+/// The warning for a key file that holds the all-zero key (as loud as `--insecure`'s).
+pub fn zero_key_warning(path: &Path) -> String {
+    format!(
+        "the key file {} holds the all-zero key, the documented insecure key: anyone on the \
+         network can register, request, read and inject. Generate a real key: head -c 32 \
+         /dev/urandom | od -An -tx1 | tr -d ' \\n' > group.key; chmod 600 group.key",
+        path.display()
+    )
 }
 
 fn apply_broadcast(cfg: &mut PeerNetConfig, b: &BroadcastArgs) {
@@ -551,7 +565,13 @@ async fn listen(a: &ListenArgs) -> Result<()> {
         "addr": ch.local_addr().map_err(|e| anyhow::anyhow!("{e}"))?.to_string(),
     }))?;
     let mut n = 0;
+    // Frames under another key are refused silently by the channel: say so (rate-limited).
+    let mut check = tokio::time::interval(Duration::from_secs(1));
+    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
+        if let Some(report) = ch.take_auth_report() {
+            eprintln!("ima: warning: {report}");
+        }
         if a.count.is_some_and(|c| n >= c) {
             let s = ch.stats();
             line(&json!({
@@ -563,6 +583,7 @@ async fn listen(a: &ListenArgs) -> Result<()> {
         }
         let r = tokio::select! {
             r = ch.recv() => r,
+            _ = check.tick() => continue,
             _ = tokio::signal::ctrl_c() => return Ok(()),
         };
         let (m, from) = r.map_err(|e| anyhow::anyhow!("{e}"))?;

@@ -71,9 +71,15 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
         return Ok(k.clone());
     }
     match (&cfg.peer.key_file, cfg.peer.insecure) {
-        (Some(path), _) => load_key_file(path)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .with_context(|| format!("loading the group key {}", path.display())),
+        (Some(path), _) => {
+            let key = load_key_file(path)
+                .map_err(|e| anyhow::anyhow!("{e}"))
+                .with_context(|| format!("loading the group key {}", path.display()))?;
+            if key.is_insecure() {
+                eprintln!("ima: WARNING: {}", crate::cmd::peer::zero_key_warning(path));
+            }
+            Ok(key)
+        }
         (None, true) => {
             tracing::warn!("running with the insecure all-zero group key");
             Ok(insecure_key())
