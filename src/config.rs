@@ -297,6 +297,9 @@ pub struct AgentConfig {
     pub ses_request_priority: u8,
     /// Skeeter: the colour database (empty: the built-in thesis colours).
     pub colours: Vec<ColourEntry>,
+    /// Commander: a robot silent on the broadcast channel for this many (mission) seconds
+    /// is reported lost (every robot sends a status at least once a second).
+    pub robot_lost_after_s: f64,
 }
 
 impl Default for AgentConfig {
@@ -317,6 +320,7 @@ impl Default for AgentConfig {
             initial_heading_deg: None,
             ses_request_priority: 5,
             colours: Vec::new(),
+            robot_lost_after_s: 5.0,
         }
     }
 }
@@ -457,6 +461,12 @@ impl RobotConfig {
             ("agent.lost_timeout_s", a.lost_timeout_s, 1e-3, 1e6),
             ("agent.reach_distance_m", a.reach_distance_m, 1e-3, 10.0),
             ("agent.time_scale", a.time_scale, 0.01, 100.0),
+            (
+                "agent.robot_lost_after_s",
+                a.robot_lost_after_s,
+                0.1,
+                3600.0,
+            ),
             ("mock_world.speed", self.mock_world.speed, 0.01, 100.0),
         ];
         for (name, v, lo, hi) in bounded {

@@ -146,9 +146,24 @@ impl Bus {
         }
     }
 
+    /// Frames refused for a bad MAC since the last report (at most one report per
+    /// [`ima_agents::peer::net::AUTH_REPORT_INTERVAL`]; see
+    /// [`BroadcastChannel::take_auth_report`]).
+    pub fn take_auth_report(&self) -> Option<ima_agents::peer::net::AuthFailure> {
+        self.chan.take_auth_report()
+    }
+
+    /// Prints a pending authentication report on stderr (frames under another group key).
+    pub fn warn_auth(&self) {
+        if let Some(a) = self.take_auth_report() {
+            eprintln!("ima: warning: {a}");
+        }
+    }
+
     /// A task that hands every mission broadcast heard to a bounded queue (what the robot's
-    /// main loop selects on). A socket error is logged and listening goes on; the task ends
-    /// when the queue's receiver is dropped.
+    /// main loop selects on). A socket error is logged and listening goes on; frames under
+    /// another group key are reported on stderr (rate-limited, [`Bus::warn_auth`]); the task
+    /// ends when the queue's receiver is dropped.
     pub fn spawn_reader(
         &self,
     ) -> (
@@ -158,8 +173,17 @@ impl Bus {
         let (tx, rx) = tokio::sync::mpsc::channel::<Broadcast>(64);
         let bus = self.clone();
         let task = tokio::spawn(async move {
+            let mut check = tokio::time::interval(Duration::from_secs(1));
+            check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
             loop {
-                match bus.recv().await {
+                let r = tokio::select! {
+                    r = bus.recv() => r,
+                    _ = check.tick() => {
+                        bus.warn_auth();
+                        continue;
+                    }
+                };
+                match r {
                     Ok(b) => {
                         if tx.send(b).await.is_err() {
                             return;

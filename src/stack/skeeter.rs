@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use ima_agents::mission::msg::{
-    Broadcast, SCOOTER_TAG, SES_SOURCE, SES_SOURCE_KIND, SES_SOURCE_SCHEMA,
+    Broadcast, Emergency, SCOOTER_TAG, SES_SOURCE, SES_SOURCE_KIND, SES_SOURCE_SCHEMA,
 };
 use ima_agents::mission::scan::{ScanConfig, ScanReport, Scanner, run_scan};
 use ima_agents::mission::skeeter::{SkeeterBrain, SkeeterConfig, SkeeterOutput};
@@ -190,6 +190,13 @@ pub async fn run(
             }
             Some(b) = heard_rx.recv() => {
                 events.emit(&clock, &me, "heard", json!(b.to_string()));
+                if let Broadcast::Emergency { robot, emergency: Emergency::FleetStop { reason } } = &b {
+                    // Skeeter does not drive, but a fleet stop is obeyed by every base.
+                    if let Err(e) = base.stop().await {
+                        tracing::warn!("base: {e:?}");
+                    }
+                    events.emit(&clock, &me, "fleet-stop", json!({"by": robot, "reason": reason}));
+                }
                 brain.handle_broadcast(&b, clock.now());
             }
             ev = grants.recv() => match ev {

@@ -518,7 +518,17 @@ pub struct LifeChange {
 pub struct Liveness {
     lost_after: Duration,
     ignore: Vec<String>,
-    robots: BTreeMap<String, (Instant, Life)>,
+    robots: BTreeMap<String, Heard>,
+}
+
+/// What [`Liveness`] knows of one robot.
+#[derive(Debug, Clone, Copy)]
+struct Heard {
+    /// Last broadcast (or when it was first expected).
+    last: Instant,
+    life: Life,
+    /// Heard at least once.
+    ever: bool,
 }
 
 impl Liveness {
@@ -539,52 +549,52 @@ impl Liveness {
         self.lost_after
     }
 
-    /// Expects `robot` from `now` on (a robot waited for but never heard is reported lost
-    /// after the limit too).
+    /// Expects `robot` from `now` on: it is reported alive when first heard, and lost if it
+    /// is not heard within the limit.
     pub fn expect(&mut self, robot: &str, now: Instant) {
         if !self.ignore.iter().any(|i| i == robot) {
-            self.robots
-                .entry(robot.to_owned())
-                .or_insert((now, Life::Alive));
+            self.robots.entry(robot.to_owned()).or_insert(Heard {
+                last: now,
+                life: Life::Alive,
+                ever: false,
+            });
         }
     }
 
-    /// A broadcast from `robot` at `now`: a change if it was lost (or never heard).
+    /// A broadcast from `robot` at `now`: a change when it is heard for the first time or
+    /// after it was lost.
     pub fn heard(&mut self, robot: &str, now: Instant) -> Option<LifeChange> {
         if self.ignore.iter().any(|i| i == robot) {
             return None;
         }
-        match self.robots.get_mut(robot) {
-            Some((last, life)) => {
-                let silent = now.saturating_duration_since(*last);
-                *last = now;
-                (*life == Life::Lost).then(|| {
-                    *life = Life::Alive;
-                    LifeChange {
-                        robot: robot.to_owned(),
-                        life: Life::Alive,
-                        silent,
-                    }
-                })
-            }
-            None => {
-                self.robots.insert(robot.to_owned(), (now, Life::Alive));
-                Some(LifeChange {
-                    robot: robot.to_owned(),
-                    life: Life::Alive,
-                    silent: Duration::ZERO,
-                })
-            }
-        }
+        let h = self.robots.entry(robot.to_owned()).or_insert(Heard {
+            last: now,
+            life: Life::Alive,
+            ever: false,
+        });
+        let silent = if h.ever {
+            now.saturating_duration_since(h.last)
+        } else {
+            Duration::ZERO
+        };
+        let change = !h.ever || h.life == Life::Lost;
+        h.last = now;
+        h.life = Life::Alive;
+        h.ever = true;
+        change.then(|| LifeChange {
+            robot: robot.to_owned(),
+            life: Life::Alive,
+            silent,
+        })
     }
 
     /// Time passed: robots silent for longer than the limit become lost (once each).
     pub fn handle_timeout(&mut self, now: Instant) -> Vec<LifeChange> {
         let mut out = Vec::new();
-        for (robot, (last, life)) in &mut self.robots {
-            let silent = now.saturating_duration_since(*last);
-            if *life == Life::Alive && silent > self.lost_after {
-                *life = Life::Lost;
+        for (robot, h) in &mut self.robots {
+            let silent = now.saturating_duration_since(h.last);
+            if h.life == Life::Alive && silent > self.lost_after {
+                h.life = Life::Lost;
                 out.push(LifeChange {
                     robot: robot.clone(),
                     life: Life::Lost,
@@ -600,14 +610,14 @@ impl Liveness {
     pub fn poll_timeout(&self) -> Option<Instant> {
         self.robots
             .values()
-            .filter(|(_, l)| *l == Life::Alive)
-            .map(|(last, _)| *last + self.lost_after + Duration::from_millis(1))
+            .filter(|h| h.life == Life::Alive)
+            .map(|h| h.last + self.lost_after + Duration::from_millis(1))
             .min()
     }
 
     /// Every robot known and its state.
     pub fn robots(&self) -> impl Iterator<Item = (&str, Life)> {
-        self.robots.iter().map(|(r, (_, l))| (r.as_str(), *l))
+        self.robots.iter().map(|(r, h)| (r.as_str(), h.life))
     }
 }
 
@@ -705,6 +715,7 @@ mod tests {
         let mut l = Liveness::new(Duration::from_secs(5), &[COMMANDER]);
         assert_eq!(l.poll_timeout(), None);
         l.expect(SKEETER, t(0));
+        l.expect(COMMANDER, t(0));
         assert_eq!(l.heard(COMMANDER, t(0)), None, "own name ignored");
         let first = l.heard(SCOOTER, t(1)).unwrap();
         assert_eq!((first.life, first.silent), (Life::Alive, Duration::ZERO));
@@ -733,6 +744,12 @@ mod tests {
         );
         let states: Vec<_> = l.robots().collect();
         assert_eq!(states, [(SCOOTER, Life::Alive), (SKEETER, Life::Lost)]);
+        // An expected robot heard for the first time is reported alive.
+        let mut l = Liveness::new(Duration::from_secs(5), &[]);
+        l.expect(SKEETER, t(0));
+        let first = l.heard(SKEETER, t(1)).unwrap();
+        assert_eq!((first.life, first.silent), (Life::Alive, Duration::ZERO));
+        assert_eq!(l.heard(SKEETER, t(2)), None);
     }
 
     #[test]
