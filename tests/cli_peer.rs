@@ -202,9 +202,11 @@ fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
     let lines = client_sees_loss("-STOP");
     let last = lines.last().expect("a closing line");
     assert_eq!(last["event"], "closed");
-    let reason = last["reason"].as_str().unwrap();
+    // A JSON object, not Debug text.
+    let reason = &last["reason"];
     assert!(
-        reason == "ManagerLost" || reason == "Data(Lost)",
+        reason["kind"] == "manager-lost"
+            || (reason["kind"] == "data" && reason["close"]["kind"] == "lost"),
         "{reason}"
     );
 }
@@ -506,4 +508,90 @@ fn an_all_zero_key_file_is_warned_about() {
         .output()
         .unwrap();
     assert!(!String::from_utf8_lossy(&out.stderr).contains("all-zero"));
+}
+
+/// Issue 13: "address already in use" names the address and which socket it was for.
+#[test]
+fn an_address_in_use_is_named() {
+    let dir = temp_dir("inuse");
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, _out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
+    let out = ima()
+        .args(["peer", "manager", "--insecure", "--config"])
+        .arg(&cfg)
+        .args(["--listen", &addr])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("binding the manager's request channel to {addr}")),
+        "{err}"
+    );
+    assert!(
+        err.to_lowercase().contains("address already in use"),
+        "{err}"
+    );
+    // The data server's address too.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let data = taken.local_addr().unwrap().to_string();
+    let p = dir.join("data.toml");
+    std::fs::write(
+        &p,
+        format!("robot = \"x\"\n[manager]\nlisten = \"127.0.0.1:0\"\ndata_listen = \"{data}\"\n"),
+    )
+    .unwrap();
+    let out = ima()
+        .args(["peer", "manager", "--insecure", "--config"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("binding the manager's data server to {data}")),
+        "{err}"
+    );
+}
+
+/// Issue 13: the manager's and the client's JSON lines carry JSON objects, not Rust `Debug`
+/// text such as `"Core(SourcesChanged { … })"`.
+#[test]
+fn manager_and_client_json_has_no_debug_text() {
+    fn no_debug_text(v: &Value) {
+        match v {
+            Value::String(s) => assert!(
+                !s.contains(" { ") && !s.contains('(') && !s.contains("::"),
+                "Debug-looking text {s:?}"
+            ),
+            Value::Array(a) => a.iter().for_each(no_debug_text),
+            Value::Object(o) => o.values().for_each(no_debug_text),
+            _ => {}
+        }
+    }
+    let dir = temp_dir("nodebug");
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
+    let lines = line_channel(out);
+    run_ok(
+        ima()
+            .args(["peer", "client", "--insecure", "--connect", &addr])
+            .args(["--request", "counter", "--count", "2"]),
+    );
+    // Until the grant's decision has been printed (generous bound).
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut types = Vec::new();
+    while !types.iter().any(|t| t == "decision") {
+        assert!(Instant::now() < deadline, "no decision event: {types:?}");
+        let Ok(l) = lines.recv_timeout(Duration::from_millis(500)) else {
+            continue;
+        };
+        let v: Value = serde_json::from_str(&l).unwrap();
+        no_debug_text(&v);
+        if v["event"] == "manager" {
+            assert!(v["detail"].is_object(), "{l}");
+            types.push(v["detail"]["type"].as_str().unwrap().to_owned());
+        }
+    }
+    assert!(types.iter().any(|t| t == "sources-changed"), "{types:?}");
 }

@@ -352,7 +352,7 @@ pub fn broadcast_json(b: &Broadcast) -> serde_json::Value {
             event,
             target,
         } => {
-            json!({"type": "mission", "robot": robot, "event": format!("{event:?}").to_lowercase(), "target": target})
+            json!({"type": "mission", "robot": robot, "event": event.as_str(), "target": target})
         }
     }
 }

@@ -392,10 +392,13 @@ async fn ses_loop(
                         Err(e) => tracing::warn!("bad SES sample: {e:?}"),
                     },
                     SubscriptionEvent::Lost { reason } => {
-                        events.emit(&clock, &me, "peer", json!({"lost": format!("{reason:?}")}));
+                        events.emit(&clock, &me, "peer", json!({"lost": crate::cmd::peer::loss_reason_json(&reason)}));
                     }
                     SubscriptionEvent::Closed { reason } => {
-                        return Err(format!("subscription closed: {reason:?}"));
+                        return Err(format!(
+                            "subscription closed: {}",
+                            crate::cmd::peer::end_reason_json(&reason)
+                        ));
                     }
                 }
             }

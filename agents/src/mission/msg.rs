@@ -422,7 +422,7 @@ impl fmt::Display for Broadcast {
                 robot,
                 event,
                 target,
-            } => write!(f, "{robot}: mission {target} {event:?}"),
+            } => write!(f, "{robot}: mission {target} {}", event.as_str()),
         }
     }
 }
@@ -699,7 +699,7 @@ mod tests {
     fn display_and_robot() {
         let b = Broadcast::mission(SKEETER, MissionEvent::Failed, "red");
         assert_eq!(b.robot(), "skeeter");
-        assert_eq!(b.to_string(), "skeeter: mission red Failed");
+        assert_eq!(b.to_string(), "skeeter: mission red failed");
         assert!(MsgError::NotBroadcast(1).to_string().contains("0x01"));
     }
 

@@ -216,6 +216,18 @@ pub enum MissionEvent {
     Failed = 3,
 }
 
+impl MissionEvent {
+    /// The lower-case name: `accepted`, `accomplished`, `failed`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            MissionEvent::Accepted => "accepted",
+            MissionEvent::Accomplished => "accomplished",
+            MissionEvent::Failed => "failed",
+        }
+    }
+}
+
 /// A pose in fixed point (millimetres, milliradians), so frames round-trip exactly.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Pose {

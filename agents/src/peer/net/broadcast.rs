@@ -84,7 +84,9 @@ fn udp_socket(b: &BroadcastConfig) -> Result<Socket, NetError> {
     s.set_reuse_address(true)?;
     #[cfg(all(unix, not(any(target_os = "solaris", target_os = "illumos"))))]
     s.set_reuse_port(true)?;
-    s.bind(&SocketAddrV4::new(bind, b.bind_port.unwrap_or(b.port)).into())?;
+    let at = SocketAddrV4::new(bind, b.bind_port.unwrap_or(b.port));
+    s.bind(&at.into())
+        .map_err(super::bind_error("the broadcast channel", at))?;
     if b.mode != BroadcastMode::Unicast {
         if !group.is_multicast() {
             return Err(NetError::Config(format!(

@@ -165,6 +165,16 @@ impl From<ClientError> for NetError {
     }
 }
 
+/// The error of binding `what` (e.g. "the manager's data server") to `addr`: the I/O error
+/// with the address named, so that "address already in use" says which one.
+pub(crate) fn bind_error(
+    what: &str,
+    addr: impl core::fmt::Display,
+) -> impl FnOnce(std::io::Error) -> NetError {
+    let context = format!("binding {what} to {addr}");
+    move |e| NetError::Io(std::io::Error::new(e.kind(), format!("{context}: {e}")))
+}
+
 /// A random `u64` from the operating system (sender IDs, client-ID seeds); falls back to a
 /// hash of the time and the process ID if the OS source fails.
 #[must_use]
