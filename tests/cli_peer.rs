@@ -595,3 +595,121 @@ fn manager_and_client_json_has_no_debug_text() {
     }
     assert!(types.iter().any(|t| t == "sources-changed"), "{types:?}");
 }
+
+/// Issue 13: `ima commander` under key A, hearing a sender under key B, says so on stderr
+/// (rate-limited), with the sender's address.
+#[cfg(unix)]
+#[test]
+fn the_commander_names_frames_under_another_key() {
+    let dir = temp_dir("cmdkey");
+    let key_a = key_file(&dir, "a.key", 0x5a);
+    let key_b = key_file(&dir, "b.key", 0xa5);
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let cfg = dir.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nkey_file = {key_a:?}\n\
+             broadcast_group = \"\"\nbroadcast_peers = [\"127.0.0.1:9\"]\n\
+             broadcast_bind = \"127.0.0.1:{port}\"\n"
+        ),
+    )
+    .unwrap();
+    let mut commander = Child(
+        ima()
+            .args(["commander", "--json", "--config"])
+            .arg(&cfg)
+            .args(["--wait-for", "nobody", "--wait-timeout", "600"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(commander.0.stdout.take().unwrap()));
+    let err = line_channel(BufReader::new(commander.0.stderr.take().unwrap()));
+    // Its first line: it is up and waiting.
+    out.recv_timeout(Duration::from_secs(30))
+        .expect("the commander's first line");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let warning = loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(&key_b)
+                .args(["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")])
+                .args(["status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            break l;
+        }
+    };
+    assert!(warning.contains("from 127.0.0.1:"), "{warning}");
+    assert!(
+        warning.contains("is the key file the same on every robot?"),
+        "{warning}"
+    );
+}
+
+/// Issue 13: `ima run` (Skeeter on its own simulated world) under key A says so too.
+#[cfg(unix)]
+#[test]
+fn a_robot_names_frames_under_another_key() {
+    let dir = temp_dir("runkey");
+    let key_a = key_file(&dir, "a.key", 0x5a);
+    let key_b = key_file(&dir, "b.key", 0xa5);
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let cfg = dir.join("skeeter.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n[peer]\nkey_file = {key_a:?}\n\
+             listen = \"127.0.0.1:0\"\ndata_listen = \"127.0.0.1:0\"\nbroadcast_group = \"\"\n\
+             broadcast_peers = [\"127.0.0.1:9\"]\nbroadcast_bind = \"127.0.0.1:{port}\"\n"
+        ),
+    )
+    .unwrap();
+    let mut run = Child(
+        ima()
+            .args(["run", "--json", "--config"])
+            .arg(&cfg)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(run.0.stdout.take().unwrap()));
+    let err = line_channel(BufReader::new(run.0.stderr.take().unwrap()));
+    out.recv_timeout(Duration::from_secs(60))
+        .expect("the robot's first line");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let warning = loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(&key_b)
+                .args(["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")])
+                .args(["status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            break l;
+        }
+    };
+    assert!(warning.contains("from 127.0.0.1:"), "{warning}");
+    assert!(warning.contains("is the key file the same"), "{warning}");
+}
