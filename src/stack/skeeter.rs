@@ -134,6 +134,8 @@ pub async fn run(
     let (mut heard_rx, rx_task) = bus.spawn_reader();
     brain.start(clock.now());
     let mut last_behaviour = String::new();
+    // A fleet stop was heard (reported once; Skeeter's base is held stopped anyway).
+    let mut fleet_stopped = false;
     let result: Result<()> = loop {
         // Carry out the brain's outputs.
         while let Some(out) = brain.poll_output() {
@@ -190,12 +192,23 @@ pub async fn run(
             }
             Some(b) = heard_rx.recv() => {
                 events.emit(&clock, &me, "heard", json!(b.to_string()));
-                if let Broadcast::Emergency { robot, emergency: Emergency::FleetStop { reason } } = &b {
-                    // Skeeter does not drive, but a fleet stop is obeyed by every base.
-                    if let Err(e) = base.stop().await {
-                        tracing::warn!("base: {e:?}");
+                match &b {
+                    Broadcast::Emergency { robot, emergency: Emergency::FleetStop { reason } } => {
+                        // Skeeter does not drive, but a fleet stop is obeyed by every base
+                        // (each copy: stopping twice is harmless).
+                        if let Err(e) = base.stop().await {
+                            tracing::warn!("base: {e:?}");
+                        }
+                        if !fleet_stopped {
+                            fleet_stopped = true;
+                            events.emit(&clock, &me, "fleet-stop", json!({"by": robot, "reason": reason}));
+                        }
                     }
-                    events.emit(&clock, &me, "fleet-stop", json!({"by": robot, "reason": reason}));
+                    Broadcast::Emergency { robot, emergency: Emergency::FleetResume } if fleet_stopped => {
+                        fleet_stopped = false;
+                        events.emit(&clock, &me, "fleet-resume", json!({"by": robot}));
+                    }
+                    _ => {}
                 }
                 brain.handle_broadcast(&b, clock.now());
             }
