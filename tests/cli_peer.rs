@@ -713,3 +713,136 @@ fn a_robot_names_frames_under_another_key() {
     assert!(warning.contains("from 127.0.0.1:"), "{warning}");
     assert!(warning.contains("is the key file the same"), "{warning}");
 }
+
+/// Issue 13: Ctrl-C on a commander whose stdin is a terminal asks "stop the robots?"; "y"
+/// sends the fleet stop, seen on the wire by a listener.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
+    use std::io::{Read, Write};
+    use std::sync::{Arc, Mutex};
+    let dir = temp_dir("prompt");
+    let key = key_file(&dir, "a.key", 0x5a);
+    // The listener: where the commander's broadcasts go.
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--key-file"])
+            .arg(&key)
+            .args([
+                "--mode",
+                "unicast",
+                "--port",
+                "0",
+                "--interface",
+                "127.0.0.1",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let heard = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
+    let first: Value = serde_json::from_str(
+        &heard
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the listener's first line"),
+    )
+    .unwrap();
+    let port = first["addr"]
+        .as_str()
+        .and_then(|a| a.rsplit(':').next())
+        .unwrap()
+        .to_owned();
+    let cfg = dir.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nkey_file = {key:?}\n\
+             broadcast_group = \"\"\nbroadcast_peers = [\"127.0.0.1:{port}\"]\n\
+             broadcast_bind = \"127.0.0.1:0\"\n"
+        ),
+    )
+    .unwrap();
+    // The commander's stdin is the slave of a pseudo-terminal: a terminal.
+    let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
+    let slave_path = serialport::SerialPort::name(&slave).expect("the slave's path");
+    let tty = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&slave_path)
+        .unwrap();
+    let mut commander = Child(
+        ima()
+            .args(["commander", "--json", "--config"])
+            .arg(&cfg)
+            .args(["--wait-for", "nobody", "--wait-timeout", "600"])
+            .stdin(Stdio::from(tty))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(commander.0.stdout.take().unwrap()));
+    let err = Arc::new(Mutex::new(String::new()));
+    {
+        let err = err.clone();
+        let mut stderr = commander.0.stderr.take().unwrap();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 256];
+            while let Ok(n) = stderr.read(&mut buf) {
+                if n == 0 {
+                    return;
+                }
+                err.lock()
+                    .unwrap()
+                    .push_str(&String::from_utf8_lossy(&buf[..n]));
+            }
+        });
+    }
+    out.recv_timeout(Duration::from_secs(30))
+        .expect("the commander's first line");
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &commander.0.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !err.lock().unwrap().contains("stop the robots? [y/N]") {
+        assert!(
+            Instant::now() < deadline,
+            "no prompt: {}",
+            err.lock().unwrap()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    master.write_all(b"y\n").unwrap();
+    master.flush().unwrap();
+    // The fleet stop goes out (heard by the listener) and the commander ends.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let l = heard
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .expect("a fleet stop on the wire");
+        let v: Value = serde_json::from_str(&l).unwrap();
+        if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
+            assert_eq!(v["robot"], "commander");
+            break;
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(s) = commander.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the commander did not exit");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!status.success(), "an interrupted commander fails");
+    assert!(
+        err.lock().unwrap().contains("sending a fleet stop"),
+        "{}",
+        err.lock().unwrap()
+    );
+    drop(slave);
+}
