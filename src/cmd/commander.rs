@@ -21,7 +21,13 @@ use crate::stack::{Event, Events, net};
 /// `resume`, `cancel COLOUR`. On Ctrl-C it sends a fleet stop first with `--stop-on-exit`;
 /// without it, it asks on a terminal and leaves the robots running when stdin is not one.
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true)]
+#[command(
+    args_conflicts_with_subcommands = true,
+    after_help = "While it runs, type a request and Enter: `stop [reason]` (fleet stop), `resume`, \
+                  `cancel COLOUR`.\nCtrl-C: with --stop-on-exit a fleet stop goes out first; \
+                  otherwise it asks on a terminal, and leaves the robots running when stdin is \
+                  not one.\nEach robot is reported lost after --lost-after seconds of silence."
+)]
 pub struct CommanderArgs {
     /// One-shot commands to the fleet (instead of running a series of targets).
     #[command(subcommand)]
