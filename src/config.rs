@@ -297,6 +297,9 @@ pub struct AgentConfig {
     pub ses_request_priority: u8,
     /// Skeeter: the colour database (empty: the built-in thesis colours).
     pub colours: Vec<ColourEntry>,
+    /// Commander: a robot silent on the broadcast channel for this many (mission) seconds
+    /// is reported lost (every robot sends a status at least once a second).
+    pub robot_lost_after_s: f64,
 }
 
 impl Default for AgentConfig {
@@ -317,6 +320,7 @@ impl Default for AgentConfig {
             initial_heading_deg: None,
             ses_request_priority: 5,
             colours: Vec::new(),
+            robot_lost_after_s: 5.0,
         }
     }
 }
@@ -457,6 +461,12 @@ impl RobotConfig {
             ("agent.lost_timeout_s", a.lost_timeout_s, 1e-3, 1e6),
             ("agent.reach_distance_m", a.reach_distance_m, 1e-3, 10.0),
             ("agent.time_scale", a.time_scale, 0.01, 100.0),
+            (
+                "agent.robot_lost_after_s",
+                a.robot_lost_after_s,
+                0.1,
+                3600.0,
+            ),
             ("mock_world.speed", self.mock_world.speed, 0.01, 100.0),
         ];
         for (name, v, lo, hi) in bounded {
@@ -465,6 +475,12 @@ impl RobotConfig {
             }
         }
         self.check_devices()?;
+        // Peer Agent periods, ms: 0 would spin (it used to be taken as 1), a huge one never
+        // declares a dead peer lost.
+        let hb = self.peer.heartbeat_ms;
+        if !(10..=60_000).contains(&hb) {
+            bail!("peer.heartbeat_ms must be in [10, 60000] ms, not {hb}");
+        }
         if a.cruise_speed_m_s > 1.0 {
             bail!("agent.cruise_speed_m_s must be at most 1 m/s");
         }
@@ -576,14 +592,26 @@ mod tests {
         );
         let mock = format!("{mock}[peer]\ninsecure = true\n");
         assert!(RobotConfig::from_toml_str(&mock).unwrap().mock);
-        for bad in [
-            "[agent]\ntime_scale = 1e-300\n",
-            "[agent]\ncontrol_hz = 1e-300\n",
-            "[agent]\nlost_timeout_s = 1e300\n",
-            "[agent]\ntarget_timeout_s = nan\n",
+        // (fragment, key named in the error); `mock` ends in the [peer] table.
+        for (bad, key) in [
+            ("[agent]\ntime_scale = 1e-300\n", "agent.time_scale"),
+            ("[agent]\ncontrol_hz = 1e-300\n", "agent.control_hz"),
+            ("[agent]\nlost_timeout_s = 1e300\n", "agent.lost_timeout_s"),
+            (
+                "[agent]\ntarget_timeout_s = nan\n",
+                "agent.target_timeout_s",
+            ),
+            (
+                "[agent]\nrobot_lost_after_s = 0\n",
+                "agent.robot_lost_after_s",
+            ),
+            ("heartbeat_ms = 0\n", "peer.heartbeat_ms"),
+            ("heartbeat_ms = 100000000\n", "peer.heartbeat_ms"),
         ] {
             let cfg = format!("{mock}{bad}");
-            assert!(RobotConfig::from_toml_str(&cfg).is_err(), "accepted {bad}");
+            let e = format!("{:#}", RobotConfig::from_toml_str(&cfg).unwrap_err());
+            // The key is named, with its range.
+            assert!(e.contains(key) && e.contains('['), "{bad}: {e}");
         }
     }
 

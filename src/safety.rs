@@ -36,6 +36,17 @@ const DRAIN_WAIT: Duration = Duration::from_secs(2);
 /// The signal that interrupted the program (0: none).
 static SIGNAL: AtomicI32 = AtomicI32::new(0);
 
+/// Set by a command that answers Ctrl-C itself (a prompt): the first SIGINT then does not end
+/// the process after [`GRACE`]; a second one still does.
+static OWN_CTRL_C: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Declare that this command answers Ctrl-C itself (e.g. `ima commander` asks whether to stop
+/// the robots). Devices are still halted at the first signal; only the forced exit after
+/// [`GRACE`] is left out for SIGINT.
+pub fn answers_ctrl_c_itself() {
+    OWN_CTRL_C.store(true, Ordering::SeqCst);
+}
+
 fn cancel_channel() -> &'static tokio::sync::watch::Sender<bool> {
     static CANCEL: OnceLock<tokio::sync::watch::Sender<bool>> = OnceLock::new();
     CANCEL.get_or_init(|| tokio::sync::watch::channel(false).0)
@@ -230,9 +241,10 @@ fn signal_thread() {
                 }
             ));
         }
+        let own = first == Signal::Int && OWN_CTRL_C.load(Ordering::SeqCst);
         let code = tokio::select! {
             s = next_signal(&mut int, &mut term, &mut hup) => s.exit_code(),
-            () = tokio::time::sleep(GRACE) => first.exit_code(),
+            () = tokio::time::sleep(GRACE), if !own => first.exit_code(),
         };
         // Either way the devices get their last frames out before the process ends.
         let pending = halt_everything_blocking(Duration::from_millis(500));

@@ -202,15 +202,17 @@ fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
     let lines = client_sees_loss("-STOP");
     let last = lines.last().expect("a closing line");
     assert_eq!(last["event"], "closed");
-    let reason = last["reason"].as_str().unwrap();
+    // A JSON object, not Debug text.
+    let reason = &last["reason"];
     assert!(
-        reason == "ManagerLost" || reason == "Data(Lost)",
+        reason["kind"] == "manager-lost"
+            || (reason["kind"] == "data" && reason["close"]["kind"] == "lost"),
         "{reason}"
     );
 }
 
 /// Reads `out` line by line on a thread, so that the test can wait with a deadline.
-fn line_channel(out: BufReader<ChildStdout>) -> mpsc::Receiver<String> {
+fn line_channel<R: std::io::Read + Send + 'static>(out: BufReader<R>) -> mpsc::Receiver<String> {
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
         for l in out.lines() {
@@ -383,4 +385,464 @@ fn send_without_destinations_fails() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// Writes a private hex key file of `byte` repeated.
+#[cfg(unix)]
+fn key_file(dir: &std::path::Path, name: &str, byte: u8) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let p = dir.join(name);
+    std::fs::write(&p, format!("{}\n", format!("{byte:02x}").repeat(32))).unwrap();
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
+    p
+}
+
+/// Issue 13: a client and a listener under another key than their peers say that frames
+/// failed authentication, name the address and point at the key file — instead of only
+/// "manager lost" or nothing at all.
+#[cfg(unix)]
+#[test]
+fn a_wrong_key_file_is_named_by_the_client_and_the_listener() {
+    let dir = temp_dir("wrongkey");
+    let key_a = key_file(&dir, "a.key", 0x5a);
+    let key_b = key_file(&dir, "b.key", 0xa5);
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, _out) = spawn_manager(&[
+        "--config",
+        cfg.to_str().unwrap(),
+        "--key-file",
+        key_a.to_str().unwrap(),
+    ]);
+    let out = ima()
+        .args(["peer", "client", "--key-file"])
+        .arg(&key_b)
+        .args(["--connect", &addr, "--request", "counter", "--count", "1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&addr), "{err}");
+    assert!(
+        err.contains("is the key file the same on every robot?"),
+        "{err}"
+    );
+
+    // The listener (key A) hears a sender under key B: it says so on stderr, with the
+    // sender's address, while stdout stays JSON.
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--key-file"])
+            .arg(&key_a)
+            .args(["--port", "0", "--interface", "127.0.0.1"])
+            .args(["--group", "239.255.73.80"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
+    let err = line_channel(BufReader::new(listener.0.stderr.take().unwrap()));
+    let first: Value = serde_json::from_str(
+        &out.recv_timeout(Duration::from_secs(30))
+            .expect("the listener's first line"),
+    )
+    .unwrap();
+    let port = first["addr"]
+        .as_str()
+        .and_then(|a| a.rsplit(':').next())
+        .expect("listening address")
+        .to_owned();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let warning = loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(&key_b)
+                .args(["--port", &port, "--interface", "127.0.0.1"])
+                .args(["--group", "239.255.73.80", "status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            break l;
+        }
+    };
+    assert!(warning.contains("from 127.0.0.1:"), "{warning}");
+    assert!(
+        warning.contains("is the key file the same on every robot?"),
+        "{warning}"
+    );
+    // Nothing under key B reached stdout.
+    while let Ok(l) = out.try_recv() {
+        let v: Value = serde_json::from_str(&l).unwrap();
+        assert_ne!(v["type"], "status", "{l}");
+    }
+}
+
+/// Issue 13: a key file of zeros is the documented insecure key; it is accepted, but as
+/// loudly as `--insecure`.
+#[cfg(unix)]
+#[test]
+fn an_all_zero_key_file_is_warned_about() {
+    let dir = temp_dir("zerokey");
+    let zero = key_file(&dir, "zero.key", 0);
+    let out = ima()
+        .args(["peer", "send", "--key-file"])
+        .arg(&zero)
+        .args(["--mode", "unicast", "--peer", "127.0.0.1:9"])
+        .args(["status", "--behaviour", "x"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("WARNING"), "{err}");
+    assert!(err.contains("all-zero key"), "{err}");
+    assert!(err.contains(zero.to_str().unwrap()), "{err}");
+    // A real key says nothing of the kind.
+    let real = key_file(&dir, "real.key", 0x42);
+    let out = ima()
+        .args(["peer", "send", "--key-file"])
+        .arg(&real)
+        .args(["--mode", "unicast", "--peer", "127.0.0.1:9"])
+        .args(["status", "--behaviour", "x"])
+        .output()
+        .unwrap();
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("all-zero"));
+}
+
+/// Issue 13: "address already in use" names the address and which socket it was for.
+#[test]
+fn an_address_in_use_is_named() {
+    let dir = temp_dir("inuse");
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, _out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
+    let out = ima()
+        .args(["peer", "manager", "--insecure", "--config"])
+        .arg(&cfg)
+        .args(["--listen", &addr])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("binding the manager's request channel to {addr}")),
+        "{err}"
+    );
+    assert!(
+        err.to_lowercase().contains("address already in use"),
+        "{err}"
+    );
+    // The data server's address too.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let data = taken.local_addr().unwrap().to_string();
+    let p = dir.join("data.toml");
+    std::fs::write(
+        &p,
+        format!("robot = \"x\"\n[manager]\nlisten = \"127.0.0.1:0\"\ndata_listen = \"{data}\"\n"),
+    )
+    .unwrap();
+    let out = ima()
+        .args(["peer", "manager", "--insecure", "--config"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("binding the manager's data server to {data}")),
+        "{err}"
+    );
+}
+
+/// Issue 13: the manager's and the client's JSON lines carry JSON objects, not Rust `Debug`
+/// text such as `"Core(SourcesChanged { … })"`.
+#[test]
+fn manager_and_client_json_has_no_debug_text() {
+    fn no_debug_text(v: &Value) {
+        match v {
+            Value::String(s) => assert!(
+                !s.contains(" { ") && !s.contains('(') && !s.contains("::"),
+                "Debug-looking text {s:?}"
+            ),
+            Value::Array(a) => a.iter().for_each(no_debug_text),
+            Value::Object(o) => o.values().for_each(no_debug_text),
+            _ => {}
+        }
+    }
+    let dir = temp_dir("nodebug");
+    let cfg = manager_config(&dir, "");
+    let (_m, addr, out) = spawn_manager(&["--insecure", "--config", cfg.to_str().unwrap()]);
+    let lines = line_channel(out);
+    run_ok(
+        ima()
+            .args(["peer", "client", "--insecure", "--connect", &addr])
+            .args(["--request", "counter", "--count", "2"]),
+    );
+    // Until the grant's decision has been printed (generous bound).
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut types = Vec::new();
+    while !types.iter().any(|t| t == "decision") {
+        assert!(Instant::now() < deadline, "no decision event: {types:?}");
+        let Ok(l) = lines.recv_timeout(Duration::from_millis(500)) else {
+            continue;
+        };
+        let v: Value = serde_json::from_str(&l).unwrap();
+        no_debug_text(&v);
+        if v["event"] == "manager" {
+            assert!(v["detail"].is_object(), "{l}");
+            types.push(v["detail"]["type"].as_str().unwrap().to_owned());
+        }
+    }
+    assert!(types.iter().any(|t| t == "sources-changed"), "{types:?}");
+}
+
+/// Issue 13: `ima commander` under key A, hearing a sender under key B, says so on stderr
+/// (rate-limited), with the sender's address.
+#[cfg(unix)]
+#[test]
+fn the_commander_names_frames_under_another_key() {
+    let dir = temp_dir("cmdkey");
+    let key_a = key_file(&dir, "a.key", 0x5a);
+    let key_b = key_file(&dir, "b.key", 0xa5);
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let cfg = dir.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nkey_file = {key_a:?}\n\
+             broadcast_group = \"\"\nbroadcast_peers = [\"127.0.0.1:9\"]\n\
+             broadcast_bind = \"127.0.0.1:{port}\"\n"
+        ),
+    )
+    .unwrap();
+    let mut commander = Child(
+        ima()
+            .args(["commander", "--json", "--config"])
+            .arg(&cfg)
+            .args(["--wait-for", "nobody", "--wait-timeout", "600"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(commander.0.stdout.take().unwrap()));
+    let err = line_channel(BufReader::new(commander.0.stderr.take().unwrap()));
+    // Its first line: it is up and waiting.
+    out.recv_timeout(Duration::from_secs(30))
+        .expect("the commander's first line");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let warning = loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(&key_b)
+                .args(["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")])
+                .args(["status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            break l;
+        }
+    };
+    assert!(warning.contains("from 127.0.0.1:"), "{warning}");
+    assert!(
+        warning.contains("is the key file the same on every robot?"),
+        "{warning}"
+    );
+}
+
+/// Issue 13: `ima run` (Skeeter on its own simulated world) under key A says so too.
+#[cfg(unix)]
+#[test]
+fn a_robot_names_frames_under_another_key() {
+    let dir = temp_dir("runkey");
+    let key_a = key_file(&dir, "a.key", 0x5a);
+    let key_b = key_file(&dir, "b.key", 0xa5);
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let cfg = dir.join("skeeter.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n[peer]\nkey_file = {key_a:?}\n\
+             listen = \"127.0.0.1:0\"\ndata_listen = \"127.0.0.1:0\"\nbroadcast_group = \"\"\n\
+             broadcast_peers = [\"127.0.0.1:9\"]\nbroadcast_bind = \"127.0.0.1:{port}\"\n"
+        ),
+    )
+    .unwrap();
+    let mut run = Child(
+        ima()
+            .args(["run", "--json", "--config"])
+            .arg(&cfg)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(run.0.stdout.take().unwrap()));
+    let err = line_channel(BufReader::new(run.0.stderr.take().unwrap()));
+    out.recv_timeout(Duration::from_secs(60))
+        .expect("the robot's first line");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let warning = loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(&key_b)
+                .args(["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")])
+                .args(["status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            break l;
+        }
+    };
+    assert!(warning.contains("from 127.0.0.1:"), "{warning}");
+    assert!(warning.contains("is the key file the same"), "{warning}");
+}
+
+/// Issue 13: Ctrl-C on a commander whose stdin is a terminal asks "stop the robots?"; "y"
+/// sends the fleet stop, seen on the wire by a listener.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
+    use std::io::{Read, Write};
+    use std::sync::{Arc, Mutex};
+    let dir = temp_dir("prompt");
+    let key = key_file(&dir, "a.key", 0x5a);
+    // The listener: where the commander's broadcasts go.
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--key-file"])
+            .arg(&key)
+            .args([
+                "--mode",
+                "unicast",
+                "--port",
+                "0",
+                "--interface",
+                "127.0.0.1",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let heard = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
+    let first: Value = serde_json::from_str(
+        &heard
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the listener's first line"),
+    )
+    .unwrap();
+    let port = first["addr"]
+        .as_str()
+        .and_then(|a| a.rsplit(':').next())
+        .unwrap()
+        .to_owned();
+    let cfg = dir.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nkey_file = {key:?}\n\
+             broadcast_group = \"\"\nbroadcast_peers = [\"127.0.0.1:{port}\"]\n\
+             broadcast_bind = \"127.0.0.1:0\"\n"
+        ),
+    )
+    .unwrap();
+    // The commander's stdin is the slave of a pseudo-terminal: a terminal.
+    let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
+    let slave_path = serialport::SerialPort::name(&slave).expect("the slave's path");
+    let tty = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&slave_path)
+        .unwrap();
+    let mut commander = Child(
+        ima()
+            .args(["commander", "--json", "--config"])
+            .arg(&cfg)
+            .args(["--wait-for", "nobody", "--wait-timeout", "600"])
+            .stdin(Stdio::from(tty))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = line_channel(BufReader::new(commander.0.stdout.take().unwrap()));
+    let err = Arc::new(Mutex::new(String::new()));
+    {
+        let err = err.clone();
+        let mut stderr = commander.0.stderr.take().unwrap();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 256];
+            while let Ok(n) = stderr.read(&mut buf) {
+                if n == 0 {
+                    return;
+                }
+                err.lock()
+                    .unwrap()
+                    .push_str(&String::from_utf8_lossy(&buf[..n]));
+            }
+        });
+    }
+    out.recv_timeout(Duration::from_secs(30))
+        .expect("the commander's first line");
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &commander.0.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !err.lock().unwrap().contains("stop the robots? [y/N]") {
+        assert!(
+            Instant::now() < deadline,
+            "no prompt: {}",
+            err.lock().unwrap()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    master.write_all(b"y\n").unwrap();
+    master.flush().unwrap();
+    // The fleet stop goes out (heard by the listener) and the commander ends.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let l = heard
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .expect("a fleet stop on the wire");
+        let v: Value = serde_json::from_str(&l).unwrap();
+        if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
+            assert_eq!(v["robot"], "commander");
+            break;
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(s) = commander.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the commander did not exit");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!status.success(), "an interrupted commander fails");
+    assert!(
+        err.lock().unwrap().contains("sending a fleet stop"),
+        "{}",
+        err.lock().unwrap()
+    );
+    drop(slave);
 }

@@ -7,7 +7,7 @@
 //! every target done.
 
 use std::io::{BufRead, BufReader};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
@@ -32,8 +32,19 @@ fn run_robot(config: &Path, log: &Path) -> Child {
     )
 }
 
+/// The multi-process tests run one at a time: each runs a world and three processes, and
+/// the CI machine has two cores.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 #[test]
 fn three_processes_accomplish_every_target() {
+    let _one = one_at_a_time();
     let world = SharedWorld::new(World::default_world());
     let served = ServedWorld::start(
         world,
@@ -246,4 +257,396 @@ fn run_with_mock_true_serves_its_own_world() {
     assert_eq!(kinds, ["connected", "behaviour"]);
     drop(run);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A world served in this process and both robots' stacks as `ima run` processes.
+struct Fleet {
+    world: SharedWorld,
+    _served: ServedWorld,
+    dir: PathBuf,
+    commander_cfg: PathBuf,
+    _skeeter: Child,
+    scooter: Child,
+}
+
+impl Fleet {
+    /// The world runs `speed` times faster than real time.
+    fn start(name: &str, speed: f64) -> Self {
+        let world = SharedWorld::new(World::default_world());
+        let served = ServedWorld::start(
+            world.clone(),
+            &ServeOptions {
+                seed: 11,
+                speed,
+                ..ServeOptions::default()
+            },
+        )
+        .unwrap();
+        let dir = scratch_dir(name);
+        let [sk, sc, cmd] = write_configs(&dir, served.endpoints(), speed);
+        let skeeter = run_robot(&sk, &dir.join("skeeter.jsonl"));
+        let scooter = run_robot(&sc, &dir.join("scooter.jsonl"));
+        Self {
+            world,
+            _served: served,
+            dir,
+            commander_cfg: cmd,
+            _skeeter: skeeter,
+            scooter,
+        }
+    }
+
+    /// `ima commander --json --config … <args>` with stdin `stdin`.
+    fn commander(&self, args: &[&str], stdin: Stdio) -> Commander {
+        let mut c = Child(
+            ima()
+                .args(["commander", "--json", "--config"])
+                .arg(&self.commander_cfg)
+                .args(args)
+                .stdin(stdin)
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap(),
+        );
+        let out = c.0.stdout.take().unwrap();
+        let err = c.0.stderr.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for l in BufReader::new(out).lines().map_while(Result::ok) {
+                let v = serde_json::from_str::<serde_json::Value>(&l)
+                    .unwrap_or_else(|e| panic!("commander output is not JSON ({e}): {l:?}"));
+                if tx.send(v).is_err() {
+                    return;
+                }
+            }
+        });
+        let stderr = std::thread::spawn(move || {
+            let mut s = String::new();
+            let _ = std::io::Read::read_to_string(&mut BufReader::new(err), &mut s);
+            s
+        });
+        Commander {
+            child: c,
+            events: rx,
+            seen: Vec::new(),
+            stderr: Some(stderr),
+        }
+    }
+
+    /// A one-shot `ima commander stop|resume|cancel …`; its output.
+    fn one_shot(&self, args: &[&str]) -> std::process::Output {
+        let out = ima()
+            .arg("commander")
+            .args(args)
+            .arg("--config")
+            .arg(&self.commander_cfg)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "ima commander {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        out
+    }
+
+    /// Scooter's ground-truth velocity in the simulated world `(v m/s, ω rad/s)`.
+    fn scooter_velocity(&self) -> (f64, f64) {
+        self.world.with(|w| {
+            let id = w.robot_id("scooter").expect("Scooter in the world");
+            w.robot(id).expect("Scooter in the world").velocity()
+        })
+    }
+
+    /// Scooter's event log (`ima run --json`) as JSON values.
+    fn scooter_log(&self) -> Vec<serde_json::Value> {
+        std::fs::read_to_string(self.dir.join("scooter.jsonl"))
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect()
+    }
+}
+
+impl Drop for Fleet {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// A running `ima commander --json` and the events it printed so far.
+struct Commander {
+    child: Child,
+    events: std::sync::mpsc::Receiver<serde_json::Value>,
+    seen: Vec<serde_json::Value>,
+    stderr: Option<std::thread::JoinHandle<String>>,
+}
+
+impl Commander {
+    /// Waits (at most `limit`, a generous bound) for an event matching `pred`.
+    fn wait_for(
+        &mut self,
+        what: &str,
+        limit: Duration,
+        pred: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        if let Some(e) = self.seen.iter().find(|e| pred(e)) {
+            return e.clone();
+        }
+        let deadline = Instant::now() + limit;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.events.recv_timeout(left) {
+                Ok(e) => {
+                    self.seen.push(e.clone());
+                    if pred(&e) {
+                        return e;
+                    }
+                }
+                Err(_) => panic!("no {what} within {limit:?}; events: {:#?}", self.seen),
+            }
+        }
+    }
+
+    /// Sends SIGINT (Ctrl-C).
+    fn interrupt(&self) {
+        let ok = std::process::Command::new("kill")
+            .args(["-INT", &self.child.0.id().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill -INT");
+    }
+
+    /// Waits (generously) for the exit; its status and stderr.
+    fn exit(&mut self, limit: Duration) -> (std::process::ExitStatus, String) {
+        let deadline = Instant::now() + limit;
+        let status = loop {
+            if let Some(s) = self.child.0.try_wait().unwrap() {
+                break s;
+            }
+            assert!(Instant::now() < deadline, "the commander did not exit");
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        while let Ok(e) = self.events.recv_timeout(Duration::from_secs(5)) {
+            self.seen.push(e);
+        }
+        let err = self
+            .stderr
+            .take()
+            .map(|h| h.join().unwrap())
+            .unwrap_or_default();
+        (status, err)
+    }
+}
+
+fn robot_is(robot: &'static str, state: &'static str) -> impl Fn(&serde_json::Value) -> bool {
+    move |e| e["kind"] == "robot" && e["detail"]["robot"] == robot && e["detail"]["state"] == state
+}
+
+fn target_is(target: &'static str, state: &'static str) -> impl Fn(&serde_json::Value) -> bool {
+    move |e| {
+        e["kind"] == "target" && e["detail"]["target"] == target && e["detail"]["state"] == state
+    }
+}
+
+/// Issue 13: after `kill -9` of Scooter the commander reports it lost once the configured
+/// silence has passed; Ctrl-C without `--stop-on-exit` and with stdin not a terminal says
+/// the robots were not stopped.
+#[cfg(unix)]
+#[test]
+fn a_killed_robot_is_reported_lost_by_the_commander() {
+    let _one = one_at_a_time();
+    let mut fleet = Fleet::start("e2e-lost", SPEED);
+    // The commander waits for a robot that never comes: it sends no target, so the mission
+    // cannot end before the kill.
+    let mut c = fleet.commander(
+        &[
+            "--targets",
+            "red",
+            "--lost-after",
+            "8",
+            "--wait-for",
+            "skeeter,scooter,nobody",
+            "--wait-timeout",
+            "600",
+        ],
+        Stdio::null(),
+    );
+    let limit = Duration::from_secs(120);
+    c.wait_for("Scooter alive", limit, robot_is("scooter", "alive"));
+    c.wait_for("Skeeter alive", limit, robot_is("skeeter", "alive"));
+    // SIGKILL: no goodbye on the channel.
+    fleet.scooter.0.kill().unwrap();
+    let lost = c.wait_for("Scooter lost", limit, robot_is("scooter", "lost"));
+    let silent = lost["detail"]["silent_s"].as_f64().unwrap();
+    assert!(
+        silent >= 8.0,
+        "reported after {silent} s of silence, limit 8"
+    );
+    // Skeeter is still talking: whatever it was meanwhile, it is alive at the end.
+    c.interrupt();
+    let (status, err) = c.exit(Duration::from_secs(60));
+    assert!(!status.success());
+    assert!(err.contains("stdin is not a terminal"), "{err}");
+    assert!(err.contains("NOT stopped"), "{err}");
+    let summary = c.seen.iter().find(|e| e["kind"] == "summary").unwrap();
+    assert_eq!(summary["interrupted"], true);
+    assert_eq!(summary["fleet_stopped"], false);
+}
+
+/// Issue 13: Ctrl-C on a commander with `--stop-on-exit` sends a fleet stop, and Scooter's
+/// base stands (ground truth of the simulated world) and holds; `ima commander resume`
+/// releases it and `ima commander stop` stops it again.
+#[cfg(unix)]
+#[test]
+fn a_fleet_stop_makes_scooter_stand() {
+    let _one = one_at_a_time();
+    // Real time: red takes long enough to be stopped on the way.
+    let fleet = Fleet::start("e2e-stop", 1.0);
+    let mut c = fleet.commander(&["--targets", "red", "--stop-on-exit"], Stdio::null());
+    c.wait_for(
+        "red processing",
+        Duration::from_secs(120),
+        target_is("red", "processing"),
+    );
+    // Scooter drives towards red.
+    let deadline = Instant::now() + Duration::from_secs(200);
+    loop {
+        let (v, w) = fleet.scooter_velocity();
+        if v.abs() > 0.02 || w.abs() > 0.05 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "Scooter never moved");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    c.interrupt();
+    let (status, err) = c.exit(Duration::from_secs(60));
+    assert!(!status.success());
+    assert!(err.contains("sending a fleet stop"), "{err}");
+    let summary = c.seen.iter().find(|e| e["kind"] == "summary").unwrap();
+    assert_eq!(summary["fleet_stopped"], true);
+    // The base stands...
+    let standing = || {
+        let (v, w) = fleet.scooter_velocity();
+        v.abs() < 1e-3 && w.abs() < 1e-3
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !standing() {
+        assert!(
+            Instant::now() < deadline,
+            "Scooter still moving: {:?}",
+            fleet.scooter_velocity()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // ...and holds (Scooter's brain still has its target).
+    for _ in 0..20 {
+        assert!(
+            standing(),
+            "Scooter moved again: {:?}",
+            fleet.scooter_velocity()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // Scooter's log: the stop was obeyed, and its control loop holds zero while halted.
+    let log = fleet.scooter_log();
+    let at = log
+        .iter()
+        .position(|e| e["kind"] == "fleet-stop")
+        .unwrap_or_else(|| panic!("no fleet-stop in Scooter's log: {log:#?}"));
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let log = fleet.scooter_log();
+        let halted: Vec<&serde_json::Value> = log
+            .iter()
+            .skip(at)
+            .filter(|e| e["kind"] == "control")
+            .collect();
+        if !halted.is_empty() {
+            for e in halted {
+                assert_eq!(e["detail"]["halted"], true, "{e}");
+                assert_eq!(e["detail"]["v_m_s"], 0.0, "{e}");
+            }
+            break;
+        }
+        assert!(Instant::now() < deadline, "no control event after the stop");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    // Resume, then stop again, with the one-shot commands.
+    let out = fleet.one_shot(&["resume"]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("fleet resume sent"));
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !fleet
+        .scooter_log()
+        .iter()
+        .any(|e| e["kind"] == "fleet-resume")
+    {
+        assert!(Instant::now() < deadline, "Scooter did not resume");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    fleet.one_shot(&["stop", "--reason", "test"]);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let log = fleet.scooter_log();
+        if log
+            .iter()
+            .any(|e| e["kind"] == "fleet-stop" && e["detail"]["reason"] == "test")
+        {
+            break;
+        }
+        assert!(Instant::now() < deadline, "Scooter did not stop again");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !standing() {
+        assert!(Instant::now() < deadline, "Scooter did not stand again");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Issue 13: a target can be cancelled, by `ima commander cancel` from another process or
+/// by `cancel COLOUR` typed on the commander's stdin; the commander marks it cancelled
+/// and goes on, and Skeeter ends it as failed.
+#[cfg(unix)]
+#[test]
+fn a_target_is_cancelled_from_another_process_or_from_stdin() {
+    let _one = one_at_a_time();
+    // Real time: red is still being processed when the cancel comes.
+    let fleet = Fleet::start("e2e-cancel", 1.0);
+    let mut c = fleet.commander(&["--targets", "red,blue"], Stdio::piped());
+    let limit = Duration::from_secs(120);
+    c.wait_for("red processing", limit, target_is("red", "processing"));
+    let out = fleet.one_shot(&["cancel", "--target", "red"]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("target cancel sent"));
+    let red = c.wait_for("red failed", limit, target_is("red", "failed"));
+    assert_eq!(red["detail"]["cancelled"], true, "{red}");
+    c.wait_for("blue sent", limit, target_is("blue", "sent"));
+    // Skeeter ended red as failed.
+    c.wait_for("Skeeter's Failed for red", limit, |e| {
+        e["kind"] == "broadcast"
+            && e["detail"]["robot"] == "skeeter"
+            && e["detail"]["event"] == "failed"
+            && e["detail"]["target"] == "red"
+    });
+    // Typed on stdin.
+    {
+        use std::io::Write;
+        let stdin = c.child.0.stdin.as_mut().unwrap();
+        writeln!(stdin, "cancel blue").unwrap();
+        stdin.flush().unwrap();
+    }
+    let blue = c.wait_for("blue failed", limit, target_is("blue", "failed"));
+    assert_eq!(blue["detail"]["cancelled"], true, "{blue}");
+    // Every target is over: the commander ends, with both failed as cancelled.
+    let (status, _) = c.exit(Duration::from_secs(60));
+    assert!(!status.success(), "two targets failed");
+    let summary = c.seen.iter().find(|e| e["kind"] == "summary").unwrap();
+    assert_eq!(summary["failed"], 2);
+    for t in summary["targets"].as_array().unwrap() {
+        assert_eq!(t["reason"], "cancelled by the operator", "{t}");
+    }
 }

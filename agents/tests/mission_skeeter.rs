@@ -230,7 +230,7 @@ fn a_series_done_failed_and_timed_out() {
             .iter()
             .any(|h| h.starts_with("skeeter: status scan-for-target"))
     );
-    assert!(heard.contains(&"skeeter: mission red Accomplished".to_owned()));
+    assert!(heard.contains(&"skeeter: mission red accomplished".to_owned()));
     let summary = commander.summary();
     assert_eq!((summary.done, summary.failed, summary.open), (1, 2, 0));
     assert_eq!(

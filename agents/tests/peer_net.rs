@@ -456,10 +456,18 @@ async fn bad_frames_are_rejected_counted_and_others_served() {
     )
     .await
     .unwrap();
-    assert!(matches!(
-        timeout(GENEROUS, stranger.register()).await.unwrap(),
-        Err(NetError::ManagerLost)
-    ));
+    // It is told why, not only that the manager is lost.
+    let e = timeout(GENEROUS, stranger.register()).await.unwrap();
+    let Err(NetError::Unauthenticated(a)) = e else {
+        panic!("expected an authentication failure, got {e:?}")
+    };
+    assert_eq!(a.from, m.local_addr());
+    assert_eq!(stranger.auth_failure(), Some(a));
+    assert!(
+        e.unwrap_err()
+            .to_string()
+            .contains("is the key file the same")
+    );
 
     let st = within("stats", m.stats()).await.unwrap();
     let r = st.core.rejects;
@@ -711,6 +719,18 @@ async fn broadcast_rejections_are_counted() {
     assert_eq!(st.receiver.duplicate, 1, "{st:?}");
     assert!(st.wire.truncated >= 1, "{st:?}");
     assert_eq!(st.receiver.accepted, 3);
+    // The operator hears of the stranger's frame once, with its address, then not again
+    // until more arrive (and the report interval has passed).
+    let report = rx.take_auth_report().expect("a report of the bad MAC");
+    assert_eq!(report.frames, 1);
+    assert_eq!(report.from.port(), stranger.local_addr().unwrap().port());
+    assert!(
+        report
+            .to_string()
+            .contains("failed authentication — is the key file the same on every robot?"),
+        "{report}"
+    );
+    assert_eq!(rx.take_auth_report(), None);
 }
 
 #[tokio::test]

@@ -1,23 +1,40 @@
 //! `ima commander --config FILE --targets red,blue,green`: send targets one at a time over the
-//! broadcast channel, show each target's state and the robots' broadcasts live.
+//! broadcast channel, show each target's state, the robots' broadcasts and whether each
+//! robot is alive, live; take `stop`, `resume` and `cancel COLOUR` requests on stdin.
+//! `ima commander stop|resume|cancel --config FILE`: one fleet command, sent several times.
 
-use std::io::Write;
-use std::path::PathBuf;
+use std::io::{BufRead, IsTerminal, Write};
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use clap::Args;
+use clap::{Args, Subcommand};
+use ima_agents::mission::msg::{Broadcast, COMMANDER, Emergency, FLEET_COPIES};
 
 use crate::config::RobotConfig;
-use crate::stack::commander::TargetState;
+use crate::stack::commander::{Control, Operator, TargetState};
 use crate::stack::{Event, Events, net};
 
 /// Arguments of `ima commander`.
+///
+/// While it runs, lines typed on its stdin are requests: `stop [reason]` (fleet stop),
+/// `resume`, `cancel COLOUR`. On Ctrl-C it sends a fleet stop first with `--stop-on-exit`;
+/// without it, it asks on a terminal and leaves the robots running when stdin is not one.
 #[derive(Debug, Args)]
+#[command(
+    args_conflicts_with_subcommands = true,
+    after_help = "While it runs, type a request and Enter: `stop [reason]` (fleet stop), `resume`, \
+                  `cancel COLOUR`.\nCtrl-C: with --stop-on-exit a fleet stop goes out first; \
+                  otherwise it asks on a terminal, and leaves the robots running when stdin is \
+                  not one.\nEach robot is reported lost after --lost-after seconds of silence."
+)]
 pub struct CommanderArgs {
+    /// One-shot commands to the fleet (instead of running a series of targets).
+    #[command(subcommand)]
+    action: Option<Action>,
     /// Configuration file (role `commander`; see `configs/commander.toml`).
     #[arg(long)]
-    config: PathBuf,
+    config: Option<PathBuf>,
     /// Target colours, in order.
     #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]
     targets: Vec<String>,
@@ -27,12 +44,246 @@ pub struct CommanderArgs {
     /// Longest wait for them, seconds (then the targets go anyway).
     #[arg(long, default_value_t = 60.0)]
     wait_timeout: f64,
+    /// Report a robot lost after this many (mission) seconds without a broadcast from it
+    /// (overrides `agent.robot_lost_after_s`, default 5).
+    #[arg(long)]
+    lost_after: Option<f64>,
+    /// On Ctrl-C, send a fleet stop before exiting (without it the commander asks on a
+    /// terminal, and does not stop the robots when stdin is not one).
+    #[arg(long)]
+    stop_on_exit: bool,
     /// One JSON object per line instead of text.
     #[arg(long)]
     json: bool,
     /// Use the documented insecure all-zero key when the configuration names no key file.
     #[arg(long)]
     insecure: bool,
+}
+
+/// `ima commander stop|resume|cancel`: one command to the fleet, sent several times.
+#[derive(Debug, Subcommand)]
+pub enum Action {
+    /// Fleet stop: every robot zeroes its velocity at once and holds until `resume` or a
+    /// new target.
+    Stop {
+        #[command(flatten)]
+        common: OneShot,
+        /// Why (shown by the robots).
+        #[arg(long, default_value = "operator")]
+        reason: String,
+    },
+    /// Fleet resume: the robots carry on with their targets.
+    Resume {
+        #[command(flatten)]
+        common: OneShot,
+    },
+    /// Withdraw a target: Skeeter ends it as failed, Scooter stops pursuing it, a running
+    /// commander marks it cancelled and goes on with the next.
+    Cancel {
+        #[command(flatten)]
+        common: OneShot,
+        /// The target colour.
+        #[arg(long)]
+        target: String,
+    },
+}
+
+/// Options of the one-shot commands.
+#[derive(Debug, Args)]
+pub struct OneShot {
+    /// Configuration file (role `commander`).
+    #[arg(long)]
+    config: PathBuf,
+    /// Use the documented insecure all-zero key when the configuration names no key file.
+    #[arg(long)]
+    insecure: bool,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+fn load(config: &Path, insecure: bool) -> Result<RobotConfig> {
+    let mut cfg = RobotConfig::load(config)?;
+    if insecure && cfg.peer.key_file.is_none() {
+        cfg.peer.insecure = true;
+    }
+    Ok(cfg)
+}
+
+fn one_shot(action: &Action) -> Result<()> {
+    let (common, b, what) = match action {
+        Action::Stop { common, reason } => (
+            common,
+            Broadcast::emergency(
+                COMMANDER,
+                Emergency::FleetStop {
+                    reason: reason.clone(),
+                },
+            ),
+            "fleet stop",
+        ),
+        Action::Resume { common } => (
+            common,
+            Broadcast::emergency(COMMANDER, Emergency::FleetResume),
+            "fleet resume",
+        ),
+        Action::Cancel { common, target } => (
+            common,
+            Broadcast::emergency(
+                COMMANDER,
+                Emergency::TargetCancel {
+                    colour: target.clone(),
+                },
+            ),
+            "target cancel",
+        ),
+    };
+    if let Broadcast::Emergency { emergency, .. } = &b {
+        // A colour with spaces would not decode at the robots.
+        Emergency::from_kind_text(emergency.kind(), &emergency.text())
+            .map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+    }
+    let cfg = load(&common.config, common.insecure)?;
+    let rt = tokio::runtime::Runtime::new()?;
+    let n = rt.block_on(async {
+        let key = net::group_key(&cfg, None)?;
+        crate::stack::commander::send_once(&cfg, key, &b).await
+    })?;
+    anyhow::ensure!(n > 0, "the {what} reached no destination");
+    if common.json {
+        println!(
+            "{}",
+            serde_json::json!({"kind": "sent", "command": what, "copies": FLEET_COPIES, "destinations": n})
+        );
+    } else {
+        println!("{what} sent ({FLEET_COPIES} copies to {n} destination(s))");
+    }
+    Ok(())
+}
+
+/// A line typed on the commander's stdin as a request (`None` and a hint when unknown).
+fn parse_request(line: &str) -> Result<Option<Operator>, String> {
+    let mut words = line.split_whitespace();
+    let Some(verb) = words.next() else {
+        return Ok(None);
+    };
+    let rest: Vec<&str> = words.collect();
+    match (verb, rest.as_slice()) {
+        ("stop", r) => Ok(Some(Operator::Stop(if r.is_empty() {
+            "operator".to_owned()
+        } else {
+            r.join(" ")
+        }))),
+        ("resume", []) => Ok(Some(Operator::Resume)),
+        ("cancel", [colour]) => Ok(Some(Operator::Cancel((*colour).to_owned()))),
+        _ => Err(format!(
+            "unknown request {line:?}: type `stop [reason]`, `resume` or `cancel COLOUR`"
+        )),
+    }
+}
+
+/// Reads stdin lines on a thread of their own (stdin blocks; the thread ends with the
+/// process).
+fn stdin_lines() -> tokio::sync::mpsc::UnboundedReceiver<String> {
+    let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+    std::thread::spawn(move || {
+        for line in std::io::stdin().lock().lines() {
+            let Ok(line) = line else { return };
+            if tx.send(line).is_err() {
+                return;
+            }
+        }
+    });
+    rx
+}
+
+/// The next stdin line; `None` at its end; never, once ended (`lines` is `None`).
+async fn next_line(
+    lines: &mut Option<tokio::sync::mpsc::UnboundedReceiver<String>>,
+) -> Option<String> {
+    match lines.as_mut() {
+        Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Turns stdin lines and Ctrl-C into [`Operator`] requests until a quit is sent.
+async fn operator(
+    ops: tokio::sync::mpsc::UnboundedSender<Operator>,
+    stop_on_exit: bool,
+    mut interrupt: impl AsyncInterrupt,
+) {
+    let tty = std::io::stdin().is_terminal();
+    let mut lines = Some(stdin_lines());
+    loop {
+        tokio::select! {
+            () = interrupt.next() => break,
+            l = next_line(&mut lines) => match l {
+                None => lines = None,
+                Some(l) => match parse_request(&l) {
+                    Ok(Some(op)) => {
+                        if ops.send(op).is_err() {
+                            return;
+                        }
+                    }
+                    Ok(None) => {}
+                    Err(hint) => eprintln!("ima commander: {hint}"),
+                },
+            },
+        }
+    }
+    let stop = if stop_on_exit {
+        eprintln!("ima commander: interrupted: sending a fleet stop (--stop-on-exit)");
+        true
+    } else if !tty {
+        eprintln!(
+            "ima commander: interrupted; stdin is not a terminal, so the robots were NOT \
+             stopped (pass --stop-on-exit, or run `ima commander stop`)"
+        );
+        false
+    } else {
+        eprint!("stop the robots? [y/N] ");
+        let answer = tokio::select! {
+            l = next_line(&mut lines) => l,
+            () = interrupt.next() => None,
+        };
+        let yes = answer.is_some_and(|a| matches!(a.trim(), "y" | "Y" | "yes" | "YES" | "Yes"));
+        if yes {
+            eprintln!("ima commander: sending a fleet stop");
+        } else {
+            eprintln!("ima commander: the robots were NOT stopped");
+        }
+        yes
+    };
+    let _ = ops.send(Operator::Quit { stop });
+}
+
+/// The operator's interrupt (Ctrl-C), registered before the commander starts so that an
+/// early Ctrl-C is not lost to the default handler.
+trait AsyncInterrupt {
+    /// Waits for the next interrupt.
+    fn next(&mut self) -> impl std::future::Future<Output = ()> + Send;
+}
+
+#[cfg(unix)]
+impl AsyncInterrupt for tokio::signal::unix::Signal {
+    async fn next(&mut self) {
+        if self.recv().await.is_none() {
+            std::future::pending::<()>().await;
+        }
+    }
+}
+
+#[cfg(not(unix))]
+struct CtrlC;
+
+#[cfg(not(unix))]
+impl AsyncInterrupt for CtrlC {
+    async fn next(&mut self) {
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    }
 }
 
 /// Print one event as a line of text or JSON.
@@ -44,10 +295,35 @@ pub fn print_event(e: &Event, json: bool) {
         let d = &e.detail;
         match e.kind.as_str() {
             "target" => format!(
-                "[{:7.1}s] target {:<8} {}",
+                "[{:7.1}s] target {:<8} {}{}",
                 e.t_s,
                 d["target"].as_str().unwrap_or("?"),
-                d["state"].as_str().unwrap_or("?")
+                d["state"].as_str().unwrap_or("?"),
+                if d["cancelled"] == true {
+                    " (cancelled)"
+                } else {
+                    ""
+                }
+            ),
+            "robot" => {
+                let robot = d["robot"].as_str().unwrap_or("?");
+                let silent = d["silent_s"].as_f64().unwrap_or(0.0);
+                match d["state"].as_str() {
+                    Some("lost") => format!(
+                        "[{:7.1}s] robot {robot} LOST: nothing heard for {silent:.1} s",
+                        e.t_s
+                    ),
+                    _ if silent > 0.0 => format!(
+                        "[{:7.1}s] robot {robot} is back (silent for {silent:.1} s)",
+                        e.t_s
+                    ),
+                    _ => format!("[{:7.1}s] robot {robot} alive", e.t_s),
+                }
+            }
+            "fleet" => format!(
+                "[{:7.1}s] fleet {} sent",
+                e.t_s,
+                d["command"].as_str().unwrap_or("?")
             ),
             "broadcast" => format!(
                 "[{:7.1}s]   {} {}: {}",
@@ -77,14 +353,35 @@ pub fn print_event(e: &Event, json: bool) {
 
 /// Run `ima commander`.
 pub fn run(args: &CommanderArgs) -> Result<()> {
-    let mut cfg = RobotConfig::load(&args.config)?;
-    if args.insecure && cfg.peer.key_file.is_none() {
-        cfg.peer.insecure = true;
+    if let Some(a) = &args.action {
+        return one_shot(a);
+    }
+    let Some(config) = &args.config else {
+        anyhow::bail!(
+            "--config is required (a commander configuration, see configs/commander.toml)"
+        );
+    };
+    let mut cfg = load(config, args.insecure)?;
+    if let Some(s) = args.lost_after {
+        anyhow::ensure!(
+            s.is_finite() && (0.1..=3600.0).contains(&s),
+            "--lost-after must be a number of seconds in [0.1, 3600], not {s}"
+        );
+        cfg.agent.robot_lost_after_s = s;
     }
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
+    // Ctrl-C is the operator's: it may ask whether to stop the robots.
+    crate::safety::answers_ctrl_c_itself();
     let rt = tokio::runtime::Runtime::new()?;
-    let outcomes = rt.block_on(async {
+    let finished = rt.block_on(async {
         let key = net::group_key(&cfg, None)?;
+        #[cfg(unix)]
+        let interrupt = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+            .context("installing the Ctrl-C handler")?;
+        #[cfg(not(unix))]
+        let interrupt = CtrlC;
+        let (op_tx, op_rx) = tokio::sync::mpsc::unbounded_channel();
+        let op_task = tokio::spawn(operator(op_tx, args.stop_on_exit, interrupt));
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
         let json = args.json;
         let printer = tokio::spawn(async move {
@@ -103,18 +400,24 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             }
         });
         let wait = Duration::try_from_secs_f64(args.wait_timeout.max(0.0)).unwrap_or_default();
-        let r = crate::stack::commander::run(
+        let r = crate::stack::commander::run_with(
             &cfg,
             key,
             &args.targets,
             (&args.wait_for, wait),
             Events::with_sink(tx),
+            Control {
+                lost_after: Some(Duration::from_secs_f64(cfg.agent.robot_lost_after_s)),
+                ops: Some(op_rx),
+            },
         )
         .await
         .context("commanding");
+        op_task.abort();
         let _ = printer.await;
         r
     })?;
+    let outcomes = &finished.outcomes;
     let done = outcomes
         .iter()
         .filter(|o| o.state == TargetState::Done)
@@ -123,11 +426,47 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
     if args.json {
         println!(
             "{}",
-            serde_json::json!({"kind": "summary", "done": done, "failed": failed, "targets": outcomes})
+            serde_json::json!({"kind": "summary", "done": done, "failed": failed,
+                "interrupted": finished.interrupted.is_some(),
+                "fleet_stopped": finished.interrupted == Some(true), "targets": outcomes})
         );
     } else {
         println!("{done} target(s) done, {failed} failed");
     }
+    match finished.interrupted {
+        Some(true) => anyhow::bail!("interrupted; a fleet stop was sent"),
+        Some(false) => anyhow::bail!("interrupted; the robots were NOT stopped"),
+        None => {}
+    }
     anyhow::ensure!(failed == 0, "{failed} target(s) failed");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn typed_requests_parse_and_others_get_a_hint() {
+        assert_eq!(
+            parse_request("stop"),
+            Ok(Some(Operator::Stop("operator".into())))
+        );
+        assert_eq!(
+            parse_request(" stop  rock ahead "),
+            Ok(Some(Operator::Stop("rock ahead".into())))
+        );
+        assert_eq!(parse_request("resume"), Ok(Some(Operator::Resume)));
+        assert_eq!(
+            parse_request("cancel red"),
+            Ok(Some(Operator::Cancel("red".into())))
+        );
+        assert_eq!(parse_request("   "), Ok(None));
+        for bad in ["cancel", "cancel dark red", "resume now", "go"] {
+            assert!(
+                parse_request(bad).unwrap_err().contains("cancel COLOUR"),
+                "{bad}"
+            );
+        }
+    }
 }

@@ -12,12 +12,17 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand, ValueEnum};
-use ima_agents::peer::manager::FixedSelfAgent;
+use ima_agents::peer::data::DataClose;
+use ima_agents::peer::manager::{CloseReason, FixedSelfAgent, ManagerEvent, Outcome, TicketError};
 use ima_agents::peer::net::{
-    BroadcastChannel, BroadcastMode, PeerClientHandle, PeerNetConfig, SourcePublisher,
-    SubscriptionEvent, SyntheticSource, insecure_key, load_key_file, spawn_manager,
+    BroadcastChannel, BroadcastMode, EndReason, LossReason, ManagerNetEvent, PeerClientHandle,
+    PeerNetConfig, SourcePublisher, SubscriptionEvent, SyntheticSource, insecure_key,
+    load_key_file, spawn_manager,
 };
-use ima_agents::peer::wire::{GroupKey, MissionEvent, Msg, SourceInfo};
+use ima_agents::peer::wire::{
+    BodyError, DeclineReason, DenyReason, GroupKey, MissionEvent, Msg, RevokeReason, SourceInfo,
+    WireError,
+};
 use serde_json::{Value, json};
 
 /// `ima peer` sub-commands.
@@ -237,7 +242,11 @@ fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> 
         cfg.heartbeat_ms = h;
     }
     let key = if let Some(path) = c.key_file.as_ref().or(cfg.key_file.as_ref()) {
-        load_key_file(path).map_err(|e| anyhow::anyhow!("{e}"))?
+        let key = load_key_file(path).map_err(|e| anyhow::anyhow!("{e}"))?;
+        if key.is_insecure() {
+            eprintln!("ima: WARNING: {}", zero_key_warning(path));
+        }
+        key
     } else if c.insecure {
         eprintln!(
             "ima: WARNING: --insecure: using the all-zero group key. Anyone on the network can \
@@ -252,6 +261,16 @@ fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> 
         );
     };
     Ok((cfg, synthetic, key))
+}
+
+/// The warning for a key file that holds the all-zero key (as loud as `--insecure`'s).
+pub fn zero_key_warning(path: &Path) -> String {
+    format!(
+        "the key file {} holds the all-zero key, the documented insecure key: anyone on the \
+         network can register, request, read and inject. Generate a real key: head -c 32 \
+         /dev/urandom | od -An -tx1 | tr -d ' \\n' > group.key; chmod 600 group.key",
+        path.display()
+    )
 }
 
 fn apply_broadcast(cfg: &mut PeerNetConfig, b: &BroadcastArgs) {
@@ -434,7 +453,7 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
             e = events.recv() => match e {
-                Ok(e) => line(&json!({ "event": "manager", "detail": format!("{e:?}") }))?,
+                Ok(e) => line(&json!({ "event": "manager", "detail": manager_event_json(&e) }))?,
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
                     line(&json!({ "event": "lagged", "dropped": n }))?;
                 }
@@ -493,11 +512,12 @@ async fn client(a: &ClientArgs) -> Result<()> {
                 }))?;
             }
             Some(SubscriptionEvent::Lost { reason }) => {
-                line(&json!({ "event": "lost", "reason": format!("{reason:?}") }))?;
+                line(&json!({ "event": "lost", "reason": loss_reason_json(&reason) }))?;
             }
             Some(SubscriptionEvent::Closed { reason }) => {
-                line(&json!({ "event": "closed", "reason": format!("{reason:?}") }))?;
-                bail!("source {} ended: {reason:?}", a.request);
+                let r = end_reason_json(&reason);
+                line(&json!({ "event": "closed", "reason": r }))?;
+                bail!("source {} ended: {r}", a.request);
             }
             None => bail!("source {} ended", a.request),
         }
@@ -533,7 +553,7 @@ fn msg_json(m: &Msg, from: std::net::SocketAddr) -> Value {
             target,
         } => json!({
             "type": "mission", "from": from.to_string(), "robot": robot, "seq": seq,
-            "mission_event": format!("{event:?}").to_lowercase(), "target": target,
+            "mission_event": event.as_str(), "target": target,
         }),
         other => json!({ "type": "other", "code": other.code() }),
     }
@@ -551,7 +571,13 @@ async fn listen(a: &ListenArgs) -> Result<()> {
         "addr": ch.local_addr().map_err(|e| anyhow::anyhow!("{e}"))?.to_string(),
     }))?;
     let mut n = 0;
+    // Frames under another key are refused silently by the channel: say so (rate-limited).
+    let mut check = tokio::time::interval(Duration::from_secs(1));
+    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     loop {
+        if let Some(report) = ch.take_auth_report() {
+            eprintln!("ima: warning: {report}");
+        }
         if a.count.is_some_and(|c| n >= c) {
             let s = ch.stats();
             line(&json!({
@@ -563,6 +589,7 @@ async fn listen(a: &ListenArgs) -> Result<()> {
         }
         let r = tokio::select! {
             r = ch.recv() => r,
+            _ = check.tick() => continue,
             _ = tokio::signal::ctrl_c() => return Ok(()),
         };
         let (m, from) = r.map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -599,4 +626,226 @@ async fn send(a: &SendArgs) -> Result<()> {
     }
     line(&json!({ "event": "sent", "destinations": n }))?;
     Ok(())
+}
+
+// ---- JSON forms of the Peer Agent's events (never `Debug` text in machine output) ----
+
+/// A wire error as a JSON object: `{"kind": "bad-mac"}`, `{"kind": "truncated", "need": 12,
+/// "got": 3}`, ….
+pub fn wire_error_json(e: &WireError) -> Value {
+    match e {
+        WireError::Truncated { need, got } => {
+            json!({"kind": "truncated", "need": need, "got": got})
+        }
+        WireError::BadMagic(m) => json!({"kind": "bad-magic", "magic": hex(m)}),
+        WireError::BadVersion(v) => json!({"kind": "bad-version", "version": v}),
+        WireError::Oversize { len, max } => json!({"kind": "oversize", "len": len, "max": max}),
+        WireError::BadMac => json!({"kind": "bad-mac"}),
+        WireError::Replay { sender, last, got } => {
+            json!({"kind": "replay", "sender": sender, "last": last, "got": got})
+        }
+        WireError::TrailingBytes(n) => json!({"kind": "trailing-bytes", "bytes": n}),
+        WireError::UnknownType(t) => json!({"kind": "unknown-type", "code": t}),
+        WireError::Body(b) => json!({"kind": "body", "body": match b {
+            BodyError::Truncated => json!({"kind": "truncated"}),
+            BodyError::BadUtf8 => json!({"kind": "bad-utf8"}),
+            BodyError::BadCode(c) => json!({"kind": "bad-code", "code": c}),
+            BodyError::TrailingBytes(n) => json!({"kind": "trailing-bytes", "bytes": n}),
+        }}),
+        WireError::BufferTooSmall => json!({"kind": "buffer-too-small"}),
+        WireError::FieldTooLong => json!({"kind": "field-too-long"}),
+    }
+}
+
+fn decline_str(r: DeclineReason) -> &'static str {
+    match r {
+        DeclineReason::DuplicateId => "duplicate-id",
+        DeclineReason::Full => "full",
+    }
+}
+
+fn deny_str(r: DenyReason) -> &'static str {
+    match r {
+        DenyReason::NotRegistered => "not-registered",
+        DenyReason::UnknownSource => "unknown-source",
+        DenyReason::QueueFull => "queue-full",
+    }
+}
+
+fn revoke_str(r: RevokeReason) -> &'static str {
+    match r {
+        RevokeReason::TaskPriority => "task-priority",
+        RevokeReason::SourceGone => "source-gone",
+        RevokeReason::Shutdown => "shutdown",
+        RevokeReason::BadTicket => "bad-ticket",
+    }
+}
+
+/// Why a data session closed, as a JSON object (`{"kind": "revoked", "reason":
+/// "source-gone"}`, …).
+pub fn data_close_json(c: &DataClose) -> Value {
+    match c {
+        DataClose::Ticket(t) => json!({"kind": "ticket", "reason": match t {
+            TicketError::Forged => "forged",
+            TicketError::Expired => "expired",
+            TicketError::NotGranted => "not-granted",
+            TicketError::AlreadyUsed => "already-used",
+        }}),
+        DataClose::Revoked(r) => json!({"kind": "revoked", "reason": revoke_str(*r)}),
+        DataClose::Wire(e) => json!({"kind": "wire", "error": wire_error_json(e)}),
+        DataClose::Unexpected(code) => json!({"kind": "unexpected", "code": code}),
+        DataClose::Lost => json!({"kind": "lost"}),
+        DataClose::Local => json!({"kind": "local"}),
+    }
+}
+
+/// Why a subscription paused, as a JSON object.
+pub fn loss_reason_json(r: &LossReason) -> Value {
+    match r {
+        LossReason::Revoked(r) => json!({"kind": "revoked", "reason": revoke_str(*r)}),
+    }
+}
+
+/// Why a subscription ended, as a JSON object.
+pub fn end_reason_json(r: &EndReason) -> Value {
+    match r {
+        EndReason::ManagerLost => json!({"kind": "manager-lost"}),
+        EndReason::Revoked(r) => json!({"kind": "revoked", "reason": revoke_str(*r)}),
+        EndReason::Data(c) => json!({"kind": "data", "close": data_close_json(c)}),
+        EndReason::Disconnected => json!({"kind": "disconnected"}),
+        EndReason::Unregistered => json!({"kind": "unregistered"}),
+        EndReason::Denied(r) => json!({"kind": "denied", "reason": deny_str(*r)}),
+    }
+}
+
+fn outcome_json(o: &Outcome) -> Value {
+    match o {
+        Outcome::Granted => json!({"kind": "granted"}),
+        Outcome::Pending => json!({"kind": "pending"}),
+        Outcome::Denied(r) => json!({"kind": "denied", "reason": deny_str(*r)}),
+        Outcome::Revoked(r) => json!({"kind": "revoked", "reason": revoke_str(*r)}),
+        Outcome::Withdrawn => json!({"kind": "withdrawn"}),
+    }
+}
+
+fn source_json(s: &SourceInfo) -> Value {
+    json!({"name": s.name, "kind": s.kind, "schema": s.schema, "rate_mhz": s.rate_mhz})
+}
+
+/// A manager event as a JSON object with a `type` (`session-opened`, `registered`,
+/// `decision`, `sources-changed`, `close-peer`, `data-closed`, …) and its fields.
+pub fn manager_event_json(e: &ManagerNetEvent) -> Value {
+    match e {
+        ManagerNetEvent::SessionOpened { peer, addr } => {
+            json!({"type": "session-opened", "peer": peer, "addr": addr.to_string()})
+        }
+        ManagerNetEvent::SessionEnded { peer, slow } => {
+            json!({"type": "session-ended", "peer": peer, "slow": slow})
+        }
+        ManagerNetEvent::DataOpened { client, source } => {
+            json!({"type": "data-opened", "client": client, "source": source})
+        }
+        ManagerNetEvent::DataClosed { source, reason } => {
+            json!({"type": "data-closed", "source": source, "reason": data_close_json(reason)})
+        }
+        ManagerNetEvent::Core(c) => match c {
+            ManagerEvent::Registered { peer, client } => {
+                json!({"type": "registered", "peer": peer, "client": client})
+            }
+            ManagerEvent::Declined {
+                peer,
+                client,
+                reason,
+            } => json!({"type": "declined", "peer": peer, "client": client,
+                "reason": decline_str(*reason)}),
+            ManagerEvent::Unregistered { peer, client } => {
+                json!({"type": "unregistered", "peer": peer, "client": client})
+            }
+            ManagerEvent::Decision(d) => json!({
+                "type": "decision", "client": d.client, "robot": d.robot, "source": d.source,
+                "priority": {"robot": d.priority.robot, "request": d.priority.request},
+                "task_priority": d.task_priority, "outcome": outcome_json(&d.outcome),
+                "at_s": d.at.as_secs_f64(),
+            }),
+            ManagerEvent::SourcesChanged { added, removed } => json!({
+                "type": "sources-changed",
+                "added": added.iter().map(source_json).collect::<Vec<_>>(),
+                "removed": removed,
+            }),
+            ManagerEvent::ClosePeer {
+                peer,
+                reason,
+                clients,
+            } => json!({"type": "close-peer", "peer": peer, "clients": clients,
+            "reason": match reason {
+                CloseReason::Wire(e) => json!({"kind": "wire", "error": wire_error_json(e)}),
+                CloseReason::Unexpected(code) => json!({"kind": "unexpected", "code": code}),
+                CloseReason::Lost => json!({"kind": "lost"}),
+                CloseReason::SlowConsumer => json!({"kind": "slow-consumer"}),
+            }}),
+        },
+    }
+}
+
+#[cfg(test)]
+mod json_tests {
+    use super::*;
+
+    /// No `Debug` text (`Name { … }`, `Name(…)`) in any string of a JSON value.
+    fn no_debug_text(v: &Value) {
+        match v {
+            Value::String(s) => assert!(
+                !s.contains('{') && !s.contains('(') && !s.contains("::"),
+                "Debug-looking text {s:?}"
+            ),
+            Value::Array(a) => a.iter().for_each(no_debug_text),
+            Value::Object(o) => o.values().for_each(no_debug_text),
+            _ => {}
+        }
+    }
+
+    #[test]
+    fn manager_events_are_json_objects_not_debug_text() {
+        let events = [
+            ManagerNetEvent::Core(ManagerEvent::SourcesChanged {
+                added: vec![SourceInfo::new("counter", "counter", 1, 10.0)],
+                removed: vec!["old".into()],
+            }),
+            ManagerNetEvent::Core(ManagerEvent::ClosePeer {
+                peer: 3,
+                reason: CloseReason::Wire(WireError::BadMac),
+                clients: vec![7],
+            }),
+            ManagerNetEvent::DataClosed {
+                source: Some("ses".into()),
+                reason: DataClose::Revoked(RevokeReason::SourceGone),
+            },
+            ManagerNetEvent::SessionOpened {
+                peer: 1,
+                addr: "127.0.0.1:9".parse().unwrap(),
+            },
+        ];
+        for e in &events {
+            let v = manager_event_json(e);
+            assert!(v["type"].is_string(), "{v}");
+            no_debug_text(&v);
+        }
+        let v = manager_event_json(&events[0]);
+        assert_eq!(v["type"], "sources-changed");
+        assert_eq!(v["added"][0]["name"], "counter");
+        assert_eq!(v["added"][0]["rate_mhz"], 10_000);
+        let v = manager_event_json(&events[1]);
+        assert_eq!(v["reason"]["error"]["kind"], "bad-mac");
+        let v = end_reason_json(&EndReason::Data(DataClose::Wire(WireError::Truncated {
+            need: 4,
+            got: 1,
+        })));
+        assert_eq!(
+            v["close"]["error"],
+            json!({"kind": "truncated", "need": 4, "got": 1})
+        );
+        no_debug_text(&loss_reason_json(&LossReason::Revoked(
+            RevokeReason::TaskPriority,
+        )));
+    }
 }

@@ -71,9 +71,15 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
         return Ok(k.clone());
     }
     match (&cfg.peer.key_file, cfg.peer.insecure) {
-        (Some(path), _) => load_key_file(path)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .with_context(|| format!("loading the group key {}", path.display())),
+        (Some(path), _) => {
+            let key = load_key_file(path)
+                .map_err(|e| anyhow::anyhow!("{e}"))
+                .with_context(|| format!("loading the group key {}", path.display()))?;
+            if key.is_insecure() {
+                eprintln!("ima: WARNING: {}", crate::cmd::peer::zero_key_warning(path));
+            }
+            Ok(key)
+        }
         (None, true) => {
             tracing::warn!("running with the insecure all-zero group key");
             Ok(insecure_key())
@@ -140,9 +146,24 @@ impl Bus {
         }
     }
 
+    /// Frames refused for a bad MAC since the last report (at most one report per
+    /// [`ima_agents::peer::net::AUTH_REPORT_INTERVAL`]; see
+    /// [`BroadcastChannel::take_auth_report`]).
+    pub fn take_auth_report(&self) -> Option<ima_agents::peer::net::AuthFailure> {
+        self.chan.take_auth_report()
+    }
+
+    /// Prints a pending authentication report on stderr (frames under another group key).
+    pub fn warn_auth(&self) {
+        if let Some(a) = self.take_auth_report() {
+            eprintln!("ima: warning: {a}");
+        }
+    }
+
     /// A task that hands every mission broadcast heard to a bounded queue (what the robot's
-    /// main loop selects on). A socket error is logged and listening goes on; the task ends
-    /// when the queue's receiver is dropped.
+    /// main loop selects on). A socket error is logged and listening goes on; frames under
+    /// another group key are reported on stderr (rate-limited, [`Bus::warn_auth`]); the task
+    /// ends when the queue's receiver is dropped.
     pub fn spawn_reader(
         &self,
     ) -> (
@@ -152,8 +173,17 @@ impl Bus {
         let (tx, rx) = tokio::sync::mpsc::channel::<Broadcast>(64);
         let bus = self.clone();
         let task = tokio::spawn(async move {
+            let mut check = tokio::time::interval(Duration::from_secs(1));
+            check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
             loop {
-                match bus.recv().await {
+                let r = tokio::select! {
+                    r = bus.recv() => r,
+                    _ = check.tick() => {
+                        bus.warn_auth();
+                        continue;
+                    }
+                };
+                match r {
                     Ok(b) => {
                         if tx.send(b).await.is_err() {
                             return;

@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use anyhow::Result;
-use ima_agents::mission::msg::{Broadcast, SES_SOURCE};
+use ima_agents::mission::msg::{Broadcast, Emergency, SES_SOURCE};
 use ima_agents::mission::scooter::{
     HeadingRule, HeadingSource, ScooterBrain, ScooterConfig, ScooterHeard, ScooterSay,
 };
@@ -24,6 +24,9 @@ use super::devices::ScooterDevices;
 use super::net::{Bus, net_config};
 use super::{Events, MissionClock};
 use crate::config::{self, RobotConfig};
+
+/// The behaviour a robot's status shows while a fleet stop holds it.
+pub const FLEET_STOPPED: &str = "fleet-stopped";
 
 /// The brain's configuration from the robot's.
 pub fn brain_config(cfg: &RobotConfig, odometry_offset_rad: f64) -> ScooterConfig {
@@ -168,6 +171,8 @@ pub async fn run(
     let lost_after = Duration::from_secs_f64(cfg.agent.lost_timeout_s);
     let mut last_odo_at = None;
     let mut last_compass_at = None;
+    // A fleet stop holds the base at zero until a fleet resume or a new target.
+    let mut halted = false;
     let result = loop {
         tokio::select! {
             _ = tick.tick() => {}
@@ -181,6 +186,34 @@ pub async fn run(
         let now = clock.now();
         while let Ok(b) = heard_rx.try_recv() {
             events.emit(&clock, &me, "heard", json!(b.to_string()));
+            if let Broadcast::Emergency { robot, emergency } = &b {
+                match emergency {
+                    Emergency::FleetStop { reason } => {
+                        if !halted {
+                            halted = true;
+                            // At once, not at the end of this tick.
+                            if let Err(e) = base.set_velocity(VelocityCommand::ZERO).await {
+                                tracing::warn!("base: {e:?}");
+                            }
+                            events.emit(
+                                &clock,
+                                &me,
+                                "fleet-stop",
+                                json!({"by": robot, "reason": reason}),
+                            );
+                        }
+                        continue;
+                    }
+                    Emergency::FleetResume => {
+                        if halted {
+                            halted = false;
+                            events.emit(&clock, &me, "fleet-resume", json!({"by": robot}));
+                        }
+                        continue;
+                    }
+                    _ => {}
+                }
+            }
             let Some(h) = ScooterHeard::from_broadcast(&b, &me) else {
                 continue;
             };
@@ -188,6 +221,16 @@ pub async fn run(
                 // Repeats of the current target (several copies are sent) change nothing.
                 ScooterHeard::TargetAccepted { colour } if brain.target() == Some(colour) => {}
                 ScooterHeard::TargetAccepted { colour } => {
+                    if halted {
+                        // A new target ends a fleet stop.
+                        halted = false;
+                        events.emit(
+                            &clock,
+                            &me,
+                            "fleet-resume",
+                            json!({"by": "new target", "target": colour}),
+                        );
+                    }
                     brain.handle_heard(&h, now);
                     reached = None;
                     // Skeeter's latest SES already says where the target is.
@@ -236,7 +279,7 @@ pub async fn run(
         let out = brain.step(now);
         // Once Scooter has told Skeeter it reached the target it waits there for the end of
         // the mission (or a new target), whatever the brain selects meanwhile.
-        let command = if reached.is_some() {
+        let command = if reached.is_some() || halted {
             VelocityCommand::ZERO
         } else {
             out.command
@@ -255,6 +298,7 @@ pub async fn run(
                     "v_m_s": command.v_m_s, "omega_rad_s": command.omega_rad_s,
                     "heading_rad": brain.heading(), "desired_rad": brain.desired_heading(),
                     "dr": [dr.x, dr.y], "behaviour": out.behaviour.as_str(),
+                    "halted": halted,
                 }),
             );
         }
@@ -267,13 +311,17 @@ pub async fn run(
             if let ScooterSay::TargetReached { colour } = &say {
                 reached = Some(colour.clone());
             }
-            let Some(msg) = say.to_broadcast(&me, &brain.san_summary()) else {
+            let Some(mut msg) = say.to_broadcast(&me, &brain.san_summary()) else {
                 // RequestHeading: ask Skeeter's manager again (a fresh grant makes Skeeter
                 // scan and publish).
                 events.emit(&clock, &me, "request-heading", json!(null));
                 let _ = rerequest_tx.try_send(());
                 continue;
             };
+            // While a fleet stop holds, the status says so (the brain's module is on hold).
+            if halted && let Broadcast::Status { behaviour, .. } = &mut msg {
+                *behaviour = FLEET_STOPPED.to_owned();
+            }
             if !matches!(msg, Broadcast::Status { .. }) {
                 events.emit(&clock, &me, "say", json!(msg.to_string()));
             }
@@ -344,10 +392,13 @@ async fn ses_loop(
                         Err(e) => tracing::warn!("bad SES sample: {e:?}"),
                     },
                     SubscriptionEvent::Lost { reason } => {
-                        events.emit(&clock, &me, "peer", json!({"lost": format!("{reason:?}")}));
+                        events.emit(&clock, &me, "peer", json!({"lost": crate::cmd::peer::loss_reason_json(&reason)}));
                     }
                     SubscriptionEvent::Closed { reason } => {
-                        return Err(format!("subscription closed: {reason:?}"));
+                        return Err(format!(
+                            "subscription closed: {}",
+                            crate::cmd::peer::end_reason_json(&reason)
+                        ));
                     }
                 }
             }

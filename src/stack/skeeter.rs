@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use ima_agents::mission::msg::{
-    Broadcast, SCOOTER_TAG, SES_SOURCE, SES_SOURCE_KIND, SES_SOURCE_SCHEMA,
+    Broadcast, Emergency, SCOOTER_TAG, SES_SOURCE, SES_SOURCE_KIND, SES_SOURCE_SCHEMA,
 };
 use ima_agents::mission::scan::{ScanConfig, ScanReport, Scanner, run_scan};
 use ima_agents::mission::skeeter::{SkeeterBrain, SkeeterConfig, SkeeterOutput};
@@ -134,6 +134,8 @@ pub async fn run(
     let (mut heard_rx, rx_task) = bus.spawn_reader();
     brain.start(clock.now());
     let mut last_behaviour = String::new();
+    // A fleet stop was heard (reported once; Skeeter's base is held stopped anyway).
+    let mut fleet_stopped = false;
     let result: Result<()> = loop {
         // Carry out the brain's outputs.
         while let Some(out) = brain.poll_output() {
@@ -190,6 +192,24 @@ pub async fn run(
             }
             Some(b) = heard_rx.recv() => {
                 events.emit(&clock, &me, "heard", json!(b.to_string()));
+                match &b {
+                    Broadcast::Emergency { robot, emergency: Emergency::FleetStop { reason } } => {
+                        // Skeeter does not drive, but a fleet stop is obeyed by every base
+                        // (each copy: stopping twice is harmless).
+                        if let Err(e) = base.stop().await {
+                            tracing::warn!("base: {e:?}");
+                        }
+                        if !fleet_stopped {
+                            fleet_stopped = true;
+                            events.emit(&clock, &me, "fleet-stop", json!({"by": robot, "reason": reason}));
+                        }
+                    }
+                    Broadcast::Emergency { robot, emergency: Emergency::FleetResume } if fleet_stopped => {
+                        fleet_stopped = false;
+                        events.emit(&clock, &me, "fleet-resume", json!({"by": robot}));
+                    }
+                    _ => {}
+                }
                 brain.handle_broadcast(&b, clock.now());
             }
             ev = grants.recv() => match ev {

@@ -17,13 +17,22 @@
 //! `Accomplished`/`Failed` does not leave the series hanging until the give-up timer. If the observer says
 //! nothing at all about a target for [`CommanderConfig::give_up_after`] (a dead robot), the
 //! commander marks it failed itself. Every broadcast heard is kept in a log.
+//!
+//! [`Commander::cancel`] withdraws a target: it is failed at once (marked
+//! [`Target::cancelled`]), a `target-cancel` goes out (several copies: the observer ends it
+//! and Scooter stops pursuing it), and the next target follows. A `target-cancel` heard from
+//! another commander process of the same name does the same without sending.
+//! [`Commander::fleet_stop`] and [`Commander::fleet_resume`] queue the fleet commands.
+//!
+//! [`Liveness`] tells, from the broadcasts heard, which robots are alive and which have
+//! fallen silent (lost).
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 
 use ima_hal::Instant;
 
-use super::msg::{Broadcast, MissionEvent};
+use super::msg::{Broadcast, Emergency, FLEET_COPIES, MissionEvent};
 
 /// Settings of the commander.
 #[derive(Debug, Clone, PartialEq)]
@@ -111,6 +120,8 @@ pub struct Target {
     pub sends: u32,
     /// The commander gave up on it (no word from the observer).
     pub given_up: bool,
+    /// The operator cancelled it ([`Commander::cancel`]).
+    pub cancelled: bool,
 }
 
 impl Target {
@@ -185,6 +196,7 @@ impl Commander {
                     finished_at: None,
                     sends: 0,
                     given_up: false,
+                    cancelled: false,
                 })
                 .collect(),
             current: None,
@@ -313,6 +325,27 @@ impl Commander {
             at: now,
             broadcast: b.clone(),
         });
+        if let Broadcast::Emergency {
+            robot,
+            emergency: Emergency::TargetCancel { colour },
+        } = b
+            && *robot == self.cfg.robot
+        {
+            // Another commander process withdrew it: follow, without sending again.
+            if let Some(t) = self
+                .targets
+                .iter_mut()
+                .find(|t| t.colour == *colour && !t.state.is_final())
+            {
+                t.state = TargetState::Failed;
+                t.cancelled = true;
+                t.finished_at = Some(now);
+                if self.current().is_some_and(|c| c.colour == *colour) {
+                    self.advance(now);
+                }
+            }
+            return;
+        }
         let Broadcast::Mission {
             robot,
             event,
@@ -357,6 +390,63 @@ impl Commander {
         }
     }
 
+    /// The operator withdraws `colour`: a target of the series not yet final becomes
+    /// [`TargetState::Failed`] with [`Target::cancelled`] set; if it was the current one,
+    /// [`FLEET_COPIES`] copies of `target-cancel` are queued (the observer ends it, Scooter
+    /// stops pursuing it) and the next target goes out. Returns whether a target was
+    /// cancelled (`false`: no such colour, or already final).
+    pub fn cancel(&mut self, colour: &str, now: Instant) -> bool {
+        let Some(i) = self
+            .targets
+            .iter()
+            .position(|t| t.colour == colour && !t.state.is_final())
+        else {
+            return false;
+        };
+        let was_current = self.current == Some(i);
+        if let Some(t) = self.targets.get_mut(i) {
+            t.state = TargetState::Failed;
+            t.cancelled = true;
+            t.finished_at = Some(now);
+        }
+        if was_current {
+            for _ in 0..FLEET_COPIES {
+                self.out.push_back(Broadcast::emergency(
+                    &self.cfg.robot,
+                    Emergency::TargetCancel {
+                        colour: colour.to_owned(),
+                    },
+                ));
+            }
+            if self.started {
+                self.advance(now);
+            }
+        }
+        true
+    }
+
+    /// Queues [`FLEET_COPIES`] copies of `fleet-stop` (every robot stops and holds).
+    pub fn fleet_stop(&mut self, reason: &str) {
+        for _ in 0..FLEET_COPIES {
+            self.out.push_back(Broadcast::emergency(
+                &self.cfg.robot,
+                Emergency::FleetStop {
+                    reason: reason.to_owned(),
+                },
+            ));
+        }
+    }
+
+    /// Queues [`FLEET_COPIES`] copies of `fleet-resume`.
+    pub fn fleet_resume(&mut self) {
+        for _ in 0..FLEET_COPIES {
+            self.out.push_back(Broadcast::emergency(
+                &self.cfg.robot,
+                Emergency::FleetResume,
+            ));
+        }
+    }
+
     fn send(&mut self, i: usize, now: Instant) {
         if let Some(t) = self.targets.get_mut(i) {
             if t.sent_at.is_none() {
@@ -387,6 +477,150 @@ impl Commander {
     }
 }
 
+/// A robot's liveness as the commander sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Life {
+    /// Heard within the silence limit.
+    Alive,
+    /// Silent for longer than the limit.
+    Lost,
+}
+
+impl Life {
+    /// `alive` or `lost`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Life::Alive => "alive",
+            Life::Lost => "lost",
+        }
+    }
+}
+
+/// A change of a robot's [`Life`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LifeChange {
+    /// The robot.
+    pub robot: String,
+    /// Its new state.
+    pub life: Life,
+    /// How long it had been silent when the change was seen (zero for a robot heard for
+    /// the first time).
+    pub silent: Duration,
+}
+
+/// Which robots are alive, from the broadcasts heard (every robot sends a `Status` at
+/// least once a second). A robot silent for longer than the limit is [`Life::Lost`]; heard
+/// again, it is [`Life::Alive`]. Sans-IO: [`Liveness::heard`] and
+/// [`Liveness::handle_timeout`] are the inputs, their [`LifeChange`]s and
+/// [`Liveness::poll_timeout`] the outputs.
+#[derive(Debug, Clone)]
+pub struct Liveness {
+    lost_after: Duration,
+    ignore: Vec<String>,
+    robots: BTreeMap<String, Heard>,
+}
+
+/// What [`Liveness`] knows of one robot.
+#[derive(Debug, Clone, Copy)]
+struct Heard {
+    /// Last broadcast (or when it was first expected).
+    last: Instant,
+    life: Life,
+    /// Heard at least once.
+    ever: bool,
+}
+
+impl Liveness {
+    /// Robots silent for longer than `lost_after` are lost; broadcasts of the names in
+    /// `ignore` (the commander's own) are not counted.
+    #[must_use]
+    pub fn new(lost_after: Duration, ignore: &[&str]) -> Self {
+        Self {
+            lost_after,
+            ignore: ignore.iter().map(|s| (*s).to_owned()).collect(),
+            robots: BTreeMap::new(),
+        }
+    }
+
+    /// The silence limit.
+    #[must_use]
+    pub fn lost_after(&self) -> Duration {
+        self.lost_after
+    }
+
+    /// Expects `robot` from `now` on: it is reported alive when first heard, and lost if it
+    /// is not heard within the limit.
+    pub fn expect(&mut self, robot: &str, now: Instant) {
+        if !self.ignore.iter().any(|i| i == robot) {
+            self.robots.entry(robot.to_owned()).or_insert(Heard {
+                last: now,
+                life: Life::Alive,
+                ever: false,
+            });
+        }
+    }
+
+    /// A broadcast from `robot` at `now`: a change when it is heard for the first time or
+    /// after it was lost.
+    pub fn heard(&mut self, robot: &str, now: Instant) -> Option<LifeChange> {
+        if self.ignore.iter().any(|i| i == robot) {
+            return None;
+        }
+        let h = self.robots.entry(robot.to_owned()).or_insert(Heard {
+            last: now,
+            life: Life::Alive,
+            ever: false,
+        });
+        let silent = if h.ever {
+            now.saturating_duration_since(h.last)
+        } else {
+            Duration::ZERO
+        };
+        let change = !h.ever || h.life == Life::Lost;
+        h.last = now;
+        h.life = Life::Alive;
+        h.ever = true;
+        change.then(|| LifeChange {
+            robot: robot.to_owned(),
+            life: Life::Alive,
+            silent,
+        })
+    }
+
+    /// Time passed: robots silent for longer than the limit become lost (once each).
+    pub fn handle_timeout(&mut self, now: Instant) -> Vec<LifeChange> {
+        let mut out = Vec::new();
+        for (robot, h) in &mut self.robots {
+            let silent = now.saturating_duration_since(h.last);
+            if h.life == Life::Alive && silent > self.lost_after {
+                h.life = Life::Lost;
+                out.push(LifeChange {
+                    robot: robot.clone(),
+                    life: Life::Lost,
+                    silent,
+                });
+            }
+        }
+        out
+    }
+
+    /// When [`Liveness::handle_timeout`] is next due (the earliest alive robot's limit).
+    #[must_use]
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.robots
+            .values()
+            .filter(|h| h.life == Life::Alive)
+            .map(|h| h.last + self.lost_after + Duration::from_millis(1))
+            .min()
+    }
+
+    /// Every robot known and its state.
+    pub fn robots(&self) -> impl Iterator<Item = (&str, Life)> {
+        self.robots.iter().map(|(r, h)| (r.as_str(), h.life))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -406,6 +640,116 @@ mod tests {
 
     fn states(c: &Commander) -> Vec<&'static str> {
         c.targets().iter().map(|t| t.state.as_str()).collect()
+    }
+
+    #[test]
+    fn a_cancelled_target_fails_at_once_and_the_next_goes_out() {
+        let mut c = Commander::new(&["red", "blue", "green"], CommanderConfig::default());
+        c.start(t(0));
+        let _ = drain(&mut c);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accepted, "red"), t(1));
+        assert!(!c.cancel("purple", t(2)), "not in the series");
+        // A waiting target is cancelled without a word on the channel.
+        assert!(c.cancel("green", t(2)));
+        assert_eq!(drain(&mut c), []);
+        assert!(c.cancel("red", t(3)));
+        assert!(!c.cancel("red", t(3)), "already final");
+        let out = drain(&mut c);
+        let cancel = Broadcast::emergency(
+            COMMANDER,
+            Emergency::TargetCancel {
+                colour: "red".into(),
+            },
+        );
+        assert_eq!(
+            out.iter().filter(|b| **b == cancel).count(),
+            FLEET_COPIES,
+            "{out:?}"
+        );
+        assert_eq!(out.last(), Some(&Broadcast::new_target("blue")));
+        assert_eq!(states(&c), ["failed", "sent", "failed"]);
+        assert!(c.targets()[0].cancelled && c.targets()[2].cancelled);
+        assert!(!c.targets()[0].given_up);
+        // Skeeter's late `Failed` for red changes nothing.
+        c.handle_broadcast(&from_skeeter(MissionEvent::Failed, "red"), t(4));
+        assert_eq!(states(&c), ["failed", "sent", "failed"]);
+        // A cancel by another commander process of the same name is followed.
+        c.handle_broadcast(
+            &Broadcast::emergency(
+                COMMANDER,
+                Emergency::TargetCancel {
+                    colour: "blue".into(),
+                },
+            ),
+            t(5),
+        );
+        assert_eq!(states(&c), ["failed", "failed", "failed"]);
+        assert!(c.is_finished());
+    }
+
+    #[test]
+    fn fleet_commands_go_out_several_times() {
+        let mut c = Commander::new(&["red"], CommanderConfig::default());
+        c.fleet_stop("test");
+        c.fleet_resume();
+        let out = drain(&mut c);
+        assert_eq!(out.len(), 2 * FLEET_COPIES);
+        assert!(matches!(
+            &out[0],
+            Broadcast::Emergency {
+                emergency: Emergency::FleetStop { reason },
+                ..
+            } if reason == "test"
+        ));
+        assert!(matches!(
+            &out[FLEET_COPIES],
+            Broadcast::Emergency {
+                emergency: Emergency::FleetResume,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn liveness_reports_a_silent_robot_lost_once_and_back_when_heard() {
+        let mut l = Liveness::new(Duration::from_secs(5), &[COMMANDER]);
+        assert_eq!(l.poll_timeout(), None);
+        l.expect(SKEETER, t(0));
+        l.expect(COMMANDER, t(0));
+        assert_eq!(l.heard(COMMANDER, t(0)), None, "own name ignored");
+        let first = l.heard(SCOOTER, t(1)).unwrap();
+        assert_eq!((first.life, first.silent), (Life::Alive, Duration::ZERO));
+        assert_eq!(l.heard(SCOOTER, t(2)), None, "no change");
+        assert_eq!(l.handle_timeout(t(5)), []);
+        // Skeeter (expected at 0, never heard) is lost after 5 s; Scooter after 2 + 5.
+        let lost = l.handle_timeout(t(6));
+        assert_eq!(lost.len(), 1);
+        assert_eq!(
+            (lost[0].robot.as_str(), lost[0].life),
+            (SKEETER, Life::Lost)
+        );
+        assert_eq!(l.handle_timeout(t(6)), [], "reported once");
+        assert!(l.poll_timeout().unwrap() > t(7));
+        let lost = l.handle_timeout(t(8));
+        assert_eq!(
+            (lost[0].robot.as_str(), lost[0].life),
+            (SCOOTER, Life::Lost)
+        );
+        assert_eq!(lost[0].silent, Duration::from_secs(6));
+        assert_eq!(l.poll_timeout(), None, "everyone is lost");
+        let back = l.heard(SCOOTER, t(9)).unwrap();
+        assert_eq!(
+            (back.life, back.silent),
+            (Life::Alive, Duration::from_secs(7))
+        );
+        let states: Vec<_> = l.robots().collect();
+        assert_eq!(states, [(SCOOTER, Life::Alive), (SKEETER, Life::Lost)]);
+        // An expected robot heard for the first time is reported alive.
+        let mut l = Liveness::new(Duration::from_secs(5), &[]);
+        l.expect(SKEETER, t(0));
+        let first = l.heard(SKEETER, t(1)).unwrap();
+        assert_eq!((first.life, first.silent), (Life::Alive, Duration::ZERO));
+        assert_eq!(l.heard(SKEETER, t(2)), None);
     }
 
     #[test]

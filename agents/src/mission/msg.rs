@@ -20,7 +20,16 @@
 //! | [`Emergency::TargetQuery`] | [`Msg::Emergency`] | `target-query`, text = colour |
 //! | [`Emergency::TargetReply`] | [`Msg::Emergency`] | `target-reply`, text = `"<colour> yes"` / `"<colour> no"` |
 //! | [`Emergency::TargetReached`] | [`Msg::Emergency`] | `target-reached`, text = colour |
+//! | [`Emergency::FleetStop`] | [`Msg::Emergency`] | `fleet-stop`, text = `v1` and a free reason (every robot stops at once and holds) |
+//! | [`Emergency::FleetResume`] | [`Msg::Emergency`] | `fleet-resume`, text = `v1` (the robots may move again) |
+//! | [`Emergency::TargetCancel`] | [`Msg::Emergency`] | `target-cancel`, text = colour (the commander withdraws a target) |
 //! | [`Broadcast::Mission`] | [`Msg::Mission`] | event Accepted / Accomplished / Failed, target colour |
+//!
+//! The fleet commands travel as emergencies so that the wire format does not change: a
+//! robot built before them decodes them as an unknown emergency kind (a typed
+//! [`MsgError::UnknownKind`], ignored), and every earlier message decodes as before. The
+//! text of `fleet-stop` and `fleet-resume` starts with a version word (`v1`); a text
+//! without one is taken as version 1 too.
 //!
 //! The commander sends a new target as `Mission { robot: "commander", Accepted, colour }`;
 //! Skeeter answers with its own `Accepted`, later `Accomplished` or `Failed`.
@@ -77,6 +86,17 @@ pub const KIND_TARGET_QUERY: &str = "target-query";
 pub const KIND_TARGET_REPLY: &str = "target-reply";
 /// Emergency kind string of [`Emergency::TargetReached`].
 pub const KIND_TARGET_REACHED: &str = "target-reached";
+/// Emergency kind string of [`Emergency::FleetStop`].
+pub const KIND_FLEET_STOP: &str = "fleet-stop";
+/// Emergency kind string of [`Emergency::FleetResume`].
+pub const KIND_FLEET_RESUME: &str = "fleet-resume";
+/// Emergency kind string of [`Emergency::TargetCancel`].
+pub const KIND_TARGET_CANCEL: &str = "target-cancel";
+/// Version word that starts the text of the fleet commands (`fleet-stop`, `fleet-resume`).
+pub const FLEET_VERSION: &str = "v1";
+/// Copies of a fleet command a commander sends (broadcasts are datagrams and may be lost;
+/// the robots obey the first and ignore the repeats).
+pub const FLEET_COPIES: usize = 5;
 
 /// An emergency on the broadcast channel, typed by its kind.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -102,6 +122,20 @@ pub enum Emergency {
         /// The target colour.
         colour: String,
     },
+    /// `fleet-stop`: every robot zeroes its velocity at once and holds until a
+    /// [`Emergency::FleetResume`] or a new target.
+    FleetStop {
+        /// Why (free text, shown to the operator; may be empty).
+        reason: String,
+    },
+    /// `fleet-resume`: the robots may move again (they carry on with their targets).
+    FleetResume,
+    /// `target-cancel`: the commander withdraws a target; the observer ends it as failed
+    /// and the robots stop pursuing it.
+    TargetCancel {
+        /// The target colour.
+        colour: String,
+    },
 }
 
 impl Emergency {
@@ -114,6 +148,9 @@ impl Emergency {
             Emergency::TargetQuery { .. } => KIND_TARGET_QUERY,
             Emergency::TargetReply { .. } => KIND_TARGET_REPLY,
             Emergency::TargetReached { .. } => KIND_TARGET_REACHED,
+            Emergency::FleetStop { .. } => KIND_FLEET_STOP,
+            Emergency::FleetResume => KIND_FLEET_RESUME,
+            Emergency::TargetCancel { .. } => KIND_TARGET_CANCEL,
         }
     }
 
@@ -124,9 +161,14 @@ impl Emergency {
         match self {
             Emergency::ScooterLost => "Scooter lost".to_owned(),
             Emergency::ScooterFound => "Scooter found".to_owned(),
-            Emergency::TargetQuery { colour } | Emergency::TargetReached { colour } => {
-                colour.clone()
+            Emergency::TargetQuery { colour }
+            | Emergency::TargetReached { colour }
+            | Emergency::TargetCancel { colour } => colour.clone(),
+            Emergency::FleetStop { reason } if reason.is_empty() => FLEET_VERSION.to_owned(),
+            Emergency::FleetStop { reason } => {
+                truncate_wire_str(&format!("{FLEET_VERSION} {reason}")).to_owned()
             }
+            Emergency::FleetResume => FLEET_VERSION.to_owned(),
             Emergency::TargetReply { colour, seen } => {
                 format!("{colour} {}", if *seen { "yes" } else { "no" })
             }
@@ -148,6 +190,13 @@ impl Emergency {
             KIND_TARGET_REACHED => Ok(Emergency::TargetReached {
                 colour: colour(text)?,
             }),
+            KIND_TARGET_CANCEL => Ok(Emergency::TargetCancel {
+                colour: colour(text)?,
+            }),
+            KIND_FLEET_STOP => Ok(Emergency::FleetStop {
+                reason: fleet_text(text)?.to_owned(),
+            }),
+            KIND_FLEET_RESUME => fleet_text(text).map(|_| Emergency::FleetResume),
             KIND_TARGET_REPLY => {
                 let mut words = text.split_whitespace();
                 let (Some(c), Some(answer), None) = (words.next(), words.next(), words.next())
@@ -166,6 +215,24 @@ impl Emergency {
             }
             _ => Err(MsgError::UnknownKind),
         }
+    }
+}
+
+/// The text of a fleet command after its version word: `v1 …` or no version word (taken
+/// as version 1); another `vN` is [`MsgError::UnsupportedVersion`].
+fn fleet_text(text: &str) -> Result<&str, MsgError> {
+    let t = text.trim();
+    let (first, rest) = t.split_once(' ').unwrap_or((t, ""));
+    if first == FLEET_VERSION {
+        return Ok(rest.trim());
+    }
+    let is_version = first.len() > 1
+        && first.starts_with('v')
+        && first.bytes().skip(1).all(|b| b.is_ascii_digit());
+    if is_version {
+        Err(MsgError::UnsupportedVersion)
+    } else {
+        Ok(t)
     }
 }
 
@@ -355,7 +422,7 @@ impl fmt::Display for Broadcast {
                 robot,
                 event,
                 target,
-            } => write!(f, "{robot}: mission {target} {event:?}"),
+            } => write!(f, "{robot}: mission {target} {}", event.as_str()),
         }
     }
 }
@@ -371,6 +438,8 @@ pub enum MsgError {
     BadColour,
     /// A `target-reply` text is not `"<colour> yes"` / `"<colour> no"`.
     BadReply,
+    /// A fleet command of a later version than [`FLEET_VERSION`].
+    UnsupportedVersion,
 }
 
 impl fmt::Display for MsgError {
@@ -380,6 +449,9 @@ impl fmt::Display for MsgError {
             MsgError::UnknownKind => f.write_str("unknown emergency kind"),
             MsgError::BadColour => f.write_str("empty or malformed colour"),
             MsgError::BadReply => f.write_str("target-reply text is not \"<colour> yes|no\""),
+            MsgError::UnsupportedVersion => {
+                write!(f, "fleet command of a version other than {FLEET_VERSION}")
+            }
         }
     }
 }
@@ -433,6 +505,20 @@ mod tests {
                 },
             ),
             Broadcast::new_target("yellow"),
+            Broadcast::emergency(
+                COMMANDER,
+                Emergency::FleetStop {
+                    reason: "operator pressed stop".into(),
+                },
+            ),
+            Broadcast::emergency(COMMANDER, Emergency::FleetStop { reason: "".into() }),
+            Broadcast::emergency(COMMANDER, Emergency::FleetResume),
+            Broadcast::emergency(
+                COMMANDER,
+                Emergency::TargetCancel {
+                    colour: "red".into(),
+                },
+            ),
             Broadcast::mission(SKEETER, MissionEvent::Accomplished, "yellow"),
             Broadcast::mission(SKEETER, MissionEvent::Failed, "cyan"),
         ]
@@ -565,10 +651,55 @@ mod tests {
     }
 
     #[test]
+    fn fleet_commands_have_versioned_texts_and_old_messages_still_decode() {
+        let stop = Broadcast::emergency(
+            COMMANDER,
+            Emergency::FleetStop {
+                reason: "ctrl-c".into(),
+            },
+        );
+        let Msg::Emergency { kind, text, .. } = stop.to_wire(3) else {
+            panic!("an emergency")
+        };
+        assert_eq!((kind.as_str(), text.as_str()), ("fleet-stop", "v1 ctrl-c"));
+        assert_eq!(
+            Emergency::from_kind_text("fleet-resume", "v1"),
+            Ok(Emergency::FleetResume)
+        );
+        // No version word: version 1, the whole text is the reason.
+        assert_eq!(
+            Emergency::from_kind_text("fleet-stop", "stop now"),
+            Ok(Emergency::FleetStop {
+                reason: "stop now".into()
+            })
+        );
+        // A later version is refused, not misread.
+        assert_eq!(
+            Emergency::from_kind_text("fleet-stop", "v2 halt"),
+            Err(MsgError::UnsupportedVersion)
+        );
+        assert_eq!(
+            Emergency::from_kind_text("target-cancel", "dark red"),
+            Err(MsgError::BadColour)
+        );
+        // The earlier vocabulary decodes exactly as before.
+        assert_eq!(
+            Emergency::from_kind_text("target-reached", "red"),
+            Ok(Emergency::TargetReached {
+                colour: "red".into()
+            })
+        );
+        assert_eq!(
+            Emergency::from_kind_text("scooter-found", ""),
+            Ok(Emergency::ScooterFound)
+        );
+    }
+
+    #[test]
     fn display_and_robot() {
         let b = Broadcast::mission(SKEETER, MissionEvent::Failed, "red");
         assert_eq!(b.robot(), "skeeter");
-        assert_eq!(b.to_string(), "skeeter: mission red Failed");
+        assert_eq!(b.to_string(), "skeeter: mission red failed");
         assert!(MsgError::NotBroadcast(1).to_string().contains("0x01"));
     }
 

@@ -390,8 +390,8 @@ impl ScooterSay {
 impl ScooterHeard {
     /// What a broadcast means to Scooter, if anything: a target `Accepted` by anyone but
     /// Scooter (the commander's request or Skeeter's acceptance) starts a target;
-    /// `Accomplished`/`Failed` ends it; the emergencies `scooter-lost`, `scooter-found` and
-    /// `target-query` map one to one. Everything else (statuses, Scooter's own
+    /// `Accomplished`/`Failed` or a commander's `target-cancel` ends it; the emergencies
+    /// `scooter-lost`, `scooter-found` and `target-query` map one to one. Everything else (statuses, Scooter's own
     /// emergencies) is `None`.
     #[must_use]
     pub fn from_broadcast(b: &Broadcast, me: &str) -> Option<Self> {
@@ -413,7 +413,15 @@ impl ScooterHeard {
                 Emergency::TargetQuery { colour } => Some(Self::TargetQuery {
                     colour: colour.clone(),
                 }),
-                Emergency::TargetReply { .. } | Emergency::TargetReached { .. } => None,
+                // The commander withdrew the target: for Scooter, that target is over.
+                Emergency::TargetCancel { colour } => Some(Self::MissionEnded {
+                    colour: colour.clone(),
+                }),
+                // Fleet stop and resume are obeyed by the stack, below the brain.
+                Emergency::TargetReply { .. }
+                | Emergency::TargetReached { .. }
+                | Emergency::FleetStop { .. }
+                | Emergency::FleetResume => None,
             },
             Broadcast::Status { .. } => None,
         }
@@ -2435,6 +2443,25 @@ mod tests {
             },
         );
         assert_eq!(ScooterHeard::from_broadcast(&own, "scooter"), None);
+        let cancel = Broadcast::emergency(
+            "commander",
+            Emergency::TargetCancel {
+                colour: RED.to_owned(),
+            },
+        );
+        assert_eq!(
+            ScooterHeard::from_broadcast(&cancel, "scooter"),
+            Some(ScooterHeard::MissionEnded {
+                colour: RED.to_owned()
+            })
+        );
+        let stop = Broadcast::emergency(
+            "commander",
+            Emergency::FleetStop {
+                reason: String::new(),
+            },
+        );
+        assert_eq!(ScooterHeard::from_broadcast(&stop, "scooter"), None);
         let say = ScooterSay::TargetReply {
             colour: RED.to_owned(),
             seen: true,

@@ -106,6 +106,8 @@ pub const FED_CONDITIONS: [&str; 15] = [
 
 /// Behaviour name when no target is being processed.
 pub const IDLE: &str = "idle";
+/// Module name recorded in a [`TargetOutcome`] for a target the commander cancelled.
+pub const CANCELLED: &str = "cancelled";
 
 const MAX_FIRINGS: usize = 16;
 const MAX_STEPS: usize = 64;
@@ -406,8 +408,20 @@ impl SkeeterBrain {
         self.decide(now);
     }
 
-    /// A broadcast heard on the channel: commander targets, Scooter's `target-reached` and
-    /// `target-reply`. Everything else (statuses, other robots) is ignored.
+    /// The commander withdrew `colour`: a queued copy is dropped; the target being processed
+    /// ends as `Failed` (module `cancelled`, broadcast so that Scooter and the commander see
+    /// it) and the next queued target starts. Another colour changes nothing.
+    pub fn handle_cancel(&mut self, colour: &str, now: Instant) {
+        self.queue.retain(|q| q != colour);
+        if self.target() == Some(colour) {
+            self.end_target(MissionEvent::Failed, CANCELLED, now);
+            self.decide(now);
+        }
+    }
+
+    /// A broadcast heard on the channel: commander targets and cancels, Scooter's
+    /// `target-reached` and `target-reply`. Everything else (statuses, other robots) is
+    /// ignored.
     pub fn handle_broadcast(&mut self, b: &Broadcast, now: Instant) {
         match b {
             Broadcast::Mission {
@@ -415,6 +429,10 @@ impl SkeeterBrain {
                 event: MissionEvent::Accepted,
                 target,
             } if *robot == self.cfg.commander => self.handle_target(target, now),
+            Broadcast::Emergency {
+                robot,
+                emergency: Emergency::TargetCancel { colour },
+            } if *robot == self.cfg.commander => self.handle_cancel(colour, now),
             Broadcast::Emergency { robot, emergency } if *robot == self.cfg.scooter => {
                 let current = self.target().map(str::to_owned);
                 match emergency {
@@ -786,6 +804,39 @@ mod tests {
         assert_eq!(b.behaviour(), "scan-for-target");
         assert!(b.is_scanning());
         b
+    }
+
+    #[test]
+    fn a_cancelled_target_fails_at_once_and_the_next_one_starts() {
+        let mut b = started("red");
+        b.handle_broadcast(&Broadcast::new_target("blue"), t(1));
+        b.handle_broadcast(&Broadcast::new_target("green"), t(1));
+        let _ = drain(&mut b);
+        // A cancel from anyone but the commander is ignored.
+        let cancel = |c: &str| Emergency::TargetCancel { colour: c.into() };
+        b.handle_broadcast(&from_scooter(cancel("red")), t(2));
+        assert_eq!(b.target(), Some("red"));
+        // A queued target is dropped silently.
+        b.handle_broadcast(&Broadcast::emergency(COMMANDER, cancel("blue")), t(2));
+        assert_eq!(b.target(), Some("red"));
+        assert_eq!(b.queued().collect::<Vec<_>>(), ["green"]);
+        // The current one fails (and says so); the next one starts.
+        b.handle_broadcast(&Broadcast::emergency(COMMANDER, cancel("red")), t(3));
+        let out = actions(&mut b);
+        assert!(
+            out.contains(&mission(MissionEvent::Failed, "red")),
+            "{out:?}"
+        );
+        assert!(
+            out.contains(&mission(MissionEvent::Accepted, "green")),
+            "{out:?}"
+        );
+        assert_eq!(b.target(), Some("green"));
+        let last = b.outcomes().last().unwrap();
+        assert_eq!(
+            (last.target.as_str(), last.module.as_str()),
+            ("red", CANCELLED)
+        );
     }
 
     #[test]

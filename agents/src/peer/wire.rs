@@ -118,6 +118,14 @@ impl GroupKey {
         Self(bytes.to_vec())
     }
 
+    /// Whether every byte is zero: the documented insecure key
+    /// ([`crate::peer::net::INSECURE_KEY`] with feature `net`), under which anyone can forge
+    /// frames — also when it comes from a key file.
+    #[must_use]
+    pub fn is_insecure(&self) -> bool {
+        self.0.iter().all(|b| *b == 0)
+    }
+
     fn mac(&self) -> HmacSha256 {
         // HMAC accepts keys of any length; `new_from_slice` cannot fail for HMAC.
         match HmacSha256::new_from_slice(&self.0) {
@@ -206,6 +214,18 @@ pub enum MissionEvent {
     Accomplished = 2,
     /// A target failed.
     Failed = 3,
+}
+
+impl MissionEvent {
+    /// The lower-case name: `accepted`, `accomplished`, `failed`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            MissionEvent::Accepted => "accepted",
+            MissionEvent::Accomplished => "accomplished",
+            MissionEvent::Failed => "failed",
+        }
+    }
 }
 
 /// A pose in fixed point (millimetres, milliradians), so frames round-trip exactly.

@@ -146,12 +146,18 @@ impl Network {
     /// [`SpecError`] for duplicates, undeclared propositions, bad parameters or weights.
     pub fn new(spec: &NetworkSpec) -> Result<Self, SpecError> {
         let p = spec.params;
+        // Injected energies are bounded (spec::MAX_ENERGY) so that their sums and ratios stay finite.
+        let energy = |v: f64, zero_ok: bool| {
+            v.is_finite() && v <= spec::MAX_ENERGY && (v > 0.0 || (zero_ok && v == 0.0))
+        };
         let checks: [(&'static str, bool); 7] = [
-            ("pi", p.pi.is_finite() && p.pi > 0.0),
+            ("pi", energy(p.pi, false)),
+            // A threshold, not an injected energy: only finite and positive (a huge one
+            // stalls the network, which then falls back to the strongest module).
             ("theta", p.theta.is_finite() && p.theta > 0.0),
-            ("phi", p.phi.is_finite() && p.phi >= 0.0),
-            ("gamma", p.gamma.is_finite() && p.gamma > 0.0),
-            ("delta", p.delta.is_finite() && p.delta >= 0.0),
+            ("phi", energy(p.phi, true)),
+            ("gamma", energy(p.gamma, false)),
+            ("delta", energy(p.delta, true)),
             (
                 "theta_decay",
                 p.theta_decay.is_finite() && p.theta_decay > 0.0 && p.theta_decay < 1.0,
@@ -702,6 +708,22 @@ pre = ["c"]
             bad("name = \"x\"\n[params]\ntheta = -1.0\n[[module]]\nname = \"m\""),
             SpecError::BadParam("theta")
         );
+        // Absurdly large energies are refused too, with the range named.
+        for (p, v) in [
+            ("gamma", "1e308"),
+            ("phi", "1e7"),
+            ("pi", "inf"),
+            ("delta", "-1"),
+        ] {
+            let e = bad(&format!(
+                "name = \"x\"\n[params]\n{p} = {v}\n[[module]]\nname = \"m\""
+            ));
+            assert!(
+                matches!(e, SpecError::BadParam(n) if n == p),
+                "{p} = {v}: {e:?}"
+            );
+            assert!(e.to_string().contains("1000000"), "{e}");
+        }
         assert_eq!(
             bad(
                 "name = \"x\"\n[[condition]]\nname = \"c\"\n[[condition]]\nname = \"c\"\n[[module]]\nname = \"m\""

@@ -192,6 +192,21 @@ pub enum SpecError {
     BadWeight(String),
 }
 
+/// Largest value of an energy parameter (`pi`, `phi`, `gamma`, `delta`): far above
+/// any useful network (the thesis uses tens), low enough that sums and ratios stay finite.
+pub const MAX_ENERGY: f64 = 1e6;
+
+/// The allowed range of parameter `name`, in words.
+fn param_range(name: &str) -> &'static str {
+    match name {
+        "pi" | "gamma" => "a finite number in (0, 1000000]",
+        "theta" => "a finite number above 0",
+        "phi" | "delta" => "a finite number in [0, 1000000]",
+        "theta_decay" => "a number in (0, 1)",
+        _ => "see the network documentation",
+    }
+}
+
 impl core::fmt::Display for SpecError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
@@ -203,7 +218,7 @@ impl core::fmt::Display for SpecError {
                 write!(f, "module `{module}` uses undeclared proposition `{name}`")
             }
             Self::UnknownGoal(n) => write!(f, "goal `{n}` is not a declared condition"),
-            Self::BadParam(p) => write!(f, "parameter `{p}` is out of range"),
+            Self::BadParam(p) => write!(f, "parameter `{p}` is out of range: {}", param_range(p)),
             Self::BadWeight(m) => write!(f, "module `{m}` has a non-finite weight"),
         }
     }

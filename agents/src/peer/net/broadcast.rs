@@ -8,7 +8,7 @@ use socket2::{Domain, Protocol, Socket, Type};
 use tokio::net::UdpSocket;
 
 use super::config::{BroadcastConfig, BroadcastMode, PeerNetConfig, parse_ip_addr};
-use super::{NetError, random_u64, unix_micros};
+use super::{AuthFailure, NetError, random_u64, unix_micros};
 use crate::peer::broadcast::{BroadcastReceiver, Broadcaster, ReceiverConfig, ReceiverStats};
 use crate::peer::wire::{
     GroupKey, HEADER_LEN, MAC_LEN, MissionEvent, Msg, Pose, RejectCounts, WireError,
@@ -29,12 +29,22 @@ pub struct BroadcastStats {
     pub own: u64,
 }
 
+/// Shortest interval between two [`BroadcastChannel::take_auth_report`]s (the first
+/// rejection is reported at once).
+pub const AUTH_REPORT_INTERVAL: core::time::Duration = core::time::Duration::from_secs(10);
+
 struct Inner {
     tx: Broadcaster,
     rx: BroadcastReceiver,
     sent: u64,
     send_errors: u64,
     own: u64,
+    /// Sender of the last datagram refused for a bad MAC.
+    bad_mac_from: Option<SocketAddr>,
+    /// Bad-MAC count at the last report.
+    bad_mac_reported: u64,
+    /// When the last report was taken.
+    last_auth_report: Option<ima_hal::Instant>,
 }
 
 /// One robot's (or the commander's) end of the broadcast channel. Cheap to clone; `recv`
@@ -74,7 +84,9 @@ fn udp_socket(b: &BroadcastConfig) -> Result<Socket, NetError> {
     s.set_reuse_address(true)?;
     #[cfg(all(unix, not(any(target_os = "solaris", target_os = "illumos"))))]
     s.set_reuse_port(true)?;
-    s.bind(&SocketAddrV4::new(bind, b.bind_port.unwrap_or(b.port)).into())?;
+    let at = SocketAddrV4::new(bind, b.bind_port.unwrap_or(b.port));
+    s.bind(&at.into())
+        .map_err(super::bind_error("the broadcast channel", at))?;
     if b.mode != BroadcastMode::Unicast {
         if !group.is_multicast() {
             return Err(NetError::Config(format!(
@@ -130,6 +142,9 @@ impl BroadcastChannel {
                 sent: 0,
                 send_errors: 0,
                 own: 0,
+                bad_mac_from: None,
+                bad_mac_reported: 0,
+                last_auth_report: None,
             })),
             dests: Arc::new(dests),
             robot: robot.to_owned(),
@@ -261,7 +276,12 @@ impl BroadcastChannel {
             let now = self.clock.now();
             let mut g = self.lock();
             g.rx.set_first_counter_window(self.first_window());
-            if let Ok(msg) = g.rx.handle_datagram(frame, now) {
+            let bad_mac = g.rx.wire_rejects().bad_mac;
+            let r = g.rx.handle_datagram(frame, now);
+            if g.rx.wire_rejects().bad_mac != bad_mac {
+                g.bad_mac_from = Some(from);
+            }
+            if let Ok(msg) = r {
                 // Own messages (looped back by multicast) are recognised by this channel's
                 // node ID: another process may use the same robot name.
                 if !self.receive_own && g.rx.last_sender() == Some(g.tx.node()) {
@@ -271,6 +291,28 @@ impl BroadcastChannel {
                 return Ok((msg, from));
             }
         }
+    }
+
+    /// Datagrams refused for a bad MAC since the last report, and the sender of the last
+    /// one — for the operator: `Some` at the first refusal, then at most once per
+    /// [`AUTH_REPORT_INTERVAL`] while more arrive (`None` otherwise). Call it now and then
+    /// (e.g. once a second); refusals are counted by [`BroadcastChannel::recv`].
+    #[must_use]
+    pub fn take_auth_report(&self) -> Option<AuthFailure> {
+        let now = self.clock.now();
+        let mut g = self.lock();
+        let total = g.rx.wire_rejects().bad_mac;
+        let due = g
+            .last_auth_report
+            .is_none_or(|t| now.saturating_duration_since(t) >= AUTH_REPORT_INTERVAL);
+        if total <= g.bad_mac_reported || !due {
+            return None;
+        }
+        let from = g.bad_mac_from?;
+        let frames = total - g.bad_mac_reported;
+        g.bad_mac_reported = total;
+        g.last_auth_report = Some(now);
+        Some(AuthFailure { from, frames })
     }
 
     /// Counters.

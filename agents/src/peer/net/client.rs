@@ -10,9 +10,9 @@ use tokio::net::{TcpStream, ToSocketAddrs};
 use tokio::sync::{Notify, mpsc, oneshot};
 use tokio::task::JoinHandle;
 
-use super::NetError;
 use super::config::PeerNetConfig;
 use super::frames::{FrameReader, max_frame, write_batch, write_frames};
+use super::{AuthFailure, NetError};
 use super::{random_u64, unix_micros};
 use crate::peer::client::{ClientConfig, ClientEvent, PeerClient};
 use crate::peer::data::{DataClientSession, DataClose, DataConfig, DataEvent};
@@ -263,6 +263,8 @@ pub struct PeerClientHandle {
     cmd: mpsc::UnboundedSender<Cmd>,
     task: JoinHandle<()>,
     call_timeout: Option<std::time::Duration>,
+    /// Set when the session ended for want of authentication (see [`AuthFailure`]).
+    auth: Arc<Mutex<Option<AuthFailure>>>,
 }
 
 impl PeerClientHandle {
@@ -288,6 +290,8 @@ impl PeerClientHandle {
             TcpStream::connect(addr).await?
         };
         let _ = stream.set_nodelay(true);
+        let peer = stream.peer_addr()?;
+        let auth = Arc::new(Mutex::new(None));
         let clock = TokioClock::new();
         let mut ccfg = ClientConfig::new(&cfg.robot, random_u64(), random_u64());
         ccfg.first_counter = unix_micros();
@@ -312,6 +316,9 @@ impl PeerClientHandle {
             req_replies: BTreeMap::new(),
             subs: BTreeMap::new(),
             generation: 0,
+            peer,
+            heard_ok: false,
+            auth: auth.clone(),
         };
         let task = tokio::spawn(task.run(stream, cmd_rx));
         Ok(Self {
@@ -319,20 +326,43 @@ impl PeerClientHandle {
             task,
             call_timeout: (cfg.call_timeout_ms > 0)
                 .then(|| std::time::Duration::from_millis(cfg.call_timeout_ms)),
+            auth,
         })
+    }
+
+    /// Why the session is over: [`NetError::Unauthenticated`] when it ended for want of
+    /// authentication, else [`NetError::ManagerLost`].
+    fn lost(&self) -> NetError {
+        match *self.auth.lock().unwrap_or_else(PoisonError::into_inner) {
+            Some(a) => NetError::Unauthenticated(a),
+            None => NetError::ManagerLost,
+        }
+    }
+
+    /// The authentication failure that ended the session, if it ended so: frames from the
+    /// manager that failed authentication, or a manager that closed the session before
+    /// sending one authenticated frame (what a manager does with frames under another key).
+    #[must_use]
+    pub fn auth_failure(&self) -> Option<AuthFailure> {
+        *self.auth.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     async fn call<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, NetError> {
         let (tx, rx) = oneshot::channel();
-        self.cmd.send(make(tx)).map_err(|_| NetError::ManagerLost)?;
-        match self.call_timeout {
+        self.cmd.send(make(tx)).map_err(|_| self.lost())?;
+        let r = match self.call_timeout {
             // On a timeout the reply's receiver is dropped: the task withdraws a request
             // granted later.
             Some(t) => tokio::time::timeout(t, rx)
                 .await
                 .map_err(|_| NetError::Timeout)?
-                .map_err(|_| NetError::ManagerLost)?,
-            None => rx.await.map_err(|_| NetError::ManagerLost)?,
+                .map_err(|_| self.lost())?,
+            None => rx.await.map_err(|_| self.lost())?,
+        };
+        // A loss reported by the task may be an authentication failure seen meanwhile.
+        match r {
+            Err(NetError::ManagerLost) => Err(self.lost()),
+            other => other,
         }
     }
 
@@ -387,10 +417,8 @@ impl PeerClientHandle {
     /// [`NetError::ManagerLost`] once the session is over.
     pub async fn sources(&self) -> Result<(u64, Vec<SourceInfo>), NetError> {
         let (tx, rx) = oneshot::channel();
-        self.cmd
-            .send(Cmd::Sources(tx))
-            .map_err(|_| NetError::ManagerLost)?;
-        rx.await.map_err(|_| NetError::ManagerLost)
+        self.cmd.send(Cmd::Sources(tx)).map_err(|_| self.lost())?;
+        rx.await.map_err(|_| self.lost())
     }
 
     /// Whether the manager session is over (lost or closed).
@@ -417,9 +445,39 @@ struct ClientTask {
     req_replies: BTreeMap<String, Reply<Subscription>>,
     subs: BTreeMap<String, SubRec>,
     generation: u64,
+    /// The manager's address (for [`AuthFailure`]).
+    peer: std::net::SocketAddr,
+    /// A frame from the manager passed authentication.
+    heard_ok: bool,
+    auth: Arc<Mutex<Option<AuthFailure>>>,
 }
 
 impl ClientTask {
+    /// Hands frames to the core, noting whether any passed authentication.
+    fn frames(&mut self, reader: &mut FrameReader, now: ima_hal::Instant) {
+        while let Some(f) = reader.next_frame() {
+            let before = self.core.rejects();
+            self.core.handle_frame(f, now);
+            if self.core.rejects() == before {
+                self.heard_ok = true;
+            }
+        }
+    }
+
+    /// On the loss of the session: an [`AuthFailure`] when frames from the manager failed
+    /// authentication, or when the manager closed the session before one authenticated
+    /// frame came back (a manager closes the session of a frame under another key).
+    fn note_auth_failure(&mut self) {
+        let frames = self.core.rejects().bad_mac;
+        if frames > 0 || !self.heard_ok {
+            let a = AuthFailure {
+                from: self.peer,
+                frames,
+            };
+            *self.auth.lock().unwrap_or_else(PoisonError::into_inner) = Some(a);
+        }
+    }
+
     async fn run(mut self, stream: TcpStream, mut cmds: mpsc::UnboundedReceiver<Cmd>) {
         let max_body = self.dcfg.max_body;
         let (mut rd, wr) = stream.into_split();
@@ -443,9 +501,7 @@ impl ClientTask {
                     Ok(0) | Err(_) => self.core.closed(),
                     Ok(_) => {
                         let now = self.clock.now();
-                        while let Some(f) = reader.next_frame() {
-                            self.core.handle_frame(f, now);
-                        }
+                        self.frames(&mut reader, now);
                     }
                 },
                 c = cmds.recv() => match c {
@@ -457,11 +513,7 @@ impl ClientTask {
                     let now = self.clock.now();
                     match reader.try_read_from(&rd) {
                         Ok(Some(0)) | Err(_) => self.core.closed(),
-                        Ok(Some(_)) => {
-                            while let Some(f) = reader.next_frame() {
-                                self.core.handle_frame(f, now);
-                            }
-                        }
+                        Ok(Some(_)) => self.frames(&mut reader, now),
                         Ok(None) => {}
                     }
                     self.core.handle_timeout(self.clock.now());
@@ -668,6 +720,8 @@ impl ClientTask {
             ClientEvent::SourceGone { source } => self.close_data(&source),
             ClientEvent::ManagerLost(why) => {
                 tracing::warn!(error = ?why, "peer client: manager lost");
+                // Before any reply goes: a caller maps `ManagerLost` to this.
+                self.note_auth_failure();
                 if let Some(r) = self.reg_reply.take() {
                     let _ = r.send(Err(NetError::ManagerLost));
                 }

@@ -14,6 +14,9 @@ use super::NetError;
 /// [`PeerNetConfig::validate`]).
 pub const MAX_QUEUE: usize = 65_536;
 
+/// Upper bound of `heartbeat_ms` (one minute; see [`PeerNetConfig::validate`]).
+pub const MAX_PERIOD_MS: u64 = 60_000;
+
 /// Configuration of one robot's Peer Agent over IP.
 ///
 /// ```toml
@@ -103,7 +106,10 @@ impl PeerNetConfig {
     }
 
     /// Checks the limits: `max_body` in 256..=65 535 (the wire's body length is a u16),
-    /// `heartbeat_ms` and `missed_heartbeats` at least 1, `manager.data_queue` and
+    /// `heartbeat_ms` in 1..=[`MAX_PERIOD_MS`], `missed_heartbeats` in 1..=1000,
+    /// `max_clock_skew_ms` at most a day, `call_timeout_ms`, `manager.rescan_ms` and
+    /// `manager.ticket_lifetime_ms` at most an hour (the last two at least 1),
+    /// `broadcast.ttl` in 1..=255, `manager.data_queue` and
     /// `manager.session_queue` in 1..=[`MAX_QUEUE`], `manager.max_clients` and
     /// `manager.max_connections` at least 1. [`super::spawn_manager`],
     /// [`super::PeerClientHandle::connect`] and [`super::BroadcastChannel::bind`] call it.
@@ -119,11 +125,30 @@ impl PeerNetConfig {
         if !(256..=usize::from(u16::MAX)).contains(&self.max_body) {
             return bad("max_body", &self.max_body, "256..=65535");
         }
-        if self.heartbeat_ms == 0 {
-            return bad("heartbeat_ms", &self.heartbeat_ms, "at least 1");
+        // Times in ms: (key, value, smallest, largest). A zero period would spin, a huge one
+        // overflow the deadlines derived from it (or never declare a dead peer lost).
+        let times = [
+            ("heartbeat_ms", self.heartbeat_ms, 1, MAX_PERIOD_MS),
+            ("max_clock_skew_ms", self.max_clock_skew_ms, 0, 86_400_000),
+            ("call_timeout_ms", self.call_timeout_ms, 0, 3_600_000),
+            ("manager.rescan_ms", self.manager.rescan_ms, 1, 3_600_000),
+            (
+                "manager.ticket_lifetime_ms",
+                self.manager.ticket_lifetime_ms,
+                1,
+                3_600_000,
+            ),
+        ];
+        for (key, v, lo, hi) in times {
+            if !(lo..=hi).contains(&v) {
+                return bad(key, &v, &format!("{lo}..={hi} ms"));
+            }
         }
-        if self.missed_heartbeats == 0 {
-            return bad("missed_heartbeats", &self.missed_heartbeats, "at least 1");
+        if !(1..=1000).contains(&self.missed_heartbeats) {
+            return bad("missed_heartbeats", &self.missed_heartbeats, "1..=1000");
+        }
+        if !(1..=255).contains(&self.broadcast.ttl) {
+            return bad("broadcast.ttl", &self.broadcast.ttl, "1..=255");
         }
         let m = &self.manager;
         if !(1..=MAX_QUEUE).contains(&m.data_queue) {
@@ -352,6 +377,34 @@ mod tests {
         assert!(PeerNetConfig::from_toml("max_body = 65536\n").is_err());
         assert!(PeerNetConfig::from_toml("max_body = 65535\n").is_ok());
         assert!(PeerNetConfig::from_toml("heartbeat_ms = 0\n").is_err());
+        // Nonsense periods are refused with the key and its range named.
+        for (toml, key, range) in [
+            (
+                "heartbeat_ms = 100000000000\n",
+                "heartbeat_ms",
+                "1..=60000 ms",
+            ),
+            ("missed_heartbeats = 0\n", "missed_heartbeats", "1..=1000"),
+            (
+                "[manager]\nrescan_ms = 0\n",
+                "manager.rescan_ms",
+                "1..=3600000 ms",
+            ),
+            (
+                "[manager]\nticket_lifetime_ms = 0\n",
+                "manager.ticket_lifetime_ms",
+                "1..=3600000 ms",
+            ),
+            (
+                "call_timeout_ms = 99999999999\n",
+                "call_timeout_ms",
+                "0..=3600000 ms",
+            ),
+            ("[broadcast]\nttl = 0\n", "broadcast.ttl", "1..=255"),
+        ] {
+            let e = PeerNetConfig::from_toml(toml).unwrap_err().to_string();
+            assert!(e.contains(key) && e.contains(range), "{toml}: {e}");
+        }
         assert!(PeerNetConfig::from_toml("[manager]\ndata_queue = 0\n").is_err());
         assert!(PeerNetConfig::from_toml("[manager]\nsession_queue = 100000000\n").is_err());
         assert!(PeerNetConfig::from_toml("[manager]\nmax_connections = 0\n").is_err());

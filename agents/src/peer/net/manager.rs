@@ -473,8 +473,12 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     cfg.validate()?;
     let listen = parse_addr(&cfg.manager.listen, "manager.listen").await?;
     let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen").await?;
-    let listener = TcpListener::bind(listen).await?;
-    let data_listener = TcpListener::bind(data_listen).await?;
+    let listener = TcpListener::bind(listen)
+        .await
+        .map_err(super::bind_error("the manager's request channel", listen))?;
+    let data_listener = TcpListener::bind(data_listen)
+        .await
+        .map_err(super::bind_error("the manager's data server", data_listen))?;
     let local_addr = listener.local_addr()?;
     let data_addr = data_listener.local_addr()?;
     let clock = TokioClock::new();

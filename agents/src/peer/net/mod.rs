@@ -52,7 +52,7 @@ mod frames;
 mod key;
 mod manager;
 
-pub use broadcast::{BroadcastChannel, BroadcastStats};
+pub use broadcast::{AUTH_REPORT_INTERVAL, BroadcastChannel, BroadcastStats};
 pub use client::{EndReason, LossReason, PeerClientHandle, Subscription, SubscriptionEvent};
 pub use config::{
     BroadcastConfig, BroadcastMode, MAX_QUEUE, ManagerNetConfig, PeerNetConfig, SyntheticSource,
@@ -90,6 +90,36 @@ pub enum NetError {
     Closed,
     /// The manager did not answer within `call_timeout_ms` (the procedure is withdrawn).
     Timeout,
+    /// The session ended for want of authentication: most likely the two ends hold
+    /// different group keys.
+    Unauthenticated(AuthFailure),
+}
+
+/// Frames that failed authentication (their MAC does not verify under this process's group
+/// key), or a peer that closed the session before sending one authenticated frame. Its
+/// `Display` is the sentence shown to the operator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AuthFailure {
+    /// Where the frames came from (the manager, or a broadcast sender).
+    pub from: std::net::SocketAddr,
+    /// Frames refused for a bad MAC (0: the peer closed the session before sending any).
+    pub frames: u64,
+}
+
+impl core::fmt::Display for AuthFailure {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.frames {
+            0 => write!(
+                f,
+                "{} closed the session before sending one authenticated frame (a Peer Agent \
+                 closes a session whose frames fail authentication)",
+                self.from
+            )?,
+            1 => write!(f, "1 frame from {} failed authentication", self.from)?,
+            n => write!(f, "{n} frames from {} failed authentication", self.from)?,
+        }
+        f.write_str(" — is the key file the same on every robot?")
+    }
 }
 
 impl core::fmt::Display for NetError {
@@ -106,6 +136,7 @@ impl core::fmt::Display for NetError {
             NetError::ManagerLost => f.write_str("manager lost"),
             NetError::Closed => f.write_str("the peer task has ended"),
             NetError::Timeout => f.write_str("the manager did not answer in time"),
+            NetError::Unauthenticated(a) => write!(f, "manager lost: {a}"),
         }
     }
 }
@@ -132,6 +163,16 @@ impl From<ClientError> for NetError {
             other => NetError::Client(other),
         }
     }
+}
+
+/// The error of binding `what` (e.g. "the manager's data server") to `addr`: the I/O error
+/// with the address named, so that "address already in use" says which one.
+pub(crate) fn bind_error(
+    what: &str,
+    addr: impl core::fmt::Display,
+) -> impl FnOnce(std::io::Error) -> NetError {
+    let context = format!("binding {what} to {addr}");
+    move |e| NetError::Io(std::io::Error::new(e.kind(), format!("{context}: {e}")))
 }
 
 /// A random `u64` from the operating system (sender IDs, client-ID seeds); falls back to a
