@@ -189,20 +189,144 @@ impl core::error::Error for WireError {}
 
 /// SICK's CRC-16 (spec §1.1): polynomial `0x8005`, initial 0, the previous byte folded into the
 /// high half, no reflection, no final XOR. Sent low byte first.
+///
+/// Computed sixteen bytes at a time (see [`crc16_bitwise`] for the definition and the
+/// derivation); the result is the same for every input.
 #[must_use]
 pub fn crc16(bytes: &[u8]) -> u16 {
+    let Some(&last) = bytes.last() else {
+        return 0;
+    };
+    // E = Σ b_i·x^(n−1−i) mod P, by Horner's rule over blocks: E ← x^k·E + V_k.
+    let mut e: u16 = 0;
+    let mut blocks = bytes.chunks_exact(16);
+    for block in &mut blocks {
+        // chunks_exact(16) hands out 16-byte slices: the fallback is never taken.
+        let w = u128::from_be_bytes(block.try_into().unwrap_or([0; 16]));
+        let (a, b) = ((w >> 64) as u64, w as u64);
+        // V_16 = V_8(a)·x^8 + V_8(b): at most 23 bits, its top 7 reduced by one lookup.
+        let v = (u32::from(fold8(a)) << 8) ^ u32::from(fold8(b));
+        e = mul_x16(e) ^ reduce23(v);
+    }
+    let mut rest = blocks.remainder().chunks_exact(8);
+    for block in &mut rest {
+        e = mul_x8(e) ^ fold8(u64::from_be_bytes(block.try_into().unwrap_or([0; 8])));
+    }
+    for &b in rest.remainder() {
+        e = mul_x(e) ^ u16::from(b);
+    }
+    // crc = (1 + x^7)·E + x^7·b_(n−1) mod P.
+    reduce23(u32::from(e) ^ (u32::from(e) << 7)) ^ (u16::from(last) << 7)
+}
+
+/// The bit-serial definition of [`crc16`], one byte per step, exactly as the spec (§1.1) and the
+/// C drivers state it. Kept as the reference the fast version is tested against.
+///
+/// Per byte `b` (with `prev` the byte before it, 0 at the start): `crc ← x·crc mod P` (shift left,
+/// XOR `0x8005` if bit 15 was set), then `crc ^= prev << 8 | b`. Over GF(2) with
+/// `P = x^16 + x^15 + x^2 + 1` this is `crc_n = Σ x^(n−1−i)·(x^8·b_(i−1) + b_i)`, which regroups
+/// as `(1 + x^7)·E + x^7·b_(n−1)` with `E = Σ b_i·x^(n−1−i)`: a register that moves one bit per
+/// *byte*. Eight bytes of `E` therefore combine without any reduction into a 15-bit
+/// `Σ b_j·x^(7−j)` (three shift-and-mask folds of a `u64`), and only the register's own
+/// `x^8`/`x^16` steps need the lookup tables below, which `const fn` derives from this
+/// definition's shift step at compile time.
+#[must_use]
+pub fn crc16_bitwise(bytes: &[u8]) -> u16 {
     let mut crc: u16 = 0;
     let mut prev: u8 = 0;
     for &b in bytes {
-        if crc & 0x8000 != 0 {
-            crc = (crc << 1) ^ 0x8005;
-        } else {
-            crc <<= 1;
-        }
-        crc ^= u16::from_be_bytes([prev, b]);
+        crc = mul_x(crc) ^ u16::from_be_bytes([prev, b]);
         prev = b;
     }
     crc
+}
+
+/// `x·c mod P`: the register's shift step (spec §1.1).
+#[inline(always)]
+const fn mul_x(c: u16) -> u16 {
+    if c & 0x8000 != 0 {
+        (c << 1) ^ 0x8005
+    } else {
+        c << 1
+    }
+}
+
+/// `h·x^shifts mod P` for a byte `h`, by [`mul_x`] alone (`h·x^8` fits in 16 bits).
+const fn byte_times_x(h: u16, shifts: u32) -> u16 {
+    let mut c = h << 8;
+    let mut s = 8;
+    while s < shifts {
+        c = mul_x(c);
+        s += 1;
+    }
+    c
+}
+
+/// The table `h ↦ h·x^shifts mod P` over all bytes `h`, built at compile time.
+const fn byte_table(shifts: u32) -> [u16; 256] {
+    let mut t = [0u16; 256];
+    let mut rest: &mut [u16] = &mut t;
+    let mut h = 0;
+    while let [slot, tail @ ..] = rest {
+        *slot = byte_times_x(h, shifts);
+        rest = tail;
+        h += 1;
+    }
+    t
+}
+
+/// `h·x^16 mod P`: reduces a byte at bits 16–23.
+const X16: [u16; 256] = byte_table(16);
+/// `h·x^24 mod P`: reduces a byte at bits 24–31.
+const X24: [u16; 256] = byte_table(24);
+
+/// `h·x^16 mod P`.
+#[inline(always)]
+fn x16(h: u8) -> u16 {
+    // A u8 index is always in range; the fallback is never taken (and compiled out).
+    X16.get(usize::from(h)).copied().unwrap_or(0)
+}
+
+/// `h·x^24 mod P`.
+#[inline(always)]
+fn x24(h: u8) -> u16 {
+    X24.get(usize::from(h)).copied().unwrap_or(0)
+}
+
+/// `x^8·e mod P`.
+#[inline(always)]
+fn mul_x8(e: u16) -> u16 {
+    let [hi, lo] = e.to_be_bytes();
+    (u16::from(lo) << 8) ^ x16(hi)
+}
+
+/// `x^16·e mod P`.
+#[inline(always)]
+fn mul_x16(e: u16) -> u16 {
+    let [hi, lo] = e.to_be_bytes();
+    x16(lo) ^ x24(hi)
+}
+
+/// `v mod P` for `v` below `2^24`.
+#[inline(always)]
+fn reduce23(v: u32) -> u16 {
+    let [_, top, hi, lo] = v.to_be_bytes();
+    u16::from_be_bytes([hi, lo]) ^ x16(top)
+}
+
+/// `Σ b_j·x^(7−j)` over the eight bytes of `w` (`b_0` the most significant; 15 bits, no
+/// reduction needed): fold neighbouring bytes, then pairs, then quads, each a shift-and-mask over
+/// the whole word.
+#[inline(always)]
+const fn fold8(w: u64) -> u16 {
+    // 16-bit lanes (b_2k, b_2k+1) → b_2k·x + b_2k+1 (9 bits).
+    let w = ((w >> 7) & 0x01FE_01FE_01FE_01FE) ^ (w & 0x00FF_00FF_00FF_00FF);
+    // 32-bit lanes → hi·x^2 + lo (11 bits).
+    let w = ((w >> 14) & 0x0000_07FC_0000_07FC) ^ (w & 0x0000_01FF_0000_01FF);
+    // Both halves → hi·x^4 + lo (15 bits).
+    let w = ((w >> 28) & 0x7FF0) ^ (w & 0x07FF);
+    // At most 15 bits set: the cast keeps them all.
+    w as u16
 }
 
 // ---------------------------------------------------------------------------------------------
