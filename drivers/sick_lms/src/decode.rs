@@ -5,7 +5,7 @@ use core::f64::consts::PI;
 use ima_hal::Isometry2;
 use ima_hal::laser::{BeamFlags, LaserDescription, LaserScan};
 
-use crate::wire::{MeasuringMode, Scan, Units};
+use crate::wire::{MeasuringMode, Scan, Units, Values};
 
 /// A scan variant: field width and angular resolution (command `3B`, spec §3.6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -213,17 +213,80 @@ pub fn decode_scan(
         lms_deg_to_sensor_rad(start_deg),
         f64::from(v.res_centideg()) * PI / 18_000.0,
     );
-    for word in scan.values.iter() {
-        let val = Value::decode(word, mode).ok_or(DecodeError::UnknownMeasuringMode(mode.0))?;
-        let range = if val.flags.is_valid() {
-            f32::from(val.distance) * unit
+    let split = WordSplit::new(mode).ok_or(DecodeError::UnknownMeasuringMode(mode.0))?;
+    let mut push = |word: u16| {
+        let (range, flags) = split.apply(word, unit);
+        out.push(range, flags)
+    };
+    let pushed = match scan.values {
+        Values::Wire(bytes) => bytes.chunks_exact(2).try_for_each(|pair| match *pair {
+            [lo, hi] => push(u16::from_le_bytes([lo, hi])),
+            _ => Ok(()),
+        }),
+        Values::Words(words) => words.iter().try_for_each(|&w| push(w)),
+    };
+    pushed.map_err(|_| DecodeError::TooManyValues)
+}
+
+/// The device-independent flags of the 13-bit modes' top codes, indexed by `distance − 0x1FF6`
+/// (index 0: every distance below the codes).
+const SPECIAL_FLAGS: [BeamFlags; 10] = [
+    BeamFlags::VALID,           // ..=1FF6: a range
+    BeamFlags::ABOVE_MAX_RANGE, // 1FF7
+    BeamFlags::RESERVED,        // 1FF8
+    BeamFlags::RESERVED,        // 1FF9
+    BeamFlags::READ_ERROR,      // 1FFA
+    BeamFlags::LOW_SIGNAL,      // 1FFB
+    BeamFlags::RESERVED,        // 1FFC
+    BeamFlags::OVERFLOW,        // 1FFD
+    BeamFlags::DAZZLED,         // 1FFE
+    BeamFlags::NO_RETURN,       // 1FFF
+];
+
+/// A measuring mode's value-word split, worked out once per scan: [`Value::decode`] without the
+/// per-word `match` on the mode, and without branches on the special codes.
+#[derive(Debug, Clone, Copy)]
+struct WordSplit {
+    mask: u16,
+    /// Shift that brings the bits above the mask down to bit 0 (16: none).
+    shift: u32,
+    /// Distances above this are special codes (`0x1FF6` in 13-bit modes, none otherwise).
+    special_above: u32,
+}
+
+impl WordSplit {
+    fn new(mode: MeasuringMode) -> Option<Self> {
+        let mask = mode.distance_mask()?;
+        Some(Self {
+            mask,
+            shift: mask.trailing_ones(),
+            special_above: if mode.has_special_values() {
+                0x1FF6
+            } else {
+                u32::from(u16::MAX)
+            },
+        })
+    }
+
+    /// `(range in metres, flags)` of `word`: `distance × unit`, or `NAN` for a special code.
+    #[inline(always)]
+    fn apply(self, word: u16, unit: f32) -> (f32, BeamFlags) {
+        let distance = word & self.mask;
+        // At most 8 bits remain after the shift (masks have 13–16 bits): the cast keeps them.
+        let raw = (u32::from(word) >> self.shift) as u8;
+        // 0 below the codes, 1..=9 for 1FF7..=1FFF (distance ≤ 1FFF whenever codes exist).
+        let code = u32::from(distance).saturating_sub(self.special_above);
+        let flags = SPECIAL_FLAGS
+            .get(code as usize)
+            .copied()
+            .unwrap_or(BeamFlags::VALID);
+        let range = if flags.is_valid() {
+            f32::from(distance) * unit
         } else {
             f32::NAN
         };
-        out.push(range, val.flags)
-            .map_err(|_| DecodeError::TooManyValues)?;
+        (range, flags.with_device_bits(raw))
     }
-    Ok(())
 }
 
 /// The value word a device reports for `range_m` (`None`: no return) in `units` and `mode`:
@@ -466,5 +529,72 @@ mod tests {
         );
         assert!((d.max_range_m - 81.82).abs() < 1e-2);
         assert!((d.max_scan_rate_hz - 18.75).abs() < 1e-12);
+    }
+
+    /// The range and flags [`Value::decode`] gives for `word`: the per-word reference.
+    fn reference(word: u16, mode: MeasuringMode, unit: f32) -> (f32, BeamFlags) {
+        let v = Value::decode(word, mode).unwrap();
+        let range = if v.flags.is_valid() {
+            f32::from(v.distance) * unit
+        } else {
+            f32::NAN
+        };
+        (range, v.flags)
+    }
+
+    fn same(a: f32, b: f32) -> bool {
+        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+    }
+
+    proptest::proptest! {
+        /// The per-scan split gives what `Value::decode` gives for every word, mode and unit,
+        /// from wire bytes and from words alike.
+        #[test]
+        fn decode_scan_equals_value_decode(
+            count in proptest::sample::select(vec![101usize, 181, 201, 361, 401]),
+            seed in proptest::collection::vec(proptest::prelude::any::<u16>(), 401),
+            near_codes in proptest::prelude::any::<bool>(),
+            mode in proptest::sample::select(vec![0x00u8, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F]),
+            units in proptest::sample::select(vec![Units::Cm, Units::Mm, Units::Dm]),
+        ) {
+            let mode = MeasuringMode(mode);
+            // Half the cases crowd the special codes (1FF0..=1FFF, any flag bits).
+            let words: Vec<u16> = seed[..count]
+                .iter()
+                .map(|&w| if near_codes { 0x1FF0 | (w & 0xE00F) } else { w })
+                .collect();
+            let wire: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+            let unit = units.metres().unwrap();
+            for values in [Values::Words(&words), Values::Wire(&wire)] {
+                let s = Scan {
+                    count_word: CountWord::full_scan(count as u16, units),
+                    values,
+                    indices: None,
+                    status: StatusByte::NORMAL,
+                };
+                let mut out = LaserScan::default();
+                decode_scan(&s, mode, None, &mut out).unwrap();
+                proptest::prop_assert_eq!(out.len(), count);
+                for (i, &w) in words.iter().enumerate() {
+                    let (r, f) = reference(w, mode, unit);
+                    proptest::prop_assert!(same(out.ranges_m()[i], r), "word {:#06x}", w);
+                    proptest::prop_assert_eq!(out.flags()[i], f, "word {:#06x}", w);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_word_in_every_mode_matches_value_decode() {
+        for mode in [0x00u8, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F] {
+            let mode = MeasuringMode(mode);
+            let split = WordSplit::new(mode).unwrap();
+            for w in 0..=u16::MAX {
+                let (r, f) = split.apply(w, 0.001);
+                let (rr, rf) = reference(w, mode, 0.001);
+                assert!(same(r, rr), "mode {mode:?} word {w:#06x}");
+                assert_eq!(f, rf, "mode {mode:?} word {w:#06x}");
+            }
+        }
     }
 }
