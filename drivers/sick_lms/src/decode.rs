@@ -309,6 +309,23 @@ impl WordSplit {
         (ranges, flags, special != 0)
     }
 
+    /// Turn the special codes among eight words filled by [`WordSplit::common8`] into `NAN`
+    /// and their flag (the raw bits are already in place); ranges are left alone.
+    #[inline(always)]
+    fn fix_special8(self, words: [u16; 8], ranges: &mut [f32; 8], flags: &mut [BeamFlags; 8]) {
+        for ((range, flag), &word) in ranges.iter_mut().zip(flags.iter_mut()).zip(&words) {
+            let code = (word & self.mask).saturating_sub(self.special_above);
+            let special = SPECIAL_FLAGS
+                .get(usize::from(code))
+                .copied()
+                .unwrap_or(BeamFlags::VALID);
+            flag.0 |= special.0;
+            if code != 0 {
+                *range = f32::NAN;
+            }
+        }
+    }
+
     /// [`WordSplit::apply`] over little-endian wire words into `ranges` and `flags` (as many as
     /// all three hold). Eight words at a time: first the common case for all eight (a range, no
     /// device-independent flag) in straight-line code the compiler turns into SIMD, then, only
@@ -333,9 +350,7 @@ impl WordSplit {
             ) {
                 (*r, *f) = (fast_r, fast_f);
                 if special {
-                    for ((range, flags), &word) in r.iter_mut().zip(f.iter_mut()).zip(&words) {
-                        (*range, *flags) = self.apply(word, unit);
-                    }
+                    self.fix_special8(words, r, f);
                 }
             }
         }
