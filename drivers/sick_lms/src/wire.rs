@@ -190,8 +190,8 @@ impl core::error::Error for WireError {}
 /// SICK's CRC-16 (spec §1.1): polynomial `0x8005`, initial 0, the previous byte folded into the
 /// high half, no reflection, no final XOR. Sent low byte first.
 ///
-/// Computed sixteen bytes at a time (see [`crc16_bitwise`] for the definition and the
-/// derivation); the result is the same for every input.
+/// Computed 32 bytes at a time (see [`crc16_bitwise`] for the definition and the derivation);
+/// the result is the same for every input.
 #[must_use]
 pub fn crc16(bytes: &[u8]) -> u16 {
     let Some(&last) = bytes.last() else {
@@ -199,24 +199,23 @@ pub fn crc16(bytes: &[u8]) -> u16 {
     };
     // E = Σ b_i·x^(n−1−i) mod P, by Horner's rule over blocks: E ← x^k·E + V_k.
     let mut e: u16 = 0;
-    let mut blocks = bytes.chunks_exact(16);
+    let mut blocks = bytes.chunks_exact(32);
     for block in &mut blocks {
-        // chunks_exact(16) hands out 16-byte slices: the fallback is never taken.
-        let w = u128::from_be_bytes(block.try_into().unwrap_or([0; 16]));
-        let (a, b) = ((w >> 64) as u64, w as u64);
-        // V_16 = V_8(a)·x^8 + V_8(b): at most 23 bits, its top 7 reduced by one lookup.
-        let v = (u32::from(fold8(a)) << 8) ^ u32::from(fold8(b));
-        e = mul_x16(e) ^ reduce23(v);
+        let [v0, v1, v2, v3] = fold32(block);
+        // V_32 = V_0·x^24 + V_1·x^16 + V_2·x^8 + V_3: at most 39 bits.
+        let v =
+            (u64::from(v0) << 24) ^ (u64::from(v1) << 16) ^ (u64::from(v2) << 8) ^ u64::from(v3);
+        e = mul_x32(e) ^ reduce39(v);
     }
     let mut rest = blocks.remainder().chunks_exact(8);
     for block in &mut rest {
-        e = mul_x8(e) ^ fold8(u64::from_be_bytes(block.try_into().unwrap_or([0; 8])));
+        e = mul_x8(e) ^ fold8(le64(block));
     }
     for &b in rest.remainder() {
         e = mul_x(e) ^ u16::from(b);
     }
     // crc = (1 + x^7)·E + x^7·b_(n−1) mod P.
-    reduce23(u32::from(e) ^ (u32::from(e) << 7)) ^ (u16::from(last) << 7)
+    reduce39(u64::from(e) ^ (u64::from(e) << 7)) ^ (u16::from(last) << 7)
 }
 
 /// The bit-serial definition of [`crc16`], one byte per step, exactly as the spec (§1.1) and the
@@ -227,8 +226,9 @@ pub fn crc16(bytes: &[u8]) -> u16 {
 /// `P = x^16 + x^15 + x^2 + 1` this is `crc_n = Σ x^(n−1−i)·(x^8·b_(i−1) + b_i)`, which regroups
 /// as `(1 + x^7)·E + x^7·b_(n−1)` with `E = Σ b_i·x^(n−1−i)`: a register that moves one bit per
 /// *byte*. Eight bytes of `E` therefore combine without any reduction into a 15-bit
-/// `Σ b_j·x^(7−j)` (three shift-and-mask folds of a `u64`), and only the register's own
-/// `x^8`/`x^16` steps need the lookup tables below, which `const fn` derives from this
+/// `Σ b_j·x^(7−j)` (three shift-and-mask folds of a `u64`), four of those into a 39-bit
+/// `Σ b_j·x^(31−j)` per 32 bytes, and only the reduction of that and the register's own `x^32`
+/// step need the byte tables `h·x^(16…40) mod P` below, which `const fn` derives from this
 /// definition's shift step at compile time.
 #[must_use]
 pub fn crc16_bitwise(bytes: &[u8]) -> u16 {
@@ -279,52 +279,71 @@ const fn byte_table(shifts: u32) -> [u16; 256] {
 const X16: [u16; 256] = byte_table(16);
 /// `h·x^24 mod P`: reduces a byte at bits 24–31.
 const X24: [u16; 256] = byte_table(24);
+/// `h·x^32 mod P`: reduces a byte at bits 32–39.
+const X32: [u16; 256] = byte_table(32);
+/// `h·x^40 mod P`: reduces a byte at bits 40–47.
+const X40: [u16; 256] = byte_table(40);
 
-/// `h·x^16 mod P`.
+/// `table[h]`; a `u8` index is always in range, the fallback is never taken (compiled out).
 #[inline(always)]
-fn x16(h: u8) -> u16 {
-    // A u8 index is always in range; the fallback is never taken (and compiled out).
-    X16.get(usize::from(h)).copied().unwrap_or(0)
-}
-
-/// `h·x^24 mod P`.
-#[inline(always)]
-fn x24(h: u8) -> u16 {
-    X24.get(usize::from(h)).copied().unwrap_or(0)
+fn look(table: &[u16; 256], h: u8) -> u16 {
+    table.get(usize::from(h)).copied().unwrap_or(0)
 }
 
 /// `x^8·e mod P`.
 #[inline(always)]
 fn mul_x8(e: u16) -> u16 {
     let [hi, lo] = e.to_be_bytes();
-    (u16::from(lo) << 8) ^ x16(hi)
+    (u16::from(lo) << 8) ^ look(&X16, hi)
 }
 
-/// `x^16·e mod P`.
+/// `x^32·e mod P`.
 #[inline(always)]
-fn mul_x16(e: u16) -> u16 {
+fn mul_x32(e: u16) -> u16 {
     let [hi, lo] = e.to_be_bytes();
-    x16(lo) ^ x24(hi)
+    look(&X32, lo) ^ look(&X40, hi)
 }
 
-/// `v mod P` for `v` below `2^24`.
+/// `v mod P` for `v` below `2^40`.
 #[inline(always)]
-fn reduce23(v: u32) -> u16 {
-    let [_, top, hi, lo] = v.to_be_bytes();
-    u16::from_be_bytes([hi, lo]) ^ x16(top)
+fn reduce39(v: u64) -> u16 {
+    let [_, _, _, b4, b3, b2, hi, lo] = v.to_be_bytes();
+    u16::from_be_bytes([hi, lo]) ^ look(&X16, b2) ^ look(&X24, b3) ^ look(&X32, b4)
 }
 
-/// `Σ b_j·x^(7−j)` over the eight bytes of `w` (`b_0` the most significant; 15 bits, no
-/// reduction needed): fold neighbouring bytes, then pairs, then quads, each a shift-and-mask over
-/// the whole word.
+/// The eight bytes of `block` as a little-endian word (`block` is 8 bytes long; shorter input
+/// would read as 0).
+#[inline(always)]
+fn le64(block: &[u8]) -> u64 {
+    u64::from_le_bytes(block.try_into().unwrap_or([0; 8]))
+}
+
+/// [`fold8`] of each 8-byte quarter of a 32-byte block (four independent chains the CPU runs
+/// side by side).
+#[inline(always)]
+fn fold32(block: &[u8]) -> [u16; 4] {
+    // chunks_exact(32) hands out 32-byte slices: the fallback is never taken.
+    let b: [u8; 32] = block.try_into().unwrap_or([0; 32]);
+    let mut w = [0u64; 4];
+    for (w, q) in w.iter_mut().zip(b.chunks_exact(8)) {
+        *w = le64(q);
+    }
+    w.map(fold8)
+}
+
+/// `Σ b_j·x^(7−j)` over the eight bytes of the little-endian word `w` (`b_0` the least
+/// significant; 15 bits, no reduction needed): fold neighbouring bytes, then pairs, then quads,
+/// each a shift-and-mask over the whole word.
 #[inline(always)]
 const fn fold8(w: u64) -> u16 {
-    // 16-bit lanes (b_2k, b_2k+1) → b_2k·x + b_2k+1 (9 bits).
-    let w = ((w >> 7) & 0x01FE_01FE_01FE_01FE) ^ (w & 0x00FF_00FF_00FF_00FF);
-    // 32-bit lanes → hi·x^2 + lo (11 bits).
-    let w = ((w >> 14) & 0x0000_07FC_0000_07FC) ^ (w & 0x0000_01FF_0000_01FF);
-    // Both halves → hi·x^4 + lo (15 bits).
-    let w = ((w >> 28) & 0x7FF0) ^ (w & 0x07FF);
+    const BYTES: u64 = 0x00FF_00FF_00FF_00FF;
+    const NINES: u64 = 0x0000_01FF_0000_01FF;
+    // 16-bit lanes (b_2k low, b_2k+1 high) → b_2k·x + b_2k+1 (9 bits).
+    let w = ((w & BYTES) << 1) ^ ((w >> 8) & BYTES);
+    // 32-bit lanes → low·x^2 + high (11 bits).
+    let w = ((w & NINES) << 2) ^ ((w >> 16) & NINES);
+    // Both halves → low·x^4 + high (15 bits).
+    let w = ((w & 0x07FF) << 4) ^ ((w >> 32) & 0x07FF);
     // At most 15 bits set: the cast keeps them all.
     w as u16
 }
