@@ -91,6 +91,14 @@ fn stream_frame_decode_b0_361(b: Bencher) {
         });
 }
 
+/// Control for the allocation evidence: one `Vec` per iteration, so divan prints its
+/// `alloc`/`dealloc` rows here (it omits them where the count is zero, as in every bench above
+/// and below).
+#[divan::bench(sample_count = 50)]
+fn alloc_control_one_vec(b: Bencher) {
+    b.bench_local(|| black_box(vec![0u8; 732]));
+}
+
 /// `decode_scan` alone on one parsed 361-value B0.
 #[divan::bench(sample_count = 200)]
 fn decode_b0_361(b: Bencher) {
