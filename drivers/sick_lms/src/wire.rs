@@ -201,15 +201,11 @@ pub fn crc16(bytes: &[u8]) -> u16 {
     let mut e: u16 = 0;
     let mut blocks = bytes.chunks_exact(32);
     for block in &mut blocks {
-        let [v0, v1, v2, v3] = fold32(block);
-        // V_32 = V_0·x^24 + V_1·x^16 + V_2·x^8 + V_3: at most 39 bits.
-        let v =
-            (u64::from(v0) << 24) ^ (u64::from(v1) << 16) ^ (u64::from(v2) << 8) ^ u64::from(v3);
-        e = mul_x32(e) ^ reduce39(v);
+        e = mul_x32(e) ^ reduce39(fold32(block));
     }
     let mut rest = blocks.remainder().chunks_exact(8);
     for block in &mut rest {
-        e = mul_x8(e) ^ fold8(le64(block));
+        e = mul_x8(e) ^ fold8(be64(block));
     }
     for &b in rest.remainder() {
         e = mul_x(e) ^ u16::from(b);
@@ -311,41 +307,55 @@ fn reduce39(v: u64) -> u16 {
     u16::from_be_bytes([hi, lo]) ^ look(&X16, b2) ^ look(&X24, b3) ^ look(&X32, b4)
 }
 
-/// The eight bytes of `block` as a little-endian word (`block` is 8 bytes long; shorter input
-/// would read as 0).
+/// The eight bytes of `block` as a big-endian word, `b_0` the most significant (`block` is 8
+/// bytes long; shorter input would read as 0).
 #[inline(always)]
-fn le64(block: &[u8]) -> u64 {
-    u64::from_le_bytes(block.try_into().unwrap_or([0; 8]))
+fn be64(block: &[u8]) -> u64 {
+    u64::from_be_bytes(block.try_into().unwrap_or([0; 8]))
 }
 
-/// [`fold8`] of each 8-byte quarter of a 32-byte block (four independent chains the CPU runs
-/// side by side).
+/// `Σ b_j·x^(31−j)` over a 32-byte block (39 bits, no reduction needed), as
+/// `V(a)·x^16 + V(b)` of its halves, each `fold8(a0)·x^8 + fold8(a1)` with the last fold step
+/// done once for both words of a half.
 #[inline(always)]
-fn fold32(block: &[u8]) -> [u16; 4] {
+fn fold32(block: &[u8]) -> u64 {
     // chunks_exact(32) hands out 32-byte slices: the fallback is never taken.
     let b: [u8; 32] = block.try_into().unwrap_or([0; 32]);
     let mut w = [0u64; 4];
     for (w, q) in w.iter_mut().zip(b.chunks_exact(8)) {
-        *w = le64(q);
+        *w = fold_quads(be64(q));
     }
-    w.map(fold8)
+    let [w0, w1, w2, w3] = w;
+    (u64::from(fold_halves16(w0, w1)) << 16) ^ u64::from(fold_halves16(w2, w3))
 }
 
-/// `Σ b_j·x^(7−j)` over the eight bytes of the little-endian word `w` (`b_0` the least
-/// significant; 15 bits, no reduction needed): fold neighbouring bytes, then pairs, then quads,
-/// each a shift-and-mask over the whole word.
+/// The first two steps of [`fold8`]: two 11-bit `Σ b_j·x^(3−j)`, one per half of `w`.
+#[inline(always)]
+const fn fold_quads(w: u64) -> u64 {
+    // 16-bit lanes (b_2k high, b_2k+1 low) → b_2k·x + b_2k+1 (9 bits).
+    let w = ((w >> 7) & 0x01FE_01FE_01FE_01FE) ^ (w & 0x00FF_00FF_00FF_00FF);
+    // 32-bit lanes → high·x^2 + low (11 bits).
+    ((w >> 14) & 0x0000_07FC_0000_07FC) ^ (w & 0x0000_01FF_0000_01FF)
+}
+
+/// The last step of [`fold8`] for two words at once: `fold8(a)·x^8 + fold8(b)` (23 bits) from
+/// their [`fold_quads`]. Shifted by 8, `a`'s 11-bit fields stay clear of the other half, so one
+/// wider mask serves both.
+#[inline(always)]
+const fn fold_halves16(a: u64, b: u64) -> u32 {
+    let w = (a << 8) ^ b;
+    // At most 23 bits set: the cast keeps them all.
+    (((w >> 28) & 0x007F_FFF0) ^ (w & 0x0007_FFFF)) as u32
+}
+
+/// `Σ b_j·x^(7−j)` over the eight bytes of the big-endian word `w` (`b_0` the most significant;
+/// 15 bits, no reduction needed): fold neighbouring bytes, then pairs, then quads, each a
+/// shift-and-mask over the whole word.
 #[inline(always)]
 const fn fold8(w: u64) -> u16 {
-    const BYTES: u64 = 0x00FF_00FF_00FF_00FF;
-    const NINES: u64 = 0x0000_01FF_0000_01FF;
-    // 16-bit lanes (b_2k low, b_2k+1 high) → b_2k·x + b_2k+1 (9 bits).
-    let w = ((w & BYTES) << 1) ^ ((w >> 8) & BYTES);
-    // 32-bit lanes → low·x^2 + high (11 bits).
-    let w = ((w & NINES) << 2) ^ ((w >> 16) & NINES);
-    // Both halves → low·x^4 + high (15 bits).
-    let w = ((w & 0x07FF) << 4) ^ ((w >> 32) & 0x07FF);
-    // At most 15 bits set: the cast keeps them all.
-    w as u16
+    let w = fold_quads(w);
+    // Both halves → high·x^4 + low (15 bits); the cast keeps them all.
+    (((w >> 28) & 0x7FF0) ^ (w & 0x07FF)) as u16
 }
 
 // ---------------------------------------------------------------------------------------------
