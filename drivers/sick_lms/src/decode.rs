@@ -310,7 +310,7 @@ impl WordSplit {
     }
 
     /// Turn the special codes among eight words filled by [`WordSplit::common8`] into `NAN`
-    /// and their flag (the raw bits are already in place); ranges are left alone.
+    /// and their flag (the raw bits are already in place); the other words are left alone.
     #[inline(always)]
     fn fix_special8(self, words: [u16; 8], ranges: &mut [f32; 8], flags: &mut [BeamFlags; 8]) {
         for ((range, flag), &word) in ranges.iter_mut().zip(flags.iter_mut()).zip(&words) {
@@ -329,7 +329,7 @@ impl WordSplit {
     /// [`WordSplit::apply`] over little-endian wire words into `ranges` and `flags` (as many as
     /// all three hold). Eight words at a time: first the common case for all eight (a range, no
     /// device-independent flag) in straight-line code the compiler turns into SIMD, then, only
-    /// if one of the eight is a special code, [`WordSplit::apply`] again for those eight.
+    /// if one of the eight is a special code, [`WordSplit::fix_special8`] over those eight.
     fn fill_wire(self, bytes: &[u8], unit: f32, ranges: &mut [f32], flags: &mut [BeamFlags]) {
         let mut r8 = ranges.chunks_exact_mut(8);
         let mut f8 = flags.chunks_exact_mut(8);
