@@ -106,6 +106,7 @@ impl LaserScan {
     }
 
     /// Remove every beam and set a new geometry, keeping the storage (no allocation either way).
+    #[inline]
     pub fn reset(&mut self, start_angle_rad: f64, step_rad: f64) {
         self.start_angle_rad = start_angle_rad;
         self.step_rad = step_rad;
@@ -114,12 +115,36 @@ impl LaserScan {
     }
 
     /// Append a beam. Fails (and drops the beam) when the scan is full.
+    #[inline]
     pub fn push(&mut self, range_m: f32, flags: BeamFlags) -> Result<(), ScanFull> {
         if self.ranges_m.len() >= MAX_BEAMS {
             return Err(ScanFull);
         }
         self.ranges_m.push(range_m).map_err(|_| ScanFull)?;
         self.flags.push(flags).map_err(|_| ScanFull)
+    }
+
+    /// Append `n` beams to fill in place and return their ranges and flags (`NAN` and
+    /// [`BeamFlags::NO_RETURN`] until overwritten). Fails, changing nothing, when fewer than `n`
+    /// more beams fit.
+    ///
+    /// For decoders that convert a whole scan at once: one length update for the lot instead of
+    /// one per [`LaserScan::push`], so the conversion loop has no loop-carried store.
+    #[inline]
+    pub fn append_beams(&mut self, n: usize) -> Result<(&mut [f32], &mut [BeamFlags]), ScanFull> {
+        let old = self.ranges_m.len();
+        let new = old
+            .checked_add(n)
+            .filter(|&l| l <= MAX_BEAMS)
+            .ok_or(ScanFull)?;
+        self.ranges_m.resize(new, f32::NAN).map_err(|_| ScanFull)?;
+        if self.flags.resize(new, BeamFlags::NO_RETURN).is_err() {
+            self.ranges_m.truncate(old);
+            return Err(ScanFull);
+        }
+        let ranges = self.ranges_m.get_mut(old..).unwrap_or_default();
+        let flags = self.flags.get_mut(old..).unwrap_or_default();
+        Ok((ranges, flags))
     }
 
     /// Number of beams.
@@ -213,6 +238,31 @@ mod tests {
         s.reset(0.25, 0.1);
         assert!(s.is_empty());
         assert!((s.start_angle_rad - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn append_beams_fills_in_place_or_changes_nothing() {
+        let mut s = LaserScan::new(0.0, 1.0);
+        s.push(1.0, BeamFlags::VALID).unwrap();
+        let (r, f) = s.append_beams(3).unwrap();
+        assert_eq!((r.len(), f.len()), (3, 3));
+        assert!(r.iter().all(|x| x.is_nan()));
+        assert!(f.iter().all(|&x| x == BeamFlags::NO_RETURN));
+        r[1] = 2.5;
+        f[1] = BeamFlags::VALID;
+        assert_eq!(s.len(), 4);
+        assert_eq!(s.ranges_m()[0], 1.0);
+        assert_eq!(s.ranges_m()[2], 2.5);
+        assert_eq!(s.flags()[2], BeamFlags::VALID);
+        assert_eq!(s.append_beams(MAX_BEAMS - 3).err(), Some(ScanFull));
+        assert_eq!(s.append_beams(usize::MAX).err(), Some(ScanFull));
+        assert_eq!((s.len(), s.flags().len()), (4, 4));
+        assert_eq!(
+            s.append_beams(MAX_BEAMS - 4).map(|(r, _)| r.len()),
+            Ok(MAX_BEAMS - 4)
+        );
+        assert_eq!(s.append_beams(0).map(|(r, _)| r.len()), Ok(0));
+        assert_eq!(s.push(0.0, BeamFlags::VALID), Err(ScanFull));
     }
 
     #[test]

@@ -1,5 +1,10 @@
 //! B0 framing and decoding throughput (361 values, 732-byte telegrams), with allocation
 //! counting: `cargo bench -p ima-sick-lms --bench b0`.
+//!
+//! `stream_frame_decode_b0_361` is the headline number (issue 15): framer +
+//! `Reply::from_frame` + `decode_scan` over a stream of 64 back-to-back real-format B0
+//! telegrams (varied ranges, special codes and flag bits), in bytes of stream per second.
+//! divan's allocation profiler prints `alloc`/`dealloc` rows for any benchmark that allocates.
 
 use divan::counter::{BytesCount, ItemsCount};
 use divan::{AllocProfiler, Bencher, black_box};
@@ -27,6 +32,87 @@ fn b0_361() -> Vec<u8> {
         .unwrap();
     assert_eq!(n, 732);
     buf[..n].to_vec()
+}
+
+/// Telegrams in the stream of `stream_frame_decode_b0_361`.
+const STREAM_TELEGRAMS: usize = 64;
+
+/// A stream of real-format 361-value B0 telegrams (mm, mode 00): ranges 0.2–8 m with about 3 %
+/// no-return codes, an occasional dazzled code and flag bit 13, from a fixed LCG seed.
+fn b0_stream() -> Vec<u8> {
+    let mut seed: u32 = 0x1234_5678;
+    let mut next = move || {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        seed >> 8
+    };
+    let mut out = Vec::with_capacity(STREAM_TELEGRAMS * 732);
+    let mut buf = [0u8; MAX_TELEGRAM];
+    for _ in 0..STREAM_TELEGRAMS {
+        let words: Vec<u16> = (0..361)
+            .map(|_| {
+                let r = next();
+                match r % 100 {
+                    0..=2 => 0x1FFF,
+                    3 => 0x1FFE,
+                    4 => 0x2000 | (200 + (r >> 8) % 7800) as u16,
+                    _ => (200 + (r >> 8) % 7800) as u16,
+                }
+            })
+            .collect();
+        let n = Reply::Scan(Scan::full(&words, Units::Mm, StatusByte::NORMAL))
+            .emit(&mut buf)
+            .unwrap();
+        assert_eq!(n, 732);
+        out.extend_from_slice(&buf[..n]);
+    }
+    out
+}
+
+/// The headline: framer + `Reply::from_frame` + `decode_scan` over a stream of B0 telegrams.
+#[divan::bench(sample_count = 200)]
+fn stream_frame_decode_b0_361(b: Bencher) {
+    let stream = b0_stream();
+    let mut f = Framer::replies();
+    let mut scan = LaserScan::default();
+    b.counter(BytesCount::new(stream.len()))
+        .counter(ItemsCount::new(STREAM_TELEGRAMS))
+        .bench_local(|| {
+            let mut n = 0usize;
+            f.push_all(black_box(&stream), Instant::ZERO, |item| {
+                if let Item::Frame(fr) = item
+                    && let Ok(Reply::Scan(s)) = Reply::from_frame(&fr)
+                    && decode_scan(&s, MeasuringMode::DEFAULT, None, &mut scan).is_ok()
+                {
+                    n += 1;
+                }
+            });
+            assert_eq!(n, STREAM_TELEGRAMS);
+            black_box(&scan);
+        });
+}
+
+/// Control for the allocation evidence: one `Vec` per iteration, so divan prints its
+/// `alloc`/`dealloc` rows here (it omits them where the count is zero, as in every bench above
+/// and below).
+#[divan::bench(sample_count = 50)]
+fn alloc_control_one_vec(b: Bencher) {
+    b.bench_local(|| black_box(vec![0u8; 732]));
+}
+
+/// `decode_scan` alone on one parsed 361-value B0.
+#[divan::bench(sample_count = 200)]
+fn decode_b0_361(b: Bencher) {
+    let t = b0_stream();
+    let Ok(Reply::Scan(s)) = Reply::parse(&t[..732]) else {
+        panic!("not a B0");
+    };
+    let mut scan = LaserScan::default();
+    b.counter(BytesCount::new(732usize))
+        .counter(ItemsCount::new(1usize))
+        .bench_local(|| {
+            decode_scan(black_box(&s), MeasuringMode::DEFAULT, None, &mut scan).unwrap();
+            black_box(&scan);
+        });
 }
 
 #[divan::bench(sample_count = 200)]

@@ -5,7 +5,7 @@ use core::f64::consts::PI;
 use ima_hal::Isometry2;
 use ima_hal::laser::{BeamFlags, LaserDescription, LaserScan};
 
-use crate::wire::{MeasuringMode, Scan, Units};
+use crate::wire::{MeasuringMode, Scan, Units, Values};
 
 /// A scan variant: field width and angular resolution (command `3B`, spec §3.6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -182,6 +182,9 @@ pub fn lms_deg_to_sensor_rad(deg: f64) -> f64 {
 /// 401). A partial scan (count-word bit 13) is offset by its index × 0.25°. Valid beams get
 /// `distance × unit` metres; special codes of 13-bit modes get `NAN` and their
 /// [`BeamFlags`]. The raw flag bits travel in [`BeamFlags::device_bits`].
+///
+/// No allocation and no per-beam push: the beams are appended at once and filled in place,
+/// eight values at a time. On [`DecodeError::TooManyValues`] `out` is left empty.
 pub fn decode_scan(
     scan: &Scan<'_>,
     mode: MeasuringMode,
@@ -213,17 +216,151 @@ pub fn decode_scan(
         lms_deg_to_sensor_rad(start_deg),
         f64::from(v.res_centideg()) * PI / 18_000.0,
     );
-    for word in scan.values.iter() {
-        let val = Value::decode(word, mode).ok_or(DecodeError::UnknownMeasuringMode(mode.0))?;
-        let range = if val.flags.is_valid() {
-            f32::from(val.distance) * unit
+    let split = WordSplit::new(mode).ok_or(DecodeError::UnknownMeasuringMode(mode.0))?;
+    // One length update for the whole scan, then a fill in place (no per-beam push).
+    let (ranges, flags) = out
+        .append_beams(scan.values.len())
+        .map_err(|_| DecodeError::TooManyValues)?;
+    match scan.values {
+        Values::Wire(bytes) => split.fill_wire(bytes, unit, ranges, flags),
+        Values::Words(words) => {
+            for ((range, flags), &word) in ranges.iter_mut().zip(flags.iter_mut()).zip(words) {
+                (*range, *flags) = split.apply(word, unit);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The device-independent flags of the 13-bit modes' top codes, indexed by `distance − 0x1FF6`
+/// (index 0: every distance below the codes).
+const SPECIAL_FLAGS: [BeamFlags; 10] = [
+    BeamFlags::VALID,           // ..=1FF6: a range
+    BeamFlags::ABOVE_MAX_RANGE, // 1FF7
+    BeamFlags::RESERVED,        // 1FF8
+    BeamFlags::RESERVED,        // 1FF9
+    BeamFlags::READ_ERROR,      // 1FFA
+    BeamFlags::LOW_SIGNAL,      // 1FFB
+    BeamFlags::RESERVED,        // 1FFC
+    BeamFlags::OVERFLOW,        // 1FFD
+    BeamFlags::DAZZLED,         // 1FFE
+    BeamFlags::NO_RETURN,       // 1FFF
+];
+
+/// A measuring mode's value-word split, worked out once per scan: [`Value::decode`] without the
+/// per-word `match` on the mode, and without branches on the special codes.
+#[derive(Debug, Clone, Copy)]
+struct WordSplit {
+    mask: u16,
+    /// Shift that brings the bits above the mask down to bit 0 (16: none).
+    shift: u32,
+    /// Distances above this are special codes (`0x1FF6` in 13-bit modes, none otherwise).
+    special_above: u16,
+}
+
+impl WordSplit {
+    fn new(mode: MeasuringMode) -> Option<Self> {
+        let mask = mode.distance_mask()?;
+        Some(Self {
+            mask,
+            shift: mask.trailing_ones(),
+            special_above: if mode.has_special_values() {
+                0x1FF6
+            } else {
+                u16::MAX
+            },
+        })
+    }
+
+    /// `(range in metres, flags)` of `word`: `distance × unit`, or `NAN` for a special code.
+    #[inline(always)]
+    fn apply(self, word: u16, unit: f32) -> (f32, BeamFlags) {
+        let distance = word & self.mask;
+        // At most 8 bits remain after the shift (masks have 13–16 bits): the cast keeps them.
+        let raw = (u32::from(word) >> self.shift) as u8;
+        // 0 below the codes, 1..=9 for 1FF7..=1FFF (distance ≤ 1FFF whenever codes exist).
+        let code = distance.saturating_sub(self.special_above);
+        let flags = SPECIAL_FLAGS
+            .get(usize::from(code))
+            .copied()
+            .unwrap_or(BeamFlags::VALID);
+        let range = if flags.is_valid() {
+            f32::from(distance) * unit
         } else {
             f32::NAN
         };
-        out.push(range, val.flags)
-            .map_err(|_| DecodeError::TooManyValues)?;
+        (range, flags.with_device_bits(raw))
     }
-    Ok(())
+
+    /// Eight words as if none were a special code (ranges, flags with the raw bits only), and
+    /// whether one was. Fixed-size arrays in and out, no branches: vectorised.
+    #[inline(always)]
+    fn common8(self, words: [u16; 8], unit: f32) -> ([f32; 8], [BeamFlags; 8], bool) {
+        let mut ranges = [0f32; 8];
+        let mut flags = [BeamFlags::VALID; 8];
+        let mut special = 0u16;
+        for ((range, flag), &word) in ranges.iter_mut().zip(flags.iter_mut()).zip(&words) {
+            let distance = word & self.mask;
+            *range = f32::from(distance) * unit;
+            // At most 8 bits remain after the shift (masks have 13–16 bits).
+            *flag = BeamFlags(((u32::from(word) >> self.shift) << 8) as u16);
+            special |= u16::from(distance > self.special_above);
+        }
+        (ranges, flags, special != 0)
+    }
+
+    /// Turn the special codes among eight words filled by [`WordSplit::common8`] into `NAN`
+    /// and their flag (the raw bits are already in place); the other words are left alone.
+    #[inline(always)]
+    fn fix_special8(self, words: [u16; 8], ranges: &mut [f32; 8], flags: &mut [BeamFlags; 8]) {
+        for ((range, flag), &word) in ranges.iter_mut().zip(flags.iter_mut()).zip(&words) {
+            let code = (word & self.mask).saturating_sub(self.special_above);
+            let special = SPECIAL_FLAGS
+                .get(usize::from(code))
+                .copied()
+                .unwrap_or(BeamFlags::VALID);
+            flag.0 |= special.0;
+            if code != 0 {
+                *range = f32::NAN;
+            }
+        }
+    }
+
+    /// [`WordSplit::apply`] over little-endian wire words into `ranges` and `flags` (as many as
+    /// all three hold). Eight words at a time: first the common case for all eight (a range, no
+    /// device-independent flag) in straight-line code the compiler turns into SIMD, then, only
+    /// if one of the eight is a special code, [`WordSplit::fix_special8`] over those eight.
+    fn fill_wire(self, bytes: &[u8], unit: f32, ranges: &mut [f32], flags: &mut [BeamFlags]) {
+        let mut r8 = ranges.chunks_exact_mut(8);
+        let mut f8 = flags.chunks_exact_mut(8);
+        let mut w8 = bytes.chunks_exact(16);
+        for ((r, f), w) in (&mut r8).zip(&mut f8).zip(&mut w8) {
+            // chunks_exact(16) hands out 16-byte slices: the fallback is never taken.
+            let w: [u8; 16] = w.try_into().unwrap_or([0; 16]);
+            let mut words = [0u16; 8];
+            for (word, pair) in words.iter_mut().zip(w.chunks_exact(2)) {
+                if let [lo, hi] = *pair {
+                    *word = u16::from_le_bytes([lo, hi]);
+                }
+            }
+            let (fast_r, fast_f, special) = self.common8(words, unit);
+            if let (Ok(r), Ok(f)) = (
+                <&mut [f32; 8]>::try_from(r),
+                <&mut [BeamFlags; 8]>::try_from(f),
+            ) {
+                (*r, *f) = (fast_r, fast_f);
+                if special {
+                    self.fix_special8(words, r, f);
+                }
+            }
+        }
+        let rest = r8.into_remainder().iter_mut().zip(f8.into_remainder());
+        for ((range, flags), pair) in rest.zip(w8.remainder().chunks_exact(2)) {
+            if let [lo, hi] = *pair {
+                (*range, *flags) = self.apply(u16::from_le_bytes([lo, hi]), unit);
+            }
+        }
+    }
 }
 
 /// The value word a device reports for `range_m` (`None`: no return) in `units` and `mode`:
@@ -466,5 +603,89 @@ mod tests {
         );
         assert!((d.max_range_m - 81.82).abs() < 1e-2);
         assert!((d.max_scan_rate_hz - 18.75).abs() < 1e-12);
+    }
+
+    /// The range and flags [`Value::decode`] gives for `word`: the per-word reference.
+    fn reference(word: u16, mode: MeasuringMode, unit: f32) -> (f32, BeamFlags) {
+        let v = Value::decode(word, mode).unwrap();
+        let range = if v.flags.is_valid() {
+            f32::from(v.distance) * unit
+        } else {
+            f32::NAN
+        };
+        (range, v.flags)
+    }
+
+    fn same(a: f32, b: f32) -> bool {
+        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+    }
+
+    proptest::proptest! {
+        /// The per-scan split gives what `Value::decode` gives for every word, mode and unit,
+        /// from wire bytes and from words alike.
+        #[test]
+        fn decode_scan_equals_value_decode(
+            count in proptest::sample::select(vec![101usize, 181, 201, 361, 401]),
+            seed in proptest::collection::vec(proptest::prelude::any::<u16>(), 401),
+            near_codes in proptest::prelude::any::<bool>(),
+            mode in proptest::sample::select(vec![0x00u8, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F]),
+            units in proptest::sample::select(vec![Units::Cm, Units::Mm, Units::Dm]),
+        ) {
+            let mode = MeasuringMode(mode);
+            // Half the cases crowd the special codes (1FF0..=1FFF, any flag bits).
+            let words: Vec<u16> = seed[..count]
+                .iter()
+                .map(|&w| if near_codes { 0x1FF0 | (w & 0xE00F) } else { w })
+                .collect();
+            let wire: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+            let unit = units.metres().unwrap();
+            for values in [Values::Words(&words), Values::Wire(&wire)] {
+                let s = Scan {
+                    count_word: CountWord::full_scan(count as u16, units),
+                    values,
+                    indices: None,
+                    status: StatusByte::NORMAL,
+                };
+                let mut out = LaserScan::default();
+                decode_scan(&s, mode, None, &mut out).unwrap();
+                proptest::prop_assert_eq!(out.len(), count);
+                for (i, &w) in words.iter().enumerate() {
+                    let (r, f) = reference(w, mode, unit);
+                    proptest::prop_assert!(same(out.ranges_m()[i], r), "word {:#06x}", w);
+                    proptest::prop_assert_eq!(out.flags()[i], f, "word {:#06x}", w);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn too_many_values_appends_nothing() {
+        let words = [100u16; 900];
+        let s = Scan {
+            count_word: CountWord::full_scan(401, Units::Mm),
+            values: Values::Words(&words),
+            indices: None,
+            status: StatusByte::NORMAL,
+        };
+        let mut out = LaserScan::default();
+        assert_eq!(
+            decode_scan(&s, MeasuringMode::DEFAULT, None, &mut out),
+            Err(DecodeError::TooManyValues)
+        );
+        assert!(out.is_empty());
+    }
+
+    #[test]
+    fn every_word_in_every_mode_matches_value_decode() {
+        for mode in [0x00u8, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F] {
+            let mode = MeasuringMode(mode);
+            let split = WordSplit::new(mode).unwrap();
+            for w in 0..=u16::MAX {
+                let (r, f) = split.apply(w, 0.001);
+                let (rr, rf) = reference(w, mode, 0.001);
+                assert!(same(r, rr), "mode {mode:?} word {w:#06x}");
+                assert_eq!(f, rf, "mode {mode:?} word {w:#06x}");
+            }
+        }
     }
 }

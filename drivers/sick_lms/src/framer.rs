@@ -194,30 +194,34 @@ impl Framer {
             if self.buffered() == 0 {
                 self.start = 0;
                 self.end = 0;
-                // Hunt directly in the input: bytes here are between frames.
-                let Some(&b) = input.get(consumed) else {
+                // Hunt directly in the input: bytes here are between frames. Skip everything
+                // up to the next STX, ACK or NAK in one search.
+                let rest = input.get(consumed..).unwrap_or(&[]);
+                if rest.is_empty() {
                     return Pushed {
                         consumed,
                         item: None,
                     };
-                };
-                consumed += 1;
+                }
                 self.last_input = now;
-                match b {
-                    STX => {
-                        if let Some(slot) = self.buf.get_mut(0) {
-                            *slot = b;
-                            self.end = 1;
-                        }
-                    }
-                    ACK => {
+                let Some(at) = rest.iter().position(|&b| matches!(b, STX | ACK | NAK)) else {
+                    self.count_dropped(rest.len());
+                    return Pushed {
+                        consumed: consumed + rest.len(),
+                        item: None,
+                    };
+                };
+                self.count_dropped(at);
+                consumed += at + 1;
+                match rest.get(at) {
+                    Some(&ACK) => {
                         self.counters.acks = self.counters.acks.saturating_add(1);
                         return Pushed {
                             consumed,
                             item: Some(Item::Ack),
                         };
                     }
-                    NAK => {
+                    Some(&NAK) => {
                         self.counters.naks = self.counters.naks.saturating_add(1);
                         return Pushed {
                             consumed,
@@ -225,7 +229,11 @@ impl Framer {
                         };
                     }
                     _ => {
-                        self.counters.dropped_bytes = self.counters.dropped_bytes.saturating_add(1);
+                        // STX: a candidate starts.
+                        if let Some(slot) = self.buf.get_mut(0) {
+                            *slot = STX;
+                            self.end = 1;
+                        }
                     }
                 }
                 continue;
@@ -307,12 +315,19 @@ impl Framer {
 
     /// Drop the first byte of the window (the false STX) and everything up to the next STX.
     fn drop_one(&mut self) {
-        self.start += 1;
-        self.counters.dropped_bytes = self.counters.dropped_bytes.saturating_add(1);
-        while self.start < self.end && self.buf.get(self.start) != Some(&STX) {
-            self.start += 1;
-            self.counters.dropped_bytes = self.counters.dropped_bytes.saturating_add(1);
-        }
+        let held = self.buf.get(self.start..self.end).unwrap_or(&[]);
+        let skip = held
+            .iter()
+            .skip(1)
+            .position(|&b| b == STX)
+            .map_or(held.len(), |at| at + 1);
+        self.start += skip;
+        self.count_dropped(skip);
+    }
+
+    fn count_dropped(&mut self, n: usize) {
+        let n = u64::try_from(n).unwrap_or(u64::MAX);
+        self.counters.dropped_bytes = self.counters.dropped_bytes.saturating_add(n);
     }
 
     fn check(&mut self) -> Check {

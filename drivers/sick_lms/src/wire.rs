@@ -189,20 +189,173 @@ impl core::error::Error for WireError {}
 
 /// SICK's CRC-16 (spec §1.1): polynomial `0x8005`, initial 0, the previous byte folded into the
 /// high half, no reflection, no final XOR. Sent low byte first.
+///
+/// Computed 32 bytes at a time (see [`crc16_bitwise`] for the definition and the derivation);
+/// the result is the same for every input.
 #[must_use]
 pub fn crc16(bytes: &[u8]) -> u16 {
+    let Some(&last) = bytes.last() else {
+        return 0;
+    };
+    // E = Σ b_i·x^(n−1−i) mod P, by Horner's rule over blocks: E ← x^k·E + V_k.
+    let mut e: u16 = 0;
+    let mut blocks = bytes.chunks_exact(32);
+    for block in &mut blocks {
+        e = mul_x32(e) ^ reduce39(fold32(block));
+    }
+    let mut rest = blocks.remainder().chunks_exact(8);
+    for block in &mut rest {
+        e = mul_x8(e) ^ fold8(be64(block));
+    }
+    for &b in rest.remainder() {
+        e = mul_x(e) ^ u16::from(b);
+    }
+    // crc = (1 + x^7)·E + x^7·b_(n−1) mod P.
+    reduce39(u64::from(e) ^ (u64::from(e) << 7)) ^ (u16::from(last) << 7)
+}
+
+/// The bit-serial definition of [`crc16`], one byte per step, exactly as the spec (§1.1) and the
+/// C drivers state it. Kept as the reference the fast version is tested against.
+///
+/// Per byte `b` (with `prev` the byte before it, 0 at the start): `crc ← x·crc mod P` (shift left,
+/// XOR `0x8005` if bit 15 was set), then `crc ^= prev << 8 | b`. Over GF(2) with
+/// `P = x^16 + x^15 + x^2 + 1` this is `crc_n = Σ x^(n−1−i)·(x^8·b_(i−1) + b_i)`, which regroups
+/// as `(1 + x^7)·E + x^7·b_(n−1)` with `E = Σ b_i·x^(n−1−i)`: a register that moves one bit per
+/// *byte*. Eight bytes of `E` therefore combine without any reduction into a 15-bit
+/// `Σ b_j·x^(7−j)` (three shift-and-mask folds of a `u64`), four of those into a 39-bit
+/// `Σ b_j·x^(31−j)` per 32 bytes, and only the reduction of that and the register's own `x^32`
+/// step need the byte tables `h·x^(16…40) mod P` below, which `const fn` derives from this
+/// definition's shift step at compile time.
+#[must_use]
+pub fn crc16_bitwise(bytes: &[u8]) -> u16 {
     let mut crc: u16 = 0;
     let mut prev: u8 = 0;
     for &b in bytes {
-        if crc & 0x8000 != 0 {
-            crc = (crc << 1) ^ 0x8005;
-        } else {
-            crc <<= 1;
-        }
-        crc ^= u16::from_be_bytes([prev, b]);
+        crc = mul_x(crc) ^ u16::from_be_bytes([prev, b]);
         prev = b;
     }
     crc
+}
+
+/// `x·c mod P`: the register's shift step (spec §1.1).
+#[inline(always)]
+const fn mul_x(c: u16) -> u16 {
+    if c & 0x8000 != 0 {
+        (c << 1) ^ 0x8005
+    } else {
+        c << 1
+    }
+}
+
+/// `h·x^shifts mod P` for a byte `h`, by [`mul_x`] alone (`h·x^8` fits in 16 bits).
+const fn byte_times_x(h: u16, shifts: u32) -> u16 {
+    let mut c = h << 8;
+    let mut s = 8;
+    while s < shifts {
+        c = mul_x(c);
+        s += 1;
+    }
+    c
+}
+
+/// The table `h ↦ h·x^shifts mod P` over all bytes `h`, built at compile time.
+const fn byte_table(shifts: u32) -> [u16; 256] {
+    let mut t = [0u16; 256];
+    let mut rest: &mut [u16] = &mut t;
+    let mut h = 0;
+    while let [slot, tail @ ..] = rest {
+        *slot = byte_times_x(h, shifts);
+        rest = tail;
+        h += 1;
+    }
+    t
+}
+
+/// `h·x^16 mod P`: reduces a byte at bits 16–23.
+const X16: [u16; 256] = byte_table(16);
+/// `h·x^24 mod P`: reduces a byte at bits 24–31.
+const X24: [u16; 256] = byte_table(24);
+/// `h·x^32 mod P`: reduces a byte at bits 32–39.
+const X32: [u16; 256] = byte_table(32);
+/// `h·x^40 mod P`: reduces a byte at bits 40–47.
+const X40: [u16; 256] = byte_table(40);
+
+/// `table[h]`; a `u8` index is always in range, the fallback is never taken (compiled out).
+#[inline(always)]
+fn look(table: &[u16; 256], h: u8) -> u16 {
+    table.get(usize::from(h)).copied().unwrap_or(0)
+}
+
+/// `x^8·e mod P`.
+#[inline(always)]
+fn mul_x8(e: u16) -> u16 {
+    let [hi, lo] = e.to_be_bytes();
+    (u16::from(lo) << 8) ^ look(&X16, hi)
+}
+
+/// `x^32·e mod P`.
+#[inline(always)]
+fn mul_x32(e: u16) -> u16 {
+    let [hi, lo] = e.to_be_bytes();
+    look(&X32, lo) ^ look(&X40, hi)
+}
+
+/// `v mod P` for `v` below `2^40`.
+#[inline(always)]
+fn reduce39(v: u64) -> u16 {
+    let [_, _, _, b4, b3, b2, hi, lo] = v.to_be_bytes();
+    u16::from_be_bytes([hi, lo]) ^ look(&X16, b2) ^ look(&X24, b3) ^ look(&X32, b4)
+}
+
+/// The eight bytes of `block` as a big-endian word, `b_0` the most significant (`block` is 8
+/// bytes long; shorter input would read as 0).
+#[inline(always)]
+fn be64(block: &[u8]) -> u64 {
+    u64::from_be_bytes(block.try_into().unwrap_or([0; 8]))
+}
+
+/// `Σ b_j·x^(31−j)` over a 32-byte block (39 bits, no reduction needed), as
+/// `V(a)·x^16 + V(b)` of its halves, each `fold8(a0)·x^8 + fold8(a1)` with the last fold step
+/// done once for both words of a half.
+#[inline(always)]
+fn fold32(block: &[u8]) -> u64 {
+    // chunks_exact(32) hands out 32-byte slices: the fallback is never taken.
+    let b: [u8; 32] = block.try_into().unwrap_or([0; 32]);
+    let mut w = [0u64; 4];
+    for (w, q) in w.iter_mut().zip(b.chunks_exact(8)) {
+        *w = fold_quads(be64(q));
+    }
+    let [w0, w1, w2, w3] = w;
+    (u64::from(fold_halves16(w0, w1)) << 16) ^ u64::from(fold_halves16(w2, w3))
+}
+
+/// The first two steps of [`fold8`]: two 11-bit `Σ b_j·x^(3−j)`, one per half of `w`.
+#[inline(always)]
+const fn fold_quads(w: u64) -> u64 {
+    // 16-bit lanes (b_2k high, b_2k+1 low) → b_2k·x + b_2k+1 (9 bits).
+    let w = ((w >> 7) & 0x01FE_01FE_01FE_01FE) ^ (w & 0x00FF_00FF_00FF_00FF);
+    // 32-bit lanes → high·x^2 + low (11 bits).
+    ((w >> 14) & 0x0000_07FC_0000_07FC) ^ (w & 0x0000_01FF_0000_01FF)
+}
+
+/// The last step of [`fold8`] for two words at once: `fold8(a)·x^8 + fold8(b)` (23 bits) from
+/// their [`fold_quads`]. Shifted by 8, `a`'s 11-bit fields stay clear of the other half, so one
+/// wider mask serves both.
+#[inline(always)]
+const fn fold_halves16(a: u64, b: u64) -> u32 {
+    let w = (a << 8) ^ b;
+    // At most 23 bits set: the cast keeps them all.
+    (((w >> 28) & 0x007F_FFF0) ^ (w & 0x0007_FFFF)) as u32
+}
+
+/// `Σ b_j·x^(7−j)` over the eight bytes of the big-endian word `w` (`b_0` the most significant;
+/// 15 bits, no reduction needed): fold neighbouring bytes, then pairs, then quads, each a
+/// shift-and-mask over the whole word.
+#[inline(always)]
+const fn fold8(w: u64) -> u16 {
+    let w = fold_quads(w);
+    // Both halves → high·x^4 + low (15 bits); the cast keeps them all.
+    (((w >> 28) & 0x7FF0) ^ (w & 0x07FF)) as u16
 }
 
 // ---------------------------------------------------------------------------------------------
