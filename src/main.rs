@@ -61,13 +61,22 @@ enum SanCommand {
     Simulate(cmd::san::SanSimulateArgs),
 }
 
+/// The tracing target of the drivers' connection progress (`ima::connect`).
+const CONNECT_TARGET: &str = "ima::connect";
+
 fn main() -> ExitCode {
     // Before anything can move a robot: the panic hook and the signal thread.
     safety::install();
     let cli = Cli::parse();
+    // On a terminal, show what a connecting driver is trying (rate, attempt): connecting
+    // can take tens of seconds and should not look like a hang.
+    let mut log = cli.log.clone();
+    if std::io::IsTerminal::is_terminal(&std::io::stderr()) && !log.contains(CONNECT_TARGET) {
+        log.push_str(",ima::connect=info");
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_new(&cli.log)
+            tracing_subscriber::EnvFilter::try_new(&log)
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
         )
         .with_writer(std::io::stderr)

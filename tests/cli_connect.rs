@@ -38,3 +38,78 @@ fn a_path_that_is_not_a_serial_port_is_named() {
     }
     let _ = std::fs::remove_file(&file);
 }
+
+/// A pseudo-terminal nobody answers on (`silent`) or that receives noise: its path, and the
+/// master end kept open (and fed with noise) for the test's life.
+struct Line {
+    path: String,
+    _keep: Vec<Box<dyn std::any::Any>>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Drop for Line {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+fn line(noise: bool) -> Line {
+    use serialport::SerialPort;
+    use std::io::Write;
+    let (mut master, slave) = serialport::TTYPort::pair().unwrap();
+    let path = slave.name().unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut keep: Vec<Box<dyn std::any::Any>> = vec![Box::new(slave)];
+    if noise {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            // Bytes that never make a frame of any protocol here (no STX, no FA FB, no `$`,
+            // no line end).
+            let mut x = 0x5Au8;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let chunk: Vec<u8> = (0..64)
+                    .map(|_| {
+                        x = x.wrapping_mul(13).wrapping_add(7);
+                        0x40 | (x & 0x3F)
+                    })
+                    .collect();
+                if master.write_all(&chunk).is_err() {
+                    break;
+                }
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+        });
+    } else {
+        keep.push(Box::new(master));
+    }
+    Line {
+        path,
+        _keep: keep,
+        stop,
+    }
+}
+
+#[test]
+fn scan_on_a_silent_line_names_every_rate_tried() {
+    let l = line(false);
+    let err = fails(&["scan", "--port", &l.path, "--log", "ima::connect=info"]);
+    assert!(
+        err.contains(
+            "no SICK LMS answered: silence at every rate tried (9600, 38400, 19200, 500000)"
+        ),
+        "{err}"
+    );
+    assert!(
+        err.contains("SICK LMS: trying 19200 baud (attempt 2)"),
+        "{err}"
+    );
+    assert!(!err.contains("any rate"), "{err}");
+}
+
+#[test]
+fn scan_on_a_noisy_line_says_what_it_received() {
+    let l = line(true);
+    let err = fails(&["scan", "--port", &l.path]);
+    assert!(err.contains("no SICK LMS answered: received "), "{err}");
+    assert!(err.contains(" bytes at 9600 baud, no valid frame"), "{err}");
+}

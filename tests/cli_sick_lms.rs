@@ -127,3 +127,68 @@ fn decode_sick_lms_host_commands() {
     assert_eq!(lines[0]["baud"], 500000);
     assert_eq!(lines[1]["password"], "SICK_LMS");
 }
+
+#[test]
+fn a_scan_at_500k_leaves_the_unit_where_the_next_scan_finds_it() {
+    let (_mock, path) = spawn_mock(&[]);
+    let out =
+        common::run_ok(ima().args(["scan", "--port", &path, "--baud", "500000", "--count", "1"]));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("at 500000 baud"));
+    let out = common::run_ok(ima().args(["scan", "--port", &path, "--count", "1"]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("at 38400 baud"), "{stdout}");
+    assert!(stdout.contains("1 scans delivered"), "{stdout}");
+}
+
+#[test]
+fn a_unit_stuck_at_500k_is_found_on_a_line_that_carries_it() {
+    // A unit that powers up at 500000 (permanent-baud flag set by another program): a pty
+    // carries any rate, so the probe tries 500000 too.
+    let (_mock, path) = spawn_mock(&["--baud", "500000"]);
+    let out = common::run_ok(ima().args([
+        "scan",
+        "--port",
+        &path,
+        "--count",
+        "1",
+        "--log",
+        "ima::connect=info",
+    ]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("at 38400 baud"), "{stdout}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    for b in [9600, 38400, 19200, 500000] {
+        assert!(
+            stderr.contains(&format!("SICK LMS: trying {b} baud (attempt 1)")),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
+fn scan_json_prints_one_object_per_scan_with_every_beam() {
+    let (_mock, path) = spawn_mock(&[]);
+    let out = common::run_ok(ima().args(["scan", "--port", &path, "--count", "2", "--json"]));
+    let lines = common::json_lines(&out.stdout);
+    assert_eq!(lines.len(), 2, "stdout is JSON only");
+    for (i, l) in lines.iter().enumerate() {
+        assert_eq!(l["scan"], i as u64 + 1);
+        assert!(l["stamp_s"].as_f64().unwrap() > 0.0);
+        let beams = l["beams"].as_array().unwrap();
+        assert_eq!(beams.len(), 361);
+        assert_eq!(l["beam_count"], 361);
+        // 180° at 0.5°: from -π/2 to +π/2, ranges in metres inside the 10 m arena.
+        let a0 = beams[0]["angle_rad"].as_f64().unwrap();
+        let a1 = beams[360]["angle_rad"].as_f64().unwrap();
+        assert!((a0 + std::f64::consts::FRAC_PI_2).abs() < 1e-6, "{a0}");
+        assert!((a1 - std::f64::consts::FRAC_PI_2).abs() < 1e-6, "{a1}");
+        let valid: Vec<f64> = beams.iter().filter_map(|b| b["range_m"].as_f64()).collect();
+        assert_eq!(valid.len() as u64, l["valid"].as_u64().unwrap());
+        assert!(valid.len() > 100);
+        assert!(valid.iter().all(|r| *r > 0.0 && *r < 15.0));
+    }
+    assert!(lines[1]["t_s"].as_f64().unwrap() > 0.0);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("connected: LMS200"), "{stderr}");
+    assert!(stderr.contains("2 scans delivered"), "{stderr}");
+}

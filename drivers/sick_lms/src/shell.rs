@@ -19,12 +19,15 @@ use std::io;
 use std::time::Duration;
 
 use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
+use ima_hal::link::ProbeReport;
 use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::decode::{Variant, decode_scan};
-pub use crate::driver::{BaudControl, DriverError, FixedBaud, LinkStatus, ScanStats};
+pub use crate::driver::{
+    BaudControl, CLOSE_TIMEOUT, DriverError, FixedBaud, LinkStatus, ScanStats,
+};
 use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
 use crate::wire::MeasuringMode;
 
@@ -88,6 +91,7 @@ pub struct SickLms {
     link: watch::Receiver<LinkStatus>,
     stats: watch::Receiver<ScanStats>,
     device_type: watch::Receiver<String>,
+    probe: watch::Receiver<ProbeReport>,
     pose: Isometry2,
     clock: TokioClock,
     scan_timeout: Duration,
@@ -110,6 +114,8 @@ impl SickLms {
         let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
         let (stats_tx, stats) = watch::channel(ScanStats::default());
         let (type_tx, device_type) = watch::channel(String::new());
+        let (probe_tx, probe) = watch::channel(ProbeReport::new());
+        let rs422 = cfg.rs422;
         let task = Task {
             machine: Machine::new(cfg, clock.now()),
             clock,
@@ -122,6 +128,10 @@ impl SickLms {
             work: LaserScan::default(),
             stats: ScanStats::default(),
             seq: 0,
+            probe: ProbeReport::new(),
+            probe_tx,
+            connected: false,
+            close_deadline: None,
         };
         tokio::spawn(task.run(stream));
         let waited = tokio::time::timeout(connect_timeout, async {
@@ -143,6 +153,14 @@ impl SickLms {
             Ok(Err(e)) => return Err(e),
             Err(_) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
+                let report = probe.borrow().clone();
+                // Nothing valid came back: say what was seen at each rate.
+                if report.total_frames() == 0 {
+                    return Err(DriverError::NotFound {
+                        report: Box::new(report),
+                        rs422,
+                    });
+                }
                 return Err(DriverError::Timeout);
             }
         }
@@ -152,6 +170,7 @@ impl SickLms {
             link,
             stats,
             device_type,
+            probe,
             pose: Isometry2::identity(),
             clock,
             scan_timeout: Duration::from_secs(3),
@@ -197,6 +216,12 @@ impl SickLms {
     #[must_use]
     pub fn device_type(&self) -> String {
         self.device_type.borrow().clone()
+    }
+
+    /// What the first connection saw at each rate it tried (bytes, valid frames).
+    #[must_use]
+    pub fn probe_report(&self) -> ProbeReport {
+        self.probe.borrow().clone()
     }
 
     /// The driver's clock (the time base of every stamp it produces).
@@ -254,8 +279,10 @@ impl SickLms {
             .await
     }
 
-    /// Stop the stream (best effort: `20 25` is written, its reply not awaited) and end the
-    /// driver task. The unit stays at the rate the session chose until it is power-cycled.
+    /// Stop the stream, switch the unit back to its power-up rate (9600: the LMS keeps a
+    /// switched rate until it is power-cycled, and the next program would have to find it)
+    /// and end the driver task, releasing the port. Bounded by [`CLOSE_TIMEOUT`]: a unit that
+    /// does not answer is left as it is. Dropping every handle does the same.
     pub async fn close(&self) -> Result<(), DriverError> {
         let (tx, rx) = oneshot::channel();
         self.tx
@@ -263,7 +290,7 @@ impl SickLms {
             .await
             .map_err(|_| DriverError::Disconnected)?;
         let mut link = self.link.clone();
-        tokio::time::timeout(Duration::from_secs(2), async move {
+        tokio::time::timeout(CLOSE_TIMEOUT + Duration::from_secs(1), async move {
             let _ = rx.await;
             // Wait until the task has let go of the port.
             while !matches!(
@@ -343,6 +370,13 @@ struct Task {
     work: LaserScan,
     stats: ScanStats,
     seq: u64,
+    /// What the first connection saw per rate (counted until the first `Ready`).
+    probe: ProbeReport,
+    probe_tx: watch::Sender<ProbeReport>,
+    /// The session was ready once (the probe report is final).
+    connected: bool,
+    /// Closing: release the port when the machine is closed or at this instant.
+    close_deadline: Option<Instant>,
 }
 
 impl Task {
@@ -368,18 +402,23 @@ impl Task {
                 let _ = stream.flush().await;
             }
             self.publish_stats();
-            if closing {
+            let now = self.clock.now();
+            if closing && (self.machine.is_closed() || self.close_deadline.is_none_or(|d| now >= d))
+            {
                 // Release the port before reporting: a caller may reopen it at once.
                 drop(stream);
                 self.link_tx.send_replace(LinkStatus::Closed);
                 return;
             }
-            let sleep_for = self
+            let mut sleep_for = self
                 .machine
                 .poll_timeout()
                 .map_or(Duration::from_millis(500), |t| {
-                    t.saturating_duration_since(self.clock.now())
+                    t.saturating_duration_since(now)
                 });
+            if let Some(d) = self.close_deadline {
+                sleep_for = sleep_for.min(d.saturating_duration_since(now));
+            }
             tokio::select! {
                 r = stream.read(&mut rbuf) => match r {
                     Ok(0) => { self.fail(DriverError::Disconnected); return; }
@@ -394,7 +433,7 @@ impl Task {
                     let now = self.clock.now();
                     self.timeout(now);
                 }
-                req = self.rx.recv() => match req {
+                req = self.rx.recv(), if !closing => match req {
                     None => closing = self.close(),
                     Some(req) => closing = self.handle_request(req),
                 },
@@ -403,6 +442,7 @@ impl Task {
     }
 
     fn input(&mut self, bytes: &[u8], now: Instant) {
+        let before = (!self.connected).then(|| self.machine.counters());
         let mode = self.machine.measuring_mode();
         let mut out = Out {
             work: &mut self.work,
@@ -414,6 +454,18 @@ impl Task {
         self.machine.handle_bytes(bytes, now, |b0, at| {
             out.publish(b0, at, mode);
         });
+        if let Some(b) = before {
+            let a = self.machine.counters();
+            let bad = |c: crate::framer::Counters| {
+                c.bad_checksums + c.bad_headers + c.bad_payloads + c.expired
+            };
+            self.probe.received(bytes.len());
+            self.probe.framed(
+                (a.frames + a.acks + a.naks).saturating_sub(b.frames + b.acks + b.naks),
+                bad(a).saturating_sub(bad(b)),
+            );
+            self.probe_tx.send_replace(self.probe.clone());
+        }
     }
 
     fn timeout(&mut self, now: Instant) {
@@ -448,12 +500,15 @@ impl Task {
         self.link_tx.send_replace(LinkStatus::Failed(e));
     }
 
-    /// Returns true when the task should end after flushing.
+    /// Start closing (stream stopped, unit back at 9600, within [`CLOSE_TIMEOUT`]); returns
+    /// true: the task ends once the machine is closed or the deadline passes.
     fn close(&mut self) -> bool {
         let now = self.clock.now();
-        if self.machine.is_ready() && self.machine.is_streaming() {
-            let _ = self.machine.stop_stream(now);
+        if let Some(w) = self.waiter.take() {
+            let _ = w.send(Err(DriverError::Disconnected));
         }
+        self.machine.close(now);
+        self.close_deadline = Some(now + CLOSE_TIMEOUT);
         true
     }
 
@@ -497,6 +552,12 @@ impl Task {
                     tracing::debug!(baud = b, "sick_lms: line speed");
                     stream.set_baud(b)?;
                     stream.clear_input()?;
+                    if !self.connected {
+                        self.probe.attempt(b);
+                        let n = self.probe.current_tally().map_or(1, |t| t.attempts);
+                        tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
+                        self.probe_tx.send_replace(self.probe.clone());
+                    }
                 }
                 Event::Identified => {
                     if let Some(t) = self.machine.device_type() {
@@ -511,6 +572,7 @@ impl Task {
                         "sick_lms: ready"
                     );
                     self.stats.readies = self.stats.readies.saturating_add(1);
+                    self.connected = true;
                     if let Some(w) = self.waiter.take() {
                         let _ = w.send(Ok(info));
                     }
@@ -537,8 +599,15 @@ impl Task {
                         let _ = w.send(Err(DriverError::Session(e)));
                     }
                     if self.machine.is_failed() {
-                        self.link_tx
-                            .send_replace(LinkStatus::Failed(DriverError::Session(e)));
+                        let err = if e == MachineError::NoDevice {
+                            DriverError::NotFound {
+                                report: Box::new(self.probe.clone()),
+                                rs422: self.machine.config().rs422,
+                            }
+                        } else {
+                            DriverError::Session(e)
+                        };
+                        self.link_tx.send_replace(LinkStatus::Failed(err));
                     } else if e == MachineError::StreamStalled {
                         tracing::warn!("sick_lms: stream stalled, re-probing");
                         self.stats.losses = self.stats.losses.saturating_add(1);
@@ -551,6 +620,7 @@ impl Task {
                     }
                 }
                 Event::PowerOn
+                | Event::Closed
                 | Event::BaudDetected(_)
                 | Event::DeviceStatus(_)
                 | Event::ConfigWritten => {}
