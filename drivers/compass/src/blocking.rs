@@ -154,10 +154,10 @@ impl<S: Read + Write> BlockingCompass<S> {
                 Event::Heading(r) => self.latest = Some(r),
                 Event::Configured => self.configured = true,
                 Event::JobFailed {
-                    job: job @ Job::Configure,
+                    job: Job::Configure,
                     step,
                 } => {
-                    let e = DriverError::JobFailed { job, step };
+                    let e = crate::driver::configuration_failed(&self.machine, step);
                     self.failed = Some(e);
                     return Err(e);
                 }

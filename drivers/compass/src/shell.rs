@@ -102,6 +102,21 @@ impl std::fmt::Debug for Request {
     }
 }
 
+/// The connect timeout's error when no heading came: what the line carried.
+fn timeout_error(st: &crate::machine::Stats) -> DriverError {
+    DriverError::NoAnswer {
+        step: None,
+        bytes: st.bytes,
+        lines: st.framer.lines,
+        bad_lines: st
+            .framer
+            .bad_checksums
+            .saturating_add(st.framer.overlong)
+            .saturating_add(st.framer.bad_bytes)
+            .saturating_add(st.parse_errors),
+    }
+}
+
 /// How long [`CompassDriver::connect`] waits by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -124,7 +139,9 @@ impl CompassDriver {
     /// (or `connect_timeout` passes). Must be called inside a tokio runtime.
     ///
     /// # Errors
-    /// [`DriverError::JobFailed`] if configuration gave up, [`DriverError::Timeout`],
+    /// [`DriverError::WrongDialect`] if the device speaks another dialect,
+    /// [`DriverError::NoAnswer`] if configuration gave up or timed out without headings
+    /// (with what the line carried), [`DriverError::Timeout`],
     /// [`DriverError::Disconnected`] / [`DriverError::Io`] if the stream failed.
     pub async fn connect<S>(
         stream: S,
@@ -175,6 +192,11 @@ impl CompassDriver {
             Ok(Err(e)) => Err(e),
             Err(_) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
+                // Say what the line carried rather than just "in time".
+                let st = *stats.borrow();
+                if st.headings == 0 {
+                    return Err(timeout_error(&st));
+                }
                 Err(DriverError::Timeout)
             }
         }
@@ -399,11 +421,11 @@ impl Task {
                 }
                 Event::JobFailed { job, step } => {
                     tracing::warn!(?job, step, "compass: job failed");
-                    let e = DriverError::JobFailed { job, step };
                     if job == crate::machine::Job::Configure {
+                        let e = crate::driver::configuration_failed(&self.machine, step);
                         self.fail(e);
                     } else {
-                        self.finish_job(Err(e));
+                        self.finish_job(Err(DriverError::JobFailed { job, step }));
                     }
                 }
                 Event::CalibrationStarted => self.finish_job(Ok(CalibrationOutcome::Started)),
