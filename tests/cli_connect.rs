@@ -113,3 +113,91 @@ fn scan_on_a_noisy_line_says_what_it_received() {
     assert!(err.contains("no SICK LMS answered: received "), "{err}");
     assert!(err.contains(" bytes at 9600 baud, no valid frame"), "{err}");
 }
+
+#[test]
+fn drive_on_a_silent_line_names_every_rate_tried() {
+    let l = line(false);
+    let err = fails(&[
+        "drive",
+        "--port",
+        &l.path,
+        "--connect-timeout",
+        "4",
+        "--log",
+        "ima::connect=info",
+    ]);
+    assert!(
+        err.contains("no P2OS robot completed the handshake: silence at every rate tried (9600, 19200, 38400, 57600, 115200)"),
+        "{err}"
+    );
+    assert!(err.contains("P2OS: trying 9600 baud (attempt 1)"), "{err}");
+    assert!(
+        err.contains("P2OS: trying 115200 baud (attempt 1)"),
+        "{err}"
+    );
+}
+
+#[test]
+fn drive_on_a_noisy_line_says_what_it_received() {
+    let l = line(true);
+    let err = fails(&["drive", "--port", &l.path, "--connect-timeout", "2"]);
+    assert!(
+        err.contains("no P2OS robot completed the handshake: received "),
+        "{err}"
+    );
+    assert!(err.contains(" bytes at 9600 baud, no valid frame"), "{err}");
+}
+
+#[test]
+fn rflex_drive_on_silent_and_noisy_lines_says_what_it_saw() {
+    let l = line(false);
+    let err = fails(&[
+        "drive",
+        "--robot",
+        "atrv-jr",
+        "--port",
+        &l.path,
+        "--connect-timeout",
+        "1",
+    ]);
+    assert!(
+        err.contains("at 115200 baud: no motion report from the rFLEX base: silence on the line"),
+        "{err}"
+    );
+    let l = line(true);
+    let err = fails(&[
+        "drive",
+        "--robot",
+        "atrv-jr",
+        "--port",
+        &l.path,
+        "--connect-timeout",
+        "1",
+    ]);
+    assert!(
+        err.contains("no motion report from the rFLEX base: received "),
+        "{err}"
+    );
+    assert!(err.contains("bytes, no valid frame"), "{err}");
+}
+
+#[test]
+fn compass_on_silent_and_noisy_lines_says_what_it_saw() {
+    let l = line(false);
+    let err = fails(&["compass", "--port", &l.path, "--log", "ima::connect=info"]);
+    assert!(
+        err.contains("compass: configuring a KVH C100 (NMEA) at 4800 baud"),
+        "{err}"
+    );
+    assert!(
+        err.contains("the compass did not answer its configuration (step 0): silence on the line"),
+        "{err}"
+    );
+    let l = line(true);
+    let err = fails(&["compass", "--port", &l.path, "--dialect", "tcm2"]);
+    assert!(
+        err.contains("the compass did not answer its configuration (step 3): received "),
+        "{err}"
+    );
+    assert!(err.contains("bytes, no valid line"), "{err}");
+}
