@@ -95,7 +95,7 @@ fn scan_on_a_silent_line_names_every_rate_tried() {
     let err = fails(&["scan", "--port", &l.path, "--log", "ima::connect=info"]);
     assert!(
         err.contains(
-            "no SICK LMS answered: silence at every rate tried (9600, 38400, 19200, 500000)"
+            "no SICK LMS answered (powered? still booting? right port?): silence at every rate tried (9600, 38400, 19200, 500000)"
         ),
         "{err}"
     );
@@ -110,7 +110,10 @@ fn scan_on_a_silent_line_names_every_rate_tried() {
 fn scan_on_a_noisy_line_says_what_it_received() {
     let l = line(true);
     let err = fails(&["scan", "--port", &l.path]);
-    assert!(err.contains("no SICK LMS answered: received "), "{err}");
+    assert!(
+        err.contains("no SICK LMS answered (powered? still booting? right port?): received "),
+        "{err}"
+    );
     assert!(err.contains(" bytes at 9600 baud, no valid frame"), "{err}");
 }
 
@@ -127,7 +130,7 @@ fn drive_on_a_silent_line_names_every_rate_tried() {
         "ima::connect=info",
     ]);
     assert!(
-        err.contains("no P2OS robot completed the handshake: silence at every rate tried (9600, 19200, 38400, 57600, 115200)"),
+        err.contains("no P2OS robot completed the handshake (robot on? right port?): silence at every rate tried (9600, 19200, 38400, 57600, 115200)"),
         "{err}"
     );
     assert!(err.contains("P2OS: trying 9600 baud (attempt 1)"), "{err}");
@@ -142,7 +145,7 @@ fn drive_on_a_noisy_line_says_what_it_received() {
     let l = line(true);
     let err = fails(&["drive", "--port", &l.path, "--connect-timeout", "2"]);
     assert!(
-        err.contains("no P2OS robot completed the handshake: received "),
+        err.contains("no P2OS robot completed the handshake (robot on? right port?): received "),
         "{err}"
     );
     assert!(err.contains(" bytes at 9600 baud, no valid frame"), "{err}");

@@ -133,7 +133,7 @@ impl std::fmt::Display for DriverError {
             }
             Self::NoAnswer(report) => write!(
                 f,
-                "no P2OS robot completed the handshake: {report} (robot on? right port?)"
+                "no P2OS robot completed the handshake (robot on? right port?): {report}"
             ),
             Self::Io(k) => write!(f, "serial I/O error: {k}"),
         }

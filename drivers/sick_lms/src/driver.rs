@@ -139,11 +139,14 @@ impl std::fmt::Display for DriverError {
             Self::Disconnected => f.write_str("SICK LMS driver disconnected"),
             Self::Timeout => f.write_str("SICK LMS did not answer in time"),
             Self::NotFound { report, rs422 } => {
-                write!(f, "no SICK LMS answered: {report}")?;
+                write!(
+                    f,
+                    "no SICK LMS answered (powered? still booting? right port?): {report}"
+                )?;
                 if !rs422 {
                     f.write_str("; 500000 baud not tried (RS-422 lines only)")?;
                 }
-                f.write_str(" (powered? still booting? right port?)")
+                Ok(())
             }
             Self::Session(MachineError::NoDevice) => f.write_str(
                 "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)",
