@@ -74,9 +74,8 @@ fn main() -> ExitCode {
     use tracing_subscriber::Layer as _;
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
-    let progress = (std::io::IsTerminal::is_terminal(&std::io::stderr())
-        && !cli.log.contains(CONNECT_TARGET))
-    .then(|| {
+    let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let progress = (tty && !cli.log.contains(CONNECT_TARGET)).then(|| {
         tracing_subscriber::fmt::layer()
             .without_time()
             .with_level(false)
@@ -91,6 +90,7 @@ fn main() -> ExitCode {
         .with(
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
+                .with_ansi(tty)
                 .with_filter(
                     tracing_subscriber::EnvFilter::try_new(&cli.log)
                         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),

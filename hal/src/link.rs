@@ -119,8 +119,9 @@ impl ProbeReport {
     }
 }
 
-/// `1204` → `1,204`.
-struct Thousands(u64);
+/// A count with thousands separators for messages: `Thousands(1204)` displays `1,204`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Thousands(pub u64);
 
 impl fmt::Display for Thousands {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {

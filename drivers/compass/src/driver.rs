@@ -108,7 +108,11 @@ impl std::fmt::Display for DriverError {
                 if *bytes == 0 {
                     return f.write_str("silence on the line (powered? right port? right rate?)");
                 }
-                write!(f, "received {bytes} bytes, ")?;
+                write!(
+                    f,
+                    "received {} bytes, ",
+                    ima_hal::link::Thousands(u64::from(*bytes))
+                )?;
                 match lines {
                     0 => f.write_str("no valid line")?,
                     1 => f.write_str("1 valid line")?,

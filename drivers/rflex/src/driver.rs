@@ -51,7 +51,7 @@ impl std::fmt::Display for DriverError {
                 if *bytes == 0 {
                     return f.write_str("silence on the line (base on? right port?)");
                 }
-                write!(f, "received {bytes} bytes, ")?;
+                write!(f, "received {} bytes, ", ima_hal::link::Thousands(*bytes))?;
                 match frames {
                     0 => f.write_str("no valid frame")?,
                     1 => f.write_str("1 valid frame")?,
