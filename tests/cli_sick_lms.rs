@@ -177,6 +177,8 @@ fn scan_json_prints_one_object_per_scan_with_every_beam() {
         let beams = l["beams"].as_array().unwrap();
         assert_eq!(beams.len(), 361);
         assert_eq!(l["beam_count"], 361);
+        assert_eq!(l["status"]["error"], false, "{}", l["status"]);
+        assert!(l["status"]["byte"].is_u64());
         // 180° at 0.5°: from -π/2 to +π/2, ranges in metres inside the 10 m arena.
         let a0 = beams[0]["angle_rad"].as_f64().unwrap();
         let a1 = beams[360]["angle_rad"].as_f64().unwrap();

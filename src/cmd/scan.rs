@@ -14,7 +14,7 @@ use ima_sick_lms::decode::Variant;
 use ima_sick_lms::driver::expected_scan_rate_hz;
 use ima_sick_lms::machine::Config;
 use ima_sick_lms::shell::{DriverError, SickLms, open_port};
-use ima_sick_lms::wire::BaudRate;
+use ima_sick_lms::wire::{BaudRate, StatusByte};
 
 /// Arguments of `ima scan`.
 #[derive(Debug, Args)]
@@ -162,9 +162,15 @@ fn flag_names(f: BeamFlags) -> Vec<&'static str> {
 
 /// One scan as a JSON object: its index (1-based) and stamp, then every beam with its angle
 /// (radians, sensor frame, counter-clockwise from ahead) and range (metres, `null` when the
-/// beam has no valid range) and, for an invalid beam, why.
+/// beam has no valid range) and, for an invalid beam, why; `status` is the unit's latest
+/// status byte (`null` before any telegram), decoded.
 #[must_use]
-pub fn scan_json(index: u64, t_s: f64, s: &Stamped<LaserScan>) -> serde_json::Value {
+pub fn scan_json(
+    index: u64,
+    t_s: f64,
+    s: &Stamped<LaserScan>,
+    status: Option<StatusByte>,
+) -> serde_json::Value {
     let beams: Vec<serde_json::Value> = s
         .value
         .beams()
@@ -187,10 +193,20 @@ pub fn scan_json(index: u64, t_s: f64, s: &Stamped<LaserScan>) -> serde_json::Va
         .beams()
         .filter(|(_, r, f)| f.is_valid() && r.is_finite())
         .count();
+    let status = status.map(|b| {
+        serde_json::json!({
+            "byte": b.0,
+            "error": b.is_error(),
+            "pollution": b.pollution(),
+            "implausible": b.implausible(),
+            "restart": b.restart(),
+        })
+    });
     serde_json::json!({
         "scan": index,
         "t_s": t_s,
         "stamp_s": s.at.as_secs_f64(),
+        "status": status,
         "beam_count": s.value.len(),
         "valid": valid,
         "beams": beams,
@@ -278,7 +294,7 @@ async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Resul
         {
             let mut out = std::io::stdout().lock();
             if args.json {
-                writeln!(out, "{}", scan_json(n, secs, &s))?;
+                writeln!(out, "{}", scan_json(n, secs, &s, lms.device_status()))?;
             } else {
                 let rate = if n > 1 && secs > 0.0 {
                     format!("{:.1} scans/s", (n - 1) as f64 / secs)
@@ -340,11 +356,11 @@ mod tests {
         s.push(2.0, BeamFlags::VALID).unwrap();
         s.push(f32::NAN, BeamFlags::NO_RETURN).unwrap();
         s.push(1.5, BeamFlags::DAZZLED).unwrap();
-        let j = scan_json(
-            3,
-            0.25,
-            &Stamped::new(ima_hal::Instant::from_micros(1_500_000), s),
-        );
+        let at = ima_hal::Instant::from_micros(1_500_000);
+        let j = scan_json(3, 0.25, &Stamped::new(at, s), Some(StatusByte(0x90)));
+        assert_eq!(j["status"]["byte"], 0x90);
+        assert_eq!(j["status"]["pollution"], true);
+        assert_eq!(j["status"]["error"], false);
         assert_eq!(j["scan"], 3);
         assert_eq!(j["stamp_s"], 1.5);
         assert_eq!(j["valid"], 1);

@@ -29,7 +29,7 @@ pub use crate::driver::{
     BaudControl, CLOSE_TIMEOUT, DriverError, FixedBaud, LinkStatus, ScanStats,
 };
 use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
-use crate::wire::MeasuringMode;
+use crate::wire::{MeasuringMode, StatusByte};
 
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (the probe changes it).
 ///
@@ -92,6 +92,7 @@ pub struct SickLms {
     stats: watch::Receiver<ScanStats>,
     device_type: watch::Receiver<String>,
     probe: watch::Receiver<ProbeReport>,
+    status: watch::Receiver<Option<StatusByte>>,
     pose: Isometry2,
     clock: TokioClock,
     scan_timeout: Duration,
@@ -115,6 +116,7 @@ impl SickLms {
         let (stats_tx, stats) = watch::channel(ScanStats::default());
         let (type_tx, device_type) = watch::channel(String::new());
         let (probe_tx, probe) = watch::channel(ProbeReport::new());
+        let (status_tx, status) = watch::channel(None);
         let rs422 = cfg.rs422;
         let task = Task {
             machine: Machine::new(cfg, clock.now()),
@@ -130,6 +132,7 @@ impl SickLms {
             seq: 0,
             probe: ProbeReport::new(),
             probe_tx,
+            status_tx,
             connected: false,
             close_deadline: None,
         };
@@ -171,6 +174,7 @@ impl SickLms {
             stats,
             device_type,
             probe,
+            status,
             pose: Isometry2::identity(),
             clock,
             scan_timeout: Duration::from_secs(3),
@@ -216,6 +220,13 @@ impl SickLms {
     #[must_use]
     pub fn device_type(&self) -> String {
         self.device_type.borrow().clone()
+    }
+
+    /// The unit's latest status byte (pollution, implausible values, errors), once any
+    /// telegram arrived.
+    #[must_use]
+    pub fn device_status(&self) -> Option<StatusByte> {
+        *self.status.borrow()
     }
 
     /// What the first connection saw at each rate it tried (bytes, valid frames).
@@ -373,6 +384,7 @@ struct Task {
     /// What the first connection saw per rate (counted until the first `Ready`).
     probe: ProbeReport,
     probe_tx: watch::Sender<ProbeReport>,
+    status_tx: watch::Sender<Option<StatusByte>>,
     /// The session was ready once (the probe report is final).
     connected: bool,
     /// Closing: release the port when the machine is closed or at this instant.
@@ -619,11 +631,13 @@ impl Task {
                         tracing::debug!(error = ?e, "sick_lms: request failed");
                     }
                 }
-                Event::PowerOn
-                | Event::Closed
-                | Event::BaudDetected(_)
-                | Event::DeviceStatus(_)
-                | Event::ConfigWritten => {}
+                Event::DeviceStatus(s) => {
+                    if s.pollution() || s.is_error() {
+                        tracing::warn!(status = s.0, "sick_lms: device status");
+                    }
+                    self.status_tx.send_replace(Some(s));
+                }
+                Event::PowerOn | Event::Closed | Event::BaudDetected(_) | Event::ConfigWritten => {}
             }
         }
         Ok(())
