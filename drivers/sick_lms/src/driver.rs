@@ -259,6 +259,33 @@ mod tests {
     }
 
     #[test]
+    fn not_found_names_the_rates_and_the_one_not_tried() {
+        let mut report = ima_hal::link::ProbeReport::new();
+        for b in [9600, 38400, 19200] {
+            report.attempt(b);
+        }
+        let e = DriverError::NotFound {
+            report: Box::new(report.clone()),
+            rs422: false,
+        };
+        let text = e.to_string();
+        assert!(
+            text.ends_with(
+                "silence at every rate tried (9600, 38400, 19200); 500000 baud not tried (RS-422 lines only)"
+            ),
+            "{text}"
+        );
+        assert!(!text.contains("any rate"));
+        assert_eq!(ima_hal::Error::kind(&e), ErrorKind::Timeout);
+        report.attempt(500_000);
+        let e = DriverError::NotFound {
+            report: Box::new(report),
+            rs422: true,
+        };
+        assert!(e.to_string().ends_with("(9600, 38400, 19200, 500000)"));
+    }
+
+    #[test]
     fn error_kinds() {
         use ima_hal::Error as _;
         assert_eq!(
