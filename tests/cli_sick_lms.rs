@@ -138,6 +138,68 @@ fn a_scan_at_500k_leaves_the_unit_where_the_next_scan_finds_it() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("at 38400 baud"), "{stdout}");
     assert!(stdout.contains("1 scans delivered"), "{stdout}");
+    // And that one put it back at 9600 too: the first rate probed answers.
+    assert_answers_at_9600_first(&path);
+}
+
+/// A scan at 9600 finds the unit at the first rate it tries (it was left at 9600).
+fn assert_answers_at_9600_first(path: &str) {
+    let out = common::run_ok(ima().args([
+        "scan",
+        "--port",
+        path,
+        "--baud",
+        "9600",
+        "--count",
+        "1",
+        "--log",
+        "ima::connect=info",
+    ]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("SICK LMS: answered at 9600 baud"),
+        "{stderr}"
+    );
+    for b in [38400, 19200, 500000] {
+        assert!(!stderr.contains(&format!("trying {b} baud")), "{stderr}");
+    }
+}
+
+#[test]
+fn a_scan_ended_by_a_signal_puts_the_unit_back_at_9600() {
+    use std::io::BufRead;
+    let (_mock, path) = spawn_mock(&[]);
+    let mut scan = common::Child(
+        ima()
+            .args(["scan", "--port", &path, "--baud", "500000"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = std::io::BufReader::new(scan.0.stdout.take().unwrap()).lines();
+    // Wait until it streams at 500000.
+    let first = lines.next().unwrap().unwrap();
+    assert!(first.contains("at 500000 baud"), "{first}");
+    assert!(lines.next().unwrap().unwrap().starts_with("scan 1 "));
+    let pid = scan.0.id().to_string();
+    let killed = std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    // Drain stdout so the program never blocks on a full pipe, then wait for it.
+    for l in lines.by_ref() {
+        if l.is_err() {
+            break;
+        }
+    }
+    let status = scan.0.wait().unwrap();
+    assert!(
+        status.code().is_some(),
+        "ended by the signal itself: {status:?}"
+    );
+    assert_answers_at_9600_first(&path);
 }
 
 #[test]

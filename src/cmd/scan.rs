@@ -246,7 +246,8 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     rt.block_on(async {
         let port = open_port(&args.port, 9600).with_context(|| format!("opening {}", args.port))?;
         let wait = cfg.power_up_wait.unwrap_or_default();
-        let lms = match SickLms::connect(port, cfg, wait + Duration::from_secs(60)).await {
+        let connect = SickLms::connect(port, cfg, wait + Duration::from_secs(60));
+        let lms = match crate::safety::until_cancelled(connect).await? {
             Ok(l) => l.with_scan_timeout(Duration::from_secs(5)),
             Err(e @ DriverError::NotFound { rs422: false, .. }) => {
                 return Err(anyhow::Error::new(e)
@@ -280,7 +281,9 @@ async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Resul
     let mut n = 0u64;
     let mut first: Option<ima_hal::Instant> = None;
     let mut last = lms.now();
-    let stop = tokio::signal::ctrl_c();
+    // SIGINT, SIGTERM, SIGHUP (or a panic elsewhere) end the loop, so the unit is closed
+    // (and put back at 9600) within the signal's grace time.
+    let stop = crate::safety::cancelled();
     tokio::pin!(stop);
     loop {
         let s = tokio::select! {

@@ -385,6 +385,13 @@ impl Machine {
         self.core.is_ready()
     }
 
+    /// Looking for the unit: waiting for its power-on telegram or probing rates (a
+    /// [`Event::SetHostBaud`] now starts a probe at that rate rather than a switch).
+    #[must_use]
+    pub fn is_probing(&self) -> bool {
+        matches!(self.core.phase, Phase::PowerUp | Phase::Probe { .. })
+    }
+
     /// Initialisation gave up (see the last [`Event::Error`]).
     #[must_use]
     pub fn is_failed(&self) -> bool {

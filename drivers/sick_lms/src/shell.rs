@@ -565,9 +565,14 @@ impl Task {
                     stream.set_baud(b)?;
                     stream.clear_input()?;
                     if !self.connected {
-                        self.probe.attempt(b);
-                        let n = self.probe.current_tally().map_or(1, |t| t.attempts);
-                        tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
+                        if self.machine.is_probing() {
+                            self.probe.attempt(b);
+                            let n = self.probe.current_tally().map_or(1, |t| t.attempts);
+                            tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
+                        } else {
+                            self.probe.set_rate(b);
+                            tracing::info!(target: "ima::connect", "SICK LMS: switching to {b} baud");
+                        }
                         self.probe_tx.send_replace(self.probe.clone());
                     }
                 }
@@ -636,6 +641,9 @@ impl Task {
                         tracing::warn!(status = s.0, "sick_lms: device status");
                     }
                     self.status_tx.send_replace(Some(s));
+                }
+                Event::BaudDetected(b) if !self.connected => {
+                    tracing::info!(target: "ima::connect", "SICK LMS: answered at {} baud", b.bps());
                 }
                 Event::PowerOn | Event::Closed | Event::BaudDetected(_) | Event::ConfigWritten => {}
             }
