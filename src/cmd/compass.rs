@@ -122,7 +122,7 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     loop {
         let r = tokio::select! {
             r = drv.next_reading(after, Duration::from_secs(3)) => r.context("reading the compass")?,
-            _ = tokio::signal::ctrl_c() => break,
+            () = crate::safety::cancelled() => break,
         };
         after = r.at;
         let h = &r.value.heading;
