@@ -327,10 +327,12 @@ async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Resul
             break;
         }
     }
+    // `n`, not the driver's counter: the stream runs on while this line is written, and the
+    // count is of the scans this command received.
     let st = lms.stats();
     let line = format!(
-        "{} scans delivered, {} bad CRCs, {} bytes dropped, {} retransmissions",
-        st.delivered, st.framer.bad_checksums, st.framer.dropped_bytes, st.session.retransmissions
+        "{n} scans delivered, {} bad CRCs, {} bytes dropped, {} retransmissions",
+        st.framer.bad_checksums, st.framer.dropped_bytes, st.session.retransmissions
     );
     if args.json {
         eprintln!("{line}");
