@@ -61,16 +61,42 @@ enum SanCommand {
     Simulate(cmd::san::SanSimulateArgs),
 }
 
+/// The tracing target of the drivers' connection progress (`ima::connect`).
+const CONNECT_TARGET: &str = "ima::connect";
+
 fn main() -> ExitCode {
     // Before anything can move a robot: the panic hook and the signal thread.
     safety::install();
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_new(&cli.log)
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+    // On a terminal, show what a connecting driver is trying (rate, attempt) as plain lines:
+    // connecting can take tens of seconds and should not look like a hang. A `--log` filter
+    // that names the target takes over (and prints it in the log format, also off a TTY).
+    use tracing_subscriber::Layer as _;
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
+    let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let progress = (tty && !cli.log.contains(CONNECT_TARGET)).then(|| {
+        tracing_subscriber::fmt::layer()
+            .without_time()
+            .with_level(false)
+            .with_target(false)
+            .with_writer(std::io::stderr)
+            .with_filter(
+                tracing_subscriber::filter::Targets::new()
+                    .with_target(CONNECT_TARGET, tracing::Level::INFO),
+            )
+    });
+    tracing_subscriber::registry()
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_ansi(tty)
+                .with_filter(
+                    tracing_subscriber::EnvFilter::try_new(&cli.log)
+                        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                ),
         )
-        .with_writer(std::io::stderr)
+        .with(progress)
         .init();
     let result = match cli.command {
         Command::Demo(a) => cmd::demo::run(&a),

@@ -127,3 +127,132 @@ fn decode_sick_lms_host_commands() {
     assert_eq!(lines[0]["baud"], 500000);
     assert_eq!(lines[1]["password"], "SICK_LMS");
 }
+
+#[test]
+fn a_scan_at_500k_leaves_the_unit_where_the_next_scan_finds_it() {
+    let (_mock, path) = spawn_mock(&[]);
+    let out =
+        common::run_ok(ima().args(["scan", "--port", &path, "--baud", "500000", "--count", "1"]));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("at 500000 baud"));
+    let out = common::run_ok(ima().args(["scan", "--port", &path, "--count", "1"]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("at 38400 baud"), "{stdout}");
+    assert!(stdout.contains("1 scans delivered"), "{stdout}");
+    // And that one put it back at 9600 too: the first rate probed answers.
+    assert_answers_at_9600_first(&path);
+}
+
+/// A scan at 9600 finds the unit at the first rate it tries (it was left at 9600).
+fn assert_answers_at_9600_first(path: &str) {
+    let out = common::run_ok(ima().args([
+        "scan",
+        "--port",
+        path,
+        "--baud",
+        "9600",
+        "--count",
+        "1",
+        "--log",
+        "ima::connect=info",
+    ]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("SICK LMS: answered at 9600 baud"),
+        "{stderr}"
+    );
+    for b in [38400, 19200, 500000] {
+        assert!(!stderr.contains(&format!("trying {b} baud")), "{stderr}");
+    }
+}
+
+#[test]
+fn a_scan_ended_by_a_signal_puts_the_unit_back_at_9600() {
+    use std::io::BufRead;
+    let (_mock, path) = spawn_mock(&[]);
+    let mut scan = common::Child(
+        ima()
+            .args(["scan", "--port", &path, "--baud", "500000"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = std::io::BufReader::new(scan.0.stdout.take().unwrap()).lines();
+    // Wait until it streams at 500000.
+    let first = lines.next().unwrap().unwrap();
+    assert!(first.contains("at 500000 baud"), "{first}");
+    assert!(lines.next().unwrap().unwrap().starts_with("scan 1 "));
+    let pid = scan.0.id().to_string();
+    let killed = std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    // Drain stdout so the program never blocks on a full pipe, then wait for it.
+    for l in lines.by_ref() {
+        if l.is_err() {
+            break;
+        }
+    }
+    let status = scan.0.wait().unwrap();
+    assert!(
+        status.code().is_some(),
+        "ended by the signal itself: {status:?}"
+    );
+    assert_answers_at_9600_first(&path);
+}
+
+#[test]
+fn a_unit_stuck_at_500k_is_found_on_a_line_that_carries_it() {
+    // A unit that powers up at 500000 (permanent-baud flag set by another program): a pty
+    // carries any rate, so the probe tries 500000 too.
+    let (_mock, path) = spawn_mock(&["--baud", "500000"]);
+    let out = common::run_ok(ima().args([
+        "scan",
+        "--port",
+        &path,
+        "--count",
+        "1",
+        "--log",
+        "ima::connect=info",
+    ]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("at 38400 baud"), "{stdout}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    for b in [9600, 38400, 19200, 500000] {
+        assert!(
+            stderr.contains(&format!("SICK LMS: trying {b} baud (attempt 1)")),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
+fn scan_json_prints_one_object_per_scan_with_every_beam() {
+    let (_mock, path) = spawn_mock(&[]);
+    let out = common::run_ok(ima().args(["scan", "--port", &path, "--count", "2", "--json"]));
+    let lines = common::json_lines(&out.stdout);
+    assert_eq!(lines.len(), 2, "stdout is JSON only");
+    for (i, l) in lines.iter().enumerate() {
+        assert_eq!(l["scan"], i as u64 + 1);
+        assert!(l["stamp_s"].as_f64().unwrap() > 0.0);
+        let beams = l["beams"].as_array().unwrap();
+        assert_eq!(beams.len(), 361);
+        assert_eq!(l["beam_count"], 361);
+        assert_eq!(l["status"]["error"], false, "{}", l["status"]);
+        assert!(l["status"]["byte"].is_u64());
+        // 180° at 0.5°: from -π/2 to +π/2, ranges in metres inside the 10 m arena.
+        let a0 = beams[0]["angle_rad"].as_f64().unwrap();
+        let a1 = beams[360]["angle_rad"].as_f64().unwrap();
+        assert!((a0 + std::f64::consts::FRAC_PI_2).abs() < 1e-6, "{a0}");
+        assert!((a1 - std::f64::consts::FRAC_PI_2).abs() < 1e-6, "{a1}");
+        let valid: Vec<f64> = beams.iter().filter_map(|b| b["range_m"].as_f64()).collect();
+        assert_eq!(valid.len() as u64, l["valid"].as_u64().unwrap());
+        assert!(valid.len() > 100);
+        assert!(valid.iter().all(|r| *r > 0.0 && *r < 15.0));
+    }
+    assert!(lines[1]["t_s"].as_f64().unwrap() > 0.0);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("connected: LMS200"), "{stderr}");
+    assert!(stderr.contains("2 scans delivered"), "{stderr}");
+}

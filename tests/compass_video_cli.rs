@@ -77,6 +77,58 @@ fn compass_on_a_switcher_port_fails_cleanly() {
 }
 
 #[test]
+fn a_wrong_compass_dialect_is_named_and_fails() {
+    // (mock dialect, driver dialect, what the error must say)
+    for (mock, drv, says) in [
+        (
+            "nmea",
+            "tcm2",
+            "the compass answered in NMEA ($HCHDG…), not TCM2",
+        ),
+        (
+            "tcm2",
+            "nmea",
+            "the compass answered in TCM2 ($C…P…R…), not NMEA",
+        ),
+        (
+            "tcm2",
+            "kvh",
+            "the compass answered in TCM2 ($C…P…R…), not KVH C100 (NMEA)",
+        ),
+    ] {
+        let (_mock, path) = spawn_mock(&["compass", "--dialect", mock]);
+        let out = ima()
+            .args([
+                "compass",
+                "--port",
+                &path,
+                "--dialect",
+                drv,
+                "--count",
+                "3",
+                "--json",
+            ])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{mock} as {drv}: {stderr}");
+        assert!(stderr.contains(says), "{mock} as {drv}: {stderr}");
+        let hint = if mock == "nmea" {
+            "try --dialect nmea"
+        } else {
+            "try --dialect tcm2"
+        };
+        assert!(stderr.contains(hint), "{stderr}");
+        // No heading of the wrong dialect was printed as if it were good.
+        assert!(
+            out.stdout.is_empty(),
+            "{}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+    }
+}
+
+#[test]
 fn camera_grab_writes_a_png_with_the_expected_blob() {
     let dir = std::env::temp_dir().join(format!("ima-camera-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -111,10 +111,12 @@ async fn initialises_from_every_starting_baud_and_switches_to_500k() {
             assert!(l.description().max_scan_rate_hz > 37.0);
             l.close().await.unwrap();
             let m = dev.stop().unwrap();
-            assert_eq!(m.model().baud(), BaudRate::B500000);
+            // Closing put the unit back at its power-up rate, idle.
+            assert_eq!(m.model().baud(), BaudRate::B9600, "from {baud:?}");
+            assert!(!m.model().is_streaming());
             assert_eq!(
                 m.model().stats().baud_changes,
-                u64::from(baud != BaudRate::B500000)
+                u64::from(baud != BaudRate::B500000) + 1
             );
             // The probe's telegrams at the wrong rates reached the unit as noise only.
             if baud != BaudRate::B9600 {
@@ -125,6 +127,28 @@ async fn initialises_from_every_starting_baud_and_switches_to_500k() {
     for j in jobs {
         j.await.unwrap();
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_session_at_500k_leaves_the_unit_at_9600_for_an_rs232_host() {
+    let (w, id) = boxed();
+    let dev = serve(&w, id, SickLmsModelConfig::default(), 0.0, "");
+    let l = connect(&dev, fast()).await;
+    assert_eq!(l.session().unwrap().baud, BaudRate::B500000);
+    l.close().await.unwrap();
+    // The next program has no RS-422 (500000 is not probed) and still finds the unit.
+    let rs232 = Config {
+        rs422: false,
+        ..Config::default()
+    };
+    let l = connect(&dev, rs232).await;
+    assert_eq!(l.session().unwrap().baud, BaudRate::B38400);
+    let first = l.probe_report();
+    assert_eq!(first.rates().first().map(|t| t.baud), Some(9600));
+    assert!(first.total_frames() > 0);
+    l.close().await.unwrap();
+    let m = dev.stop().unwrap();
+    assert_eq!(m.model().baud(), BaudRate::B9600);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

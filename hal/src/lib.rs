@@ -29,9 +29,12 @@ pub mod camera;
 pub mod compass;
 pub mod error;
 pub mod laser;
+pub mod link;
 pub mod power;
 #[cfg(feature = "std")]
 pub mod safety;
+#[cfg(feature = "std")]
+pub mod serial;
 pub mod sonar;
 pub mod time;
 

@@ -6,7 +6,8 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use ima_compass::machine::{Config, Dialect};
+use ima_compass::driver::DriverError;
+use ima_compass::machine::{Config, Dialect, ForeignLine};
 use ima_compass::shell::{CompassDriver, default_baud, open_port};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::compass::HeadingReference;
@@ -84,9 +85,36 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     let cfg = config(args);
     let baud = args.baud.unwrap_or_else(|| default_baud(cfg.dialect));
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
-    let drv = CompassDriver::connect(port, cfg, Duration::from_secs(10))
-        .await
-        .context("configuring the compass")?;
+    tracing::info!(
+        target: "ima::connect",
+        "compass: configuring a {} at {baud} baud on {}",
+        ima_compass::driver::dialect_name(cfg.dialect),
+        args.port
+    );
+    let drv = match CompassDriver::connect(port, cfg, Duration::from_secs(10)).await {
+        Ok(d) => d,
+        Err(e) => {
+            let hint = match e {
+                DriverError::WrongDialect {
+                    seen: ForeignLine::Nmea { .. },
+                    ..
+                } => ": try --dialect nmea (or --dialect kvh for a KVH C100)",
+                DriverError::WrongDialect {
+                    seen: ForeignLine::Tcm2,
+                    ..
+                } => ": try --dialect tcm2",
+                DriverError::NoAnswer { lines, .. }
+                    if lines > 0 && args.dialect == DriverDialect::Kvh =>
+                {
+                    " (an NMEA source that takes no commands? try --dialect nmea)"
+                }
+                _ => "",
+            };
+            return Err(anyhow::anyhow!("{e}{hint}")).with_context(|| {
+                format!("configuring the compass on {} at {baud} baud", args.port)
+            });
+        }
+    };
     let start = drv.now();
     let mut after = start;
     let mut n = 0u64;
@@ -94,7 +122,7 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     loop {
         let r = tokio::select! {
             r = drv.next_reading(after, Duration::from_secs(3)) => r.context("reading the compass")?,
-            _ = tokio::signal::ctrl_c() => break,
+            () = crate::safety::cancelled() => break,
         };
         after = r.at;
         let h = &r.value.heading;

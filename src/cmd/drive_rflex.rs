@@ -44,9 +44,12 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     }
     let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
     let connect = Rflex::connect(port, cfg, num::duration(o.connect_timeout_s));
-    let mut base = safety::until_cancelled(connect)
-        .await?
-        .with_context(|| format!("connecting to an rFLEX base on {}", o.port))?;
+    let mut base = safety::until_cancelled(connect).await?.with_context(|| {
+        format!(
+            "connecting to an rFLEX base on {} at {} baud",
+            o.port, o.baud
+        )
+    })?;
     eprintln!("connected to an rFLEX base at {} baud", o.baud);
     safety::until_cancelled(base.enable_motors(true))
         .await?

@@ -2,17 +2,19 @@
 //! a one-line summary per scan, and optionally write one scan as an SVG picture.
 
 use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use ima_hal::laser::{LaserScan, LaserScanner};
+use ima_hal::Stamped;
+use ima_hal::laser::{BeamFlags, LaserScan, LaserScanner};
 use ima_sick_lms::decode::Variant;
 use ima_sick_lms::driver::expected_scan_rate_hz;
 use ima_sick_lms::machine::Config;
-use ima_sick_lms::shell::{SickLms, open_port};
-use ima_sick_lms::wire::BaudRate;
+use ima_sick_lms::shell::{DriverError, SickLms, open_port};
+use ima_sick_lms::wire::{BaudRate, StatusByte};
 
 /// Arguments of `ima scan`.
 #[derive(Debug, Args)]
@@ -37,6 +39,14 @@ pub struct ScanArgs {
     /// Write the first scan as an SVG picture to this file.
     #[arg(long)]
     svg: Option<PathBuf>,
+    /// The line is RS-422 (or a pseudo-terminal, detected by itself): probe 500000 baud too.
+    /// An RS-232 line carries at most 38400.
+    #[arg(long)]
+    rs422: bool,
+    /// One JSON object per scan on stdout (every beam's angle and range in SI units); the
+    /// connection and summary lines go to stderr.
+    #[arg(long)]
+    json: bool,
 }
 
 fn parse_variant(s: &str) -> Result<Variant> {
@@ -133,14 +143,95 @@ pub fn svg(s: &LaserScan) -> String {
     out
 }
 
+/// The flags of a beam that is not a valid range, by name (`[]` for a valid one).
+fn flag_names(f: BeamFlags) -> Vec<&'static str> {
+    [
+        (BeamFlags::NO_RETURN, "no_return"),
+        (BeamFlags::DAZZLED, "dazzled"),
+        (BeamFlags::OVERFLOW, "overflow"),
+        (BeamFlags::LOW_SIGNAL, "low_signal"),
+        (BeamFlags::READ_ERROR, "read_error"),
+        (BeamFlags::ABOVE_MAX_RANGE, "above_max_range"),
+        (BeamFlags::RESERVED, "reserved"),
+    ]
+    .into_iter()
+    .filter(|(b, _)| f.contains(*b))
+    .map(|(_, n)| n)
+    .collect()
+}
+
+/// One scan as a JSON object: its index (1-based) and stamp, then every beam with its angle
+/// (radians, sensor frame, counter-clockwise from ahead) and range (metres, `null` when the
+/// beam has no valid range) and, for an invalid beam, why; `status` is the unit's latest
+/// status byte (`null` before any telegram), decoded.
+#[must_use]
+pub fn scan_json(
+    index: u64,
+    t_s: f64,
+    s: &Stamped<LaserScan>,
+    status: Option<StatusByte>,
+) -> serde_json::Value {
+    let beams: Vec<serde_json::Value> = s
+        .value
+        .beams()
+        .map(|(a, r, f)| {
+            let mut b = serde_json::json!({
+                "angle_rad": a,
+                "range_m": if f.is_valid() && r.is_finite() { Some(r) } else { None },
+            });
+            if !f.is_valid() {
+                b["flags"] = serde_json::json!(flag_names(f));
+            }
+            if f.device_bits() != 0 {
+                b["device_bits"] = serde_json::json!(f.device_bits());
+            }
+            b
+        })
+        .collect();
+    let valid = s
+        .value
+        .beams()
+        .filter(|(_, r, f)| f.is_valid() && r.is_finite())
+        .count();
+    let status = status.map(|b| {
+        serde_json::json!({
+            "byte": b.0,
+            "error": b.is_error(),
+            "pollution": b.pollution(),
+            "implausible": b.implausible(),
+            "restart": b.restart(),
+        })
+    });
+    serde_json::json!({
+        "scan": index,
+        "t_s": t_s,
+        "stamp_s": s.at.as_secs_f64(),
+        "status": status,
+        "beam_count": s.value.len(),
+        "valid": valid,
+        "beams": beams,
+    })
+}
+
+/// Whether `path` is a pseudo-terminal (a mock), whose line carries 500 000 baud like an
+/// RS-422 adapter.
+fn is_pty(path: &str) -> bool {
+    let p = std::fs::canonicalize(path).unwrap_or_else(|_| PathBuf::from(path));
+    let p = p.to_string_lossy();
+    p.starts_with("/dev/pts/")
+        || p.strip_prefix("/dev/ttys")
+            .is_some_and(|n| n.starts_with(|c: char| c.is_ascii_digit()))
+}
+
 /// Run `ima scan`.
 pub fn run(args: &ScanArgs) -> Result<()> {
     let baud = BaudRate::from_bps(args.baud)
         .with_context(|| format!("--baud {} is not an LMS rate", args.baud))?;
     let variant = parse_variant(&args.variant)?;
+    let rs422 = args.rs422 || baud == BaudRate::B500000 || is_pty(&args.port);
     let cfg = Config {
         baud,
-        rs422: baud == BaudRate::B500000,
+        rs422,
         variant: Some(variant),
         power_up_wait: args
             .power_up_wait
@@ -155,65 +246,100 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     rt.block_on(async {
         let port = open_port(&args.port, 9600).with_context(|| format!("opening {}", args.port))?;
         let wait = cfg.power_up_wait.unwrap_or_default();
-        let mut lms = SickLms::connect(port, cfg, wait + Duration::from_secs(60))
-            .await
-            .context("initialising the LMS")?
-            .with_scan_timeout(Duration::from_secs(5));
-        let info = lms.session().context("not ready")?;
-        println!(
-            "connected: {} at {} baud, {}°/{}°, up to {:.1} scans/s (mirror and line)",
-            lms.device_type(),
-            info.baud.bps(),
-            variant.angle_deg(),
-            f64::from(variant.res_centideg()) / 100.0,
-            expected_scan_rate_hz(info.baud, variant)
-        );
-        let mut n = 0u64;
-        let mut first: Option<ima_hal::Instant> = None;
-        let mut last = lms.now();
-        let stop = tokio::signal::ctrl_c();
-        tokio::pin!(stop);
-        loop {
-            let s = tokio::select! {
-                s = lms.next_scan(last) => s.context("waiting for a scan")?,
-                _ = &mut stop => break,
-            };
-            last = s.at;
-            n += 1;
-            let t0 = *first.get_or_insert(s.at);
-            let secs = s.at.saturating_duration_since(t0).as_secs_f64();
-            let rate = if n > 1 && secs > 0.0 {
-                format!("{:.1} scans/s", (n - 1) as f64 / secs)
-            } else {
-                "rate pending".to_owned()
-            };
-            println!(
-                "scan {n} at {:.3} s ({rate}): {}",
-                s.at.as_secs_f64(),
-                summary(&s.value)
-            );
-            if n == 1
-                && let Some(p) = &args.svg
-            {
-                std::fs::write(p, svg(&s.value))
-                    .with_context(|| format!("writing {}", p.display()))?;
-                println!("wrote {}", p.display());
+        let connect = SickLms::connect(port, cfg, wait + Duration::from_secs(60));
+        let lms = match crate::safety::until_cancelled(connect).await? {
+            Ok(l) => l.with_scan_timeout(Duration::from_secs(5)),
+            Err(e @ DriverError::NotFound { rs422: false, .. }) => {
+                return Err(anyhow::Error::new(e)
+                    .context("initialising the LMS (pass --rs422 if the line is RS-422)"));
             }
-            if args.count > 0 && n >= args.count {
-                break;
+            Err(e) => return Err(anyhow::Error::new(e).context("initialising the LMS")),
+        };
+        // Close on every path: the unit goes back to 9600 for the next program.
+        let result = scan_loop(args, lms.clone(), variant).await;
+        let closed = lms.close().await;
+        result?;
+        closed.context("closing the LMS (it may be left at the session's rate)")
+    })
+}
+
+async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Result<()> {
+    let info = lms.session().context("not ready")?;
+    let connected = format!(
+        "connected: {} at {} baud, {}°/{}°, up to {:.1} scans/s (mirror and line)",
+        lms.device_type(),
+        info.baud.bps(),
+        variant.angle_deg(),
+        f64::from(variant.res_centideg()) / 100.0,
+        expected_scan_rate_hz(info.baud, variant)
+    );
+    if args.json {
+        eprintln!("{connected}");
+    } else {
+        writeln!(std::io::stdout().lock(), "{connected}")?;
+    }
+    let mut n = 0u64;
+    let mut first: Option<ima_hal::Instant> = None;
+    let mut last = lms.now();
+    // SIGINT, SIGTERM, SIGHUP (or a panic elsewhere) end the loop, so the unit is closed
+    // (and put back at 9600) within the signal's grace time.
+    let stop = crate::safety::cancelled();
+    tokio::pin!(stop);
+    loop {
+        let s = tokio::select! {
+            s = lms.next_scan(last) => s.context("waiting for a scan")?,
+            _ = &mut stop => break,
+        };
+        last = s.at;
+        n += 1;
+        let t0 = *first.get_or_insert(s.at);
+        let secs = s.at.saturating_duration_since(t0).as_secs_f64();
+        {
+            let mut out = std::io::stdout().lock();
+            if args.json {
+                writeln!(out, "{}", scan_json(n, secs, &s, lms.device_status()))?;
+            } else {
+                let rate = if n > 1 && secs > 0.0 {
+                    format!("{:.1} scans/s", (n - 1) as f64 / secs)
+                } else {
+                    "rate pending".to_owned()
+                };
+                writeln!(
+                    out,
+                    "scan {n} at {:.3} s ({rate}): {}",
+                    s.at.as_secs_f64(),
+                    summary(&s.value)
+                )?;
+            }
+            out.flush()?;
+        }
+        if n == 1
+            && let Some(p) = &args.svg
+        {
+            std::fs::write(p, svg(&s.value)).with_context(|| format!("writing {}", p.display()))?;
+            if args.json {
+                eprintln!("wrote {}", p.display());
+            } else {
+                writeln!(std::io::stdout().lock(), "wrote {}", p.display())?;
             }
         }
-        let st = lms.stats();
-        println!(
-            "{} scans delivered, {} bad CRCs, {} bytes dropped, {} retransmissions",
-            st.delivered,
-            st.framer.bad_checksums,
-            st.framer.dropped_bytes,
-            st.session.retransmissions
-        );
-        let _ = lms.close().await;
-        anyhow::Ok(())
-    })
+        if args.count > 0 && n >= args.count {
+            break;
+        }
+    }
+    // `n`, not the driver's counter: the stream runs on while this line is written, and the
+    // count is of the scans this command received.
+    let st = lms.stats();
+    let line = format!(
+        "{n} scans delivered, {} bad CRCs, {} bytes dropped, {} retransmissions",
+        st.framer.bad_checksums, st.framer.dropped_bytes, st.session.retransmissions
+    );
+    if args.json {
+        eprintln!("{line}");
+    } else {
+        writeln!(std::io::stdout().lock(), "{line}")?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -227,6 +353,31 @@ mod tests {
         assert_eq!(parse_variant("100x0.25").unwrap(), Variant::W100_R25);
         assert!(parse_variant("180x0.25").is_err());
         assert!(parse_variant("oops").is_err());
+    }
+
+    #[test]
+    fn json_has_every_beam_in_si_units() {
+        let mut s = LaserScan::new(-1.0, 1.0);
+        s.push(2.0, BeamFlags::VALID).unwrap();
+        s.push(f32::NAN, BeamFlags::NO_RETURN).unwrap();
+        s.push(1.5, BeamFlags::DAZZLED).unwrap();
+        let at = ima_hal::Instant::from_micros(1_500_000);
+        let j = scan_json(3, 0.25, &Stamped::new(at, s), Some(StatusByte(0x90)));
+        assert_eq!(j["status"]["byte"], 0x90);
+        assert_eq!(j["status"]["pollution"], true);
+        assert_eq!(j["status"]["error"], false);
+        assert_eq!(j["scan"], 3);
+        assert_eq!(j["stamp_s"], 1.5);
+        assert_eq!(j["valid"], 1);
+        let beams = j["beams"].as_array().unwrap();
+        assert_eq!(beams.len(), 3);
+        assert_eq!(beams[0]["angle_rad"], -1.0);
+        assert_eq!(beams[0]["range_m"], 2.0);
+        assert!(beams[0].get("flags").is_none());
+        assert!(beams[1]["range_m"].is_null());
+        assert_eq!(beams[1]["flags"], serde_json::json!(["no_return"]));
+        assert!(beams[2]["range_m"].is_null());
+        assert_eq!(beams[2]["flags"], serde_json::json!(["dazzled"]));
     }
 
     #[test]

@@ -20,11 +20,14 @@ use crate::machine::{Config, Event, Job, Machine, Reading, Stats};
 
 /// Open a serial port for the blocking shell: `baud` 8N1, no flow control, 10 ms read
 /// timeout.
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
     serialport::new(path, baud)
         .timeout(Duration::from_millis(10))
         .open_native()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// A configured compass, read synchronously.
@@ -151,10 +154,10 @@ impl<S: Read + Write> BlockingCompass<S> {
                 Event::Heading(r) => self.latest = Some(r),
                 Event::Configured => self.configured = true,
                 Event::JobFailed {
-                    job: job @ Job::Configure,
+                    job: Job::Configure,
                     step,
                 } => {
-                    let e = DriverError::JobFailed { job, step };
+                    let e = crate::driver::configuration_failed(&self.machine, step);
                     self.failed = Some(e);
                     return Err(e);
                 }

@@ -25,6 +25,14 @@
 //!
 //! While no job runs, a data watchdog reports [`Event::DataTimeout`] once when no data line
 //! arrived for [`Config::data_timeout`].
+//!
+//! # The wrong dialect
+//!
+//! A line of the other dialect (an NMEA sentence when a TCM2 was configured for its standard
+//! line, a TCM2 line when an NMEA or KVH source was configured) is not data of this session:
+//! it is counted ([`Stats::foreign_lines`]), remembered ([`Machine::foreign_line`]) and
+//! otherwise ignored, so it neither completes the configuration nor becomes a heading. A
+//! configuration that then fails says what the device spoke instead.
 
 use core::time::Duration;
 
@@ -179,6 +187,37 @@ pub enum Event {
     DataTimeout,
 }
 
+/// A line of a dialect other than the configured one (see the [module docs](self)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ForeignLine {
+    /// An NMEA heading sentence, e.g. `$HCHDG` from a KVH C100.
+    Nmea {
+        /// The talker (`HC`).
+        talker: Talker,
+        /// The sentence formatter (`HDG`, `HDM`, `HDT`).
+        sentence: [u8; 3],
+    },
+    /// A TCM2 standard line (`$C…P…R…T…E…`).
+    Tcm2,
+}
+
+impl core::fmt::Display for ForeignLine {
+    /// `NMEA ($HCHDG…)` or `TCM2 ($C…P…R…)`.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Nmea { talker, sentence } => {
+                f.write_str("NMEA ($")?;
+                for &b in talker.0.iter().chain(sentence.iter()) {
+                    let c = if b.is_ascii_graphic() { b as char } else { '?' };
+                    write!(f, "{c}")?;
+                }
+                f.write_str("…)")
+            }
+            Self::Tcm2 => f.write_str("TCM2 ($C…P…R…)"),
+        }
+    }
+}
+
 /// Why a request was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum RequestError {
@@ -223,6 +262,10 @@ pub struct Stats {
     pub headings: u32,
     /// Events dropped because the caller did not poll (oldest first).
     pub events_dropped: u32,
+    /// Bytes received.
+    pub bytes: u32,
+    /// Lines of another dialect, ignored (see [`Machine::foreign_line`]).
+    pub foreign_lines: u32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -272,6 +315,7 @@ pub struct Machine {
     tx: Deque<Command, TX_CAPACITY>,
     events: Deque<Event, EVENT_CAPACITY>,
     stats: Stats,
+    foreign: Option<ForeignLine>,
 }
 
 fn kvh(c: KvhCommand) -> Option<Command> {
@@ -298,6 +342,7 @@ impl Machine {
             last_data: Instant::ZERO,
             stale_reported: false,
             tx: Deque::new(),
+            foreign: None,
             events: Deque::new(),
             stats: Stats::default(),
         }
@@ -560,8 +605,30 @@ impl Machine {
         let _ = self.events.push_back(e);
     }
 
+    /// The last line of another dialect seen, if any (see the [module docs](self)).
+    #[must_use]
+    pub fn foreign_line(&self) -> Option<ForeignLine> {
+        self.foreign
+    }
+
+    /// Whether a line of this kind belongs to another dialect than the configured one.
+    fn is_foreign(&self, line: &Line) -> bool {
+        matches!(
+            (line, self.config.dialect),
+            (
+                Line::Nmea(_),
+                Dialect::Tcm2 {
+                    output: Tcm2Format::Standard,
+                    ..
+                },
+            ) | (Line::Tcm2(_), Dialect::Nmea | Dialect::KvhC100 { .. })
+        )
+    }
+
     /// Feed received bytes (any chunking).
     pub fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
+        let n = u32::try_from(bytes.len()).unwrap_or(u32::MAX);
+        self.stats.bytes = self.stats.bytes.saturating_add(n);
         for &b in bytes {
             let parsed = match self.framer.push_byte(b) {
                 Some(Frame::Line(l)) => Some(Line::parse(l, &self.config.parse)),
@@ -580,6 +647,21 @@ impl Machine {
 
     /// Feed one parsed line (what [`Machine::handle_bytes`] does for each line it frames).
     pub fn handle_frame(&mut self, line: Line, now: Instant) {
+        if self.is_foreign(&line) {
+            self.stats.foreign_lines = self.stats.foreign_lines.saturating_add(1);
+            self.foreign = Some(match &line {
+                Line::Nmea(s) => ForeignLine::Nmea {
+                    talker: s.talker,
+                    sentence: match s.body {
+                        NmeaBody::Hdg(_) => *b"HDG",
+                        NmeaBody::Hdm(_) => *b"HDM",
+                        NmeaBody::Hdt(_) => *b"HDT",
+                    },
+                },
+                _ => ForeignLine::Tcm2,
+            });
+            return;
+        }
         match line {
             Line::Prompt => {
                 if self.current_wait() == Some(Wait::Prompt) {

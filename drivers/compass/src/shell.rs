@@ -22,6 +22,9 @@ use crate::wire::CalScore;
 
 /// Open a serial port for the shell: `baud` 8N1, no flow control (NMEA compasses: 4800;
 /// TCM2: 9600).
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     tokio_serial::new(path, baud)
@@ -30,7 +33,7 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// The default line speed of a dialect (spec §7a: NMEA 4800, TCM2 9600).
@@ -99,6 +102,21 @@ impl std::fmt::Debug for Request {
     }
 }
 
+/// The connect timeout's error when no heading came: what the line carried.
+fn timeout_error(st: &crate::machine::Stats) -> DriverError {
+    DriverError::NoAnswer {
+        step: None,
+        bytes: st.bytes,
+        lines: st.framer.lines,
+        bad_lines: st
+            .framer
+            .bad_checksums
+            .saturating_add(st.framer.overlong)
+            .saturating_add(st.framer.bad_bytes)
+            .saturating_add(st.parse_errors),
+    }
+}
+
 /// How long [`CompassDriver::connect`] waits by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -121,7 +139,9 @@ impl CompassDriver {
     /// (or `connect_timeout` passes). Must be called inside a tokio runtime.
     ///
     /// # Errors
-    /// [`DriverError::JobFailed`] if configuration gave up, [`DriverError::Timeout`],
+    /// [`DriverError::WrongDialect`] if the device speaks another dialect,
+    /// [`DriverError::NoAnswer`] if configuration gave up or timed out without headings
+    /// (with what the line carried), [`DriverError::Timeout`],
     /// [`DriverError::Disconnected`] / [`DriverError::Io`] if the stream failed.
     pub async fn connect<S>(
         stream: S,
@@ -172,6 +192,11 @@ impl CompassDriver {
             Ok(Err(e)) => Err(e),
             Err(_) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
+                // Say what the line carried rather than just "in time".
+                let st = *stats.borrow();
+                if st.headings == 0 {
+                    return Err(timeout_error(&st));
+                }
                 Err(DriverError::Timeout)
             }
         }
@@ -396,11 +421,11 @@ impl Task {
                 }
                 Event::JobFailed { job, step } => {
                     tracing::warn!(?job, step, "compass: job failed");
-                    let e = DriverError::JobFailed { job, step };
                     if job == crate::machine::Job::Configure {
+                        let e = crate::driver::configuration_failed(&self.machine, step);
                         self.fail(e);
                     } else {
-                        self.finish_job(Err(e));
+                        self.finish_job(Err(DriverError::JobFailed { job, step }));
                     }
                 }
                 Event::CalibrationStarted => self.finish_job(Ok(CalibrationOutcome::Started)),

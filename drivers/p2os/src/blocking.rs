@@ -23,11 +23,14 @@ use crate::machine::{Config, Event, RobotIdentity, RobotState, Session, SessionS
 use crate::params::RobotParams;
 
 /// Open a serial port for the blocking shell: 8N1, no flow control, 10 ms read timeout.
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
     serialport::new(path, baud)
         .timeout(Duration::from_millis(10))
         .open_native()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// A connected P2OS robot, driven synchronously.

@@ -109,6 +109,8 @@ pub enum DriverError {
     UnsupportedRobot(String),
     /// No rate answered the handshake.
     HandshakeFailed,
+    /// The handshake did not complete while connecting: what was seen at each rate tried.
+    NoAnswer(Box<ima_hal::link::ProbeReport>),
     /// An I/O error on the port.
     Io(io::ErrorKind),
 }
@@ -127,8 +129,12 @@ impl std::fmt::Display for DriverError {
                 "robot subclass {s:?} has no parameter table; set a params override"
             ),
             Self::HandshakeFailed => {
-                f.write_str("no answer to the P2OS handshake at any baud rate")
+                f.write_str("no answer to the P2OS handshake at the rates probed")
             }
+            Self::NoAnswer(report) => write!(
+                f,
+                "no P2OS robot completed the handshake (robot on? right port?): {report}"
+            ),
             Self::Io(k) => write!(f, "serial I/O error: {k}"),
         }
     }
@@ -140,7 +146,7 @@ impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {
             Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
-            Self::Timeout | Self::HandshakeFailed => ErrorKind::Timeout,
+            Self::Timeout | Self::HandshakeFailed | Self::NoAnswer(_) => ErrorKind::Timeout,
             Self::Session(e) => ima_hal::Error::kind(e),
             Self::MotorsRefused | Self::UnsupportedRobot(_) => ErrorKind::Protocol,
         }

@@ -14,6 +14,7 @@ use std::time::Duration;
 use ima_hal::base::{
     BaseLimits, BumperState, Bumpers, DifferentialBase, Odometer, Odometry, VelocityCommand,
 };
+use ima_hal::link::ProbeReport;
 use ima_hal::power::{Power, PowerState};
 use ima_hal::safety::{HaltSignal, StopRegistry};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
@@ -29,6 +30,9 @@ use crate::machine::{
 use crate::params::RobotParams;
 
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (probing changes it).
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     tokio_serial::new(path, baud)
@@ -37,7 +41,7 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// The shell's clock (tokio time, so paused tests run in virtual time).
@@ -122,6 +126,7 @@ impl P2os {
         let (params_tx, params_rx) = oneshot::channel();
         let halt = HaltSignal::new();
         StopRegistry::global().register("P2OS base", halt.clone());
+        let (probe_tx, probe) = watch::channel(ProbeReport::new());
         let task = Task {
             session: Session::new(cfg),
             clock,
@@ -134,6 +139,9 @@ impl P2os {
             config_tx,
             params_tx: Some(params_tx),
             motors_waiters: Vec::new(),
+            probe: ProbeReport::new(),
+            probe_tx,
+            connected: false,
         };
         tokio::spawn(task.run(stream));
         let waited = tokio::time::timeout(connect_timeout, async {
@@ -155,7 +163,8 @@ impl P2os {
             Ok(Err(e)) => return Err(e),
             Err(_) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
-                return Err(DriverError::Timeout);
+                // Say what each rate tried received.
+                return Err(DriverError::NoAnswer(Box::new(probe.borrow().clone())));
             }
         }
         let params = params_rx.await.map_err(|_| DriverError::Disconnected)?;
@@ -369,6 +378,11 @@ struct Task {
     config_tx: watch::Sender<Option<RobotConfig>>,
     params_tx: Option<oneshot::Sender<RobotParams>>,
     motors_waiters: Vec<(bool, oneshot::Sender<Result<(), DriverError>>)>,
+    /// What the first connection saw per rate (counted until the first `Connected`).
+    probe: ProbeReport,
+    probe_tx: watch::Sender<ProbeReport>,
+    /// The session was connected once (the probe report is final).
+    connected: bool,
 }
 
 /// Answer a request that arrived after the session closed.
@@ -438,7 +452,7 @@ impl Task {
                     Ok(0) => { self.fail(DriverError::Disconnected); return; }
                     Ok(n) => {
                         let now = self.clock.now();
-                        self.session.handle_input(rbuf.get(..n).unwrap_or(&[]), now);
+                        self.input(rbuf.get(..n).unwrap_or(&[]), now);
                     }
                     Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
                     Err(e) => { self.fail(DriverError::Io(e.kind())); return; }
@@ -483,6 +497,23 @@ impl Task {
             reject(req);
         }
         self.link_tx.send_replace(LinkStatus::Closed);
+    }
+
+    /// Feed received bytes to the session, counting them (and the frames they made) per rate
+    /// until the first connection.
+    fn input(&mut self, bytes: &[u8], now: Instant) {
+        let before = self.session.stats().framer;
+        self.session.handle_input(bytes, now);
+        if !self.connected {
+            let after = self.session.stats().framer;
+            let bad = |f: crate::framer::FramerStats| f.bad_checksums + f.bad_counts + f.abandoned;
+            self.probe.received(bytes.len());
+            self.probe.framed(
+                after.frames.saturating_sub(before.frames),
+                bad(after).saturating_sub(bad(before)),
+            );
+            self.probe_tx.send_replace(self.probe.clone());
+        }
     }
 
     fn fail(&mut self, e: DriverError) {
@@ -531,6 +562,12 @@ impl Task {
                 Event::SetBaud(b) => {
                     tracing::debug!(baud = b, "p2os: line speed");
                     stream.set_baud(b)?;
+                    if !self.connected {
+                        self.probe.attempt(b);
+                        let n = self.probe.current_tally().map_or(1, |t| t.attempts);
+                        tracing::info!(target: "ima::connect", "P2OS: trying {b} baud (attempt {n})");
+                        self.probe_tx.send_replace(self.probe.clone());
+                    }
                 }
                 Event::FlushInput => {}
                 Event::Connected {
@@ -539,6 +576,7 @@ impl Task {
                     baud,
                 } => {
                     tracing::info!(name = %identity.name, subclass = %identity.subclass, baud, "p2os: connected");
+                    self.connected = true;
                     if let Some(tx) = self.params_tx.take() {
                         let _ = tx.send(params);
                     }
@@ -548,7 +586,14 @@ impl Task {
                 Event::UnsupportedRobot(id) => {
                     self.fail(DriverError::UnsupportedRobot(id.subclass.as_str().into()));
                 }
-                Event::HandshakeFailed => self.fail(DriverError::HandshakeFailed),
+                Event::HandshakeFailed => {
+                    let e = if self.connected {
+                        DriverError::HandshakeFailed
+                    } else {
+                        DriverError::NoAnswer(Box::new(self.probe.clone()))
+                    };
+                    self.fail(e);
+                }
                 Event::Disconnected(DisconnectReason::LinkLost) => {
                     tracing::warn!("p2os: link lost, reconnecting");
                     self.link_tx.send_replace(LinkStatus::Lost);

@@ -23,6 +23,9 @@ pub use crate::driver::{BAUD, DriverError};
 use crate::machine::{Config, Event, Machine, Phase, Stats, TX_BUF};
 
 /// Open a serial port for the blocking shell: 8N1, no flow control, 5 ms read timeout.
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
     serialport::new(path, baud)
         .data_bits(serialport::DataBits::Eight)
@@ -31,7 +34,7 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
         .flow_control(serialport::FlowControl::None)
         .timeout(Duration::from_millis(5))
         .open_native()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// A connected rFLEX base, driven synchronously.

@@ -24,6 +24,15 @@ pub enum DriverError {
     Command(CommandError),
     /// An I/O error on the port.
     Io(io::ErrorKind),
+    /// No motion report came while connecting: what the line carried meanwhile.
+    NoReport {
+        /// Bytes received.
+        bytes: u64,
+        /// Valid frames among them.
+        frames: u32,
+        /// Frames dropped (checksum, length, escape, size).
+        bad_frames: u32,
+    },
 }
 
 impl std::fmt::Display for DriverError {
@@ -33,6 +42,29 @@ impl std::fmt::Display for DriverError {
             Self::Timeout => f.write_str("rFLEX base did not answer in time"),
             Self::Command(e) => write!(f, "{e}"),
             Self::Io(k) => write!(f, "serial I/O error: {k}"),
+            Self::NoReport {
+                bytes,
+                frames,
+                bad_frames,
+            } => {
+                f.write_str("no motion report from the rFLEX base: ")?;
+                if *bytes == 0 {
+                    return f.write_str("silence on the line (base on? right port?)");
+                }
+                write!(f, "received {} bytes, ", ima_hal::link::Thousands(*bytes))?;
+                match frames {
+                    0 => f.write_str("no valid frame")?,
+                    1 => f.write_str("1 valid frame")?,
+                    n => write!(f, "{n} valid frames")?,
+                }
+                if *bad_frames > 0 {
+                    write!(f, " ({bad_frames} bad)")?;
+                }
+                if *frames == 0 {
+                    f.write_str(" (wrong rate or wrong device?)")?;
+                }
+                Ok(())
+            }
         }
     }
 }
@@ -43,7 +75,7 @@ impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {
             Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
-            Self::Timeout => ErrorKind::Timeout,
+            Self::Timeout | Self::NoReport { .. } => ErrorKind::Timeout,
             Self::Command(e) => ima_hal::Error::kind(e),
         }
     }

@@ -36,6 +36,9 @@ pub use crate::driver::{BAUD, DriverError};
 use crate::machine::{Config, Event, Machine, Stats, TX_BUF};
 
 /// Open a serial port for the shell: 115200 8N1, no flow control, raw (§1).
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     tokio_serial::new(path, baud)
@@ -44,7 +47,7 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// The shell's clock (tokio time, so paused tests run in virtual time).
@@ -74,6 +77,8 @@ pub struct ShellStats {
     pub framer: crate::framer::Stats,
     /// Links lost and re-initialised.
     pub reconnects: u32,
+    /// Bytes received.
+    pub bytes: u64,
 }
 
 enum Request {
@@ -162,7 +167,9 @@ impl Rflex {
             sonar_wanted: false,
             reinit_at: None,
             reconnects: 0,
+            bytes: 0,
         };
+        tracing::info!(target: "ima::connect", "rFLEX: initialising, waiting for motion reports");
         tokio::spawn(task.run(stream));
         let waited = tokio::time::timeout(connect_timeout, async {
             loop {
@@ -183,7 +190,13 @@ impl Rflex {
             Ok(Err(e)) => return Err(e),
             Err(_) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
-                return Err(DriverError::Timeout);
+                // Say what the line carried.
+                let st = *stats.borrow();
+                return Err(DriverError::NoReport {
+                    bytes: st.bytes,
+                    frames: st.framer.frames,
+                    bad_frames: st.framer.errors(),
+                });
             }
         }
         Ok(Rflex {
@@ -386,6 +399,8 @@ struct Task {
     sonar_wanted: bool,
     reinit_at: Option<Instant>,
     reconnects: u32,
+    /// Bytes received (for the connect error: silence or garbage).
+    bytes: u64,
 }
 
 impl Task {
@@ -445,6 +460,7 @@ impl Task {
                     Ok(0) => { self.fail(DriverError::Disconnected); return; }
                     Ok(n) => {
                         let now = self.clock.now();
+                        self.bytes = self.bytes.saturating_add(n as u64);
                         self.machine.handle_bytes(rbuf.get(..n).unwrap_or(&[]), now);
                     }
                     Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
@@ -473,6 +489,7 @@ impl Task {
             session: *self.machine.stats(),
             framer: *self.machine.framer_stats(),
             reconnects: self.reconnects,
+            bytes: self.bytes,
         };
         self.stats_tx.send_if_modified(|old| {
             let changed = *old != s;

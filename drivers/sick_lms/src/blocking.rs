@@ -17,11 +17,14 @@ pub use crate::driver::{BaudControl, DriverError, FixedBaud, ScanStats};
 use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
 
 /// Open a serial port for the blocking shell: 8N1, no flow control, 10 ms read timeout.
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
     serialport::new(path, baud)
         .timeout(Duration::from_millis(10))
         .open_native()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// A SICK LMS driven synchronously.
@@ -127,17 +130,19 @@ impl<S: Read + Write + BaudControl> BlockingSickLms<S> {
         self.wait_ready(timeout)
     }
 
-    /// Stop the stream (`20 25`, reply awaited ≤ 1 s) and hand the stream back.
+    /// Stop the stream, put the unit back at 9600 ([`Machine::close`]; at most
+    /// [`crate::driver::CLOSE_TIMEOUT`]) and hand the stream back.
     pub fn close(mut self) -> S {
         let now = self.clock.now();
-        if self.machine.is_streaming() && self.machine.stop_stream(now).is_ok() {
-            let deadline = std::time::Instant::now() + Duration::from_secs(1);
-            while self.machine.is_streaming() && std::time::Instant::now() < deadline {
-                if self.pump_once().is_err() {
-                    break;
-                }
+        self.machine.close(now);
+        let deadline = std::time::Instant::now() + crate::driver::CLOSE_TIMEOUT;
+        while !self.machine.is_closed() && std::time::Instant::now() < deadline {
+            if self.pump_once().is_err() {
+                break;
             }
         }
+        // Write what the machine queued last and apply its final rate change.
+        let _ = self.pump_once();
         self.stream
     }
 

@@ -106,6 +106,10 @@ impl<S: io::Write> io::Write for FixedBaud<S> {
     }
 }
 
+/// How long closing may take: stopping the stream and switching the unit back to 9600
+/// ([`crate::machine::Machine::close`]) each need one acknowledged telegram.
+pub const CLOSE_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(1500);
+
 /// Errors of the SICK LMS drivers (both shells).
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
@@ -120,6 +124,13 @@ pub enum DriverError {
     Decode(crate::decode::DecodeError),
     /// An I/O error on the port.
     Io(io::ErrorKind),
+    /// No unit answered while connecting: what was seen at each rate tried.
+    NotFound {
+        /// Bytes and frames per rate.
+        report: Box<ima_hal::link::ProbeReport>,
+        /// 500 000 baud was probed too ([`crate::machine::Config::rs422`]).
+        rs422: bool,
+    },
 }
 
 impl std::fmt::Display for DriverError {
@@ -127,8 +138,18 @@ impl std::fmt::Display for DriverError {
         match self {
             Self::Disconnected => f.write_str("SICK LMS driver disconnected"),
             Self::Timeout => f.write_str("SICK LMS did not answer in time"),
+            Self::NotFound { report, rs422 } => {
+                write!(
+                    f,
+                    "no SICK LMS answered (powered? still booting? right port?): {report}"
+                )?;
+                if !rs422 {
+                    f.write_str("; 500000 baud not tried (RS-422 lines only)")?;
+                }
+                Ok(())
+            }
             Self::Session(MachineError::NoDevice) => f.write_str(
-                "no SICK LMS answered at any rate (powered? still booting? RS-422 needed for 500k?)",
+                "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)",
             ),
             Self::Session(e) => write!(f, "SICK LMS session: {e:?}"),
             Self::Decode(e) => write!(f, "SICK LMS scan decoding: {e:?}"),
@@ -144,6 +165,7 @@ impl ima_hal::Error for DriverError {
         match self {
             Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
             Self::Timeout
+            | Self::NotFound { .. }
             | Self::Session(
                 MachineError::NoDevice | MachineError::Timeout { .. } | MachineError::StreamStalled,
             ) => ErrorKind::Timeout,
@@ -234,6 +256,33 @@ mod tests {
         assert_eq!(r(BaudRate::B9600, Variant::W180_R50), 1.3);
         assert_eq!(r(BaudRate::B500000, Variant::W180_R50), 37.5);
         assert_eq!(r(BaudRate::B500000, Variant::W180_R100), 75.0);
+    }
+
+    #[test]
+    fn not_found_names_the_rates_and_the_one_not_tried() {
+        let mut report = ima_hal::link::ProbeReport::new();
+        for b in [9600, 38400, 19200] {
+            report.attempt(b);
+        }
+        let e = DriverError::NotFound {
+            report: Box::new(report.clone()),
+            rs422: false,
+        };
+        let text = e.to_string();
+        assert!(
+            text.ends_with(
+                "silence at every rate tried (9600, 38400, 19200); 500000 baud not tried (RS-422 lines only)"
+            ),
+            "{text}"
+        );
+        assert!(!text.contains("any rate"));
+        assert_eq!(ima_hal::Error::kind(&e), ErrorKind::Timeout);
+        report.attempt(500_000);
+        let e = DriverError::NotFound {
+            report: Box::new(report),
+            rs422: true,
+        };
+        assert!(e.to_string().ends_with("(9600, 38400, 19200, 500000)"));
     }
 
     #[test]

@@ -223,6 +223,10 @@ pub enum Event {
     Restarted,
     /// A request failed; during initialisation this is final ([`Machine::is_failed`]).
     Error(MachineError),
+    /// [`Machine::close`] finished: the stream is stopped and the unit is back at its
+    /// power-up rate (or the attempt gave up; see the [`Event::Error`] before it). The shell
+    /// may release the port.
+    Closed,
 }
 
 /// Traffic statistics beyond the framer's counters.
@@ -243,7 +247,10 @@ pub struct Stats {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Phase {
     PowerUp,
-    Probe { idx: usize, round: u8 },
+    Probe {
+        idx: usize,
+        round: u8,
+    },
     Identify,
     Status,
     BaudChange(BaudRate),
@@ -261,6 +268,12 @@ enum Phase {
     StopOp,
     ScanOp,
     Reset,
+    /// Closing: `20 25` sent, then the rate goes back to 9600.
+    CloseStop,
+    /// Closing: `20 42` sent at the session rate.
+    CloseBaud,
+    /// Closed (see [`Event::Closed`]).
+    Closed,
     Failed,
 }
 
@@ -370,6 +383,13 @@ impl Machine {
     #[must_use]
     pub fn is_ready(&self) -> bool {
         self.core.is_ready()
+    }
+
+    /// Looking for the unit: waiting for its power-on telegram or probing rates (a
+    /// [`Event::SetHostBaud`] now starts a probe at that rate rather than a switch).
+    #[must_use]
+    pub fn is_probing(&self) -> bool {
+        matches!(self.core.phase, Phase::PowerUp | Phase::Probe { .. })
     }
 
     /// Initialisation gave up (see the last [`Event::Error`]).
@@ -537,6 +557,26 @@ impl Machine {
         self.core.request_scan(now)
     }
 
+    /// End the session leaving the unit as a fresh one expects it: the stream stopped
+    /// (`20 25`) and the line back at the power-up rate, 9600 (`20 42`, answered at the old
+    /// rate, then [`Event::SetHostBaud`]`(9600)`). The LMS keeps a switched rate until it is
+    /// power-cycled (spec §3.1), so a session that leaves it at 38400 or 500 000 makes the
+    /// next program probe for it; STB does the same on close (spec §4).
+    ///
+    /// Ends with [`Event::Closed`], at once when there is nothing to undo (no unit found yet,
+    /// or already idle at 9600). A step that fails (no answer, refusal) is not retried: the
+    /// machine reports the [`Event::Error`] and then [`Event::Closed`]. A request in flight
+    /// is abandoned. The shell bounds the whole sequence by its own deadline.
+    pub fn close(&mut self, now: Instant) {
+        self.core.close(now);
+    }
+
+    /// [`Machine::close`] has finished ([`Event::Closed`] was queued).
+    #[must_use]
+    pub fn is_closed(&self) -> bool {
+        self.core.phase == Phase::Closed
+    }
+
     /// Change the variant: stop the stream, `3B`, re-read the config, restart the stream if it
     /// was running. Ends with [`Event::Ready`].
     pub fn set_variant(&mut self, variant: Variant, now: Instant) -> Result<(), MachineError> {
@@ -655,7 +695,13 @@ impl Core {
                     self.timer = None;
                     self.enter_probe(0, 0, now);
                 }
-                Phase::Probe { .. } | Phase::Failed => {}
+                Phase::Probe { .. } | Phase::Failed | Phase::Closed => {}
+                Phase::CloseStop | Phase::CloseBaud => {
+                    // Rebooted while closing: it is idle at its power-up rate already.
+                    self.streaming = false;
+                    self.set_host_baud(BaudRate::B9600);
+                    self.closed();
+                }
                 _ => {
                     // The unit rebooted: it is back at its power-up rate, idle.
                     self.emit(Event::Restarted);
@@ -727,6 +773,43 @@ impl Core {
         self.phase = Phase::StopForReconfig;
         self.send_mode(ModeRequest::RequestOnly, now);
         Ok(())
+    }
+
+    fn close(&mut self, now: Instant) {
+        if matches!(
+            self.phase,
+            Phase::CloseStop | Phase::CloseBaud | Phase::Closed
+        ) {
+            return;
+        }
+        // Only a unit that was found (and may have been switched) has something to undo.
+        let found = !matches!(
+            self.phase,
+            Phase::PowerUp | Phase::Probe { .. } | Phase::Reset | Phase::Failed
+        );
+        self.pending = None;
+        self.timer = None;
+        self.want_stream = false;
+        if found && self.streaming {
+            self.phase = Phase::CloseStop;
+            self.send_mode(ModeRequest::RequestOnly, now);
+        } else if found && self.host_baud != BaudRate::B9600 {
+            self.close_baud(now);
+        } else {
+            self.closed();
+        }
+    }
+
+    fn close_baud(&mut self, now: Instant) {
+        self.phase = Phase::CloseBaud;
+        self.send_mode(ModeRequest::Baud(BaudRate::B9600), now);
+    }
+
+    fn closed(&mut self) {
+        self.phase = Phase::Closed;
+        self.pending = None;
+        self.timer = None;
+        self.emit(Event::Closed);
     }
 
     fn reset(&mut self, now: Instant) -> Result<(), MachineError> {
@@ -912,6 +995,11 @@ impl Core {
             Phase::StartOp | Phase::StopOp | Phase::ScanOp => {
                 self.phase = Phase::Ready;
                 self.emit(Event::Error(err));
+            }
+            Phase::CloseStop | Phase::CloseBaud => {
+                // Best effort: say what failed and let the shell release the port.
+                self.emit(Event::Error(err));
+                self.closed();
             }
             _ => self.fail(err),
         }
@@ -1099,6 +1187,27 @@ impl Core {
                 self.send(Command::Status, timeouts.reply, false, now);
             }
             (Phase::Reset, Reply::ResetAck { .. }) => self.await_power_on(now),
+            (Phase::CloseStop, Reply::ModeChanged { .. }) => {
+                self.streaming = false;
+                self.emit(Event::StreamStopped);
+                if self.host_baud == BaudRate::B9600 {
+                    self.closed();
+                } else {
+                    self.close_baud(now);
+                }
+            }
+            (Phase::CloseBaud, Reply::ModeChanged { result, .. }) => {
+                if *result == 0 {
+                    // A0 came at the old rate; the unit now listens at 9600.
+                    self.set_host_baud(BaudRate::B9600);
+                } else {
+                    self.emit(Event::Error(MachineError::Refused {
+                        code: crate::wire::cmd::SET_MODE,
+                        result: *result,
+                    }));
+                }
+                self.closed();
+            }
             (Phase::ScanOp, Reply::Scan(_)) => {
                 self.phase = Phase::Ready;
             }

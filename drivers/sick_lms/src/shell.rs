@@ -19,16 +19,22 @@ use std::io;
 use std::time::Duration;
 
 use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
+use ima_hal::link::ProbeReport;
 use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::decode::{Variant, decode_scan};
-pub use crate::driver::{BaudControl, DriverError, FixedBaud, LinkStatus, ScanStats};
+pub use crate::driver::{
+    BaudControl, CLOSE_TIMEOUT, DriverError, FixedBaud, LinkStatus, ScanStats,
+};
 use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
-use crate::wire::MeasuringMode;
+use crate::wire::{MeasuringMode, StatusByte};
 
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (the probe changes it).
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     tokio_serial::new(path, baud)
@@ -37,7 +43,7 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// The shell's clock (tokio time, so paused tests run in virtual time).
@@ -85,6 +91,8 @@ pub struct SickLms {
     link: watch::Receiver<LinkStatus>,
     stats: watch::Receiver<ScanStats>,
     device_type: watch::Receiver<String>,
+    probe: watch::Receiver<ProbeReport>,
+    status: watch::Receiver<Option<StatusByte>>,
     pose: Isometry2,
     clock: TokioClock,
     scan_timeout: Duration,
@@ -107,6 +115,9 @@ impl SickLms {
         let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
         let (stats_tx, stats) = watch::channel(ScanStats::default());
         let (type_tx, device_type) = watch::channel(String::new());
+        let (probe_tx, probe) = watch::channel(ProbeReport::new());
+        let (status_tx, status) = watch::channel(None);
+        let rs422 = cfg.rs422;
         let task = Task {
             machine: Machine::new(cfg, clock.now()),
             clock,
@@ -119,6 +130,11 @@ impl SickLms {
             work: LaserScan::default(),
             stats: ScanStats::default(),
             seq: 0,
+            probe: ProbeReport::new(),
+            probe_tx,
+            status_tx,
+            connected: false,
+            close_deadline: None,
         };
         tokio::spawn(task.run(stream));
         let waited = tokio::time::timeout(connect_timeout, async {
@@ -140,6 +156,14 @@ impl SickLms {
             Ok(Err(e)) => return Err(e),
             Err(_) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
+                let report = probe.borrow().clone();
+                // Nothing valid came back: say what was seen at each rate.
+                if report.total_frames() == 0 {
+                    return Err(DriverError::NotFound {
+                        report: Box::new(report),
+                        rs422,
+                    });
+                }
                 return Err(DriverError::Timeout);
             }
         }
@@ -149,6 +173,8 @@ impl SickLms {
             link,
             stats,
             device_type,
+            probe,
+            status,
             pose: Isometry2::identity(),
             clock,
             scan_timeout: Duration::from_secs(3),
@@ -194,6 +220,19 @@ impl SickLms {
     #[must_use]
     pub fn device_type(&self) -> String {
         self.device_type.borrow().clone()
+    }
+
+    /// The unit's latest status byte (pollution, implausible values, errors), once any
+    /// telegram arrived.
+    #[must_use]
+    pub fn device_status(&self) -> Option<StatusByte> {
+        *self.status.borrow()
+    }
+
+    /// What the first connection saw at each rate it tried (bytes, valid frames).
+    #[must_use]
+    pub fn probe_report(&self) -> ProbeReport {
+        self.probe.borrow().clone()
     }
 
     /// The driver's clock (the time base of every stamp it produces).
@@ -251,8 +290,10 @@ impl SickLms {
             .await
     }
 
-    /// Stop the stream (best effort: `20 25` is written, its reply not awaited) and end the
-    /// driver task. The unit stays at the rate the session chose until it is power-cycled.
+    /// Stop the stream, switch the unit back to its power-up rate (9600: the LMS keeps a
+    /// switched rate until it is power-cycled, and the next program would have to find it)
+    /// and end the driver task, releasing the port. Bounded by [`CLOSE_TIMEOUT`]: a unit that
+    /// does not answer is left as it is. Dropping every handle does the same.
     pub async fn close(&self) -> Result<(), DriverError> {
         let (tx, rx) = oneshot::channel();
         self.tx
@@ -260,7 +301,7 @@ impl SickLms {
             .await
             .map_err(|_| DriverError::Disconnected)?;
         let mut link = self.link.clone();
-        tokio::time::timeout(Duration::from_secs(2), async move {
+        tokio::time::timeout(CLOSE_TIMEOUT + Duration::from_secs(1), async move {
             let _ = rx.await;
             // Wait until the task has let go of the port.
             while !matches!(
@@ -340,6 +381,14 @@ struct Task {
     work: LaserScan,
     stats: ScanStats,
     seq: u64,
+    /// What the first connection saw per rate (counted until the first `Ready`).
+    probe: ProbeReport,
+    probe_tx: watch::Sender<ProbeReport>,
+    status_tx: watch::Sender<Option<StatusByte>>,
+    /// The session was ready once (the probe report is final).
+    connected: bool,
+    /// Closing: release the port when the machine is closed or at this instant.
+    close_deadline: Option<Instant>,
 }
 
 impl Task {
@@ -365,18 +414,23 @@ impl Task {
                 let _ = stream.flush().await;
             }
             self.publish_stats();
-            if closing {
+            let now = self.clock.now();
+            if closing && (self.machine.is_closed() || self.close_deadline.is_none_or(|d| now >= d))
+            {
                 // Release the port before reporting: a caller may reopen it at once.
                 drop(stream);
                 self.link_tx.send_replace(LinkStatus::Closed);
                 return;
             }
-            let sleep_for = self
+            let mut sleep_for = self
                 .machine
                 .poll_timeout()
                 .map_or(Duration::from_millis(500), |t| {
-                    t.saturating_duration_since(self.clock.now())
+                    t.saturating_duration_since(now)
                 });
+            if let Some(d) = self.close_deadline {
+                sleep_for = sleep_for.min(d.saturating_duration_since(now));
+            }
             tokio::select! {
                 r = stream.read(&mut rbuf) => match r {
                     Ok(0) => { self.fail(DriverError::Disconnected); return; }
@@ -391,7 +445,7 @@ impl Task {
                     let now = self.clock.now();
                     self.timeout(now);
                 }
-                req = self.rx.recv() => match req {
+                req = self.rx.recv(), if !closing => match req {
                     None => closing = self.close(),
                     Some(req) => closing = self.handle_request(req),
                 },
@@ -400,6 +454,7 @@ impl Task {
     }
 
     fn input(&mut self, bytes: &[u8], now: Instant) {
+        let before = (!self.connected).then(|| self.machine.counters());
         let mode = self.machine.measuring_mode();
         let mut out = Out {
             work: &mut self.work,
@@ -411,6 +466,18 @@ impl Task {
         self.machine.handle_bytes(bytes, now, |b0, at| {
             out.publish(b0, at, mode);
         });
+        if let Some(b) = before {
+            let a = self.machine.counters();
+            let bad = |c: crate::framer::Counters| {
+                c.bad_checksums + c.bad_headers + c.bad_payloads + c.expired
+            };
+            self.probe.received(bytes.len());
+            self.probe.framed(
+                (a.frames + a.acks + a.naks).saturating_sub(b.frames + b.acks + b.naks),
+                bad(a).saturating_sub(bad(b)),
+            );
+            self.probe_tx.send_replace(self.probe.clone());
+        }
     }
 
     fn timeout(&mut self, now: Instant) {
@@ -445,12 +512,15 @@ impl Task {
         self.link_tx.send_replace(LinkStatus::Failed(e));
     }
 
-    /// Returns true when the task should end after flushing.
+    /// Start closing (stream stopped, unit back at 9600, within [`CLOSE_TIMEOUT`]); returns
+    /// true: the task ends once the machine is closed or the deadline passes.
     fn close(&mut self) -> bool {
         let now = self.clock.now();
-        if self.machine.is_ready() && self.machine.is_streaming() {
-            let _ = self.machine.stop_stream(now);
+        if let Some(w) = self.waiter.take() {
+            let _ = w.send(Err(DriverError::Disconnected));
         }
+        self.machine.close(now);
+        self.close_deadline = Some(now + CLOSE_TIMEOUT);
         true
     }
 
@@ -494,6 +564,17 @@ impl Task {
                     tracing::debug!(baud = b, "sick_lms: line speed");
                     stream.set_baud(b)?;
                     stream.clear_input()?;
+                    if !self.connected {
+                        if self.machine.is_probing() {
+                            self.probe.attempt(b);
+                            let n = self.probe.current_tally().map_or(1, |t| t.attempts);
+                            tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
+                        } else {
+                            self.probe.set_rate(b);
+                            tracing::info!(target: "ima::connect", "SICK LMS: switching to {b} baud");
+                        }
+                        self.probe_tx.send_replace(self.probe.clone());
+                    }
                 }
                 Event::Identified => {
                     if let Some(t) = self.machine.device_type() {
@@ -508,6 +589,7 @@ impl Task {
                         "sick_lms: ready"
                     );
                     self.stats.readies = self.stats.readies.saturating_add(1);
+                    self.connected = true;
                     if let Some(w) = self.waiter.take() {
                         let _ = w.send(Ok(info));
                     }
@@ -534,8 +616,15 @@ impl Task {
                         let _ = w.send(Err(DriverError::Session(e)));
                     }
                     if self.machine.is_failed() {
-                        self.link_tx
-                            .send_replace(LinkStatus::Failed(DriverError::Session(e)));
+                        let err = if e == MachineError::NoDevice {
+                            DriverError::NotFound {
+                                report: Box::new(self.probe.clone()),
+                                rs422: self.machine.config().rs422,
+                            }
+                        } else {
+                            DriverError::Session(e)
+                        };
+                        self.link_tx.send_replace(LinkStatus::Failed(err));
                     } else if e == MachineError::StreamStalled {
                         tracing::warn!("sick_lms: stream stalled, re-probing");
                         self.stats.losses = self.stats.losses.saturating_add(1);
@@ -547,10 +636,16 @@ impl Task {
                         tracing::debug!(error = ?e, "sick_lms: request failed");
                     }
                 }
-                Event::PowerOn
-                | Event::BaudDetected(_)
-                | Event::DeviceStatus(_)
-                | Event::ConfigWritten => {}
+                Event::DeviceStatus(s) => {
+                    if s.pollution() || s.is_error() {
+                        tracing::warn!(status = s.0, "sick_lms: device status");
+                    }
+                    self.status_tx.send_replace(Some(s));
+                }
+                Event::BaudDetected(b) if !self.connected => {
+                    tracing::info!(target: "ima::connect", "SICK LMS: answered at {} baud", b.bps());
+                }
+                Event::PowerOn | Event::Closed | Event::BaudDetected(_) | Event::ConfigWritten => {}
             }
         }
         Ok(())

@@ -1124,3 +1124,71 @@ fn corrupted_telegram_is_naked_by_the_device_and_resent() {
     assert_eq!(w.d.framer.counters().bad_checksums, 2);
     assert!(w.has(|e| *e == Event::BaudDetected(BaudRate::B9600)));
 }
+
+#[test]
+fn close_stops_the_stream_and_restores_9600() {
+    let cfg = Config {
+        baud: BaudRate::B500000,
+        rs422: true,
+        ..Config::default()
+    };
+    let mut w = World::new(cfg, Sim::new(BaudRate::B9600));
+    assert!(w.run_ready());
+    assert!(w.d.streaming);
+    let before = w.codes().len();
+    let now = w.now;
+    w.m.close(now);
+    assert!(w.run(Duration::from_secs(5), |w| w.m.is_closed()));
+    w.pump();
+    let log = w.codes();
+    assert_eq!(
+        log[before..],
+        [
+            mode(ModeRequest::RequestOnly),
+            mode(ModeRequest::Baud(BaudRate::B9600))
+        ]
+    );
+    assert!(!w.d.streaming);
+    assert_eq!(w.d.baud, BaudRate::B9600);
+    assert_eq!(w.host_bps, 9600);
+    assert!(w.has(|e| *e == Event::Closed));
+    // Closing twice is harmless and sends nothing.
+    let now = w.now;
+    w.m.close(now);
+    w.pump();
+    assert_eq!(w.codes().len(), log.len());
+}
+
+#[test]
+fn close_at_9600_idle_or_before_a_unit_was_found_sends_nothing() {
+    let cfg = Config {
+        baud: BaudRate::B9600,
+        stream: false,
+        ..Config::default()
+    };
+    let mut w = World::new(cfg, Sim::new(BaudRate::B9600));
+    assert!(w.run_ready());
+    let before = w.codes().len();
+    let now = w.now;
+    w.m.close(now);
+    w.pump();
+    assert!(w.m.is_closed());
+    assert_eq!(w.codes().len(), before);
+    // Still probing: nothing to undo.
+    let mut w = World::new(cfg_38400(), Sim::new(BaudRate::B9600));
+    w.m.close(Instant::ZERO);
+    w.pump();
+    assert!(w.m.is_closed() && w.has(|e| *e == Event::Closed));
+}
+
+#[test]
+fn close_gives_up_when_the_unit_is_gone() {
+    let mut w = World::new(cfg_38400(), Sim::new(BaudRate::B9600));
+    assert!(w.run_ready());
+    // The unit goes quiet: the stop is unanswered, the machine still closes (bounded).
+    w.d.mute_until = Instant::from_micros(u64::MAX / 2);
+    let now = w.now;
+    w.m.close(now);
+    assert!(w.run(Duration::from_secs(30), |w| w.m.is_closed()));
+    assert!(w.has(|e| matches!(e, Event::Error(MachineError::Timeout { .. }))));
+}

@@ -18,11 +18,14 @@ pub use crate::driver::DriverError;
 use crate::machine::{Config, Event, Machine, Stats};
 
 /// Open a serial port for the blocking shell: `baud` 8N1, no flow control, 10 ms timeout.
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
     serialport::new(path, baud)
         .timeout(Duration::from_millis(10))
         .open_native()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 enum Outcome {

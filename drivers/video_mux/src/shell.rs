@@ -20,6 +20,9 @@ pub use crate::driver::DriverError;
 use crate::machine::{Config, Event, Machine, Stats};
 
 /// Open a serial port for the shell: `baud` (Extron default 9600) 8N1, no flow control.
+///
+/// A path that is not a serial port (a regular file, `/dev/null`) fails with
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
     tokio_serial::new(path, baud)
@@ -28,7 +31,7 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(io::Error::from)
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
 /// The shell's clock (tokio time, so paused tests run in virtual time).

@@ -394,3 +394,50 @@ fn tcm2_data_before_go_does_not_confirm_and_retries_run_out() {
     m.set_auto_calibration(true, ms(1700)).unwrap();
     assert_eq!(sent(&mut m), ["h\r"]);
 }
+
+#[test]
+fn nmea_sentences_do_not_configure_a_tcm2() {
+    let mut m = Machine::new(tcm2_config());
+    m.start(ms(0));
+    let _ = sent(&mut m);
+    let sum = crate::wire::checksum(b"HCHDG,101.1,,,,");
+    let line = std::format!("$HCHDG,101.1,,,,*{sum:02X}\r\n");
+    let mut t = 0;
+    let mut failed = None;
+    while t < 10_000 && failed.is_none() {
+        t += 50;
+        m.handle_bytes(line.as_bytes(), ms(t));
+        m.handle_timeout(ms(t));
+        let _ = sent(&mut m);
+        for e in events(&mut m) {
+            assert!(!matches!(e, Event::Heading(_) | Event::Configured), "{e:?}");
+            if let Event::JobFailed { job, .. } = e {
+                failed = Some(job);
+            }
+        }
+    }
+    assert_eq!(failed, Some(Job::Configure));
+    assert_eq!(
+        m.foreign_line(),
+        Some(ForeignLine::Nmea {
+            talker: Talker::MAGNETIC_COMPASS,
+            sentence: *b"HDG"
+        })
+    );
+    assert!(m.stats().foreign_lines > 10);
+    assert_eq!(m.stats().headings, 0);
+    assert_eq!(
+        std::format!("{}", m.foreign_line().unwrap()),
+        "NMEA ($HCHDG…)"
+    );
+}
+
+#[test]
+fn tcm2_lines_are_foreign_to_an_nmea_source() {
+    let mut m = Machine::new(Config::for_dialect(Dialect::Nmea));
+    m.start(ms(0));
+    m.handle_bytes(&tcm2_line("C10.0E000"), ms(10));
+    assert!(events(&mut m).is_empty());
+    assert_eq!(m.foreign_line(), Some(ForeignLine::Tcm2));
+    assert_eq!(m.stats().bytes as usize, tcm2_line("C10.0E000").len());
+}
