@@ -498,6 +498,8 @@ async fn two_hundred_clients_register_at_once() {
     let slow = |robot: &str| {
         let mut c = cfg(robot);
         c.heartbeat_ms = 1000;
+        // A registration may queue behind 199 others on a loaded machine.
+        c.call_timeout_ms = 60_000;
         c
     };
     let m = spawn_manager(&slow("skeeter"), key(), FixedSelfAgent::new(0, Vec::new()))
