@@ -71,9 +71,15 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
         return Ok(k.clone());
     }
     match (&cfg.peer.key_file, cfg.peer.insecure) {
-        (Some(path), _) => load_key_file(path)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .with_context(|| format!("loading the group key {}", path.display())),
+        // Most key errors name the file already; the others get it added once.
+        (Some(path), _) => load_key_file(path).map_err(|e| {
+            let text = e.to_string();
+            if text.contains(&path.display().to_string()) {
+                anyhow::anyhow!(text)
+            } else {
+                anyhow::anyhow!(text).context(format!("loading the group key {}", path.display()))
+            }
+        }),
         (None, true) => {
             tracing::warn!("running with the insecure all-zero group key");
             Ok(insecure_key())
