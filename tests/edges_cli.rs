@@ -45,6 +45,32 @@ fn demo_refuses_an_svg_in_a_missing_directory_before_the_mission() {
 }
 
 #[test]
+fn demo_prints_its_summary_even_when_the_svg_cannot_be_written() {
+    // `/dev/full` passes the check (it opens for writing) but every write fails.
+    let out = ima()
+        .args([
+            "demo",
+            "--json",
+            "--speed",
+            "10",
+            "--targets",
+            "red",
+            "--svg",
+            "/dev/full",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("--svg /dev/full"), "{err}");
+    let summary = json_lines(&out.stdout)
+        .into_iter()
+        .find(|l| l["kind"] == "summary")
+        .unwrap_or_else(|| panic!("no summary; {err}"));
+    assert_eq!(summary["targets"][0]["target"], "red", "{summary}");
+}
+
+#[test]
 fn experiment_refuses_an_unusable_out_before_the_sweep() {
     let d = scratch("exp-out");
     let file = d.join("a-file");
@@ -61,6 +87,35 @@ fn experiment_refuses_an_unusable_out_before_the_sweep() {
         "{err}"
     );
     assert!(!err.contains("runs in"), "the sweep ran first: {err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn experiment_prints_its_results_even_when_a_file_cannot_be_written() {
+    let d = scratch("exp-late");
+    // The directory is fine, but `heading.csv` cannot be created (a directory is in the way).
+    std::fs::create_dir_all(d.join("heading.csv")).unwrap();
+    let out = ima()
+        .args([
+            "experiment",
+            "heading",
+            "--rule",
+            "thesis",
+            "--json",
+            "--out",
+        ])
+        .arg(&d)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("heading.csv") && err.contains("--out"),
+        "{err}"
+    );
+    // The results came first.
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(doc.to_string().contains("thesis"), "{doc}");
     let _ = std::fs::remove_dir_all(&d);
 }
 
