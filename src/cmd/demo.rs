@@ -32,8 +32,8 @@ pub struct DemoArgs {
     /// The issue-2 demonstration instead.
     #[command(subcommand)]
     sub: Option<DemoCommand>,
-    /// Time factor: world time runs this many times faster than real time (not a velocity;
-    /// Scooter's is `--cruise`).
+    /// Time factor in (0, 20]: world time runs this many times faster than real time (not a
+    /// velocity; Scooter's is `--cruise`).
     #[arg(long, default_value_t = 4.0)]
     speed: f64,
     /// Seed for sensor noise.
