@@ -24,6 +24,9 @@ pub struct SquareArgs {
     /// time factor).
     #[arg(long, default_value_t = 0.5)]
     vel: f64,
+    /// Not a flag of the square (kept to point at `--vel`).
+    #[arg(long, hide = true, allow_negative_numbers = true)]
+    speed: Option<f64>,
     /// Seed for sensor noise and faults.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -37,6 +40,10 @@ pub struct SquareArgs {
 
 /// Run `ima demo square`.
 pub fn run(args: &SquareArgs) -> Result<()> {
+    anyhow::ensure!(
+        args.speed.is_none(),
+        "`ima demo square` takes its cruise velocity as --vel (m/s); --speed is `ima demo`'s time factor"
+    );
     anyhow::ensure!(
         args.side.is_finite() && args.side > 0.0 && args.side <= 3.0,
         "--side must be in (0, 3] m"
