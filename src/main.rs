@@ -16,8 +16,9 @@ mod stack;
 #[derive(Debug, Parser)]
 #[command(name = "ima", version, about, long_about = None)]
 struct Cli {
-    /// Log filter (tracing EnvFilter syntax), e.g. `info` or `ima_p2os=debug`.
-    #[arg(long, global = true, env = "IMA_LOG", default_value = "warn")]
+    /// Log filter (tracing EnvFilter syntax), e.g. `info` or `ima_p2os=debug`; an invalid
+    /// filter is an error.
+    #[arg(long, global = true, env = "IMA_LOG", default_value = "warn", value_parser = log_filter)]
     log: String,
     #[command(subcommand)]
     command: Command,
@@ -63,6 +64,32 @@ enum SanCommand {
 
 /// The tracing target of the drivers' connection progress (`ima::connect`).
 const CONNECT_TARGET: &str = "ima::connect";
+
+/// Checks a `--log` filter (clap then reports a bad one with exit status 2).
+fn log_filter(s: &str) -> Result<String, String> {
+    tracing_subscriber::EnvFilter::try_new(s)
+        .map(|_| s.to_owned())
+        .map_err(|e| format!("not a log filter ({e}); e.g. `info` or `ima_p2os=debug`"))
+}
+
+/// An error and its causes as one line, `outer: inner: …`, leaving out a cause whose text the
+/// previous link already ends with (an error that prints its source *and* reports it).
+fn error_chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    let mut prev = String::new();
+    for link in e.chain() {
+        let text = link.to_string();
+        if !prev.is_empty() && prev.ends_with(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+        prev = text;
+    }
+    out
+}
 
 fn main() -> ExitCode {
     // Before anything can move a robot: the panic hook and the signal thread.
@@ -117,4 +144,51 @@ fn main() -> ExitCode {
         let _ = writeln!(std::io::stderr(), "ima: error: {m}");
     }
     ExitCode::from(code)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug)]
+    struct Inner;
+    impl std::fmt::Display for Inner {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("no such file")
+        }
+    }
+    impl std::error::Error for Inner {}
+
+    /// Prints its source and reports it too, like `#[error("pty: {0}")] X(#[from] E)`.
+    #[derive(Debug)]
+    struct Outer(Inner);
+    impl std::fmt::Display for Outer {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "pty: {}", self.0)
+        }
+    }
+    impl std::error::Error for Outer {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.0)
+        }
+    }
+
+    #[test]
+    fn error_chains_do_not_repeat_a_cause() {
+        let e = anyhow::Error::new(Outer(Inner)).context("serving the world");
+        assert_eq!(
+            format!("{e:#}"),
+            "serving the world: pty: no such file: no such file"
+        );
+        assert_eq!(error_chain(&e), "serving the world: pty: no such file");
+        let plain = anyhow::Error::new(Inner).context("reading x");
+        assert_eq!(error_chain(&plain), "reading x: no such file");
+    }
+
+    #[test]
+    fn bad_log_filters_are_refused() {
+        assert!(log_filter("info,ima_p2os=debug").is_ok());
+        let e = log_filter("ima=loud").unwrap_err();
+        assert!(e.contains("not a log filter"), "{e}");
+    }
 }

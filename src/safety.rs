@@ -362,9 +362,9 @@ pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
         Err(e) if e.chain().any(|c| c.is::<OutputClosed>()) => (141, None),
         Err(e) => {
             if let Some(Interrupted(c)) = e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
-                return (c.exit_code(), Some(format!("{e:#}")));
+                return (c.exit_code(), Some(crate::error_chain(e)));
             }
-            (1, Some(format!("{e:#}")))
+            (1, Some(crate::error_chain(e)))
         }
     }
 }

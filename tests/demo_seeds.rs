@@ -1,18 +1,31 @@
 //! `ima demo` (issue 8) accomplishes every target on a handful of seeds: the whole mission in
 //! one process (world, every mock device on a pty, both robots' stacks through their real
-//! drivers, the three Peer Agents on loopback), sped up four times. The default seed and 20
-//! others: `scripts/demo-seeds.sh`.
+//! drivers, the three Peer Agents on loopback), sped up four times, and on one seed ten and
+//! twenty times. The default seed and 20 others: `scripts/demo-seeds.sh [SPEED]`.
 
 mod common;
 use common::{ima, json_lines, run_ok};
 
+/// The demos of this file take turns: each is several real-time processes' worth of work.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn turn() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 fn demo(seed: u64, svg: &std::path::Path) -> serde_json::Value {
+    demo_at("4", seed, svg)
+}
+
+fn demo_at(speed: &str, seed: u64, svg: &std::path::Path) -> serde_json::Value {
     let out = ima()
         .args([
             "demo",
             "--json",
             "--speed",
-            "4",
+            speed,
             "--seed",
             &seed.to_string(),
             "--svg",
@@ -46,6 +59,7 @@ fn demo(seed: u64, svg: &std::path::Path) -> serde_json::Value {
 
 #[test]
 fn demo_accomplishes_every_target_on_several_seeds() {
+    let _turn = turn();
     let dir = std::env::temp_dir().join(format!("ima-demo-seeds-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let seeds = [1u64, 7, 13];
@@ -72,6 +86,28 @@ fn demo_accomplishes_every_target_on_several_seeds() {
         }
         let picture = std::fs::read_to_string(&svg).unwrap();
         assert!(picture.starts_with("<svg") && picture.contains("<polyline"));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 13: `--speed 10` failed two targets of three (Scooter's controller ramped its
+/// velocities in real time, ten times too slowly in world time: it stopped too close to the
+/// first target and turned in place there for ever). Every target at ×10 and at the flag's
+/// maximum ×20.
+#[test]
+fn demo_accomplishes_every_target_when_sped_up_ten_and_twenty_times() {
+    let _turn = turn();
+    let dir = std::env::temp_dir().join(format!("ima-demo-fast-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for speed in ["10", "20"] {
+        let svg = dir.join(format!("demo-x{speed}.svg"));
+        let summary = demo_at(speed, 1, &svg);
+        assert_eq!(summary["done"], 3, "×{speed}: {summary}");
+        for t in summary["targets"].as_array().unwrap() {
+            assert_eq!(t["state"], "done", "×{speed}: {t}");
+            let gap = t["end_gap_m"].as_f64().unwrap();
+            assert!(gap < 1.5, "×{speed}: Scooter ended {gap:.2} m from {t}");
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

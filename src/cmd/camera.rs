@@ -81,6 +81,7 @@ pub fn run(cmd: &CameraCommand) -> Result<()> {
 }
 
 fn grab(args: &GrabArgs) -> Result<()> {
+    crate::cmd::output::check_file("--out", &args.out)?;
     let world = crate::cmd::mock::load_world(args.world.as_ref(), args.seed)?;
     let id = world
         .with(|w| w.robot_id(&args.robot))
@@ -137,7 +138,7 @@ fn grab(args: &GrabArgs) -> Result<()> {
         let f = cam.grab().await.context("grabbing")?;
         anyhow::Ok(f.value)
     })?;
-    write_png(&args.out, &frame)?;
+    write_png(&args.out, &frame).context("--out")?;
     eprintln!(
         "wrote {} ({}×{}, channel {})",
         args.out.display(),
@@ -153,8 +154,8 @@ fn grab(args: &GrabArgs) -> Result<()> {
 pub struct MockMuxOptions {
     /// Number of inputs.
     pub inputs: u8,
-    /// Switch delay, milliseconds.
-    pub switch_delay_ms: u64,
+    /// Switch delay.
+    pub switch_delay: Duration,
     /// Refuse selections with E06 (front-panel auto-switch mode).
     pub auto_switch: bool,
     /// Speak Kramer Protocol 2000 instead of Extron SIS.
@@ -175,7 +176,7 @@ pub fn run_mock(faults: &str, opts: MockMuxOptions) -> Result<()> {
             MuxDialect::Extron
         },
         inputs: opts.inputs,
-        switch_delay: Duration::from_millis(opts.switch_delay_ms),
+        switch_delay: opts.switch_delay,
         auto_switch: opts.auto_switch,
         ..MuxModelConfig::default()
     };

@@ -372,6 +372,14 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
     // Ctrl-C is the operator's: it may ask whether to stop the robots.
     crate::safety::answers_ctrl_c_itself();
+    // Skeeter can only find colours of its database (the configuration's, or the built-in).
+    let known: Vec<String> = crate::stack::skeeter::colour_db(&cfg)?
+        .colours
+        .into_iter()
+        .map(|c| c.name)
+        .filter(|n| n != ima_agents::mission::msg::SCOOTER_TAG)
+        .collect();
+    super::check_colours(&args.targets, &known, "the colour database's colours")?;
     let rt = tokio::runtime::Runtime::new()?;
     let finished = rt.block_on(async {
         let key = net::group_key(&cfg, None)?;

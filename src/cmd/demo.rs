@@ -32,7 +32,8 @@ pub struct DemoArgs {
     /// The issue-2 demonstration instead.
     #[command(subcommand)]
     sub: Option<DemoCommand>,
-    /// World time runs this many times faster than real time.
+    /// Time factor in (0, 20]: world time runs this many times faster than real time (not a
+    /// velocity; Scooter's is `--cruise`).
     #[arg(long, default_value_t = 4.0)]
     speed: f64,
     /// Seed for sensor noise.
@@ -44,10 +45,10 @@ pub struct DemoArgs {
     /// World file (TOML); the built-in thesis arena when absent.
     #[arg(long)]
     world: Option<PathBuf>,
-    /// Scooter's cruise speed, m/s.
+    /// Scooter's cruise velocity, m/s, in (0, 1].
     #[arg(long, default_value_t = 0.3)]
     cruise: f64,
-    /// A target not accomplished within this many mission seconds fails.
+    /// A target not accomplished within this many mission (world) seconds fails.
     #[arg(long, default_value_t = 240.0)]
     target_timeout: f64,
     /// Where to write the SVG of the world and the trajectories.
@@ -83,12 +84,11 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         "--target-timeout must be in (0, 100000] s"
     );
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
+    super::output::check_file("--svg", &args.svg)?;
     let started = std::time::Instant::now();
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
-    for t in &args.targets {
-        let known = world.with(|w| w.objects().iter().any(|o| &o.color == t));
-        anyhow::ensure!(known, "the world has no {t:?} object");
-    }
+    let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());
+    super::check_colours(&args.targets, &known, "the world's object colours")?;
     let served = ServedWorld::start(
         world.clone(),
         &ServeOptions {
@@ -331,8 +331,9 @@ fn summarise(
         args.targets.join(", ")
     );
     let picture = served.world().with(|w| svg(w, paths, &title));
-    std::fs::write(&args.svg, picture)
-        .with_context(|| format!("writing {}", args.svg.display()))?;
+    // The results are printed first: a failed write loses only the picture.
+    let written = std::fs::write(&args.svg, picture)
+        .with_context(|| format!("--svg {}: writing the picture", args.svg.display()));
     let summary = json!({
         "kind": "summary",
         "seed": args.seed,
@@ -366,12 +367,17 @@ fn summarise(
             );
         }
         println!(
-            "{done} done, {failed} failed; mission time {world_s:.1} s, wall time {:.1} s; Scooter drove {:.2} m; trajectories in {}",
+            "{done} done, {failed} failed; mission time {world_s:.1} s, wall time {:.1} s; Scooter drove {:.2} m{}",
             wall.as_secs_f64(),
             scooter.length(),
-            args.svg.display()
+            if written.is_ok() {
+                format!("; trajectories in {}", args.svg.display())
+            } else {
+                String::new()
+            }
         );
     }
+    written?;
     anyhow::ensure!(failed == 0, "{failed} target(s) failed");
     Ok(())
 }

@@ -17,12 +17,16 @@ use serde_json::json;
 /// Arguments of `ima demo square`.
 #[derive(Debug, Args)]
 pub struct SquareArgs {
-    /// Side of the square, metres.
+    /// Side of the square, metres, in (0, 3].
     #[arg(long, default_value_t = 1.0)]
     side: f64,
-    /// Cruise speed, m/s.
+    /// Cruise velocity, m/s, in (0, 1] (`--vel` as in `ima drive`; `ima demo --speed` is a
+    /// time factor).
     #[arg(long, default_value_t = 0.5)]
-    speed: f64,
+    vel: f64,
+    /// Not a flag of the square (kept to point at `--vel`).
+    #[arg(long, hide = true, allow_negative_numbers = true)]
+    speed: Option<f64>,
     /// Seed for sensor noise and faults.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -37,12 +41,16 @@ pub struct SquareArgs {
 /// Run `ima demo square`.
 pub fn run(args: &SquareArgs) -> Result<()> {
     anyhow::ensure!(
+        args.speed.is_none(),
+        "`ima demo square` takes its cruise velocity as --vel (m/s); --speed is `ima demo`'s time factor"
+    );
+    anyhow::ensure!(
         args.side.is_finite() && args.side > 0.0 && args.side <= 3.0,
         "--side must be in (0, 3] m"
     );
     anyhow::ensure!(
-        args.speed.is_finite() && args.speed > 0.0 && args.speed <= 1.0,
-        "--speed must be in (0, 1] m/s"
+        args.vel.is_finite() && args.vel > 0.0 && args.vel <= 1.0,
+        "--vel must be in (0, 1] m/s"
     );
     let world = super::mock::load_world(None, args.seed)?;
     let dev = super::mock::serve_p2os(&world, "skeeter", args.seed, &args.faults, 9600, true)?;
@@ -145,7 +153,7 @@ async fn square(
             if d >= args.side {
                 break;
             }
-            let v = ((args.side - d) * 1.5).clamp(0.03, args.speed);
+            let v = ((args.side - d) * 1.5).clamp(0.03, args.vel);
             robot.set_velocity(VelocityCommand::new(v, 0.0)).await?;
         }
         // Turn to the next multiple of 90°.

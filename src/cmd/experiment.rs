@@ -99,6 +99,9 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
     if a.camera {
         cfg.sim.observer = Observer::Camera;
     }
+    if let Some(dir) = &a.out {
+        crate::cmd::output::check_dir("--out", dir)?;
+    }
     let tty = std::io::stderr().is_terminal();
     let started = Instant::now();
     let progress = |done: usize, total: usize| {
@@ -125,11 +128,23 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
         }
     }
     let doc = json(&results, &cfg);
+    // The results go to stdout first: a failed file write loses no result.
+    {
+        let stdout = std::io::stdout();
+        let mut out = stdout.lock();
+        if a.json {
+            writeln!(out, "{doc}")?;
+        } else {
+            write!(out, "{tables}{}", summary(&results))?;
+        }
+        out.flush()?;
+    }
     if let Some(dir) = &a.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--out {}: creating it", dir.display()))?;
         let write = |name: &str, text: &str| -> anyhow::Result<()> {
             let p = dir.join(name);
-            std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))
+            std::fs::write(&p, text).with_context(|| format!("--out: writing {}", p.display()))
         };
         write("heading.csv", &csv(&results))?;
         write("heading.json", &format!("{doc:#}\n"))?;
@@ -142,13 +157,6 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
             )?;
         }
         eprintln!("wrote {}", dir.display());
-    }
-    let stdout = std::io::stdout();
-    let mut out = stdout.lock();
-    if a.json {
-        writeln!(out, "{doc}")?;
-    } else {
-        write!(out, "{tables}{}", summary(&results))?;
     }
     Ok(())
 }

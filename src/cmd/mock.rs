@@ -58,22 +58,24 @@ pub struct MockArgs {
     /// Compass: installation deviation, degrees east.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     deviation: f64,
-    /// Compass: turn the robot at this rate, degrees per second.
+    /// Compass: turn the robot at this rate, rad/s (counter-clockwise positive, like `ima
+    /// drive --turn`).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     spin: f64,
     /// Video mux: number of inputs.
     #[arg(long, default_value_t = 7)]
     inputs: u8,
-    /// Video mux: switch delay, milliseconds.
-    #[arg(long, default_value_t = 30)]
-    switch_delay_ms: u64,
+    /// Video mux: switch delay, seconds.
+    #[arg(long, default_value_t = 0.03)]
+    switch_delay: f64,
     /// Video mux: front-panel auto-switch mode (selections refused with E06).
     #[arg(long)]
     auto_switch: bool,
     /// Video mux: speak Kramer Protocol 2000 instead of Extron SIS.
     #[arg(long)]
     kramer: bool,
-    /// World: world time runs this many times faster than real time.
+    /// World: time factor, world time runs this many times faster than real time (not a
+    /// velocity).
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
     /// World: address of the TCP frame server (port 0: any free port).
@@ -83,12 +85,19 @@ pub struct MockArgs {
     /// directory, ready for `ima run` / `ima commander`.
     #[arg(long)]
     write_configs: Option<PathBuf>,
+    /// World: let `--write-configs` replace configurations and a group key already there.
+    #[arg(long, requires = "write_configs")]
+    force: bool,
 }
 
 /// Load the world of `--world`, or the built-in arena, with `seed`.
 pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
     let mut world = match path {
-        Some(p) => World::from_toml_path(p).with_context(|| format!("loading {}", p.display()))?,
+        // The world's own errors name the file when it cannot be read; parse errors do not.
+        Some(p) => World::from_toml_path(p).map_err(|e| match e {
+            ima_mock_devices::world::WorldError::Io(_) => anyhow::anyhow!(e),
+            e => anyhow::anyhow!(e).context(format!("loading {}", p.display())),
+        })?,
         None => World::default_world(),
     };
     world.set_seed(seed);
@@ -143,7 +152,7 @@ pub fn run(args: &MockArgs) -> Result<()> {
             let opts = crate::cmd::compass::MockCompassOptions {
                 dialect: args.dialect,
                 deviation_deg: args.deviation,
-                spin_deg_s: args.spin,
+                spin_deg_s: args.spin.to_degrees(),
                 seed: args.seed,
             };
             let robot = args.robot.as_deref().unwrap_or("scooter");
@@ -152,7 +161,10 @@ pub fn run(args: &MockArgs) -> Result<()> {
         Device::VideoMux => {
             let opts = crate::cmd::camera::MockMuxOptions {
                 inputs: args.inputs,
-                switch_delay_ms: args.switch_delay_ms,
+                switch_delay: Duration::try_from_secs_f64(args.switch_delay)
+                    .ok()
+                    .filter(|d| *d <= Duration::from_secs(10))
+                    .context("--switch-delay must be in [0, 10] s")?,
                 auto_switch: args.auto_switch,
                 kramer: args.kramer,
             };
@@ -176,6 +188,12 @@ pub fn run(args: &MockArgs) -> Result<()> {
             );
         }
         Device::World => {
+            if let Some(dir) = &args.write_configs {
+                if !args.force {
+                    super::mock_world::refuse_overwrite(dir)?;
+                }
+                super::output::check_dir("--write-configs", dir)?;
+            }
             return super::mock_world::run(&super::mock_world::WorldOptions {
                 world: args.world.clone(),
                 seed: args.seed,

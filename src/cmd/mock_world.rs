@@ -161,6 +161,35 @@ pub fn loopback_configs(
     Ok([skeeter, scooter, commander])
 }
 
+/// The files [`write_configs`] writes into a directory.
+pub const CONFIG_FILES: [&str; 4] = [
+    "group.key",
+    "skeeter.toml",
+    "scooter.toml",
+    "commander.toml",
+];
+
+/// Fails, naming them, when any of [`CONFIG_FILES`] already exists in `dir` (a new group key
+/// would lock out every robot still using the old one).
+///
+/// # Errors
+/// The files that exist.
+pub fn refuse_overwrite(dir: &Path) -> Result<()> {
+    let existing: Vec<String> = CONFIG_FILES
+        .iter()
+        .map(|f| dir.join(f))
+        .filter(|p| p.symlink_metadata().is_ok())
+        .map(|p| p.display().to_string())
+        .collect();
+    anyhow::ensure!(
+        existing.is_empty(),
+        "--write-configs {}: {} already exist(s); pass --force to replace them",
+        dir.display(),
+        existing.join(", ")
+    );
+    Ok(())
+}
+
 /// Write the three configurations and a fresh `group.key` into `dir`.
 pub fn write_configs(dir: &Path, e: &Endpoints, speed: f64) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;

@@ -18,7 +18,24 @@ pub mod mock_rflex;
 pub mod mock_sick;
 pub mod mock_world;
 pub mod num;
+pub mod output;
 pub mod peer;
 pub mod run;
 pub mod san;
 pub mod scan;
+
+/// Checks that every target colour is one of `known`; the error lists the known colours
+/// (`what` says where they come from, e.g. "the world's objects").
+///
+/// # Errors
+/// The first unknown colour, with the known ones.
+pub fn check_colours(targets: &[String], known: &[String], what: &str) -> anyhow::Result<()> {
+    for t in targets {
+        anyhow::ensure!(
+            known.contains(t),
+            "unknown target colour {t:?}; {what} are: {}",
+            known.join(", ")
+        );
+    }
+    Ok(())
+}

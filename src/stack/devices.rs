@@ -50,7 +50,8 @@ pub async fn open_p2os(d: &BaseDevice) -> Result<P2os> {
 
 /// Connect to an rFLEX base and release its brake. `time_scale` > 1 (a sped-up simulated
 /// world) widens the driver's odometry plausibility limits by that factor, since the world
-/// moves that much faster per real second, and asks for motion reports that much more often.
+/// moves that much faster per real second, asks for motion reports that much more often, and
+/// multiplies the accelerations by it (the controller ramps in real time).
 pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
     anyhow::ensure!(
         d.kind == BaseKind::Rflex,
@@ -69,6 +70,10 @@ pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
     cfg.limits.max_omega_rad_s *= k;
     // Motion reports as often in world time as at real speed (at most 50 per second).
     cfg.report_period_us = ((f64::from(cfg.report_period_us) / k) as u32).max(20_000);
+    // The controller ramps velocities in its own (real) time: accelerations × k give the
+    // configured ramps in world time, so Scooter stops and turns as at real speed.
+    cfg.trans_accel_m_s2 *= k;
+    cfg.rot_accel = (f64::from(cfg.rot_accel) * k).min(f64::from(u32::MAX)) as u32;
     let mut base = Rflex::connect(port, cfg, secs(d.connect_timeout_s))
         .await
         .with_context(|| format!("connecting to the rFLEX base on {}", d.port))?;

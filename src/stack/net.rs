@@ -71,10 +71,17 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
         return Ok(k.clone());
     }
     match (&cfg.peer.key_file, cfg.peer.insecure) {
+        // Most key errors name the file already; the others get it added once.
         (Some(path), _) => {
-            let key = load_key_file(path)
-                .map_err(|e| anyhow::anyhow!("{e}"))
-                .with_context(|| format!("loading the group key {}", path.display()))?;
+            let key = load_key_file(path).map_err(|e| {
+                let text = e.to_string();
+                if text.contains(&path.display().to_string()) {
+                    anyhow::anyhow!(text)
+                } else {
+                    anyhow::anyhow!(text)
+                        .context(format!("loading the group key {}", path.display()))
+                }
+            })?;
             if key.is_insecure() {
                 eprintln!("ima: WARNING: {}", crate::cmd::peer::zero_key_warning(path));
             }

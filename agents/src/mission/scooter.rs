@@ -617,6 +617,9 @@ pub struct ScooterBrain {
     /// Obstacle points of the last scan and the memory, DR frame.
     seen_dr: Vec<Vector2>,
     target_fix: Option<(Instant, Vector2)>,
+    /// The last target reached and where (DR frame): the object Scooter stands next to is
+    /// not the next target, whatever a stale heading points at.
+    reached_target: Option<(String, Vector2)>,
     skeeter_fix: Option<(Instant, Vector2)>,
     avoid_heading: Option<f64>,
     /// When the last *usable* scan arrived.
@@ -680,6 +683,7 @@ impl ScooterBrain {
             points: Vec::new(),
             seen_dr: Vec::new(),
             target_fix: None,
+            reached_target: None,
             skeeter_fix: None,
             avoid_heading: None,
             laser_at: None,
@@ -1074,6 +1078,12 @@ impl ScooterBrain {
             r,
         );
         let to_dr = |c: &Point2| self.dr + nalgebra_rotate(h, c.coords);
+        // The previous target (another colour) is not this one.
+        let previous = self
+            .reached_target
+            .as_ref()
+            .filter(|(colour, _)| self.target.as_ref() != Some(colour))
+            .map(|(_, p)| *p);
         let expected_point = match self.plan {
             Some(Plan::Point(p)) => Some(p),
             _ => None,
@@ -1091,6 +1101,9 @@ impl ScooterBrain {
             })
             .filter_map(|c| {
                 let p = to_dr(&c.centre);
+                if previous.is_some_and(|q| (p - q).norm() <= self.cfg.match_radius_m) {
+                    return None;
+                }
                 let score = if let Some(t) = tracked {
                     (p - t).norm()
                 } else if let Some(e) = expected_point {
@@ -1272,6 +1285,7 @@ impl ScooterBrain {
             && (t - self.dr).norm() <= self.cfg.reach_distance_m
         {
             self.reached = true;
+            self.reached_target = self.target.clone().zip(Some(t));
         }
         // Obstacle agent: judge the path toward the current goal.
         let obstacle = match (self.goal(now), h) {
@@ -2076,6 +2090,77 @@ mod tests {
                     .all(|m| matches!(m, ScooterSay::Status { .. }))
             );
         }
+    }
+
+    /// Issue 13: right after a target, a stale SES (or heading) pointing at the object
+    /// Scooter stands next to must not make that object the next target.
+    #[test]
+    fn the_target_just_reached_is_not_the_next_one() {
+        let mut b = brain(HeadingRule::RangeAware);
+        b.set_target(RED, t(0));
+        let ses = |colour: &str, at: u64| {
+            form(
+                vec![
+                    rec("scooter", 180.0, Some(1.5), t(at)),
+                    rec(colour, 180.0, Some(0.5), t(at)),
+                ],
+                t(at),
+            )
+        };
+        b.handle_ses(&ses(RED, 0), t(0));
+        let mut w = Mini {
+            x: -1.5,
+            y: 0.0,
+            th: 0.0,
+            circles: vec![([-0.5, 0.0], 0.15)],
+        };
+        let mount = b.config().laser_mount;
+        let mut now = 0;
+        while !b.reached() && now < 20_000 {
+            now += 50;
+            let out = b.step(t(now));
+            w.advance(out.command, 0.05);
+            b.handle_odometry(&w.odo((-1.5, 0.0, 0.0)), t(now));
+            b.handle_laser(&w.scan(&mount), t(now));
+        }
+        assert!(b.reached(), "red reached");
+        b.handle_heard(
+            &ScooterHeard::MissionEnded {
+                colour: RED.to_owned(),
+            },
+            t(now + 10),
+        );
+        b.handle_heard(
+            &ScooterHeard::TargetAccepted {
+                colour: "blue".to_owned(),
+            },
+            t(now + 20),
+        );
+        // The SES says blue is where red is (Scooter has not moved since).
+        b.handle_ses(&ses("blue", now + 20), t(now + 20));
+        for k in 1..40 {
+            let at = now + 20 + 50 * k;
+            b.handle_laser(&w.scan(&mount), t(at));
+            let out = b.step(t(at));
+            assert!(
+                !out.messages
+                    .iter()
+                    .any(|m| matches!(m, ScooterSay::TargetReached { .. })),
+                "red taken for blue at {at} ms"
+            );
+        }
+        assert!(!b.reached());
+        // A second red target is red again.
+        b.handle_heard(
+            &ScooterHeard::TargetAccepted {
+                colour: RED.to_owned(),
+            },
+            t(now + 5000),
+        );
+        b.handle_ses(&ses(RED, now + 5000), t(now + 5000));
+        b.handle_laser(&w.scan(&mount), t(now + 5050));
+        b.step(t(now + 5050));
+        assert!(b.reached(), "the same colour again is found at once");
     }
 
     #[test]

@@ -1,0 +1,363 @@
+//! Issue 13: honest edges of the `ima` program — output paths checked before the work,
+//! configurations never silently replaced, one meaning and unit per flag, log filters and
+//! colours refused with a message that helps, and error chains without repeats.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::Stdio;
+
+mod common;
+use common::{Child, ima, json_lines, run_ok};
+
+/// A fresh scratch directory for one test.
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ima-edges-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn stderr(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+// Item 1: output paths are checked before the work.
+
+#[test]
+fn demo_refuses_an_svg_in_a_missing_directory_before_the_mission() {
+    let d = scratch("demo-svg");
+    let svg = d.join("no-such-dir/x.svg");
+    let out = ima().args(["demo", "--svg"]).arg(&svg).output().unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("--svg") && err.contains(&svg.display().to_string()),
+        "{err}"
+    );
+    // Nothing was served or run: no world line, no summary.
+    assert!(!err.contains("world ×"), "{err}");
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn demo_prints_its_summary_even_when_the_svg_cannot_be_written() {
+    // `/dev/full` passes the check (it opens for writing) but every write fails.
+    let out = ima()
+        .args([
+            "demo",
+            "--json",
+            "--speed",
+            "10",
+            "--targets",
+            "red",
+            "--svg",
+            "/dev/full",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("--svg /dev/full"), "{err}");
+    let summary = json_lines(&out.stdout)
+        .into_iter()
+        .find(|l| l["kind"] == "summary")
+        .unwrap_or_else(|| panic!("no summary; {err}"));
+    assert_eq!(summary["targets"][0]["target"], "red", "{summary}");
+}
+
+#[test]
+fn experiment_refuses_an_unusable_out_before_the_sweep() {
+    let d = scratch("exp-out");
+    let file = d.join("a-file");
+    std::fs::write(&file, "").unwrap();
+    let out = ima()
+        .args(["experiment", "heading", "--rule", "thesis", "--out"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("--out") && err.contains("not a directory"),
+        "{err}"
+    );
+    assert!(!err.contains("runs in"), "the sweep ran first: {err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn experiment_prints_its_results_even_when_a_file_cannot_be_written() {
+    let d = scratch("exp-late");
+    // The directory is fine, but `heading.csv` cannot be created (a directory is in the way).
+    std::fs::create_dir_all(d.join("heading.csv")).unwrap();
+    let out = ima()
+        .args([
+            "experiment",
+            "heading",
+            "--rule",
+            "thesis",
+            "--json",
+            "--out",
+        ])
+        .arg(&d)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("heading.csv") && err.contains("--out"),
+        "{err}"
+    );
+    // The results came first.
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(doc.to_string().contains("thesis"), "{doc}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn camera_grab_refuses_a_missing_directory_before_grabbing() {
+    let d = scratch("grab");
+    let png = d.join("missing/cam.png");
+    let out = ima()
+        .args(["camera", "grab", "--channel", "1", "--out"])
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains(&format!("--out {}", png.display())), "{err}");
+    assert!(!err.contains("switcher confirmed"), "grabbed first: {err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+// Item 2: `ima mock world --write-configs` does not replace a group key silently.
+
+/// Start `ima mock world --write-configs dir [extra]`; its first stdout line, or `None`
+/// when it exited without one.
+fn mock_world(dir: &std::path::Path, extra: &[&str]) -> (Child, Option<String>) {
+    let mut child = Child(
+        ima()
+            .args(["mock", "world", "--write-configs"])
+            .arg(dir)
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut line = String::new();
+    let n = BufReader::new(child.0.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    (child, (n > 0).then_some(line))
+}
+
+#[test]
+fn mock_world_keeps_existing_configs_unless_forced() {
+    let d = scratch("configs");
+    std::fs::write(d.join("group.key"), "old key").unwrap();
+    std::fs::write(d.join("scooter.toml"), "# mine").unwrap();
+    let (mut child, line) = mock_world(&d, &[]);
+    assert!(line.is_none(), "served anyway: {line:?}");
+    let status = child.0.wait().unwrap();
+    assert!(!status.success());
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.0.stderr.take().unwrap(), &mut err).unwrap();
+    assert!(
+        err.contains("group.key") && err.contains("scooter.toml") && err.contains("--force"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(d.join("group.key")).unwrap(),
+        "old key"
+    );
+    drop(child);
+
+    let (_child, line) = mock_world(&d, &["--force"]);
+    let line = line.expect("the world's endpoints line");
+    assert!(line.contains("\"kind\":\"world\""), "{line}");
+    assert_ne!(
+        std::fs::read_to_string(d.join("group.key")).unwrap(),
+        "old key"
+    );
+    assert!(d.join("commander.toml").exists());
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+// Item 4: one meaning and one unit family per flag name; negative values where they mean
+// something.
+
+#[test]
+fn demo_square_takes_vel_not_speed() {
+    let out = run_ok(ima().args(["demo", "square", "--side", "0.3", "--vel", "0.4", "--json"]));
+    let v = json_lines(&out.stdout);
+    assert_eq!(v.iter().filter(|x| x["kind"] == "corner").count(), 4);
+    let out = ima()
+        .args(["demo", "square", "--speed", "0.4"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("as --vel (m/s)"), "{}", stderr(&out));
+    let out = ima()
+        .args(["demo", "square", "--vel", "2"])
+        .output()
+        .unwrap();
+    assert!(
+        stderr(&out).contains("--vel must be in (0, 1] m/s"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+#[test]
+fn negative_velocities_and_rates_parse() {
+    let out = ima()
+        .args([
+            "drive",
+            "--port",
+            "/dev/ima-no-such-port",
+            "--vel",
+            "-0.2",
+            "--turn",
+            "-0.5",
+            "--for",
+            "0",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    // Past the parser: the port is what failed.
+    assert!(err.contains("/dev/ima-no-such-port"), "{err}");
+    assert_ne!(out.status.code(), Some(2), "{err}");
+}
+
+#[test]
+fn mock_rates_are_rad_s_and_delays_seconds() {
+    let out = run_ok(ima().args(["mock", "--help"]));
+    let help = String::from_utf8_lossy(&out.stdout);
+    let spin = help
+        .lines()
+        .skip_while(|l| !l.contains("--spin"))
+        .take(3)
+        .collect::<String>();
+    assert!(spin.contains("rad/s"), "{spin}");
+    assert!(help.contains("--switch-delay <SWITCH_DELAY>"), "{help}");
+    assert!(!help.contains("--switch-delay-ms"), "{help}");
+    let out = ima()
+        .args(["mock", "video-mux", "--switch-delay", "20"])
+        .output()
+        .unwrap();
+    assert!(stderr(&out).contains("--switch-delay"), "{}", stderr(&out));
+}
+
+// Item 5: log filters, colours and error chains.
+
+#[test]
+fn an_invalid_log_filter_is_an_error() {
+    let out = ima()
+        .args(["--log", "ima=loud", "san", "simulate", "/dev/null"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    let err = stderr(&out);
+    assert!(err.contains("ima=loud") && err.contains("--log"), "{err}");
+    let out = ima()
+        .env("IMA_LOG", "=[")
+        .args(["san", "simulate", "/dev/null"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+}
+
+#[test]
+fn logs_have_no_colour_codes_when_stderr_is_not_a_terminal() {
+    // The demo square logs at info level (events, the driver's session).
+    let out = run_ok(ima().args([
+        "--log", "debug", "demo", "square", "--side", "0.2", "--json",
+    ]));
+    let err = stderr(&out);
+    assert!(
+        err.contains("DEBUG") || err.contains("INFO"),
+        "nothing logged: {err}"
+    );
+    assert!(!err.contains('\u{1b}'), "ANSI codes: {err:?}");
+}
+
+#[test]
+fn error_messages_name_a_file_once() {
+    let d = scratch("chain");
+    let world = d.join("no-world.toml");
+    let out = ima()
+        .args(["demo", "--world"])
+        .arg(&world)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(
+        err.matches(&world.display().to_string()).count(),
+        1,
+        "{err}"
+    );
+
+    let key = d.join("no-group.key");
+    let cfg = d.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nkey_file = \"{}\"\n",
+            key.display()
+        ),
+    )
+    .unwrap();
+    let out = ima()
+        .args(["commander", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(!out.status.success());
+    assert_eq!(err.matches(&key.display().to_string()).count(), 1, "{err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+// Item 6: an unknown colour lists the known ones.
+
+#[test]
+fn unknown_target_colours_list_the_known_ones() {
+    let d = scratch("colours");
+    let out = ima()
+        .args(["demo", "--targets", "red,pink", "--svg"])
+        .arg(d.join("x.svg"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("\"pink\"") && err.contains("red, green, blue, yellow, orange, purple"),
+        "{err}"
+    );
+    let cfg = d.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        "robot = \"commander\"\nrole = \"commander\"\n[peer]\ninsecure = true\n",
+    )
+    .unwrap();
+    let out = ima()
+        .args(["commander", "--targets", "teal", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("\"teal\"") && err.contains("red, green, blue, yellow, orange, purple"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}
