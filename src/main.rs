@@ -192,3 +192,148 @@ mod tests {
         assert!(e.contains("not a log filter"), "{e}");
     }
 }
+
+#[cfg(test)]
+mod cli_tests {
+    use super::Cli;
+    use clap::builder::ValueParser;
+    use clap::{CommandFactory, Parser};
+
+    /// The committed list of every numeric flag (`tests/data/numeric-flags.txt`), which the
+    /// process-level flag fuzz test (`tests/flag_fuzz.rs`) runs.
+    const LISTED: &str = include_str!("../tests/data/numeric-flags.txt");
+
+    fn id_of<T>() -> ValueParser
+    where
+        T: std::str::FromStr + Clone + Send + Sync + 'static,
+    {
+        ValueParser::new(|s: &str| s.parse::<T>().map_err(|_| "not a number"))
+    }
+
+    fn is_numeric(p: &ValueParser) -> bool {
+        let t = p.type_id();
+        [
+            id_of::<f64>(),
+            id_of::<f32>(),
+            id_of::<u8>(),
+            id_of::<u16>(),
+            id_of::<u32>(),
+            id_of::<u64>(),
+            id_of::<usize>(),
+            id_of::<i8>(),
+            id_of::<i16>(),
+            id_of::<i32>(),
+            id_of::<i64>(),
+        ]
+        .iter()
+        .any(|v| v.type_id() == t)
+    }
+
+    /// Every (sub-command path, numeric flag) of the program.
+    fn numeric_flags() -> Vec<(Vec<String>, String)> {
+        fn walk(cmd: &clap::Command, path: &mut Vec<String>, out: &mut Vec<(Vec<String>, String)>) {
+            for a in cmd.get_arguments() {
+                if a.get_num_args().is_some_and(|n| n.takes_values())
+                    && let Some(long) = a.get_long()
+                    && is_numeric(a.get_value_parser())
+                {
+                    out.push((path.clone(), format!("--{long}")));
+                }
+            }
+            for sub in cmd.get_subcommands() {
+                path.push(sub.get_name().to_owned());
+                walk(sub, path, out);
+                path.pop();
+            }
+        }
+        let mut out = Vec::new();
+        let mut cmd = Cli::command();
+        cmd.build();
+        walk(&cmd, &mut Vec::new(), &mut out);
+        out
+    }
+
+    #[test]
+    fn the_cli_is_well_formed() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn the_numeric_flag_list_is_complete() {
+        let found: Vec<String> = numeric_flags()
+            .into_iter()
+            .map(|(p, f)| format!("{} {f}", p.join(" ")))
+            .collect();
+        let listed: Vec<String> = LISTED
+            .lines()
+            .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+            .map(str::to_owned)
+            .collect();
+        assert_eq!(
+            found,
+            listed,
+            "tests/data/numeric-flags.txt is out of date; it should read:\n{}",
+            found.join("\n")
+        );
+    }
+
+    /// NaN, ±infinity and 1e30 are refused at parse time by every numeric flag of every
+    /// sub-command, with a message that names the flag; -1 and 0 are refused the same way
+    /// unless they mean something.
+    #[test]
+    fn every_numeric_flag_refuses_nonsense_at_parse_time() {
+        for (path, flag) in numeric_flags() {
+            for bad in ["NaN", "inf", "-inf", "1e30", "-1", "0"] {
+                let mut argv = vec!["ima".to_owned()];
+                argv.extend(path.iter().cloned());
+                argv.push(format!("{flag}={bad}"));
+                match Cli::try_parse_from(&argv) {
+                    Err(e) => {
+                        let msg = e.to_string();
+                        if matches!(
+                            e.kind(),
+                            clap::error::ErrorKind::ValueValidation
+                                | clap::error::ErrorKind::InvalidValue
+                        ) {
+                            assert!(msg.contains(&flag), "{argv:?}: {msg}");
+                        } else {
+                            // Refused for another reason (a missing required flag): the
+                            // value itself must still be checked when alone.
+                            assert!(!msg.contains("panicked"), "{argv:?}: {msg}");
+                            assert!(
+                                !["NaN", "inf", "-inf", "1e30"].contains(&bad)
+                                    || value_refused(&path, &flag, bad),
+                                "{argv:?}: {bad} is not refused by the flag's parser"
+                            );
+                        }
+                    }
+                    Ok(_) => assert!(
+                        !["NaN", "inf", "-inf", "1e30"].contains(&bad),
+                        "{argv:?} accepted {bad}"
+                    ),
+                }
+            }
+        }
+    }
+
+    /// Whether the flag's own value parser refuses `value` (independent of other arguments).
+    fn value_refused(path: &[String], flag: &str, value: &str) -> bool {
+        let mut cmd = Cli::command();
+        cmd.build();
+        let mut c = &cmd;
+        for p in path {
+            c = c.find_subcommand(p).expect("sub-command");
+        }
+        let arg = c
+            .get_arguments()
+            .find(|a| a.get_long() == flag.strip_prefix("--"))
+            .expect("flag")
+            .clone()
+            .required(false);
+        clap::Command::new("probe")
+            .no_binary_name(true)
+            .arg(arg)
+            .try_get_matches_from([format!("{flag}={value}")])
+            .is_err()
+    }
+}

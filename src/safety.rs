@@ -95,6 +95,8 @@ pub enum Cause {
     Signal(Signal),
     /// A panic on some thread of the process.
     Panic,
+    /// Standard output was closed by its reader.
+    OutputClosed,
 }
 
 impl std::fmt::Display for Cause {
@@ -102,6 +104,7 @@ impl std::fmt::Display for Cause {
         match self {
             Self::Signal(s) => write!(f, "interrupted by {}", s.name()),
             Self::Panic => f.write_str("ended by a panic (a bug: please report it)"),
+            Self::OutputClosed => f.write_str("standard output was closed"),
         }
     }
 }
@@ -112,6 +115,7 @@ impl Cause {
         match self {
             Self::Signal(s) => s.exit_code(),
             Self::Panic => 101,
+            Self::OutputClosed => 141,
         }
     }
 }
@@ -124,14 +128,26 @@ pub struct Interrupted(pub Cause);
 /// Set once a panic hook ran.
 static PANICKED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
-/// Why the program was asked to end (a signal first; else a panic; else SIGINT as a fallback
-/// for a cancellation with neither recorded yet).
+/// Set once a task found standard output closed ([`output_closed`]).
+static OUTPUT_CLOSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Why the program was asked to end (a signal first; else a panic; else a closed stdout; else
+/// SIGINT as a fallback for a cancellation with none recorded yet).
 pub fn cause() -> Cause {
     match signal() {
         Some(s) => Cause::Signal(s),
         None if PANICKED.load(Ordering::SeqCst) => Cause::Panic,
+        None if OUTPUT_CLOSED.load(Ordering::SeqCst) => Cause::OutputClosed,
         None => Cause::Signal(Signal::Int),
     }
+}
+
+/// A task that prints found standard output closed: halt every device at once and ask the
+/// command to end, as a signal would; the program then exits 141 without a message.
+pub fn output_closed() {
+    OUTPUT_CLOSED.store(true, Ordering::SeqCst);
+    StopRegistry::global().halt_all();
+    cancel_channel().send_replace(true);
 }
 
 /// Standard output was closed by its reader (a pipe into `head`, a closed terminal).
@@ -360,6 +376,21 @@ pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
     match result {
         Ok(()) => (0, None),
         Err(e) if e.chain().any(|c| c.is::<OutputClosed>()) => (141, None),
+        // A writer that reported a closed stdout as a plain I/O error.
+        Err(e)
+            if e.chain().any(|c| {
+                c.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            (141, None)
+        }
+        Err(e)
+            if e.chain()
+                .any(|c| matches!(c.downcast_ref(), Some(Interrupted(Cause::OutputClosed)))) =>
+        {
+            (141, None)
+        }
         Err(e) => {
             if let Some(Interrupted(c)) = e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
                 return (c.exit_code(), Some(crate::error_chain(e)));

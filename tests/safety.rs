@@ -821,3 +821,49 @@ fn sigkill_p2os_only_the_firmware_watchdog_stops_it() {
 fn sigkill_rflex_only_the_firmware_failsafe_stops_it() {
     sigkill(Base::Rflex);
 }
+
+/// Read `lines` lines of a command's stdout, close it, and return how the command ended.
+fn close_stdout_after(cmd: &mut std::process::Command, lines: usize) -> (Option<i32>, String) {
+    let mut child = Child(
+        cmd.stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    {
+        let mut out = BufReader::new(child.0.stdout.take().unwrap());
+        let mut l = String::new();
+        for _ in 0..lines {
+            l.clear();
+            assert!(
+                out.read_line(&mut l).unwrap() > 0,
+                "the command ended early"
+            );
+        }
+    } // the read end is closed here
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.0.stderr.take().unwrap(), &mut err).unwrap();
+    let status = wait_exit(&mut child, "the command");
+    (status.code(), err)
+}
+
+/// `ima demo square --json | head -1`, `ima demo --json | head -1` and
+/// `ima scan --json | head -1` end quietly with 141 instead of panicking.
+#[test]
+fn a_closed_stdout_ends_every_printing_command_quietly() {
+    let (code, err) = close_stdout_after(ima().args(["demo", "square", "--json"]), 1);
+    assert_eq!(code, Some(141), "demo square: {err}");
+    assert!(!err.contains("panicked") && !err.contains("error"), "{err}");
+
+    let (code, err) = close_stdout_after(ima().args(["demo", "--json", "--speed", "8"]), 1);
+    assert_eq!(code, Some(141), "demo: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    let (_mock, port) = common::spawn_mock(&["sick-lms"]);
+    let (code, err) = close_stdout_after(
+        ima().args(["scan", "--port", &port, "--json", "--baud", "38400"]),
+        1,
+    );
+    assert_eq!(code, Some(141), "scan: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

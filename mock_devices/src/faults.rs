@@ -411,7 +411,7 @@ pub enum FaultAction {
 }
 
 /// What an injector did, for tests and logs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub struct FaultCounters {
     /// Bytes given to the injector.
     pub bytes_in: u64,

@@ -33,7 +33,7 @@ use crate::faults::{DelayLine, Direction, FaultAction, FaultCounters, FaultInjec
 use crate::model::DeviceModel;
 
 /// Counters of a link (both injectors plus what the down state swallowed).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub struct LinkCounters {
     /// Robot → host injector.
     pub robot_to_host: FaultCounters,

@@ -25,7 +25,7 @@ pub enum CameraCommand {
 #[derive(Debug, Args)]
 pub struct GrabArgs {
     /// Camera channel, 1 (forward) to 7, counter-clockwise.
-    #[arg(long)]
+    #[arg(long, value_parser = super::num::int_in::<u8, 1, 7>)]
     channel: u8,
     /// Output PNG file.
     #[arg(long)]
@@ -40,13 +40,13 @@ pub struct GrabArgs {
     #[arg(long, default_value = "skeeter")]
     robot: String,
     /// Horizontal field of view of each camera, degrees.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, value_parser = super::num::fov_degrees)]
     fov: f64,
     /// Frame width, pixels.
-    #[arg(long, default_value_t = 320)]
+    #[arg(long, default_value_t = 320, value_parser = super::num::int_in::<u32, 1, 4096>)]
     width: u32,
     /// Frame height, pixels.
-    #[arg(long, default_value_t = 240)]
+    #[arg(long, default_value_t = 240, value_parser = super::num::int_in::<u32, 1, 4096>)]
     height: u32,
     /// Grab right after the switch, before the picture settles (shows the garbage frame).
     #[arg(long)]

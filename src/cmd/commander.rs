@@ -41,12 +41,12 @@ pub struct CommanderArgs {
     /// Robots to hear on the broadcast channel before the first target is sent.
     #[arg(long, value_delimiter = ',', default_value = "skeeter,scooter")]
     wait_for: Vec<String>,
-    /// Longest wait for them, seconds (then the targets go anyway).
-    #[arg(long, default_value_t = 60.0)]
+    /// Longest wait for them, seconds, 0–86400 (then the targets go anyway).
+    #[arg(long, default_value_t = 60.0, value_parser = super::num::seconds)]
     wait_timeout: f64,
-    /// Report a robot lost after this many (mission) seconds without a broadcast from it
-    /// (overrides `agent.robot_lost_after_s`, default 5).
-    #[arg(long)]
+    /// Report a robot lost after this many (mission) seconds without a broadcast from it,
+    /// 0.1–3600 (overrides `agent.robot_lost_after_s`, default 5).
+    #[arg(long, value_parser = super::num::period_seconds)]
     lost_after: Option<f64>,
     /// On Ctrl-C, send a fleet stop before exiting (without it the commander asks on a
     /// terminal, and does not stop the robots when stdin is not one).
@@ -151,14 +151,15 @@ fn one_shot(action: &Action) -> Result<()> {
     })?;
     anyhow::ensure!(n > 0, "the {what} reached no destination");
     if common.json {
-        println!(
+        crate::safety::out_line(format_args!(
             "{}",
             serde_json::json!({"kind": "sent", "command": what, "copies": FLEET_COPIES, "destinations": n})
-        );
+        ))
     } else {
-        println!("{what} sent ({FLEET_COPIES} copies to {n} destination(s))");
+        crate::safety::out_line(format_args!(
+            "{what} sent ({FLEET_COPIES} copies to {n} destination(s))"
+        ))
     }
-    Ok(())
 }
 
 /// A line typed on the commander's stdin as a request (`None` and a hint when unknown).
@@ -218,6 +219,8 @@ async fn operator(
     loop {
         tokio::select! {
             () = interrupt.next() => break,
+            // SIGTERM, SIGHUP, or a closed stdout (see `crate::safety`).
+            () = crate::safety::cancelled() => break,
             l = next_line(&mut lines) => match l {
                 None => lines = None,
                 Some(l) => match parse_request(&l) {
@@ -286,8 +289,8 @@ impl AsyncInterrupt for CtrlC {
     }
 }
 
-/// Print one event as a line of text or JSON.
-pub fn print_event(e: &Event, json: bool) {
+/// Print one event as a line of text or JSON; false when standard output is gone.
+pub fn print_event(e: &Event, json: bool) -> bool {
     let mut out = std::io::stdout().lock();
     let line = if json {
         serde_json::to_string(e).unwrap_or_default()
@@ -347,8 +350,7 @@ pub fn print_event(e: &Event, json: bool) {
             _ => format!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.kind, d),
         }
     };
-    let _ = writeln!(out, "{line}");
-    let _ = out.flush();
+    writeln!(out, "{line}").and_then(|()| out.flush()).is_ok()
 }
 
 /// Run `ima commander`.
@@ -404,7 +406,11 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
                     }
                     last.insert(robot, b);
                 }
-                print_event(&e, json);
+                if !print_event(&e, json) {
+                    // Nobody reads any more: end the commander as an interruption would.
+                    crate::safety::output_closed();
+                    break;
+                }
             }
         });
         let wait = Duration::try_from_secs_f64(args.wait_timeout.max(0.0)).unwrap_or_default();
@@ -431,15 +437,18 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         .filter(|o| o.state == TargetState::Done)
         .count();
     let failed = outcomes.len() - done;
+    if crate::safety::cause() == crate::safety::Cause::OutputClosed {
+        return Err(crate::safety::Interrupted(crate::safety::Cause::OutputClosed).into());
+    }
     if args.json {
-        println!(
+        crate::safety::out_line(format_args!(
             "{}",
             serde_json::json!({"kind": "summary", "done": done, "failed": failed,
                 "interrupted": finished.interrupted.is_some(),
                 "fleet_stopped": finished.interrupted == Some(true), "targets": outcomes})
-        );
+        ))?;
     } else {
-        println!("{done} target(s) done, {failed} failed");
+        crate::safety::out_line(format_args!("{done} target(s) done, {failed} failed"))?;
     }
     match finished.interrupted {
         Some(true) => anyhow::bail!("interrupted; a fleet stop was sent"),

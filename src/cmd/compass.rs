@@ -46,13 +46,13 @@ pub struct CompassArgs {
     #[arg(long, value_enum, default_value = "kvh")]
     dialect: DriverDialect,
     /// Line speed (default: 4800 for NMEA/KVH, 9600 for TCM2).
-    #[arg(long)]
+    #[arg(long, value_parser = super::num::baud)]
     baud: Option<u32>,
     /// Readings per second asked of the device (KVH: ×60 per minute; TCM2: `sp=N`).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = super::num::int_in::<u16, 1, 100>)]
     rate: u16,
     /// Stop after this many readings (0: run until interrupted).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = super::num::int_in::<u64, 0, 1_000_000_000>)]
     count: u64,
     /// One JSON object per reading instead of text.
     #[arg(long)]

@@ -21,6 +21,7 @@ use ima_agents::peer::wire::GroupKey;
 use ima_mock_devices::served::{ServeOptions, ServedWorld};
 use serde_json::json;
 
+use crate::safety::outln;
 use crate::stack::commander::{TargetOutcome, TargetState};
 use crate::stack::report::{Trajectory, performance_index, svg};
 use crate::stack::{Event, Events, devices};
@@ -34,7 +35,7 @@ pub struct DemoArgs {
     sub: Option<DemoCommand>,
     /// Time factor in (0, 20]: world time runs this many times faster than real time (not a
     /// velocity; Scooter's is `--cruise`).
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 4.0, value_parser = super::num::time_factor)]
     speed: f64,
     /// Seed for sensor noise.
     #[arg(long, default_value_t = 1)]
@@ -46,10 +47,10 @@ pub struct DemoArgs {
     #[arg(long)]
     world: Option<PathBuf>,
     /// Scooter's cruise velocity, m/s, in (0, 1].
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, value_parser = super::num::cruise_m_s)]
     cruise: f64,
     /// A target not accomplished within this many mission (world) seconds fails.
-    #[arg(long, default_value_t = 240.0)]
+    #[arg(long, default_value_t = 240.0, value_parser = super::num::mission_seconds)]
     target_timeout: f64,
     /// Where to write the SVG of the world and the trajectories.
     #[arg(long, default_value = "ima-demo.svg")]
@@ -116,14 +117,13 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         );
     }
     let key = GroupKey::from_array(super::mock_world::random_key()?);
-    let rt = tokio::runtime::Runtime::new()?;
     let log: Arc<Mutex<Vec<(f64, Event)>>> = Arc::default();
     let json_out = args.json;
     let paths: Arc<Mutex<[Trajectory; 2]>> = Arc::new(Mutex::new([
         Trajectory::new("skeeter"),
         Trajectory::new("scooter"),
     ]));
-    let outcomes = rt.block_on(async {
+    let outcomes = crate::safety::block_on(async {
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
         let events = Events::with_sink(tx);
         // Events stamped with world time as they arrive; printed live.
@@ -147,7 +147,11 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                             v["truth"] =
                                 json!({"x_m": p.x_m, "y_m": p.y_m, "theta_rad": p.theta_rad});
                         }
-                        println!("{v}");
+                        if crate::safety::out_line(format_args!("{v}")).is_err() {
+                            // Nothing more can be shown: end the demo (robots halted first).
+                            crate::safety::output_closed();
+                            break;
+                        }
                     } else {
                         print_live(wt, &e);
                     }
@@ -347,16 +351,21 @@ fn summarise(
         "svg": args.svg,
     });
     if args.json {
-        println!("{summary}");
+        outln!("{summary}")?;
     } else {
-        println!("\nima demo summary (seed {}, ×{}):", args.seed, args.speed);
-        println!(
+        outln!("\nima demo summary (seed {}, ×{}):", args.seed, args.speed)?;
+        outln!(
             "{:<8} {:>7} {:>9} {:>10} {:>9} {:>6}",
-            "target", "state", "time s", "distance m", "d_min m", "f"
-        );
+            "target",
+            "state",
+            "time s",
+            "distance m",
+            "d_min m",
+            "f"
+        )?;
         for r in &rows {
             let num = |k: &str| r[k].as_f64().map_or("-".to_owned(), |v| format!("{v:.2}"));
-            println!(
+            outln!(
                 "{:<8} {:>7} {:>9} {:>10} {:>9} {:>6}",
                 r["target"].as_str().unwrap_or("?"),
                 r["state"].as_str().unwrap_or("?"),
@@ -364,9 +373,9 @@ fn summarise(
                 num("distance_m"),
                 num("d_min_m"),
                 num("performance")
-            );
+            )?;
         }
-        println!(
+        outln!(
             "{done} done, {failed} failed; mission time {world_s:.1} s, wall time {:.1} s; Scooter drove {:.2} m{}",
             wall.as_secs_f64(),
             scooter.length(),
@@ -375,7 +384,7 @@ fn summarise(
             } else {
                 String::new()
             }
-        );
+        )?;
     }
     written?;
     anyhow::ensure!(failed == 0, "{failed} target(s) failed");

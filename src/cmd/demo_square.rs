@@ -7,6 +7,7 @@
 
 use std::time::Duration;
 
+use crate::safety::outln;
 use anyhow::{Context, Result};
 use clap::Args;
 use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
@@ -18,15 +19,15 @@ use serde_json::json;
 #[derive(Debug, Args)]
 pub struct SquareArgs {
     /// Side of the square, metres, in (0, 3].
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::num::side_m)]
     side: f64,
     /// Cruise velocity, m/s, in (0, 1] (`--vel` as in `ima drive`; `ima demo --speed` is a
     /// time factor).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = super::num::cruise_m_s)]
     vel: f64,
-    /// Not a flag of the square (kept to point at `--vel`).
-    #[arg(long, hide = true, allow_negative_numbers = true)]
-    speed: Option<f64>,
+    /// Not a flag of the square (kept to point at `--vel`): any value is refused.
+    #[arg(long, hide = true, allow_hyphen_values = true, value_parser = refuse_speed)]
+    speed: Option<String>,
     /// Seed for sensor noise and faults.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -36,6 +37,11 @@ pub struct SquareArgs {
     /// Print machine-readable JSON lines instead of a table.
     #[arg(long)]
     json: bool,
+}
+
+/// `--speed` of `ima demo square`: always refused, pointing at `--vel`.
+fn refuse_speed(_: &str) -> Result<String, String> {
+    Err("`ima demo square` takes its cruise velocity as --vel (m/s); --speed is `ima demo`'s time factor".into())
 }
 
 /// Run `ima demo square`.
@@ -68,14 +74,13 @@ pub fn run(args: &SquareArgs) -> Result<()> {
         })
     };
     if !args.json {
-        println!(
+        outln!(
             "ima demo: a simulated Pioneer 2-AT on {} (P2OS over a pseudo-terminal)",
             dev.path().display()
-        );
+        )?;
     }
-    let rt = tokio::runtime::Runtime::new()?;
     let path = dev.path().to_string_lossy().into_owned();
-    let rows = rt.block_on(square(args, &path, &truth))?;
+    let rows = crate::safety::block_on(square(args, &path, &truth))?;
     let status = dev.status();
     drop(dev);
     let max_pos = rows.iter().map(|r| r.pos_err_m).fold(0.0, f64::max);
@@ -84,18 +89,18 @@ pub fn run(args: &SquareArgs) -> Result<()> {
         .map(|r| r.head_err_deg.abs())
         .fold(0.0, f64::max);
     if args.json {
-        println!(
+        outln!(
             "{}",
             json!({"kind": "summary", "corners": rows.len(), "max_position_error_m": max_pos,
-                "max_heading_error_deg": max_head, "link": format!("{:?}", status.counters)})
-        );
+                "max_heading_error_deg": max_head, "link": status.counters})
+        )?;
     } else {
-        println!(
+        outln!(
             "done: {} corners, largest odometry error {:.1} mm / {:.2}°",
             rows.len(),
             max_pos * 1000.0,
             max_head
-        );
+        )?;
     }
     Ok(())
 }
@@ -115,10 +120,12 @@ async fn square(
         .await
         .context("connecting to the simulated robot")?;
     if let (LinkStatus::Connected { identity, baud }, false) = (robot.link(), args.json) {
-        println!(
+        outln!(
             "connected to {} ({} {}) at {baud} baud; motors on",
-            identity.name, identity.class, identity.subclass
-        );
+            identity.name,
+            identity.class,
+            identity.subclass
+        )?;
     }
     robot.enable_motors(true).await?;
     robot.reset_odometry().await?;
@@ -134,10 +141,18 @@ async fn square(
         )
     };
     if !args.json {
-        println!(
+        outln!(
             "{:>6} | {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} | {:>8} {:>7}",
-            "corner", "odo x", "odo y", "odo θ°", "true x", "true y", "true θ°", "err mm", "err °"
-        );
+            "corner",
+            "odo x",
+            "odo y",
+            "odo θ°",
+            "true x",
+            "true y",
+            "true θ°",
+            "err mm",
+            "err °"
+        )?;
     }
     let mut rows = Vec::new();
     for corner in 1..=4 {
@@ -176,15 +191,15 @@ async fn square(
         let pos_err = (o.x_m() - t.0).hypot(o.y_m() - t.1);
         let head_err = normalize_angle(o.theta_rad() - t.2).to_degrees();
         if args.json {
-            println!(
+            outln!(
                 "{}",
                 json!({"kind": "corner", "corner": corner,
                     "odometry": {"x_m": o.x_m(), "y_m": o.y_m(), "theta_rad": o.theta_rad()},
                     "truth": {"x_m": t.0, "y_m": t.1, "theta_rad": t.2},
                     "position_error_m": pos_err, "heading_error_deg": head_err})
-            );
+            )?;
         } else {
-            println!(
+            outln!(
                 "{corner:>6} | {:>8.3} {:>8.3} {:>8.2} | {:>8.3} {:>8.3} {:>8.2} | {:>8.1} {:>7.2}",
                 o.x_m(),
                 o.y_m(),
@@ -194,7 +209,7 @@ async fn square(
                 t.2.to_degrees(),
                 pos_err * 1000.0,
                 head_err
-            );
+            )?;
         }
         rows.push(Row {
             pos_err_m: pos_err,
@@ -203,10 +218,13 @@ async fn square(
     }
     let st = robot.stats();
     if !args.json {
-        println!(
+        outln!(
             "link: {} SIPs, {} frames sent, {} bad checksums, {} implausible SIPs dropped",
-            st.sips, st.frames_sent, st.framer.bad_checksums, st.implausible_sips
-        );
+            st.sips,
+            st.frames_sent,
+            st.framer.bad_checksums,
+            st.implausible_sips
+        )?;
     }
     robot.close().await.ok();
     Ok(rows)

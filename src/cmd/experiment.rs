@@ -56,7 +56,7 @@ pub struct HeadingArgs {
     #[arg(long)]
     pub json: bool,
     /// Worker threads.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = super::num::int_in::<usize, 1, 256>)]
     pub threads: usize,
     /// Skeeter sees through rendered camera frames and the blob detector instead of the
     /// (faster) geometric observation model.

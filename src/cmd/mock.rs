@@ -50,23 +50,23 @@ pub struct MockArgs {
     #[arg(long)]
     robot: Option<String>,
     /// The device's serial rate (the driver must find it).
-    #[arg(long, default_value_t = 9600)]
+    #[arg(long, default_value_t = 9600, value_parser = super::num::baud)]
     baud: u32,
     /// Compass: the dialect.
     #[arg(long, value_enum, default_value = "nmea")]
     dialect: crate::cmd::compass::MockCompassDialect,
     /// Compass: installation deviation, degrees east.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = super::num::degrees)]
     deviation: f64,
     /// Compass: turn the robot at this rate, rad/s (counter-clockwise positive, like `ima
     /// drive --turn`).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = super::num::turn_rad_s)]
     spin: f64,
     /// Video mux: number of inputs.
-    #[arg(long, default_value_t = 7)]
+    #[arg(long, default_value_t = 7, value_parser = super::num::int_in::<u8, 1, 64>)]
     inputs: u8,
     /// Video mux: switch delay, seconds.
-    #[arg(long, default_value_t = 0.03)]
+    #[arg(long, default_value_t = 0.03, value_parser = super::num::short_seconds)]
     switch_delay: f64,
     /// Video mux: front-panel auto-switch mode (selections refused with E06).
     #[arg(long)]
@@ -76,7 +76,7 @@ pub struct MockArgs {
     kramer: bool,
     /// World: time factor, world time runs this many times faster than real time (not a
     /// velocity).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::num::time_factor)]
     speed: f64,
     /// World: address of the TCP frame server (port 0: any free port).
     #[arg(long, default_value = "127.0.0.1:0")]

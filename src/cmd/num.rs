@@ -54,6 +54,53 @@ pub fn turn_rad_s(s: &str) -> Result<f64, String> {
     within(s, -10.0, 10.0, " rad/s")
 }
 
+/// A simulated world's time factor: more than 0, at most 20 times real time.
+pub fn time_factor(s: &str) -> Result<f64, String> {
+    positive_up_to(s, 20.0, "×")
+}
+
+/// A cruise velocity in m/s: more than 0, at most 1.
+pub fn cruise_m_s(s: &str) -> Result<f64, String> {
+    positive_up_to(s, 1.0, " m/s")
+}
+
+/// A mission timeout in seconds: more than 0, at most one day.
+pub fn mission_seconds(s: &str) -> Result<f64, String> {
+    positive_up_to(s, MAX_SECONDS, " s")
+}
+
+/// A length in metres for a test drive: more than 0, at most 3.
+pub fn side_m(s: &str) -> Result<f64, String> {
+    positive_up_to(s, 3.0, " m")
+}
+
+/// An angle in degrees, −360 to 360.
+pub fn degrees(s: &str) -> Result<f64, String> {
+    within(s, -360.0, 360.0, "°")
+}
+
+/// A camera's field of view in degrees: 1 to 179.
+pub fn fov_degrees(s: &str) -> Result<f64, String> {
+    within(s, 1.0, 179.0, "°")
+}
+
+/// A short delay in seconds: 0 to 10.
+pub fn short_seconds(s: &str) -> Result<f64, String> {
+    within(s, 0.0, 10.0, " s")
+}
+
+fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
+    let v = within(s, 0.0, hi, unit)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{} is out of range: more than 0, at most {hi}{unit}",
+            s.trim()
+        ))
+    }
+}
+
 /// A strictly positive calibration factor, at most 1e9.
 pub fn positive_factor(s: &str) -> Result<f64, String> {
     let v = within(s, 0.0, 1e9, "")?;
@@ -75,6 +122,26 @@ pub fn baud(s: &str) -> Result<u32, String> {
     } else {
         Err(format!("{v} is out of range: 50–4000000 baud"))
     }
+}
+
+/// A whole number in `LO..=HI`, as any integer type that holds the range.
+pub fn int_in<T, const LO: u64, const HI: u64>(s: &str) -> Result<T, String>
+where
+    T: TryFrom<u64>,
+{
+    let v: u64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{:?} is not a whole number in {LO}–{HI}", s.trim()))?;
+    if !(LO..=HI).contains(&v) {
+        return Err(format!("{v} is out of range: {LO}–{HI}"));
+    }
+    T::try_from(v).map_err(|_| format!("{v} is out of range: {LO}–{HI}"))
+}
+
+/// Seconds within `[0.1, 3600]` (liveness and similar periods).
+pub fn period_seconds(s: &str) -> Result<f64, String> {
+    within(s, 0.1, 3_600.0, " s")
 }
 
 /// A duration for `Duration::from_secs_f64` that cannot panic (values come from the parsers
@@ -139,6 +206,18 @@ mod tests {
         assert_eq!(speed_m_s("-0.2"), Ok(-0.2));
         assert!(speed_m_s("11").is_err());
         assert!(positive_factor("0").is_err());
+        assert_eq!(int_in::<u8, 1, 7>("7"), Ok(7));
+        assert!(int_in::<u8, 1, 7>("8").unwrap_err().contains("1–7"));
+        assert!(int_in::<u8, 0, 300>("300").is_err(), "does not fit a u8");
+        assert!(int_in::<u64, 0, 5>("-1").is_err());
+        assert!(int_in::<u64, 0, 5>("1e30").is_err());
+        assert_eq!(period_seconds("5"), Ok(5.0));
+        assert!(time_factor("0").unwrap_err().contains("more than 0"));
+        assert_eq!(time_factor("20"), Ok(20.0));
+        assert!(time_factor("20.5").is_err());
+        assert!(fov_degrees("180").is_err());
+        assert!(short_seconds("-1").is_err());
+        assert!(period_seconds("0").is_err());
         assert_eq!(duration(f64::NAN), Duration::ZERO);
         assert_eq!(duration(1e30), Duration::from_secs(86_400));
         assert!((cap("--vel", 3.0, 0.75, "m/s") - 0.75).abs() < 1e-12);

@@ -25,6 +25,8 @@ use ima_agents::peer::wire::{
 };
 use serde_json::{Value, json};
 
+use super::num;
+
 /// `ima peer` sub-commands.
 #[derive(Debug, Subcommand)]
 pub enum PeerCommand {
@@ -53,8 +55,8 @@ pub struct Common {
     /// Robot name (overrides `robot` of the config).
     #[arg(long)]
     robot: Option<String>,
-    /// Heartbeat interval in ms (overrides `heartbeat_ms`).
-    #[arg(long)]
+    /// Heartbeat interval in ms, 10–60000 (overrides `heartbeat_ms`).
+    #[arg(long, value_parser = num::int_in::<u64, 10, 60_000>)]
     heartbeat_ms: Option<u64>,
 }
 
@@ -97,8 +99,9 @@ pub struct ManagerArgs {
     /// Request-channel listen address (overrides `manager.listen`).
     #[arg(long)]
     listen: Option<String>,
-    /// Also send a status broadcast at this interval, ms (0: no broadcast channel).
-    #[arg(long, default_value_t = 0)]
+    /// Also send a status broadcast at this interval, ms, up to 3600000 (0: no broadcast
+    /// channel).
+    #[arg(long, default_value_t = 0, value_parser = num::int_in::<u64, 0, 3_600_000>)]
     status_ms: u64,
     #[command(flatten)]
     broadcast: BroadcastArgs,
@@ -118,8 +121,8 @@ pub struct ClientArgs {
     /// Request priority.
     #[arg(long, default_value_t = 0)]
     priority: u8,
-    /// Stop after this many samples (default: run until the source ends).
-    #[arg(long)]
+    /// Stop after this many samples, 1–1000000000 (default: run until the source ends).
+    #[arg(long, value_parser = num::int_in::<u64, 1, 1_000_000_000>)]
     count: Option<u64>,
 }
 
@@ -130,8 +133,8 @@ pub struct ListenArgs {
     common: Common,
     #[command(flatten)]
     broadcast: BroadcastArgs,
-    /// Stop after this many messages.
-    #[arg(long)]
+    /// Stop after this many messages, 1–1000000000.
+    #[arg(long, value_parser = num::int_in::<u64, 1, 1_000_000_000>)]
     count: Option<u64>,
 }
 

@@ -31,8 +31,8 @@ pub struct SanSimulateArgs {
     /// Goals, comma-separated, replacing the file's goals.
     #[arg(long, value_delimiter = ',')]
     pub goals: Option<Vec<String>>,
-    /// Number of steps to run.
-    #[arg(long, default_value_t = 20)]
+    /// Number of steps to run, 1–1000000.
+    #[arg(long, default_value_t = 20, value_parser = super::num::int_in::<u64, 1, 1_000_000>)]
     pub steps: u64,
 }
 

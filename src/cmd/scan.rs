@@ -24,17 +24,17 @@ pub struct ScanArgs {
     port: String,
     /// Rate to run at once found: 9600, 19200, 38400 or 500000 (500000 needs RS-422 and is
     /// also probed then).
-    #[arg(long, default_value_t = 38400)]
+    #[arg(long, default_value_t = 38400, value_parser = super::num::baud)]
     baud: u32,
     /// Variant: 180x1, 180x0.5, 100x1, 100x0.5 or 100x0.25 (field of view x resolution, °).
     #[arg(long, default_value = "180x0.5")]
     variant: String,
     /// Wait this long (s) for the unit's power-on telegram first (units powered with the
     /// port take up to 60 s to boot).
-    #[arg(long)]
+    #[arg(long, value_parser = super::num::seconds)]
     power_up_wait: Option<f64>,
     /// Stop after this many scans (0: run until Ctrl-C).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = super::num::int_in::<u64, 0, 1_000_000_000>)]
     count: u64,
     /// Write the first scan as an SVG picture to this file.
     #[arg(long)]
