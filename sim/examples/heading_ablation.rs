@@ -1,0 +1,60 @@
+//! The ablation table of the heading sweep (`docs/experiment/ablations.md`): each row runs
+//! all 96 configurations with one model component changed
+//! (`ima_sim::experiment::ablations`):
+//! `cargo run --release -p ima-sim --example heading_ablation [-- OUT.md]`.
+
+use std::fmt::Write as _;
+
+use ima_sim::experiment::{SweepConfig, ablations, rule_stats, run_sweep};
+
+fn main() {
+    let mut md = String::from(
+        "| model / ablation | settings (`--set`) | thesis: reached | min f | mean f | f < 0.1 | range-aware: reached | min f | mean f |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for a in ablations() {
+        let mut cfg = SweepConfig::for_model(a.model);
+        for s in a.settings {
+            if let Err(e) = cfg.set_pair(s) {
+                eprintln!("{}: {e}", a.name);
+                std::process::exit(2);
+            }
+        }
+        let results = run_sweep(&cfg, &|_, _| {});
+        let t = rule_stats(&results, "thesis");
+        let r = rule_stats(&results, "range-aware");
+        let settings = if a.settings.is_empty() {
+            format!("`--model {}`", a.model.as_str())
+        } else {
+            a.settings
+                .iter()
+                .map(|s| format!("`{s}`"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {settings} | {}/{} | {:.3} | {:.3} | {} | {}/{} | {:.3} | {:.3} |",
+            a.name,
+            t.reached,
+            t.runs,
+            t.min_f,
+            t.mean_f,
+            t.below_0_1,
+            r.reached,
+            r.runs,
+            r.min_f,
+            r.mean_f
+        );
+        eprintln!("{}", md.lines().last().unwrap_or_default());
+    }
+    match std::env::args().nth(1) {
+        Some(path) => {
+            if let Err(e) = std::fs::write(&path, &md) {
+                eprintln!("writing {path}: {e}");
+                std::process::exit(1);
+            }
+        }
+        None => print!("{md}"),
+    }
+}
