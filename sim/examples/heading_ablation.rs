@@ -9,7 +9,14 @@ use ima_sim::experiment::{SweepConfig, ablations, rule_stats, run_sweep};
 
 fn main() {
     let mut md = String::from(
-        "| model / ablation | settings (`--set`) | thesis: reached | min f | mean f | f < 0.1 | range-aware: reached | min f | mean f |\n\
+        "# Heading sweep ablations (seed 1)\n\n\
+         Each row runs the 96 configurations (48 per rule) of `ima experiment heading` with the \
+         model named and the settings listed (`ima experiment heading --model … --set …` \
+         reproduces any row). `estimate-gated` is the first sweep's model, `thesis-robot` the \
+         default; rows starting with … change one component of the model above them. \
+         Made by `cargo run --release -p ima-sim --example heading_ablation -- \
+         docs/experiment/ablations.md`; see `ima_sim::experiment`, \"The thesis robot\".\n\n\
+         | model / ablation | settings (`--set`) | thesis: reached | min f | mean f | f < 0.1 | range-aware: reached | min f | mean f |\n\
          |---|---|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for a in ablations() {
