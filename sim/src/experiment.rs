@@ -38,7 +38,8 @@
 //!
 //! * **Sensor errors are not the cause.** Ideal sensors (no bearing, compass, SES-range or
 //!   laser noise; odometry is exact in every model) leave the same four timeouts and the
-//!   same mean f (0.387 against 0.390).
+//!   same mean f (0.387 against 0.390). (More laser noise, σ = 5 cm, makes the first
+//!   model *worse*, 29 of 48: the gate lets pieces of Skeeter pass for the target.)
 //! * **Nor is the scan delay.** Fresh records (one instantaneous 7-camera look per scan,
 //!   [`SesTiming::Snapshot`]) or a faster SES (every 1 s) make the thesis rule *worse*
 //!   (35 and 17 of 48 reached): every recomputation aims at a point of Scooter's *current*
@@ -75,10 +76,19 @@
 //! * It **drives at a constant speed v** — the premise of the score, `t_min = d_min / v`
 //!   ("Scooter drives at a constant speed v"). So it turns while driving (at 0.05 m/s and
 //!   1.5 rad/s the turning radius is 3 cm) instead of stopping to turn in place.
+//! * The laser cannot tell colours, so in-view recognition must not take a *piece* of
+//!   another object for the target: the SICK measures to ±50 mm, and noise of that size
+//!   splits Skeeter's 0.66 m outline into target-sized clusters. A candidate counts only when
+//!   it stays target-sized with range jumps up to
+//!   [`ScooterConfig::in_view_join_gap_m`](ima_agents::mission::scooter::ScooterConfig)
+//!   joined. With that the thesis robot keeps every run at laser σ = 5 cm (the ablation
+//!   table's row). Every run is also checked against the truth: a `target-reached` farther
+//!   than the reach distance + [`WRONG_TARGET_MARGIN_M`] from the target's centre is a
+//!   `wrong-target` run with f = 0 (none in the default sweep).
 //! * Everything else is unchanged: the SES is refreshed by a full scan every 5 s, one camera
 //!   at a time ("one full scan takes about 5 s"; 7 cameras behind one multiplexer), the
 //!   compass has 0.5° of noise ("0.5° accuracy"), Skeeter's bearings 0.5°, and the brain's
-//!   heading rules are untouched.
+//!   heading rules are untouched. The laser keeps the mock's σ = 1 cm.
 //!
 //! [`RobotModel::EstimateGated`] is the first model; [`SweepConfig::set`] changes single
 //! components (`ima experiment heading --model … --set key=value`).
@@ -457,6 +467,11 @@ pub fn ablations() -> Vec<Ablation> {
         ),
         a("… SES every 1 s", G, &["scan_period_s=1"]),
         a("… SES every 20 s", G, &["scan_period_s=20"]),
+        a(
+            "… laser σ 5 cm (the SICK's ±50 mm)",
+            G,
+            &["laser_noise_m=0.05"],
+        ),
         a("… avoider off", G, &["avoid=false"]),
         a("… no turning in place", G, &["turn_in_place=false"]),
         a("… recognition in view (1.6 m)", G, &["recognition=in-view"]),
@@ -481,6 +496,11 @@ pub fn ablations() -> Vec<Ablation> {
         a("… see 4 m", T, &["see_distance_m=4"]),
         a("… turning in place", T, &["turn_in_place=true"]),
         a("… ideal sensors", T, &["ideal_sensors=true"]),
+        a(
+            "… laser σ 5 cm (the SICK's ±50 mm)",
+            T,
+            &["laser_noise_m=0.05"],
+        ),
         a("… snapshot SES", T, &["ses_timing=snapshot"]),
         a("… SES every 1 s", T, &["scan_period_s=1"]),
         a("… avoider off", T, &["avoid=false"]),
@@ -564,8 +584,12 @@ pub struct RunResult {
     pub t_min_s: f64,
     /// Time to reach (or to the cap), seconds.
     pub t_actual_s: f64,
-    /// `"reached"` or `"timeout"`.
+    /// `"reached"`, `"timeout"` or `"wrong-target"` (the brain reported the target reached
+    /// while Scooter's true position was more than [`WRONG_TARGET_MARGIN_M`] beyond the reach
+    /// distance from it: a false recognition, scored 0).
     pub reason: &'static str,
+    /// Scooter's true distance from the target's centre at the end, metres.
+    pub end_to_target_m: f64,
     /// SES samples delivered.
     pub samples: u32,
     /// Scooter's start `[x, y]`.
@@ -576,6 +600,10 @@ pub struct RunResult {
     #[serde(skip)]
     pub trajectory: Vec<[f64; 2]>,
 }
+
+/// A reported `target-reached` counts only when Scooter truly is within the reach distance
+/// plus this of the target's centre, metres (else the run is a `"wrong-target"`).
+pub const WRONG_TARGET_MARGIN_M: f64 = 0.5;
 
 /// The 48 configurations for each rule, in table order (angle, then Dt, then Ds).
 #[must_use]
@@ -666,7 +694,24 @@ pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
         }
         Err(_) => (None, 0, Vec::new()),
     };
+    let reach_m = cfg.sim.brain.reach_distance_m;
+    let end_to_target_m = outcome.map_or(f64::INFINITY, |o| {
+        (o.end[0] - target[0]).hypot(o.end[1] - target[1])
+    });
     let (f, d_min, d_actual, t_min, t_actual, reason) = match outcome {
+        Some(o)
+            if o.reason == EndReason::Reached
+                && end_to_target_m > reach_m + WRONG_TARGET_MARGIN_M =>
+        {
+            (
+                0.0,
+                expected_d,
+                o.distance_m,
+                expected_d / v,
+                o.time_s,
+                "wrong-target",
+            )
+        }
         Some(o) if o.reason == EndReason::Reached => {
             let d_min = (o.end[0] - o.start[0]).hypot(o.end[1] - o.start[1]);
             let t_min = d_min / v;
@@ -699,6 +744,7 @@ pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
         t_min_s: t_min,
         t_actual_s: t_actual,
         reason,
+        end_to_target_m,
         samples,
         start,
         target,

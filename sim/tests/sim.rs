@@ -166,6 +166,7 @@ fn fake(rule: &'static str, angle_deg: f64, ds_m: f64, dt_m: f64, f: f64) -> Run
         t_min_s: 20.0,
         t_actual_s: 25.0,
         reason: "reached",
+        end_to_target_m: 0.8,
         samples: 5,
         start: [-ds_m, 0.0],
         target: [0.0, dt_m],
@@ -435,5 +436,21 @@ fn acceptance_the_full_sweep_with_the_thesis_robot() {
     assert!(mean("thesis", 90.0) < mean("thesis", 45.0));
     for a in [45.0, 90.0, 135.0] {
         assert!(mean("thesis", a) < mean("range-aware", a), "{a}");
+    }
+}
+
+#[test]
+fn the_thesis_robot_keeps_its_target_with_the_sicks_worst_range_error() {
+    // MISSION.md: the SICK measures to ±50 mm. With σ = 5 cm laser noise Skeeter's outline
+    // breaks into target-sized pieces; in-view recognition must not take one for the
+    // target (a false `target-reached` would be a "wrong-target" run).
+    let mut cfg = SweepConfig::default();
+    cfg.set("laser_noise_m", "0.05").unwrap();
+    for rule in [HeadingRule::Thesis, HeadingRule::RangeAware] {
+        for s in hard_specs(rule) {
+            let r = run_one(&s, &cfg);
+            assert_eq!(r.reason, "reached", "{r:?}");
+            assert!(r.end_to_target_m <= 0.8 + 0.5, "{r:?}");
+        }
     }
 }
