@@ -133,6 +133,34 @@ impl HeadingRule {
     }
 }
 
+/// How Scooter's laser recognises the target among the clusters of the target's size
+/// (within [`ScooterConfig::see_distance_m`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TargetRecognition {
+    /// Only where the plan expects the target: within
+    /// [`ScooterConfig::bearing_tolerance_rad`] of θd (heading plans) or
+    /// [`ScooterConfig::match_radius_m`] of the estimated point (point plans). The laser
+    /// cannot tell colours, so this is what keeps Scooter off the wrong post of a ring of
+    /// equal posts; but near a wrong heading estimate it rejects the real target.
+    NearEstimate,
+    /// Anywhere in the laser's field of view: the nearest cluster of the target's size is
+    /// the target. Models a Scooter that *sees* its target (MISSION.md: "sees target → go to
+    /// it"), which in a world with one object of the target's size (the heading experiment)
+    /// the laser alone can do.
+    InView,
+}
+
+impl TargetRecognition {
+    /// `"near-estimate"` or `"in-view"`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::NearEstimate => "near-estimate",
+            Self::InView => "in-view",
+        }
+    }
+}
+
 /// Where Scooter's heading θh comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum HeadingSource {
@@ -173,6 +201,12 @@ pub struct ScooterConfig {
     /// Farthest distance (Scooter's centre to the target's centre) at which the laser
     /// identifies the target, metres.
     pub see_distance_m: f64,
+    /// How a target-sized laser cluster is recognised as the target.
+    pub target_recognition: TargetRecognition,
+    /// [`TargetRecognition::InView`] only: a target-sized cluster counts only when it is
+    /// still target-sized with range jumps of up to this joined (laser noise splits a wider
+    /// object — Skeeter — into target-sized pieces; joined, they are Skeeter again), metres.
+    pub in_view_join_gap_m: f64,
     /// Target objects' diameter, metres.
     pub target_diameter_m: f64,
     /// Accepted difference between a cluster's width and the target diameter, metres.
@@ -253,6 +287,8 @@ impl Default for ScooterConfig {
             lost_after: Duration::from_secs(12),
             reach_distance_m: 0.8,
             see_distance_m: 1.6,
+            target_recognition: TargetRecognition::NearEstimate,
+            in_view_join_gap_m: 0.3,
             target_diameter_m: 0.30,
             diameter_tolerance_m: 0.15,
             bearing_tolerance_rad: 40f64.to_radians(),
@@ -1077,6 +1113,28 @@ impl ScooterBrain {
             self.cfg.cluster_gap_m,
             r,
         );
+        let target_sized = |c: &Cluster| {
+            (c.width_m - self.cfg.target_diameter_m).abs() <= self.cfg.diameter_tolerance_m
+        };
+        // In-view recognition: the same clusters with bigger range jumps joined; a piece of
+        // a wider object is no target.
+        let joined: Vec<Cluster> = if self.cfg.target_recognition == TargetRecognition::InView {
+            laser_clusters(
+                scan,
+                &self.cfg.laser_mount,
+                self.cfg.laser_max_range_m,
+                self.cfg.in_view_join_gap_m.max(self.cfg.cluster_gap_m),
+                r,
+            )
+        } else {
+            Vec::new()
+        };
+        let whole = |c: &Cluster| {
+            self.cfg.target_recognition != TargetRecognition::InView
+                || joined.iter().any(|j| {
+                    target_sized(j) && (j.centre - c.centre).norm() <= self.cfg.diameter_tolerance_m
+                })
+        };
         let to_dr = |c: &Point2| self.dr + nalgebra_rotate(h, c.coords);
         // The previous target (another colour) is not this one.
         let previous = self
@@ -1096,8 +1154,7 @@ impl ScooterBrain {
         let best = clusters
             .iter()
             .filter(|c| {
-                (c.width_m - self.cfg.target_diameter_m).abs() <= self.cfg.diameter_tolerance_m
-                    && c.centre.coords.norm() <= self.cfg.see_distance_m
+                target_sized(c) && c.centre.coords.norm() <= self.cfg.see_distance_m && whole(c)
             })
             .filter_map(|c| {
                 let p = to_dr(&c.centre);
@@ -1106,6 +1163,9 @@ impl ScooterBrain {
                 }
                 let score = if let Some(t) = tracked {
                     (p - t).norm()
+                } else if self.cfg.target_recognition == TargetRecognition::InView {
+                    // Nearest first; any distance within sight matches.
+                    return Some((p, c.centre.coords.norm()));
                 } else if let Some(e) = expected_point {
                     (p - e).norm()
                 } else {
@@ -1758,6 +1818,90 @@ mod tests {
             out.command.omega_rad_s > 0.0,
             "counter-clockwise toward 135°"
         );
+    }
+
+    #[test]
+    fn in_view_recognition_takes_the_target_far_off_a_wrong_estimate() {
+        // θd = 135° (thesis rule), but the post stands 1 m straight ahead (0°): 135° off
+        // the estimate. Near-estimate recognition ignores it; in-view recognition goes to it.
+        for (recognition, expected) in [
+            (TargetRecognition::NearEstimate, Behaviour::FollowHeading),
+            (TargetRecognition::InView, Behaviour::MoveToTarget),
+        ] {
+            let mut b = ScooterBrain::new(ScooterConfig {
+                target_recognition: recognition,
+                ..brain(HeadingRule::Thesis).config().clone()
+            });
+            b.handle_compass(0.0, t(0));
+            b.handle_odometry(&Odometry::origin(), t(0));
+            b.set_target(RED, t(0));
+            let f = form(
+                vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
+                t(0),
+            );
+            assert!(b.handle_ses(&f, t(0)));
+            let w = Mini {
+                x: 0.0,
+                y: 0.0,
+                th: 0.0,
+                circles: vec![([1.0, 0.0], 0.15)],
+            };
+            let mount = b.config().laser_mount;
+            b.handle_laser(&w.scan(&mount), t(0));
+            let out = b.step(t(0));
+            assert_eq!(out.behaviour, expected, "{}", recognition.as_str());
+        }
+    }
+
+    #[test]
+    fn in_view_recognition_ignores_target_sized_pieces_of_a_wider_object() {
+        // Two posts side by side, 0.25 m apart in range: each is target-sized on its own,
+        // together (joined over the range jump) a 0.6 m object — like Skeeter split in two
+        // by laser noise. A lone post at the same place is taken.
+        let pair = vec![([1.5, -0.16], 0.15), ([1.75, 0.1], 0.15)];
+        let lone = vec![([1.5, -0.16], 0.15)];
+        for (circles, expected) in [
+            (pair, Behaviour::FollowHeading),
+            (lone, Behaviour::MoveToTarget),
+        ] {
+            let mut b = ScooterBrain::new(ScooterConfig {
+                target_recognition: TargetRecognition::InView,
+                ..brain(HeadingRule::Thesis).config().clone()
+            });
+            b.handle_compass(0.0, t(0));
+            b.handle_odometry(&Odometry::origin(), t(0));
+            b.set_target(RED, t(0));
+            let f = form(
+                vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
+                t(0),
+            );
+            assert!(b.handle_ses(&f, t(0)));
+            let w = Mini {
+                x: 0.0,
+                y: 0.0,
+                th: 0.0,
+                circles,
+            };
+            let mount = b.config().laser_mount;
+            let scan = w.scan(&mount);
+            let c = b.config();
+            let fine = laser_clusters(&scan, &mount, c.laser_max_range_m, c.cluster_gap_m, 0.15);
+            let joined = laser_clusters(&scan, &mount, c.laser_max_range_m, 0.3, 0.15);
+            let sized = |v: &[Cluster]| {
+                v.iter()
+                    .filter(|k| (k.width_m - c.target_diameter_m).abs() <= c.diameter_tolerance_m)
+                    .count()
+            };
+            if expected == Behaviour::FollowHeading {
+                assert_eq!(
+                    (sized(&fine), sized(&joined)),
+                    (2, 0),
+                    "{fine:?} {joined:?}"
+                );
+            }
+            b.handle_laser(&scan, t(0));
+            assert_eq!(b.step(t(0)).behaviour, expected);
+        }
     }
 
     #[test]
