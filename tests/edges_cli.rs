@@ -207,8 +207,10 @@ fn demo_square_takes_vel_not_speed() {
         .args(["demo", "square", "--vel", "2"])
         .output()
         .unwrap();
+    // Refused at parse time, naming the flag and its range.
+    assert_eq!(out.status.code(), Some(2));
     assert!(
-        stderr(&out).contains("--vel must be in (0, 1] m/s"),
+        stderr(&out).contains("--vel") && stderr(&out).contains("at most 1 m/s"),
         "{}",
         stderr(&out)
     );

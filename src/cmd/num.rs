@@ -90,8 +90,8 @@ pub fn short_seconds(s: &str) -> Result<f64, String> {
 }
 
 fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
-    let v = within(s, 0.0, hi, unit)?;
-    if v > 0.0 {
+    let v = number(s)?;
+    if v > 0.0 && v <= hi {
         Ok(v)
     } else {
         Err(format!(
