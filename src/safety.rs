@@ -150,11 +150,6 @@ pub fn output_closed() {
     cancel_channel().send_replace(true);
 }
 
-/// Standard output was closed by its reader (a pipe into `head`, a closed terminal).
-#[derive(Debug, thiserror::Error)]
-#[error("standard output was closed")]
-pub struct OutputClosed;
-
 /// The signal received so far, if any.
 pub fn signal() -> Option<Signal> {
     Signal::from_number(SIGNAL.load(Ordering::SeqCst))
@@ -353,12 +348,17 @@ pub async fn halt_and_wait() {
     }
 }
 
-/// Write one line to standard output; a closed stdout becomes [`OutputClosed`] (never a panic).
+/// Write one line to standard output. A closed stdout is never a panic: it halts every device,
+/// asks the command to end ([`output_closed`]) and returns [`Interrupted`] with
+/// [`Cause::OutputClosed`], which ends the program quietly with 141.
 pub fn out_line(args: std::fmt::Arguments<'_>) -> Result<()> {
     let mut out = std::io::stdout().lock();
     match out.write_fmt(args).and_then(|()| out.write_all(b"\n")) {
         Ok(()) => Ok(()),
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(OutputClosed.into()),
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+            output_closed();
+            Err(Interrupted(Cause::OutputClosed).into())
+        }
         Err(e) => Err(anyhow::Error::new(e).context("writing to standard output")),
     }
 }
@@ -373,29 +373,20 @@ pub(crate) use outln;
 
 /// The exit status and message for a command's result.
 pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
-    match result {
-        Ok(()) => (0, None),
-        Err(e) if e.chain().any(|c| c.is::<OutputClosed>()) => (141, None),
-        // A writer that reported a closed stdout as a plain I/O error.
-        Err(e)
-            if e.chain().any(|c| {
-                c.downcast_ref::<std::io::Error>()
-                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
-            }) =>
-        {
-            (141, None)
-        }
-        Err(e)
-            if e.chain()
-                .any(|c| matches!(c.downcast_ref(), Some(Interrupted(Cause::OutputClosed)))) =>
-        {
-            (141, None)
-        }
-        Err(e) => {
-            if let Some(Interrupted(c)) = e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
-                return (c.exit_code(), Some(crate::error_chain(e)));
-            }
-            (1, Some(crate::error_chain(e)))
-        }
+    let Err(e) = result else {
+        return (0, None);
+    };
+    // A writer that reported a closed stdout as a plain I/O error counts as one too.
+    let broken_pipe = || {
+        e.chain().any(|c| {
+            c.downcast_ref::<std::io::Error>()
+                .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+        })
+    };
+    match e.chain().find_map(|c| c.downcast_ref::<Interrupted>()) {
+        Some(Interrupted(Cause::OutputClosed)) => (141, None),
+        Some(Interrupted(c)) => (c.exit_code(), Some(crate::error_chain(e))),
+        None if broken_pipe() => (141, None),
+        None => (1, Some(crate::error_chain(e))),
     }
 }

@@ -148,8 +148,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                                 json!({"x_m": p.x_m, "y_m": p.y_m, "theta_rad": p.theta_rad});
                         }
                         if crate::safety::out_line(format_args!("{v}")).is_err() {
-                            // Nothing more can be shown: end the demo (robots halted first).
-                            crate::safety::output_closed();
+                            // Nothing more can be shown: the guard ends the demo.
                             break;
                         }
                     } else {

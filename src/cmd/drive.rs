@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use ima_hal::base::{DifferentialBase, VelocityCommand};
+use ima_hal::base::{DifferentialBase, Odometer, Odometry, VelocityCommand};
 use ima_p2os::shell::{P2os, open_port};
 
 use super::num;
@@ -138,21 +138,21 @@ async fn drive(args: &DriveArgs) -> Result<()> {
     if let Err(e) = &moved
         && e.is::<safety::Interrupted>()
     {
-        // The guard has already told the robot to stop and closed the session.
-        if let Some(st) = robot.latest() {
-            let o = st.odometry.value;
-            eprintln!(
-                "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
-                o.x_m(),
-                o.y_m(),
-                o.theta_rad().to_degrees(),
-                o.v_m_s
-            );
-        }
+        report_interrupted(robot.latest().map(|st| st.odometry.value).as_ref());
     }
     moved??;
     robot.stop().await?;
-    report_end(&mut robot).await;
+    let stats = robot.stats();
+    let after = robot.now();
+    report_end(
+        &mut robot,
+        after,
+        &format!(
+            "{} SIPs, {} bad checksums, {} implausible",
+            stats.sips, stats.framer.bad_checksums, stats.implausible_sips
+        ),
+    )
+    .await;
     robot
         .close()
         .await
@@ -160,56 +160,58 @@ async fn drive(args: &DriveArgs) -> Result<()> {
     Ok(())
 }
 
-/// After STOP: wait until the robot's SIPs say it stands (at most [`SETTLE_TIMEOUT`]) and
-/// report where, or say that it was still moving.
-async fn report_end(robot: &mut P2os) {
-    let deadline = robot.now() + SETTLE_TIMEOUT;
-    let mut after = robot.now();
-    let mut last = robot.latest();
+/// After the stop: wait until the base's own odometry says it stands (reports newer than
+/// `after`, at most [`SETTLE_TIMEOUT`]) and say where, or that it was still moving; `counters`
+/// ends the line. Shared by both bases through the HAL's [`Odometer`].
+pub async fn report_end<B: Odometer>(base: &mut B, mut after: ima_hal::Instant, counters: &str) {
+    let deadline = tokio::time::Instant::now() + SETTLE_TIMEOUT;
+    let mut last = None;
     let mut standing = false;
-    while robot.now() < deadline {
-        match safety::until_cancelled(robot.next_state(after, Duration::from_secs(1))).await {
-            Ok(Ok(st)) => {
-                after = st.odometry.at;
-                let o = st.odometry.value;
-                standing =
-                    o.v_m_s.abs() < STANDING_V_M_S && o.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
-                last = Some(st);
-                if standing {
-                    break;
-                }
-            }
-            Ok(Err(_)) | Err(_) => break,
+    while tokio::time::Instant::now() < deadline {
+        let Ok(Ok(odo)) = safety::until_cancelled(base.next_odometry(after)).await else {
+            break;
+        };
+        after = odo.at;
+        let o = odo.value;
+        standing = o.v_m_s.abs() < STANDING_V_M_S && o.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
+        last = Some(o);
+        if standing {
+            break;
         }
     }
-    let stats = robot.stats();
-    let counters = format!(
-        "{} SIPs, {} bad checksums, {} implausible",
-        stats.sips, stats.framer.bad_checksums, stats.implausible_sips
-    );
     match last {
-        Some(st) if standing => {
-            let o = st.odometry.value;
-            eprintln!(
-                "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
-                o.x_m(),
-                o.y_m(),
-                o.theta_rad().to_degrees()
-            );
-        }
-        Some(st) => {
-            let o = st.odometry.value;
-            eprintln!(
-                "still moving at {:.3} m/s {:.3} rad/s {:.1} s after STOP; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
-                o.v_m_s,
-                o.omega_rad_s,
-                SETTLE_TIMEOUT.as_secs_f64(),
-                o.x_m(),
-                o.y_m(),
-                o.theta_rad().to_degrees()
-            );
-        }
-        None => eprintln!("no report from the robot after STOP; {counters}"),
+        Some(o) if standing => eprintln!(
+            "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+            o.x_m(),
+            o.y_m(),
+            o.theta_rad().to_degrees()
+        ),
+        Some(o) => eprintln!(
+            "still moving at {:.3} m/s {:.3} rad/s {:.1} s after the stop; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+            o.v_m_s,
+            o.omega_rad_s,
+            SETTLE_TIMEOUT.as_secs_f64(),
+            o.x_m(),
+            o.y_m(),
+            o.theta_rad().to_degrees()
+        ),
+        None => eprintln!("no report from the robot after the stop; {counters}"),
+    }
+}
+
+/// After a signal (the guard has already stopped the robot): where it was last reported.
+pub fn report_interrupted(last: Option<&Odometry>) {
+    if safety::signal().is_none() {
+        return; // a closed stdout ends quietly
+    }
+    if let Some(o) = last {
+        eprintln!(
+            "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
+            o.x_m(),
+            o.y_m(),
+            o.theta_rad().to_degrees(),
+            o.v_m_s
+        );
     }
 }
 

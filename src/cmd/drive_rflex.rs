@@ -76,19 +76,24 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     let moved = safety::until_cancelled(motion).await;
     if let Err(e) = &moved
         && e.is::<safety::Interrupted>()
-        && let Some(v) = latest
     {
-        eprintln!(
-            "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
-            v.x_m(),
-            v.y_m(),
-            v.theta_rad().to_degrees(),
-            v.v_m_s
-        );
+        super::drive::report_interrupted(latest.as_ref());
     }
     moved??;
     base.stop().await?;
-    report_end(&mut base).await;
+    let st = base.stats();
+    let after = base.now();
+    super::drive::report_end(
+        &mut base,
+        after,
+        &format!(
+            "{} frames, {} framing errors, {} odometry rejected",
+            st.framer.frames,
+            st.framer.errors(),
+            st.session.odometry_rejected
+        ),
+    )
+    .await;
     base.close()
         .await
         .context("shutting the base down (zero speed, brake)")?;
@@ -140,55 +145,5 @@ async fn report(
             battery_v.map_or_else(|| "?".to_owned(), |b| format!("{b:.1}V")),
             front.join(" ")
         )
-    }
-}
-
-/// After the stop: wait until the base reports that it stands (at most
-/// [`super::drive::SETTLE_TIMEOUT`]) and say where, or that it was still moving.
-async fn report_end(base: &mut Rflex) {
-    use super::drive::{SETTLE_TIMEOUT, STANDING_OMEGA_RAD_S, STANDING_V_M_S};
-    let deadline = base.now() + SETTLE_TIMEOUT;
-    let mut after = base.now();
-    let mut last = None;
-    let mut standing = false;
-    while base.now() < deadline {
-        match safety::until_cancelled(base.next_odometry(after)).await {
-            Ok(Ok(odo)) => {
-                after = odo.at;
-                let v = odo.value;
-                standing =
-                    v.v_m_s.abs() < STANDING_V_M_S && v.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
-                last = Some(v);
-                if standing {
-                    break;
-                }
-            }
-            Ok(Err(_)) | Err(_) => break,
-        }
-    }
-    let st = base.stats();
-    let counters = format!(
-        "{} frames, {} framing errors, {} odometry rejected",
-        st.framer.frames,
-        st.framer.errors(),
-        st.session.odometry_rejected
-    );
-    match last {
-        Some(v) if standing => eprintln!(
-            "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
-            v.x_m(),
-            v.y_m(),
-            v.theta_rad().to_degrees()
-        ),
-        Some(v) => eprintln!(
-            "still moving at {:.3} m/s {:.3} rad/s {:.1} s after the stop; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
-            v.v_m_s,
-            v.omega_rad_s,
-            SETTLE_TIMEOUT.as_secs_f64(),
-            v.x_m(),
-            v.y_m(),
-            v.theta_rad().to_degrees()
-        ),
-        None => eprintln!("no report from the base after the stop; {counters}"),
     }
 }

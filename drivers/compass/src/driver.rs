@@ -60,17 +60,23 @@ pub fn configuration_failed(machine: &crate::machine::Machine, step: u8) -> Driv
             seen,
             lines: st.foreign_lines,
         },
-        None => DriverError::NoAnswer {
-            step: Some(step),
-            bytes: st.bytes,
-            lines: st.framer.lines,
-            bad_lines: st
-                .framer
-                .bad_checksums
-                .saturating_add(st.framer.overlong)
-                .saturating_add(st.framer.bad_bytes)
-                .saturating_add(st.parse_errors),
-        },
+        None => no_answer(&st, Some(step)),
+    }
+}
+
+/// No heading (or no answer to configuration `step`): what the line carried.
+#[must_use]
+pub fn no_answer(st: &crate::machine::Stats, step: Option<u8>) -> DriverError {
+    DriverError::NoAnswer {
+        step,
+        bytes: st.bytes,
+        lines: st.framer.lines,
+        bad_lines: st
+            .framer
+            .bad_checksums
+            .saturating_add(st.framer.overlong)
+            .saturating_add(st.framer.bad_bytes)
+            .saturating_add(st.parse_errors),
     }
 }
 

@@ -102,20 +102,6 @@ impl std::fmt::Debug for Request {
     }
 }
 
-/// The connect timeout's error when no heading came: what the line carried.
-fn timeout_error(st: &crate::machine::Stats) -> DriverError {
-    DriverError::NoAnswer {
-        step: None,
-        bytes: st.bytes,
-        lines: st.framer.lines,
-        bad_lines: st
-            .framer
-            .bad_checksums
-            .saturating_add(st.framer.overlong)
-            .saturating_add(st.framer.bad_bytes)
-            .saturating_add(st.parse_errors),
-    }
-}
 
 /// How long [`CompassDriver::connect`] waits by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
@@ -195,7 +181,7 @@ impl CompassDriver {
                 // Say what the line carried rather than just "in time".
                 let st = *stats.borrow();
                 if st.headings == 0 {
-                    return Err(timeout_error(&st));
+                    return Err(crate::driver::no_answer(&st, None));
                 }
                 Err(DriverError::Timeout)
             }
