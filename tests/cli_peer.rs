@@ -211,6 +211,31 @@ fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
     );
 }
 
+/// Send a status under `key` with `send_args` once a second until `err` shows the
+/// authentication warning (at most 60 s); returns the warning line.
+fn await_auth_warning(
+    err: &mpsc::Receiver<String>,
+    key: &std::path::Path,
+    send_args: &[&str],
+) -> String {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        assert!(Instant::now() < deadline, "no authentication warning");
+        run_ok(
+            ima()
+                .args(["peer", "send", "--key-file"])
+                .arg(key)
+                .args(send_args)
+                .args(["status", "--behaviour", "x"]),
+        );
+        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
+            && l.contains("failed authentication")
+        {
+            return l;
+        }
+    }
+}
+
 /// Reads `out` line by line on a thread, so that the test can wait with a deadline.
 fn line_channel<R: std::io::Read + Send + 'static>(out: BufReader<R>) -> mpsc::Receiver<String> {
     let (tx, rx) = mpsc::channel();
@@ -452,22 +477,18 @@ fn a_wrong_key_file_is_named_by_the_client_and_the_listener() {
         .and_then(|a| a.rsplit(':').next())
         .expect("listening address")
         .to_owned();
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let warning = loop {
-        assert!(Instant::now() < deadline, "no authentication warning");
-        run_ok(
-            ima()
-                .args(["peer", "send", "--key-file"])
-                .arg(&key_b)
-                .args(["--port", &port, "--interface", "127.0.0.1"])
-                .args(["--group", "239.255.73.80", "status", "--behaviour", "x"]),
-        );
-        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
-            && l.contains("failed authentication")
-        {
-            break l;
-        }
-    };
+    let warning = await_auth_warning(
+        &err,
+        &key_b,
+        &[
+            "--port",
+            &port,
+            "--interface",
+            "127.0.0.1",
+            "--group",
+            "239.255.73.80",
+        ],
+    );
     assert!(warning.contains("from 127.0.0.1:"), "{warning}");
     assert!(
         warning.contains("is the key file the same on every robot?"),
@@ -604,11 +625,7 @@ fn the_commander_names_frames_under_another_key() {
     let dir = temp_dir("cmdkey");
     let key_a = key_file(&dir, "a.key", 0x5a);
     let key_b = key_file(&dir, "b.key", 0xa5);
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = common::mission::free_port(true);
     let cfg = dir.join("commander.toml");
     std::fs::write(
         &cfg,
@@ -635,22 +652,11 @@ fn the_commander_names_frames_under_another_key() {
     // Its first line: it is up and waiting.
     out.recv_timeout(Duration::from_secs(30))
         .expect("the commander's first line");
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let warning = loop {
-        assert!(Instant::now() < deadline, "no authentication warning");
-        run_ok(
-            ima()
-                .args(["peer", "send", "--key-file"])
-                .arg(&key_b)
-                .args(["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")])
-                .args(["status", "--behaviour", "x"]),
-        );
-        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
-            && l.contains("failed authentication")
-        {
-            break l;
-        }
-    };
+    let warning = await_auth_warning(
+        &err,
+        &key_b,
+        &["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")],
+    );
     assert!(warning.contains("from 127.0.0.1:"), "{warning}");
     assert!(
         warning.contains("is the key file the same on every robot?"),
@@ -665,11 +671,7 @@ fn a_robot_names_frames_under_another_key() {
     let dir = temp_dir("runkey");
     let key_a = key_file(&dir, "a.key", 0x5a);
     let key_b = key_file(&dir, "b.key", 0xa5);
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = common::mission::free_port(true);
     let cfg = dir.join("skeeter.toml");
     std::fs::write(
         &cfg,
@@ -694,22 +696,11 @@ fn a_robot_names_frames_under_another_key() {
     let err = line_channel(BufReader::new(run.0.stderr.take().unwrap()));
     out.recv_timeout(Duration::from_secs(60))
         .expect("the robot's first line");
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let warning = loop {
-        assert!(Instant::now() < deadline, "no authentication warning");
-        run_ok(
-            ima()
-                .args(["peer", "send", "--key-file"])
-                .arg(&key_b)
-                .args(["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")])
-                .args(["status", "--behaviour", "x"]),
-        );
-        if let Ok(l) = err.recv_timeout(Duration::from_millis(1500))
-            && l.contains("failed authentication")
-        {
-            break l;
-        }
-    };
+    let warning = await_auth_warning(
+        &err,
+        &key_b,
+        &["--mode", "unicast", "--peer", &format!("127.0.0.1:{port}")],
+    );
     assert!(warning.contains("from 127.0.0.1:"), "{warning}");
     assert!(warning.contains("is the key file the same"), "{warning}");
 }

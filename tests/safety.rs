@@ -158,6 +158,37 @@ fn wait_until(limit: Duration, what: &str, mut f: impl FnMut() -> bool) {
     }
 }
 
+/// Send `sig` (`INT`, `TERM`, `HUP`) to a child.
+fn kill(child: &Child, sig: &str) {
+    let ok = std::process::Command::new("kill")
+        .args([&format!("-{sig}"), &child.0.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill -{sig}");
+}
+
+/// Keep reading a child's stdout in the background so that it never fills up.
+fn drain(out: impl std::io::Read + Send + 'static) {
+    std::thread::spawn(move || {
+        let mut r = BufReader::new(out);
+        let mut l = String::new();
+        while r.read_line(&mut l).unwrap_or(0) > 0 {
+            l.clear();
+        }
+    });
+}
+
+/// CLOSE is the last frame the mock read (written before the process ended, read by the mock
+/// within its poll period).
+fn wait_for_close(log: &HostLog, what: &str) {
+    wait_until(Duration::from_secs(1), what, || {
+        p2os_commands(log)
+            .last()
+            .is_some_and(|(_, n)| n == "sync2_close")
+    });
+}
+
 /// Drive at 0.3 m/s, interrupt, and check the stop from the robot's side.
 fn interrupt_drive(base: Base, how: Interruption) {
     let (world, id, served, log) = serve(base);
@@ -202,19 +233,8 @@ fn interrupt_drive(base: Base, how: Interruption) {
     let mut t0 = Instant::now();
     match how {
         Interruption::Signal(sig) => {
-            let ok = std::process::Command::new("kill")
-                .args([&format!("-{sig}"), &child.0.id().to_string()])
-                .status()
-                .unwrap()
-                .success();
-            assert!(ok, "kill -{sig}");
-            // Keep reading so stdout never fills up.
-            std::thread::spawn(move || {
-                let mut sink = String::new();
-                while stdout.read_line(&mut sink).unwrap_or(0) > 0 {
-                    sink.clear();
-                }
-            });
+            kill(&child, sig);
+            drain(stdout);
         }
         Interruption::ClosedStdout => drop(stdout),
         Interruption::Panic => {
@@ -233,12 +253,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
                 .unwrap()
                 .0;
             // The hook's line is printed just before the halt, so the stop follows t0.
-            std::thread::spawn(move || {
-                let mut sink = String::new();
-                while stdout.read_line(&mut sink).unwrap_or(0) > 0 {
-                    sink.clear();
-                }
-            });
+            drain(stdout);
         }
     }
     // Ground truth: the commanded wheel speeds drop to zero when a stop command is executed,
@@ -288,11 +303,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
     );
     match base {
         Base::P2os => {
-            wait_until(Duration::from_secs(1), "CLOSE at the mock", || {
-                p2os_commands(&log)
-                    .last()
-                    .is_some_and(|(_, n)| n == "sync2_close")
-            });
+            wait_for_close(&log, "CLOSE at the mock");
             let cmds = p2os_commands(&log);
             let after: Vec<_> = cmds.iter().filter(|(at, _)| *at >= t0).collect();
             let stop = after
@@ -408,11 +419,7 @@ fn p2os_normal_end_closes_the_session() {
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("stopped at x="), "{stderr}");
     // Written before the process ended; the mock reads it within its poll period.
-    wait_until(Duration::from_secs(1), "CLOSE at the mock", || {
-        p2os_commands(&log)
-            .last()
-            .is_some_and(|(_, n)| n == "sync2_close")
-    });
+    wait_for_close(&log, "CLOSE at the mock");
     let (l, r) = wheel_speeds(&world, id);
     assert!(l.abs() < 1e-3 && r.abs() < 1e-3);
     // The reported pose is where the robot stands: the ground truth agrees within 2 cm.
@@ -509,11 +516,7 @@ fn p2os_halt_signal_from_another_thread() {
             .halt_signal()
             .wait_done_blocking(Duration::from_secs(2))
     );
-    wait_until(Duration::from_secs(1), "CLOSE at the mock", || {
-        p2os_commands(&log)
-            .last()
-            .is_some_and(|(_, n)| n == "sync2_close")
-    });
+    wait_for_close(&log, "CLOSE at the mock");
     // The closed handle says so rather than hanging.
     let r = rt.block_on(async {
         use ima_hal::base::DifferentialBase;
@@ -596,13 +599,7 @@ fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
     let t0 = Instant::now();
     let (stand_limit, code) = match scooter_how {
         Interruption::Signal(sig) => {
-            assert!(
-                std::process::Command::new("kill")
-                    .args([&format!("-{sig}"), &scooter.0.id().to_string()])
-                    .status()
-                    .unwrap()
-                    .success()
-            );
+            kill(&scooter, sig);
             (STAND_WITHIN, 128 + signal_number(sig))
         }
         // The closed pipe is found at Scooter's next event; give that a few seconds.
@@ -643,13 +640,7 @@ fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
 
     // Skeeter: its P2OS base gets STOP, then CLOSE as the last frame.
     let t1 = Instant::now();
-    assert!(
-        std::process::Command::new("kill")
-            .args([&format!("-{skeeter_signal}"), &skeeter.0.id().to_string()])
-            .status()
-            .unwrap()
-            .success()
-    );
+    kill(&skeeter, skeeter_signal);
     let status = wait_exit(&mut skeeter, "Skeeter's ima run");
     let err = std::fs::read_to_string(sk.with_extension("err")).unwrap_or_default();
     assert_eq!(
@@ -657,11 +648,7 @@ fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
         Some(128 + signal_number(skeeter_signal)),
         "Skeeter: {status}; stderr:\n{err}"
     );
-    wait_until(Duration::from_secs(1), "Skeeter's CLOSE", || {
-        p2os_commands(&sk_log)
-            .last()
-            .is_some_and(|(_, n)| n == "sync2_close")
-    });
+    wait_for_close(&sk_log, "Skeeter's CLOSE");
     let after: Vec<_> = p2os_commands(&sk_log)
         .into_iter()
         .filter(|(at, _)| *at >= t1)
@@ -745,13 +732,7 @@ fn run_answers_sigint_while_opening_its_devices() {
     );
     std::thread::sleep(Duration::from_millis(1500));
     let t0 = Instant::now();
-    assert!(
-        std::process::Command::new("kill")
-            .args(["-INT", &child.0.id().to_string()])
-            .status()
-            .unwrap()
-            .success()
-    );
+    kill(&child, "INT");
     let status = wait_exit(&mut child, "ima run");
     // Far less than the 300 s connection timeout (generous for a loaded machine).
     assert!(t0.elapsed() < Duration::from_secs(10));
@@ -781,14 +762,7 @@ fn sigkill(base: Base) {
             .spawn()
             .unwrap(),
     );
-    let out = child.0.stdout.take().unwrap();
-    std::thread::spawn(move || {
-        let mut r = BufReader::new(out);
-        let mut l = String::new();
-        while r.read_line(&mut l).unwrap_or(0) > 0 {
-            l.clear();
-        }
-    });
+    drain(child.0.stdout.take().unwrap());
     wait_until(Duration::from_secs(20), "the robot to cruise", || {
         let (l, r) = wheel_speeds(&world, id);
         l > 0.29 && r > 0.29

@@ -1820,6 +1820,24 @@ mod tests {
         );
     }
 
+    /// A thesis-rule brain with `recognition`, heading for red: Scooter at the origin facing
+    /// 0°, Skeeter's SES puts red at 90° of it, so the estimate is θd = 135°.
+    fn estimate_at_135_deg(recognition: TargetRecognition) -> ScooterBrain {
+        let mut b = ScooterBrain::new(ScooterConfig {
+            target_recognition: recognition,
+            ..brain(HeadingRule::Thesis).config().clone()
+        });
+        b.handle_compass(0.0, t(0));
+        b.handle_odometry(&Odometry::origin(), t(0));
+        b.set_target(RED, t(0));
+        let f = form(
+            vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
+            t(0),
+        );
+        assert!(b.handle_ses(&f, t(0)));
+        b
+    }
+
     #[test]
     fn in_view_recognition_takes_the_target_far_off_a_wrong_estimate() {
         // θd = 135° (thesis rule), but the post stands 1 m straight ahead (0°): 135° off
@@ -1828,18 +1846,7 @@ mod tests {
             (TargetRecognition::NearEstimate, Behaviour::FollowHeading),
             (TargetRecognition::InView, Behaviour::MoveToTarget),
         ] {
-            let mut b = ScooterBrain::new(ScooterConfig {
-                target_recognition: recognition,
-                ..brain(HeadingRule::Thesis).config().clone()
-            });
-            b.handle_compass(0.0, t(0));
-            b.handle_odometry(&Odometry::origin(), t(0));
-            b.set_target(RED, t(0));
-            let f = form(
-                vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
-                t(0),
-            );
-            assert!(b.handle_ses(&f, t(0)));
+            let mut b = estimate_at_135_deg(recognition);
             let w = Mini {
                 x: 0.0,
                 y: 0.0,
@@ -1864,18 +1871,7 @@ mod tests {
             (pair, Behaviour::FollowHeading),
             (lone, Behaviour::MoveToTarget),
         ] {
-            let mut b = ScooterBrain::new(ScooterConfig {
-                target_recognition: TargetRecognition::InView,
-                ..brain(HeadingRule::Thesis).config().clone()
-            });
-            b.handle_compass(0.0, t(0));
-            b.handle_odometry(&Odometry::origin(), t(0));
-            b.set_target(RED, t(0));
-            let f = form(
-                vec![rec("scooter", 0.0, None, t(0)), rec(RED, 90.0, None, t(0))],
-                t(0),
-            );
-            assert!(b.handle_ses(&f, t(0)));
+            let mut b = estimate_at_135_deg(TargetRecognition::InView);
             let w = Mini {
                 x: 0.0,
                 y: 0.0,

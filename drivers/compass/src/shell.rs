@@ -102,7 +102,6 @@ impl std::fmt::Debug for Request {
     }
 }
 
-
 /// How long [`CompassDriver::connect`] waits by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
