@@ -52,9 +52,14 @@ fn serve(
 
 async fn connect(path: &std::path::Path) -> P2os {
     let port = open_port(path.to_str().unwrap(), 9600).unwrap();
-    P2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10))
-        .await
-        .unwrap()
+    P2os::connect(
+        port,
+        ima_p2os::Config::default(),
+        Duration::from_secs(10),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap()
 }
 
 fn truth(world: &SharedWorld, id: ima_mock_devices::world::RobotId) -> (f64, f64, f64) {

@@ -58,6 +58,7 @@ async fn connect(path: &std::path::Path) -> Rflex {
         port,
         ima_rflex::machine::Config::default(),
         Duration::from_secs(10),
+        ima_hal::time::TokioClock::shared(),
     )
     .await
     .unwrap()

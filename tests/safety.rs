@@ -451,6 +451,7 @@ fn p2os_handle_test(close_explicitly: bool) {
             port,
             ima_p2os::Config::default(),
             Duration::from_secs(10),
+            ima_hal::time::TokioClock::shared(),
         )
         .await
         .unwrap();
@@ -505,9 +506,14 @@ fn p2os_halt_signal_from_another_thread() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let robot = rt.block_on(async {
         let port = ima_p2os::shell::open_port(&served.path(), 9600).unwrap();
-        ima_p2os::shell::P2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10))
-            .await
-            .unwrap()
+        ima_p2os::shell::P2os::connect(
+            port,
+            ima_p2os::Config::default(),
+            Duration::from_secs(10),
+            ima_hal::time::TokioClock::shared(),
+        )
+        .await
+        .unwrap()
     });
     let halt = robot.halt_signal();
     std::thread::spawn(move || halt.halt()).join().unwrap();

@@ -68,10 +68,15 @@ fn fast() -> Config {
 
 async fn connect(dev: &PtyDevice<SickLmsDevice>, cfg: Config) -> SickLms {
     let port = open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    SickLms::connect(port, cfg, Duration::from_secs(60))
-        .await
-        .unwrap()
-        .with_scan_timeout(Duration::from_secs(10))
+    SickLms::connect(
+        port,
+        cfg,
+        Duration::from_secs(60),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap()
+    .with_scan_timeout(Duration::from_secs(10))
 }
 
 async fn next(l: &mut SickLms) -> ima_hal::Stamped<LaserScan> {

@@ -98,6 +98,83 @@ impl<T> Stamped<T> {
     }
 }
 
+/// A source of the current [`Instant`]: the one time base of a process.
+///
+/// A program makes one clock and passes it to every driver shell, runner and runtime it
+/// starts, so `Stamped::at` of a laser scan, an odometry reading and a compass heading taken
+/// on one robot are comparable (a scan's age is `clock.now() - scan.at`). Real programs use
+/// [`TokioClock`] (feature `tokio`) or [`MonotonicClock`] (feature `std`); the simulation
+/// and tests use [`TokioClock`] under tokio's paused time, or [`ManualClock`].
+pub trait Clock: Send + Sync + core::fmt::Debug {
+    /// The current instant on this clock's time line.
+    fn now(&self) -> Instant;
+}
+
+impl<C: Clock + ?Sized> Clock for &C {
+    fn now(&self) -> Instant {
+        (**self).now()
+    }
+}
+
+/// A clock shared by every part of a process (feature `std`): cheap to clone, one epoch.
+#[cfg(feature = "std")]
+pub type SharedClock = std::sync::Arc<dyn Clock>;
+
+#[cfg(feature = "std")]
+impl<C: Clock + ?Sized> Clock for std::sync::Arc<C> {
+    fn now(&self) -> Instant {
+        (**self).now()
+    }
+}
+
+/// A clock that moves only when told to (feature `std`): for tests and step-wise simulation.
+/// Clones share one time line.
+#[cfg(feature = "std")]
+#[derive(Debug, Clone, Default)]
+pub struct ManualClock {
+    micros: std::sync::Arc<core::sync::atomic::AtomicU64>,
+}
+
+#[cfg(feature = "std")]
+impl ManualClock {
+    /// A clock standing at `at`.
+    #[must_use]
+    pub fn starting_at(at: Instant) -> Self {
+        Self {
+            micros: std::sync::Arc::new(core::sync::atomic::AtomicU64::new(at.as_micros())),
+        }
+    }
+
+    /// Move the clock forward by `d` (saturating at the end of time).
+    pub fn advance(&self, d: Duration) {
+        let d = u64::try_from(d.as_micros()).unwrap_or(u64::MAX);
+        let _ = self.micros.fetch_update(
+            core::sync::atomic::Ordering::SeqCst,
+            core::sync::atomic::Ordering::SeqCst,
+            |m| Some(m.saturating_add(d)),
+        );
+    }
+
+    /// Set the clock to `at` unless that is earlier than now (it never runs backwards).
+    pub fn set(&self, at: Instant) {
+        self.micros
+            .fetch_max(at.as_micros(), core::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// This clock as a [`SharedClock`] (the same time line).
+    #[must_use]
+    pub fn shared(&self) -> SharedClock {
+        std::sync::Arc::new(self.clone())
+    }
+}
+
+#[cfg(feature = "std")]
+impl Clock for ManualClock {
+    fn now(&self) -> Instant {
+        Instant::from_micros(self.micros.load(core::sync::atomic::Ordering::SeqCst))
+    }
+}
+
 /// A real monotonic clock whose epoch is its creation (feature `std`).
 #[cfg(feature = "std")]
 #[derive(Debug, Clone, Copy)]
@@ -127,6 +204,22 @@ impl MonotonicClock {
     pub fn instant(&self, t: std::time::Instant) -> Instant {
         let us = t.saturating_duration_since(self.epoch).as_micros();
         Instant::from_micros(u64::try_from(us).unwrap_or(u64::MAX))
+    }
+}
+
+#[cfg(feature = "std")]
+impl Clock for MonotonicClock {
+    fn now(&self) -> Instant {
+        MonotonicClock::now(self)
+    }
+}
+
+#[cfg(feature = "std")]
+impl MonotonicClock {
+    /// A new clock (epoch now) as a [`SharedClock`].
+    #[must_use]
+    pub fn shared() -> SharedClock {
+        std::sync::Arc::new(Self::new())
     }
 }
 
@@ -164,6 +257,23 @@ impl TokioClock {
 }
 
 #[cfg(feature = "tokio")]
+impl Clock for TokioClock {
+    fn now(&self) -> Instant {
+        TokioClock::now(self)
+    }
+}
+
+#[cfg(feature = "tokio")]
+impl TokioClock {
+    /// A new clock (epoch now, on tokio's time) as a [`SharedClock`]: the usual one clock of
+    /// a program, made once in `main` (or a test) and passed to every shell.
+    #[must_use]
+    pub fn shared() -> SharedClock {
+        std::sync::Arc::new(Self::new())
+    }
+}
+
+#[cfg(feature = "tokio")]
 impl Default for TokioClock {
     fn default() -> Self {
         Self::new()
@@ -191,6 +301,21 @@ mod tests {
             Instant::from_millis(7).saturating_duration_since(t),
             Duration::from_millis(2)
         );
+    }
+
+    #[cfg(feature = "std")]
+    #[test]
+    fn manual_clock_is_one_time_line_and_never_runs_back() {
+        let c = ManualClock::starting_at(Instant::from_millis(10));
+        let shared = c.shared();
+        c.advance(Duration::from_millis(5));
+        assert_eq!(shared.now(), Instant::from_millis(15));
+        c.set(Instant::from_millis(12));
+        assert_eq!(shared.now(), Instant::from_millis(15));
+        c.set(Instant::from_millis(20));
+        assert_eq!(Clock::now(&c), Instant::from_millis(20));
+        c.advance(Duration::MAX);
+        assert_eq!(c.now(), Instant::from_micros(u64::MAX));
     }
 
     #[test]

@@ -38,6 +38,7 @@ async fn tcm2_configures_goes_silent_and_recovers() {
             output: Tcm2Format::Standard,
         }),
         Duration::from_secs(5),
+        ima_hal::time::TokioClock::shared(),
     )
     .await
     .unwrap();
@@ -78,7 +79,11 @@ async fn mux_switch_delay_settle_and_garbage_frames() {
         MuxDevice::new(MuxModelConfig::default(), bus.clone()),
         DuplexOptions::default(),
     );
-    let mut mux = VideoMux::spawn(stream, ima_video_mux::machine::Config::default());
+    let mut mux = VideoMux::spawn(
+        stream,
+        ima_video_mux::machine::Config::default(),
+        ima_hal::time::TokioClock::shared(),
+    );
     let cfg = CameraConfig::default();
     let mut cam = MockCameraHead::new(cfg, world, id, bus.clone());
     let asked = mux.now();

@@ -27,9 +27,14 @@ fn setup(cfg: CompassModelConfig) -> (SharedWorld, RobotId, PtyDevice<CompassDev
 
 async fn connect(dev: &PtyDevice<CompassDevice>, dialect: Dialect) -> CompassDriver {
     let port = open_port(dev.path().to_str().unwrap(), 4800).unwrap();
-    CompassDriver::connect(port, Config::for_dialect(dialect), Duration::from_secs(10))
-        .await
-        .unwrap()
+    CompassDriver::connect(
+        port,
+        Config::for_dialect(dialect),
+        Duration::from_secs(10),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap()
 }
 
 /// Signed smallest difference a − b in degrees.

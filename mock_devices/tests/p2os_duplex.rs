@@ -114,6 +114,7 @@ async fn driver_connects_enables_drives_and_sees_the_wall() {
         FixedBaud(host),
         ima_p2os::Config::default(),
         Duration::from_secs(5),
+        ima_hal::time::TokioClock::shared(),
     )
     .await
     .unwrap();
@@ -154,6 +155,7 @@ async fn motors_refuse_to_move_before_enable() {
         FixedBaud(host),
         ima_p2os::Config::default(),
         Duration::from_secs(5),
+        ima_hal::time::TokioClock::shared(),
     )
     .await
     .unwrap();

@@ -114,9 +114,14 @@ async fn driver_drives_sees_the_wall_and_feels_the_bumper_in_virtual_time() {
     let b = body();
     let robot = RflexRobot::new(RflexModelConfig::default(), &b);
     tokio::spawn(serve(dev, robot, b));
-    let mut base = Rflex::connect(host, Config::default(), Duration::from_secs(5))
-        .await
-        .unwrap();
+    let mut base = Rflex::connect(
+        host,
+        Config::default(),
+        Duration::from_secs(5),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap();
     // Brake first.
     assert!(
         base.set_velocity(VelocityCommand::new(0.2, 0.0))
@@ -159,9 +164,14 @@ async fn emergency_stop_engages_the_brake_and_the_watchdog_stops_a_quiet_client(
     let b = body();
     let robot = RflexRobot::new(RflexModelConfig::default(), &b);
     tokio::spawn(serve(dev, robot, b));
-    let mut base = Rflex::connect(host, Config::default(), Duration::from_secs(5))
-        .await
-        .unwrap();
+    let mut base = Rflex::connect(
+        host,
+        Config::default(),
+        Duration::from_secs(5),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap();
     base.enable_motors(true).await.unwrap();
     // One command, then silence: the driver's 0.5 s watchdog zeroes it.
     base.set_velocity(VelocityCommand::new(0.3, 0.0))

@@ -39,10 +39,15 @@ async fn setup(baud: BaudRate) -> (SickLms, DuplexDevice<SickLmsDevice>) {
         rs422: baud == BaudRate::B500000,
         ..Config::default()
     };
-    let lms = SickLms::connect(FixedBaud(pipe), cfg, Duration::from_secs(60))
-        .await
-        .unwrap()
-        .with_scan_timeout(Duration::from_secs(5));
+    let lms = SickLms::connect(
+        FixedBaud(pipe),
+        cfg,
+        Duration::from_secs(60),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap()
+    .with_scan_timeout(Duration::from_secs(5));
     (lms, runner)
 }
 

@@ -23,7 +23,11 @@ async fn a_sweep_of_the_default_world_finds_everything() {
         MuxDevice::new(MuxModelConfig::default(), bus.clone()),
         DuplexOptions::default(),
     );
-    let mut mux = VideoMux::spawn(stream, ima_video_mux::machine::Config::default());
+    let mut mux = VideoMux::spawn(
+        stream,
+        ima_video_mux::machine::Config::default(),
+        ima_hal::time::TokioClock::shared(),
+    );
     let mut head = MockCameraHead::new(CameraConfig::default(), world, id, bus);
     let mut scanner =
         Scanner::with_default_ses(ScanConfig::default(), ColourDb::default()).unwrap();

@@ -19,7 +19,7 @@ fn serve(cfg: MuxModelConfig, bus: &VideoBus) -> PtyDevice<MuxDevice> {
 
 fn driver(dev: &PtyDevice<MuxDevice>) -> VideoMux {
     let port = open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    VideoMux::spawn(port, Config::default())
+    VideoMux::spawn(port, Config::default(), ima_hal::time::TokioClock::shared())
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -95,6 +95,7 @@ async fn silent_switcher_times_out() {
             retries: 1,
             ..Config::default()
         },
+        ima_hal::time::TokioClock::shared(),
     );
     assert_eq!(mux.select(2).await, Err(DriverError::Timeout));
 }
@@ -182,6 +183,7 @@ async fn kramer_dialect_over_a_pty() {
             },
             ..Config::default()
         },
+        ima_hal::time::TokioClock::shared(),
     );
     let sel = mux.select(6).await.unwrap();
     assert_eq!(sel.channel, 6);

@@ -119,7 +119,11 @@ fn grab(args: &GrabArgs) -> Result<()> {
             let port = open_port(&dev.path().to_string_lossy(), 9600)
                 .context("opening the switcher pty")?;
             _switcher = Some(dev);
-            let mut mux = VideoMux::spawn(port, MuxConfig::default());
+            let mut mux = VideoMux::spawn(
+                port,
+                MuxConfig::default(),
+                ima_hal::time::TokioClock::shared(),
+            );
             let sel = mux
                 .select(args.channel)
                 .await

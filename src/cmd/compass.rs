@@ -91,7 +91,14 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         ima_compass::driver::dialect_name(cfg.dialect),
         args.port
     );
-    let drv = match CompassDriver::connect(port, cfg, Duration::from_secs(10)).await {
+    let drv = match CompassDriver::connect(
+        port,
+        cfg,
+        Duration::from_secs(10),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    {
         Ok(d) => d,
         Err(e) => {
             let hint = match e {

@@ -181,7 +181,12 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 }
             })
         };
-        let (sk_dev, sc_dev) = tokio::join!(devices::open_skeeter(&sk), devices::open_scooter(&sc));
+        // One clock for the process: both robots' devices stamp on one time line.
+        let clock = ima_hal::time::TokioClock::shared();
+        let (sk_dev, sc_dev) = tokio::join!(
+            devices::open_skeeter(&sk, &clock),
+            devices::open_scooter(&sc, &clock)
+        );
         let sk_dev = sk_dev.context("opening Skeeter's devices")?;
         let sc_dev = sc_dev.context("opening Scooter's devices")?;
         let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);

@@ -116,9 +116,14 @@ async fn square(
     truth: &(dyn Fn() -> (f64, f64, f64) + Sync),
 ) -> Result<Vec<Row>> {
     let port = open_port(path, 9600)?;
-    let mut robot = P2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10))
-        .await
-        .context("connecting to the simulated robot")?;
+    let mut robot = P2os::connect(
+        port,
+        ima_p2os::Config::default(),
+        Duration::from_secs(10),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .context("connecting to the simulated robot")?;
     if let (LinkStatus::Connected { identity, baud }, false) = (robot.link(), args.json) {
         outln!(
             "connected to {} ({} {}) at {baud} baud; motors on",

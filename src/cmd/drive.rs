@@ -104,7 +104,12 @@ async fn drive(args: &DriveArgs) -> Result<()> {
         cfg.params_override = Some(*p);
     }
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
-    let connect = P2os::connect(port, cfg, num::duration(args.connect_timeout));
+    let connect = P2os::connect(
+        port,
+        cfg,
+        num::duration(args.connect_timeout),
+        ima_hal::time::TokioClock::shared(),
+    );
     let mut robot = safety::until_cancelled(connect)
         .await?
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;

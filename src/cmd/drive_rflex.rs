@@ -43,7 +43,12 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
         }
     }
     let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
-    let connect = Rflex::connect(port, cfg, num::duration(o.connect_timeout_s));
+    let connect = Rflex::connect(
+        port,
+        cfg,
+        num::duration(o.connect_timeout_s),
+        ima_hal::time::TokioClock::shared(),
+    );
     let mut base = safety::until_cancelled(connect).await?.with_context(|| {
         format!(
             "connecting to an rFLEX base on {} at {} baud",

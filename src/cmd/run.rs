@@ -90,15 +90,17 @@ pub fn run(args: &RunArgs) -> Result<()> {
                 let _ = stop_tx.send(true);
             })
         };
+        // The process's one clock: every device of this robot stamps on it.
+        let clock = ima_hal::time::TokioClock::shared();
         let r = match cfg.role {
             Role::Scooter => {
-                let dev = crate::safety::until_cancelled(devices::open_scooter(&cfg))
+                let dev = crate::safety::until_cancelled(devices::open_scooter(&cfg, &clock))
                     .await?
                     .context("opening Scooter's devices")?;
                 crate::stack::scooter::run(cfg.clone(), key, dev, events, stop_rx).await
             }
             Role::Skeeter => {
-                let dev = crate::safety::until_cancelled(devices::open_skeeter(&cfg))
+                let dev = crate::safety::until_cancelled(devices::open_skeeter(&cfg, &clock))
                     .await?
                     .context("opening Skeeter's devices")?;
                 crate::stack::skeeter::run(cfg.clone(), key, dev, events, stop_rx).await

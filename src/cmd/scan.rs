@@ -246,7 +246,12 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     rt.block_on(async {
         let port = open_port(&args.port, 9600).with_context(|| format!("opening {}", args.port))?;
         let wait = cfg.power_up_wait.unwrap_or_default();
-        let connect = SickLms::connect(port, cfg, wait + Duration::from_secs(60));
+        let connect = SickLms::connect(
+            port,
+            cfg,
+            wait + Duration::from_secs(60),
+            ima_hal::time::TokioClock::shared(),
+        );
         let lms = match crate::safety::until_cancelled(connect).await? {
             Ok(l) => l.with_scan_timeout(Duration::from_secs(5)),
             Err(e @ DriverError::NotFound { rs422: false, .. }) => {

@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use ima_compass::machine::{Config as CompassConfig, Dialect as CompassWireDialect};
 use ima_compass::shell::CompassDriver;
 use ima_hal::base::DifferentialBase;
+use ima_hal::time::SharedClock;
 use ima_p2os::shell::P2os;
 use ima_rflex::shell::Rflex;
 use ima_sick_lms::shell::SickLms;
@@ -26,7 +27,7 @@ fn secs(s: f64) -> Duration {
 }
 
 /// Connect to a P2OS base (trying the configured rate first, then the robot's others).
-pub async fn open_p2os(d: &BaseDevice) -> Result<P2os> {
+pub async fn open_p2os(d: &BaseDevice, clock: &SharedClock) -> Result<P2os> {
     anyhow::ensure!(
         d.kind == BaseKind::P2os,
         "the base on {} is not configured as p2os",
@@ -43,7 +44,7 @@ pub async fn open_p2os(d: &BaseDevice) -> Result<P2os> {
         }
     }
     cfg.bauds = bauds;
-    P2os::connect(port, cfg, secs(d.connect_timeout_s))
+    P2os::connect(port, cfg, secs(d.connect_timeout_s), clock.clone())
         .await
         .with_context(|| format!("connecting to the P2OS base on {}", d.port))
 }
@@ -52,7 +53,7 @@ pub async fn open_p2os(d: &BaseDevice) -> Result<P2os> {
 /// world) widens the driver's odometry plausibility limits by that factor, since the world
 /// moves that much faster per real second, asks for motion reports that much more often, and
 /// multiplies the accelerations by it (the controller ramps in real time).
-pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
+pub async fn open_rflex(d: &BaseDevice, time_scale: f64, clock: &SharedClock) -> Result<Rflex> {
     anyhow::ensure!(
         d.kind == BaseKind::Rflex,
         "the base on {} is not configured as rflex",
@@ -74,7 +75,7 @@ pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
     // configured ramps in world time, so Scooter stops and turns as at real speed.
     cfg.trans_accel_m_s2 *= k;
     cfg.rot_accel = (f64::from(cfg.rot_accel) * k).min(f64::from(u32::MAX)) as u32;
-    let mut base = Rflex::connect(port, cfg, secs(d.connect_timeout_s))
+    let mut base = Rflex::connect(port, cfg, secs(d.connect_timeout_s), clock.clone())
         .await
         .with_context(|| format!("connecting to the rFLEX base on {}", d.port))?;
     base.enable_motors(true)
@@ -84,7 +85,7 @@ pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
 }
 
 /// Connect to a SICK LMS and start its scan stream.
-pub async fn open_laser(d: &LaserDevice) -> Result<SickLms> {
+pub async fn open_laser(d: &LaserDevice, clock: &SharedClock) -> Result<SickLms> {
     let baud = BaudRate::from_bps(d.baud).with_context(|| {
         format!(
             "laser on {}: a SICK LMS runs at 9600, 19200, 38400 or 500000, not {}",
@@ -101,7 +102,7 @@ pub async fn open_laser(d: &LaserDevice) -> Result<SickLms> {
         power_up_wait: (d.power_up_wait_s > 0.0).then_some(wait),
         ..ima_sick_lms::machine::Config::default()
     };
-    let lms = SickLms::connect(port, cfg, wait + Duration::from_secs(60))
+    let lms = SickLms::connect(port, cfg, wait + Duration::from_secs(60), clock.clone())
         .await
         .with_context(|| format!("initialising the SICK LMS on {}", d.port))?
         .with_scan_timeout(Duration::from_secs(5));
@@ -109,7 +110,7 @@ pub async fn open_laser(d: &LaserDevice) -> Result<SickLms> {
 }
 
 /// Connect to a serial compass and wait for headings.
-pub async fn open_compass(d: &CompassDeviceConfig) -> Result<CompassDriver> {
+pub async fn open_compass(d: &CompassDeviceConfig, clock: &SharedClock) -> Result<CompassDriver> {
     let dialect = match d.dialect {
         CompassDialect::Kvh => CompassWireDialect::KvhC100 {
             rate_per_minute: 600,
@@ -126,6 +127,7 @@ pub async fn open_compass(d: &CompassDeviceConfig) -> Result<CompassDriver> {
         port,
         CompassConfig::for_dialect(dialect),
         Duration::from_secs(10),
+        clock.clone(),
     )
     .await
     .with_context(|| format!("configuring the compass on {}", d.port))
@@ -133,7 +135,7 @@ pub async fn open_compass(d: &CompassDeviceConfig) -> Result<CompassDriver> {
 
 /// Open the video switcher (the driver task starts at once; the first selection proves the
 /// link).
-pub fn open_mux(d: &MuxDevice) -> Result<VideoMux> {
+pub fn open_mux(d: &MuxDevice, clock: &SharedClock) -> Result<VideoMux> {
     let port = ima_video_mux::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the video switcher port {}", d.port))?;
     let dialect = match d.dialect {
@@ -154,6 +156,7 @@ pub fn open_mux(d: &MuxDevice) -> Result<VideoMux> {
             channel_count: d.cameras,
             ..MuxConfig::default()
         },
+        clock.clone(),
     ))
 }
 
@@ -195,30 +198,33 @@ fn missing(what: &str) -> anyhow::Error {
 }
 
 /// Open Skeeter's devices.
-pub async fn open_skeeter(cfg: &RobotConfig) -> Result<SkeeterDevices> {
+pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<SkeeterDevices> {
     anyhow::ensure!(cfg.role == Role::Skeeter, "not a Skeeter configuration");
     let d = &cfg.devices;
     let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?).await?;
-    let mux = open_mux(d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?)?;
-    let base = open_p2os(d.base.as_ref().ok_or_else(|| missing("base"))?).await?;
+    let mux = open_mux(
+        d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?,
+        clock,
+    )?;
+    let base = open_p2os(d.base.as_ref().ok_or_else(|| missing("base"))?, clock).await?;
     Ok(SkeeterDevices { base, mux, frames })
 }
 
 /// Open Scooter's devices (all three at once).
-pub async fn open_scooter(cfg: &RobotConfig) -> Result<ScooterDevices> {
+pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<ScooterDevices> {
     anyhow::ensure!(cfg.role == Role::Scooter, "not a Scooter configuration");
     let d = &cfg.devices;
     let base = d.base.as_ref().ok_or_else(|| missing("base"))?;
     let laser = d.laser.as_ref().ok_or_else(|| missing("laser"))?;
     let compass = async {
         match &d.compass {
-            Some(c) => open_compass(c).await.map(Some),
+            Some(c) => open_compass(c, clock).await.map(Some),
             None => Ok(None),
         }
     };
     let (base, laser, compass) = tokio::join!(
-        open_rflex(base, cfg.agent.time_scale),
-        open_laser(laser),
+        open_rflex(base, cfg.agent.time_scale, clock),
+        open_laser(laser, clock),
         compass
     );
     Ok(ScooterDevices {
@@ -248,7 +254,8 @@ mod tests {
         .unwrap();
         let [sk, sc, _] =
             crate::cmd::mock_world::loopback_configs(served.endpoints(), 1.0, None).unwrap();
-        let (a, b) = tokio::join!(open_skeeter(&sk), open_scooter(&sc));
+        let clock = ima_hal::time::TokioClock::shared();
+        let (a, b) = tokio::join!(open_skeeter(&sk, &clock), open_scooter(&sc, &clock));
         let mut sk = a.unwrap();
         let mut sc = b.unwrap();
         sk.base.odometry().await.unwrap();
@@ -276,7 +283,9 @@ mod tests {
             baud: 9600,
             connect_timeout_s: 1.0,
         };
-        let e = open_p2os(&d).await.unwrap_err();
+        let e = open_p2os(&d, &ima_hal::time::TokioClock::shared())
+            .await
+            .unwrap_err();
         assert!(format!("{e:#}").contains("/dev/ima-no-such-port"), "{e:#}");
         let f = FramesSource {
             addr: "127.0.0.1:1".into(),

@@ -45,8 +45,10 @@ pub fn default_baud(dialect: Dialect) -> u32 {
     }
 }
 
-/// The shell's clock (tokio time, so paused tests run in virtual time).
-pub use ima_hal::time::TokioClock;
+/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
+/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
+/// stamp the driver produces is on that time line.
+pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 
 /// Link status as seen by handles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,7 +117,7 @@ pub struct CompassDriver {
     reading: watch::Receiver<Option<Stamped<Reading>>>,
     link: watch::Receiver<LinkStatus>,
     stats: watch::Receiver<Stats>,
-    clock: TokioClock,
+    clock: SharedClock,
     dialect: Dialect,
 }
 
@@ -128,22 +130,24 @@ impl CompassDriver {
     /// [`DriverError::NoAnswer`] if configuration gave up or timed out without headings
     /// (with what the line carried), [`DriverError::Timeout`],
     /// [`DriverError::Disconnected`] / [`DriverError::Io`] if the stream failed.
+    ///
+    /// `clock` is the process's one time base: every reading's stamp is taken on it.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
         connect_timeout: Duration,
+        clock: SharedClock,
     ) -> Result<Self, DriverError>
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        let clock = TokioClock::new();
         let (tx, rx) = mpsc::channel(8);
         let (reading_tx, reading) = watch::channel(None);
         let (link_tx, mut link) = watch::channel(LinkStatus::Configuring);
         let (stats_tx, stats) = watch::channel(Stats::default());
         let task = Task {
             machine: Machine::new(cfg),
-            clock,
+            clock: clock.clone(),
             rx,
             reading_tx,
             link_tx,
@@ -293,7 +297,7 @@ impl Compass for CompassDriver {
 
 struct Task {
     machine: Machine,
-    clock: TokioClock,
+    clock: SharedClock,
     rx: mpsc::Receiver<Request>,
     reading_tx: watch::Sender<Option<Stamped<Reading>>>,
     link_tx: watch::Sender<LinkStatus>,

@@ -44,8 +44,10 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
-/// The shell's clock (tokio time, so paused tests run in virtual time).
-pub use ima_hal::time::TokioClock;
+/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
+/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
+/// stamp the driver produces is on that time line.
+pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 
 /// Link status as seen by handles.
 #[derive(Debug, Clone, PartialEq)]
@@ -87,7 +89,7 @@ pub struct P2os {
     config: watch::Receiver<Option<RobotConfig>>,
     params: RobotParams,
     transducers: Arc<[SonarTransducer]>,
-    clock: TokioClock,
+    clock: SharedClock,
     halt: HaltSignal,
 }
 
@@ -109,15 +111,17 @@ impl P2os {
     ///
     /// The task registers its [`HaltSignal`] in [`StopRegistry::global`] at once, so a
     /// program's exit guard can stop this robot (STOP, then CLOSE) from any exit path.
+    ///
+    /// `clock` is the process's one time base: every reading's stamp is taken on it.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
         connect_timeout: Duration,
+        clock: SharedClock,
     ) -> Result<P2os, DriverError>
     where
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
-        let clock = TokioClock::new();
         let (tx, rx) = mpsc::channel(32);
         let (state_tx, state) = watch::channel(None);
         let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
@@ -129,7 +133,7 @@ impl P2os {
         let (probe_tx, probe) = watch::channel(ProbeReport::new());
         let task = Task {
             session: Session::new(cfg),
-            clock,
+            clock: clock.clone(),
             halt: halt.clone(),
             close_waiters: Vec::new(),
             rx,
@@ -368,7 +372,7 @@ impl Power for P2os {
 
 struct Task {
     session: Session,
-    clock: TokioClock,
+    clock: SharedClock,
     halt: HaltSignal,
     close_waiters: Vec<oneshot::Sender<Result<(), DriverError>>>,
     rx: mpsc::Receiver<Request>,

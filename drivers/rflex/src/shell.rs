@@ -50,8 +50,10 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
-/// The shell's clock (tokio time, so paused tests run in virtual time).
-pub use ima_hal::time::TokioClock;
+/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
+/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
+/// stamp the driver produces is on that time line.
+pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 
 /// Link status as seen by handles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -109,7 +111,7 @@ pub struct Rflex {
     stats: watch::Receiver<ShellStats>,
     limits: BaseLimits,
     transducers: Arc<[SonarTransducer]>,
-    clock: TokioClock,
+    clock: SharedClock,
     halt: HaltSignal,
 }
 
@@ -123,15 +125,17 @@ impl Rflex {
     /// Spawn the driver task on `stream` (a port opened with [`open_port`], or any byte
     /// stream) and wait until the base streams motion reports (or `connect_timeout` passes).
     /// Must be called inside a tokio runtime.
+    ///
+    /// `clock` is the process's one time base: every reading's stamp is taken on it.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
         connect_timeout: Duration,
+        clock: SharedClock,
     ) -> Result<Rflex, DriverError>
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        let clock = TokioClock::new();
         let (tx, rx) = mpsc::channel(32);
         let (odo_tx, odometry) = watch::channel(None);
         let (sonar_tx, sonar) = watch::channel(None);
@@ -152,7 +156,7 @@ impl Rflex {
         StopRegistry::global().register("rFLEX base", halt.clone());
         let task = Task {
             machine,
-            clock,
+            clock: clock.clone(),
             halt: halt.clone(),
             rx,
             odo_tx,
@@ -385,7 +389,7 @@ impl Power for Rflex {
 struct Task {
     halt: HaltSignal,
     machine: Machine,
-    clock: TokioClock,
+    clock: SharedClock,
     rx: mpsc::Receiver<Request>,
     odo_tx: watch::Sender<Option<Stamped<Odometry>>>,
     sonar_tx: watch::Sender<Option<Stamped<SonarScan>>>,

@@ -46,8 +46,10 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
-/// The shell's clock (tokio time, so paused tests run in virtual time).
-pub use ima_hal::time::TokioClock;
+/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
+/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
+/// stamp the driver produces is on that time line.
+pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 
 /// The latest scan and its sequence number (0: none yet).
 #[derive(Debug, Clone)]
@@ -94,22 +96,24 @@ pub struct SickLms {
     probe: watch::Receiver<ProbeReport>,
     status: watch::Receiver<Option<StatusByte>>,
     pose: Isometry2,
-    clock: TokioClock,
+    clock: SharedClock,
     scan_timeout: Duration,
 }
 
 impl SickLms {
     /// Spawn the driver task on `stream` and wait until the session is ready (or
     /// `connect_timeout` passes). Must be called inside a tokio runtime.
+    ///
+    /// `clock` is the process's one time base: every reading's stamp is taken on it.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
         connect_timeout: Duration,
+        clock: SharedClock,
     ) -> Result<SickLms, DriverError>
     where
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
-        let clock = TokioClock::new();
         let (tx, rx) = mpsc::channel(8);
         let (scan_tx, scan) = watch::channel(Slot::default());
         let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
@@ -120,7 +124,7 @@ impl SickLms {
         let rs422 = cfg.rs422;
         let task = Task {
             machine: Machine::new(cfg, clock.now()),
-            clock,
+            clock: clock.clone(),
             rx,
             scan_tx,
             link_tx,
@@ -369,7 +373,7 @@ impl LaserScanner for SickLms {
 
 struct Task {
     machine: Machine,
-    clock: TokioClock,
+    clock: SharedClock,
     rx: mpsc::Receiver<Request>,
     scan_tx: watch::Sender<Slot>,
     link_tx: watch::Sender<LinkStatus>,

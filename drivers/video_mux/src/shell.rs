@@ -34,8 +34,10 @@ pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream
         .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
 }
 
-/// The shell's clock (tokio time, so paused tests run in virtual time).
-pub use ima_hal::time::TokioClock;
+/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
+/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
+/// stamp the driver produces is on that time line.
+pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 
 /// Something the switcher said on its own (front panel, power-on, signal change).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -77,25 +79,26 @@ pub struct VideoMux {
     notices: watch::Receiver<Option<Notice>>,
     stats: watch::Receiver<Stats>,
     config: Config,
-    clock: TokioClock,
+    clock: SharedClock,
 }
 
 impl VideoMux {
     /// Spawn the driver task on `stream`. Nothing is sent until a request. Must be called
     /// inside a tokio runtime.
     #[must_use]
-    pub fn spawn<S>(stream: S, config: Config) -> Self
+    ///
+    /// `clock` is the process's one time base: every reading's stamp is taken on it.
+    pub fn spawn<S>(stream: S, config: Config, clock: SharedClock) -> Self
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        let clock = TokioClock::new();
         let (tx, rx) = mpsc::channel(8);
         let (current_tx, current) = watch::channel(None);
         let (notice_tx, notices) = watch::channel(None);
         let (stats_tx, stats) = watch::channel(Stats::default());
         let task = Task {
             machine: Machine::new(config),
-            clock,
+            clock: clock.clone(),
             rx,
             current_tx,
             notice_tx,
@@ -200,7 +203,7 @@ impl CameraMux for VideoMux {
 
 struct Task {
     machine: Machine,
-    clock: TokioClock,
+    clock: SharedClock,
     rx: mpsc::Receiver<Request>,
     current_tx: watch::Sender<Option<Channel>>,
     notice_tx: watch::Sender<Option<Notice>>,
