@@ -1,4 +1,4 @@
-//! `ima mock sick-lms`: the mock SICK LMS on a pty (called from [`crate::cmd::mock`]).
+//! `ima mock sick-lms`: the mock SICK LMS on a pty (called from the `ima mock` dispatcher).
 
 use std::io::Write;
 use std::time::Duration;

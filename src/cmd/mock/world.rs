@@ -31,7 +31,7 @@ pub struct WorldOptions {
 
 /// Start the world and its devices.
 pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
-    let world = super::mock::load_world(opts.world.as_ref(), opts.seed)?;
+    let world = super::shared::load_world(opts.world.as_ref(), opts.seed)?;
     ServedWorld::start(
         world,
         &ServeOptions {
