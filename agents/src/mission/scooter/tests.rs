@@ -1,10 +1,12 @@
 //! ScooterBrain end to end: the agents wired by the SAN, through the public API.
 use super::*;
 use core::f64::consts::PI;
+use core::time::Duration;
 
 use ima_hal::laser::BeamFlags;
-use ima_hal::{Point2, normalize_angle};
+use ima_hal::{Isometry2, Point2, normalize_angle};
 
+use crate::mission::msg::{Emergency, MissionEvent, Pose};
 use crate::ses::shared::SharedRecord;
 
 const RED: &str = "red";
