@@ -22,23 +22,25 @@ pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
 
 /// Wait for Ctrl-C or SIGTERM.
 pub fn wait_for_interrupt() -> Result<()> {
-    let rt = tokio::runtime::Builder::new_current_thread()
+    tokio::runtime::Builder::new_current_thread()
         .enable_all()
-        .build()?;
-    rt.block_on(async {
-        #[cfg(unix)]
-        {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r?,
-                _ = term.recv() => {}
-            }
+        .build()?
+        .block_on(wait_for_signal())
+}
+
+/// Wait for SIGINT or SIGTERM (inside a runtime).
+pub async fn wait_for_signal() -> Result<()> {
+    #[cfg(unix)]
+    {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+        tokio::select! {
+            r = tokio::signal::ctrl_c() => r?,
+            _ = term.recv() => {}
         }
-        #[cfg(not(unix))]
-        tokio::signal::ctrl_c().await?;
-        anyhow::Ok(())
-    })
+    }
+    #[cfg(not(unix))]
+    tokio::signal::ctrl_c().await?;
+    Ok(())
 }
 
 /// Print the pty path on stdout's first line, then serve until interrupted.

@@ -62,23 +62,7 @@ pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32)
         "serving a mock SICK LMS (on {robot}) on {} powering up at {baud} baud; Ctrl-C to stop",
         dev.path().display()
     );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    rt.block_on(async {
-        #[cfg(unix)]
-        {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r?,
-                _ = term.recv() => {}
-            }
-        }
-        #[cfg(not(unix))]
-        tokio::signal::ctrl_c().await?;
-        anyhow::Ok(())
-    })?;
+    super::shared::wait_for_interrupt()?;
     let status = dev.status();
     let model = dev
         .stop()
