@@ -3,7 +3,6 @@
 use anyhow::{Context, Result};
 use clap::ValueEnum;
 use ima_mock_devices::compass::{CompassDevice, CompassModelConfig, MockDialect};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::{DriveCommand, SharedWorld};
 
@@ -53,11 +52,7 @@ pub fn serve_mock(
             )
         });
     }
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        FaultPlan::parse(faults).context("parsing --faults")?
-    };
+    let plan = super::shared::fault_plan(faults, None)?;
     let cfg = CompassModelConfig {
         dialect: match opts.dialect {
             MockCompassDialect::Nmea => MockDialect::Kvh,

@@ -4,7 +4,6 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::SharedWorld;
@@ -21,15 +20,7 @@ pub fn serve_p2os(
     let id = world
         .with(|w| w.robot_id(robot))
         .with_context(|| format!("the world has no robot named {robot:?}"))?;
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
-        if !faults.contains("seed=") {
-            p.seed = seed;
-        }
-        p
-    };
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
     let name = robot[..1].to_uppercase() + &robot[1..];
     let cfg = P2osModelConfig {
         name,

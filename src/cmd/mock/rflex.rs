@@ -4,7 +4,6 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
 use ima_mock_devices::world::SharedWorld;
@@ -20,15 +19,7 @@ pub fn serve_rflex(
     let id = world
         .with(|w| w.robot_id(robot))
         .with_context(|| format!("the world has no robot named {robot:?}"))?;
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
-        if !faults.contains("seed=") {
-            p.seed = seed;
-        }
-        p
-    };
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
     let dev = RflexDevice::new(
         RflexModelConfig::default(),
         RflexWorldBody::new(world.clone(), id, seed),

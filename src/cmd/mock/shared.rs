@@ -3,7 +3,8 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
+use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::world::{SharedWorld, World};
 
 /// Load the world of `--world`, or the built-in arena, with `seed`.
@@ -55,4 +56,19 @@ pub fn announce_and_wait(path: &std::path::Path, what: &str) -> Result<()> {
         path.display()
     );
     wait_for_interrupt()
+}
+
+/// The fault plan of `--faults` (none when empty); `seed` (the device's `--seed`) seeds it
+/// unless the plan names its own `seed=`.
+pub fn fault_plan(faults: &str, seed: Option<u64>) -> Result<FaultPlan> {
+    if faults.is_empty() {
+        return Ok(FaultPlan::none());
+    }
+    let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
+    if let Some(seed) = seed
+        && !faults.contains("seed=")
+    {
+        p.seed = seed;
+    }
+    Ok(p)
 }

@@ -4,7 +4,6 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use ima_mock_devices::world::SharedWorld;
@@ -24,15 +23,7 @@ pub fn serve_sick_lms(
         .with_context(|| format!("the world has no robot named {robot:?}"))?;
     let baud = BaudRate::from_bps(baud)
         .with_context(|| format!("a SICK LMS runs at 9600, 19200, 38400 or 500000, not {baud}"))?;
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
-        if !faults.contains("seed=") {
-            p.seed = seed;
-        }
-        p
-    };
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
     let cfg = SickLmsModelConfig {
         baud,
         ..SickLmsModelConfig::default()

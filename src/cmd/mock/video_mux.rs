@@ -3,7 +3,6 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::video_mux::{MuxDevice, MuxDialect, MuxModelConfig, VideoBus};
 
@@ -24,11 +23,7 @@ pub struct MockMuxOptions {
 
 /// `ima mock video-mux`.
 pub fn run_mock(faults: &str, opts: MockMuxOptions) -> Result<()> {
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        FaultPlan::parse(faults).context("parsing --faults")?
-    };
+    let plan = super::shared::fault_plan(faults, None)?;
     let cfg = MuxModelConfig {
         dialect: if opts.kramer {
             MuxDialect::Kramer
