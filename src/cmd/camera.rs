@@ -1,16 +1,15 @@
 //! `ima camera grab`: grab one frame from the mock camera head (through the mock switcher and
-//! the real switcher driver) and save it as PNG; and the serving half of `ima mock video-mux`.
+//! the real switcher driver) and save it as PNG (the mock switcher alone is
+//! `crate::cmd::mock::video_mux`).
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use ima_hal::camera::{CameraMux, Frame, FrameSource};
 use ima_mock_devices::camera::{CameraConfig, MockCameraHead};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
-use ima_mock_devices::video_mux::{MuxDevice, MuxDialect, MuxModelConfig, VideoBus};
+use ima_mock_devices::video_mux::{MuxDevice, MuxModelConfig, VideoBus};
 use ima_video_mux::machine::Config as MuxConfig;
 use ima_video_mux::shell::{VideoMux, open_port};
 
@@ -82,7 +81,7 @@ pub fn run(cmd: &CameraCommand) -> Result<()> {
 
 fn grab(args: &GrabArgs) -> Result<()> {
     crate::cmd::output::check_file("--out", &args.out)?;
-    let world = crate::cmd::mock::load_world(args.world.as_ref(), args.seed)?;
+    let world = crate::cmd::mock::shared::load_world(args.world.as_ref(), args.seed)?;
     let id = world
         .with(|w| w.robot_id(&args.robot))
         .with_context(|| format!("the world has no robot named {:?}", args.robot))?;
@@ -149,62 +148,6 @@ fn grab(args: &GrabArgs) -> Result<()> {
         frame.width,
         frame.height,
         args.channel
-    );
-    Ok(())
-}
-
-/// Options of the mock switcher (the switcher-specific flags of `ima mock`).
-#[derive(Debug, Clone, Copy)]
-pub struct MockMuxOptions {
-    /// Number of inputs.
-    pub inputs: u8,
-    /// Switch delay.
-    pub switch_delay: Duration,
-    /// Refuse selections with E06 (front-panel auto-switch mode).
-    pub auto_switch: bool,
-    /// Speak Kramer Protocol 2000 instead of Extron SIS.
-    pub kramer: bool,
-}
-
-/// `ima mock video-mux`.
-pub fn run_mock(faults: &str, opts: MockMuxOptions) -> Result<()> {
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        FaultPlan::parse(faults).context("parsing --faults")?
-    };
-    let cfg = MuxModelConfig {
-        dialect: if opts.kramer {
-            MuxDialect::Kramer
-        } else {
-            MuxDialect::Extron
-        },
-        inputs: opts.inputs,
-        switch_delay: opts.switch_delay,
-        auto_switch: opts.auto_switch,
-        ..MuxModelConfig::default()
-    };
-    let dev = PtyDevice::spawn(
-        MuxDevice::new(cfg, VideoBus::default()),
-        PtyOptions {
-            faults: plan,
-            ..PtyOptions::default()
-        },
-    )
-    .context("starting the pty")?;
-    let what = if opts.kramer {
-        "Kramer switcher"
-    } else {
-        "Extron switcher"
-    };
-    crate::cmd::compass::announce_and_wait(dev.path(), what)?;
-    let model = dev
-        .stop()
-        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
-    let st = model.stats();
-    eprintln!(
-        "stopped: {} commands, {} switches, {} error replies",
-        st.commands, st.switches, st.errors
     );
     Ok(())
 }

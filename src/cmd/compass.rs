@@ -1,5 +1,5 @@
-//! `ima compass --port PATH`: configure a serial compass and print its heading live; and the
-//! serving half of `ima mock compass`.
+//! `ima compass --port PATH`: configure a serial compass and print its heading live (the mock
+//! compass is `crate::cmd::mock::compass`).
 
 use std::io::Write;
 use std::time::Duration;
@@ -11,10 +11,6 @@ use ima_compass::machine::{Config, Dialect, ForeignLine};
 use ima_compass::shell::{CompassDriver, default_baud, open_port};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::compass::HeadingReference;
-use ima_mock_devices::compass::{CompassDevice, CompassModelConfig, MockDialect};
-use ima_mock_devices::faults::FaultPlan;
-use ima_mock_devices::pty::{PtyDevice, PtyOptions};
-use ima_mock_devices::world::{DriveCommand, SharedWorld};
 
 /// Compass dialects the driver speaks.
 #[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
@@ -24,15 +20,6 @@ pub enum DriverDialect {
     /// Any NMEA 0183 heading source, already configured: listen only.
     Nmea,
     /// PNI TCM2: `h`, `sdo=t`, `sp=N`, `go`, then read the standard line.
-    Tcm2,
-}
-
-/// Dialects of the mock compass.
-#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
-pub enum MockCompassDialect {
-    /// A KVH C100 streaming NMEA `HDG` (answers `=…` commands with `>`).
-    Nmea,
-    /// A PNI TCM2 streaming its standard line.
     Tcm2,
 }
 
@@ -188,120 +175,5 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         st.headings, st.parse_errors, st.framer.bad_checksums, st.framer.dropped_bytes
     );
     drv.close().await;
-    Ok(())
-}
-
-/// Options of the mock compass (the compass-specific flags of `ima mock`).
-#[derive(Debug, Clone, Copy)]
-pub struct MockCompassOptions {
-    /// The dialect.
-    pub dialect: MockCompassDialect,
-    /// Installation deviation, degrees east.
-    pub deviation_deg: f64,
-    /// Turn the robot at this rate, degrees per second (0: stand still).
-    pub spin_deg_s: f64,
-    /// Noise seed.
-    pub seed: u64,
-}
-
-/// Serve a mock compass on `robot` of `world` on a new pty (the world is stepped in real
-/// time by this device).
-pub fn serve_mock(
-    world: &SharedWorld,
-    robot: &str,
-    faults: &str,
-    opts: MockCompassOptions,
-) -> Result<PtyDevice<CompassDevice>> {
-    let id = world
-        .with(|w| w.robot_id(robot))
-        .with_context(|| format!("the world has no robot named {robot:?}"))?;
-    if opts.spin_deg_s != 0.0 {
-        world.with(|w| {
-            w.command(
-                id,
-                DriveCommand::Twist {
-                    v_m_s: 0.0,
-                    omega_rad_s: opts.spin_deg_s.to_radians(),
-                },
-            )
-        });
-    }
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        FaultPlan::parse(faults).context("parsing --faults")?
-    };
-    let cfg = CompassModelConfig {
-        dialect: match opts.dialect {
-            MockCompassDialect::Nmea => MockDialect::Kvh,
-            MockCompassDialect::Tcm2 => MockDialect::Tcm2,
-        },
-        deviation_deg: opts.deviation_deg,
-        seed: opts.seed,
-        ..CompassModelConfig::default()
-    };
-    PtyDevice::spawn(
-        CompassDevice::new(cfg, world.clone(), id),
-        PtyOptions {
-            faults: plan,
-            step_world: Some(world.clone()),
-            ..PtyOptions::default()
-        },
-    )
-    .context("starting the pty")
-}
-
-/// Wait for Ctrl-C or SIGTERM.
-pub fn wait_for_interrupt() -> Result<()> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    rt.block_on(async {
-        #[cfg(unix)]
-        {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r?,
-                _ = term.recv() => {}
-            }
-        }
-        #[cfg(not(unix))]
-        tokio::signal::ctrl_c().await?;
-        anyhow::Ok(())
-    })
-}
-
-/// Print the pty path on stdout's first line, then serve until interrupted.
-pub fn announce_and_wait(path: &std::path::Path, what: &str) -> Result<()> {
-    {
-        let mut out = std::io::stdout().lock();
-        writeln!(out, "{}", path.display())?;
-        out.flush()?;
-    }
-    eprintln!(
-        "serving a mock {what} on {}; Ctrl-C to stop",
-        path.display()
-    );
-    wait_for_interrupt()
-}
-
-/// `ima mock compass`.
-pub fn run_mock(
-    world: &SharedWorld,
-    robot: &str,
-    faults: &str,
-    opts: MockCompassOptions,
-) -> Result<()> {
-    let dev = serve_mock(world, robot, faults, opts)?;
-    announce_and_wait(dev.path(), &format!("{:?} compass", opts.dialect))?;
-    let model = dev
-        .stop()
-        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
-    let st = model.stats();
-    eprintln!(
-        "stopped: {} commands, {} bad commands, {} lines sent",
-        st.commands, st.bad_commands, st.lines
-    );
     Ok(())
 }

@@ -801,10 +801,10 @@ impl Session {
                     self.push_event(Event::Config(cfg));
                 }
                 Packet::Encoder { left, right } => {
-                    let k = 1.0 / (self.cfg.ticks_per_mm * 1000.0);
+                    let tpm = self.cfg.ticks_per_mm;
                     self.push_event(Event::Encoder {
-                        left_m: f64::from(left) * k,
-                        right_m: f64::from(right) * k,
+                        left_m: crate::params::encoder_m(left, tpm),
+                        right_m: crate::params::encoder_m(right, tpm),
                         left_ticks: left,
                         right_ticks: right,
                         at: now,
@@ -969,7 +969,7 @@ impl Session {
                 new_sonar = true;
                 self.sonar.upsert(SonarReading {
                     index: s.index,
-                    range_m: f64::from(s.range) * params.range_conv / 1000.0,
+                    range_m: params.sonar_range_m(s.range),
                     at: now,
                 });
             }
@@ -980,10 +980,7 @@ impl Session {
             left_stall: sip.stall_bumpers & 0x0001 != 0,
             right_stall: sip.stall_bumpers & 0x0100 != 0,
         };
-        let v_mm_s = (f64::from(sip.left_vel) + f64::from(sip.right_vel)) / 2.0 * params.vel_conv;
-        let omega = (f64::from(sip.right_vel) - f64::from(sip.left_vel)) / 2.0
-            * params.vel_conv
-            * params.diff_conv;
+        let (v_m_s, omega) = params.body_velocity(sip.left_vel, sip.right_vel);
         let raw = Isometry2::new(
             ima_hal::Vector2::new(self.odo.x_mm / 1000.0, self.odo.y_mm / 1000.0),
             self.odo.theta,
@@ -997,7 +994,7 @@ impl Session {
                 now,
                 Odometry {
                     pose,
-                    v_m_s: v_mm_s / 1000.0,
+                    v_m_s,
                     omega_rad_s: omega,
                 },
             ),
@@ -1007,7 +1004,7 @@ impl Session {
             power: Stamped::new(
                 now,
                 PowerState {
-                    battery_v: f64::from(sip.battery) / 10.0,
+                    battery_v: crate::params::battery_v(sip.battery),
                 },
             ),
             motors_enabled: enabled,
@@ -1093,6 +1090,16 @@ pub fn unwrap15(prev: u16, new: u16) -> i32 {
         d += 0x8000;
     }
     d
+}
+
+/// A 15-bit position counter (XPOS/YPOS) as a signed count: the shorter way round from 0
+/// (two's complement in 15 bits: 0x4000–0x7FFF are negative), the rule [`unwrap15`] applies
+/// to every step of the odometry; equal to `unwrap15(0, raw)` whenever that step is within
+/// its ±0x1000 window.
+#[must_use]
+pub fn signed15(raw: u16) -> i32 {
+    let v = i32::from(raw & 0x7FFF);
+    if v >= 0x4000 { v - 0x8000 } else { v }
 }
 
 /// The signed change between two headings in 4096-per-turn units, the shorter way round.

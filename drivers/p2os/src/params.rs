@@ -74,6 +74,60 @@ impl RobotParams {
             .copied()
             .find(|p| p.subclass.as_bytes().eq_ignore_ascii_case(subclass))
     }
+
+    /// A SIP's XPOS or YPOS in metres: the 15-bit counter read as a signed count
+    /// ([`crate::machine::signed15`], the shorter way round from 0, as the odometry reads
+    /// every step) × `dist_conv`. A robot at −0.57 m reports 0x7E4D, not 42.68 m.
+    #[must_use]
+    pub fn position_m(&self, raw: u16) -> f64 {
+        f64::from(crate::machine::signed15(raw)) * self.dist_conv / 1000.0
+    }
+
+    /// A SIP's THPOS as a heading, radians in (−π, π].
+    #[must_use]
+    pub fn heading_rad(&self, thpos: i16) -> f64 {
+        ima_hal::normalize_angle(f64::from(thpos) * self.angle_conv)
+    }
+
+    /// One wheel's velocity count of a SIP in m/s.
+    #[must_use]
+    pub fn wheel_m_s(&self, raw: i16) -> f64 {
+        f64::from(raw) * self.vel_conv / 1000.0
+    }
+
+    /// The body's speed (m/s) and turn rate (rad/s) from a SIP's wheel velocity counts, as
+    /// the driver's odometry reports them: v = (L + R) / 2 × `vel_conv`,
+    /// ω = (R − L) / 2 × `vel_conv` × `diff_conv`.
+    #[must_use]
+    pub fn body_velocity(&self, left: i16, right: i16) -> (f64, f64) {
+        let v_mm_s = (f64::from(left) + f64::from(right)) / 2.0 * self.vel_conv;
+        let omega = (f64::from(right) - f64::from(left)) / 2.0 * self.vel_conv * self.diff_conv;
+        (v_mm_s / 1000.0, omega)
+    }
+
+    /// A sonar range count in metres.
+    #[must_use]
+    pub fn sonar_range_m(&self, raw: u16) -> f64 {
+        f64::from(raw) * self.range_conv / 1000.0
+    }
+
+    /// A VEL2 wheel byte in m/s (× `vel2_divisor` mm/s).
+    #[must_use]
+    pub fn vel2_m_s(&self, raw: i8) -> f64 {
+        f64::from(raw) * self.vel2_divisor / 1000.0
+    }
+}
+
+/// A SIP's battery byte in volts (tenths of a volt).
+#[must_use]
+pub fn battery_v(raw: u8) -> f64 {
+    f64::from(raw) / 10.0
+}
+
+/// An ENCODER packet's tick count in metres of wheel travel, at `ticks_per_mm`.
+#[must_use]
+pub fn encoder_m(ticks: i32, ticks_per_mm: f64) -> f64 {
+    f64::from(ticks) * (1.0 / (ticks_per_mm * 1000.0))
 }
 
 /// Sonar ring of the P2-AT/P2-AT8 (ARIA `p2at.p`).
@@ -165,6 +219,37 @@ pub const ALL: &[&RobotParams] = &[&P2AT, &P2AT8, &P2DX];
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn conversions_read_signed_positions_and_si_units() {
+        // 0x7E4D = 32333 counts: 435 counts behind the origin, −0.5742 m on a P2-AT.
+        assert!((P2AT.position_m(0x7E4D) + 0.5742).abs() < 1e-12);
+        assert!((P2AT.position_m(1000) - 1.32).abs() < 1e-12);
+        assert!((P2AT.heading_rad(1024) - 1024.0 * 0.001534).abs() < 1e-12);
+        assert!((P2AT.wheel_m_s(-250) + 0.25).abs() < 1e-12);
+        let (v, w) = P2AT.body_velocity(100, 200);
+        assert!((v - 0.15).abs() < 1e-12 && (w - 50.0 * 0.0034).abs() < 1e-12);
+        assert!((P2AT.sonar_range_m(1000) - 0.268).abs() < 1e-12);
+        assert!((P2AT8.sonar_range_m(1000) - 1.0).abs() < 1e-12);
+        assert!((P2AT.vel2_m_s(-10) + 0.2).abs() < 1e-12);
+        assert!((battery_v(125) - 12.5).abs() < 1e-12);
+        assert!((encoder_m(19_000, 19.0) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn signed_positions_agree_with_the_odometry_step_from_zero() {
+        use crate::machine::{signed15, unwrap15};
+        for raw in (0..=0x1000_u16).chain(0x7000..=0x7FFF) {
+            assert_eq!(signed15(raw), unwrap15(0, raw), "{raw:#06x}");
+        }
+        assert_eq!(signed15(0x3FFF), 0x3FFF);
+        assert_eq!(signed15(0x4000), -0x4000);
+        assert_eq!(
+            signed15(0xFFFF),
+            -1,
+            "the 16th bit is not part of the count"
+        );
+    }
 
     #[test]
     fn lookup_is_case_insensitive_and_strict() {

@@ -211,6 +211,49 @@ impl Default for Config {
     }
 }
 
+impl Config {
+    /// Axis-0 (translation) controller units in SI (÷ [`Config::kd`]): a position in m, a
+    /// velocity in m/s, an acceleration in m/s².
+    #[must_use]
+    pub fn translation_si(&self, units: f64) -> f64 {
+        units / self.kd
+    }
+
+    /// Axis-1 (rotation) controller units in SI (÷ [`Config::ka`]): an angle in rad, a rate
+    /// in rad/s, an acceleration in rad/s².
+    #[must_use]
+    pub fn rotation_si(&self, units: f64) -> f64 {
+        units / self.ka
+    }
+
+    /// A SYS_STATUS voltage word as battery volts: raw / 100 + [`Config::power_offset_v`].
+    #[must_use]
+    pub fn battery_v(&self, voltage_raw: u32) -> f64 {
+        f64::from(voltage_raw) / 100.0 + self.power_offset_v
+    }
+
+    /// A sonar echo in metres, clipped at [`Config::sonar_max_raw`] (the clipped value means
+    /// "no echo"), ÷ [`Config::sonar_units_per_m`].
+    #[must_use]
+    pub fn sonar_range_m(&self, raw: u16) -> f64 {
+        f64::from(raw.min(self.sonar_max_raw)) / self.sonar_units_per_m
+    }
+
+    /// A SET_DIR's signed speed and its acceleration in SI: (m/s, m/s²) on axis 0,
+    /// (rad/s, rad/s²) on axis 1, `None` on any other axis. The inverse of
+    /// [`Machine::set_dir_pair`]'s speeds.
+    #[must_use]
+    pub fn set_dir_si(&self, s: &SetDir) -> Option<(f64, f64)> {
+        let sign = if s.forward { 1.0 } else { -1.0 };
+        let (v, a) = (f64::from(s.velocity), f64::from(s.acceleration));
+        match s.axis {
+            0 => Some((sign * self.translation_si(v), self.translation_si(a))),
+            1 => Some((sign * self.rotation_si(v), self.rotation_si(a))),
+            _ => None,
+        }
+    }
+}
+
 /// `x` rounded half up to a u32, saturating; negative or NaN gives 0 (§5, P10: round, never
 /// truncate).
 fn round_u32(x: f64) -> u32 {
@@ -520,7 +563,7 @@ impl Machine {
     pub fn transducers(&self) -> heapless::Vec<SonarTransducer, MAX_SONARS> {
         let mut mounts = self.cfg.sonar_table.clone();
         mounts.sort_unstable_by_key(|m| m.index);
-        let max_range_m = f64::from(self.cfg.sonar_max_raw) / self.cfg.sonar_units_per_m;
+        let max_range_m = self.cfg.sonar_range_m(self.cfg.sonar_max_raw);
         mounts
             .iter()
             .map(|m| SonarTransducer {
@@ -691,15 +734,14 @@ impl Machine {
                 brake_engaged,
                 ..
             } => {
-                let battery_v = f64::from(*voltage_raw) / 100.0 + self.cfg.power_offset_v;
+                let battery_v = self.cfg.battery_v(*voltage_raw);
                 self.push_event(Event::Power(Stamped::new(at, PowerState { battery_v })));
                 self.push_event(Event::Brake(Stamped::new(at, *brake_engaged)));
             }
             Report::Motion(m) => self.on_motion(m),
             Report::Sonar(s) => {
                 for e in &s.echoes {
-                    let raw = e.range.min(self.cfg.sonar_max_raw);
-                    let range_m = f64::from(raw) / self.cfg.sonar_units_per_m;
+                    let range_m = self.cfg.sonar_range_m(e.range);
                     let mount = self.cfg.sonar_table.iter().find(|m| m.id == e.id).copied();
                     match mount {
                         Some(m) => self.push_event(Event::Sonar(SonarReading {
@@ -763,12 +805,10 @@ impl Machine {
         };
         self.odo.pending = [None, None];
         let now = self.now;
-        let kd = self.cfg.kd;
-        let ka = self.cfg.ka;
         let o = &mut self.odo;
         if let Some((b0, b1)) = o.base {
-            let d = f64::from(p0.wrapping_sub(b0)) / kd;
-            let a = f64::from(p1.wrapping_sub(b1)) / ka;
+            let d = self.cfg.translation_si(f64::from(p0.wrapping_sub(b0)));
+            let a = self.cfg.rotation_si(f64::from(p1.wrapping_sub(b1)));
             let dt = now.saturating_duration_since(o.last_at).as_secs_f64();
             let slack = self.cfg.odometry_slack;
             let max_d = 3.0 * self.cfg.limits.max_v_m_s * dt + slack;
@@ -797,8 +837,8 @@ impl Machine {
         o.base = Some((p0, p1));
         o.last_at = now;
         o.rejects = 0;
-        o.v = f64::from(v0) / kd;
-        o.omega = f64::from(v1) / ka;
+        o.v = self.cfg.translation_si(f64::from(v0));
+        o.omega = self.cfg.rotation_si(f64::from(v1));
         let odo = self.odometry();
         self.push_event(Event::Odometry(Stamped::new(now, odo)));
     }
@@ -1056,3 +1096,38 @@ impl Machine {
 
 /// Bytes a transmit buffer needs.
 pub const TX_BUF: usize = MAX_WIRE_FRAME;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_conversions_are_the_atrv_jr_units() {
+        let cfg = Config::default();
+        assert!((cfg.translation_si(90_810.0) - 1.0).abs() < 1e-12);
+        assert!((cfg.rotation_si(-37_000.0) + 1.0).abs() < 1e-12);
+        assert!((cfg.battery_v(2630) - 27.5).abs() < 1e-12);
+        assert!((cfg.sonar_range_m(1476) - 1.0).abs() < 1e-12);
+        assert_eq!(
+            cfg.sonar_range_m(u16::MAX),
+            cfg.sonar_range_m(cfg.sonar_max_raw),
+            "clipped: no echo"
+        );
+    }
+
+    #[test]
+    fn set_dir_si_inverts_the_set_dir_pair() {
+        let m = Machine::new(Config::default(), Instant::ZERO);
+        let cmd = VelocityCommand::new(-0.4, 0.7);
+        let [t, r] = m.set_dir_pair(cmd);
+        let (v, acc) = m.config().set_dir_si(&t).unwrap();
+        assert!(
+            (v + 0.4).abs() < 1e-5 && (acc - 0.7).abs() < 1e-5,
+            "{v} {acc}"
+        );
+        let (w, _) = m.config().set_dir_si(&r).unwrap();
+        assert!((w - 0.7).abs() < 1e-4, "{w}");
+        let other = SetDir { axis: 2, ..t };
+        assert_eq!(m.config().set_dir_si(&other), None);
+    }
+}

@@ -97,6 +97,18 @@ impl Variant {
     pub fn max_scan_rate_hz(self) -> f64 {
         75.0 * f64::from(self.res_centideg) / 100.0
     }
+
+    /// Angle between neighbouring values, radians ([`resolution_rad`]).
+    #[must_use]
+    pub fn resolution_rad(self) -> f64 {
+        resolution_rad(self.res_centideg)
+    }
+}
+
+/// An angular resolution in 1/100° (variant commands and replies) as radians.
+#[must_use]
+pub fn resolution_rad(res_centideg: u16) -> f64 {
+    f64::from(res_centideg) * PI / 18_000.0
 }
 
 /// Why a B0 could not become a [`LaserScan`].
@@ -212,10 +224,7 @@ pub fn decode_scan(
     if scan.count_word.partial() {
         start_deg += 0.25 * f64::from(scan.count_word.partial_index());
     }
-    out.reset(
-        lms_deg_to_sensor_rad(start_deg),
-        f64::from(v.res_centideg()) * PI / 18_000.0,
-    );
+    out.reset(lms_deg_to_sensor_rad(start_deg), v.resolution_rad());
     let split = WordSplit::new(mode).ok_or(DecodeError::UnknownMeasuringMode(mode.0))?;
     // One length update for the whole scan, then a fill in place (no per-beam push).
     let (ranges, flags) = out
@@ -416,7 +425,7 @@ pub fn describe(
     LaserDescription {
         pose,
         fov_rad: f64::from(variant.angle_deg()) * PI / 180.0,
-        resolution_rad: f64::from(variant.res_centideg()) * PI / 18_000.0,
+        resolution_rad: variant.resolution_rad(),
         beams: variant.values(),
         min_range_m: 0.0,
         max_range_m: max_range_m(mode, units).unwrap_or(0.0),

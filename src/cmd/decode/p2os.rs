@@ -1,133 +1,22 @@
-//! `ima decode <protocol>`: a capture in, one JSON object per frame out.
-//!
-//! Contract (shared by every protocol): input is raw bytes, or hex text with `--hex`, from a
-//! file or stdin; output is JSON Lines, one object per frame in input order, each with a
-//! `"kind"` key (the snake_case message name); physical fields are in SI units with
-//! unit-suffixed names (`x_m`, `theta_rad`, `range_m`, `battery_v`) next to the raw values; a
-//! bad frame is `{"kind":"error","error":"<reason>","offset":<byte offset>}` and decoding goes
-//! on.
+//! `ima decode p2os`: a P2OS capture (either direction) as JSON Lines, under the contract of
+//! `ima decode` (see the parent module). SIP fields use the driver's conversions
+//! ([`RobotParams`] methods, [`ima_p2os::params::battery_v`]); XPOS/YPOS are read as the
+//! signed 15-bit counts the driver's odometry uses ([`ima_p2os::machine::signed15`]).
 
-use std::io::{Read, Write};
-use std::path::PathBuf;
-
-use anyhow::{Context, Result, bail};
-use clap::{Args, ValueEnum};
+use anyhow::Result;
 use ima_p2os::framer::{FrameEvent, Framer, Rejected};
-use ima_p2os::params::RobotParams;
+use ima_p2os::params::{RobotParams, battery_v, encoder_m};
 use ima_p2os::wire::{Arg, Command, Packet};
 use serde_json::{Value, json};
-
-/// Protocols `ima decode` understands.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum Protocol {
-    /// Pioneer 2 P2OS.
-    P2os,
-    /// Serial compass: NMEA HDG/HDM/HDT, TCM2 lines (`--from host`: KVH/TCM2 commands).
-    Compass,
-    /// Extron SIS video switcher (`--from host`: SIS commands).
-    VideoMux,
-    /// Kramer Protocol 2000 video switcher (both directions).
-    Kramer,
-    /// iRobot/RWI rFLEX (ATRV-Jr).
-    Rflex,
-    /// SICK LMS 200/291 laser scanner telegrams.
-    SickLms,
-}
-
-/// Which side of the link the capture is from.
-#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
-pub enum Direction {
-    /// Bytes the robot sent (SIPs, sync replies, CONFIG…).
-    Robot,
-    /// Bytes the host sent (commands).
-    Host,
-}
-
-/// Arguments of `ima decode`.
-#[derive(Debug, Args)]
-pub struct DecodeArgs {
-    /// Protocol of the capture.
-    protocol: Protocol,
-    /// Which side sent the bytes.
-    #[arg(long, value_enum, default_value = "robot")]
-    from: Direction,
-    /// The input is hex text (whitespace, commas and `0x` prefixes allowed).
-    #[arg(long)]
-    hex: bool,
-    /// Robot parameters for unit conversion (P2OS subclass: p2at, p2at8, p2dx).
-    #[arg(long, default_value = "p2at")]
-    robot: String,
-    /// Capture file; stdin when absent.
-    file: Option<PathBuf>,
-}
-
-/// Parse hex text: tokens split by whitespace or commas, optional `0x` prefix, pairs of digits.
-pub fn parse_hex(text: &str) -> Result<Vec<u8>> {
-    let mut out = Vec::new();
-    for token in text.split(|c: char| c.is_whitespace() || c == ',') {
-        let t = token.trim_start_matches("0x").trim_start_matches("0X");
-        if t.is_empty() {
-            continue;
-        }
-        if t.len() % 2 != 0 {
-            bail!("hex token {token:?} has an odd number of digits");
-        }
-        for i in (0..t.len()).step_by(2) {
-            let pair = t.get(i..i + 2).context("hex token")?;
-            out.push(u8::from_str_radix(pair, 16).with_context(|| format!("bad hex {pair:?}"))?);
-        }
-    }
-    Ok(out)
-}
-
-/// Run `ima decode`.
-pub fn run(args: &DecodeArgs) -> Result<()> {
-    let mut raw = Vec::new();
-    match &args.file {
-        Some(p) => {
-            raw = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
-        }
-        None => {
-            std::io::stdin()
-                .read_to_end(&mut raw)
-                .context("reading stdin")?;
-        }
-    }
-    let bytes = if args.hex {
-        parse_hex(std::str::from_utf8(&raw).context("--hex input is not text")?)?
-    } else {
-        raw
-    };
-    let params = RobotParams::for_subclass(args.robot.as_bytes())
-        .with_context(|| format!("unknown P2OS robot {:?} (p2at, p2at8, p2dx)", args.robot))?;
-    let stdout = std::io::stdout();
-    let mut out = std::io::BufWriter::new(stdout.lock());
-    let host = args.from == Direction::Host;
-    let mut emit = |v: Value| -> Result<()> {
-        serde_json::to_writer(&mut out, &v)?;
-        out.write_all(b"\n")?;
-        Ok(())
-    };
-    match args.protocol {
-        Protocol::P2os => decode_p2os(&bytes, args.from, params, &mut emit)?,
-        Protocol::Compass => super::decode_compass::decode(&bytes, host, &mut emit)?,
-        Protocol::SickLms => super::decode_sick::decode_sick_lms(&bytes, host, &mut emit)?,
-        Protocol::VideoMux => super::decode_video_mux::decode_extron(&bytes, host, &mut emit)?,
-        Protocol::Kramer => super::decode_video_mux::decode_kramer(&bytes, &mut emit)?,
-        Protocol::Rflex => super::decode_rflex::decode_rflex(&bytes, args.from, &mut emit)?,
-    }
-    out.flush()?;
-    Ok(())
-}
 
 /// Decode a P2OS byte stream, calling `emit` with one JSON object per frame or error.
 pub fn decode_p2os(
     bytes: &[u8],
-    from: Direction,
+    host: bool,
     params: &RobotParams,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let mut framer = if from == Direction::Host {
+    let mut framer = if host {
         Framer::for_commands()
     } else {
         Framer::new()
@@ -149,8 +38,8 @@ pub fn decode_p2os(
                     (Err(reason), 0usize)
                 }
                 Some(FrameEvent::Frame(p)) => {
-                    let v = if from == Direction::Host {
-                        Command::parse(p).map(command_json)
+                    let v = if host {
+                        Command::parse(p).map(|c| command_json(c, params))
                     } else {
                         Packet::parse(p).map(|pk| packet_json(&pk, params))
                     };
@@ -187,7 +76,7 @@ fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
 
-fn command_json(c: Command<'_>) -> Value {
+fn command_json(c: Command<'_>, params: &RobotParams) -> Value {
     let mut v = json!({"kind": c.name(), "command": c.number()});
     match c {
         Command::Int(ic, x) => {
@@ -220,8 +109,8 @@ fn command_json(c: Command<'_>) -> Value {
         Command::Vel2 { left, right } => {
             v["left_raw"] = json!(left);
             v["right_raw"] = json!(right);
-            v["left_m_s"] = json!(f64::from(left) * 0.020);
-            v["right_m_s"] = json!(f64::from(right) * 0.020);
+            v["left_m_s"] = json!(params.vel2_m_s(left));
+            v["right_m_s"] = json!(params.vel2_m_s(right));
         }
         Command::Str(_, s) => v["bytes"] = json!(s),
         Command::Other { arg, .. } => {
@@ -250,27 +139,26 @@ fn packet_json(p: &Packet<'_>, params: &RobotParams) -> Value {
             v["subclass"] = json!(text(subclass));
         }
         Packet::Sip(s) => {
-            let vel = |x: i16| f64::from(x) * params.vel_conv / 1000.0;
+            let (v_m_s, omega_rad_s) = params.body_velocity(s.left_vel, s.right_vel);
             v = json!({
                 "kind": "sip",
                 "moving": s.moving,
-                "x_raw": s.xpos, "x_m": f64::from(s.xpos) * params.dist_conv / 1000.0,
-                "y_raw": s.ypos, "y_m": f64::from(s.ypos) * params.dist_conv / 1000.0,
+                "x_raw": s.xpos, "x_m": params.position_m(s.xpos),
+                "y_raw": s.ypos, "y_m": params.position_m(s.ypos),
                 "theta_raw": s.thpos,
-                "theta_rad": ima_hal::normalize_angle(f64::from(s.thpos) * params.angle_conv),
-                "left_vel_raw": s.left_vel, "left_vel_m_s": vel(s.left_vel),
-                "right_vel_raw": s.right_vel, "right_vel_m_s": vel(s.right_vel),
-                "v_m_s": (vel(s.left_vel) + vel(s.right_vel)) / 2.0,
-                "omega_rad_s": (f64::from(s.right_vel) - f64::from(s.left_vel)) / 2.0
-                    * params.vel_conv * params.diff_conv,
-                "battery_raw": s.battery, "battery_v": f64::from(s.battery) / 10.0,
+                "theta_rad": params.heading_rad(s.thpos),
+                "left_vel_raw": s.left_vel, "left_vel_m_s": params.wheel_m_s(s.left_vel),
+                "right_vel_raw": s.right_vel, "right_vel_m_s": params.wheel_m_s(s.right_vel),
+                "v_m_s": v_m_s,
+                "omega_rad_s": omega_rad_s,
+                "battery_raw": s.battery, "battery_v": battery_v(s.battery),
                 "stall_bumpers": s.stall_bumpers,
                 "control_raw": s.control,
                 "flags": s.flags, "motors_enabled": s.motors_enabled(),
                 "compass_raw": s.compass,
                 "sonar": s.sonars.iter().map(|r| json!({
                     "index": r.index, "range_raw": r.range,
-                    "range_m": f64::from(r.range) * params.range_conv / 1000.0,
+                    "range_m": params.sonar_range_m(r.range),
                 })).collect::<Vec<_>>(),
                 "grip_state": s.grip_state, "anport": s.anport,
                 "analog_raw": s.analog, "analog_v": f64::from(s.analog) * 5.0 / 255.0,
@@ -294,8 +182,8 @@ fn packet_json(p: &Packet<'_>, params: &RobotParams) -> Value {
         Packet::Encoder { left, right } => {
             v["left_ticks"] = json!(left);
             v["right_ticks"] = json!(right);
-            v["left_m"] = json!(f64::from(*left) / params.ticks_per_mm / 1000.0);
-            v["right_m"] = json!(f64::from(*right) / params.ticks_per_mm / 1000.0);
+            v["left_m"] = json!(encoder_m(*left, params.ticks_per_mm));
+            v["right_m"] = json!(encoder_m(*right, params.ticks_per_mm));
         }
         Packet::SerAux { port, data } => {
             v["port"] = json!(port);
@@ -312,10 +200,11 @@ fn packet_json(p: &Packet<'_>, params: &RobotParams) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cmd::decode::hex::parse_hex;
 
-    fn decode(bytes: &[u8], from: Direction) -> Vec<Value> {
+    fn decode(bytes: &[u8], host: bool) -> Vec<Value> {
         let mut out = Vec::new();
-        decode_p2os(bytes, from, &ima_p2os::params::P2AT, &mut |v| {
+        decode_p2os(bytes, host, &ima_p2os::params::P2AT, &mut |v| {
             out.push(v);
             Ok(())
         })
@@ -329,7 +218,7 @@ mod tests {
             "FA FB 21 33 E8 03 F4 01 00 04 CE FF 32 00 7D 00 00 00 04 01 00 00 02 00 4A 07 07 93 0E 00 00 00 FF 0F D9 B2",
         )
         .unwrap();
-        let v = decode(&bytes, Direction::Robot);
+        let v = decode(&bytes, false);
         assert_eq!(v.len(), 1);
         assert_eq!(v[0]["kind"], "sip");
         assert!((v[0]["x_m"].as_f64().unwrap() - 1.32).abs() < 1e-9);
@@ -344,7 +233,7 @@ mod tests {
     fn bad_frames_become_errors_with_offsets_and_decoding_goes_on() {
         let mut bytes = parse_hex("00 11 FA FB 06 0B 3B C8 00 D3 3C").unwrap(); // bad checksum at 2
         bytes.extend(parse_hex("FA FB 06 0B 1B C8 00 D3 1B").unwrap()); // VEL -200 at 11
-        let v = decode(&bytes, Direction::Host);
+        let v = decode(&bytes, true);
         assert_eq!(v[0]["kind"], "error");
         assert_eq!(v[0]["offset"], 2);
         assert!(v[0]["error"].as_str().unwrap().contains("checksum"));
@@ -354,13 +243,89 @@ mod tests {
         assert_eq!(v.len(), 2);
     }
 
+    fn sip_frame(sip: ima_p2os::wire::Sip) -> Vec<u8> {
+        let mut out = [0u8; 256];
+        let n = Packet::Sip(sip).emit(&mut out).unwrap();
+        out[..n].to_vec()
+    }
+
+    fn f(v: &Value, key: &str) -> f64 {
+        v[key].as_f64().unwrap_or_else(|| panic!("{key} in {v}"))
+    }
+
     #[test]
-    fn hex_parser_accepts_common_forms_and_rejects_odd_digits() {
+    fn a_wrapped_position_is_negative_as_the_odometry_reads_it() {
+        // A P2-AT 0.57 m behind its origin reports XPOS 0x7E4D (435 counts below 2^15); read
+        // unsigned that was 42.68 m.
+        let sip = ima_p2os::wire::Sip {
+            xpos: 0x7E4D,
+            ypos: 100,
+            battery: 125,
+            ..Default::default()
+        };
+        let v = decode(&sip_frame(sip), false);
+        assert_eq!(v[0]["kind"], "sip");
+        assert_eq!(v[0]["x_raw"], 0x7E4D);
+        let x = f(&v[0], "x_m");
+        assert!((x + 0.5742).abs() < 1e-12, "x_m = {x}");
+        assert_eq!(x, ima_p2os::params::P2AT.position_m(0x7E4D));
         assert_eq!(
-            parse_hex("FA fb,0x03 0000").unwrap(),
-            vec![0xFA, 0xFB, 3, 0, 0]
+            f64::from(ima_p2os::machine::signed15(0x7E4D)),
+            f64::from(ima_p2os::machine::unwrap15(0, 0x7E4D)),
+            "the same count the odometry's step from 0 gives"
         );
-        assert!(parse_hex("F").is_err());
-        assert!(parse_hex("zz").is_err());
+        assert!((f(&v[0], "y_m") - 0.132).abs() < 1e-12);
+    }
+
+    #[test]
+    fn sip_fields_are_the_drivers_conversions() {
+        use ima_p2os::params::P2AT;
+        let mut sip = ima_p2os::wire::Sip {
+            xpos: 0x4321,
+            ypos: 0x0123,
+            thpos: -1500,
+            left_vel: -333,
+            right_vel: 517,
+            battery: 131,
+            ..Default::default()
+        };
+        sip.sonars
+            .push(ima_p2os::wire::SonarRaw {
+                index: 3,
+                range: 4321,
+            })
+            .unwrap();
+        let v = decode(&sip_frame(sip.clone()), false);
+        let (vel, omega) = P2AT.body_velocity(sip.left_vel, sip.right_vel);
+        assert_eq!(f(&v[0], "x_m"), P2AT.position_m(sip.xpos));
+        assert_eq!(f(&v[0], "y_m"), P2AT.position_m(sip.ypos));
+        assert_eq!(f(&v[0], "theta_rad"), P2AT.heading_rad(sip.thpos));
+        assert_eq!(f(&v[0], "v_m_s"), vel);
+        assert_eq!(f(&v[0], "omega_rad_s"), omega);
+        assert_eq!(f(&v[0], "left_vel_m_s"), P2AT.wheel_m_s(sip.left_vel));
+        assert_eq!(f(&v[0], "right_vel_m_s"), P2AT.wheel_m_s(sip.right_vel));
+        assert_eq!(f(&v[0], "battery_v"), battery_v(sip.battery));
+        assert_eq!(f(&v[0]["sonar"][0], "range_m"), P2AT.sonar_range_m(4321));
+        // The encoder packet and VEL2 take the driver's conversions too.
+        let mut out = [0u8; 64];
+        let n = Packet::Encoder {
+            left: 1900,
+            right: -3800,
+        }
+        .emit(&mut out)
+        .unwrap();
+        let e = decode(&out[..n], false);
+        assert_eq!(f(&e[0], "left_m"), encoder_m(1900, P2AT.ticks_per_mm));
+        assert_eq!(f(&e[0], "right_m"), encoder_m(-3800, P2AT.ticks_per_mm));
+        let n = Command::Vel2 {
+            left: -7,
+            right: 12,
+        }
+        .emit(&mut out)
+        .unwrap();
+        let c = decode(&out[..n], true);
+        assert_eq!(c[0]["kind"], "vel2");
+        assert_eq!(f(&c[0], "left_m_s"), P2AT.vel2_m_s(-7));
+        assert_eq!(f(&c[0], "right_m_s"), P2AT.vel2_m_s(12));
     }
 }

@@ -1,8 +1,9 @@
-//! `ima decode rflex`: an rFLEX capture (either direction) as JSON Lines, under the contract of
-//! [`super::decode`]: one object per frame with a snake_case `"kind"`, SI fields with unit
-//! suffixes next to the raw values (ATRV-Jr defaults: Kd 90810 units/m, Ka 37000 units/rad,
-//! sonar 1476 units/m, battery raw/100 + 1.2 V), `"offset"` = byte offset of the frame's
-//! `ESC STX`, and `{"kind":"error","error":…,"offset":…}` for a dropped frame.
+//! `ima decode rflex`: an rFLEX capture (either direction) as JSON Lines, under the contract
+//! of `ima decode` (see the parent module): one object per frame with a snake_case `"kind"`,
+//! SI fields with unit suffixes next to the raw values, converted by the driver's own
+//! [`Config`] methods (ATRV-Jr defaults: Kd 90810 units/m, Ka 37000 units/rad, sonar 1476
+//! units/m clipped at 10000 = no echo, battery raw/100 + 1.2 V), `"offset"` = byte offset of
+//! the frame's `ESC STX`, and `{"kind":"error","error":…,"offset":…}` for a dropped frame.
 
 use anyhow::Result;
 use ima_rflex::framer::{FrameError, Framer};
@@ -10,12 +11,10 @@ use ima_rflex::machine::Config;
 use ima_rflex::wire::{Command, Report, SetDir};
 use serde_json::{Value, json};
 
-use super::decode::Direction;
-
 /// Decode an rFLEX byte stream, calling `emit` with one JSON object per frame or error.
 pub fn decode_rflex(
     bytes: &[u8],
-    from: Direction,
+    host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
     let cfg = Config::default();
@@ -38,7 +37,7 @@ pub fn decode_rflex(
         if let Some(item) = item {
             let v = match item {
                 Ok(raw) => {
-                    let v = if from == Direction::Host {
+                    let v = if host {
                         Command::from_raw(&raw).map(|c| command_json(&c, &cfg))
                     } else {
                         Report::from_raw(&raw).map(|r| report_json(&r, &cfg))
@@ -77,21 +76,18 @@ pub fn decode_rflex(
 }
 
 fn set_dir_json(s: &SetDir, cfg: &Config) -> Value {
-    let sign = if s.forward { 1.0 } else { -1.0 };
     let mut v = json!({
         "kind": "set_dir", "axis": s.axis, "velocity": s.velocity,
         "acceleration": s.acceleration, "torque": s.torque, "forward": s.forward,
     });
-    match s.axis {
-        0 => {
-            v["v_m_s"] = json!(sign * f64::from(s.velocity) / cfg.kd);
-            v["accel_m_s2"] = json!(f64::from(s.acceleration) / cfg.kd);
-        }
-        1 => {
-            v["omega_rad_s"] = json!(sign * f64::from(s.velocity) / cfg.ka);
-            v["accel_rad_s2"] = json!(f64::from(s.acceleration) / cfg.ka);
-        }
-        _ => {}
+    let names = match s.axis {
+        0 => Some(("v_m_s", "accel_m_s2")),
+        1 => Some(("omega_rad_s", "accel_rad_s2")),
+        _ => None,
+    };
+    if let (Some((speed, accel)), Some((x, a))) = (names, cfg.set_dir_si(s)) {
+        v[speed] = json!(x);
+        v[accel] = json!(a);
     }
     v
 }
@@ -132,7 +128,7 @@ fn report_json(r: &Report, cfg: &Config) -> Value {
             brake_engaged,
         } => json!({
             "kind": "sys_status", "ts": ts, "voltage_raw": voltage_raw,
-            "battery_v": f64::from(*voltage_raw) / 100.0 + cfg.power_offset_v,
+            "battery_v": cfg.battery_v(*voltage_raw),
             "brake_engaged": brake_engaged,
         }),
         Report::Motion(m) => {
@@ -142,12 +138,12 @@ fn report_json(r: &Report, cfg: &Config) -> Value {
             });
             match m.axis {
                 0 => {
-                    v["position_m"] = json!(f64::from(m.position) / cfg.kd);
-                    v["v_m_s"] = json!(f64::from(m.velocity) / cfg.kd);
+                    v["position_m"] = json!(cfg.translation_si(f64::from(m.position)));
+                    v["v_m_s"] = json!(cfg.translation_si(f64::from(m.velocity)));
                 }
                 1 => {
-                    v["position_rad"] = json!(f64::from(m.position) / cfg.ka);
-                    v["omega_rad_s"] = json!(f64::from(m.velocity) / cfg.ka);
+                    v["position_rad"] = json!(cfg.rotation_si(f64::from(m.position)));
+                    v["omega_rad_s"] = json!(cfg.rotation_si(f64::from(m.velocity)));
                 }
                 _ => {}
             }
@@ -165,7 +161,7 @@ fn report_json(r: &Report, cfg: &Config) -> Value {
                         .map(|m| m.index);
                     json!({
                         "id": e.id, "index": index, "range": e.range,
-                        "range_m": f64::from(e.range) / cfg.sonar_units_per_m,
+                        "range_m": cfg.sonar_range_m(e.range),
                     })
                 })
                 .collect();
@@ -203,10 +199,10 @@ fn report_json(r: &Report, cfg: &Config) -> Value {
 mod tests {
     use super::*;
 
-    fn run(hex: &str, from: Direction) -> Vec<Value> {
-        let bytes = super::super::decode::parse_hex(hex).unwrap();
+    fn run(hex: &str, host: bool) -> Vec<Value> {
+        let bytes = crate::cmd::decode::hex::parse_hex(hex).unwrap();
         let mut v = Vec::new();
-        decode_rflex(&bytes, from, &mut |x| {
+        decode_rflex(&bytes, host, &mut |x| {
             v.push(x);
             Ok(())
         })
@@ -219,7 +215,7 @@ mod tests {
         let v = run(
             "1B 02 02 05 21 19 00 00 00 00 00 00 12 34 00 00 01 62 BA 00 00 6A 6B 00 00 00 00 00 00 00 00 C1 1B 03 \
              1B 02 01 07 01 09 00 00 12 36 00 00 0A 46 00 66 1B 03",
-            Direction::Robot,
+            false,
         );
         assert_eq!(v.len(), 2);
         assert_eq!(v[0]["kind"], "motion");
@@ -237,7 +233,7 @@ mod tests {
         let v = run(
             "FF 1B 02 02 00 07 0E 01 00 00 1B 00 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03 \
              1B 02 02 00 0C 00 0F 1B 03 1B 02 01",
-            Direction::Host,
+            true,
         );
         assert_eq!(v.len(), 3, "{v:?}");
         assert_eq!(v[0]["kind"], "set_dir");
@@ -248,5 +244,83 @@ mod tests {
         assert_eq!(v[1]["offset"], 25);
         assert_eq!(v[2]["kind"], "error");
         assert_eq!(v[2]["offset"], 34);
+    }
+
+    fn emitted(r: &Report) -> Vec<Value> {
+        let mut out = [0u8; 600];
+        let n = r.emit(&mut out).unwrap();
+        let mut v = Vec::new();
+        decode_rflex(&out[..n], false, &mut |x| {
+            v.push(x);
+            Ok(())
+        })
+        .unwrap();
+        v
+    }
+
+    fn f(v: &Value, key: &str) -> f64 {
+        v[key].as_f64().unwrap_or_else(|| panic!("{key} in {v}"))
+    }
+
+    #[test]
+    fn si_fields_are_the_drivers_conversions() {
+        use ima_rflex::wire::{MotionReport, SonarEcho, SonarReport};
+        let cfg = Config::default();
+        let status = emitted(&Report::SysStatus {
+            ts: 1,
+            voltage_raw: 2417,
+            brake_engaged: false,
+        });
+        assert_eq!(f(&status[0], "battery_v"), cfg.battery_v(2417));
+        for axis in [0, 1] {
+            let m = MotionReport {
+                rv: 0,
+                ts: 2,
+                axis,
+                position: -123_456,
+                velocity: 7_890,
+                acceleration: 0,
+                torque: 0,
+            };
+            let v = emitted(&Report::Motion(m));
+            if axis == 0 {
+                assert_eq!(f(&v[0], "position_m"), cfg.translation_si(-123_456.0));
+                assert_eq!(f(&v[0], "v_m_s"), cfg.translation_si(7_890.0));
+            } else {
+                assert_eq!(f(&v[0], "position_rad"), cfg.rotation_si(-123_456.0));
+                assert_eq!(f(&v[0], "omega_rad_s"), cfg.rotation_si(7_890.0));
+            }
+        }
+        let mut sonar = SonarReport::default();
+        for (id, range) in [(0x00, 2952), (0x01, 30_000)] {
+            sonar.echoes.push(SonarEcho { id, range }).unwrap();
+        }
+        let v = emitted(&Report::Sonar(sonar));
+        let echoes = v[0]["echoes"].as_array().unwrap();
+        assert_eq!(f(&echoes[0], "range_m"), cfg.sonar_range_m(2952));
+        assert_eq!(
+            f(&echoes[1], "range_m"),
+            cfg.sonar_range_m(30_000),
+            "clipped at the driver's no-echo value"
+        );
+        // A SET_DIR pair the driver would send decodes back to its speeds.
+        let machine = ima_rflex::machine::Machine::new(cfg.clone(), ima_hal::Instant::ZERO);
+        let [t, r] = machine.set_dir_pair(ima_hal::base::VelocityCommand::new(-0.25, 0.5));
+        for (s, speed, accel) in [
+            (t, "v_m_s", "accel_m_s2"),
+            (r, "omega_rad_s", "accel_rad_s2"),
+        ] {
+            let mut out = [0u8; 64];
+            let n = Command::SetDir(s).emit(&mut out).unwrap();
+            let mut v = Vec::new();
+            decode_rflex(&out[..n], true, &mut |x| {
+                v.push(x);
+                Ok(())
+            })
+            .unwrap();
+            let (x, a) = cfg.set_dir_si(&s).unwrap();
+            assert_eq!(f(&v[0], speed), x);
+            assert_eq!(f(&v[0], accel), a);
+        }
     }
 }

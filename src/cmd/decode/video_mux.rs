@@ -1,6 +1,6 @@
 //! `ima decode video-mux` (Extron SIS) and `ima decode kramer` (Protocol 2000): switcher
 //! replies (device side) or commands (`--from host`) as JSON Lines (the contract of
-//! [`crate::cmd::decode`]).
+//! `ima decode`).
 
 use anyhow::Result;
 use ima_video_mux::framer::{KramerFramer, LineFramer};

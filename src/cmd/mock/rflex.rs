@@ -4,7 +4,6 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
 use ima_mock_devices::world::SharedWorld;
@@ -20,15 +19,7 @@ pub fn serve_rflex(
     let id = world
         .with(|w| w.robot_id(robot))
         .with_context(|| format!("the world has no robot named {robot:?}"))?;
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
-        if !faults.contains("seed=") {
-            p.seed = seed;
-        }
-        p
-    };
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
     let dev = RflexDevice::new(
         RflexModelConfig::default(),
         RflexWorldBody::new(world.clone(), id, seed),
@@ -56,23 +47,7 @@ pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str) -> Result<
         "serving a mock ATRV-Jr (rFLEX) for {robot:?} on {} at 115200 baud; Ctrl-C to stop",
         dev.path().display()
     );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    rt.block_on(async {
-        #[cfg(unix)]
-        {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r?,
-                _ = term.recv() => {}
-            }
-        }
-        #[cfg(not(unix))]
-        tokio::signal::ctrl_c().await?;
-        anyhow::Ok(())
-    })?;
+    super::shared::wait_for_interrupt()?;
     let status = dev.status();
     let model = dev
         .stop()

@@ -7,7 +7,7 @@ use ima_hal::power::Power;
 use ima_hal::{Instant, Stamped};
 use ima_rflex::shell::{Rflex, open_port};
 
-use super::num;
+use crate::cmd::num;
 use crate::safety::{self, outln};
 
 /// What to do (from `ima drive`'s arguments).
@@ -82,13 +82,13 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     if let Err(e) = &moved
         && e.is::<safety::Interrupted>()
     {
-        super::drive::report_interrupted(latest.as_ref());
+        super::report::report_interrupted(latest.as_ref());
     }
     moved??;
     base.stop().await?;
     let st = base.stats();
     let after = base.now();
-    super::drive::report_end(
+    super::report::report_end(
         &mut base,
         after,
         &format!(

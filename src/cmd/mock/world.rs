@@ -31,7 +31,7 @@ pub struct WorldOptions {
 
 /// Start the world and its devices.
 pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
-    let world = super::mock::load_world(opts.world.as_ref(), opts.seed)?;
+    let world = super::shared::load_world(opts.world.as_ref(), opts.seed)?;
     ServedWorld::start(
         world,
         &ServeOptions {
@@ -253,25 +253,7 @@ pub fn run(opts: &WorldOptions) -> Result<()> {
         opts.seed,
         describe(&e)
     );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    rt.block_on(wait_for_signal())?;
+    super::shared::wait_for_interrupt()?;
     drop(served);
-    Ok(())
-}
-
-/// Wait for SIGINT or SIGTERM.
-pub async fn wait_for_signal() -> Result<()> {
-    #[cfg(unix)]
-    {
-        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-        tokio::select! {
-            r = tokio::signal::ctrl_c() => r?,
-            _ = term.recv() => {}
-        }
-    }
-    #[cfg(not(unix))]
-    tokio::signal::ctrl_c().await?;
     Ok(())
 }

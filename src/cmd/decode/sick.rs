@@ -1,5 +1,5 @@
 //! `ima decode sick-lms`: SICK LMS telegrams to JSON Lines (the contract of
-//! [`crate::cmd::decode`]): one object per telegram or standalone ACK/NAK byte, in input
+//! `ima decode`): one object per telegram or standalone ACK/NAK byte, in input
 //! order, with `"kind"` and `"offset"`; ranges in metres (`ranges_m`, `null` for special
 //! codes) next to the raw value words; angles in radians. A telegram with a bad CRC becomes
 //! `{"kind":"error",...}` and decoding goes on. B0 values are decoded with measuring mode 00
@@ -7,7 +7,7 @@
 
 use anyhow::Result;
 use ima_hal::laser::LaserScan;
-use ima_sick_lms::decode::{Value as LmsValue, decode_scan};
+use ima_sick_lms::decode::{Value as LmsValue, decode_scan, resolution_rad};
 use ima_sick_lms::framer::{Direction, Framer, Item};
 use ima_sick_lms::wire::{
     Command, Frame, LmsConfig, MeasuringMode, ModeRequest, Reply, StatusByte,
@@ -157,7 +157,7 @@ fn command_json(c: &Command) -> Value {
             angle_deg,
             res_centideg,
         } => json!({"kind": "variant_request", "angle_deg": angle_deg,
-            "resolution_rad": f64::from(*res_centideg).to_radians() / 100.0,
+            "resolution_rad": resolution_rad(*res_centideg),
             "res_centideg": res_centideg}),
         Command::ReadConfig => json!({"kind": "read_config"}),
         Command::WriteConfig(c) => json!({"kind": "write_config", "config": config_json(c)}),
@@ -229,7 +229,7 @@ fn reply_json(r: &Reply<'_>, scan: &mut LaserScan) -> Value {
             ..
         } => json!({"kind": "variant", "accepted": *accepted == 1, "angle_deg": angle_deg,
             "res_centideg": res_centideg,
-            "resolution_rad": f64::from(*res_centideg).to_radians() / 100.0, "status": status}),
+            "resolution_rad": resolution_rad(*res_centideg), "status": status}),
         Reply::Config { config, .. } => {
             json!({"kind": "config", "config": config_json(config), "status": status})
         }

@@ -1,10 +1,9 @@
-//! `ima mock sick-lms`: the mock SICK LMS on a pty (called from [`crate::cmd::mock`]).
+//! `ima mock sick-lms`: the mock SICK LMS on a pty (called from the `ima mock` dispatcher).
 
 use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use ima_mock_devices::world::SharedWorld;
@@ -24,15 +23,7 @@ pub fn serve_sick_lms(
         .with_context(|| format!("the world has no robot named {robot:?}"))?;
     let baud = BaudRate::from_bps(baud)
         .with_context(|| format!("a SICK LMS runs at 9600, 19200, 38400 or 500000, not {baud}"))?;
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
-        if !faults.contains("seed=") {
-            p.seed = seed;
-        }
-        p
-    };
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
     let cfg = SickLmsModelConfig {
         baud,
         ..SickLmsModelConfig::default()
@@ -62,23 +53,7 @@ pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32)
         "serving a mock SICK LMS (on {robot}) on {} powering up at {baud} baud; Ctrl-C to stop",
         dev.path().display()
     );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    rt.block_on(async {
-        #[cfg(unix)]
-        {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r?,
-                _ = term.recv() => {}
-            }
-        }
-        #[cfg(not(unix))]
-        tokio::signal::ctrl_c().await?;
-        anyhow::Ok(())
-    })?;
+    super::shared::wait_for_interrupt()?;
     let status = dev.status();
     let model = dev
         .stop()

@@ -1,16 +1,26 @@
 //! `ima mock <device>`: serve a mock device on a pseudo-terminal, print its path on the first
 //! line of stdout, and run until interrupted.
+//!
+//! One module per device ([`p2os`], [`rflex`], [`sick`], [`compass`], [`video_mux`]) and
+//! [`world`] for every device of both robots at once; [`shared`] holds what they share
+//! (loading the world, announcing the pty and waiting for Ctrl-C). The device modules never
+//! call back into this dispatcher.
 
-use std::io::Write;
+pub mod compass;
+pub mod p2os;
+pub mod rflex;
+pub mod shared;
+pub mod sick;
+pub mod video_mux;
+pub mod world;
+
 use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use ima_mock_devices::faults::FaultPlan;
-use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
-use ima_mock_devices::pty::{PtyDevice, PtyOptions};
-use ima_mock_devices::world::{SharedWorld, World};
+
+pub use self::shared::load_world;
 
 /// Devices `ima mock` can serve.
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -54,7 +64,7 @@ pub struct MockArgs {
     baud: u32,
     /// Compass: the dialect.
     #[arg(long, value_enum, default_value = "nmea")]
-    dialect: crate::cmd::compass::MockCompassDialect,
+    dialect: compass::MockCompassDialect,
     /// Compass: installation deviation, degrees east.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = super::num::degrees)]
     deviation: f64,
@@ -90,76 +100,23 @@ pub struct MockArgs {
     force: bool,
 }
 
-/// Load the world of `--world`, or the built-in arena, with `seed`.
-pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
-    let mut world = match path {
-        // The world's own errors name the file when it cannot be read; parse errors do not.
-        Some(p) => World::from_toml_path(p).map_err(|e| match e {
-            ima_mock_devices::world::WorldError::Io(_) => anyhow::anyhow!(e),
-            e => anyhow::anyhow!(e).context(format!("loading {}", p.display())),
-        })?,
-        None => World::default_world(),
-    };
-    world.set_seed(seed);
-    Ok(SharedWorld::new(world))
-}
-
-/// Serve a P2OS robot of `world` on a new pty.
-pub fn serve_p2os(
-    world: &SharedWorld,
-    robot: &str,
-    seed: u64,
-    faults: &str,
-    baud: u32,
-    step_world: bool,
-) -> Result<PtyDevice<P2osDevice>> {
-    let id = world
-        .with(|w| w.robot_id(robot))
-        .with_context(|| format!("the world has no robot named {robot:?}"))?;
-    let plan = if faults.is_empty() {
-        FaultPlan::none()
-    } else {
-        let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
-        if !faults.contains("seed=") {
-            p.seed = seed;
-        }
-        p
-    };
-    let name = robot[..1].to_uppercase() + &robot[1..];
-    let cfg = P2osModelConfig {
-        name,
-        baud,
-        ..P2osModelConfig::default()
-    };
-    let dev = P2osDevice::new(cfg, WorldBody::new(world.clone(), id, seed));
-    PtyDevice::spawn(
-        dev,
-        PtyOptions {
-            faults: plan,
-            step_world: step_world.then(|| world.clone()),
-            ..PtyOptions::default()
-        },
-    )
-    .context("starting the pty")
-}
-
 /// Run `ima mock`.
 pub fn run(args: &MockArgs) -> Result<()> {
     let world = load_world(args.world.as_ref(), args.seed)?;
     let robot = args.robot.as_deref();
-    let dev = match args.device {
+    match args.device {
         Device::Compass => {
-            let opts = crate::cmd::compass::MockCompassOptions {
+            let opts = compass::MockCompassOptions {
                 dialect: args.dialect,
                 deviation_deg: args.deviation,
                 spin_deg_s: args.spin.to_degrees(),
                 seed: args.seed,
             };
             let robot = args.robot.as_deref().unwrap_or("scooter");
-            return crate::cmd::compass::run_mock(&world, robot, &args.faults, opts);
+            compass::run_mock(&world, robot, &args.faults, opts)
         }
         Device::VideoMux => {
-            let opts = crate::cmd::camera::MockMuxOptions {
+            let opts = video_mux::MockMuxOptions {
                 inputs: args.inputs,
                 switch_delay: Duration::try_from_secs_f64(args.switch_delay)
                     .ok()
@@ -168,86 +125,42 @@ pub fn run(args: &MockArgs) -> Result<()> {
                 auto_switch: args.auto_switch,
                 kramer: args.kramer,
             };
-            return crate::cmd::camera::run_mock(&args.faults, opts);
+            video_mux::run_mock(&args.faults, opts)
         }
-        Device::Rflex => {
-            return super::mock_rflex::run(
-                &world,
-                args.robot.as_deref().unwrap_or("scooter"),
-                args.seed,
-                &args.faults,
-            );
-        }
-        Device::SickLms => {
-            return super::mock_sick::run(
-                &world,
-                robot.unwrap_or("scooter"),
-                args.seed,
-                &args.faults,
-                args.baud,
-            );
-        }
+        Device::Rflex => rflex::run(
+            &world,
+            args.robot.as_deref().unwrap_or("scooter"),
+            args.seed,
+            &args.faults,
+        ),
+        Device::SickLms => sick::run(
+            &world,
+            robot.unwrap_or("scooter"),
+            args.seed,
+            &args.faults,
+            args.baud,
+        ),
         Device::World => {
             if let Some(dir) = &args.write_configs {
                 if !args.force {
-                    super::mock_world::refuse_overwrite(dir)?;
+                    world::refuse_overwrite(dir)?;
                 }
-                super::output::check_dir("--write-configs", dir)?;
+                crate::cmd::output::check_dir("--write-configs", dir)?;
             }
-            return super::mock_world::run(&super::mock_world::WorldOptions {
+            world::run(&world::WorldOptions {
                 world: args.world.clone(),
                 seed: args.seed,
                 speed: args.speed,
                 frames_addr: args.frames_addr,
                 write_configs: args.write_configs.clone(),
-            });
+            })
         }
-        Device::P2os => serve_p2os(
+        Device::P2os => p2os::run(
             &world,
             robot.unwrap_or("skeeter"),
             args.seed,
             &args.faults,
             args.baud,
-            true,
-        )?,
-    };
-    {
-        let mut out = std::io::stdout().lock();
-        writeln!(out, "{}", dev.path().display())?;
-        out.flush()?;
+        ),
     }
-    eprintln!(
-        "serving a mock {:?} on {} at {} baud; Ctrl-C to stop",
-        args.device,
-        dev.path().display(),
-        args.baud
-    );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    rt.block_on(async {
-        #[cfg(unix)]
-        {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r?,
-                _ = term.recv() => {}
-            }
-        }
-        #[cfg(not(unix))]
-        tokio::signal::ctrl_c().await?;
-        anyhow::Ok(())
-    })?;
-    let status = dev.status();
-    let model = dev
-        .stop()
-        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
-    let st = model.robot().stats();
-    eprintln!(
-        "stopped: {} sessions, {} commands, {} SIPs, {} bad frames, {} watchdog trips; link {:?}",
-        st.sessions, st.commands, st.sips, st.bad_frames, st.watchdog_trips, status.counters
-    );
-    std::thread::sleep(Duration::from_millis(10));
-    Ok(())
 }

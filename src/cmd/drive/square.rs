@@ -19,11 +19,11 @@ use serde_json::json;
 #[derive(Debug, Args)]
 pub struct SquareArgs {
     /// Side of the square, metres, in (0, 3].
-    #[arg(long, default_value_t = 1.0, value_parser = super::num::side_m)]
+    #[arg(long, default_value_t = 1.0, value_parser = crate::cmd::num::side_m)]
     side: f64,
     /// Cruise velocity, m/s, in (0, 1] (`--vel` as in `ima drive`; `ima demo --speed` is a
     /// time factor).
-    #[arg(long, default_value_t = 0.5, value_parser = super::num::cruise_m_s)]
+    #[arg(long, default_value_t = 0.5, value_parser = crate::cmd::num::cruise_m_s)]
     vel: f64,
     /// Not a flag of the square (kept to point at `--vel`): any value is refused.
     #[arg(long, hide = true, allow_hyphen_values = true, value_parser = refuse_speed)]
@@ -58,8 +58,9 @@ pub fn run(args: &SquareArgs) -> Result<()> {
         args.vel.is_finite() && args.vel > 0.0 && args.vel <= 1.0,
         "--vel must be in (0, 1] m/s"
     );
-    let world = super::mock::load_world(None, args.seed)?;
-    let dev = super::mock::serve_p2os(&world, "skeeter", args.seed, &args.faults, 9600, true)?;
+    let world = crate::cmd::mock::shared::load_world(None, args.seed)?;
+    let dev =
+        crate::cmd::mock::p2os::serve_p2os(&world, "skeeter", args.seed, &args.faults, 9600, true)?;
     let id = world
         .with(|w| w.robot_id("skeeter"))
         .context("no skeeter in the arena")?;

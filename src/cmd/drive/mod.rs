@@ -1,13 +1,21 @@
 //! `ima drive`: connect to a robot base on a serial port and drive it, printing odometry,
 //! sonar and battery as it goes (a teleop-style tool like the vendor's demo program).
+//!
+//! The P2OS base is driven here, the ATRV-Jr in [`rflex`]; [`report`] ends a drive for both;
+//! [`square`] is `ima demo square` (a P2OS base on a mock, driven round a square).
+
+pub mod report;
+pub mod rflex;
+pub mod square;
 
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use ima_hal::base::{DifferentialBase, Odometer, Odometry, VelocityCommand};
+use ima_hal::base::{DifferentialBase, VelocityCommand};
 use ima_p2os::shell::{P2os, open_port};
 
+use self::report::{report_end, report_interrupted};
 use super::num;
 use crate::safety::{self, outln};
 
@@ -60,18 +68,10 @@ pub struct DriveArgs {
     connect_timeout: f64,
 }
 
-/// How long `ima drive` waits, after STOP, for the robot to report that it stands.
-pub const SETTLE_TIMEOUT: Duration = Duration::from_secs(3);
-
-/// Below these a robot counts as standing (m/s, rad/s).
-pub const STANDING_V_M_S: f64 = 0.005;
-/// See [`STANDING_V_M_S`].
-pub const STANDING_OMEGA_RAD_S: f64 = 0.01;
-
 /// Run `ima drive`.
 pub fn run(args: &DriveArgs) -> Result<()> {
     if args.robot == Robot::AtrvJr {
-        let opts = super::drive_rflex::DriveOptions {
+        let opts = rflex::DriveOptions {
             port: args.port.clone(),
             baud: args.baud.unwrap_or(ima_rflex::driver::BAUD),
             vel: args.vel,
@@ -82,7 +82,7 @@ pub fn run(args: &DriveArgs) -> Result<()> {
             kd: args.kd,
             ka: args.ka,
         };
-        return safety::block_on(super::drive_rflex::drive(&opts));
+        return safety::block_on(rflex::drive(&opts));
     }
     safety::block_on(drive(args))
 }
@@ -163,61 +163,6 @@ async fn drive(args: &DriveArgs) -> Result<()> {
         .await
         .context("closing the session (STOP, CLOSE)")?;
     Ok(())
-}
-
-/// After the stop: wait until the base's own odometry says it stands (reports newer than
-/// `after`, at most [`SETTLE_TIMEOUT`]) and say where, or that it was still moving; `counters`
-/// ends the line. Shared by both bases through the HAL's [`Odometer`].
-pub async fn report_end<B: Odometer>(base: &mut B, mut after: ima_hal::Instant, counters: &str) {
-    let deadline = tokio::time::Instant::now() + SETTLE_TIMEOUT;
-    let mut last = None;
-    let mut standing = false;
-    while tokio::time::Instant::now() < deadline {
-        let Ok(Ok(odo)) = safety::until_cancelled(base.next_odometry(after)).await else {
-            break;
-        };
-        after = odo.at;
-        let o = odo.value;
-        standing = o.v_m_s.abs() < STANDING_V_M_S && o.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
-        last = Some(o);
-        if standing {
-            break;
-        }
-    }
-    match last {
-        Some(o) if standing => eprintln!(
-            "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
-            o.x_m(),
-            o.y_m(),
-            o.theta_rad().to_degrees()
-        ),
-        Some(o) => eprintln!(
-            "still moving at {:.3} m/s {:.3} rad/s {:.1} s after the stop; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
-            o.v_m_s,
-            o.omega_rad_s,
-            SETTLE_TIMEOUT.as_secs_f64(),
-            o.x_m(),
-            o.y_m(),
-            o.theta_rad().to_degrees()
-        ),
-        None => eprintln!("no report from the robot after the stop; {counters}"),
-    }
-}
-
-/// After a signal (the guard has already stopped the robot): where it was last reported.
-pub fn report_interrupted(last: Option<&Odometry>) {
-    if safety::signal().is_none() {
-        return; // a closed stdout ends quietly
-    }
-    if let Some(o) = last {
-        eprintln!(
-            "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
-            o.x_m(),
-            o.y_m(),
-            o.theta_rad().to_degrees(),
-            o.v_m_s
-        );
-    }
 }
 
 fn print_state(

@@ -1,6 +1,6 @@
 //! `ima decode compass`: NMEA `HDG`/`HDM`/`HDT`, TCM2 lines, calibration scores and KVH
 //! prompts (device side), or KVH/TCM2 commands (`--from host`), as JSON Lines (the contract of
-//! [`crate::cmd::decode`]).
+//! `ima decode`).
 
 use anyhow::Result;
 use ima_compass::framer::{Frame, FrameError, LineFramer};

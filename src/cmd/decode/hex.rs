@@ -1,0 +1,37 @@
+//! `--hex` input of `ima decode`: hex text to bytes.
+
+use anyhow::{Context, Result, bail};
+
+/// Parse hex text: tokens split by whitespace or commas, optional `0x` prefix, pairs of digits.
+pub fn parse_hex(text: &str) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    for token in text.split(|c: char| c.is_whitespace() || c == ',') {
+        let t = token.trim_start_matches("0x").trim_start_matches("0X");
+        if t.is_empty() {
+            continue;
+        }
+        if t.len() % 2 != 0 {
+            bail!("hex token {token:?} has an odd number of digits");
+        }
+        for i in (0..t.len()).step_by(2) {
+            let pair = t.get(i..i + 2).context("hex token")?;
+            out.push(u8::from_str_radix(pair, 16).with_context(|| format!("bad hex {pair:?}"))?);
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hex_parser_accepts_common_forms_and_rejects_odd_digits() {
+        assert_eq!(
+            parse_hex("FA fb,0x03 0000").unwrap(),
+            vec![0xFA, 0xFB, 3, 0, 0]
+        );
+        assert!(parse_hex("F").is_err());
+        assert!(parse_hex("zz").is_err());
+    }
+}

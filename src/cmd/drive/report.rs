@@ -1,0 +1,71 @@
+//! The end of a drive, for both bases: where the robot stopped (or that it was still moving),
+//! through the HAL's [`Odometer`].
+
+use std::time::Duration;
+
+use ima_hal::base::{Odometer, Odometry};
+
+use crate::safety;
+
+/// How long `ima drive` waits, after STOP, for the robot to report that it stands.
+pub const SETTLE_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// Below these a robot counts as standing (m/s, rad/s).
+pub const STANDING_V_M_S: f64 = 0.005;
+/// See [`STANDING_V_M_S`].
+pub const STANDING_OMEGA_RAD_S: f64 = 0.01;
+
+/// After the stop: wait until the base's own odometry says it stands (reports newer than
+/// `after`, at most [`SETTLE_TIMEOUT`]) and say where, or that it was still moving; `counters`
+/// ends the line. Shared by both bases through the HAL's [`Odometer`].
+pub async fn report_end<B: Odometer>(base: &mut B, mut after: ima_hal::Instant, counters: &str) {
+    let deadline = tokio::time::Instant::now() + SETTLE_TIMEOUT;
+    let mut last = None;
+    let mut standing = false;
+    while tokio::time::Instant::now() < deadline {
+        let Ok(Ok(odo)) = safety::until_cancelled(base.next_odometry(after)).await else {
+            break;
+        };
+        after = odo.at;
+        let o = odo.value;
+        standing = o.v_m_s.abs() < STANDING_V_M_S && o.omega_rad_s.abs() < STANDING_OMEGA_RAD_S;
+        last = Some(o);
+        if standing {
+            break;
+        }
+    }
+    match last {
+        Some(o) if standing => eprintln!(
+            "stopped at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+            o.x_m(),
+            o.y_m(),
+            o.theta_rad().to_degrees()
+        ),
+        Some(o) => eprintln!(
+            "still moving at {:.3} m/s {:.3} rad/s {:.1} s after the stop; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
+            o.v_m_s,
+            o.omega_rad_s,
+            SETTLE_TIMEOUT.as_secs_f64(),
+            o.x_m(),
+            o.y_m(),
+            o.theta_rad().to_degrees()
+        ),
+        None => eprintln!("no report from the robot after the stop; {counters}"),
+    }
+}
+
+/// After a signal (the guard has already stopped the robot): where it was last reported.
+pub fn report_interrupted(last: Option<&Odometry>) {
+    if safety::signal().is_none() {
+        return; // a closed stdout ends quietly
+    }
+    if let Some(o) = last {
+        eprintln!(
+            "last report before the stop: x={:.3} m y={:.3} m θ={:.1}°, moving at {:.3} m/s",
+            o.x_m(),
+            o.y_m(),
+            o.theta_rad().to_degrees(),
+            o.v_m_s
+        );
+    }
+}

@@ -1,0 +1,67 @@
+//! `ima mock p2os`: serve a Pioneer 2-AT (P2OS) of the world on a pty.
+
+use std::io::Write;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::world::SharedWorld;
+
+/// Serve a P2OS robot of `world` on a new pty.
+pub fn serve_p2os(
+    world: &SharedWorld,
+    robot: &str,
+    seed: u64,
+    faults: &str,
+    baud: u32,
+    step_world: bool,
+) -> Result<PtyDevice<P2osDevice>> {
+    let id = world
+        .with(|w| w.robot_id(robot))
+        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
+    let name = robot[..1].to_uppercase() + &robot[1..];
+    let cfg = P2osModelConfig {
+        name,
+        baud,
+        ..P2osModelConfig::default()
+    };
+    let dev = P2osDevice::new(cfg, WorldBody::new(world.clone(), id, seed));
+    PtyDevice::spawn(
+        dev,
+        PtyOptions {
+            faults: plan,
+            step_world: step_world.then(|| world.clone()),
+            ..PtyOptions::default()
+        },
+    )
+    .context("starting the pty")
+}
+
+/// Serve robot `robot` of `world` until SIGINT/SIGTERM, printing the pty path on stdout's
+/// first line.
+pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32) -> Result<()> {
+    let dev = serve_p2os(world, robot, seed, faults, baud, true)?;
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", dev.path().display())?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving a mock P2os on {} at {baud} baud; Ctrl-C to stop",
+        dev.path().display(),
+    );
+    super::shared::wait_for_interrupt()?;
+    let status = dev.status();
+    let model = dev
+        .stop()
+        .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
+    let st = model.robot().stats();
+    eprintln!(
+        "stopped: {} sessions, {} commands, {} SIPs, {} bad frames, {} watchdog trips; link {:?}",
+        st.sessions, st.commands, st.sips, st.bad_frames, st.watchdog_trips, status.counters
+    );
+    std::thread::sleep(Duration::from_millis(10));
+    Ok(())
+}

@@ -1,0 +1,74 @@
+//! What the mock devices share: the world they live in, and serving until interrupted.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use ima_mock_devices::faults::FaultPlan;
+use ima_mock_devices::world::{SharedWorld, World};
+
+/// Load the world of `--world`, or the built-in arena, with `seed`.
+pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
+    let mut world = match path {
+        // The world's own errors name the file when it cannot be read; parse errors do not.
+        Some(p) => World::from_toml_path(p).map_err(|e| match e {
+            ima_mock_devices::world::WorldError::Io(_) => anyhow::anyhow!(e),
+            e => anyhow::anyhow!(e).context(format!("loading {}", p.display())),
+        })?,
+        None => World::default_world(),
+    };
+    world.set_seed(seed);
+    Ok(SharedWorld::new(world))
+}
+
+/// Wait for Ctrl-C or SIGTERM.
+pub fn wait_for_interrupt() -> Result<()> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?
+        .block_on(wait_for_signal())
+}
+
+/// Wait for SIGINT or SIGTERM (inside a runtime).
+pub async fn wait_for_signal() -> Result<()> {
+    #[cfg(unix)]
+    {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+        tokio::select! {
+            r = tokio::signal::ctrl_c() => r?,
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    tokio::signal::ctrl_c().await?;
+    Ok(())
+}
+
+/// Print the pty path on stdout's first line, then serve until interrupted.
+pub fn announce_and_wait(path: &std::path::Path, what: &str) -> Result<()> {
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "{}", path.display())?;
+        out.flush()?;
+    }
+    eprintln!(
+        "serving a mock {what} on {}; Ctrl-C to stop",
+        path.display()
+    );
+    wait_for_interrupt()
+}
+
+/// The fault plan of `--faults` (none when empty); `seed` (the device's `--seed`) seeds it
+/// unless the plan names its own `seed=`.
+pub fn fault_plan(faults: &str, seed: Option<u64>) -> Result<FaultPlan> {
+    if faults.is_empty() {
+        return Ok(FaultPlan::none());
+    }
+    let mut p = FaultPlan::parse(faults).context("parsing --faults")?;
+    if let Some(seed) = seed
+        && !faults.contains("seed=")
+    {
+        p.seed = seed;
+    }
+    Ok(p)
+}
