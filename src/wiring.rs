@@ -171,9 +171,10 @@ pub fn open_mux(d: &MuxDevice, clock: &SharedClock) -> Result<VideoMux> {
     ))
 }
 
-/// Connect to the frame server.
-pub async fn open_frames(f: &FramesSource) -> Result<NetFrames> {
-    let mut frames = NetFrames::new(f.addr.clone(), Duration::from_millis(f.timeout_ms));
+/// Connect to the frame server (frames stamped on `clock`).
+pub async fn open_frames(f: &FramesSource, clock: &SharedClock) -> Result<NetFrames> {
+    let mut frames = NetFrames::new(f.addr.clone(), Duration::from_millis(f.timeout_ms))
+        .with_clock(clock.clone());
     frames
         .connect()
         .await
@@ -247,7 +248,7 @@ fn missing(what: &str) -> anyhow::Error {
 pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<SkeeterHw> {
     anyhow::ensure!(cfg.role == Role::Skeeter, "not a Skeeter configuration");
     let d = &cfg.devices;
-    let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?).await?;
+    let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?, clock).await?;
     let mux = open_mux(
         d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?,
         clock,
@@ -492,7 +493,9 @@ mod tests {
             addr: "127.0.0.1:1".into(),
             timeout_ms: 500,
         };
-        let e = open_frames(&f).await.unwrap_err();
+        let e = open_frames(&f, &ima_hal::time::TokioClock::shared())
+            .await
+            .unwrap_err();
         assert!(format!("{e:#}").contains("127.0.0.1:1"), "{e:#}");
     }
 }

@@ -16,11 +16,17 @@ const ALLOWED: &[(&str, &str)] = &[
         "src/wiring.rs",
         "the wiring module: opens every robot device from the configuration",
     ),
-    ("src/cmd/camera.rs", "`ima camera`: one video switcher and frame source"),
+    (
+        "src/cmd/camera.rs",
+        "`ima camera`: one video switcher and frame source",
+    ),
     ("src/cmd/compass.rs", "`ima compass`: one compass"),
     ("src/cmd/scan.rs", "`ima scan`: one SICK LMS"),
     ("src/cmd/drive.rs", "`ima drive`: one P2OS base"),
-    ("src/cmd/drive_rflex.rs", "`ima drive --robot atrv-jr`: one rFLEX base"),
+    (
+        "src/cmd/drive_rflex.rs",
+        "`ima drive --robot atrv-jr`: one rFLEX base",
+    ),
     (
         "src/cmd/demo_square.rs",
         "`ima demo square`: one P2OS base driving a square",
@@ -29,9 +35,18 @@ const ALLOWED: &[(&str, &str)] = &[
     ("src/cmd/mock_rflex.rs", "`ima mock rflex`: one mock device"),
     ("src/cmd/mock_sick.rs", "`ima mock sick`: one mock device"),
     ("src/cmd/decode.rs", "`ima decode`: a driver's wire decoder"),
-    ("src/cmd/decode_compass.rs", "`ima decode compass`: a driver's wire decoder"),
-    ("src/cmd/decode_rflex.rs", "`ima decode rflex`: a driver's wire decoder"),
-    ("src/cmd/decode_sick.rs", "`ima decode sick`: a driver's wire decoder"),
+    (
+        "src/cmd/decode_compass.rs",
+        "`ima decode compass`: a driver's wire decoder",
+    ),
+    (
+        "src/cmd/decode_rflex.rs",
+        "`ima decode rflex`: a driver's wire decoder",
+    ),
+    (
+        "src/cmd/decode_sick.rs",
+        "`ima decode sick`: a driver's wire decoder",
+    ),
     (
         "src/cmd/decode_video_mux.rs",
         "`ima decode video-mux`: a driver's wire decoder",
@@ -89,8 +104,8 @@ fn driver_names(text: &str) -> Vec<(usize, String)> {
                     .last()
                     .is_some_and(|ch| ch.is_alphanumeric() || ch == '_');
                 let after = code[at + bare.len()..].chars().next();
-                let word_end = t.ends_with("::")
-                    || !after.is_some_and(|ch| ch.is_alphanumeric() || ch == '_');
+                let word_end =
+                    t.ends_with("::") || !after.is_some_and(|ch| ch.is_alphanumeric() || ch == '_');
                 word_start && word_end && !before.ends_with("::")
             });
             if hit {
@@ -107,7 +122,11 @@ fn no_driver_is_named_outside_the_wiring_module_and_the_device_tools() {
     let mut files = Vec::new();
     rust_files(&root.join("src"), &mut files);
     rust_files(&root.join("agents"), &mut files);
-    assert!(files.len() > 20, "sources not found under {}", root.display());
+    assert!(
+        files.len() > 20,
+        "sources not found under {}",
+        root.display()
+    );
     let mut offenders = Vec::new();
     for f in &files {
         let rel = f

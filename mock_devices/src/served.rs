@@ -30,6 +30,8 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 use crate::camera::{CameraConfig, CameraError, MockCameraHead};
 use crate::compass::{CompassDevice, CompassModelConfig};
+use ima_hal::time::Clock as _;
+
 use crate::p2os::{P2osDevice, P2osModelConfig, WorldBody};
 use crate::pty::{HostLog, PtyDevice, PtyError, PtyOptions};
 use crate::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
@@ -75,6 +77,9 @@ pub struct ServeOptions {
     pub scooter_base_log: Option<HostLog>,
     /// The kind of base Scooter's body is served as (its own rFLEX, or a P2OS controller).
     pub scooter_base: BaseKind,
+    /// The clock of every served device's model ([`PtyOptions::clock`]): a program serving
+    /// the world to its own drivers passes its one clock. `None`: each device's own.
+    pub clock: Option<ima_hal::time::SharedClock>,
 }
 
 /// A kind of served base controller.
@@ -100,6 +105,7 @@ impl Default for ServeOptions {
             skeeter_base_log: None,
             scooter_base_log: None,
             scooter_base: BaseKind::Rflex,
+            clock: None,
         }
     }
 }
@@ -166,7 +172,10 @@ impl ServedWorld {
         };
         let (sk, sc) = (id(&opts.skeeter)?, id(&opts.scooter)?);
         let seed = opts.seed;
-        let pty = PtyOptions::default;
+        let pty = || PtyOptions {
+            clock: opts.clock.clone(),
+            ..PtyOptions::default()
+        };
         let cap = |s: &str| {
             let mut c = s.chars();
             c.next()
@@ -218,7 +227,9 @@ impl ServedWorld {
             SickLmsDevice::new(
                 SickLmsModelConfig::default(),
                 Box::new(WorldLaser::new(world.clone(), sc, seed.wrapping_add(2))),
-                ima_hal::Instant::ZERO,
+                opts.clock
+                    .as_ref()
+                    .map_or(ima_hal::Instant::ZERO, |c| c.now()),
             ),
             pty(),
         )?;

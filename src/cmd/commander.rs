@@ -431,8 +431,9 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             Some(Duration::from_secs_f64(cfg.agent.robot_lost_after_s)),
         );
         let r = async {
-            let bus = net::bus(&cfg, key)?;
+            // The process's one clock.
             let clock = ima_hal::time::TokioClock::shared();
+            let bus = net::bus(&cfg, key, clock.clone())?;
             Ok::<_, anyhow::Error>(
                 ima_agents::runtime::commander::run(
                     rt,

@@ -106,11 +106,14 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
     let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());
     super::check_colours(&args.targets, &known, "the world's object colours")?;
+    // The process's one clock: the served devices' models and every driver run on it.
+    let clock = ima_hal::time::TokioClock::shared();
     let served = ServedWorld::start(
         world.clone(),
         &ServeOptions {
             seed: args.seed,
             speed: args.speed,
+            clock: Some(clock.clone()),
             scooter_base: match args.scooter_base {
                 BaseChoice::Rflex => ima_mock_devices::served::BaseKind::Rflex,
                 BaseChoice::P2os => ima_mock_devices::served::BaseKind::P2os,
@@ -200,8 +203,6 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 }
             })
         };
-        // One clock for the process: both robots' devices stamp on one time line.
-        let clock = ima_hal::time::TokioClock::shared();
         let (sk_dev, sc_dev) = tokio::join!(
             wiring::open_skeeter(&sk, &clock),
             wiring::open_scooter(&sc, &clock)
@@ -220,7 +221,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         });
         let robots = ["skeeter".to_owned(), "scooter".to_owned()];
         let outcomes = async {
-            let bus = crate::stack::net::bus(&cmd, key)?;
+            let bus = crate::stack::net::bus(&cmd, key, clock.clone())?;
             let rt = crate::stack::commander::runtime_config(
                 &cmd,
                 (&robots, Duration::from_secs(30)),

@@ -91,9 +91,9 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
     }
 }
 
-/// The mission's broadcast channel of `cfg`, bound with `key`.
-pub fn bus(cfg: &RobotConfig, key: GroupKey) -> Result<Bus> {
-    Ok(Bus::bind(&net_config(cfg)?, key)?)
+/// The mission's broadcast channel of `cfg`, bound with `key` on the process's `clock`.
+pub fn bus(cfg: &RobotConfig, key: GroupKey, clock: ima_hal::time::SharedClock) -> Result<Bus> {
+    Ok(Bus::bind(&net_config(cfg)?, key, clock)?)
 }
 
 #[cfg(test)]

@@ -10,6 +10,7 @@
 
 use core::time::Duration;
 
+use ima_hal::time::SharedClock;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
@@ -19,7 +20,7 @@ use crate::mission::msg::{Broadcast, SES_SOURCE};
 use crate::peer::manager::FixedSelfAgent;
 use crate::peer::net::{
     BroadcastChannel, ManagerHandle, PeerClientHandle, PeerNetConfig, SubscriptionEvent,
-    spawn_manager,
+    spawn_manager_with_clock,
 };
 use crate::peer::wire::GroupKey;
 use crate::ses::shared::SharedForm;
@@ -34,9 +35,13 @@ pub struct Bus {
 }
 
 impl Bus {
-    /// Bind the broadcast channel of `net` as `net.robot`.
-    pub fn bind(net: &PeerNetConfig, key: GroupKey) -> Result<Self, RuntimeError> {
-        let chan = BroadcastChannel::bind(net, &net.robot, key)
+    /// Bind the broadcast channel of `net` as `net.robot`, on the process's `clock`.
+    pub fn bind(
+        net: &PeerNetConfig,
+        key: GroupKey,
+        clock: SharedClock,
+    ) -> Result<Self, RuntimeError> {
+        let chan = BroadcastChannel::bind_with_clock(net, &net.robot, key, clock)
             .map_err(|e| RuntimeError::Net(format!("binding the broadcast channel: {e}")))?;
         Ok(Self {
             chan: std::sync::Arc::new(chan),
@@ -253,14 +258,19 @@ impl ScooterLink {
         events: Events,
         time: MissionTime,
     ) -> Result<Self, RuntimeError> {
-        let bus = Bus::bind(net, key.clone())?;
+        let bus = Bus::bind(net, key.clone(), time.clock().clone())?;
         let manager = if net.manager.listen.is_empty() {
             None
         } else {
             Some(
-                spawn_manager(net, key.clone(), FixedSelfAgent::default())
-                    .await
-                    .map_err(|e| RuntimeError::Net(format!("starting Scooter's manager: {e}")))?,
+                spawn_manager_with_clock(
+                    net,
+                    key.clone(),
+                    FixedSelfAgent::default(),
+                    time.clock().clone(),
+                )
+                .await
+                .map_err(|e| RuntimeError::Net(format!("starting Scooter's manager: {e}")))?,
             )
         };
         let (mut link, ends) = Self::channels();
@@ -313,9 +323,14 @@ async fn ses_loop(
     let note = |n: PeerNote| events.emit(&time, &me, EventKind::Peer(n));
     loop {
         let r: Result<(), String> = async {
-            let client = PeerClientHandle::connect(req.manager.as_str(), &net, key.clone())
-                .await
-                .map_err(|e| e.to_string())?;
+            let client = PeerClientHandle::connect_with_clock(
+                req.manager.as_str(),
+                &net,
+                key.clone(),
+                time.clock().clone(),
+            )
+            .await
+            .map_err(|e| e.to_string())?;
             client.register().await.map_err(|e| e.to_string())?;
             let mut sub = client
                 .request(SES_SOURCE, req.priority)
@@ -461,10 +476,11 @@ impl SkeeterLink {
         use crate::peer::net::ManagerNetEvent;
         use crate::peer::wire::SourceInfo;
 
-        let bus = Bus::bind(net, key.clone())?;
-        let manager = spawn_manager(net, key, FixedSelfAgent::default())
-            .await
-            .map_err(|e| RuntimeError::Net(format!("starting Skeeter's manager: {e}")))?;
+        let bus = Bus::bind(net, key.clone(), time.clock().clone())?;
+        let manager =
+            spawn_manager_with_clock(net, key, FixedSelfAgent::default(), time.clock().clone())
+                .await
+                .map_err(|e| RuntimeError::Net(format!("starting Skeeter's manager: {e}")))?;
         let mut decisions = manager.events();
         let ses = manager
             .publisher(SourceInfo {
