@@ -943,6 +943,8 @@ async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: Sessi
     }
 }
 
+// The data server's parts, each handed on to every session it accepts.
+#[allow(clippy::too_many_arguments)]
 async fn accept_data(
     listener: TcpListener,
     ctl: mpsc::UnboundedSender<Ctl>,
