@@ -224,3 +224,165 @@ where
     link.shutdown().await;
     result
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::{Arc, Mutex};
+
+    use ima_hal::base::{BaseLimits, VelocityCommand};
+    use ima_hal::camera::{Channel, Frame, Selection};
+    use ima_hal::time::{Clock, TokioClock};
+    use ima_hal::{ErrorType, Stamped};
+    use tokio::sync::watch;
+
+    use super::*;
+    use crate::mission::msg::MissionEvent;
+
+    /// A base that counts its stops.
+    #[derive(Debug, Clone, Default)]
+    struct Base(Arc<Mutex<u32>>);
+
+    impl ErrorType for Base {
+        type Error = core::convert::Infallible;
+    }
+
+    impl DifferentialBase for Base {
+        fn limits(&self) -> BaseLimits {
+            BaseLimits {
+                max_v_m_s: 0.5,
+                max_omega_rad_s: 1.0,
+            }
+        }
+        async fn enable_motors(&mut self, _on: bool) -> Result<(), Self::Error> {
+            Ok(())
+        }
+        async fn set_velocity(&mut self, _c: VelocityCommand) -> Result<(), Self::Error> {
+            Ok(())
+        }
+        async fn stop(&mut self) -> Result<(), Self::Error> {
+            *self.0.lock().unwrap() += 1;
+            Ok(())
+        }
+        async fn emergency_stop(&mut self) -> Result<(), Self::Error> {
+            self.stop().await
+        }
+    }
+
+    /// A seven-camera switcher that switches at once.
+    #[derive(Debug)]
+    struct Mux(SharedClock, Channel);
+
+    impl ErrorType for Mux {
+        type Error = core::convert::Infallible;
+    }
+
+    impl CameraMux for Mux {
+        fn channel_count(&self) -> Channel {
+            7
+        }
+        fn settle_time(&self) -> Duration {
+            Duration::from_millis(10)
+        }
+        async fn select(&mut self, channel: Channel) -> Result<Selection, Self::Error> {
+            self.1 = channel;
+            let now = self.0.now();
+            Ok(Selection {
+                channel,
+                confirmed_at: now,
+                settled_at: now,
+            })
+        }
+        async fn current_channel(&mut self) -> Result<Option<Channel>, Self::Error> {
+            Ok(Some(self.1))
+        }
+    }
+
+    /// Black frames: nothing is ever seen.
+    #[derive(Debug)]
+    struct Frames(SharedClock);
+
+    impl ErrorType for Frames {
+        type Error = core::convert::Infallible;
+    }
+
+    impl FrameSource for Frames {
+        async fn grab(&mut self) -> Result<Stamped<Frame>, Self::Error> {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            Ok(Stamped::new(
+                self.0.now(),
+                Frame::black(64, 48, None).unwrap(),
+            ))
+        }
+    }
+
+    fn cfg() -> SkeeterRuntimeConfig {
+        SkeeterRuntimeConfig {
+            brain: SkeeterConfig {
+                robot: "skeeter".into(),
+                ..SkeeterConfig::default()
+            },
+            scan: ScanConfig {
+                robot: "skeeter".into(),
+                ..ScanConfig::default()
+            },
+            colours: ColourDb::default(),
+            time_scale: 1.0,
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn skeeter_scans_for_a_target_obeys_a_fleet_stop_and_stops_on_a_lost_manager() {
+        let clock = TokioClock::shared();
+        let stops = Base::default();
+        let dev = SkeeterDevices {
+            base: stops.clone(),
+            mux: Mux(clock.clone(), 1),
+            frames: Frames(clock.clone()),
+        };
+        let (link, mut ends) = SkeeterLink::channels();
+        let (events, mut rx) = Events::channel(1024);
+        let (_stop_tx, stop) = watch::channel(false);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        ends.heard
+            .send(Broadcast::mission(
+                "commander",
+                MissionEvent::Accepted,
+                "red",
+            ))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(5)).await;
+        ends.heard
+            .send(Broadcast::Emergency {
+                robot: "commander".into(),
+                emergency: Emergency::FleetStop {
+                    reason: "test".into(),
+                },
+            })
+            .await
+            .unwrap();
+        // A lost batch of manager events is answered as a heading request.
+        ends.grants
+            .send(SesGrant::Lagged { missed: 3 })
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let before_end = *stops.0.lock().unwrap();
+        // At start and on the fleet stop.
+        assert!(before_end >= 2, "{before_end}");
+        // The manager is gone: the runtime ends with an error, its base stopped.
+        drop(ends.grants);
+        let r = run.await.unwrap();
+        assert!(matches!(r, Err(RuntimeError::Net(_))), "{r:?}");
+        assert_eq!(*stops.0.lock().unwrap(), before_end + 1);
+        let mut kinds = Vec::new();
+        while let Some(e) = rx.try_recv() {
+            kinds.push(e.name());
+        }
+        for k in ["connected", "scan", "fleet-stop", "lagged"] {
+            assert!(kinds.contains(&k), "{k} missing from {kinds:?}");
+        }
+        // Skeeter said something (its acceptance of the target, statuses).
+        assert!(ends.say.try_recv().is_ok());
+    }
+}
