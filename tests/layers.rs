@@ -22,33 +22,45 @@ const ALLOWED: &[(&str, &str)] = &[
     ),
     ("src/cmd/compass.rs", "`ima compass`: one compass"),
     ("src/cmd/scan.rs", "`ima scan`: one SICK LMS"),
-    ("src/cmd/drive.rs", "`ima drive`: one P2OS base"),
     (
-        "src/cmd/drive_rflex.rs",
+        "src/cmd/drive/mod.rs",
+        "`ima drive`: one P2OS or rFLEX base",
+    ),
+    (
+        "src/cmd/drive/rflex.rs",
         "`ima drive --robot atrv-jr`: one rFLEX base",
     ),
     (
-        "src/cmd/demo_square.rs",
+        "src/cmd/drive/square.rs",
         "`ima demo square`: one P2OS base driving a square",
     ),
-    ("src/cmd/mock.rs", "`ima mock`: serves one mock device"),
-    ("src/cmd/mock_rflex.rs", "`ima mock rflex`: one mock device"),
-    ("src/cmd/mock_sick.rs", "`ima mock sick`: one mock device"),
-    ("src/cmd/decode.rs", "`ima decode`: a driver's wire decoder"),
+    ("src/cmd/mock/mod.rs", "`ima mock`: serves one mock device"),
     (
-        "src/cmd/decode_compass.rs",
+        "src/cmd/mock/sick.rs",
+        "`ima mock sick-lms`: one mock device",
+    ),
+    (
+        "src/cmd/decode/mod.rs",
+        "`ima decode`: a driver's wire decoder",
+    ),
+    (
+        "src/cmd/decode/p2os.rs",
+        "`ima decode p2os`: a driver's wire decoder",
+    ),
+    (
+        "src/cmd/decode/compass.rs",
         "`ima decode compass`: a driver's wire decoder",
     ),
     (
-        "src/cmd/decode_rflex.rs",
+        "src/cmd/decode/rflex.rs",
         "`ima decode rflex`: a driver's wire decoder",
     ),
     (
-        "src/cmd/decode_sick.rs",
+        "src/cmd/decode/sick.rs",
         "`ima decode sick`: a driver's wire decoder",
     ),
     (
-        "src/cmd/decode_video_mux.rs",
+        "src/cmd/decode/video_mux.rs",
         "`ima decode video-mux`: a driver's wire decoder",
     ),
 ];
