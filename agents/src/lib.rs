@@ -20,5 +20,7 @@ pub mod fuzz_harness;
 pub mod heading;
 pub mod mission;
 pub mod peer;
+#[cfg(feature = "runtime")]
+pub mod runtime;
 pub mod san;
 pub mod ses;

@@ -1,0 +1,478 @@
+//! Typed runtime events on a bounded, drop-oldest channel.
+//!
+//! Every runtime reports what it does as an [`Event`]: the mission time, the robot and an
+//! [`EventKind`]. [`Events`] logs each one (`tracing`, level info) and hands it to a bounded
+//! [`tokio::sync::broadcast`] channel: sending never waits, so a slow consumer never blocks a
+//! robot; when it falls behind it loses the oldest events and its [`EventReceiver`] counts
+//! them ([`EventReceiver::dropped`]).
+//!
+//! The `Serialize` form is the CLI's JSON line: `{"t_s", "robot", "kind", "detail"}` where
+//! `kind` is the variant's kebab-case name and `detail` its payload (absent for variants
+//! without one).
+
+use serde::Serialize;
+use tokio::sync::broadcast;
+
+use super::MissionTime;
+use crate::mission::msg::Broadcast;
+
+/// Something a runtime did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Event {
+    /// Mission seconds ([`MissionTime::secs`]).
+    pub t_s: f64,
+    /// Which robot (or the commander's name).
+    pub robot: String,
+    /// What happened.
+    #[serde(flatten)]
+    pub kind: EventKind,
+}
+
+impl Event {
+    /// The kind's name as in the JSON form (`behaviour`, `target`, …).
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        self.kind.name()
+    }
+}
+
+/// What happened, with its details.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "kind", content = "detail", rename_all = "kebab-case")]
+pub enum EventKind {
+    /// The runtime is up (its devices answer; Skeeter's manager listens).
+    Connected {
+        /// Scooter: its common-frame heading at start, degrees.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        start_heading_deg: Option<f64>,
+        /// Skeeter: where its Peer Agent manager listens.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        manager: Option<String>,
+    },
+    /// The running SAN module changed.
+    Behaviour(String),
+    /// A mission broadcast heard (its display form).
+    Heard(String),
+    /// A mission broadcast said (its display form; statuses are not reported).
+    Say(String),
+    /// Scooter: an SES sample from Skeeter.
+    Ses {
+        /// Records in the sample.
+        records: usize,
+        /// Whether the heading calculation made a plan from it.
+        planned: bool,
+        /// The new target it was replayed for (a sample kept from before the target).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        target: Option<String>,
+    },
+    /// Scooter: the command sent to the base (every 2 mission seconds).
+    Control(Control),
+    /// Scooter asked Skeeter for a fresh heading (a new SES request).
+    RequestHeading,
+    /// A fleet stop was heard and obeyed.
+    FleetStop {
+        /// Who sent it.
+        by: String,
+        /// Why.
+        reason: String,
+    },
+    /// A fleet stop ended.
+    FleetResume {
+        /// Who ended it (`new target` when a new target did).
+        by: String,
+        /// The new target that ended it, if one did.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        target: Option<String>,
+    },
+    /// Peer Agent link news.
+    Peer(PeerNote),
+    /// Skeeter: a sweep of its cameras ended.
+    Scan {
+        /// Tags seen.
+        seen: Vec<String>,
+        /// Whether Scooter's tag was among them.
+        scooter: bool,
+        /// Cameras whose frame was searched.
+        cameras_ok: u8,
+        /// Cameras skipped.
+        cameras_failed: u8,
+    },
+    /// Some input events were lost (a lagging queue) and the runtime acted on the loss.
+    Lagged {
+        /// Which input.
+        input: String,
+        /// How many were lost.
+        missed: u64,
+    },
+    /// The commander: a target's state changed.
+    Target(TargetChange),
+    /// The commander: a broadcast heard.
+    Broadcast(BroadcastView),
+    /// The commander: a robot's liveness changed.
+    Robot {
+        /// The robot.
+        robot: String,
+        /// `alive` or `lost`.
+        state: String,
+        /// How long it had been silent.
+        silent_s: f64,
+    },
+    /// The commander waits for robots before its first target, or gave up waiting.
+    Waiting(Waiting),
+    /// The commander sent a fleet command.
+    Fleet {
+        /// `stop` or `resume`.
+        command: String,
+        /// The stop's reason.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        reason: Option<String>,
+    },
+    /// The commander could not carry out an operator's request.
+    Operator {
+        /// Why.
+        error: String,
+    },
+}
+
+impl EventKind {
+    /// The variant's name as in the JSON form.
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        match self {
+            EventKind::Connected { .. } => "connected",
+            EventKind::Behaviour(_) => "behaviour",
+            EventKind::Heard(_) => "heard",
+            EventKind::Say(_) => "say",
+            EventKind::Ses { .. } => "ses",
+            EventKind::Control(_) => "control",
+            EventKind::RequestHeading => "request-heading",
+            EventKind::FleetStop { .. } => "fleet-stop",
+            EventKind::FleetResume { .. } => "fleet-resume",
+            EventKind::Peer(_) => "peer",
+            EventKind::Scan { .. } => "scan",
+            EventKind::Lagged { .. } => "lagged",
+            EventKind::Target(_) => "target",
+            EventKind::Broadcast(_) => "broadcast",
+            EventKind::Robot { .. } => "robot",
+            EventKind::Waiting(_) => "waiting",
+            EventKind::Fleet { .. } => "fleet",
+            EventKind::Operator { .. } => "operator",
+        }
+    }
+}
+
+/// Scooter's command to its base and what it was based on.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Control {
+    /// Forward speed sent, m/s.
+    pub v_m_s: f64,
+    /// Turn rate sent, rad/s.
+    pub omega_rad_s: f64,
+    /// Scooter's heading, if it knows it.
+    pub heading_rad: Option<f64>,
+    /// The heading it wants, if any.
+    pub desired_rad: Option<f64>,
+    /// Its dead-reckoned position, metres.
+    pub dr: [f64; 2],
+    /// The running behaviour.
+    pub behaviour: &'static str,
+    /// Whether a fleet stop holds it.
+    pub halted: bool,
+}
+
+/// Peer Agent link news.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum PeerNote {
+    /// A source was granted.
+    Granted {
+        /// The source.
+        granted: String,
+        /// Scooter: the manager that granted it (first grant of a connection).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        manager: Option<String>,
+        /// Scooter: a re-request was granted.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        again: Option<bool>,
+        /// Skeeter: the robot it was granted to.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        to: Option<String>,
+    },
+    /// A subscription was lost (for now).
+    Lost {
+        /// Why.
+        lost: String,
+    },
+    /// The link failed; it is retried.
+    Retry {
+        /// Why it failed.
+        retry: String,
+    },
+}
+
+/// A target's state change at the commander.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TargetChange {
+    /// The colour.
+    pub target: String,
+    /// Its state (`pending`, `sent`, `processing`, `done`, `failed`).
+    pub state: String,
+    /// Final states: the time from sending to the end, seconds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time_s: Option<f64>,
+    /// Final states: whether the commander gave up on it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub given_up: Option<bool>,
+    /// Final states: whether the operator cancelled it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cancelled: Option<bool>,
+}
+
+/// The commander waits for robots.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub enum Waiting {
+    /// Waiting for these robots.
+    #[serde(rename = "for")]
+    For(Vec<String>),
+    /// Gave up waiting for these.
+    #[serde(rename = "gave_up_on")]
+    GaveUpOn(Vec<String>),
+}
+
+/// A broadcast as the event stream shows it (`type`: `status`, `emergency`, `mission`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum BroadcastView {
+    /// A status.
+    Status {
+        /// Sender.
+        robot: String,
+        /// Its behaviour.
+        behaviour: String,
+        /// Its SAN summary.
+        san: String,
+        /// Its pose, if it sent one.
+        pose: Option<PoseView>,
+    },
+    /// An emergency.
+    Emergency {
+        /// Sender.
+        robot: String,
+        /// The emergency's kind.
+        kind: String,
+        /// Its text.
+        text: String,
+    },
+    /// A mission event.
+    Mission {
+        /// Sender.
+        robot: String,
+        /// The event.
+        event: String,
+        /// The target.
+        target: String,
+    },
+}
+
+/// A broadcast pose in SI units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PoseView {
+    /// x, metres.
+    pub x_m: f64,
+    /// y, metres.
+    pub y_m: f64,
+    /// Heading, radians.
+    pub theta_rad: f64,
+}
+
+impl From<&Broadcast> for BroadcastView {
+    fn from(b: &Broadcast) -> Self {
+        match b {
+            Broadcast::Status {
+                robot,
+                behaviour,
+                san,
+                pose,
+            } => BroadcastView::Status {
+                robot: robot.clone(),
+                behaviour: behaviour.clone(),
+                san: san.clone(),
+                pose: pose.map(|p| PoseView {
+                    x_m: f64::from(p.x_mm) / 1000.0,
+                    y_m: f64::from(p.y_mm) / 1000.0,
+                    theta_rad: f64::from(p.theta_mrad) / 1000.0,
+                }),
+            },
+            Broadcast::Emergency { robot, emergency } => BroadcastView::Emergency {
+                robot: robot.clone(),
+                kind: emergency.kind().to_owned(),
+                text: emergency.text(),
+            },
+            Broadcast::Mission {
+                robot,
+                event,
+                target,
+            } => BroadcastView::Mission {
+                robot: robot.clone(),
+                event: event.as_str().to_owned(),
+                target: target.clone(),
+            },
+        }
+    }
+}
+
+/// Where runtimes report their events: the log and, if made with [`Events::channel`], a
+/// bounded drop-oldest channel. Cheap to clone; the channel closes when every clone is
+/// dropped.
+#[derive(Debug, Clone, Default)]
+pub struct Events {
+    tx: Option<broadcast::Sender<Event>>,
+}
+
+impl Events {
+    /// Events logged only.
+    #[must_use]
+    pub fn log_only() -> Self {
+        Self::default()
+    }
+
+    /// Events logged and queued for the returned receiver, which keeps the latest
+    /// `capacity` (at least 1) unread ones.
+    #[must_use]
+    pub fn channel(capacity: usize) -> (Self, EventReceiver) {
+        let (tx, rx) = broadcast::channel(capacity.max(1));
+        (Self { tx: Some(tx) }, EventReceiver { rx, dropped: 0 })
+    }
+
+    /// Another receiver of this channel's events from now on (`None` for [`Events::log_only`]).
+    #[must_use]
+    pub fn subscribe(&self) -> Option<EventReceiver> {
+        self.tx.as_ref().map(|tx| EventReceiver {
+            rx: tx.subscribe(),
+            dropped: 0,
+        })
+    }
+
+    /// Report `kind` for `robot` at mission time `t`. Never waits.
+    pub fn emit(&self, t: &MissionTime, robot: &str, kind: EventKind) {
+        let e = Event {
+            t_s: t.secs(),
+            robot: robot.to_owned(),
+            kind,
+        };
+        tracing::info!(robot, kind = e.name(), detail = ?e.kind, "event");
+        if let Some(tx) = &self.tx {
+            // No receiver left is not an error: nobody is listening.
+            let _ = tx.send(e);
+        }
+    }
+}
+
+/// The receiving end of [`Events::channel`].
+#[derive(Debug)]
+pub struct EventReceiver {
+    rx: broadcast::Receiver<Event>,
+    dropped: u64,
+}
+
+impl EventReceiver {
+    /// The next event, or `None` once every [`Events`] clone is dropped and the queue is
+    /// empty. Events lost to lagging are skipped and counted.
+    pub async fn recv(&mut self) -> Option<Event> {
+        loop {
+            match self.rx.recv().await {
+                Ok(e) => return Some(e),
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    self.dropped = self.dropped.saturating_add(n);
+                }
+                Err(broadcast::error::RecvError::Closed) => return None,
+            }
+        }
+    }
+
+    /// The next event if one is queued (lost ones counted as in [`EventReceiver::recv`]).
+    pub fn try_recv(&mut self) -> Option<Event> {
+        loop {
+            match self.rx.try_recv() {
+                Ok(e) => return Some(e),
+                Err(broadcast::error::TryRecvError::Lagged(n)) => {
+                    self.dropped = self.dropped.saturating_add(n);
+                }
+                Err(_) => return None,
+            }
+        }
+    }
+
+    /// Events this receiver lost because it fell behind (the oldest ones go first).
+    #[must_use]
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ima_hal::time::ManualClock;
+
+    fn t() -> MissionTime {
+        MissionTime::new(ManualClock::default().shared(), 1.0)
+    }
+
+    #[test]
+    fn a_slow_consumer_loses_the_oldest_and_counts_them() {
+        let (events, mut rx) = Events::channel(4);
+        for i in 0..10 {
+            events.emit(&t(), "scooter", EventKind::Behaviour(format!("b{i}")));
+        }
+        let got: Vec<_> = std::iter::from_fn(|| rx.try_recv()).collect();
+        assert_eq!(got.len(), 4);
+        assert_eq!(got[0].kind, EventKind::Behaviour("b6".into()));
+        assert_eq!(rx.dropped(), 6);
+    }
+
+    #[test]
+    fn json_form_is_kind_and_detail() {
+        let e = Event {
+            t_s: 1.5,
+            robot: "commander".into(),
+            kind: EventKind::Target(TargetChange {
+                target: "red".into(),
+                state: "done".into(),
+                time_s: Some(3.0),
+                given_up: Some(false),
+                cancelled: Some(false),
+            }),
+        };
+        let v = serde_json::to_value(&e).unwrap();
+        assert_eq!(v["kind"], "target");
+        assert_eq!(v["detail"]["target"], "red");
+        assert_eq!(v["detail"]["state"], "done");
+        assert_eq!(v["t_s"], 1.5);
+        let e = Event {
+            kind: EventKind::Behaviour("move-to-target".into()),
+            ..e
+        };
+        let v = serde_json::to_value(&e).unwrap();
+        assert_eq!(v["detail"], "move-to-target");
+        let v =
+            serde_json::to_value(EventKind::Waiting(Waiting::For(vec!["skeeter".into()]))).unwrap();
+        assert_eq!(v["detail"]["for"][0], "skeeter");
+        let v = serde_json::to_value(EventKind::RequestHeading).unwrap();
+        assert_eq!(v["kind"], "request-heading");
+        let b = Broadcast::Mission {
+            robot: "scooter".into(),
+            event: crate::mission::msg::MissionEvent::Accomplished,
+            target: "red".into(),
+        };
+        let v = serde_json::to_value(EventKind::Broadcast((&b).into())).unwrap();
+        assert_eq!(v["detail"]["type"], "mission");
+        assert_eq!(v["detail"]["robot"], "scooter");
+        for k in [
+            EventKind::RequestHeading,
+            EventKind::Peer(PeerNote::Retry { retry: "x".into() }),
+        ] {
+            assert_eq!(serde_json::to_value(&k).unwrap()["kind"], k.name());
+        }
+    }
+}

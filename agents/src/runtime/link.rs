@@ -1,0 +1,368 @@
+//! How a robot's runtime talks to the others.
+//!
+//! A runtime never opens a socket itself: its inputs (broadcasts heard, SES samples) and
+//! outputs (what it says, SES re-requests) are bounded channels in a link value the caller
+//! provides. [`ScooterLink::channels`] makes a bare link whose other ends the caller holds
+//! (a simulation wires robots together in-process); [`ScooterLink::network`] runs the
+//! Peer Agent network behind it: the broadcast channel ([`Bus`]), Scooter's client of
+//! Skeeter's `ses` source with its reconnect and re-request policy, and Scooter's own
+//! manager.
+
+use core::time::Duration;
+
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+
+use super::events::{EventKind, Events, PeerNote};
+use super::{MissionTime, RuntimeError};
+use crate::mission::msg::{Broadcast, SES_SOURCE};
+use crate::peer::manager::FixedSelfAgent;
+use crate::peer::net::{
+    BroadcastChannel, ManagerHandle, PeerClientHandle, PeerNetConfig, SubscriptionEvent,
+    spawn_manager,
+};
+use crate::peer::wire::GroupKey;
+use crate::ses::shared::SharedForm;
+
+/// Capacity of a link's queues.
+pub const LINK_QUEUE: usize = 64;
+
+/// The mission's broadcast channel: typed [`Broadcast`]s over a [`BroadcastChannel`].
+#[derive(Debug, Clone)]
+pub struct Bus {
+    chan: std::sync::Arc<BroadcastChannel>,
+}
+
+impl Bus {
+    /// Bind the broadcast channel of `net` as `net.robot`.
+    pub fn bind(net: &PeerNetConfig, key: GroupKey) -> Result<Self, RuntimeError> {
+        let chan = BroadcastChannel::bind(net, &net.robot, key)
+            .map_err(|e| RuntimeError::Net(format!("binding the broadcast channel: {e}")))?;
+        Ok(Self {
+            chan: std::sync::Arc::new(chan),
+        })
+    }
+
+    /// The channel underneath.
+    #[must_use]
+    pub fn channel(&self) -> &BroadcastChannel {
+        &self.chan
+    }
+
+    /// Send a broadcast once (errors are logged: the broadcast channel is best-effort).
+    pub async fn send(&self, b: &Broadcast) {
+        let r = match b {
+            Broadcast::Status {
+                behaviour,
+                san,
+                pose,
+                ..
+            } => self.chan.send_status(behaviour, san, *pose).await,
+            Broadcast::Emergency { emergency, .. } => {
+                self.chan
+                    .send_emergency(emergency.kind(), &emergency.text())
+                    .await
+            }
+            Broadcast::Mission { event, target, .. } => {
+                self.chan.send_mission(*event, target).await
+            }
+        };
+        if let Err(e) = r {
+            tracing::warn!("broadcast not sent: {e}");
+        }
+    }
+
+    /// The next mission broadcast from another robot (unknown or malformed ones are skipped
+    /// with a debug log).
+    pub async fn recv(&self) -> Result<Broadcast, RuntimeError> {
+        loop {
+            let (msg, from) = self
+                .chan
+                .recv()
+                .await
+                .map_err(|e| RuntimeError::Net(format!("receiving broadcasts: {e}")))?;
+            match Broadcast::from_wire(&msg) {
+                Ok(b) => return Ok(b),
+                Err(e) => tracing::debug!("ignoring a broadcast from {from}: {e:?}"),
+            }
+        }
+    }
+
+    /// Frames refused for a bad MAC since the last report (rate-limited, see
+    /// [`BroadcastChannel::take_auth_report`]).
+    pub fn take_auth_report(&self) -> Option<crate::peer::net::AuthFailure> {
+        self.chan.take_auth_report()
+    }
+
+    /// Send what a robot's brain says: a status once; every other message (mission events,
+    /// emergencies, target notices — the ones that must not be lost) three times 30 ms
+    /// apart. Receivers drop duplicates by sequence number only, so the copies are new
+    /// messages and the receivers are idempotent.
+    pub async fn say(&self, b: &Broadcast) {
+        let copies = if matches!(b, Broadcast::Status { .. }) {
+            1
+        } else {
+            3
+        };
+        for i in 0..copies {
+            if i > 0 {
+                tokio::time::sleep(Duration::from_millis(30)).await;
+            }
+            self.send(b).await;
+        }
+    }
+
+    /// A task handing every mission broadcast heard to `tx` (a socket error is logged and
+    /// listening goes on; frames under another group key are reported through `on_auth`,
+    /// at most once a second). It ends when `tx`'s receiver is dropped.
+    pub fn spawn_reader(
+        &self,
+        tx: mpsc::Sender<Broadcast>,
+        on_auth: impl Fn(crate::peer::net::AuthFailure) + Send + 'static,
+    ) -> JoinHandle<()> {
+        let bus = self.clone();
+        tokio::spawn(async move {
+            let mut check = tokio::time::interval(Duration::from_secs(1));
+            check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+            loop {
+                let r = tokio::select! {
+                    r = bus.recv() => r,
+                    () = tx.closed() => return,
+                    _ = check.tick() => {
+                        if let Some(a) = bus.take_auth_report() {
+                            on_auth(a);
+                        }
+                        continue;
+                    }
+                };
+                match r {
+                    Ok(b) => {
+                        if tx.send(b).await.is_err() {
+                            return;
+                        }
+                    }
+                    Err(e) => {
+                        tracing::warn!("broadcast channel: {e}");
+                        tokio::time::sleep(Duration::from_millis(200)).await;
+                    }
+                }
+            }
+        })
+    }
+
+    /// A task saying every broadcast queued on `rx` ([`Bus::say`]); ends when every sender
+    /// is dropped.
+    pub fn spawn_sayer(&self, mut rx: mpsc::Receiver<Broadcast>) -> JoinHandle<()> {
+        let bus = self.clone();
+        tokio::spawn(async move {
+            while let Some(b) = rx.recv().await {
+                bus.say(&b).await;
+            }
+        })
+    }
+}
+
+/// Scooter's request for Skeeter's `ses` source over the Peer Agent network.
+#[derive(Debug, Clone)]
+pub struct SesRequest {
+    /// Skeeter's manager, `host:port`.
+    pub manager: String,
+    /// The request's priority.
+    pub priority: u8,
+    /// Wait between reconnection attempts.
+    pub retry_after: Duration,
+}
+
+/// Scooter's side of its link to the other robots (see the [module docs](self)).
+#[derive(Debug)]
+pub struct ScooterLink {
+    /// SES samples from Skeeter.
+    pub ses: mpsc::Receiver<SharedForm>,
+    /// Mission broadcasts heard from the other robots.
+    pub heard: mpsc::Receiver<Broadcast>,
+    /// Asks for a fresh SES sample (over the network: a new request of Skeeter's source,
+    /// which Skeeter answers by scanning). Sent with `try_send`: a pending ask is enough.
+    pub rerequest: mpsc::Sender<()>,
+    /// What Scooter says (over the network: statuses once, the others three times).
+    /// Sent with `try_send`: a full queue loses the message (logged), never the robot's time.
+    pub say: mpsc::Sender<Broadcast>,
+    tasks: Vec<JoinHandle<()>>,
+    _manager: Option<ManagerHandle>,
+}
+
+/// The caller's ends of [`ScooterLink::channels`].
+#[derive(Debug)]
+pub struct ScooterLinkEnds {
+    /// Feeds SES samples to Scooter.
+    pub ses: mpsc::Sender<SharedForm>,
+    /// Feeds broadcasts heard to Scooter.
+    pub heard: mpsc::Sender<Broadcast>,
+    /// Scooter's requests for a fresh SES.
+    pub rerequest: mpsc::Receiver<()>,
+    /// What Scooter says.
+    pub say: mpsc::Receiver<Broadcast>,
+}
+
+impl ScooterLink {
+    /// A link of bare channels ([`LINK_QUEUE`] each) and the caller's ends.
+    #[must_use]
+    pub fn channels() -> (Self, ScooterLinkEnds) {
+        let (ses_tx, ses) = mpsc::channel(LINK_QUEUE);
+        let (heard_tx, heard) = mpsc::channel(LINK_QUEUE);
+        let (rerequest, rerequest_rx) = mpsc::channel(1);
+        let (say, say_rx) = mpsc::channel(LINK_QUEUE);
+        (
+            Self {
+                ses,
+                heard,
+                rerequest,
+                say,
+                tasks: Vec::new(),
+                _manager: None,
+            },
+            ScooterLinkEnds {
+                ses: ses_tx,
+                heard: heard_tx,
+                rerequest: rerequest_rx,
+                say: say_rx,
+            },
+        )
+    }
+
+    /// The link over the Peer Agent network: binds the broadcast channel of `net`, starts
+    /// Scooter's own manager when `net.manager.listen` is set, and (with `ses`) a client
+    /// that requests Skeeter's `ses` source, reconnecting after `retry_after` whenever the
+    /// connection or the subscription ends, and requesting again when asked through
+    /// [`ScooterLink::rerequest`]. Link news goes to `events` as [`EventKind::Peer`].
+    /// The tasks end when the link is dropped.
+    pub async fn network(
+        net: &PeerNetConfig,
+        key: GroupKey,
+        ses: Option<SesRequest>,
+        events: Events,
+        time: MissionTime,
+    ) -> Result<Self, RuntimeError> {
+        let bus = Bus::bind(net, key.clone())?;
+        let manager = if net.manager.listen.is_empty() {
+            None
+        } else {
+            Some(
+                spawn_manager(net, key.clone(), FixedSelfAgent::default())
+                    .await
+                    .map_err(|e| RuntimeError::Net(format!("starting Scooter's manager: {e}")))?,
+            )
+        };
+        let (mut link, ends) = Self::channels();
+        let ScooterLinkEnds {
+            ses: ses_tx,
+            heard: heard_tx,
+            rerequest,
+            say,
+        } = ends;
+        link.tasks.push(bus.spawn_reader(heard_tx, |a| {
+            tracing::warn!("{a}");
+        }));
+        link.tasks.push(bus.spawn_sayer(say));
+        if let Some(req) = ses {
+            link.tasks.push(tokio::spawn(ses_loop(
+                req,
+                rerequest,
+                net.clone(),
+                key,
+                ses_tx,
+                events,
+                time,
+            )));
+        }
+        link._manager = manager;
+        Ok(link)
+    }
+}
+
+impl Drop for ScooterLink {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+}
+
+/// Scooter's subscription to Skeeter's `ses` source: connect, register, request; forward
+/// samples; on a re-request disconnect and request again (Skeeter answers a fresh grant
+/// with its latest SES); on any failure wait and start over.
+async fn ses_loop(
+    req: SesRequest,
+    mut rerequest: mpsc::Receiver<()>,
+    net: PeerNetConfig,
+    key: GroupKey,
+    tx: mpsc::Sender<SharedForm>,
+    events: Events,
+    time: MissionTime,
+) {
+    let me = net.robot.clone();
+    let note = |n: PeerNote| events.emit(&time, &me, EventKind::Peer(n));
+    loop {
+        let r: Result<(), String> = async {
+            let client = PeerClientHandle::connect(req.manager.as_str(), &net, key.clone())
+                .await
+                .map_err(|e| e.to_string())?;
+            client.register().await.map_err(|e| e.to_string())?;
+            let mut sub = client
+                .request(SES_SOURCE, req.priority)
+                .await
+                .map_err(|e| e.to_string())?;
+            note(PeerNote::Granted {
+                granted: SES_SOURCE.to_owned(),
+                manager: Some(req.manager.clone()),
+                again: None,
+                to: None,
+            });
+            loop {
+                let ev = tokio::select! {
+                    ev = sub.next() => ev,
+                    Some(()) = rerequest.recv() => {
+                        let _ = client.disconnect(SES_SOURCE).await;
+                        sub = client
+                            .request(SES_SOURCE, req.priority)
+                            .await
+                            .map_err(|e| e.to_string())?;
+                        note(PeerNote::Granted {
+                            granted: SES_SOURCE.to_owned(),
+                            manager: None,
+                            again: Some(true),
+                            to: None,
+                        });
+                        continue;
+                    }
+                };
+                let Some(ev) = ev else { break };
+                match ev {
+                    SubscriptionEvent::Sample { payload, .. } => match SharedForm::decode(&payload)
+                    {
+                        Ok(f) => {
+                            if tx.send(f).await.is_err() {
+                                return Ok(());
+                            }
+                        }
+                        Err(e) => tracing::warn!("bad SES sample: {e:?}"),
+                    },
+                    SubscriptionEvent::Lost { reason } => note(PeerNote::Lost {
+                        lost: format!("{reason:?}"),
+                    }),
+                    SubscriptionEvent::Closed { reason } => {
+                        return Err(format!("subscription closed: {reason:?}"));
+                    }
+                }
+            }
+            Err("subscription ended".to_owned())
+        }
+        .await;
+        if let Err(e) = r {
+            note(PeerNote::Retry { retry: e });
+        }
+        if tx.is_closed() {
+            return;
+        }
+        tokio::time::sleep(req.retry_after).await;
+    }
+}

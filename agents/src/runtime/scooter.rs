@@ -1,0 +1,717 @@
+//! Scooter's runtime: its sensors feed [`ScooterBrain`], stepped at `control_hz` of mission
+//! time, and its velocity commands go to the base; broadcasts and Skeeter's SES arrive
+//! through a [`ScooterLink`].
+//!
+//! Generic over the HAL: any `B: DifferentialBase + Odometer` (a P2OS or an rFLEX base, a
+//! simulated one), any `L: LaserScanner`, and an optional `C: Compass` ([`NoCompass`] when
+//! there is none). Every reading reaches the brain with its own stamp mapped into mission
+//! time ([`MissionTime::at`]): odometry at `o.at`, headings at `h.at`, scans at `scan.at`
+//! (so the brain's scan age is `now − scan.at`).
+//!
+//! The mission decisions of the loop, besides the brain's own:
+//!
+//! * **reached latch** — once the brain says `TargetReached`, the base is held at zero until
+//!   the mission ends or a new target arrives, whatever the brain selects meanwhile;
+//! * **fleet stop** — an `Emergency::FleetStop` heard zeroes the base at once and holds it
+//!   until `FleetResume` or a new target; statuses then show [`FLEET_STOPPED`];
+//! * **target notices** — repeats of the current target (several copies are sent) change
+//!   nothing; a new target replays Skeeter's latest SES if it is younger than
+//!   `brain.lost_after`;
+//! * **heading requests** — the brain's `RequestHeading` becomes a re-request on the link.
+
+use core::time::Duration;
+
+use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
+use ima_hal::compass::{Compass, Heading};
+use ima_hal::laser::{LaserScan, LaserScanner};
+use ima_hal::safety::HaltSignal;
+use ima_hal::time::{SharedClock, Stamped};
+use ima_hal::{ErrorType, Instant, normalize_angle};
+use tokio::sync::watch;
+
+use super::events::{Control, EventKind, Events};
+use super::link::ScooterLink;
+use super::{HaltOnDrop, MissionTime, RuntimeError, StopRequest, stopped};
+use crate::mission::msg::{Broadcast, Emergency};
+use crate::mission::scooter::{ScooterBrain, ScooterConfig, ScooterHeard, ScooterSay};
+use crate::ses::shared::SharedForm;
+
+/// The behaviour a robot's status shows while a fleet stop holds it.
+pub const FLEET_STOPPED: &str = "fleet-stopped";
+
+/// Scooter's runtime configuration.
+#[derive(Debug, Clone)]
+pub struct ScooterRuntimeConfig {
+    /// The brain's configuration. Its `odometry_heading_offset_rad` is replaced at start:
+    /// the runtime aligns odometry with the start heading (compass, else
+    /// `initial_heading_deg`, else 0).
+    pub brain: ScooterConfig,
+    /// Brain steps per mission second (the loop runs at most at 50 Hz real).
+    pub control_hz: f64,
+    /// Mission time = clock time × this (1 on a robot; a sped-up world's factor).
+    pub time_scale: f64,
+    /// The common frame's heading, degrees clockwise from north (90: east).
+    pub common_heading_deg: f64,
+    /// The compass's installation deviation, degrees east (added to its heading).
+    pub compass_deviation_deg: f64,
+    /// The start heading in the common frame when there is no compass, degrees.
+    pub initial_heading_deg: Option<f64>,
+    /// How often a [`EventKind::Control`] event reports the command, mission time.
+    pub control_report: Duration,
+    /// How long to wait at start for the first odometry and compass readings (real time).
+    pub first_reading_timeout: Duration,
+}
+
+impl Default for ScooterRuntimeConfig {
+    fn default() -> Self {
+        Self {
+            brain: ScooterConfig::default(),
+            control_hz: 10.0,
+            time_scale: 1.0,
+            common_heading_deg: 90.0,
+            compass_deviation_deg: 0.0,
+            initial_heading_deg: None,
+            control_report: Duration::from_secs(2),
+            first_reading_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+impl ScooterRuntimeConfig {
+    /// A compass heading in the common frame (radians, counter-clockwise), the configured
+    /// deviation added.
+    #[must_use]
+    pub fn common_heading(&self, h: &Heading) -> f64 {
+        let common_yaw = normalize_angle((90.0 - self.common_heading_deg).to_radians());
+        normalize_angle(h.yaw_enu_rad() - self.compass_deviation_deg.to_radians() - common_yaw)
+    }
+}
+
+/// Scooter's devices, opened by the caller (on the process's one clock).
+#[derive(Debug)]
+pub struct ScooterDevices<B, L, C = NoCompass> {
+    /// The base: drives and reports odometry.
+    pub base: B,
+    /// The laser.
+    pub laser: L,
+    /// The compass, if Scooter has one.
+    pub compass: Option<C>,
+    /// The base driver's halt signal ([`ima_hal::safety`]): raised if the runtime is
+    /// dropped (cancelled) before it could stop the base itself. `None`: no such guard.
+    pub halt: Option<HaltSignal>,
+}
+
+/// The compass type of a Scooter without one (it cannot be constructed).
+#[derive(Debug, Clone, Copy)]
+pub enum NoCompass {}
+
+impl ErrorType for NoCompass {
+    type Error = core::convert::Infallible;
+}
+
+impl Compass for NoCompass {
+    async fn heading(&mut self) -> Result<Stamped<Heading>, Self::Error> {
+        match *self {}
+    }
+
+    async fn next_heading(&mut self, _after: Instant) -> Result<Stamped<Heading>, Self::Error> {
+        match *self {}
+    }
+}
+
+/// Run Scooter until `stop` asks it to end.
+///
+/// * `cfg` — the runtime's configuration ([`ScooterRuntimeConfig`]);
+/// * `devices` — the base, laser and optional compass, already connected (an rFLEX base
+///   with its brake released); the laser and compass are read in tasks of their own, the
+///   base's odometry once per step;
+/// * `link` — broadcasts and SES samples in, what Scooter says out
+///   ([`ScooterLink::network`] on a robot, [`ScooterLink::channels`] in a simulation);
+/// * `clock` — the process's one clock, the one the devices stamp their readings on;
+/// * `events` — where the runtime reports ([`EventKind`]); never blocks;
+/// * `stop` — `true` (or the sender dropped) ends the run.
+///
+/// On every way out the base is stopped: `stop()` at the end of the loop, and the driver's
+/// halt signal (`devices.halt`) if that fails or if the returned future is dropped before
+/// it finishes. Returns an error only if the run could not start.
+pub async fn run<B, L, C>(
+    cfg: ScooterRuntimeConfig,
+    devices: ScooterDevices<B, L, C>,
+    mut link: ScooterLink,
+    clock: SharedClock,
+    events: Events,
+    mut stop: StopRequest,
+) -> Result<(), RuntimeError>
+where
+    B: DifferentialBase + Odometer + Send + 'static,
+    L: LaserScanner + Send + 'static,
+    C: Compass + Send + 'static,
+{
+    let time = MissionTime::new(clock, cfg.time_scale);
+    let me = cfg.brain.robot_name.clone();
+    let ScooterDevices {
+        mut base,
+        laser,
+        compass,
+        halt,
+    } = devices;
+    let guard = HaltOnDrop::new(halt);
+    let wait = cfg.first_reading_timeout;
+
+    // The compass, read in its own task; its first heading sets the start heading.
+    let (compass_tx, mut compass_rx) = watch::channel::<Option<Stamped<Heading>>>(None);
+    let mut tasks = Tasks::default();
+    let mut start_heading = None;
+    if let Some(mut c) = compass {
+        match tokio::time::timeout(wait, c.heading()).await {
+            Ok(Ok(h)) => {
+                start_heading = Some(cfg.common_heading(&h.value));
+                compass_tx.send_replace(Some(h));
+                compass_rx.mark_unchanged();
+            }
+            Ok(Err(e)) => tracing::warn!("compass: no first heading: {e:?}"),
+            Err(_) => tracing::warn!("compass: no first heading in {wait:?}"),
+        }
+        tasks.0.push(tokio::spawn(async move {
+            let mut after = Instant::ZERO;
+            loop {
+                let failed = match c.next_heading(after).await {
+                    Ok(h) => {
+                        after = h.at;
+                        if compass_tx.send(Some(h)).is_err() {
+                            return;
+                        }
+                        false
+                    }
+                    Err(e) => {
+                        tracing::warn!("compass: {e:?}");
+                        true
+                    }
+                };
+                if failed {
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+            }
+        }));
+    }
+    let start_heading = start_heading
+        .or(cfg.initial_heading_deg.map(f64::to_radians))
+        .unwrap_or(0.0);
+    // Odometry's heading offset: odometry's θ at start is the start heading.
+    let odo_theta = match tokio::time::timeout(wait, base.odometry()).await {
+        Ok(Ok(o)) => o.value.theta_rad(),
+        Ok(Err(e)) => {
+            tracing::warn!("base: no first odometry: {e:?}");
+            0.0
+        }
+        Err(_) => {
+            tracing::warn!("base: no first odometry in {wait:?}");
+            0.0
+        }
+    };
+    let mut brain_cfg = cfg.brain.clone();
+    brain_cfg.odometry_heading_offset_rad = normalize_angle(start_heading - odo_theta);
+    let lost_after = brain_cfg.lost_after;
+    let mut brain = ScooterBrain::new(brain_cfg);
+    events.emit(
+        &time,
+        &me,
+        EventKind::Connected {
+            start_heading_deg: Some(start_heading.to_degrees()),
+            manager: None,
+        },
+    );
+
+    // The laser: the latest scan in a watch channel.
+    let (scan_tx, mut scan_rx) = watch::channel::<Option<Stamped<LaserScan>>>(None);
+    tasks.0.push(tokio::spawn({
+        let mut laser = laser;
+        async move {
+            let mut after = Instant::ZERO;
+            loop {
+                let failed = match laser.next_scan(after).await {
+                    Ok(s) => {
+                        after = s.at;
+                        if scan_tx.send(Some(s)).is_err() {
+                            return;
+                        }
+                        false
+                    }
+                    Err(e) => {
+                        tracing::warn!("laser: {e:?}");
+                        true
+                    }
+                };
+                if failed {
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+            }
+        }
+    }));
+
+    // The brain steps at control_hz of mission time (at most 50 Hz real).
+    let hz = if cfg.control_hz.is_finite() && cfg.control_hz > 0.0 {
+        cfg.control_hz
+    } else {
+        10.0
+    };
+    let period = Duration::try_from_secs_f64(1.0 / (hz * time.scale()))
+        .unwrap_or(Duration::from_millis(100))
+        .max(Duration::from_millis(20));
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut st = LoopState::default();
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            () = stopped(&mut stop) => break,
+        }
+        let now = time.now();
+        while let Ok(b) = link.heard.try_recv() {
+            st.heard(&b, &mut brain, &mut base, &time, &events, &me, lost_after)
+                .await;
+        }
+        while let Ok(form) = link.ses.try_recv() {
+            let planned = brain.handle_ses(&form, now);
+            events.emit(
+                &time,
+                &me,
+                EventKind::Ses {
+                    records: form.records.len(),
+                    planned,
+                    target: None,
+                },
+            );
+            st.last_ses = Some((now, form));
+        }
+        if let Ok(Ok(o)) = tokio::time::timeout(period, base.odometry()).await
+            && Some(o.at) != st.last_odo_at
+        {
+            st.last_odo_at = Some(o.at);
+            brain.handle_odometry(&o.value, time.at(o.at));
+        }
+        if compass_rx.has_changed().unwrap_or(false) {
+            let h = *compass_rx.borrow_and_update();
+            if let Some(h) = h {
+                brain.handle_compass(cfg.common_heading(&h.value), time.at(h.at));
+            }
+        }
+        if scan_rx.has_changed().unwrap_or(false) {
+            let scan = scan_rx.borrow_and_update().clone();
+            if let Some(scan) = scan {
+                brain.handle_laser(&scan.value, time.at(scan.at));
+            }
+        }
+        let out = brain.step(now);
+        // Once Scooter has told Skeeter it reached the target it waits there for the end of
+        // the mission (or a new target), whatever the brain selects meanwhile.
+        let command = if st.reached.is_some() || st.halted {
+            VelocityCommand::ZERO
+        } else {
+            out.command
+        };
+        if let Err(e) = base.set_velocity(command).await {
+            tracing::warn!("base: {e:?}");
+        }
+        if st
+            .last_control
+            .is_none_or(|t| now.saturating_duration_since(t) >= cfg.control_report)
+        {
+            st.last_control = Some(now);
+            let dr = brain.dr_position();
+            events.emit(
+                &time,
+                &me,
+                EventKind::Control(Control {
+                    v_m_s: command.v_m_s,
+                    omega_rad_s: command.omega_rad_s,
+                    heading_rad: brain.heading(),
+                    desired_rad: brain.desired_heading(),
+                    dr: [dr.x, dr.y],
+                    behaviour: out.behaviour.as_str(),
+                    halted: st.halted,
+                }),
+            );
+        }
+        let b = out.behaviour.as_str();
+        if b != st.last_behaviour {
+            events.emit(&time, &me, EventKind::Behaviour(b.to_owned()));
+            st.last_behaviour = b;
+        }
+        for say in out.messages {
+            if let ScooterSay::TargetReached { colour } = &say {
+                st.reached = Some(colour.clone());
+            }
+            let Some(mut msg) = say.to_broadcast(&me, &brain.san_summary()) else {
+                // RequestHeading: ask Skeeter's manager again (a fresh grant makes Skeeter
+                // scan and publish).
+                events.emit(&time, &me, EventKind::RequestHeading);
+                let _ = link.rerequest.try_send(());
+                continue;
+            };
+            // While a fleet stop holds, the status says so (the brain's module is on hold).
+            if st.halted
+                && let Broadcast::Status { behaviour, .. } = &mut msg
+            {
+                FLEET_STOPPED.clone_into(behaviour);
+            }
+            if !matches!(msg, Broadcast::Status { .. }) {
+                events.emit(&time, &me, EventKind::Say(msg.to_string()));
+            }
+            if link.say.try_send(msg).is_err() {
+                tracing::warn!("Scooter's broadcast queue is full or closed: a message is lost");
+            }
+        }
+    }
+    drop(tasks);
+    match tokio::time::timeout(Duration::from_secs(2), base.stop()).await {
+        Ok(Ok(())) => guard.disarm(),
+        // The guard halts the driver on the way out.
+        Ok(Err(e)) => tracing::warn!("base: stop failed ({e:?}); halting its driver"),
+        Err(_) => tracing::warn!("base: stop unanswered; halting its driver"),
+    }
+    Ok(())
+}
+
+/// Tasks aborted when dropped.
+#[derive(Default)]
+struct Tasks(Vec<tokio::task::JoinHandle<()>>);
+
+impl Drop for Tasks {
+    fn drop(&mut self) {
+        for t in &self.0 {
+            t.abort();
+        }
+    }
+}
+
+/// The loop's own state (the mission decisions around the brain).
+#[derive(Default)]
+struct LoopState {
+    last_behaviour: &'static str,
+    last_ses: Option<(Instant, SharedForm)>,
+    /// The target Scooter said it reached: the base is held at zero.
+    reached: Option<String>,
+    last_control: Option<Instant>,
+    last_odo_at: Option<Instant>,
+    /// A fleet stop holds the base at zero until a fleet resume or a new target.
+    halted: bool,
+}
+
+impl LoopState {
+    /// A broadcast heard: fleet stops and resumes, then what the brain hears.
+    #[allow(clippy::too_many_arguments)]
+    async fn heard<B: DifferentialBase>(
+        &mut self,
+        b: &Broadcast,
+        brain: &mut ScooterBrain,
+        base: &mut B,
+        time: &MissionTime,
+        events: &Events,
+        me: &str,
+        lost_after: Duration,
+    ) {
+        let now = time.now();
+        events.emit(time, me, EventKind::Heard(b.to_string()));
+        if let Broadcast::Emergency { robot, emergency } = b {
+            match emergency {
+                Emergency::FleetStop { reason } => {
+                    if !self.halted {
+                        self.halted = true;
+                        // At once, not at the end of this step.
+                        if let Err(e) = base.set_velocity(VelocityCommand::ZERO).await {
+                            tracing::warn!("base: {e:?}");
+                        }
+                        events.emit(
+                            time,
+                            me,
+                            EventKind::FleetStop {
+                                by: robot.clone(),
+                                reason: reason.clone(),
+                            },
+                        );
+                    }
+                    return;
+                }
+                Emergency::FleetResume => {
+                    if self.halted {
+                        self.halted = false;
+                        events.emit(
+                            time,
+                            me,
+                            EventKind::FleetResume {
+                                by: robot.clone(),
+                                target: None,
+                            },
+                        );
+                    }
+                    return;
+                }
+                _ => {}
+            }
+        }
+        let Some(h) = ScooterHeard::from_broadcast(b, me) else {
+            return;
+        };
+        match &h {
+            // Repeats of the current target (several copies are sent) change nothing.
+            ScooterHeard::TargetAccepted { colour } if brain.target() == Some(colour) => {}
+            ScooterHeard::TargetAccepted { colour } => {
+                if self.halted {
+                    // A new target ends a fleet stop.
+                    self.halted = false;
+                    events.emit(
+                        time,
+                        me,
+                        EventKind::FleetResume {
+                            by: "new target".to_owned(),
+                            target: Some(colour.clone()),
+                        },
+                    );
+                }
+                brain.handle_heard(&h, now);
+                self.reached = None;
+                // Skeeter's latest SES already says where the target is.
+                if let Some((at, form)) = &self.last_ses
+                    && now.saturating_duration_since(*at) < lost_after
+                {
+                    let planned = brain.handle_ses(form, now);
+                    events.emit(
+                        time,
+                        me,
+                        EventKind::Ses {
+                            records: form.records.len(),
+                            planned,
+                            target: Some(colour.clone()),
+                        },
+                    );
+                }
+            }
+            ScooterHeard::MissionEnded { .. } => {
+                brain.handle_heard(&h, now);
+                self.reached = None;
+            }
+            _ => brain.handle_heard(&h, now),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::{Arc, Mutex};
+
+    use ima_hal::base::{BaseLimits, Odometry};
+    use ima_hal::laser::LaserDescription;
+    use ima_hal::time::{Clock, TokioClock};
+
+    use super::*;
+    use crate::mission::msg::MissionEvent;
+
+    /// What the fake base was told.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    enum Cmd {
+        Vel(VelocityCommand),
+        Stop,
+    }
+
+    #[derive(Debug, Clone)]
+    struct FakeBase {
+        clock: SharedClock,
+        log: Arc<Mutex<Vec<Cmd>>>,
+    }
+
+    impl ErrorType for FakeBase {
+        type Error = core::convert::Infallible;
+    }
+
+    impl DifferentialBase for FakeBase {
+        fn limits(&self) -> BaseLimits {
+            BaseLimits {
+                max_v_m_s: 1.0,
+                max_omega_rad_s: 1.0,
+            }
+        }
+        async fn enable_motors(&mut self, _on: bool) -> Result<(), Self::Error> {
+            Ok(())
+        }
+        async fn set_velocity(&mut self, cmd: VelocityCommand) -> Result<(), Self::Error> {
+            self.log.lock().unwrap().push(Cmd::Vel(cmd));
+            Ok(())
+        }
+        async fn stop(&mut self) -> Result<(), Self::Error> {
+            self.log.lock().unwrap().push(Cmd::Stop);
+            Ok(())
+        }
+        async fn emergency_stop(&mut self) -> Result<(), Self::Error> {
+            self.stop().await
+        }
+    }
+
+    impl Odometer for FakeBase {
+        async fn odometry(&mut self) -> Result<Stamped<Odometry>, Self::Error> {
+            Ok(Stamped::new(self.clock.now(), Odometry::origin()))
+        }
+        async fn next_odometry(
+            &mut self,
+            _after: Instant,
+        ) -> Result<Stamped<Odometry>, Self::Error> {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            self.odometry().await
+        }
+        async fn reset_odometry(&mut self) -> Result<(), Self::Error> {
+            Ok(())
+        }
+    }
+
+    /// A laser in an empty world (every beam at maximum range), 10 scans a second.
+    #[derive(Debug)]
+    struct FakeLaser(SharedClock);
+
+    impl ErrorType for FakeLaser {
+        type Error = core::convert::Infallible;
+    }
+
+    impl LaserScanner for FakeLaser {
+        fn description(&self) -> LaserDescription {
+            LaserDescription {
+                pose: ima_hal::Isometry2::identity(),
+                fov_rad: core::f64::consts::PI,
+                resolution_rad: core::f64::consts::PI / 180.0,
+                beams: 181,
+                min_range_m: 0.0,
+                max_range_m: 8.0,
+                max_scan_rate_hz: 10.0,
+            }
+        }
+        async fn scan(&mut self) -> Result<Stamped<LaserScan>, Self::Error> {
+            let mut s = LaserScan::new(0.0, core::f64::consts::PI / 180.0);
+            for _ in 0..181 {
+                let _ = s.push(8.0, ima_hal::laser::BeamFlags::default());
+            }
+            Ok(Stamped::new(self.0.now(), s))
+        }
+        async fn next_scan(&mut self, _after: Instant) -> Result<Stamped<LaserScan>, Self::Error> {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            self.scan().await
+        }
+    }
+
+    fn devices(
+        clock: &SharedClock,
+        halt: Option<HaltSignal>,
+    ) -> (ScooterDevices<FakeBase, FakeLaser>, Arc<Mutex<Vec<Cmd>>>) {
+        let log = Arc::new(Mutex::new(Vec::new()));
+        (
+            ScooterDevices {
+                base: FakeBase {
+                    clock: clock.clone(),
+                    log: Arc::clone(&log),
+                },
+                laser: FakeLaser(clock.clone()),
+                compass: None,
+                halt,
+            },
+            log,
+        )
+    }
+
+    fn cfg() -> ScooterRuntimeConfig {
+        let mut c = ScooterRuntimeConfig::default();
+        c.brain.robot_name = "scooter".into();
+        c
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stop_request_ends_the_run_with_the_base_stopped() {
+        let clock = TokioClock::shared();
+        let (dev, log) = devices(&clock, None);
+        let (link, mut ends) = ScooterLink::channels();
+        let (events, mut rx) = Events::channel(256);
+        let (stop_tx, stop) = watch::channel(false);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        // A target from the commander: Scooter hears it and asks for a heading.
+        let target = Broadcast::mission("commander", MissionEvent::Accepted, "red");
+        ends.heard.send(target.clone()).await.unwrap();
+        ends.heard.send(target).await.unwrap();
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        stop_tx.send(true).unwrap();
+        run.await.unwrap().unwrap();
+        let log = log.lock().unwrap().clone();
+        assert_eq!(log.last(), Some(&Cmd::Stop), "{log:?}");
+        assert!(log.iter().filter(|c| matches!(c, Cmd::Vel(_))).count() >= 20);
+        let mut kinds = Vec::new();
+        while let Some(e) = rx.try_recv() {
+            kinds.push(e.name());
+        }
+        assert_eq!(kinds.first(), Some(&"connected"), "{kinds:?}");
+        assert!(kinds.contains(&"control"), "{kinds:?}");
+        // The repeated target notice was heard twice but replayed nothing.
+        assert_eq!(
+            kinds.iter().filter(|k| **k == "heard").count(),
+            2,
+            "{kinds:?}"
+        );
+        // Statuses go out on the link (a status at least every second).
+        let mut said = Vec::new();
+        while let Ok(b) = ends.say.try_recv() {
+            said.push(b);
+        }
+        assert!(
+            said.iter().any(|b| matches!(b, Broadcast::Status { .. })),
+            "{said:?}"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_fleet_stop_holds_the_base_at_zero() {
+        let clock = TokioClock::shared();
+        let (dev, log) = devices(&clock, None);
+        let (link, ends) = ScooterLink::channels();
+        let (stop_tx, stop) = watch::channel(false);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, Events::log_only(), stop));
+        ends.heard
+            .send(Broadcast::mission(
+                "commander",
+                MissionEvent::Accepted,
+                "red",
+            ))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        ends.heard
+            .send(Broadcast::Emergency {
+                robot: "commander".into(),
+                emergency: Emergency::FleetStop {
+                    reason: "test".into(),
+                },
+            })
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let n = log.lock().unwrap().len();
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let after: Vec<Cmd> = log.lock().unwrap()[n..].to_vec();
+        assert!(!after.is_empty());
+        assert!(
+            after.iter().all(|c| *c == Cmd::Vel(VelocityCommand::ZERO)),
+            "{after:?}"
+        );
+        stop_tx.send(true).unwrap();
+        run.await.unwrap().unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_dropped_runtime_halts_its_base() {
+        let clock = TokioClock::shared();
+        let halt = HaltSignal::new();
+        let (dev, _log) = devices(&clock, Some(halt.clone()));
+        let (link, _ends) = ScooterLink::channels();
+        let (_stop_tx, stop) = watch::channel(false);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, Events::log_only(), stop));
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        assert!(!halt.is_requested());
+        run.abort();
+        let _ = run.await;
+        assert!(halt.is_requested());
+    }
+}
