@@ -162,6 +162,29 @@ impl RobotModel {
     }
 }
 
+/// Which loop runs Scooter's brain in a sweep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Engine {
+    /// The robots' own runtime ([`ima_agents::runtime::scooter`]) over simulated HAL
+    /// devices in virtual time ([`crate::runtime`]): the default.
+    Runtime,
+    /// The reference loop [`ScooterSim`]: sensors read and the brain stepped every `dt`, in
+    /// lock-step with the world, without the runtime's latch and compass transform (the
+    /// sweep's loop before the runtime existed; kept to compare).
+    Reference,
+}
+
+impl Engine {
+    /// `"runtime"` or `"reference"`.
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Runtime => "runtime",
+            Self::Reference => "reference",
+        }
+    }
+}
+
 /// The thesis robot's target recognition range, metres: Scooter recognises the target
 /// "close up" (MISSION.md); the thesis does not give the distance. 2.5 m is the shortest
 /// range, in 0.5 m steps, at which the thesis rule reaches its target in all 48
@@ -169,7 +192,9 @@ impl RobotModel {
 pub const THESIS_SEE_DISTANCE_M: f64 = 2.5;
 
 /// The keys [`SweepConfig::set`] accepts.
-pub const SETTING_KEYS: [&str; 13] = [
+pub const SETTING_KEYS: [&str; 15] = [
+    "loop",
+    "control_hz",
     "model",
     "recognition",
     "see_distance_m",
@@ -242,6 +267,8 @@ pub struct SweepConfig {
     pub sim: SimConfig,
     /// The robot model the template was built for.
     pub model: RobotModel,
+    /// The loop that runs the brain.
+    pub engine: Engine,
     /// The [`SweepConfig::set`] settings applied after the model, in order (reported in
     /// the JSON output).
     pub settings: Vec<(String, String)>,
@@ -299,6 +326,7 @@ impl SweepConfig {
             trajectory_stride: 20,
             sim,
             model,
+            engine: Engine::Runtime,
             settings: Vec::new(),
         };
         cfg.apply_model(model);
@@ -328,6 +356,8 @@ impl SweepConfig {
     ///
     /// | key | values | what |
     /// |---|---|---|
+    /// | `loop` | `runtime`, `reference` | the [`Engine`] |
+    /// | `control_hz` | > 0 | brain steps per second of the runtime |
     /// | `model` | `thesis-robot`, `estimate-gated` | a whole [`RobotModel`] (resets the three keys below) |
     /// | `recognition` | `in-view`, `near-estimate` | [`TargetRecognition`] |
     /// | `see_distance_m` | > 0 | the laser recognises the target this far |
@@ -354,6 +384,14 @@ impl SweepConfig {
             expected,
         };
         match k {
+            "loop" => {
+                self.engine = match value {
+                    "runtime" => Engine::Runtime,
+                    "reference" => Engine::Reference,
+                    _ => return Err(bad("runtime or reference")),
+                };
+            }
+            "control_hz" => self.sim.control_hz = parse_non_negative(k, value, true)?,
             "model" => {
                 let m = RobotModel::from_name(value)
                     .ok_or_else(|| bad("thesis-robot or estimate-gated"))?;
@@ -686,13 +724,22 @@ pub fn run_one(spec: &RunSpec, cfg: &SweepConfig) -> RunResult {
     let cap = Duration::from_secs_f64((cfg.timeout_factor * expected_d / v).clamp(1.0, 1e6));
     let world = world_for(spec.angle_deg, spec.ds_m, spec.dt_m, spec.seed);
     let stride = cfg.trajectory_stride.max(1);
-    let (outcome, samples, trajectory) = match ScooterSim::new(world, TARGET_COLOUR, sim_cfg) {
-        Ok(mut sim) => {
-            let o = sim.run(cap);
-            let traj = sim.trajectory().iter().step_by(stride).copied().collect();
-            (Some(o), sim.samples(), traj)
-        }
-        Err(_) => (None, 0, Vec::new()),
+    let (outcome, samples, trajectory) = match cfg.engine {
+        Engine::Runtime => match crate::runtime::run_runtime(world, TARGET_COLOUR, &sim_cfg, cap) {
+            Ok(run) => {
+                let traj = run.trajectory.iter().step_by(stride).copied().collect();
+                (Some(run.outcome), run.samples, traj)
+            }
+            Err(_) => (None, 0, Vec::new()),
+        },
+        Engine::Reference => match ScooterSim::new(world, TARGET_COLOUR, sim_cfg) {
+            Ok(mut sim) => {
+                let o = sim.run(cap);
+                let traj = sim.trajectory().iter().step_by(stride).copied().collect();
+                (Some(o), sim.samples(), traj)
+            }
+            Err(_) => (None, 0, Vec::new()),
+        },
     };
     let reach_m = cfg.sim.brain.reach_distance_m;
     let end_to_target_m = outcome.map_or(f64::INFINITY, |o| {
@@ -915,6 +962,8 @@ pub fn json(results: &[RunResult], cfg: &SweepConfig) -> serde_json::Value {
         "speed_m_s": cfg.speed_m_s,
         "scan_period_s": cfg.sim.scan_period.as_secs_f64(),
         "model": cfg.model.as_str(),
+        "loop": cfg.engine.as_str(),
+        "control_hz": cfg.sim.control_hz,
         "settings": cfg.settings.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>(),
         "runs": results,
     })

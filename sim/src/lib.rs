@@ -58,6 +58,7 @@
 
 pub mod experiment;
 pub mod observer;
+pub mod runtime;
 
 pub use ima_mock_devices::hal;
 pub use observer::SesObserver;
@@ -138,6 +139,15 @@ pub struct SimConfig {
     pub brain: ScooterConfig,
     /// Skeeter's observation model.
     pub observer: Observer,
+    /// Brain steps per second of Scooter's runtime (the robots' `agent.control_hz`; the
+    /// reference loop [`ScooterSim`] steps the brain every `dt` instead).
+    pub control_hz: f64,
+    /// One odometry reading every this often (runtime path; the reference loop reads it
+    /// every `dt`).
+    pub odometry_period: Duration,
+    /// One compass heading every this often (runtime path; the reference loop reads it
+    /// every `dt`).
+    pub compass_period: Duration,
 }
 
 impl Default for SimConfig {
@@ -156,6 +166,9 @@ impl Default for SimConfig {
             laser: LaserModel::default(),
             brain: ScooterConfig::default(),
             observer: Observer::Geometric,
+            control_hz: 10.0,
+            odometry_period: Duration::from_millis(100),
+            compass_period: Duration::from_millis(100),
         }
     }
 }
@@ -167,8 +180,10 @@ pub enum SimError {
     NoRobot(&'static str),
     /// The world has no object of this colour.
     NoTarget(String),
-    /// `dt` or `scan_period` is zero.
+    /// `dt` or `scan_period` is zero (or the control rate is not positive).
     BadPeriod,
+    /// Scooter's runtime could not run (why).
+    Runtime(String),
 }
 
 impl core::fmt::Display for SimError {
@@ -176,7 +191,8 @@ impl core::fmt::Display for SimError {
         match self {
             Self::NoRobot(n) => write!(f, "the world has no robot named `{n}`"),
             Self::NoTarget(c) => write!(f, "the world has no `{c}` object"),
-            Self::BadPeriod => f.write_str("dt and scan_period must be positive"),
+            Self::BadPeriod => f.write_str("dt, scan_period and control_hz must be positive"),
+            Self::Runtime(e) => write!(f, "Scooter's runtime: {e}"),
         }
     }
 }
