@@ -34,7 +34,12 @@
 //! case); in general common-frame angles are world angles minus Skeeter's heading.
 //! Everything random comes from one seeded `SmallRng`: the same seed gives the same run.
 //!
-//! [`experiment`] runs the thesis's heading sweep on top.
+//! [`experiment`] runs the thesis's heading sweep on top — by default not through
+//! [`ScooterSim`] but through [`runtime`]: the robots' own runtime
+//! (`ima_agents::runtime::scooter`) over in-process HAL devices on the world ([`hal`], stepped
+//! in tokio's paused virtual time, every reading stamped on one clock), Skeeter's samples
+//! from the same [`SesObserver`] delivered through the runtime's link. [`ScooterSim`] stays as
+//! the reference loop (`--set loop=reference`).
 //!
 //! # Which robot is modelled
 //!

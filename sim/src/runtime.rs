@@ -9,7 +9,7 @@
 //! P2OS and rFLEX), a [`SimLaser`] ([`SimConfig::laser`] every [`SimConfig::laser_period`],
 //! mounted at the brain's `laser_mount`) and a [`SimCompass`] (true heading + Gaussian
 //! noise every [`SimConfig::compass_period`]); every reading is stamped on the simulation's
-//! one clock. [`runtime::scooter::run`] reads them in its own tasks, steps the brain at
+//! one clock. [`scooter_rt::run`](ima_agents::runtime::scooter::run) reads them in its own tasks, steps the brain at
 //! [`SimConfig::control_hz`] (the robots' `agent.control_hz`, 10 Hz) and commands the base —
 //! with the runtime's own mission decisions: the "reached" latch, the compass transform into
 //! the common frame (the world's +x axis points east; the common heading is Skeeter's), the
