@@ -20,6 +20,10 @@ fn demo(seed: u64, svg: &std::path::Path) -> serde_json::Value {
 }
 
 fn demo_at(speed: &str, seed: u64, svg: &std::path::Path) -> serde_json::Value {
+    demo_with(&[], speed, seed, svg)
+}
+
+fn demo_with(extra: &[&str], speed: &str, seed: u64, svg: &std::path::Path) -> serde_json::Value {
     let out = ima()
         .args([
             "demo",
@@ -31,6 +35,7 @@ fn demo_at(speed: &str, seed: u64, svg: &std::path::Path) -> serde_json::Value {
             "--svg",
         ])
         .arg(svg)
+        .args(extra)
         .output()
         .unwrap();
     let lines = json_lines(&out.stdout);
@@ -108,6 +113,24 @@ fn demo_accomplishes_every_target_when_sped_up_ten_and_twenty_times() {
             let gap = t["end_gap_m"].as_f64().unwrap();
             assert!(gap < 1.5, "×{speed}: Scooter ended {gap:.2} m from {t}");
         }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 14: the same Scooter runtime drives a Pioneer's P2OS base (with the SICK and the
+/// compass): `--scooter-base p2os` accomplishes the three default targets too.
+#[test]
+fn scooter_on_a_p2os_base_accomplishes_every_target() {
+    let _turn = turn();
+    let dir = std::env::temp_dir().join(format!("ima-demo-p2os-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let svg = dir.join("demo-p2os.svg");
+    let summary = demo_with(&["--scooter-base", "p2os"], "4", 1, &svg);
+    assert_eq!(summary["done"], 3, "{summary}");
+    for t in summary["targets"].as_array().unwrap() {
+        assert_eq!(t["state"], "done", "{t}");
+        let gap = t["end_gap_m"].as_f64().unwrap();
+        assert!(gap < 1.5, "Scooter ended {gap:.2} m from {t}");
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -712,6 +712,7 @@ fn run_answers_sigint_while_opening_its_devices() {
         },
         scooter: ScooterEndpoints {
             base: silent.clone(),
+            base_kind: ima_mock_devices::served::BaseKind::Rflex,
             laser: silent.clone(),
             compass: silent,
         },

@@ -10,7 +10,8 @@
 //! 3. writes the link's output chunks to the master, one write per chunk.
 //!
 //! The model's clock ([`ima_hal::Instant`]) starts at [`Instant::ZERO`] when the device is
-//! spawned; build timers in the model relative to zero.
+//! spawned, unless [`PtyOptions::clock`] gives the process's one clock; build timers in the
+//! model relative to the `now` of its first call, not to zero.
 //!
 //! # Stopping
 //!
@@ -34,7 +35,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use ima_hal::Instant;
-use ima_hal::time::MonotonicClock;
+use ima_hal::time::{Clock, MonotonicClock, SharedClock};
 use serialport::{SerialPort, TTYPort};
 
 use crate::faults::FaultPlan;
@@ -84,6 +85,10 @@ pub struct PtyOptions {
     /// If set, every chunk the host writes is recorded here with the (wall-clock monotonic)
     /// instant of its arrival, so a test can check what reached the device and when.
     pub host_log: Option<HostLog>,
+    /// The clock of the device's model: a process that serves devices to its own drivers
+    /// passes its one clock, so the model's and the drivers' instants share one time base.
+    /// `None`: a [`MonotonicClock`] starting when the device is spawned.
+    pub clock: Option<SharedClock>,
 }
 
 /// The bytes a host wrote to a [`PtyDevice`], chunk by chunk, each with the
@@ -127,6 +132,7 @@ impl Default for PtyOptions {
             step_world: None,
             step_period: WorldStepper::DEFAULT_PERIOD,
             host_log: None,
+            clock: None,
         }
     }
 }
@@ -149,7 +155,7 @@ struct Shared {
 pub struct PtyDevice<M> {
     path: PathBuf,
     shared: Arc<Shared>,
-    clock: MonotonicClock,
+    clock: SharedClock,
     thread: Option<JoinHandle<M>>,
     stepper: Option<WorldStepper>,
 }
@@ -165,7 +171,10 @@ impl<M: DeviceModel + 'static> PtyDevice<M> {
         let (mut master, slave) = pty_pair()?;
         let path = PathBuf::from(slave.name().ok_or(PtyError::NoPath)?);
         master.set_timeout(opts.poll_period)?;
-        let clock = MonotonicClock::new();
+        let clock: SharedClock = opts
+            .clock
+            .clone()
+            .unwrap_or_else(|| Arc::new(MonotonicClock::new()));
         let shared = Arc::new(Shared {
             stop: AtomicBool::new(false),
             controls: Mutex::new(Vec::new()),
@@ -174,6 +183,7 @@ impl<M: DeviceModel + 'static> PtyDevice<M> {
         let link = DeviceLink::new(model, &opts.faults, clock.now());
         let host_log = opts.host_log.clone();
         let thread_shared = Arc::clone(&shared);
+        let thread_clock = clock.clone();
         let poll_period = opts.poll_period.max(Duration::from_millis(1));
         let name = format!("ima-pty-{}", link.model().name());
         let thread = std::thread::Builder::new().name(name).spawn(move || {
@@ -182,7 +192,7 @@ impl<M: DeviceModel + 'static> PtyDevice<M> {
                 link,
                 master,
                 slave,
-                clock,
+                &*thread_clock,
                 poll_period,
                 &thread_shared,
                 host_log.as_ref(),
@@ -270,7 +280,7 @@ fn serve<M: DeviceModel>(
     mut link: DeviceLink<M>,
     mut master: TTYPort,
     slave: TTYPort,
-    clock: MonotonicClock,
+    clock: &dyn Clock,
     poll_period: Duration,
     shared: &Shared,
     host_log: Option<&HostLog>,

@@ -30,6 +30,8 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 use crate::camera::{CameraConfig, CameraError, MockCameraHead};
 use crate::compass::{CompassDevice, CompassModelConfig};
+use ima_hal::time::Clock as _;
+
 use crate::p2os::{P2osDevice, P2osModelConfig, WorldBody};
 use crate::pty::{HostLog, PtyDevice, PtyError, PtyOptions};
 use crate::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
@@ -71,8 +73,24 @@ pub struct ServeOptions {
     pub camera: CameraConfig,
     /// If set, what the host writes to Skeeter's P2OS base is recorded here (tests).
     pub skeeter_base_log: Option<HostLog>,
-    /// If set, what the host writes to Scooter's rFLEX base is recorded here (tests).
+    /// If set, what the host writes to Scooter's base is recorded here (tests).
     pub scooter_base_log: Option<HostLog>,
+    /// The kind of base Scooter's body is served as (its own rFLEX, or a P2OS controller).
+    pub scooter_base: BaseKind,
+    /// The clock of every served device's model ([`PtyOptions::clock`]): a program serving
+    /// the world to its own drivers passes its one clock. `None`: each device's own.
+    pub clock: Option<ima_hal::time::SharedClock>,
+}
+
+/// A kind of served base controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BaseKind {
+    /// An rFLEX controller (the ATRV-Jr's), 115 200 baud.
+    #[default]
+    Rflex,
+    /// A P2OS controller (the Pioneer 2-AT's), 9600 baud.
+    P2os,
 }
 
 impl Default for ServeOptions {
@@ -86,6 +104,8 @@ impl Default for ServeOptions {
             camera: CameraConfig::default(),
             skeeter_base_log: None,
             scooter_base_log: None,
+            scooter_base: BaseKind::Rflex,
+            clock: None,
         }
     }
 }
@@ -113,8 +133,11 @@ pub struct SkeeterEndpoints {
 /// Scooter's device paths.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ScooterEndpoints {
-    /// The rFLEX base (115200 baud).
+    /// The base (rFLEX at 115200 baud, or P2OS at 9600: see `base_kind`).
     pub base: PathBuf,
+    /// Which controller the base is.
+    #[serde(default)]
+    pub base_kind: BaseKind,
     /// The SICK LMS (powers up at 9600 baud).
     pub laser: PathBuf,
     /// The KVH C100 compass (NMEA, 4800 baud).
@@ -131,7 +154,7 @@ pub struct ServedWorld {
     _frames: FrameServer,
     _p2os: PtyDevice<P2osDevice>,
     _mux: PtyDevice<MuxDevice>,
-    _rflex: PtyDevice<RflexDevice>,
+    _scooter_base: ScooterBase,
     _laser: PtyDevice<SickLmsDevice>,
     _compass: PtyDevice<CompassDevice>,
 }
@@ -149,7 +172,10 @@ impl ServedWorld {
         };
         let (sk, sc) = (id(&opts.skeeter)?, id(&opts.scooter)?);
         let seed = opts.seed;
-        let pty = PtyOptions::default;
+        let pty = || PtyOptions {
+            clock: opts.clock.clone(),
+            ..PtyOptions::default()
+        };
         let cap = |s: &str| {
             let mut c = s.chars();
             c.next()
@@ -174,21 +200,36 @@ impl ServedWorld {
             MuxDevice::new(MuxModelConfig::default(), bus.clone()),
             pty(),
         )?;
-        let rflex = PtyDevice::spawn(
-            RflexDevice::new(
-                RflexModelConfig::default(),
-                RflexWorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
-            ),
-            PtyOptions {
-                host_log: opts.scooter_base_log.clone(),
-                ..pty()
-            },
-        )?;
+        let scooter_log = PtyOptions {
+            host_log: opts.scooter_base_log.clone(),
+            ..pty()
+        };
+        let scooter_base = match opts.scooter_base {
+            BaseKind::Rflex => ScooterBase::Rflex(PtyDevice::spawn(
+                RflexDevice::new(
+                    RflexModelConfig::default(),
+                    RflexWorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
+                ),
+                scooter_log,
+            )?),
+            BaseKind::P2os => ScooterBase::P2os(PtyDevice::spawn(
+                P2osDevice::new(
+                    P2osModelConfig {
+                        name: cap(&opts.scooter),
+                        ..P2osModelConfig::default()
+                    },
+                    WorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
+                ),
+                scooter_log,
+            )?),
+        };
         let laser = PtyDevice::spawn(
             SickLmsDevice::new(
                 SickLmsModelConfig::default(),
                 Box::new(WorldLaser::new(world.clone(), sc, seed.wrapping_add(2))),
-                ima_hal::Instant::ZERO,
+                opts.clock
+                    .as_ref()
+                    .map_or(ima_hal::Instant::ZERO, |c| c.now()),
             ),
             pty(),
         )?;
@@ -216,7 +257,8 @@ impl ServedWorld {
                 frames: frames.addr().to_string(),
             },
             scooter: ScooterEndpoints {
-                base: rflex.path().to_path_buf(),
+                base: scooter_base.path().to_path_buf(),
+                base_kind: opts.scooter_base,
                 laser: laser.path().to_path_buf(),
                 compass: compass.path().to_path_buf(),
             },
@@ -228,7 +270,7 @@ impl ServedWorld {
             _frames: frames,
             _p2os: p2os,
             _mux: mux,
-            _rflex: rflex,
+            _scooter_base: scooter_base,
             _laser: laser,
             _compass: compass,
         })
@@ -244,6 +286,22 @@ impl ServedWorld {
     #[must_use]
     pub fn endpoints(&self) -> &Endpoints {
         &self.endpoints
+    }
+}
+
+/// Scooter's served base controller.
+#[derive(Debug)]
+enum ScooterBase {
+    Rflex(PtyDevice<RflexDevice>),
+    P2os(PtyDevice<P2osDevice>),
+}
+
+impl ScooterBase {
+    fn path(&self) -> &std::path::Path {
+        match self {
+            ScooterBase::Rflex(d) => d.path(),
+            ScooterBase::P2os(d) => d.path(),
+        }
     }
 }
 

@@ -12,8 +12,10 @@ use clap::{Args, Subcommand};
 use ima_agents::mission::msg::{Broadcast, COMMANDER, Emergency, FLEET_COPIES};
 
 use crate::config::RobotConfig;
-use crate::stack::commander::{Control, Operator, TargetState};
-use crate::stack::{Event, Events, net};
+use ima_agents::runtime::commander::{Operator, TargetState};
+use ima_agents::runtime::events::BroadcastView;
+
+use crate::stack::{EVENT_QUEUE, Event, EventKind, Events, net};
 
 /// Arguments of `ima commander`.
 ///
@@ -291,12 +293,18 @@ impl AsyncInterrupt for CtrlC {
 
 /// Print one event as a line of text or JSON; false when standard output is gone.
 pub fn print_event(e: &Event, json: bool) -> bool {
+    // Refused frames are a warning for the operator, on stderr in either mode.
+    if let EventKind::AuthFailure(text) = &e.kind {
+        eprintln!("ima: warning: {text}");
+        return true;
+    }
     let mut out = std::io::stdout().lock();
     let line = if json {
         serde_json::to_string(e).unwrap_or_default()
     } else {
-        let d = &e.detail;
-        match e.kind.as_str() {
+        let v = serde_json::to_value(e).unwrap_or_default();
+        let d = &v["detail"];
+        match e.name() {
             "target" => format!(
                 "[{:7.1}s] target {:<8} {}{}",
                 e.t_s,
@@ -347,7 +355,7 @@ pub fn print_event(e: &Event, json: bool) -> bool {
                     ),
                 }
             ),
-            _ => format!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.kind, d),
+            _ => format!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.name(), d),
         }
     };
     writeln!(out, "{line}").and_then(|()| out.flush()).is_ok()
@@ -392,19 +400,21 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         let interrupt = CtrlC;
         let (op_tx, op_rx) = tokio::sync::mpsc::unbounded_channel();
         let op_task = tokio::spawn(operator(op_tx, args.stop_on_exit, interrupt));
-        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
+        let (events, mut rx) = Events::channel(EVENT_QUEUE);
         let json = args.json;
         let printer = tokio::spawn(async move {
             // Text mode: a robot's status is shown when its behaviour changes, not every second.
             let mut last: std::collections::BTreeMap<String, String> = Default::default();
             while let Some(e) = rx.recv().await {
-                if !json && e.kind == "broadcast" && e.detail["type"] == "status" {
-                    let robot = e.detail["robot"].as_str().unwrap_or("").to_owned();
-                    let b = e.detail["behaviour"].as_str().unwrap_or("").to_owned();
-                    if last.get(&robot) == Some(&b) {
+                if !json
+                    && let EventKind::Broadcast(BroadcastView::Status {
+                        robot, behaviour, ..
+                    }) = &e.kind
+                {
+                    if last.get(robot) == Some(behaviour) {
                         continue;
                     }
-                    last.insert(robot, b);
+                    last.insert(robot.clone(), behaviour.clone());
                 }
                 if !print_event(&e, json) {
                     // Nobody reads any more: end the commander as an interruption would.
@@ -412,19 +422,30 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
                     break;
                 }
             }
+            crate::stack::report_dropped(rx.dropped());
         });
         let wait = Duration::try_from_secs_f64(args.wait_timeout.max(0.0)).unwrap_or_default();
-        let r = crate::stack::commander::run_with(
+        let rt = crate::stack::commander::runtime_config(
             &cfg,
-            key,
-            &args.targets,
             (&args.wait_for, wait),
-            Events::with_sink(tx),
-            Control {
-                lost_after: Some(Duration::from_secs_f64(cfg.agent.robot_lost_after_s)),
-                ops: Some(op_rx),
-            },
-        )
+            Some(Duration::from_secs_f64(cfg.agent.robot_lost_after_s)),
+        );
+        let r = async {
+            // The process's one clock.
+            let clock = ima_hal::time::TokioClock::shared();
+            let bus = net::bus(&cfg, key, clock.clone())?;
+            Ok::<_, anyhow::Error>(
+                ima_agents::runtime::commander::run(
+                    rt,
+                    &args.targets,
+                    bus,
+                    clock,
+                    events,
+                    Some(op_rx),
+                )
+                .await?,
+            )
+        }
         .await
         .context("commanding");
         op_task.abort();

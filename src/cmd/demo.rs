@@ -22,9 +22,12 @@ use ima_mock_devices::served::{ServeOptions, ServedWorld};
 use serde_json::json;
 
 use crate::safety::outln;
-use crate::stack::commander::{TargetOutcome, TargetState};
+use ima_agents::runtime::commander::{TargetOutcome, TargetState};
+use ima_agents::runtime::events::PeerNote;
+
 use crate::stack::report::{Trajectory, performance_index, svg};
-use crate::stack::{Event, Events, devices};
+use crate::stack::{EVENT_QUEUE, Event, EventKind, Events};
+use crate::wiring;
 
 /// Arguments of `ima demo`.
 #[derive(Debug, Args)]
@@ -58,6 +61,19 @@ pub struct DemoArgs {
     /// Machine-readable JSON events on stdout instead of the live display.
     #[arg(long)]
     json: bool,
+    /// The base Scooter runs on: its own rFLEX controller, or a Pioneer's P2OS one (the
+    /// same runtime drives either).
+    #[arg(long, value_enum, default_value_t = BaseChoice::Rflex)]
+    scooter_base: BaseChoice,
+}
+
+/// A base controller for `--scooter-base`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BaseChoice {
+    /// rFLEX (the ATRV-Jr's controller).
+    Rflex,
+    /// P2OS (the Pioneer 2-AT's controller).
+    P2os,
 }
 
 /// `ima demo` sub-commands.
@@ -90,11 +106,18 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
     let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());
     super::check_colours(&args.targets, &known, "the world's object colours")?;
+    // The process's one clock: the served devices' models and every driver run on it.
+    let clock = ima_hal::time::TokioClock::shared();
     let served = ServedWorld::start(
         world.clone(),
         &ServeOptions {
             seed: args.seed,
             speed: args.speed,
+            clock: Some(clock.clone()),
+            scooter_base: match args.scooter_base {
+                BaseChoice::Rflex => ima_mock_devices::served::BaseKind::Rflex,
+                BaseChoice::P2os => ima_mock_devices::served::BaseKind::P2os,
+            },
             ..ServeOptions::default()
         },
     )
@@ -124,8 +147,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         Trajectory::new("scooter"),
     ]));
     let outcomes = crate::safety::block_on(async {
-        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
-        let events = Events::with_sink(tx);
+        let (events, mut rx) = Events::channel(EVENT_QUEUE);
         // Events stamped with world time as they arrive; printed live.
         let printer = {
             let log = Arc::clone(&log);
@@ -141,7 +163,6 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                     });
                     if json_out {
                         let mut v = serde_json::to_value(&e).unwrap_or_default();
-                        v["kind"] = json!(e.kind);
                         v["world_t_s"] = json!(wt);
                         if let Some(p) = truth {
                             v["truth"] =
@@ -158,6 +179,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                         .unwrap_or_else(PoisonError::into_inner)
                         .push((wt, e));
                 }
+                crate::stack::report_dropped(rx.dropped());
             })
         };
         // Ground-truth trajectories.
@@ -181,38 +203,41 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 }
             })
         };
-        // One clock for the process: both robots' devices stamp on one time line.
-        let clock = ima_hal::time::TokioClock::shared();
         let (sk_dev, sc_dev) = tokio::join!(
-            devices::open_skeeter(&sk, &clock),
-            devices::open_scooter(&sc, &clock)
+            wiring::open_skeeter(&sk, &clock),
+            wiring::open_scooter(&sc, &clock)
         );
         let sk_dev = sk_dev.context("opening Skeeter's devices")?;
         let sc_dev = sc_dev.context("opening Scooter's devices")?;
         let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);
         let (stop_sc, stop_rx_sc) = tokio::sync::watch::channel(false);
-        let skeeter = tokio::spawn(crate::stack::skeeter::run(
-            sk.clone(),
-            key.clone(),
-            sk_dev,
-            events.clone(),
-            stop_rx_sk,
-        ));
-        let scooter = tokio::spawn(crate::stack::scooter::run(
-            sc.clone(),
-            key.clone(),
-            sc_dev,
-            events.clone(),
-            stop_rx_sc,
-        ));
+        let skeeter = tokio::spawn({
+            let (sk, key, clock, events) = (sk.clone(), key.clone(), clock.clone(), events.clone());
+            async move { wiring::run_skeeter(&sk, key, sk_dev, clock, events, stop_rx_sk).await }
+        });
+        let scooter = tokio::spawn({
+            let (sc, key, clock, events) = (sc.clone(), key.clone(), clock.clone(), events.clone());
+            async move { wiring::run_scooter(&sc, key, sc_dev, clock, events, stop_rx_sc).await }
+        });
         let robots = ["skeeter".to_owned(), "scooter".to_owned()];
-        let outcomes = crate::stack::commander::run(
-            &cmd,
-            key,
-            &args.targets,
-            (&robots, Duration::from_secs(30)),
-            events.clone(),
-        )
+        let outcomes = async {
+            let bus = crate::stack::net::bus(&cmd, key, clock.clone())?;
+            let rt = crate::stack::commander::runtime_config(
+                &cmd,
+                (&robots, Duration::from_secs(30)),
+                None,
+            );
+            let f = ima_agents::runtime::commander::run(
+                rt,
+                &args.targets,
+                bus,
+                clock.clone(),
+                events.clone(),
+                None,
+            )
+            .await?;
+            anyhow::Ok(f.outcomes)
+        }
         .await;
         // Scooter (the client) first, then Skeeter (its manager).
         for (name, stop, h) in [("scooter", stop_sc, scooter), ("skeeter", stop_sk, skeeter)] {
@@ -235,24 +260,23 @@ pub fn run(args: &DemoArgs) -> Result<()> {
 }
 
 fn print_live(world_t: f64, e: &Event) {
-    let d = &e.detail;
-    let text = match e.kind.as_str() {
-        "target" => format!(
-            "TARGET {:<7} {}",
-            d["target"].as_str().unwrap_or("?"),
-            d["state"].as_str().unwrap_or("?")
-        ),
-        "behaviour" => format!("{:<8} → {}", e.robot, d.as_str().unwrap_or("?")),
-        "say" => {
-            let said = d.as_str().unwrap_or("?");
-            let said = said.split_once(": ").map_or(said, |(_, rest)| rest);
+    let text = match &e.kind {
+        EventKind::Target(t) => format!("TARGET {:<7} {}", t.target, t.state),
+        EventKind::Behaviour(b) => format!("{:<8} → {b}", e.robot),
+        EventKind::Say(said) => {
+            let said = said
+                .split_once(": ")
+                .map_or(said.as_str(), |(_, rest)| rest);
             format!("{:<8} says {said}", e.robot)
         }
-        "connected" => format!("{:<8} up", e.robot),
-        "waiting" if d.get("for").is_some() => format!("{:<8} waits for {}", e.robot, d["for"]),
-        "peer" if d.get("granted").is_some() && d.get("manager").is_some() => {
-            format!("{:<8} granted Skeeter's ses source", e.robot)
+        EventKind::Connected { .. } => format!("{:<8} up", e.robot),
+        EventKind::Waiting(ima_agents::runtime::events::Waiting::For(r)) => {
+            format!("{:<8} waits for {r:?}", e.robot)
         }
+        EventKind::Peer(PeerNote::Granted {
+            manager: Some(_), ..
+        }) => format!("{:<8} granted Skeeter's ses source", e.robot),
+        EventKind::AuthFailure(text) => format!("warning: {text}"),
         _ => return,
     };
     eprintln!("[{world_t:7.1}s] {text}");
@@ -277,11 +301,8 @@ fn summarise(
     let world_time = |target: &str, states: &[&str]| {
         log.iter()
             .filter(|(_, e)| {
-                e.kind == "target"
-                    && e.detail["target"].as_str() == Some(target)
-                    && e.detail["state"]
-                        .as_str()
-                        .is_some_and(|s| states.contains(&s))
+                matches!(&e.kind, EventKind::Target(t)
+                    if t.target == target && states.contains(&t.state.as_str()))
             })
             .map(|(t, _)| *t)
             .next()

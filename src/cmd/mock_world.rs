@@ -133,10 +133,14 @@ pub fn loopback_configs(
     let mut scooter = base.clone();
     scooter.robot = "scooter".into();
     scooter.role = Role::Scooter;
+    let (kind, baud) = match e.scooter.base_kind {
+        ima_mock_devices::served::BaseKind::Rflex => (BaseKind::Rflex, 115_200),
+        ima_mock_devices::served::BaseKind::P2os => (BaseKind::P2os, 9600),
+    };
     scooter.devices.base = Some(BaseDevice {
-        kind: BaseKind::Rflex,
+        kind,
         port: e.scooter.base.display().to_string(),
-        baud: 115_200,
+        baud,
         connect_timeout_s: 10.0,
     });
     scooter.devices.laser = Some(LaserDevice {
@@ -217,10 +221,14 @@ pub fn write_configs(dir: &Path, e: &Endpoints, speed: f64) -> Result<()> {
 /// One line naming where every served device is, for people.
 pub fn describe(e: &Endpoints) -> String {
     format!(
-        "Skeeter: P2OS {} · switcher {} · frames {}; Scooter: rFLEX {} · LMS {} · compass {}",
+        "Skeeter: P2OS {} · switcher {} · frames {}; Scooter: {} {} · LMS {} · compass {}",
         e.skeeter.base.display(),
         e.skeeter.video_mux.display(),
         e.skeeter.frames,
+        match e.scooter.base_kind {
+            ima_mock_devices::served::BaseKind::Rflex => "rFLEX",
+            ima_mock_devices::served::BaseKind::P2os => "P2OS",
+        },
         e.scooter.base.display(),
         e.scooter.laser.display(),
         e.scooter.compass.display()

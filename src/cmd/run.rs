@@ -8,7 +8,8 @@ use clap::Args;
 
 use crate::config::{RobotConfig, Role};
 use crate::safety::outln;
-use crate::stack::{Events, devices, net};
+use crate::stack::{EVENT_QUEUE, EventKind, Events, net};
+use crate::wiring;
 
 /// Arguments of `ima run`.
 #[derive(Debug, Args)]
@@ -56,7 +57,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     };
     crate::safety::block_on(async {
         let key = net::group_key(&cfg, None)?;
-        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<crate::stack::Event>();
+        let (events, mut rx) = Events::channel(EVENT_QUEUE);
         let json = args.json;
         let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
         let stop_tx = std::sync::Arc::new(stop_tx);
@@ -65,12 +66,17 @@ pub fn run(args: &RunArgs) -> Result<()> {
             let stop_tx = std::sync::Arc::clone(&stop_tx);
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
-                    let written = if json {
+                    let written = if let EventKind::AuthFailure(text) = &e.kind {
+                        // Frames under another group key: a warning, on stderr in either mode.
+                        eprintln!("ima: warning: {text}");
+                        Ok(())
+                    } else if json {
                         serde_json::to_string(&e)
                             .map_err(anyhow::Error::from)
                             .and_then(|l| outln!("{l}"))
                     } else {
-                        eprintln!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.kind, e.detail);
+                        let v = serde_json::to_value(&e).unwrap_or_default();
+                        eprintln!("[{:7.1}s] {} {} {}", e.t_s, e.robot, e.name(), v["detail"]);
                         Ok(())
                     };
                     if let Err(err) = written {
@@ -78,10 +84,10 @@ pub fn run(args: &RunArgs) -> Result<()> {
                         return Err(err);
                     }
                 }
+                crate::stack::report_dropped(rx.dropped());
                 anyhow::Ok(())
             })
         };
-        let events = Events::with_sink(tx);
         // A signal has already halted the bases (the safety guard); the stack winds down.
         let signal = {
             let stop_tx = std::sync::Arc::clone(&stop_tx);
@@ -94,16 +100,16 @@ pub fn run(args: &RunArgs) -> Result<()> {
         let clock = ima_hal::time::TokioClock::shared();
         let r = match cfg.role {
             Role::Scooter => {
-                let dev = crate::safety::until_cancelled(devices::open_scooter(&cfg, &clock))
+                let hw = crate::safety::until_cancelled(wiring::open_scooter(&cfg, &clock))
                     .await?
                     .context("opening Scooter's devices")?;
-                crate::stack::scooter::run(cfg.clone(), key, dev, events, stop_rx).await
+                wiring::run_scooter(&cfg, key, hw, clock, events, stop_rx).await
             }
             Role::Skeeter => {
-                let dev = crate::safety::until_cancelled(devices::open_skeeter(&cfg, &clock))
+                let hw = crate::safety::until_cancelled(wiring::open_skeeter(&cfg, &clock))
                     .await?
                     .context("opening Skeeter's devices")?;
-                crate::stack::skeeter::run(cfg.clone(), key, dev, events, stop_rx).await
+                wiring::run_skeeter(&cfg, key, hw, clock, events, stop_rx).await
             }
             Role::Commander => bail!("role commander: use `ima commander --config …`"),
         };

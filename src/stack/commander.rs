@@ -1,291 +1,38 @@
-//! The commander's runtime: joins the broadcast group and drives
-//! [`ima_agents::mission::commander::Commander`] (targets sent one at a time as
-//! `Mission { commander, Accepted, colour }`, resent until Skeeter accepts, progress from
-//! Skeeter's mission events), reporting every broadcast it hears.
+//! The commander's runtime configuration ([`ima_agents::runtime::commander`]) from its
+//! configuration, and the one-shot fleet commands of `ima commander stop|resume|cancel`.
 
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_agents::mission::commander::{
-    Commander, CommanderConfig, LifeChange, Liveness, TargetState as CoreState,
-};
-use ima_agents::mission::msg::{Broadcast, COMMANDER, FLEET_COPIES};
+use ima_agents::mission::commander::CommanderConfig;
+use ima_agents::mission::msg::{Broadcast, FLEET_COPIES};
 use ima_agents::peer::net::BroadcastChannel;
 use ima_agents::peer::wire::GroupKey;
-use serde_json::json;
+use ima_agents::runtime::commander::CommanderRuntimeConfig;
 
-use super::net::{Bus, net_config};
-use super::{Events, MissionClock};
+use super::net::net_config;
 use crate::config::RobotConfig;
 
-/// A target's final state.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TargetState {
-    /// Skeeter reported it accomplished.
-    Done,
-    /// Skeeter reported it failed, or it timed out at the commander.
-    Failed,
-}
-
-/// One target's outcome.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct TargetOutcome {
-    /// Colour.
-    pub target: String,
-    /// Final state.
-    pub state: TargetState,
-    /// Mission second it was sent.
-    pub sent_s: f64,
-    /// Mission second Skeeter accepted it (if it did).
-    pub accepted_s: Option<f64>,
-    /// Mission second it ended.
-    pub ended_s: f64,
-    /// Why it failed at the commander (given up, cancelled, interrupted), if it did.
-    pub reason: Option<String>,
-}
-
-/// What the operator asks of a running commander (typed lines on its stdin, Ctrl-C).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Operator {
-    /// Withdraw a target ([`Commander::cancel`]).
-    Cancel(String),
-    /// Send a fleet stop (reason).
-    Stop(String),
-    /// Send a fleet resume.
-    Resume,
-    /// End the commander, after a fleet stop if `stop`.
-    Quit {
-        /// Send a fleet stop first.
-        stop: bool,
-    },
-}
-
-/// Options of [`run_with`] beyond those of [`run`].
-#[derive(Debug, Default)]
-pub struct Control {
-    /// Report a robot lost after this much (mission) silence; `None`: no liveness reports.
-    pub lost_after: Option<Duration>,
-    /// The operator's requests.
-    pub ops: Option<tokio::sync::mpsc::UnboundedReceiver<Operator>>,
-}
-
-/// How a [`run_with`] ended.
-#[derive(Debug, Clone)]
-pub struct Finished {
-    /// Every target's outcome (targets still open at an interruption count as failed).
-    pub outcomes: Vec<TargetOutcome>,
-    /// `Some(stopped)` when the operator ended it ([`Operator::Quit`]); `stopped` tells
-    /// whether a fleet stop went out.
-    pub interrupted: Option<bool>,
-}
-
-/// Run the commander ([`Commander`], the Commander Interface Agent's logic) over `targets`;
-/// events go to `events` (kinds `target` on every state change, and `broadcast`).
-///
-/// Before the first target it waits (at most `wait.1`, real time) until every robot of
-/// `wait.0` has been heard on the broadcast channel, so that no robot misses it.
-pub async fn run(
+/// The commander runtime's configuration from a commander configuration: targets resent
+/// every 3 s, given up after `agent.target_timeout_s`; liveness reports after `lost_after`;
+/// waits (at most `wait.1`, real time) for the robots of `wait.0` before the first target.
+pub fn runtime_config(
     cfg: &RobotConfig,
-    key: GroupKey,
-    targets: &[String],
     wait: (&[String], Duration),
-    events: Events,
-) -> Result<Vec<TargetOutcome>> {
-    Ok(
-        run_with(cfg, key, targets, wait, events, Control::default())
-            .await?
-            .outcomes,
-    )
-}
-
-fn life_event(events: &Events, clock: &MissionClock, me: &str, c: &LifeChange) {
-    events.emit(
-        clock,
-        me,
-        "robot",
-        json!({"robot": c.robot, "state": c.life.as_str(), "silent_s": c.silent.as_secs_f64()}),
-    );
-}
-
-/// [`run`] with liveness reports (kind `robot`: `{robot, state: alive|lost, silent_s}`) and
-/// the operator's requests (kinds `fleet` for a stop or resume sent, `operator` for a
-/// request that could not be carried out). Frames under another group key are reported on
-/// stderr (rate-limited).
-pub async fn run_with(
-    cfg: &RobotConfig,
-    key: GroupKey,
-    targets: &[String],
-    wait: (&[String], Duration),
-    events: Events,
-    control: Control,
-) -> Result<Finished> {
-    let clock = MissionClock::new(cfg.agent.time_scale);
-    let me = cfg.robot.clone();
-    let bus = Bus::bind(cfg, key)?;
-    let Control {
-        lost_after,
-        mut ops,
-    } = control;
-    let mut live = lost_after.map(|d| Liveness::new(d, &[me.as_str(), COMMANDER]));
-    let mut missing: Vec<&String> = wait.0.iter().collect();
-    if let Some(l) = &mut live {
-        for r in &missing {
-            l.expect(r, clock.now());
-        }
-    }
-    let mut cmd = Commander::new(
-        targets,
-        CommanderConfig {
-            robot: me.clone(),
+    lost_after: Option<Duration>,
+) -> CommanderRuntimeConfig {
+    CommanderRuntimeConfig {
+        core: CommanderConfig {
+            robot: cfg.robot.clone(),
             resend: Duration::from_secs(3),
             give_up_after: Some(Duration::from_secs_f64(cfg.agent.target_timeout_s)),
             ..CommanderConfig::default()
         },
-    );
-    let mut shown: Vec<(CoreState, bool)> = cmd
-        .targets()
-        .iter()
-        .map(|t| (t.state, t.cancelled))
-        .collect();
-    let mut waiting = !missing.is_empty();
-    if waiting {
-        events.emit(&clock, &me, "waiting", json!({"for": missing}));
-    } else {
-        cmd.start(clock.now());
+        time_scale: cfg.agent.time_scale,
+        lost_after,
+        wait_for: wait.0.to_vec(),
+        wait_timeout: wait.1,
     }
-    let wait_deadline = tokio::time::Instant::now() + wait.1;
-    let mut interrupted = None;
-    let mut check = tokio::time::interval(Duration::from_secs(1));
-    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    loop {
-        while let Some(b) = cmd.poll_broadcast() {
-            bus.send(&b).await;
-        }
-        for (t, old) in cmd.targets().iter().zip(shown.iter_mut()) {
-            if (t.state, t.cancelled) != *old {
-                *old = (t.state, t.cancelled);
-                let time_s = t.duration().map(|d| d.as_secs_f64());
-                let mut d = json!({"target": t.colour, "state": t.state.as_str()});
-                if t.state.is_final() {
-                    d["time_s"] = json!(time_s);
-                    d["given_up"] = json!(t.given_up);
-                    d["cancelled"] = json!(t.cancelled);
-                }
-                events.emit(&clock, &me, "target", d);
-            }
-        }
-        if interrupted.is_some() || (!waiting && cmd.is_finished()) {
-            break;
-        }
-        let to_real = |t: ima_hal::Instant| {
-            tokio::time::Instant::now() + clock.real(t.saturating_duration_since(clock.now()))
-        };
-        let wake = [
-            cmd.poll_timeout().map(to_real),
-            live.as_ref().and_then(Liveness::poll_timeout).map(to_real),
-            waiting.then_some(wait_deadline),
-        ]
-        .into_iter()
-        .flatten()
-        .min();
-        tokio::select! {
-            r = bus.recv() => {
-                let b = r?;
-                let now = clock.now();
-                events.emit(&clock, &me, "broadcast", broadcast_json(&b));
-                if let Some(c) = live.as_mut().and_then(|l| l.heard(b.robot(), now)) {
-                    life_event(&events, &clock, &me, &c);
-                }
-                if waiting {
-                    missing.retain(|m| m.as_str() != b.robot());
-                    if missing.is_empty() {
-                        waiting = false;
-                        cmd.start(now);
-                    }
-                }
-                cmd.handle_broadcast(&b, now);
-            }
-            op = async {
-                match ops.as_mut() {
-                    Some(rx) => rx.recv().await,
-                    None => std::future::pending().await,
-                }
-            } => {
-                let now = clock.now();
-                match op {
-                    None => ops = None,
-                    Some(Operator::Cancel(colour)) => {
-                        if !cmd.cancel(&colour, now) {
-                            events.emit(&clock, &me, "operator", json!({"error": format!("no open target {colour:?} to cancel")}));
-                        }
-                    }
-                    Some(Operator::Stop(reason)) => {
-                        cmd.fleet_stop(&reason);
-                        events.emit(&clock, &me, "fleet", json!({"command": "stop", "reason": reason}));
-                    }
-                    Some(Operator::Resume) => {
-                        cmd.fleet_resume();
-                        events.emit(&clock, &me, "fleet", json!({"command": "resume"}));
-                    }
-                    Some(Operator::Quit { stop }) => {
-                        if stop {
-                            cmd.fleet_stop("the commander was interrupted");
-                            events.emit(&clock, &me, "fleet", json!({"command": "stop", "reason": "interrupted"}));
-                        }
-                        interrupted = Some(stop);
-                    }
-                }
-            }
-            () = async {
-                match wake {
-                    Some(w) => tokio::time::sleep_until(w).await,
-                    None => std::future::pending().await,
-                }
-            } => {
-                let now = clock.now();
-                if waiting && tokio::time::Instant::now() >= wait_deadline {
-                    events.emit(&clock, &me, "waiting", json!({"gave_up_on": missing}));
-                    waiting = false;
-                    cmd.start(now);
-                }
-                cmd.handle_timeout(now);
-                for c in live.as_mut().map(|l| l.handle_timeout(now)).unwrap_or_default() {
-                    life_event(&events, &clock, &me, &c);
-                }
-            }
-            _ = check.tick() => bus.warn_auth(),
-        }
-    }
-    let secs = |i: Option<ima_hal::Instant>| i.map(ima_hal::Instant::as_secs_f64);
-    let outcomes = cmd
-        .targets()
-        .iter()
-        .map(|t| TargetOutcome {
-            target: t.colour.clone(),
-            state: if t.state == CoreState::Done {
-                TargetState::Done
-            } else {
-                TargetState::Failed
-            },
-            sent_s: secs(t.sent_at).unwrap_or(0.0),
-            accepted_s: secs(t.accepted_at),
-            ended_s: secs(t.finished_at).unwrap_or(0.0),
-            reason: if t.cancelled {
-                Some("cancelled by the operator".to_owned())
-            } else if t.given_up {
-                Some("no word from Skeeter: given up".to_owned())
-            } else if !t.state.is_final() {
-                Some("the commander was interrupted".to_owned())
-            } else {
-                None
-            },
-        })
-        .collect();
-    Ok(Finished {
-        outcomes,
-        interrupted,
-    })
 }
 
 /// Sends one fleet command or cancel (`b`) [`FLEET_COPIES`] times, 50 ms apart, from a
@@ -332,27 +79,4 @@ pub async fn send_once(cfg: &RobotConfig, key: GroupKey, b: &Broadcast) -> Resul
         reached = r.map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     Ok(reached)
-}
-
-/// A broadcast as JSON for the event stream.
-pub fn broadcast_json(b: &Broadcast) -> serde_json::Value {
-    match b {
-        Broadcast::Status {
-            robot,
-            behaviour,
-            san,
-            pose,
-        } => json!({"type": "status", "robot": robot, "behaviour": behaviour, "san": san,
-            "pose": pose.map(|p| json!({"x_m": f64::from(p.x_mm) / 1000.0, "y_m": f64::from(p.y_mm) / 1000.0, "theta_rad": f64::from(p.theta_mrad) / 1000.0}))}),
-        Broadcast::Emergency { robot, emergency } => {
-            json!({"type": "emergency", "robot": robot, "kind": emergency.kind(), "text": emergency.text()})
-        }
-        Broadcast::Mission {
-            robot,
-            event,
-            target,
-        } => {
-            json!({"type": "mission", "robot": robot, "event": event.as_str(), "target": target})
-        }
-    }
 }

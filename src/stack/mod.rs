@@ -1,106 +1,31 @@
-//! The robots' runtime: device wiring from configuration and the robot stacks as tokio
-//! tasks.
+//! From a robot's configuration to its runtime: the program's side of
+//! [`ima_agents::runtime`].
 //!
-//! * [`devices`] — the hal handles of a robot from its configuration;
-//! * [`net`] — the Peer Agent configuration, group key and typed broadcast channel;
-//! * [`skeeter`], [`scooter`], [`commander`] — the three processes' stacks;
+//! * [`net`] — the Peer Agent configuration and the group key from the robot's;
+//! * [`skeeter`], [`scooter`], [`commander`] — each runtime's configuration from the robot's
+//!   (the runtimes themselves live in [`ima_agents::runtime`], the devices are opened by
+//!   [`crate::wiring`]);
 //! * [`report`] — trajectories, performance index and the SVG of a run.
 //!
-//! Every stack keeps a [`MissionClock`]: mission time is real time × `agent.time_scale`, so
-//! a world sped up K times (`ima mock world --speed K`) sees timeouts and timers in its own
-//! time.
+//! Mission time is a scaled view of the process's one clock
+//! ([`ima_agents::runtime::MissionTime`]): real time × `agent.time_scale`, so a world sped
+//! up K times (`ima mock world --speed K`) sees timeouts and timers in its own time.
 
 pub mod commander;
-pub mod devices;
 pub mod net;
 pub mod report;
 pub mod scooter;
 pub mod skeeter;
 
-use ima_hal::Instant;
-use serde::Serialize;
+pub use ima_agents::runtime::{Event, EventKind, Events};
 
-/// The mission clock: tokio time since the process's epoch × the configured time scale (1
-/// on a real robot; the world's speed factor with sped-up mocks).
-#[derive(Debug, Clone, Copy)]
-pub struct MissionClock {
-    epoch: tokio::time::Instant,
-    scale: f64,
-}
+/// Capacity of a program's event queue: a printer that falls this far behind loses the
+/// oldest events (counted) rather than slowing a robot.
+pub const EVENT_QUEUE: usize = 4096;
 
-impl MissionClock {
-    /// A clock starting now, running `scale` times faster than real time.
-    pub fn new(scale: f64) -> Self {
-        Self {
-            epoch: tokio::time::Instant::now(),
-            scale: if scale.is_finite() && scale > 0.0 {
-                scale
-            } else {
-                1.0
-            },
-        }
-    }
-
-    /// Mission time now.
-    pub fn now(&self) -> Instant {
-        let real = self.epoch.elapsed().as_secs_f64();
-        Instant::from_micros((real * self.scale * 1e6) as u64)
-    }
-
-    /// Mission seconds now.
-    pub fn secs(&self) -> f64 {
-        self.now().as_secs_f64()
-    }
-
-    /// Real duration of `mission` mission time.
-    pub fn real(&self, mission: std::time::Duration) -> std::time::Duration {
-        mission.div_f64(self.scale)
-    }
-}
-
-/// Something a robot stack did, for live progress and `--json`.
-#[derive(Debug, Clone, Serialize)]
-pub struct Event {
-    /// Mission seconds.
-    pub t_s: f64,
-    /// Which robot (or `commander`).
-    pub robot: String,
-    /// What: `behaviour`, `broadcast`, `ses`, `target`, `connected`, `error`, …
-    pub kind: String,
-    /// Details.
-    pub detail: serde_json::Value,
-}
-
-/// Where stacks report their events: the log (`tracing`, level info) and an optional live
-/// sink.
-#[derive(Clone, Default)]
-pub struct Events {
-    sink: Option<tokio::sync::mpsc::UnboundedSender<Event>>,
-}
-
-impl std::fmt::Debug for Events {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("Events")
-    }
-}
-
-impl Events {
-    /// Events forwarded to `sink` too.
-    pub fn with_sink(sink: tokio::sync::mpsc::UnboundedSender<Event>) -> Self {
-        Self { sink: Some(sink) }
-    }
-
-    /// Report an event.
-    pub fn emit(&self, clock: &MissionClock, robot: &str, kind: &str, detail: serde_json::Value) {
-        let e = Event {
-            t_s: clock.secs(),
-            robot: robot.to_owned(),
-            kind: kind.to_owned(),
-            detail,
-        };
-        tracing::info!(robot, kind, detail = %e.detail, "event");
-        if let Some(s) = &self.sink {
-            let _ = s.send(e);
-        }
+/// Tells on stderr how many events a printer lost because it fell behind (nothing if none).
+pub fn report_dropped(n: u64) {
+    if n > 0 {
+        eprintln!("ima: {n} event(s) were not shown: the output fell behind");
     }
 }

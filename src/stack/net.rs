@@ -1,14 +1,10 @@
 //! The Peer Agent side of a robot process: the configuration mapped onto
-//! [`PeerNetConfig`], the group key, and the typed broadcast channel of the mission.
-
-use std::time::Duration;
+//! [`PeerNetConfig`], the group key, and the mission's broadcast channel ([`Bus`]).
 
 use anyhow::{Context, Result};
-use ima_agents::mission::msg::Broadcast;
-use ima_agents::peer::net::{
-    BroadcastChannel, BroadcastMode, PeerNetConfig, insecure_key, load_key_file,
-};
+use ima_agents::peer::net::{BroadcastMode, PeerNetConfig, insecure_key, load_key_file};
 use ima_agents::peer::wire::GroupKey;
+use ima_agents::runtime::link::Bus;
 
 use crate::config::RobotConfig;
 
@@ -95,134 +91,9 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
     }
 }
 
-/// The mission's broadcast channel: typed messages over a [`BroadcastChannel`].
-#[derive(Debug, Clone)]
-pub struct Bus {
-    chan: std::sync::Arc<BroadcastChannel>,
-}
-
-impl Bus {
-    /// Bind the channel of `cfg` with `key`.
-    pub fn bind(cfg: &RobotConfig, key: GroupKey) -> Result<Self> {
-        let n = net_config(cfg)?;
-        let chan = BroadcastChannel::bind(&n, &cfg.robot, key)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .context("binding the broadcast channel")?;
-        Ok(Self {
-            chan: std::sync::Arc::new(chan),
-        })
-    }
-
-    /// Send a broadcast (errors are logged: the broadcast channel is best-effort).
-    pub async fn send(&self, b: &Broadcast) {
-        let r = match b {
-            Broadcast::Status {
-                behaviour,
-                san,
-                pose,
-                ..
-            } => self.chan.send_status(behaviour, san, *pose).await,
-            Broadcast::Emergency { emergency, .. } => {
-                self.chan
-                    .send_emergency(emergency.kind(), &emergency.text())
-                    .await
-            }
-            Broadcast::Mission { event, target, .. } => {
-                self.chan.send_mission(*event, target).await
-            }
-        };
-        if let Err(e) = r {
-            tracing::warn!("broadcast not sent: {e}");
-        }
-    }
-
-    /// The next mission broadcast from another robot (unknown or malformed ones are skipped
-    /// with a debug log).
-    pub async fn recv(&self) -> Result<Broadcast> {
-        loop {
-            let (msg, from) = self
-                .chan
-                .recv()
-                .await
-                .map_err(|e| anyhow::anyhow!("{e}"))
-                .context("receiving broadcasts")?;
-            match Broadcast::from_wire(&msg) {
-                Ok(b) => return Ok(b),
-                Err(e) => tracing::debug!("ignoring a broadcast from {from}: {e:?}"),
-            }
-        }
-    }
-
-    /// Frames refused for a bad MAC since the last report (at most one report per
-    /// [`ima_agents::peer::net::AUTH_REPORT_INTERVAL`]; see
-    /// [`BroadcastChannel::take_auth_report`]).
-    pub fn take_auth_report(&self) -> Option<ima_agents::peer::net::AuthFailure> {
-        self.chan.take_auth_report()
-    }
-
-    /// Prints a pending authentication report on stderr (frames under another group key).
-    pub fn warn_auth(&self) {
-        if let Some(a) = self.take_auth_report() {
-            eprintln!("ima: warning: {a}");
-        }
-    }
-
-    /// A task that hands every mission broadcast heard to a bounded queue (what the robot's
-    /// main loop selects on). A socket error is logged and listening goes on; frames under
-    /// another group key are reported on stderr (rate-limited, [`Bus::warn_auth`]); the task
-    /// ends when the queue's receiver is dropped.
-    pub fn spawn_reader(
-        &self,
-    ) -> (
-        tokio::sync::mpsc::Receiver<Broadcast>,
-        tokio::task::JoinHandle<()>,
-    ) {
-        let (tx, rx) = tokio::sync::mpsc::channel::<Broadcast>(64);
-        let bus = self.clone();
-        let task = tokio::spawn(async move {
-            let mut check = tokio::time::interval(Duration::from_secs(1));
-            check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-            loop {
-                let r = tokio::select! {
-                    r = bus.recv() => r,
-                    _ = check.tick() => {
-                        bus.warn_auth();
-                        continue;
-                    }
-                };
-                match r {
-                    Ok(b) => {
-                        if tx.send(b).await.is_err() {
-                            return;
-                        }
-                    }
-                    Err(e) => {
-                        tracing::warn!("broadcast channel: {e:#}");
-                        tokio::time::sleep(Duration::from_millis(200)).await;
-                    }
-                }
-            }
-        });
-        (rx, task)
-    }
-
-    /// Send what a robot's brain says: a status once; every other message (mission events,
-    /// emergencies, target notices — the ones that must not be lost) three times 30 ms
-    /// apart. Receivers drop duplicates by sequence number only, so the copies are new
-    /// messages and the receivers are idempotent.
-    pub async fn say(&self, b: &Broadcast) {
-        let copies = if matches!(b, Broadcast::Status { .. }) {
-            1
-        } else {
-            3
-        };
-        for i in 0..copies {
-            if i > 0 {
-                tokio::time::sleep(Duration::from_millis(30)).await;
-            }
-            self.send(b).await;
-        }
-    }
+/// The mission's broadcast channel of `cfg`, bound with `key` on the process's `clock`.
+pub fn bus(cfg: &RobotConfig, key: GroupKey, clock: ima_hal::time::SharedClock) -> Result<Bus> {
+    Ok(Bus::bind(&net_config(cfg)?, key, clock)?)
 }
 
 #[cfg(test)]

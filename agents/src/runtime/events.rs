@@ -104,6 +104,9 @@ pub enum EventKind {
         /// How many were lost.
         missed: u64,
     },
+    /// Frames under another group key were refused (rate-limited report; the CLI shows it
+    /// on stderr).
+    AuthFailure(String),
     /// The commander: a target's state changed.
     Target(TargetChange),
     /// The commander: a broadcast heard.
@@ -151,6 +154,7 @@ impl EventKind {
             EventKind::Peer(_) => "peer",
             EventKind::Scan { .. } => "scan",
             EventKind::Lagged { .. } => "lagged",
+            EventKind::AuthFailure(_) => "auth-failure",
             EventKind::Target(_) => "target",
             EventKind::Broadcast(_) => "broadcast",
             EventKind::Robot { .. } => "robot",

@@ -10,6 +10,7 @@
 
 use core::time::Duration;
 
+use ima_hal::time::SharedClock;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
@@ -19,7 +20,7 @@ use crate::mission::msg::{Broadcast, SES_SOURCE};
 use crate::peer::manager::FixedSelfAgent;
 use crate::peer::net::{
     BroadcastChannel, ManagerHandle, PeerClientHandle, PeerNetConfig, SubscriptionEvent,
-    spawn_manager,
+    spawn_manager_with_clock,
 };
 use crate::peer::wire::GroupKey;
 use crate::ses::shared::SharedForm;
@@ -34,9 +35,13 @@ pub struct Bus {
 }
 
 impl Bus {
-    /// Bind the broadcast channel of `net` as `net.robot`.
-    pub fn bind(net: &PeerNetConfig, key: GroupKey) -> Result<Self, RuntimeError> {
-        let chan = BroadcastChannel::bind(net, &net.robot, key)
+    /// Bind the broadcast channel of `net` as `net.robot`, on the process's `clock`.
+    pub fn bind(
+        net: &PeerNetConfig,
+        key: GroupKey,
+        clock: SharedClock,
+    ) -> Result<Self, RuntimeError> {
+        let chan = BroadcastChannel::bind_with_clock(net, &net.robot, key, clock)
             .map_err(|e| RuntimeError::Net(format!("binding the broadcast channel: {e}")))?;
         Ok(Self {
             chan: std::sync::Arc::new(chan),
@@ -114,7 +119,8 @@ impl Bus {
 
     /// A task handing every mission broadcast heard to `tx` (a socket error is logged and
     /// listening goes on; frames under another group key are reported through `on_auth`,
-    /// at most once a second). It ends when `tx`'s receiver is dropped.
+    /// checked once a second and rate-limited by the channel). It ends when `tx`'s receiver
+    /// is dropped.
     pub fn spawn_reader(
         &self,
         tx: mpsc::Sender<Broadcast>,
@@ -160,6 +166,16 @@ impl Bus {
             }
         })
     }
+}
+
+/// Reports refused frames as [`EventKind::AuthFailure`] events.
+fn auth_reporter(
+    events: &Events,
+    time: &MissionTime,
+    robot: &str,
+) -> impl Fn(crate::peer::net::AuthFailure) + Send + 'static {
+    let (events, time, robot) = (events.clone(), time.clone(), robot.to_owned());
+    move |a| events.emit(&time, &robot, EventKind::AuthFailure(a.to_string()))
 }
 
 /// Scooter's request for Skeeter's `ses` source over the Peer Agent network.
@@ -242,14 +258,19 @@ impl ScooterLink {
         events: Events,
         time: MissionTime,
     ) -> Result<Self, RuntimeError> {
-        let bus = Bus::bind(net, key.clone())?;
+        let bus = Bus::bind(net, key.clone(), time.clock().clone())?;
         let manager = if net.manager.listen.is_empty() {
             None
         } else {
             Some(
-                spawn_manager(net, key.clone(), FixedSelfAgent::default())
-                    .await
-                    .map_err(|e| RuntimeError::Net(format!("starting Scooter's manager: {e}")))?,
+                spawn_manager_with_clock(
+                    net,
+                    key.clone(),
+                    FixedSelfAgent::default(),
+                    time.clock().clone(),
+                )
+                .await
+                .map_err(|e| RuntimeError::Net(format!("starting Scooter's manager: {e}")))?,
             )
         };
         let (mut link, ends) = Self::channels();
@@ -259,9 +280,8 @@ impl ScooterLink {
             rerequest,
             say,
         } = ends;
-        link.tasks.push(bus.spawn_reader(heard_tx, |a| {
-            tracing::warn!("{a}");
-        }));
+        link.tasks
+            .push(bus.spawn_reader(heard_tx, auth_reporter(&events, &time, &net.robot)));
         link.tasks.push(bus.spawn_sayer(say));
         if let Some(req) = ses {
             link.tasks.push(tokio::spawn(ses_loop(
@@ -303,9 +323,14 @@ async fn ses_loop(
     let note = |n: PeerNote| events.emit(&time, &me, EventKind::Peer(n));
     loop {
         let r: Result<(), String> = async {
-            let client = PeerClientHandle::connect(req.manager.as_str(), &net, key.clone())
-                .await
-                .map_err(|e| e.to_string())?;
+            let client = PeerClientHandle::connect_with_clock(
+                req.manager.as_str(),
+                &net,
+                key.clone(),
+                time.clock().clone(),
+            )
+            .await
+            .map_err(|e| e.to_string())?;
             client.register().await.map_err(|e| e.to_string())?;
             let mut sub = client
                 .request(SES_SOURCE, req.priority)
@@ -364,5 +389,173 @@ async fn ses_loop(
             return;
         }
         tokio::time::sleep(req.retry_after).await;
+    }
+}
+
+/// A grant of Skeeter's `ses` source as its runtime sees it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SesGrant {
+    /// The source was granted to `to`: Skeeter answers with a fresh heading.
+    Granted {
+        /// The robot it was granted to.
+        to: String,
+    },
+    /// `missed` manager events were lost (the queue lagged); a grant may be among them.
+    Lagged {
+        /// How many.
+        missed: u64,
+    },
+}
+
+/// Skeeter's side of its link to the other robots (see the [module docs](self)).
+#[derive(Debug)]
+pub struct SkeeterLink {
+    /// Mission broadcasts heard from the other robots.
+    pub heard: mpsc::Receiver<Broadcast>,
+    /// What Skeeter says (over the network: statuses once, the others three times).
+    pub say: mpsc::Sender<Broadcast>,
+    /// Grants of its `ses` source. Closed: the manager stopped, which ends the runtime.
+    pub grants: mpsc::Receiver<SesGrant>,
+    /// SES forms to publish on its `ses` source (sent with `try_send`).
+    pub publish: mpsc::Sender<SharedForm>,
+    manager: Option<ManagerHandle>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+/// The caller's ends of [`SkeeterLink::channels`].
+#[derive(Debug)]
+pub struct SkeeterLinkEnds {
+    /// Feeds broadcasts heard to Skeeter.
+    pub heard: mpsc::Sender<Broadcast>,
+    /// What Skeeter says.
+    pub say: mpsc::Receiver<Broadcast>,
+    /// Feeds grants of its `ses` source.
+    pub grants: mpsc::Sender<SesGrant>,
+    /// The SES forms Skeeter publishes.
+    pub publish: mpsc::Receiver<SharedForm>,
+}
+
+impl SkeeterLink {
+    /// A link of bare channels ([`LINK_QUEUE`] each) and the caller's ends.
+    #[must_use]
+    pub fn channels() -> (Self, SkeeterLinkEnds) {
+        let (heard_tx, heard) = mpsc::channel(LINK_QUEUE);
+        let (say, say_rx) = mpsc::channel(LINK_QUEUE);
+        let (grants_tx, grants) = mpsc::channel(LINK_QUEUE);
+        let (publish, publish_rx) = mpsc::channel(LINK_QUEUE);
+        (
+            Self {
+                heard,
+                say,
+                grants,
+                publish,
+                manager: None,
+                tasks: Vec::new(),
+            },
+            SkeeterLinkEnds {
+                heard: heard_tx,
+                say: say_rx,
+                grants: grants_tx,
+                publish: publish_rx,
+            },
+        )
+    }
+
+    /// The link over the Peer Agent network: binds the broadcast channel of `net`, starts
+    /// Skeeter's manager with its `ses` source (`publish` stamps samples with mission
+    /// time), and turns the manager's grant decisions of that source into
+    /// [`SesGrant`]s.
+    pub async fn network(
+        net: &PeerNetConfig,
+        key: GroupKey,
+        events: Events,
+        time: MissionTime,
+    ) -> Result<Self, RuntimeError> {
+        use crate::mission::msg::{SES_SOURCE_KIND, SES_SOURCE_SCHEMA};
+        use crate::peer::manager::{ManagerEvent, Outcome};
+        use crate::peer::net::ManagerNetEvent;
+        use crate::peer::wire::SourceInfo;
+
+        let bus = Bus::bind(net, key.clone(), time.clock().clone())?;
+        let manager =
+            spawn_manager_with_clock(net, key, FixedSelfAgent::default(), time.clock().clone())
+                .await
+                .map_err(|e| RuntimeError::Net(format!("starting Skeeter's manager: {e}")))?;
+        let mut decisions = manager.events();
+        let ses = manager
+            .publisher(SourceInfo {
+                name: SES_SOURCE.to_owned(),
+                kind: SES_SOURCE_KIND.to_owned(),
+                schema: SES_SOURCE_SCHEMA,
+                rate_mhz: 300,
+            })
+            .map_err(|e| RuntimeError::Net(format!("registering the `ses` source: {e}")))?;
+        let (mut link, ends) = Self::channels();
+        let SkeeterLinkEnds {
+            heard,
+            say,
+            grants,
+            mut publish,
+        } = ends;
+        link.tasks
+            .push(bus.spawn_reader(heard, auth_reporter(&events, &time, &net.robot)));
+        link.tasks.push(bus.spawn_sayer(say));
+        link.tasks.push(tokio::spawn(async move {
+            use tokio::sync::broadcast::error::RecvError;
+            loop {
+                let g = match decisions.recv().await {
+                    Ok(ManagerNetEvent::Core(ManagerEvent::Decision(d)))
+                        if d.source == SES_SOURCE && d.outcome == Outcome::Granted =>
+                    {
+                        SesGrant::Granted { to: d.robot }
+                    }
+                    Ok(_) => continue,
+                    Err(RecvError::Lagged(n)) => SesGrant::Lagged { missed: n },
+                    // The manager stopped: dropping `grants` tells the runtime.
+                    Err(RecvError::Closed) => return,
+                };
+                if grants.send(g).await.is_err() {
+                    return;
+                }
+            }
+        }));
+        link.tasks.push(tokio::spawn(async move {
+            while let Some(form) = publish.recv().await {
+                match form.to_bytes() {
+                    Ok(bytes) => {
+                        if let Err(e) = ses.publish(time.now().as_micros(), &bytes) {
+                            tracing::warn!("publishing the SES: {e}");
+                        }
+                    }
+                    Err(e) => tracing::warn!("encoding the SES: {e:?}"),
+                }
+            }
+        }));
+        link.manager = Some(manager);
+        Ok(link)
+    }
+
+    /// Where the link's manager listens (network links only).
+    #[must_use]
+    pub fn manager_addr(&self) -> Option<String> {
+        self.manager.as_ref().map(|m| m.local_addr().to_string())
+    }
+
+    /// End the link: its tasks stop and its manager (if any) closes its sessions cleanly.
+    pub async fn shutdown(mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+        if let Some(m) = self.manager.take() {
+            m.shutdown().await;
+        }
+    }
+}
+
+impl Drop for SkeeterLink {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
     }
 }

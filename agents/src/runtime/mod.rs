@@ -31,9 +31,11 @@
 //! driver through the [`HaltSignal`] the caller hands in (see [`ima_hal::safety`]). The
 //! process-level signal and panic handling stays with the program.
 
+pub mod commander;
 pub mod events;
 pub mod link;
 pub mod scooter;
+pub mod skeeter;
 
 use core::time::Duration;
 

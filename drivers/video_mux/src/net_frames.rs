@@ -315,7 +315,7 @@ mod client {
     use std::time::Duration;
 
     use ima_hal::camera::{Frame, FrameSource};
-    use ima_hal::time::TokioClock;
+    use ima_hal::time::{Clock, SharedClock, TokioClock};
     use ima_hal::{ErrorType, Instant, Stamped};
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
@@ -324,14 +324,15 @@ mod client {
 
     /// A [`FrameSource`] grabbing frames from a frame server over TCP (see the module docs).
     ///
-    /// Connects lazily on the first grab and again after any error. Stamps are on this
-    /// client's [`TokioClock`] ([`NetFrames::now`]).
+    /// Connects lazily on the first grab and again after any error. Stamps are on the
+    /// client's clock ([`NetFrames::now`]): a [`TokioClock`] of its own, or the process's
+    /// one clock given with [`NetFrames::with_clock`].
     #[derive(Debug)]
     pub struct NetFrames {
         addr: String,
         stream: Option<TcpStream>,
         timeout: Duration,
-        clock: TokioClock,
+        clock: SharedClock,
         grabs: u64,
     }
 
@@ -344,9 +345,17 @@ mod client {
                 addr: addr.into(),
                 stream: None,
                 timeout,
-                clock: TokioClock::new(),
+                clock: TokioClock::shared(),
                 grabs: 0,
             }
+        }
+
+        /// The same client stamping its frames on `clock` (the process's one clock, which
+        /// the robot's other devices stamp on too).
+        #[must_use]
+        pub fn with_clock(mut self, clock: SharedClock) -> Self {
+            self.clock = clock;
+            self
         }
 
         /// Connect now (to fail early with a clear error).

@@ -3,7 +3,7 @@
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use ima_hal::time::TokioClock;
+use ima_hal::time::{Clock, SharedClock, TokioClock};
 use socket2::{Domain, Protocol, Socket, Type};
 use tokio::net::UdpSocket;
 
@@ -56,7 +56,7 @@ pub struct BroadcastChannel {
     dests: Arc<Vec<SocketAddr>>,
     robot: String,
     receive_own: bool,
-    clock: TokioClock,
+    clock: SharedClock,
     max_body: usize,
     /// Allowed skew of an unknown sender's first counter, µs (0: off).
     skew_us: u64,
@@ -112,6 +112,21 @@ impl BroadcastChannel {
     /// # Errors
     /// [`NetError::Config`] (bad addresses), [`NetError::Io`] (socket options, bind).
     pub fn bind(cfg: &PeerNetConfig, robot: &str, key: GroupKey) -> Result<Self, NetError> {
+        Self::bind_with_clock(cfg, robot, key, TokioClock::shared())
+    }
+
+    /// [`BroadcastChannel::bind`] on the process's one clock (the receiver's replay window
+    /// and authentication reports run on `clock`; [`BroadcastChannel::bind`] makes a
+    /// [`TokioClock`] of its own).
+    ///
+    /// # Errors
+    /// As [`BroadcastChannel::bind`].
+    pub fn bind_with_clock(
+        cfg: &PeerNetConfig,
+        robot: &str,
+        key: GroupKey,
+        clock: SharedClock,
+    ) -> Result<Self, NetError> {
         cfg.validate()?;
         let b = &cfg.broadcast;
         let sock = udp_socket(b)?;
@@ -149,7 +164,7 @@ impl BroadcastChannel {
             dests: Arc::new(dests),
             robot: robot.to_owned(),
             receive_own: b.receive_own,
-            clock: TokioClock::new(),
+            clock,
             max_body: cfg.max_body,
             skew_us: cfg.max_clock_skew_ms.saturating_mul(1000),
         })

@@ -4,7 +4,7 @@
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use ima_hal::time::TokioClock;
+use ima_hal::time::{Clock, SharedClock, TokioClock};
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpStream, ToSocketAddrs};
 use tokio::sync::{Notify, mpsc, oneshot};
@@ -278,6 +278,21 @@ impl PeerClientHandle {
         cfg: &PeerNetConfig,
         key: GroupKey,
     ) -> Result<Self, NetError> {
+        Self::connect_with_clock(addr, cfg, key, TokioClock::shared()).await
+    }
+
+    /// [`PeerClientHandle::connect`] on the process's one clock: the client's and its data
+    /// sessions' timers and stamps run on `clock` ([`PeerClientHandle::connect`] makes a
+    /// [`TokioClock`] of its own).
+    ///
+    /// # Errors
+    /// As [`PeerClientHandle::connect`].
+    pub async fn connect_with_clock(
+        addr: impl ToSocketAddrs,
+        cfg: &PeerNetConfig,
+        key: GroupKey,
+        clock: SharedClock,
+    ) -> Result<Self, NetError> {
         cfg.validate()?;
         // Bounded like the procedures (`call_timeout_ms`): a black-holed address fails
         // with `Timeout` instead of waiting for the OS (minutes).
@@ -292,7 +307,6 @@ impl PeerClientHandle {
         let _ = stream.set_nodelay(true);
         let peer = stream.peer_addr()?;
         let auth = Arc::new(Mutex::new(None));
-        let clock = TokioClock::new();
         let mut ccfg = ClientConfig::new(&cfg.robot, random_u64(), random_u64());
         ccfg.first_counter = unix_micros();
         ccfg.heartbeat = cfg.heartbeat();
@@ -437,7 +451,7 @@ struct ClientTask {
     /// For the subscriptions (weak: the handle's drop still closes the channel).
     cmd: mpsc::WeakUnboundedSender<Cmd>,
     core: PeerClient,
-    clock: TokioClock,
+    clock: SharedClock,
     key: GroupKey,
     dcfg: DataConfig,
     reg_reply: Option<Reply<Vec<SourceInfo>>>,
@@ -771,6 +785,7 @@ impl ClientTask {
         cfg.first_counter = unix_micros();
         tokio::spawn(data_session(DataTask {
             address,
+            clock: self.clock.clone(),
             key: self.key.clone(),
             cfg,
             client: self.core.id(),
@@ -784,7 +799,7 @@ impl ClientTask {
     }
 }
 
-fn deadline(clock: &TokioClock, at: Option<ima_hal::Instant>) -> tokio::time::Instant {
+fn deadline(clock: &SharedClock, at: Option<ima_hal::Instant>) -> tokio::time::Instant {
     let now = tokio::time::Instant::now();
     match at {
         Some(t) => now + t.saturating_duration_since(clock.now()),
@@ -794,6 +809,7 @@ fn deadline(clock: &TokioClock, at: Option<ima_hal::Instant>) -> tokio::time::In
 
 struct DataTask {
     address: String,
+    clock: SharedClock,
     key: GroupKey,
     cfg: DataConfig,
     client: u64,
@@ -815,7 +831,7 @@ async fn data_session(mut t: DataTask) {
 }
 
 async fn run_data(t: &mut DataTask) -> DataClose {
-    let clock = TokioClock::new();
+    let clock = t.clock.clone();
     let window = t
         .cfg
         .heartbeat

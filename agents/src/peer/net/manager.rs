@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use ima_hal::Instant;
-use ima_hal::time::TokioClock;
+use ima_hal::time::{Clock, SharedClock, TokioClock};
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, oneshot};
@@ -470,6 +470,21 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
     key: GroupKey,
     agent: A,
 ) -> Result<ManagerHandle, NetError> {
+    spawn_manager_with_clock(cfg, key, agent, TokioClock::shared()).await
+}
+
+/// [`spawn_manager`] on the process's one clock: the manager's and its data sessions'
+/// timers and stamps run on `clock` (a robot's runtime passes the clock its devices stamp
+/// on; [`spawn_manager`] makes a [`TokioClock`] of its own).
+///
+/// # Errors
+/// As [`spawn_manager`].
+pub async fn spawn_manager_with_clock<A: SelfAgent + Send + 'static>(
+    cfg: &PeerNetConfig,
+    key: GroupKey,
+    agent: A,
+    clock: SharedClock,
+) -> Result<ManagerHandle, NetError> {
     cfg.validate()?;
     let listen = parse_addr(&cfg.manager.listen, "manager.listen").await?;
     let data_listen = parse_addr(&cfg.manager.data_listen, "manager.data_listen").await?;
@@ -481,7 +496,6 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
         .map_err(super::bind_error("the manager's data server", data_listen))?;
     let local_addr = listener.local_addr()?;
     let data_addr = data_listener.local_addr()?;
-    let clock = TokioClock::new();
     let hb = cfg.heartbeat();
     let mut mcfg = ManagerConfig::new(&cfg.robot, random_u64(), &advertised(cfg, data_addr));
     mcfg.first_counter = unix_micros();
@@ -521,7 +535,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
 
     let task = ManagerTask {
         core,
-        clock,
+        clock: clock.clone(),
         sessions: BTreeMap::new(),
         data: BTreeMap::new(),
         next_data: 0,
@@ -557,6 +571,7 @@ pub async fn spawn_manager<A: SelfAgent + Send + 'static>(
             dcfg,
             data_tasks.clone(),
             Arc::new(Semaphore::new(max_conns)),
+            clock,
         )),
     ];
     Ok(ManagerHandle {
@@ -582,7 +597,7 @@ struct SessionRec {
 
 struct ManagerTask<A: SelfAgent> {
     core: PeerManager<ShellAgent<A>>,
-    clock: TokioClock,
+    clock: SharedClock,
     sessions: BTreeMap<PeerId, SessionRec>,
     data: BTreeMap<u64, (u64, String, oneshot::Sender<RevokeReason>)>,
     next_data: u64,
@@ -596,7 +611,7 @@ struct ManagerTask<A: SelfAgent> {
     skew_us: u64,
 }
 
-fn deadline(clock: &TokioClock, at: Option<Instant>) -> tokio::time::Instant {
+fn deadline(clock: &SharedClock, at: Option<Instant>) -> tokio::time::Instant {
     let now = tokio::time::Instant::now();
     match at {
         Some(t) => now + t.saturating_duration_since(clock.now()),
@@ -928,6 +943,8 @@ async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: Sessi
     }
 }
 
+// The data server's parts, each handed on to every session it accepts.
+#[allow(clippy::too_many_arguments)]
 async fn accept_data(
     listener: TcpListener,
     ctl: mpsc::UnboundedSender<Ctl>,
@@ -936,6 +953,7 @@ async fn accept_data(
     dcfg: DataConfig,
     tasks: DataTasks,
     conns: Arc<Semaphore>,
+    clock: SharedClock,
 ) {
     loop {
         // At most `max_connections` data sessions: the next accept waits for a permit.
@@ -954,10 +972,10 @@ async fn accept_data(
         let mut cfg = dcfg.clone();
         cfg.node = random_u64();
         cfg.first_counter = unix_micros();
-        let (ctl, events, key) = (ctl.clone(), events.clone(), key.clone());
+        let (ctl, events, key, clock) = (ctl.clone(), events.clone(), key.clone(), clock.clone());
         let h = tokio::spawn(async move {
             let _permit = permit;
-            serve_data(stream, ctl, events, key, cfg).await;
+            serve_data(stream, ctl, events, key, cfg, clock).await;
         });
         let mut t = lock(&tasks);
         t.retain(|h| !h.is_finished());
@@ -1009,8 +1027,8 @@ async fn serve_data(
     events: broadcast::Sender<ManagerNetEvent>,
     key: GroupKey,
     cfg: DataConfig,
+    clock: SharedClock,
 ) {
-    let clock = TokioClock::new();
     let max_body = cfg.max_body;
     let window = cfg.heartbeat.saturating_mul(cfg.missed_heartbeats.max(1));
     let mut s = DataServerSession::new(cfg, key.clone(), clock.now());

@@ -1,12 +1,22 @@
-//! Device wiring: the hal handles of a robot, built from its configuration (tokio shells over
-//! tokio-serial ports). Every error names the device and the port.
+//! The wiring: the one module of the program that names concrete drivers.
+//!
+//! It opens a robot's devices from its configuration (tokio shells over tokio-serial ports,
+//! every error naming the device and the port), on the process's one clock, and hands them
+//! to the runtimes of [`ima_agents::runtime`], which know only the HAL traits. A robot's
+//! base is whatever its configuration names (`[devices.base] kind = "p2os" | "rflex"`):
+//! either robot runs on either base. A test (`tests` below) checks that no other module of
+//! the robots' path names a driver crate or type.
 
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use ima_agents::peer::wire::GroupKey;
+use ima_agents::runtime::link::{ScooterLink, SesRequest, SkeeterLink};
+use ima_agents::runtime::{Events, StopRequest, scooter, skeeter};
 use ima_compass::machine::{Config as CompassConfig, Dialect as CompassWireDialect};
 use ima_compass::shell::CompassDriver;
 use ima_hal::base::DifferentialBase;
+use ima_hal::safety::HaltSignal;
 use ima_hal::time::SharedClock;
 use ima_p2os::shell::P2os;
 use ima_rflex::shell::Rflex;
@@ -21,6 +31,7 @@ use crate::config::{
     BaseDevice, BaseKind, CompassDeviceConfig, CompassDialect, FramesSource, LaserDevice,
     MuxDevice, MuxDialect, RobotConfig, Role,
 };
+use crate::stack;
 
 fn secs(s: f64) -> Duration {
     Duration::try_from_secs_f64(s).unwrap_or(Duration::from_secs(10))
@@ -160,9 +171,10 @@ pub fn open_mux(d: &MuxDevice, clock: &SharedClock) -> Result<VideoMux> {
     ))
 }
 
-/// Connect to the frame server.
-pub async fn open_frames(f: &FramesSource) -> Result<NetFrames> {
-    let mut frames = NetFrames::new(f.addr.clone(), Duration::from_millis(f.timeout_ms));
+/// Connect to the frame server (frames stamped on `clock`).
+pub async fn open_frames(f: &FramesSource, clock: &SharedClock) -> Result<NetFrames> {
+    let mut frames = NetFrames::new(f.addr.clone(), Duration::from_millis(f.timeout_ms))
+        .with_clock(clock.clone());
     frames
         .connect()
         .await
@@ -171,26 +183,61 @@ pub async fn open_frames(f: &FramesSource) -> Result<NetFrames> {
     Ok(frames)
 }
 
-/// Skeeter's devices.
+/// A robot's base, of the kind its configuration names.
 #[derive(Debug)]
-pub struct SkeeterDevices {
-    /// The P2OS base.
-    pub base: P2os,
-    /// The video switcher.
-    pub mux: VideoMux,
-    /// The frame grabber.
-    pub frames: NetFrames,
+pub enum Base {
+    /// A P2OS controller (Pioneer 2-AT).
+    P2os(P2os),
+    /// An rFLEX controller (ATRV-Jr), brake released.
+    Rflex(Rflex),
 }
 
-/// Scooter's devices.
+impl Base {
+    /// The driver's halt signal.
+    fn halt_signal(&self) -> HaltSignal {
+        match self {
+            Base::P2os(b) => b.halt_signal(),
+            Base::Rflex(b) => b.halt_signal(),
+        }
+    }
+}
+
+/// Open the base `d` names. `time_scale`: see [`open_rflex`]. `drives`: the robot moves, so
+/// a P2OS base's motors are enabled (an rFLEX base's brake is released either way).
+pub async fn open_base(
+    d: &BaseDevice,
+    time_scale: f64,
+    drives: bool,
+    clock: &SharedClock,
+) -> Result<Base> {
+    Ok(match d.kind {
+        BaseKind::P2os => {
+            let mut b = open_p2os(d, clock).await?;
+            if drives {
+                b.enable_motors(true).await.with_context(|| {
+                    format!("enabling the motors of the P2OS base on {}", d.port)
+                })?;
+            }
+            Base::P2os(b)
+        }
+        BaseKind::Rflex => Base::Rflex(open_rflex(d, time_scale, clock).await?),
+    })
+}
+
+/// Skeeter's devices (opened, not yet running).
 #[derive(Debug)]
-pub struct ScooterDevices {
-    /// The rFLEX base (brake released).
-    pub base: Rflex,
-    /// The laser (streaming).
-    pub laser: SickLms,
-    /// The compass (absent when the heading source is odometry and none is configured).
-    pub compass: Option<CompassDriver>,
+pub struct SkeeterHw {
+    base: Base,
+    mux: VideoMux,
+    frames: NetFrames,
+}
+
+/// Scooter's devices (opened, not yet running).
+#[derive(Debug)]
+pub struct ScooterHw {
+    base: Base,
+    laser: SickLms,
+    compass: Option<CompassDriver>,
 }
 
 fn missing(what: &str) -> anyhow::Error {
@@ -198,20 +245,26 @@ fn missing(what: &str) -> anyhow::Error {
 }
 
 /// Open Skeeter's devices.
-pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<SkeeterDevices> {
+pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<SkeeterHw> {
     anyhow::ensure!(cfg.role == Role::Skeeter, "not a Skeeter configuration");
     let d = &cfg.devices;
-    let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?).await?;
+    let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?, clock).await?;
     let mux = open_mux(
         d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?,
         clock,
     )?;
-    let base = open_p2os(d.base.as_ref().ok_or_else(|| missing("base"))?, clock).await?;
-    Ok(SkeeterDevices { base, mux, frames })
+    let base = open_base(
+        d.base.as_ref().ok_or_else(|| missing("base"))?,
+        cfg.agent.time_scale,
+        false,
+        clock,
+    )
+    .await?;
+    Ok(SkeeterHw { base, mux, frames })
 }
 
 /// Open Scooter's devices (all three at once).
-pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<ScooterDevices> {
+pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<ScooterHw> {
     anyhow::ensure!(cfg.role == Role::Scooter, "not a Scooter configuration");
     let d = &cfg.devices;
     let base = d.base.as_ref().ok_or_else(|| missing("base"))?;
@@ -223,15 +276,93 @@ pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Scoo
         }
     };
     let (base, laser, compass) = tokio::join!(
-        open_rflex(base, cfg.agent.time_scale, clock),
+        open_base(base, cfg.agent.time_scale, true, clock),
         open_laser(laser, clock),
         compass
     );
-    Ok(ScooterDevices {
+    Ok(ScooterHw {
         base: base?,
         laser: laser?,
         compass: compass?,
     })
+}
+
+/// Run Scooter's runtime ([`scooter::run`]) on its devices, linked to the other robots over
+/// the Peer Agent network of `cfg`, until `stop`.
+pub async fn run_scooter(
+    cfg: &RobotConfig,
+    key: GroupKey,
+    hw: ScooterHw,
+    clock: SharedClock,
+    events: Events,
+    stop: StopRequest,
+) -> Result<()> {
+    let rt = stack::scooter::runtime_config(cfg);
+    let net = stack::net::net_config(cfg)?;
+    let time = ima_agents::runtime::MissionTime::new(clock.clone(), rt.time_scale);
+    let ses = cfg.peer.connect.clone().map(|manager| SesRequest {
+        manager,
+        priority: cfg.agent.ses_request_priority,
+        retry_after: Duration::from_secs(1),
+    });
+    let link = ScooterLink::network(&net, key, ses, events.clone(), time).await?;
+    let ScooterHw {
+        base,
+        laser,
+        compass,
+    } = hw;
+    let halt = Some(base.halt_signal());
+    match base {
+        Base::P2os(base) => {
+            let dev = scooter::ScooterDevices {
+                base,
+                laser,
+                compass,
+                halt,
+            };
+            scooter::run(rt, dev, link, clock, events, stop).await?;
+        }
+        Base::Rflex(base) => {
+            let dev = scooter::ScooterDevices {
+                base,
+                laser,
+                compass,
+                halt,
+            };
+            scooter::run(rt, dev, link, clock, events, stop).await?;
+        }
+    }
+    Ok(())
+}
+
+/// Run Skeeter's runtime ([`skeeter::run`]) on its devices, with its Peer Agent manager and
+/// broadcast channel as configured in `cfg`, until `stop`.
+pub async fn run_skeeter(
+    cfg: &RobotConfig,
+    key: GroupKey,
+    hw: SkeeterHw,
+    clock: SharedClock,
+    events: Events,
+    stop: StopRequest,
+) -> Result<()> {
+    let rt = stack::skeeter::runtime_config(cfg)?;
+    let net = stack::net::net_config(cfg)?;
+    let time = ima_agents::runtime::MissionTime::new(clock.clone(), rt.time_scale);
+    let link = SkeeterLink::network(&net, key, events.clone(), time)
+        .await
+        .context("starting Skeeter's Peer Agent manager")?;
+    let SkeeterHw { base, mux, frames } = hw;
+    match base {
+        Base::P2os(base) => {
+            let dev = skeeter::SkeeterDevices { base, mux, frames };
+            skeeter::run(rt, dev, link, clock, events, stop).await?;
+        }
+        Base::Rflex(base) => {
+            let dev = skeeter::SkeeterDevices { base, mux, frames };
+            skeeter::run(rt, dev, link, clock, events, stop).await?;
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -241,24 +372,51 @@ mod tests {
     use ima_hal::camera::{CameraMux, FrameSource};
     use ima_hal::compass::Compass;
     use ima_hal::laser::LaserScanner;
+    use ima_hal::time::Clock;
+    use ima_mock_devices::served::{BaseKind as Served, ServeOptions, ServedWorld};
+
+    fn serve(scooter_base: Served) -> ServedWorld {
+        let world = crate::cmd::mock::load_world(None, 3).unwrap();
+        ServedWorld::start(
+            world,
+            &ServeOptions {
+                seed: 3,
+                scooter_base,
+                ..ServeOptions::default()
+            },
+        )
+        .unwrap()
+    }
+
+    async fn odometry(b: &mut Base) -> ima_hal::Stamped<ima_hal::base::Odometry> {
+        match b {
+            Base::P2os(b) => b.odometry().await.unwrap(),
+            Base::Rflex(b) => b.odometry().await.unwrap(),
+        }
+    }
+
+    async fn next_odometry(
+        b: &mut Base,
+        after: ima_hal::Instant,
+    ) -> ima_hal::Stamped<ima_hal::base::Odometry> {
+        match b {
+            Base::P2os(b) => b.next_odometry(after).await.unwrap(),
+            Base::Rflex(b) => b.next_odometry(after).await.unwrap(),
+        }
+    }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn every_device_opens_on_a_served_world() {
-        let served = crate::cmd::mock_world::serve(&crate::cmd::mock_world::WorldOptions {
-            world: None,
-            seed: 3,
-            speed: 1.0,
-            frames_addr: "127.0.0.1:0".parse().unwrap(),
-            write_configs: None,
-        })
-        .unwrap();
+        let served = serve(Served::Rflex);
         let [sk, sc, _] =
             crate::cmd::mock_world::loopback_configs(served.endpoints(), 1.0, None).unwrap();
         let clock = ima_hal::time::TokioClock::shared();
         let (a, b) = tokio::join!(open_skeeter(&sk, &clock), open_scooter(&sc, &clock));
         let mut sk = a.unwrap();
         let mut sc = b.unwrap();
-        sk.base.odometry().await.unwrap();
+        assert!(matches!(sk.base, Base::P2os(_)));
+        assert!(matches!(sc.base, Base::Rflex(_)));
+        odometry(&mut sk.base).await;
         let sel = sk.mux.select(1).await.unwrap();
         assert_eq!(sel.channel, 1);
         tokio::time::sleep(sk.mux.settle_time() + Duration::from_millis(50)).await;
@@ -272,7 +430,51 @@ mod tests {
         let h = sc.compass.as_mut().unwrap().heading().await.unwrap();
         // Scooter faces 30° ENU = 60° compass.
         assert!((h.value.heading_rad.to_degrees() - 60.0).abs() < 5.0);
-        sc.base.odometry().await.unwrap();
+        odometry(&mut sc.base).await;
+    }
+
+    /// Issue 14: the devices of one robot stamp on one time base. A scan and an odometry
+    /// reading waited for together both carry stamps inside the window in which they were
+    /// awaited, so they differ by less than that window (their transport delay); with a
+    /// clock per device they would differ by the devices' epochs.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_scan_and_an_odometry_reading_share_one_time_base() {
+        let served = serve(Served::Rflex);
+        let [_, sc, _] =
+            crate::cmd::mock_world::loopback_configs(served.endpoints(), 1.0, None).unwrap();
+        let clock = ima_hal::time::TokioClock::shared();
+        // Let the clock's epoch lie well before the devices open.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let mut sc = open_scooter(&sc, &clock).await.unwrap();
+        for _ in 0..3 {
+            let t0 = clock.now();
+            let (scan, odo) = tokio::join!(sc.laser.next_scan(t0), next_odometry(&mut sc.base, t0));
+            let t1 = clock.now();
+            let scan = scan.unwrap();
+            let window = t1.saturating_duration_since(t0);
+            for at in [scan.at, odo.at] {
+                assert!(t0 <= at && at <= t1, "{at:?} outside [{t0:?}, {t1:?}]");
+            }
+            let gap = if scan.at > odo.at {
+                scan.at.saturating_duration_since(odo.at)
+            } else {
+                odo.at.saturating_duration_since(scan.at)
+            };
+            assert!(gap <= window, "{gap:?} > {window:?}");
+            assert!(window < Duration::from_secs(1), "{window:?}");
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn scooter_opens_on_a_p2os_base() {
+        let served = serve(Served::P2os);
+        let [_, sc, _] =
+            crate::cmd::mock_world::loopback_configs(served.endpoints(), 1.0, None).unwrap();
+        assert_eq!(sc.devices.base.as_ref().unwrap().kind, BaseKind::P2os);
+        let clock = ima_hal::time::TokioClock::shared();
+        let mut sc = open_scooter(&sc, &clock).await.unwrap();
+        assert!(matches!(sc.base, Base::P2os(_)));
+        odometry(&mut sc.base).await;
     }
 
     #[tokio::test]
@@ -291,7 +493,9 @@ mod tests {
             addr: "127.0.0.1:1".into(),
             timeout_ms: 500,
         };
-        let e = open_frames(&f).await.unwrap_err();
+        let e = open_frames(&f, &ima_hal::time::TokioClock::shared())
+            .await
+            .unwrap_err();
         assert!(format!("{e:#}").contains("127.0.0.1:1"), "{e:#}");
     }
 }

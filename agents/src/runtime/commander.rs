@@ -1,0 +1,292 @@
+//! The commander's runtime: drives [`Commander`] (the Commander Interface Agent's logic:
+//! targets sent one at a time as `Mission { commander, Accepted, colour }`, resent until
+//! Skeeter accepts, progress from Skeeter's mission events) over the broadcast channel,
+//! reports every broadcast it hears, the robots' liveness, and carries out the operator's
+//! requests.
+
+use core::time::Duration;
+
+use ima_hal::Instant;
+use ima_hal::time::SharedClock;
+use serde::Serialize;
+
+use super::events::{EventKind, Events, TargetChange, Waiting};
+use super::link::Bus;
+use super::{MissionTime, RuntimeError};
+use crate::mission::commander::{
+    Commander, CommanderConfig, LifeChange, Liveness, TargetState as CoreState,
+};
+use crate::mission::msg::COMMANDER;
+
+/// A target's final state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetState {
+    /// Skeeter reported it accomplished.
+    Done,
+    /// Skeeter reported it failed, or it timed out at the commander.
+    Failed,
+}
+
+/// One target's outcome.
+#[derive(Debug, Clone, Serialize)]
+pub struct TargetOutcome {
+    /// Colour.
+    pub target: String,
+    /// Final state.
+    pub state: TargetState,
+    /// Mission second it was sent.
+    pub sent_s: f64,
+    /// Mission second Skeeter accepted it (if it did).
+    pub accepted_s: Option<f64>,
+    /// Mission second it ended.
+    pub ended_s: f64,
+    /// Why it failed at the commander (given up, cancelled, interrupted), if it did.
+    pub reason: Option<String>,
+}
+
+/// What the operator asks of a running commander (typed lines on its stdin, Ctrl-C).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Operator {
+    /// Withdraw a target ([`Commander::cancel`]).
+    Cancel(String),
+    /// Send a fleet stop (reason).
+    Stop(String),
+    /// Send a fleet resume.
+    Resume,
+    /// End the commander, after a fleet stop if `stop`.
+    Quit {
+        /// Send a fleet stop first.
+        stop: bool,
+    },
+}
+
+/// The commander runtime's configuration.
+#[derive(Debug, Clone)]
+pub struct CommanderRuntimeConfig {
+    /// The core's configuration (its name, resend period, give-up time).
+    pub core: CommanderConfig,
+    /// Mission time = clock time × this.
+    pub time_scale: f64,
+    /// Report a robot lost after this much (mission) silence; `None`: no liveness reports.
+    pub lost_after: Option<Duration>,
+    /// Robots to hear on the broadcast channel before the first target goes out.
+    pub wait_for: Vec<String>,
+    /// Longest wait for them (real time); then the targets go anyway.
+    pub wait_timeout: Duration,
+}
+
+/// How a [`run`] ended.
+#[derive(Debug, Clone)]
+pub struct Finished {
+    /// Every target's outcome (targets still open at an interruption count as failed).
+    pub outcomes: Vec<TargetOutcome>,
+    /// `Some(stopped)` when the operator ended it ([`Operator::Quit`]); `stopped` tells
+    /// whether a fleet stop went out.
+    pub interrupted: Option<bool>,
+}
+
+fn life_event(events: &Events, time: &MissionTime, me: &str, c: &LifeChange) {
+    events.emit(
+        time,
+        me,
+        EventKind::Robot {
+            robot: c.robot.clone(),
+            state: c.life.as_str().to_owned(),
+            silent_s: c.silent.as_secs_f64(),
+        },
+    );
+}
+
+/// Run the commander over `targets` on `bus` until every target is final or the operator
+/// quits (`ops`, `None`: no operator). Events: [`EventKind::Target`] on every state change,
+/// [`EventKind::Broadcast`] for each broadcast heard, [`EventKind::Robot`] for liveness,
+/// [`EventKind::Waiting`], [`EventKind::Fleet`], [`EventKind::Operator`], and
+/// [`EventKind::AuthFailure`] for frames under another group key (rate-limited).
+///
+/// Before the first target it waits (at most `cfg.wait_timeout`, real time) until every
+/// robot of `cfg.wait_for` has been heard, so that no robot misses it.
+pub async fn run(
+    cfg: CommanderRuntimeConfig,
+    targets: &[String],
+    bus: Bus,
+    clock: SharedClock,
+    events: Events,
+    mut ops: Option<tokio::sync::mpsc::UnboundedReceiver<Operator>>,
+) -> Result<Finished, RuntimeError> {
+    let time = MissionTime::new(clock, cfg.time_scale);
+    let me = cfg.core.robot.clone();
+    let mut live = cfg
+        .lost_after
+        .map(|d| Liveness::new(d, &[me.as_str(), COMMANDER]));
+    let mut missing: Vec<&String> = cfg.wait_for.iter().collect();
+    if let Some(l) = &mut live {
+        for r in &missing {
+            l.expect(r, time.now());
+        }
+    }
+    let mut cmd = Commander::new(targets, cfg.core.clone());
+    let mut shown: Vec<(CoreState, bool)> = cmd
+        .targets()
+        .iter()
+        .map(|t| (t.state, t.cancelled))
+        .collect();
+    let mut waiting = !missing.is_empty();
+    if waiting {
+        events.emit(
+            &time,
+            &me,
+            EventKind::Waiting(Waiting::For(missing.iter().map(|s| (*s).clone()).collect())),
+        );
+    } else {
+        cmd.start(time.now());
+    }
+    let wait_deadline = tokio::time::Instant::now() + cfg.wait_timeout;
+    let mut interrupted = None;
+    let mut check = tokio::time::interval(Duration::from_secs(1));
+    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        while let Some(b) = cmd.poll_broadcast() {
+            bus.send(&b).await;
+        }
+        for (t, old) in cmd.targets().iter().zip(shown.iter_mut()) {
+            if (t.state, t.cancelled) != *old {
+                *old = (t.state, t.cancelled);
+                let fin = t.state.is_final();
+                events.emit(
+                    &time,
+                    &me,
+                    EventKind::Target(TargetChange {
+                        target: t.colour.clone(),
+                        state: t.state.as_str().to_owned(),
+                        time_s: if fin {
+                            t.duration().map(|d| d.as_secs_f64())
+                        } else {
+                            None
+                        },
+                        given_up: fin.then_some(t.given_up),
+                        cancelled: fin.then_some(t.cancelled),
+                    }),
+                );
+            }
+        }
+        if interrupted.is_some() || (!waiting && cmd.is_finished()) {
+            break;
+        }
+        let to_real = |t: Instant| {
+            tokio::time::Instant::now() + time.real(t.saturating_duration_since(time.now()))
+        };
+        let wake = [
+            cmd.poll_timeout().map(to_real),
+            live.as_ref().and_then(Liveness::poll_timeout).map(to_real),
+            waiting.then_some(wait_deadline),
+        ]
+        .into_iter()
+        .flatten()
+        .min();
+        tokio::select! {
+            r = bus.recv() => {
+                let b = r?;
+                let now = time.now();
+                events.emit(&time, &me, EventKind::Broadcast((&b).into()));
+                if let Some(c) = live.as_mut().and_then(|l| l.heard(b.robot(), now)) {
+                    life_event(&events, &time, &me, &c);
+                }
+                if waiting {
+                    missing.retain(|m| m.as_str() != b.robot());
+                    if missing.is_empty() {
+                        waiting = false;
+                        cmd.start(now);
+                    }
+                }
+                cmd.handle_broadcast(&b, now);
+            }
+            op = async {
+                match ops.as_mut() {
+                    Some(rx) => rx.recv().await,
+                    None => std::future::pending().await,
+                }
+            } => {
+                let now = time.now();
+                match op {
+                    None => ops = None,
+                    Some(Operator::Cancel(colour)) => {
+                        if !cmd.cancel(&colour, now) {
+                            events.emit(&time, &me, EventKind::Operator {
+                                error: format!("no open target {colour:?} to cancel"),
+                            });
+                        }
+                    }
+                    Some(Operator::Stop(reason)) => {
+                        cmd.fleet_stop(&reason);
+                        events.emit(&time, &me, EventKind::Fleet { command: "stop".into(), reason: Some(reason) });
+                    }
+                    Some(Operator::Resume) => {
+                        cmd.fleet_resume();
+                        events.emit(&time, &me, EventKind::Fleet { command: "resume".into(), reason: None });
+                    }
+                    Some(Operator::Quit { stop }) => {
+                        if stop {
+                            cmd.fleet_stop("the commander was interrupted");
+                            events.emit(&time, &me, EventKind::Fleet { command: "stop".into(), reason: Some("interrupted".into()) });
+                        }
+                        interrupted = Some(stop);
+                    }
+                }
+            }
+            () = async {
+                match wake {
+                    Some(w) => tokio::time::sleep_until(w).await,
+                    None => std::future::pending().await,
+                }
+            } => {
+                let now = time.now();
+                if waiting && tokio::time::Instant::now() >= wait_deadline {
+                    events.emit(&time, &me, EventKind::Waiting(Waiting::GaveUpOn(
+                        missing.iter().map(|s| (*s).clone()).collect(),
+                    )));
+                    waiting = false;
+                    cmd.start(now);
+                }
+                cmd.handle_timeout(now);
+                for c in live.as_mut().map(|l| l.handle_timeout(now)).unwrap_or_default() {
+                    life_event(&events, &time, &me, &c);
+                }
+            }
+            _ = check.tick() => {
+                if let Some(a) = bus.take_auth_report() {
+                    events.emit(&time, &me, EventKind::AuthFailure(a.to_string()));
+                }
+            }
+        }
+    }
+    let secs = |i: Option<Instant>| i.map(Instant::as_secs_f64);
+    let outcomes = cmd
+        .targets()
+        .iter()
+        .map(|t| TargetOutcome {
+            target: t.colour.clone(),
+            state: if t.state == CoreState::Done {
+                TargetState::Done
+            } else {
+                TargetState::Failed
+            },
+            sent_s: secs(t.sent_at).unwrap_or(0.0),
+            accepted_s: secs(t.accepted_at),
+            ended_s: secs(t.finished_at).unwrap_or(0.0),
+            reason: if t.cancelled {
+                Some("cancelled by the operator".to_owned())
+            } else if t.given_up {
+                Some("no word from Skeeter: given up".to_owned())
+            } else if !t.state.is_final() {
+                Some("the commander was interrupted".to_owned())
+            } else {
+                None
+            },
+        })
+        .collect();
+    Ok(Finished {
+        outcomes,
+        interrupted,
+    })
+}
