@@ -20,6 +20,8 @@
 //! * [`rflex`] — the ATRV-Jr's rFLEX controller as a device model.
 //! * [`sick_lms`] — a SICK LMS 200/291 laser scanner as a device model.
 //! * [`stepper`] — advance a [`world::SharedWorld`] in real time.
+//! * [`hal`] — in-process HAL devices (base + odometry, laser, compass) on a world stepped in
+//!   tokio's (virtual) time, every reading stamped on one clock: no protocol, no port.
 //! * [`compass`] — a KVH C100 (NMEA) or PNI TCM2 compass reporting its robot's heading.
 //! * [`video_mux`] — an Extron SIS / Kramer video switcher and the [`video_mux::VideoBus`]
 //!   it shares with [`camera`], the 7-camera head rendering the world's coloured objects.
@@ -54,6 +56,7 @@ pub mod camera;
 pub mod compass;
 pub mod duplex;
 pub mod faults;
+pub mod hal;
 pub mod link;
 pub mod model;
 pub mod p2os;

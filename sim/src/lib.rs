@@ -34,7 +34,12 @@
 //! case); in general common-frame angles are world angles minus Skeeter's heading.
 //! Everything random comes from one seeded `SmallRng`: the same seed gives the same run.
 //!
-//! [`experiment`] runs the thesis's heading sweep on top.
+//! [`experiment`] runs the thesis's heading sweep on top — by default not through
+//! [`ScooterSim`] but through [`runtime`]: the robots' own runtime
+//! (`ima_agents::runtime::scooter`) over in-process HAL devices on the world ([`hal`], stepped
+//! in tokio's paused virtual time, every reading stamped on one clock), Skeeter's samples
+//! from the same [`SesObserver`] delivered through the runtime's link. [`ScooterSim`] stays as
+//! the reference loop (`--set loop=reference`).
 //!
 //! # Which robot is modelled
 //!
@@ -57,21 +62,20 @@
 #![warn(missing_docs)]
 
 pub mod experiment;
+pub mod observer;
+pub mod runtime;
 
-use core::f64::consts::PI;
+pub use ima_mock_devices::hal;
+pub use observer::SesObserver;
+
 use core::time::Duration;
 
 use ima_agents::mission::scooter::{ScooterBrain, ScooterConfig, ScooterOutput, ScooterSay};
-use ima_agents::mission::vision::{ColourDb, DetectorConfig, HeadGeometry, observe_frame};
-use ima_agents::ses::Direction;
-use ima_agents::ses::shared::{SharedForm, SharedRecord};
+use ima_agents::ses::shared::SharedForm;
 use ima_hal::base::Odometry;
 use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_hal::{Instant, normalize_angle};
-use ima_mock_devices::camera::{CameraConfig, CameraHead};
-use ima_mock_devices::world::{
-    DriveCommand, LaserModel, RobotId, SharedWorld, Target, World, gaussian,
-};
+use ima_mock_devices::world::{DriveCommand, LaserModel, RobotId, World, gaussian};
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
 
@@ -140,6 +144,15 @@ pub struct SimConfig {
     pub brain: ScooterConfig,
     /// Skeeter's observation model.
     pub observer: Observer,
+    /// Brain steps per second of Scooter's runtime (the robots' `agent.control_hz`; the
+    /// reference loop [`ScooterSim`] steps the brain every `dt` instead).
+    pub control_hz: f64,
+    /// One odometry reading every this often (runtime path; the reference loop reads it
+    /// every `dt`).
+    pub odometry_period: Duration,
+    /// One compass heading every this often (runtime path; the reference loop reads it
+    /// every `dt`).
+    pub compass_period: Duration,
 }
 
 impl Default for SimConfig {
@@ -158,6 +171,9 @@ impl Default for SimConfig {
             laser: LaserModel::default(),
             brain: ScooterConfig::default(),
             observer: Observer::Geometric,
+            control_hz: 10.0,
+            odometry_period: Duration::from_millis(100),
+            compass_period: Duration::from_millis(100),
         }
     }
 }
@@ -169,8 +185,10 @@ pub enum SimError {
     NoRobot(&'static str),
     /// The world has no object of this colour.
     NoTarget(String),
-    /// `dt` or `scan_period` is zero.
+    /// `dt` or `scan_period` is zero (or the control rate is not positive).
     BadPeriod,
+    /// Scooter's runtime could not run (why).
+    Runtime(String),
 }
 
 impl core::fmt::Display for SimError {
@@ -178,7 +196,8 @@ impl core::fmt::Display for SimError {
         match self {
             Self::NoRobot(n) => write!(f, "the world has no robot named `{n}`"),
             Self::NoTarget(c) => write!(f, "the world has no `{c}` object"),
-            Self::BadPeriod => f.write_str("dt and scan_period must be positive"),
+            Self::BadPeriod => f.write_str("dt, scan_period and control_hz must be positive"),
+            Self::Runtime(e) => write!(f, "Scooter's runtime: {e}"),
         }
     }
 }
@@ -224,17 +243,13 @@ pub struct Outcome {
 #[derive(Debug)]
 pub struct ScooterSim {
     world: World,
-    skeeter: RobotId,
     scooter: RobotId,
     cfg: SimConfig,
     brain: ScooterBrain,
     rng: SmallRng,
     start: ima_hal::Isometry2,
     skeeter_heading: f64,
-    camera_period: Duration,
-    next_grab: Instant,
-    grab_index: u32,
-    pending: Vec<SharedRecord>,
+    observer: SesObserver,
     next_laser: Instant,
     laser_buf: Vec<Option<f64>>,
     scan: LaserScan,
@@ -246,23 +261,6 @@ pub struct ScooterSim {
     t0: Instant,
     samples: u32,
     last: Option<ScooterOutput>,
-    camera: Option<CameraRig>,
-}
-
-/// The camera pipeline: a copy of the world the mock head renders from, the head, and the
-/// vision's colour database.
-struct CameraRig {
-    world: SharedWorld,
-    head: CameraHead,
-    db: ColourDb,
-    geometry: HeadGeometry,
-    detector: DetectorConfig,
-}
-
-impl core::fmt::Debug for CameraRig {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("CameraRig").finish_non_exhaustive()
-    }
 }
 
 impl ScooterSim {
@@ -292,39 +290,13 @@ impl ScooterSim {
         let mut brain = ScooterBrain::new(brain_cfg);
         let now = world.time();
         brain.set_target(target, now);
-        let camera_period = match cfg.ses_timing {
-            SesTiming::Staggered => cfg.scan_period / CAMERAS,
-            SesTiming::Snapshot => cfg.scan_period,
-        };
-        let camera = (cfg.observer == Observer::Camera).then(|| {
-            let shared = SharedWorld::new(world.clone());
-            let cam_cfg = CameraConfig {
-                seed: cfg.seed,
-                ..CameraConfig::default()
-            };
-            CameraRig {
-                head: CameraHead::new(cam_cfg, shared.clone(), skeeter),
-                world: shared,
-                db: ColourDb::default(),
-                geometry: HeadGeometry {
-                    cameras: cam_cfg.cameras,
-                    fov_deg: cam_cfg.fov_deg,
-                    first_yaw_deg: 0.0,
-                },
-                detector: DetectorConfig::default(),
-            }
-        });
+        let observer = SesObserver::new(&world, &cfg, &cfg.brain.robot_name, now)?;
         let mut sim = Self {
-            camera,
-            skeeter,
             scooter,
             rng: SmallRng::seed_from_u64(cfg.seed),
             start: start_pose.to_isometry(),
             skeeter_heading,
-            camera_period,
-            next_grab: now + camera_period,
-            grab_index: 0,
-            pending: Vec::new(),
+            observer,
             next_laser: now,
             laser_buf: Vec::new(),
             scan: LaserScan::new(cfg.laser.start_rad, cfg.laser.step_rad),
@@ -341,11 +313,8 @@ impl ScooterSim {
             world,
         };
         // The scan that answered the commander: every camera, now.
-        let mut first = Vec::new();
-        for c in 0..CAMERAS {
-            sim.observe(c, now, &mut first);
-        }
-        sim.deliver(first, now);
+        let first = sim.observer.full_look(&sim.world, now, &mut sim.rng);
+        sim.deliver(&first, now);
         Ok(sim)
     }
 
@@ -401,121 +370,17 @@ impl ScooterSim {
         self.reached_at
     }
 
-    /// Camera `c`'s sector contains common-frame bearing `b`.
-    fn camera_of(b: f64) -> u32 {
-        let sector = 2.0 * PI / f64::from(CAMERAS);
-        let k = (normalize_angle(b) / sector).round();
-        (k.rem_euclid(f64::from(CAMERAS))) as u32
-    }
-
-    fn noisy_range(&mut self, r: f64) -> Option<f64> {
-        self.cfg
-            .ses_ranges
-            .then(|| (r * (1.0 + self.cfg.range_noise_rel * gaussian(&mut self.rng))).max(0.0))
-    }
-
-    /// What camera `c` (0-based; mux channel `c + 1`) sees now, appended to `out`.
-    fn observe(&mut self, c: u32, now: Instant, out: &mut Vec<SharedRecord>) {
-        if let Some(rig) = self.camera.as_mut() {
-            *rig.world.lock() = self.world.clone();
-            let channel = u8::try_from(c + 1).unwrap_or(1);
-            let settled = Duration::from_secs(1);
-            if let Some(frame) = rig.head.render(channel, settled) {
-                for o in observe_frame(&frame, channel, &rig.db, &rig.geometry, &rig.detector) {
-                    let confidence = o.confidence();
-                    out.push(SharedRecord {
-                        object: o.tag,
-                        // Skeeter's robot frame is the common frame.
-                        bearing: Direction::horizontal(o.bearing_rad),
-                        range_m: if self.cfg.ses_ranges { o.range_m } else { None },
-                        confidence,
-                        time: now,
-                    });
-                }
-            }
-            return;
-        }
-        let Some(sk) = self.world.robot(self.skeeter).map(|r| r.pose()) else {
-            return;
-        };
-        let sightings =
-            self.world
-                .visible_objects(sk, PI, self.cfg.camera_range_m, Some(self.skeeter));
-        for s in sightings {
-            if Self::camera_of(s.bearing_rad) != c {
-                continue;
-            }
-            let Some(colour) = self.world.objects().get(s.object).map(|o| o.color.clone()) else {
-                continue;
-            };
-            let bearing = s.bearing_rad + self.cfg.bearing_noise_rad * gaussian(&mut self.rng);
-            let range_m = self.noisy_range(s.range_m);
-            out.push(SharedRecord {
-                object: colour,
-                bearing: Direction::horizontal(bearing),
-                range_m,
-                confidence: 1.0,
-                time: now,
-            });
-        }
-        if let Some(sc) = self.world.robot(self.scooter).map(|r| r.pose()) {
-            let (ex, ey) = (sc.x_m - sk.x_m, sc.y_m - sk.y_m);
-            let range = ex.hypot(ey);
-            let abs_dir = ey.atan2(ex);
-            let bearing = normalize_angle(abs_dir - sk.theta_rad);
-            let visible = range <= self.cfg.camera_range_m
-                && self
-                    .world
-                    .cast_ignoring(sk.point(), abs_dir, range, Some(self.skeeter))
-                    .is_some_and(|h| h.target == Target::Robot(self.scooter));
-            if visible && Self::camera_of(bearing) == c {
-                let b = bearing + self.cfg.bearing_noise_rad * gaussian(&mut self.rng);
-                let range_m = self.noisy_range(range);
-                out.push(SharedRecord {
-                    object: self.brain.config().robot_name.clone(),
-                    bearing: Direction::horizontal(b),
-                    range_m,
-                    confidence: 1.0,
-                    time: now,
-                });
-            }
-        }
-    }
-
-    fn deliver(&mut self, records: Vec<SharedRecord>, now: Instant) {
-        let form = SharedForm {
-            source_robot: "skeeter".to_owned(),
-            sent_at: now,
-            records,
-        };
+    fn deliver(&mut self, form: &SharedForm, now: Instant) {
         self.samples += 1;
-        self.brain.handle_ses(&form, now);
+        self.brain.handle_ses(form, now);
     }
 
     /// One step of `dt`: sensors → brain → world.
     pub fn step(&mut self) -> &ScooterOutput {
         let now = self.world.time();
         // Skeeter's cameras.
-        while self.cfg.ses_timing == SesTiming::Snapshot && self.next_grab <= now {
-            let mut recs = Vec::new();
-            for c in 0..CAMERAS {
-                self.observe(c, now, &mut recs);
-            }
-            self.deliver(recs, now);
-            self.next_grab = self.next_grab + self.camera_period;
-        }
-        while self.next_grab <= now {
-            let at = self.next_grab;
-            let mut recs = std::mem::take(&mut self.pending);
-            self.observe(self.grab_index, at, &mut recs);
-            self.grab_index += 1;
-            if self.grab_index >= CAMERAS {
-                self.grab_index = 0;
-                self.deliver(recs, now);
-            } else {
-                self.pending = recs;
-            }
-            self.next_grab = at + self.camera_period;
+        for form in self.observer.poll(&self.world, now, &mut self.rng) {
+            self.deliver(&form, now);
         }
         // Scooter's sensors.
         if let Some(r) = self.world.robot(self.scooter) {

@@ -374,6 +374,7 @@ fn settings_are_typed_and_name_their_key() {
     assert_eq!(cfg, before, "a rejected setting changes nothing");
     for k in SETTING_KEYS {
         let v = match k {
+            "loop" => "reference",
             "model" => "estimate-gated",
             "recognition" => "in-view",
             "ses_timing" => "snapshot",
@@ -384,6 +385,11 @@ fn settings_are_typed_and_name_their_key() {
     }
     assert_eq!(cfg.settings.len(), SETTING_KEYS.len());
     assert_eq!(cfg.sim.ses_timing, SesTiming::Snapshot);
+    assert_eq!(cfg.engine, ima_sim::experiment::Engine::Reference);
+    assert!(matches!(
+        cfg.set("loop", "fast"),
+        Err(SettingError::BadValue { key: "loop", .. })
+    ));
     assert_eq!(cfg.sim.bearing_noise_rad, 0.0, "ideal_sensors came later");
     cfg.set("model", "thesis-robot").unwrap();
     assert_eq!(

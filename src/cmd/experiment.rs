@@ -81,7 +81,8 @@ pub struct HeadingArgs {
     pub model: ModelArg,
     /// Change one model component, e.g. `recognition=near-estimate`, `see_distance_m=3`,
     /// `turn_in_place=true`, `ses_timing=snapshot`, `scan_period_s=1`, `ideal_sensors=true`,
-    /// `avoid=false` (repeatable; applied in order after --model).
+    /// `avoid=false`, `loop=reference` (the lock-step loop instead of Scooter's runtime),
+    /// `control_hz=20` (repeatable; applied in order after --model).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
 }
