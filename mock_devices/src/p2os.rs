@@ -6,6 +6,19 @@
 //! readings fired at 25 Hz per array, motors disabled until ENABLE, the 2 s watchdog with its
 //! resume behaviour, CLOSE, CONFIG and ENCODER packets, and the serial line speed.
 //!
+//! # Line speed and HOSTBAUD
+//!
+//! The robot powers up at [`P2osModelConfig::baud`]. When CONFIG advertises `ResetBaud = 2`
+//! ([`P2osModelConfig::reset_baud`], the default), HOSTBAUD (#50, argument 0..4 = 9600..115200,
+//! spec §1) on an open session switches the robot's port at once: the packets after it (the
+//! next SIP) go at the new rate, and what the host sends at the old rate is noise, as on a real
+//! line (the runner reports the host's rate through [`P2osRobot::set_host_baud`]). ARIA sends
+//! PULSE at the new rate and gives up after ~900 ms without a packet; the model keeps the new
+//! rate until CLOSE or a power cycle, which put the port back at the power-up rate (ARIA
+//! resets its own port to the start rate after CLOSE). An argument outside 0..4, or any
+//! HOSTBAUD when `ResetBaud` is not 2, is ignored. Switches are counted in
+//! [`P2osModelStats::baud_switches`].
+//!
 //! It moves a [`P2osBody`] — the simulated world's robot, or anything else — and reads back
 //! the body's motion and sonar ranges.
 
@@ -71,7 +84,8 @@ pub struct P2osModelConfig {
     pub sonar_min_m: f64,
     /// Firmware version string in CONFIG.
     pub firmware: String,
-    /// ResetBaud in CONFIG (2 = HOSTBAUD supported). The model does not switch rates.
+    /// ResetBaud in CONFIG: 2 (the default) = HOSTBAUD switches the port (see the module
+    /// docs); anything else = HOSTBAUD is ignored.
     pub reset_baud: u8,
 }
 
@@ -92,7 +106,7 @@ impl Default for P2osModelConfig {
             sonar_max_m: 5.0,
             sonar_min_m: 0.1,
             firmware: "P2OS 1.M (ima mock firmware, simulated Pioneer 2-AT)".into(),
-            reset_baud: 0,
+            reset_baud: 2,
         }
     }
 }
@@ -127,6 +141,8 @@ pub struct P2osModelStats {
     pub watchdog_trips: u64,
     /// Sessions opened.
     pub sessions: u64,
+    /// Line-speed switches by HOSTBAUD.
+    pub baud_switches: u64,
 }
 
 /// The P2OS firmware model. See the [module docs](self).
@@ -138,6 +154,8 @@ pub struct P2osRobot {
     out: Vec<u8>,
     stats: P2osModelStats,
     host_baud: Option<u32>,
+    /// The port's current rate (the power-up rate until HOSTBAUD).
+    baud: u32,
     motors: bool,
     sonar_on: bool,
     /// Setpoints: mm/s and deg/s.
@@ -161,12 +179,12 @@ impl P2osRobot {
         let max_v = cfg.params.max_velocity_mm_s;
         let max_w = cfg.params.max_rot_velocity_deg_s;
         Self {
-            cfg,
             link: RobotLink::Idle,
             framer: Framer::for_commands(),
             out: Vec::new(),
             stats: P2osModelStats::default(),
             host_baud: None,
+            baud: cfg.baud,
             motors: false,
             sonar_on: false,
             setpoint: (0.0, 0.0),
@@ -181,6 +199,7 @@ impl P2osRobot {
             origin: body.pose(),
             encoder_mode: 0,
             noise: 0x9E37_79B9,
+            cfg,
         }
     }
 
@@ -215,8 +234,13 @@ impl P2osRobot {
         self.host_baud = baud;
     }
 
+    /// The robot port's current line speed (changed by HOSTBAUD).
+    pub fn baud(&self) -> u32 {
+        self.baud
+    }
+
     fn line_matches(&self) -> bool {
-        self.host_baud.is_none_or(|b| b == self.cfg.baud)
+        self.host_baud.is_none_or(|b| b == self.baud)
     }
 
     /// Power-cycle: back to idle, motors off, odometry origin at the body's pose.
@@ -364,6 +388,7 @@ impl P2osRobot {
 
     fn close(&mut self, body: &mut dyn P2osBody) {
         self.link = RobotLink::Idle;
+        self.baud = self.cfg.baud;
         self.motors = false;
         self.sonar_on = false;
         self.setpoint = (0.0, 0.0);
@@ -421,6 +446,17 @@ impl P2osRobot {
                         self.max_w_deg_s = v.abs().min(self.cfg.params.max_rot_velocity_deg_s);
                     }
                     IntCommand::Sonar => self.sonar_on = v != 0.0,
+                    IntCommand::HostBaud => {
+                        if self.cfg.reset_baud == 2
+                            && let Some(&rate) = HOSTBAUD_RATES.get(v as usize)
+                            && v >= 0.0
+                        {
+                            if rate != self.baud {
+                                self.stats.baud_switches += 1;
+                            }
+                            self.baud = rate;
+                        }
+                    }
                     IntCommand::Config => self.send_config(),
                     IntCommand::Encoder => {
                         self.encoder_mode = v as i16;
@@ -455,7 +491,7 @@ impl P2osRobot {
             name: name.as_bytes(),
             numbers: ConfigNumbers {
                 sip_cycle: self.cfg.sip_period.as_millis().min(255) as u8,
-                host_baud: baud_code(self.cfg.baud),
+                host_baud: baud_code(self.baud),
                 front_sonar: 1,
                 rear_sonar: 1,
                 low_battery: 110,
@@ -606,6 +642,9 @@ impl P2osRobot {
         std::mem::take(&mut self.out)
     }
 }
+
+/// The rates of HOSTBAUD's arguments 0..4.
+const HOSTBAUD_RATES: [u32; 5] = [9600, 19200, 38400, 57600, 115200];
 
 /// HOSTBAUD code of a rate (0..4 = 9600..115200).
 fn baud_code(baud: u32) -> u8 {
@@ -968,6 +1007,73 @@ mod tests {
                 right: -9500
             }
         );
+    }
+
+    #[test]
+    fn hostbaud_switches_the_port_until_close() {
+        let mut body = Still::default();
+        let mut r = opened(&mut body);
+        r.set_host_baud(Some(9600));
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::HostBaud, 2)),
+            ms(10),
+            &mut body,
+        );
+        assert_eq!(r.baud(), 38400);
+        assert_eq!(r.stats().baud_switches, 1);
+        // The host still at 9600: the next SIP is noise to it, its PULSE noise to the robot.
+        r.handle_timeout(ms(110), &mut body);
+        assert!(packets(&mut r).is_empty());
+        r.handle_rx(&frame(Command::PULSE), ms(120), &mut body);
+        assert!(r.stats().baud_mismatch_bytes > 0);
+        // The host follows: SIPs parse, CONFIG reports HostBaud 2.
+        r.set_host_baud(Some(38400));
+        r.handle_timeout(ms(210), &mut body);
+        assert!(matches!(packets(&mut r)[..], [Packet::Sip(_)]));
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::Config, 1)),
+            ms(220),
+            &mut body,
+        );
+        let host_baud = packets(&mut r).into_iter().find_map(|p| match p {
+            Packet::Config(c) => Some(c.numbers.host_baud),
+            _ => None,
+        });
+        assert_eq!(host_baud, Some(2));
+        // Out-of-range arguments are ignored; CLOSE goes back to the power-up rate.
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::HostBaud, 9)),
+            ms(230),
+            &mut body,
+        );
+        assert_eq!(r.baud(), 38400);
+        r.handle_rx(&frame(Command::Sync2), ms(240), &mut body);
+        assert_eq!(r.baud(), 9600);
+        r.set_host_baud(Some(9600));
+        r.handle_rx(&frame(Command::Sync0), ms(250), &mut body);
+        assert_eq!(packets(&mut r), vec![Packet::SyncEcho(0)]);
+        // A robot that does not advertise ResetBaud 2 ignores HOSTBAUD.
+        let mut r = P2osRobot::new(
+            P2osModelConfig {
+                reset_baud: 0,
+                ..P2osModelConfig::default()
+            },
+            &body,
+        );
+        for c in [
+            Command::Sync0,
+            Command::Sync1,
+            Command::Sync2,
+            Command::OPEN,
+        ] {
+            r.handle_rx(&frame(c), ms(300), &mut body);
+        }
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::HostBaud, 4)),
+            ms(310),
+            &mut body,
+        );
+        assert_eq!(r.baud(), 9600);
     }
 
     #[test]
