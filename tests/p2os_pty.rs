@@ -7,9 +7,10 @@ use std::time::Duration;
 
 use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
 use ima_hal::sonar::SonarArray;
+use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::model::DeviceModel;
-use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::{RobotSpec, SharedWorld, Wall, World};
 use ima_p2os::shell::{LinkStatus, P2os, open_port};

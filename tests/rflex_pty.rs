@@ -8,11 +8,12 @@ use std::time::Duration;
 use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
 use ima_hal::power::Power;
 use ima_hal::sonar::SonarArray;
+use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::faults::FaultPlan;
 use ima_mock_devices::link::LinkState;
 use ima_mock_devices::model::DeviceModel;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
-use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, Wall, World};
 use ima_rflex::driver::DriverError;
 use ima_rflex::machine::CommandError;
@@ -37,7 +38,7 @@ fn world_with_scooter(wall_x: Option<f64>) -> (SharedWorld, RobotId) {
 }
 
 fn device(world: &SharedWorld, id: RobotId, cfg: RflexModelConfig) -> RflexDevice {
-    RflexDevice::new(cfg, RflexWorldBody::new(world.clone(), id, 7))
+    RflexDevice::new(cfg, WorldBody::new(world.clone(), id, 7))
 }
 
 fn serve<M: DeviceModel + 'static>(world: &SharedWorld, model: M, faults: &str) -> PtyDevice<M> {

@@ -231,7 +231,8 @@ fn p2os_frame(c: ima_p2os::wire::Command<'_>) -> Vec<u8> {
 /// rate, and CLOSE puts the robot back at its power-up rate.
 #[test]
 fn p2os_hostbaud_switches_the_line_over_a_pty() {
-    use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+    use ima_mock_devices::body::WorldBody;
+    use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
     use ima_mock_devices::world::{RobotSpec, SharedWorld, World};
     use ima_p2os::wire::{Command, IntCommand};
     use serialport::SerialPort;

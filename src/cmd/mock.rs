@@ -7,8 +7,9 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::faults::FaultPlan;
-use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::{SharedWorld, World};
 
