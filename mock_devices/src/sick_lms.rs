@@ -382,12 +382,25 @@ impl SickLmsModel {
     }
 
     /// A unit that has been running since before `now`: booted, its power-on telegram long
-    /// gone, idle (mode `25`) at [`SickLmsModelConfig::baud`]. For tests that start mid-life.
-    pub fn running(cfg: SickLmsModelConfig, source: Box<dyn RangeSource>, now: Instant) -> Self {
+    /// gone, idle (mode `25`) at `baud` (a previous host may have switched it; a reset or
+    /// power cycle goes back to [`SickLmsModelConfig::baud`]). For tests that start mid-life.
+    pub fn running(
+        cfg: SickLmsModelConfig,
+        source: Box<dyn RangeSource>,
+        now: Instant,
+        baud: BaudRate,
+    ) -> Self {
         let mut m = Self::new(cfg, source, now);
         m.boot_until = None;
         m.booted_at = Some(now);
+        m.baud = baud;
         m
+    }
+
+    /// The counters of the unit's telegram framer (bad headers, CRCs, payloads, …).
+    #[must_use]
+    pub fn framer_counters(&self) -> ima_sick_lms::framer::Counters {
+        self.framer.counters()
     }
 
     /// Put the unit in streaming mode (`24`) from `now`, as a previous host may have left it.
@@ -1234,6 +1247,7 @@ mod tests {
                     SickLmsModelConfig::default(),
                     Box::new(Flat(2.0)),
                     Instant::ZERO,
+                    BaudRate::B9600,
                 );
                 m.handle_rx(&telegram(&data), Instant::ZERO);
                 let items = run(&mut m, Instant::from_millis(5000));
@@ -1252,6 +1266,7 @@ mod tests {
             SickLmsModelConfig::default(),
             Box::new(Flat(2.0)),
             Instant::ZERO,
+            BaudRate::B9600,
         );
         m.record_commands();
         m.nak_next(1);
