@@ -9,10 +9,11 @@ use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
+use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::faults::FaultPlan;
-use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{HostLog, PtyDevice, PtyOptions};
-use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, World};
 
 mod common;
@@ -81,7 +82,7 @@ fn serve(base: Base) -> (SharedWorld, RobotId, Served, HostLog) {
             PtyDevice::spawn(
                 RflexDevice::new(
                     RflexModelConfig::default(),
-                    RflexWorldBody::new(world.clone(), id, 3),
+                    WorldBody::new(world.clone(), id, 3),
                 ),
                 opts,
             )

@@ -16,6 +16,8 @@
 //! * [`pty`] — serve a model on a pseudo-terminal; a driver opens [`pty::PtyDevice::path`]
 //!   like `/dev/ttyS0`.
 //! * [`duplex`] — serve a model on a `tokio::io::duplex` pipe for fast tests.
+//! * [`body`] — the differential-drive body both base models move ([`body::DiffDriveBody`])
+//!   and [`body::WorldBody`], a robot of the simulated world.
 //! * [`p2os`] — the Pioneer 2-AT's P2OS firmware as a device model.
 //! * [`rflex`] — the ATRV-Jr's rFLEX controller as a device model.
 //! * [`sick_lms`] — a SICK LMS 200/291 laser scanner as a device model.
@@ -52,6 +54,7 @@
     )
 )]
 
+pub mod body;
 pub mod camera;
 pub mod compass;
 pub mod duplex;

@@ -6,38 +6,30 @@
 //! readings fired at 25 Hz per array, motors disabled until ENABLE, the 2 s watchdog with its
 //! resume behaviour, CLOSE, CONFIG and ENCODER packets, and the serial line speed.
 //!
-//! It moves a [`P2osBody`] — the simulated world's robot, or anything else — and reads back
-//! the body's motion and sonar ranges.
+//! # Line speed and HOSTBAUD
+//!
+//! The robot powers up at [`P2osModelConfig::baud`]. When CONFIG advertises `ResetBaud = 2`
+//! ([`P2osModelConfig::reset_baud`], the default), HOSTBAUD (#50, argument 0..4 = 9600..115200,
+//! spec §1) on an open session switches the robot's port at once: the packets after it (the
+//! next SIP) go at the new rate, and what the host sends at the old rate is noise, as on a real
+//! line (the runner reports the host's rate through [`P2osRobot::set_host_baud`]). ARIA sends
+//! PULSE at the new rate and gives up after ~900 ms without a packet; the model keeps the new
+//! rate until CLOSE or a power cycle, which put the port back at the power-up rate (ARIA
+//! resets its own port to the start rate after CLOSE). An argument outside 0..4, or any
+//! HOSTBAUD when `ResetBaud` is not 2, is ignored. Switches are counted in
+//! [`P2osModelStats::baud_switches`].
+//!
+//! It moves a [`DiffDriveBody`] — the simulated world's robot ([`WorldBody`]), or anything
+//! else — and reads back the body's motion and sonar ranges.
 
 use std::time::Duration;
 
 use ima_hal::Instant;
-use ima_p2os::framer::{FrameEvent, Framer};
-use ima_p2os::params::{P2AT, RobotParams, SonarPose};
-use ima_p2os::wire::{self, Command, ConfigNumbers, IntCommand, Packet, Sip, SonarRaw};
 
-/// What the firmware drives and senses.
-pub trait P2osBody {
-    /// Command the drive: forward speed (m/s) and turn rate (rad/s). The body applies its own
-    /// acceleration limits.
-    fn drive(&mut self, v_m_s: f64, omega_rad_s: f64);
-    /// The body's true pose in its world: x, y (m), θ (rad).
-    fn pose(&self) -> (f64, f64, f64);
-    /// Current wheel speeds (left, right), mm/s.
-    fn wheel_speeds_mm_s(&self) -> (f64, f64);
-    /// Total wheel travel since power-on (left, right), mm.
-    fn wheel_travel_mm(&self) -> (f64, f64);
-    /// Range seen by the sonar mounted at `mount`, metres; `None` = no echo.
-    fn sonar_range_m(&mut self, mount: &SonarPose) -> Option<f64>;
-    /// Battery voltage.
-    fn battery_v(&self) -> f64 {
-        12.5
-    }
-    /// Bumper bits (front, rear), one per segment.
-    fn bumpers(&self) -> (u8, u8) {
-        (0, 0)
-    }
-}
+use crate::body::{DiffDriveBody, WorldBody};
+use ima_p2os::framer::{FrameEvent, Framer};
+use ima_p2os::params::{P2AT, RobotParams};
+use ima_p2os::wire::{self, Command, ConfigNumbers, IntCommand, Packet, Sip, SonarRaw};
 
 /// How the model behaves.
 #[derive(Debug, Clone)]
@@ -71,7 +63,11 @@ pub struct P2osModelConfig {
     pub sonar_min_m: f64,
     /// Firmware version string in CONFIG.
     pub firmware: String,
-    /// ResetBaud in CONFIG (2 = HOSTBAUD supported). The model does not switch rates.
+    /// The robot has bumper rings: a body's front/rear contact sets all five segment bits of
+    /// that ring in the SIP. Off by default (a P2-AT without bumpers, as before).
+    pub bumpers: bool,
+    /// ResetBaud in CONFIG: 2 (the default) = HOSTBAUD switches the port (see the module
+    /// docs); anything else = HOSTBAUD is ignored.
     pub reset_baud: u8,
 }
 
@@ -92,7 +88,8 @@ impl Default for P2osModelConfig {
             sonar_max_m: 5.0,
             sonar_min_m: 0.1,
             firmware: "P2OS 1.M (ima mock firmware, simulated Pioneer 2-AT)".into(),
-            reset_baud: 0,
+            bumpers: false,
+            reset_baud: 2,
         }
     }
 }
@@ -127,6 +124,8 @@ pub struct P2osModelStats {
     pub watchdog_trips: u64,
     /// Sessions opened.
     pub sessions: u64,
+    /// Line-speed switches by HOSTBAUD.
+    pub baud_switches: u64,
 }
 
 /// The P2OS firmware model. See the [module docs](self).
@@ -138,6 +137,8 @@ pub struct P2osRobot {
     out: Vec<u8>,
     stats: P2osModelStats,
     host_baud: Option<u32>,
+    /// The port's current rate (the power-up rate until HOSTBAUD).
+    baud: u32,
     motors: bool,
     sonar_on: bool,
     /// Setpoints: mm/s and deg/s.
@@ -157,16 +158,16 @@ pub struct P2osRobot {
 
 impl P2osRobot {
     /// A powered-up robot whose odometry origin is `body`'s pose now.
-    pub fn new(cfg: P2osModelConfig, body: &dyn P2osBody) -> Self {
+    pub fn new(cfg: P2osModelConfig, body: &dyn DiffDriveBody) -> Self {
         let max_v = cfg.params.max_velocity_mm_s;
         let max_w = cfg.params.max_rot_velocity_deg_s;
         Self {
-            cfg,
             link: RobotLink::Idle,
             framer: Framer::for_commands(),
             out: Vec::new(),
             stats: P2osModelStats::default(),
             host_baud: None,
+            baud: cfg.baud,
             motors: false,
             sonar_on: false,
             setpoint: (0.0, 0.0),
@@ -181,6 +182,7 @@ impl P2osRobot {
             origin: body.pose(),
             encoder_mode: 0,
             noise: 0x9E37_79B9,
+            cfg,
         }
     }
 
@@ -215,12 +217,17 @@ impl P2osRobot {
         self.host_baud = baud;
     }
 
+    /// The robot port's current line speed (changed by HOSTBAUD).
+    pub fn baud(&self) -> u32 {
+        self.baud
+    }
+
     fn line_matches(&self) -> bool {
-        self.host_baud.is_none_or(|b| b == self.cfg.baud)
+        self.host_baud.is_none_or(|b| b == self.baud)
     }
 
     /// Power-cycle: back to idle, motors off, odometry origin at the body's pose.
-    pub fn reset(&mut self, body: &mut dyn P2osBody) {
+    pub fn reset(&mut self, body: &mut dyn DiffDriveBody) {
         let cfg = self.cfg.clone();
         let host_baud = self.host_baud;
         let stats = self.stats;
@@ -231,7 +238,7 @@ impl P2osRobot {
     }
 
     /// Bytes from the host at `now`.
-    pub fn handle_rx(&mut self, bytes: &[u8], now: Instant, body: &mut dyn P2osBody) {
+    pub fn handle_rx(&mut self, bytes: &[u8], now: Instant, body: &mut dyn DiffDriveBody) {
         if !self.line_matches() {
             // At the wrong rate every byte arrives as line noise.
             self.stats.baud_mismatch_bytes += bytes.len() as u64;
@@ -291,7 +298,7 @@ impl P2osRobot {
         }
     }
 
-    fn execute(&mut self, cmd: Command<'_>, now: Instant, body: &mut dyn P2osBody) {
+    fn execute(&mut self, cmd: Command<'_>, now: Instant, body: &mut dyn DiffDriveBody) {
         self.stats.commands += 1;
         let sync = match cmd {
             Command::Sync0 => Some(0u8),
@@ -362,8 +369,9 @@ impl P2osRobot {
         self.encoder_mode = 0;
     }
 
-    fn close(&mut self, body: &mut dyn P2osBody) {
+    fn close(&mut self, body: &mut dyn DiffDriveBody) {
         self.link = RobotLink::Idle;
+        self.baud = self.cfg.baud;
         self.motors = false;
         self.sonar_on = false;
         self.setpoint = (0.0, 0.0);
@@ -372,7 +380,7 @@ impl P2osRobot {
         body.drive(0.0, 0.0);
     }
 
-    fn apply_drive(&mut self, body: &mut dyn P2osBody) {
+    fn apply_drive(&mut self, body: &mut dyn DiffDriveBody) {
         if self.motors && !self.tripped {
             body.drive(self.setpoint.0 / 1000.0, self.setpoint.1.to_radians());
         } else {
@@ -380,7 +388,7 @@ impl P2osRobot {
         }
     }
 
-    fn execute_open(&mut self, cmd: Command<'_>, body: &mut dyn P2osBody) {
+    fn execute_open(&mut self, cmd: Command<'_>, body: &mut dyn DiffDriveBody) {
         let clamp_v = |v: f64, m: f64| v.clamp(-m, m);
         match cmd {
             Command::Sync0 => {} // PULSE: the watchdog was fed above.
@@ -421,6 +429,17 @@ impl P2osRobot {
                         self.max_w_deg_s = v.abs().min(self.cfg.params.max_rot_velocity_deg_s);
                     }
                     IntCommand::Sonar => self.sonar_on = v != 0.0,
+                    IntCommand::HostBaud => {
+                        if self.cfg.reset_baud == 2
+                            && let Some(&rate) = HOSTBAUD_RATES.get(v as usize)
+                            && v >= 0.0
+                        {
+                            if rate != self.baud {
+                                self.stats.baud_switches += 1;
+                            }
+                            self.baud = rate;
+                        }
+                    }
                     IntCommand::Config => self.send_config(),
                     IntCommand::Encoder => {
                         self.encoder_mode = v as i16;
@@ -455,7 +474,7 @@ impl P2osRobot {
             name: name.as_bytes(),
             numbers: ConfigNumbers {
                 sip_cycle: self.cfg.sip_period.as_millis().min(255) as u8,
-                host_baud: baud_code(self.cfg.baud),
+                host_baud: baud_code(self.baud),
                 front_sonar: 1,
                 rear_sonar: 1,
                 low_battery: 110,
@@ -477,8 +496,9 @@ impl P2osRobot {
         self.reply(&Packet::Config(cfg));
     }
 
-    fn send_encoder(&mut self, body: &dyn P2osBody) {
-        let (l, r) = body.wheel_travel_mm();
+    fn send_encoder(&mut self, body: &dyn DiffDriveBody) {
+        let (l, r) = body.wheel_travel_m();
+        let (l, r) = (l * 1000.0, r * 1000.0);
         let k = self.cfg.ticks_per_mm;
         let ticks = |mm: f64| {
             (mm * k)
@@ -504,7 +524,7 @@ impl P2osRobot {
     }
 
     /// Run the firmware's timers up to `now`.
-    pub fn handle_timeout(&mut self, now: Instant, body: &mut dyn P2osBody) {
+    pub fn handle_timeout(&mut self, now: Instant, body: &mut dyn DiffDriveBody) {
         if self.link != RobotLink::Open {
             return;
         }
@@ -530,7 +550,7 @@ impl P2osRobot {
         }
     }
 
-    fn ping(&mut self, body: &mut dyn P2osBody) {
+    fn ping(&mut self, body: &mut dyn DiffDriveBody) {
         let n = self.cfg.params.sonars.len();
         let half = n / 2;
         if half == 0 {
@@ -542,8 +562,12 @@ impl P2osRobot {
             let Some(mount) = self.cfg.params.sonars.get(index).copied() else {
                 continue;
             };
+            let iso = ima_hal::Isometry2::new(
+                ima_hal::Vector2::new(mount.x_mm / 1000.0, mount.y_mm / 1000.0),
+                mount.heading_deg.to_radians(),
+            );
             let r = body
-                .sonar_range_m(&mount)
+                .sonar_range_m(&iso)
                 .unwrap_or(self.cfg.sonar_max_m)
                 .clamp(self.cfg.sonar_min_m, self.cfg.sonar_max_m);
             let raw = (r * 1000.0 / self.cfg.params.range_conv)
@@ -558,7 +582,7 @@ impl P2osRobot {
         }
     }
 
-    fn send_sip(&mut self, body: &dyn P2osBody) {
+    fn send_sip(&mut self, body: &dyn DiffDriveBody) {
         let p = self.cfg.params;
         let (x, y, th) = body.pose();
         let (x0, y0, th0) = self.origin;
@@ -570,8 +594,14 @@ impl P2osRobot {
             |m: f64| ((m * 1000.0 / p.dist_conv).round() as i64).rem_euclid(32768) as u16;
         let th_units = (oth / p.angle_conv).round() as i64;
         let th_units = (th_units + 2048).rem_euclid(4096) - 2048;
-        let (l, r) = body.wheel_speeds_mm_s();
-        let (front, rear) = body.bumpers();
+        let (l, r) = body.wheel_speeds_m_s();
+        let (l, r) = (l * 1000.0, r * 1000.0);
+        let (front, rear) = if self.cfg.bumpers {
+            let (f, r) = body.bumpers();
+            (if f { 0x1F } else { 0 }, if r { 0x1F } else { 0 })
+        } else {
+            (0u8, 0u8)
+        };
         let mut sonars = heapless::Vec::new();
         for s in self.pending_sonar.drain(..) {
             let _ = sonars.push(s);
@@ -607,6 +637,9 @@ impl P2osRobot {
     }
 }
 
+/// The rates of HOSTBAUD's arguments 0..4.
+const HOSTBAUD_RATES: [u32; 5] = [9600, 19200, 38400, 57600, 115200];
+
 /// HOSTBAUD code of a rate (0..4 = 9600..115200).
 fn baud_code(baud: u32) -> u8 {
     match baud {
@@ -615,93 +648,6 @@ fn baud_code(baud: u32) -> u8 {
         57600 => 3,
         115200 => 4,
         _ => 0,
-    }
-}
-
-/// A robot of a [`crate::world::World`] as the firmware's body: drive commands go to the
-/// world, sonar ranges are ray casts with the [`crate::world::SonarModel`]'s beam and noise.
-#[derive(Debug)]
-pub struct WorldBody {
-    world: crate::world::SharedWorld,
-    robot: crate::world::RobotId,
-    sonar: crate::world::SonarModel,
-    rng: rand::rngs::SmallRng,
-    battery_v: f64,
-}
-
-impl WorldBody {
-    /// The body of `robot` in `world`; sonar noise is seeded with `seed`.
-    pub fn new(world: crate::world::SharedWorld, robot: crate::world::RobotId, seed: u64) -> Self {
-        use rand::SeedableRng;
-        Self {
-            world,
-            robot,
-            sonar: crate::world::SonarModel::default(),
-            rng: rand::rngs::SmallRng::seed_from_u64(seed),
-            battery_v: 12.5,
-        }
-    }
-
-    /// Use this sonar model (beam width, rays, noise, limits).
-    pub fn with_sonar(mut self, sonar: crate::world::SonarModel) -> Self {
-        self.sonar = sonar;
-        self
-    }
-}
-
-impl P2osBody for WorldBody {
-    fn drive(&mut self, v_m_s: f64, omega_rad_s: f64) {
-        self.world.with(|w| {
-            w.command(
-                self.robot,
-                crate::world::DriveCommand::Twist { v_m_s, omega_rad_s },
-            )
-        });
-    }
-
-    fn pose(&self) -> (f64, f64, f64) {
-        self.world.with(|w| {
-            w.robot(self.robot)
-                .map(|r| {
-                    let p = r.pose();
-                    (p.x_m, p.y_m, p.theta_rad)
-                })
-                .unwrap_or_default()
-        })
-    }
-
-    fn wheel_speeds_mm_s(&self) -> (f64, f64) {
-        self.world.with(|w| {
-            w.robot(self.robot)
-                .map(|r| {
-                    let (l, r) = r.wheel_speeds();
-                    (l * 1000.0, r * 1000.0)
-                })
-                .unwrap_or_default()
-        })
-    }
-
-    fn wheel_travel_mm(&self) -> (f64, f64) {
-        self.world.with(|w| {
-            w.robot(self.robot)
-                .map(crate::world::Robot::wheel_travel_mm)
-                .unwrap_or_default()
-        })
-    }
-
-    fn sonar_range_m(&mut self, mount: &SonarPose) -> Option<f64> {
-        let iso = ima_hal::Isometry2::new(
-            ima_hal::Vector2::new(mount.x_mm / 1000.0, mount.y_mm / 1000.0),
-            mount.heading_deg.to_radians(),
-        );
-        let sonar = self.sonar;
-        let rng = &mut self.rng;
-        let r = self.world.with(|w| sonar.measure(w, self.robot, &iso, rng));
-        (r < sonar.max_range_m).then_some(r)
-    }
-
-    fn battery_v(&self) -> f64 {
-        self.battery_v
     }
 }
 
@@ -776,7 +722,7 @@ mod tests {
         drives: u32,
     }
 
-    impl P2osBody for Still {
+    impl DiffDriveBody for Still {
         fn drive(&mut self, v: f64, w: f64) {
             self.drive = (v, w);
             self.drives += 1;
@@ -784,13 +730,16 @@ mod tests {
         fn pose(&self) -> (f64, f64, f64) {
             (0.0, 0.0, 0.0)
         }
-        fn wheel_speeds_mm_s(&self) -> (f64, f64) {
+        fn track_width_m(&self) -> f64 {
+            0.4
+        }
+        fn wheel_speeds_m_s(&self) -> (f64, f64) {
             (0.0, 0.0)
         }
-        fn wheel_travel_mm(&self) -> (f64, f64) {
-            (1000.0, -500.0)
+        fn wheel_travel_m(&self) -> (f64, f64) {
+            (1.0, -0.5)
         }
-        fn sonar_range_m(&mut self, _m: &SonarPose) -> Option<f64> {
+        fn sonar_range_m(&mut self, _m: &ima_hal::Isometry2) -> Option<f64> {
             Some(2.0)
         }
     }
@@ -968,6 +917,73 @@ mod tests {
                 right: -9500
             }
         );
+    }
+
+    #[test]
+    fn hostbaud_switches_the_port_until_close() {
+        let mut body = Still::default();
+        let mut r = opened(&mut body);
+        r.set_host_baud(Some(9600));
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::HostBaud, 2)),
+            ms(10),
+            &mut body,
+        );
+        assert_eq!(r.baud(), 38400);
+        assert_eq!(r.stats().baud_switches, 1);
+        // The host still at 9600: the next SIP is noise to it, its PULSE noise to the robot.
+        r.handle_timeout(ms(110), &mut body);
+        assert!(packets(&mut r).is_empty());
+        r.handle_rx(&frame(Command::PULSE), ms(120), &mut body);
+        assert!(r.stats().baud_mismatch_bytes > 0);
+        // The host follows: SIPs parse, CONFIG reports HostBaud 2.
+        r.set_host_baud(Some(38400));
+        r.handle_timeout(ms(210), &mut body);
+        assert!(matches!(packets(&mut r)[..], [Packet::Sip(_)]));
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::Config, 1)),
+            ms(220),
+            &mut body,
+        );
+        let host_baud = packets(&mut r).into_iter().find_map(|p| match p {
+            Packet::Config(c) => Some(c.numbers.host_baud),
+            _ => None,
+        });
+        assert_eq!(host_baud, Some(2));
+        // Out-of-range arguments are ignored; CLOSE goes back to the power-up rate.
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::HostBaud, 9)),
+            ms(230),
+            &mut body,
+        );
+        assert_eq!(r.baud(), 38400);
+        r.handle_rx(&frame(Command::Sync2), ms(240), &mut body);
+        assert_eq!(r.baud(), 9600);
+        r.set_host_baud(Some(9600));
+        r.handle_rx(&frame(Command::Sync0), ms(250), &mut body);
+        assert_eq!(packets(&mut r), vec![Packet::SyncEcho(0)]);
+        // A robot that does not advertise ResetBaud 2 ignores HOSTBAUD.
+        let mut r = P2osRobot::new(
+            P2osModelConfig {
+                reset_baud: 0,
+                ..P2osModelConfig::default()
+            },
+            &body,
+        );
+        for c in [
+            Command::Sync0,
+            Command::Sync1,
+            Command::Sync2,
+            Command::OPEN,
+        ] {
+            r.handle_rx(&frame(c), ms(300), &mut body);
+        }
+        r.handle_rx(
+            &frame(Command::Int(IntCommand::HostBaud, 4)),
+            ms(310),
+            &mut body,
+        );
+        assert_eq!(r.baud(), 9600);
     }
 
     #[test]

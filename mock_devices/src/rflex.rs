@@ -27,30 +27,14 @@
 use std::time::Duration;
 
 use ima_hal::Instant;
+
+use crate::body::{DiffDriveBody, WorldBody};
 use ima_rflex::framer::{Framer, FramerConfig};
 use ima_rflex::machine::SonarMount;
 use ima_rflex::wire::{
     Command, DIO_BUMPER_ADDRESS, DioReport, MAX_WIRE_FRAME, MotionReport, Report, SonarEcho,
     SonarReport, Stuffing,
 };
-
-/// What the controller drives and senses.
-pub trait RflexBody {
-    /// Command the drive: forward speed (m/s) and turn rate (rad/s, CCW positive).
-    fn drive(&mut self, v_m_s: f64, omega_rad_s: f64);
-    /// The body's true pose in its world: x, y (m), θ (rad).
-    fn pose(&self) -> (f64, f64, f64);
-    /// Total travel (m) and total turn (rad) since power-on, as the wheels measured them.
-    fn travel(&self) -> (f64, f64);
-    /// Current forward speed (m/s) and turn rate (rad/s).
-    fn velocity(&self) -> (f64, f64);
-    /// Range seen by the sonar at `mount`, metres; `None` = no echo.
-    fn sonar_range_m(&mut self, mount: &SonarMount) -> Option<f64>;
-    /// Bumper contact: (front, rear).
-    fn bumpers(&self) -> (bool, bool) {
-        (false, false)
-    }
-}
 
 /// How the model behaves.
 #[derive(Debug, Clone)]
@@ -164,7 +148,7 @@ pub struct RflexRobot {
 impl RflexRobot {
     /// A powered-up controller (brake engaged, reports off) whose counters start at `body`'s
     /// travel now.
-    pub fn new(cfg: RflexModelConfig, body: &dyn RflexBody) -> Self {
+    pub fn new(cfg: RflexModelConfig, body: &dyn DiffDriveBody) -> Self {
         let framer = Framer::new(FramerConfig {
             lenient: cfg.lenient,
             ..FramerConfig::default()
@@ -216,7 +200,7 @@ impl RflexRobot {
     }
 
     /// Power-cycle: brake on, everything off, counters restart from zero.
-    pub fn reset(&mut self, body: &mut dyn RflexBody) {
+    pub fn reset(&mut self, body: &mut dyn DiffDriveBody) {
         let stats = RflexModelStats {
             resets: self.stats.resets.saturating_add(1),
             ..self.stats
@@ -255,7 +239,7 @@ impl RflexRobot {
     }
 
     /// Bytes from the host.
-    pub fn handle_rx(&mut self, bytes: &[u8], now: Instant, body: &mut dyn RflexBody) {
+    pub fn handle_rx(&mut self, bytes: &[u8], now: Instant, body: &mut dyn DiffDriveBody) {
         self.advance(now, body);
         let mut cmds = Vec::new();
         let mut bad = 0u64;
@@ -273,7 +257,7 @@ impl RflexRobot {
         }
     }
 
-    fn execute(&mut self, c: Command, body: &mut dyn RflexBody) {
+    fn execute(&mut self, c: Command, body: &mut dyn DiffDriveBody) {
         self.stats.commands = self.stats.commands.saturating_add(1);
         let now = self.now;
         match c {
@@ -362,7 +346,7 @@ impl RflexRobot {
         }
     }
 
-    fn advance(&mut self, now: Instant, body: &mut dyn RflexBody) {
+    fn advance(&mut self, now: Instant, body: &mut dyn DiffDriveBody) {
         if self.epoch.is_none() {
             self.epoch = Some(now);
             self.next_tick = Some(now + self.cfg.control_period);
@@ -404,7 +388,7 @@ impl RflexRobot {
     }
 
     /// Timers: ramp, reports, sonar, bumpers.
-    pub fn handle_timeout(&mut self, now: Instant, body: &mut dyn RflexBody) {
+    pub fn handle_timeout(&mut self, now: Instant, body: &mut dyn DiffDriveBody) {
         self.advance(now, body);
         if self.next_tick.is_some_and(|t| now >= t) {
             let dt = self
@@ -488,14 +472,16 @@ impl RflexRobot {
                 let slot = self.ping_slot % n;
                 self.ping_slot = slot.wrapping_add(1);
                 if let Some(m) = self.cfg.sonar_table.get(slot).copied() {
-                    let raw = body.sonar_range_m(&m).map_or(self.cfg.no_echo_raw, |r| {
-                        let x = (r * self.cfg.sonar_units_per_m).round();
-                        if x.is_finite() && x >= 0.0 {
-                            (x as u16).min(self.cfg.no_echo_raw)
-                        } else {
-                            self.cfg.no_echo_raw
-                        }
-                    });
+                    let raw = body
+                        .sonar_range_m(&m.pose)
+                        .map_or(self.cfg.no_echo_raw, |r| {
+                            let x = (r * self.cfg.sonar_units_per_m).round();
+                            if x.is_finite() && x >= 0.0 {
+                                (x as u16).min(self.cfg.no_echo_raw)
+                            } else {
+                                self.cfg.no_echo_raw
+                            }
+                        });
                     self.pending_echoes.push(SonarEcho {
                         id: m.id,
                         range: raw,
@@ -527,108 +513,12 @@ fn wrap_i32(x: f64) -> i32 {
     (r as u64 as u32) as i32
 }
 
-/// An rFLEX base's body: a robot of a [`crate::world::SharedWorld`] (skid steer modelled as a
-/// differential drive), with ray-cast sonar and bumper contact from the world's geometry.
-#[derive(Debug)]
-pub struct RflexWorldBody {
-    world: crate::world::SharedWorld,
-    robot: crate::world::RobotId,
-    sonar: crate::world::SonarModel,
-    rng: rand::rngs::SmallRng,
-    /// Contact distance beyond the footprint radius that counts as a bump, m.
-    pub bump_margin_m: f64,
-}
-
-impl RflexWorldBody {
-    /// The body of `robot` in `world`; sonar noise is seeded with `seed`.
-    pub fn new(world: crate::world::SharedWorld, robot: crate::world::RobotId, seed: u64) -> Self {
-        use rand::SeedableRng;
-        Self {
-            world,
-            robot,
-            sonar: crate::world::SonarModel::default(),
-            rng: rand::rngs::SmallRng::seed_from_u64(seed),
-            bump_margin_m: 0.02,
-        }
-    }
-
-    /// Use this sonar model (beam width, rays, noise, limits).
-    pub fn with_sonar(mut self, sonar: crate::world::SonarModel) -> Self {
-        self.sonar = sonar;
-        self
-    }
-}
-
-impl RflexBody for RflexWorldBody {
-    fn drive(&mut self, v_m_s: f64, omega_rad_s: f64) {
-        self.world.with(|w| {
-            w.command(
-                self.robot,
-                crate::world::DriveCommand::Twist { v_m_s, omega_rad_s },
-            )
-        });
-    }
-
-    fn pose(&self) -> (f64, f64, f64) {
-        self.world.with(|w| {
-            w.robot(self.robot)
-                .map(|r| {
-                    let p = r.pose();
-                    (p.x_m, p.y_m, p.theta_rad)
-                })
-                .unwrap_or_default()
-        })
-    }
-
-    fn travel(&self) -> (f64, f64) {
-        self.world.with(|w| {
-            w.robot(self.robot)
-                .map(|r| {
-                    let (l, rr) = r.wheel_travel_mm();
-                    let track = r.track_width_m();
-                    ((l + rr) / 2000.0, (rr - l) / 1000.0 / track.max(1e-6))
-                })
-                .unwrap_or_default()
-        })
-    }
-
-    fn velocity(&self) -> (f64, f64) {
-        self.world
-            .with(|w| w.robot(self.robot).map(crate::world::Robot::velocity))
-            .unwrap_or_default()
-    }
-
-    fn sonar_range_m(&mut self, mount: &SonarMount) -> Option<f64> {
-        let sonar = self.sonar;
-        let rng = &mut self.rng;
-        let r = self
-            .world
-            .with(|w| sonar.measure(w, self.robot, &mount.pose, rng));
-        (r < sonar.max_range_m).then_some(r)
-    }
-
-    fn bumpers(&self) -> (bool, bool) {
-        self.world.with(|w| {
-            let Some(r) = w.robot(self.robot) else {
-                return (false, false);
-            };
-            let p = r.pose();
-            let reach = r.radius_m() + self.bump_margin_m;
-            let hit = |dir: f64| {
-                w.cast_ignoring(p.point(), dir, reach, Some(self.robot))
-                    .is_some()
-            };
-            (hit(p.theta_rad), hit(p.theta_rad + std::f64::consts::PI))
-        })
-    }
-}
-
 /// The rFLEX controller on a world robot, ready for a runner ([`crate::pty::PtyDevice`],
 /// [`crate::duplex::DuplexDevice`]).
 #[derive(Debug)]
 pub struct RflexDevice {
     robot: RflexRobot,
-    body: RflexWorldBody,
+    body: WorldBody,
     /// Power-cycle the controller when a hung-up link comes back (default: the cable was
     /// pulled and replugged, so the controller kept its state).
     pub reset_on_reconnect: bool,
@@ -636,7 +526,7 @@ pub struct RflexDevice {
 
 impl RflexDevice {
     /// The controller `cfg` driving `body`.
-    pub fn new(cfg: RflexModelConfig, body: RflexWorldBody) -> Self {
+    pub fn new(cfg: RflexModelConfig, body: WorldBody) -> Self {
         let robot = RflexRobot::new(cfg, &body);
         Self {
             robot,
@@ -690,12 +580,22 @@ mod tests {
         bump: (bool, bool),
     }
 
-    impl RflexBody for Toy {
+    /// Travel and velocity are given directly (the wheel-level methods are not used).
+    impl DiffDriveBody for Toy {
         fn drive(&mut self, v: f64, w: f64) {
             self.v = (v, w);
         }
         fn pose(&self) -> (f64, f64, f64) {
             (0.0, 0.0, 0.0)
+        }
+        fn track_width_m(&self) -> f64 {
+            0.5
+        }
+        fn wheel_speeds_m_s(&self) -> (f64, f64) {
+            (0.0, 0.0)
+        }
+        fn wheel_travel_m(&self) -> (f64, f64) {
+            (0.0, 0.0)
         }
         fn travel(&self) -> (f64, f64) {
             self.travel
@@ -703,7 +603,7 @@ mod tests {
         fn velocity(&self) -> (f64, f64) {
             self.v
         }
-        fn sonar_range_m(&mut self, _m: &SonarMount) -> Option<f64> {
+        fn sonar_range_m(&mut self, _m: &ima_hal::Isometry2) -> Option<f64> {
             Some(1.0)
         }
         fn bumpers(&self) -> (bool, bool) {
@@ -916,10 +816,10 @@ mod tests {
         })
         .unwrap();
         let world = SharedWorld::new(w);
-        let mut body = RflexWorldBody::new(world.clone(), id, 1);
+        let mut body = WorldBody::new(world.clone(), id, 1);
         assert_eq!(body.bumpers(), (false, false));
         let m = SonarMount::atrv_jr_default()[0];
-        let r = body.sonar_range_m(&m).unwrap();
+        let r = body.sonar_range_m(&m.pose).unwrap();
         assert!((r - 0.6).abs() < 0.05, "{r}");
         body.drive(0.5, 0.0);
         for _ in 0..120 {

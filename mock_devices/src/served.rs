@@ -28,13 +28,14 @@ use ima_hal::camera::FrameSource;
 use ima_video_mux::net_frames::{HEADER_LEN, Header, REQUEST_LEN, Request, Status};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
+use crate::body::WorldBody;
 use crate::camera::{CameraConfig, CameraError, MockCameraHead};
 use crate::compass::{CompassDevice, CompassModelConfig};
 use ima_hal::time::Clock as _;
 
-use crate::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use crate::p2os::{P2osDevice, P2osModelConfig};
 use crate::pty::{HostLog, PtyDevice, PtyError, PtyOptions};
-use crate::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use crate::rflex::{RflexDevice, RflexModelConfig};
 use crate::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use crate::video_mux::{MuxDevice, MuxModelConfig, VideoBus};
 use crate::world::SharedWorld;
@@ -208,7 +209,7 @@ impl ServedWorld {
             BaseKind::Rflex => ScooterBase::Rflex(PtyDevice::spawn(
                 RflexDevice::new(
                     RflexModelConfig::default(),
-                    RflexWorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
+                    WorldBody::new(world.clone(), sc, seed.wrapping_add(1)),
                 ),
                 scooter_log,
             )?),

@@ -28,6 +28,25 @@
 //!   the fields of the spec's table), type `3A`, errors `32`, one scan `30`. Unsupported
 //!   operating modes (mean values, sub-ranges, partial scans) are refused with `92` (layout
 //!   `92 S`, the spec's assumption).
+//! * **Every CRC-valid telegram is answered**, as a real unit does (§2: ACK, then a reply or
+//!   the `92` refusal), so a client never waits out a timeout on a good telegram. The choices
+//!   where the spec is silent:
+//!   - a **short config write** (`77` with fewer than 32 config bytes, e.g. the 7-byte
+//!     `02 00 08 00 77 00 00 00 00 00 01 01 CD FA` that long-used clients send, spec §3.7) is
+//!     accepted: ACK, the bytes given overwrite the first bytes of the configuration, the rest
+//!     is kept, and `F7` echoes the whole configuration (in installation mode; otherwise `92`,
+//!     like a full write). Counted in [`SickLmsStats::short_config_writes`];
+//!   - a **parameterless query with stray bytes** (`31`, `32`, `3A`, `74` followed by data) is
+//!     answered as the query, the extra bytes ignored (counted in
+//!     [`SickLmsStats::tolerated`]): the request is unambiguous and harmless to answer;
+//!   - **anything else the unit cannot parse** — an unknown code such as `45`, a known code
+//!     with a malformed payload — is ACKed (the telegram arrived intact) and refused with
+//!     `92 S` (counted in [`SickLmsStats::rejected`]).
+//! * **Scripted misbehaviour** for driver tests: [`SickLmsModel::nak_next`] (NAK good
+//!   telegrams), [`SickLmsModel::lose_reply_to`] (a reply lost on the line after its ACK; the
+//!   command still took effect), [`SickLmsModel::refuse`] (a command this unit refuses with
+//!   `92`), [`SickLmsModelConfig::config_write_result`] (QM units answer `F7 00` on success),
+//!   and an opt-in log of the commands received ([`SickLmsModel::record_commands`]).
 //! * **Ranges** come from a [`RangeSource`]: a [`WorldLaser`] ray-casts the simulated world
 //!   from the laser's mount on its robot and adds uniform noise (±50 mm by default), encoded
 //!   in the configured measuring mode and units (mode 00 in mm, the 8 m mode, by default).
@@ -164,6 +183,9 @@ pub struct SickLmsModelConfig {
     pub rs422: bool,
     /// Status byte of replies (`0x10` normal; set bit 7 to report pollution).
     pub status: StatusByte,
+    /// Result byte of `F7` after a config write (TL: `01` accepted; QM units answer `00` on
+    /// success, spec §3.7).
+    pub config_write_result: u8,
 }
 
 impl Default for SickLmsModelConfig {
@@ -187,6 +209,7 @@ impl Default for SickLmsModelConfig {
             mirror_hz: 75.0,
             rs422: true,
             status: StatusByte::NORMAL,
+            config_write_result: 1,
         }
     }
 }
@@ -216,6 +239,49 @@ pub struct SickLmsStats {
     pub garbled_tx: u64,
     /// Host bytes that were ignored (outside a frame, abandoned partials, while booting).
     pub ignored_rx: u64,
+    /// Short config writes (`77` with fewer than 32 config bytes) accepted.
+    pub short_config_writes: u64,
+    /// Parameterless queries answered although stray bytes followed the code.
+    pub tolerated: u64,
+    /// Good telegrams NAKed on purpose ([`SickLmsModel::nak_next`]).
+    pub scripted_naks: u64,
+    /// Replies dropped on purpose ([`SickLmsModel::lose_reply_to`]).
+    pub lost_replies: u64,
+}
+
+/// A CRC-valid host telegram, as the unit understood it.
+#[derive(Debug)]
+enum Received {
+    /// A command of the wire module.
+    Command(Command),
+    /// `77` with fewer than 32 config bytes: these overwrite the configuration's first bytes.
+    ShortConfig(Vec<u8>),
+    /// A parameterless query followed by stray bytes, answered as the query.
+    Tolerated(Command),
+    /// Anything else: refused with `92`.
+    Unparsable(u8),
+    /// A candidate whose CRC failed: NAK.
+    BadCrc,
+}
+
+impl Received {
+    fn classify(f: &ima_sick_lms::wire::Frame<'_>) -> Self {
+        use ima_sick_lms::wire::cmd;
+        if let Ok(c) = Command::from_frame(f) {
+            return Self::Command(c);
+        }
+        let data = f.data();
+        match f.code() {
+            cmd::WRITE_CONFIG if !data.is_empty() && data.len() < LmsConfig::SHORT => {
+                Self::ShortConfig(data.to_vec())
+            }
+            cmd::STATUS => Self::Tolerated(Command::Status),
+            cmd::ERRORS => Self::Tolerated(Command::Errors),
+            cmd::TYPE => Self::Tolerated(Command::Type),
+            cmd::READ_CONFIG => Self::Tolerated(Command::ReadConfig),
+            code => Self::Unparsable(code),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -260,6 +326,11 @@ pub struct SickLmsModel {
     ranges: Vec<Option<f64>>,
     words: Vec<u16>,
     stats: SickLmsStats,
+    nak_next: u32,
+    lose_reply_to: Vec<u8>,
+    losing_reply: bool,
+    refuse: Vec<u8>,
+    log: Option<Vec<(Instant, Command)>>,
 }
 
 impl std::fmt::Debug for SickLmsModel {
@@ -278,7 +349,8 @@ impl SickLmsModel {
     pub fn new(cfg: SickLmsModelConfig, source: Box<dyn RangeSource>, now: Instant) -> Self {
         let framer = Framer::commands()
             .with_partial_timeout(cfg.inter_byte_gap)
-            .report_bad_checksums(true);
+            .report_bad_checksums(true)
+            .accept_any_code(true);
         let mut m = Self {
             baud: cfg.baud,
             variant: cfg.variant,
@@ -299,9 +371,80 @@ impl SickLmsModel {
             ranges: Vec::with_capacity(401),
             words: Vec::with_capacity(401),
             stats: SickLmsStats::default(),
+            nak_next: 0,
+            lose_reply_to: Vec::new(),
+            losing_reply: false,
+            refuse: Vec::new(),
+            log: None,
         };
         m.power_up(now);
         m
+    }
+
+    /// A unit that has been running since before `now`: booted, its power-on telegram long
+    /// gone, idle (mode `25`) at `baud` (a previous host may have switched it; a reset or
+    /// power cycle goes back to [`SickLmsModelConfig::baud`]). For tests that start mid-life.
+    pub fn running(
+        cfg: SickLmsModelConfig,
+        source: Box<dyn RangeSource>,
+        now: Instant,
+        baud: BaudRate,
+    ) -> Self {
+        let mut m = Self::new(cfg, source, now);
+        m.boot_until = None;
+        m.booted_at = Some(now);
+        m.baud = baud;
+        m
+    }
+
+    /// The counters of the unit's telegram framer (bad headers, CRCs, payloads, …).
+    #[must_use]
+    pub fn framer_counters(&self) -> ima_sick_lms::framer::Counters {
+        self.framer.counters()
+    }
+
+    /// Put the unit in streaming mode (`24`) from `now`, as a previous host may have left it.
+    pub fn start_streaming(&mut self, now: Instant) {
+        self.mode = OpMode::Streaming;
+        self.next_scan_due = now;
+    }
+
+    /// NAK the next `n` good telegrams instead of executing them (a unit too busy to listen).
+    pub fn nak_next(&mut self, n: u32) {
+        self.nak_next = n;
+    }
+
+    /// Lose the reply to the next telegram with command code `code` on the line: the ACK goes
+    /// out and the command takes effect (a baud change still switches), but the reply never
+    /// reaches the host. Calls accumulate (one loss each).
+    pub fn lose_reply_to(&mut self, code: u8) {
+        self.lose_reply_to.push(code);
+    }
+
+    /// Refuse every telegram with command code `code` with `92` (a unit without the feature).
+    pub fn refuse(&mut self, code: u8) {
+        if !self.refuse.contains(&code) {
+            self.refuse.push(code);
+        }
+    }
+
+    /// Start keeping a log of the commands received (with their arrival instants).
+    pub fn record_commands(&mut self) {
+        self.log.get_or_insert_with(Vec::new);
+    }
+
+    /// The commands received since [`SickLmsModel::record_commands`] (empty when not
+    /// recording).
+    #[must_use]
+    pub fn commands(&self) -> &[(Instant, Command)] {
+        self.log.as_deref().unwrap_or(&[])
+    }
+
+    /// Empty the command log (recording goes on).
+    pub fn clear_commands(&mut self) {
+        if let Some(l) = &mut self.log {
+            l.clear();
+        }
     }
 
     /// Counters.
@@ -364,22 +507,29 @@ impl SickLmsModel {
             return;
         }
         let before = self.framer.counters().dropped_bytes;
-        let mut commands: Vec<Result<Command, ()>> = Vec::new();
+        let mut received: Vec<Received> = Vec::new();
         self.framer.push_all(bytes, now, |item| match item {
-            Item::Frame(f) => {
-                if let Ok(c) = Command::from_frame(&f) {
-                    commands.push(Ok(c));
-                }
-            }
-            Item::BadChecksum => commands.push(Err(())),
+            Item::Frame(f) => received.push(Received::classify(&f)),
+            Item::BadChecksum => received.push(Received::BadCrc),
             Item::Ack | Item::Nak => {}
         });
         let dropped = self.framer.counters().dropped_bytes.saturating_sub(before);
         self.stats.ignored_rx = self.stats.ignored_rx.saturating_add(dropped);
-        for c in commands {
-            match c {
-                Ok(c) => self.execute(c, now),
-                Err(()) => {
+        for r in received {
+            match r {
+                Received::Command(c) => self.execute(c, now),
+                Received::Tolerated(c) => {
+                    self.stats.tolerated = self.stats.tolerated.saturating_add(1);
+                    self.execute(c, now);
+                }
+                Received::ShortConfig(data) => self.write_short_config(&data, now),
+                Received::Unparsable(code) => {
+                    if self.acknowledge(code, now) {
+                        self.reject(now + self.cfg.ack_delay + self.cfg.reply_delay);
+                        self.losing_reply = false;
+                    }
+                }
+                Received::BadCrc => {
                     self.stats.naks = self.stats.naks.saturating_add(1);
                     self.send_raw(vec![NAK], now + self.cfg.ack_delay, None, false);
                 }
@@ -500,11 +650,17 @@ impl SickLmsModel {
 
     fn send_raw(
         &mut self,
-        bytes: Vec<u8>,
+        mut bytes: Vec<u8>,
         not_before: Instant,
         then_baud: Option<BaudRate>,
         is_scan: bool,
     ) {
+        if self.losing_reply && !is_scan && bytes != [ACK] && bytes != [NAK] {
+            // Lost on the line; what the telegram does to the unit (a rate switch) still holds.
+            self.losing_reply = false;
+            self.stats.lost_replies = self.stats.lost_replies.saturating_add(1);
+            bytes.clear();
+        }
         self.queue.push_back(Outgoing {
             bytes,
             not_before,
@@ -537,10 +693,74 @@ impl SickLmsModel {
         );
     }
 
-    fn execute(&mut self, c: Command, now: Instant) {
+    /// Count a good telegram and answer ACK, or NAK it when so scripted (then `false`: the
+    /// telegram is not executed). Arms the scripted reply loss.
+    fn acknowledge(&mut self, code: u8, now: Instant) -> bool {
+        let at = now + self.cfg.ack_delay;
+        if self.nak_next > 0 {
+            self.nak_next -= 1;
+            self.stats.scripted_naks = self.stats.scripted_naks.saturating_add(1);
+            self.send_raw(vec![NAK], at, None, false);
+            return false;
+        }
         self.stats.telegrams = self.stats.telegrams.saturating_add(1);
+        self.send_raw(vec![ACK], at, None, false);
+        if let Some(i) = self.lose_reply_to.iter().position(|&c| c == code) {
+            self.lose_reply_to.remove(i);
+            self.losing_reply = true;
+        }
+        true
+    }
+
+    /// `77` with fewer than 32 config bytes: overwrite the first bytes, keep the rest.
+    fn write_short_config(&mut self, data: &[u8], now: Instant) {
+        use ima_sick_lms::wire::cmd;
+        if !self.acknowledge(cmd::WRITE_CONFIG, now) {
+            return;
+        }
         let ack_at = now + self.cfg.ack_delay;
-        self.send_raw(vec![ACK], ack_at, None, false);
+        if self.mode != OpMode::Installation || self.refuse.contains(&cmd::WRITE_CONFIG) {
+            self.reject(ack_at + self.cfg.reply_delay);
+            return;
+        }
+        let mut raw = self.config.as_bytes().to_vec();
+        for (d, s) in raw.iter_mut().zip(data) {
+            *d = *s;
+        }
+        if let Ok(new) = LmsConfig::from_bytes(&raw) {
+            self.config = new;
+        }
+        self.stats.eeprom_writes = self.stats.eeprom_writes.saturating_add(1);
+        self.stats.short_config_writes = self.stats.short_config_writes.saturating_add(1);
+        let reply = Reply::ConfigWritten {
+            result: self.cfg.config_write_result,
+            config: self.config,
+            status: self.cfg.status,
+        };
+        self.send_reply(&reply, ack_at + self.cfg.config_write_delay, None);
+        self.losing_reply = false;
+    }
+
+    fn execute(&mut self, c: Command, now: Instant) {
+        if let Some(log) = &mut self.log {
+            log.push((now, c.clone()));
+        }
+        if !self.acknowledge(c.code(), now) {
+            return;
+        }
+        let ack_at = now + self.cfg.ack_delay;
+        let at = ack_at + self.cfg.reply_delay;
+        if self.refuse.contains(&c.code()) {
+            self.reject(at);
+            self.losing_reply = false;
+            return;
+        }
+        self.execute_accepted(c, now);
+        self.losing_reply = false;
+    }
+
+    fn execute_accepted(&mut self, c: Command, now: Instant) {
+        let ack_at = now + self.cfg.ack_delay;
         let at = ack_at + self.cfg.reply_delay;
         let status = self.cfg.status;
         let mode_at = ack_at + self.cfg.mode_delay;
@@ -683,7 +903,7 @@ impl SickLmsModel {
                 self.stats.eeprom_writes = self.stats.eeprom_writes.saturating_add(1);
                 self.send_reply(
                     &Reply::ConfigWritten {
-                        result: 1,
+                        result: self.cfg.config_write_result,
                         config: new,
                         status,
                     },
@@ -933,6 +1153,148 @@ mod tests {
         assert!(items.iter().any(|i| i.get(4) == Some(&0xF7)));
         assert_eq!(m.stats().eeprom_writes, 1);
         assert_eq!(m.config().units(), 0);
+    }
+
+    /// The 7-byte short config write long-used clients send, verbatim (CRC `CD FA`).
+    const SHORT_CONFIG: [u8; 14] = [
+        0x02, 0x00, 0x08, 0x00, 0x77, 0x00, 0x00, 0x00, 0x00, 0x00, 0x01, 0x01, 0xCD, 0xFA,
+    ];
+
+    /// A telegram to the unit with `data` (code first) and a correct CRC.
+    fn telegram(data: &[u8]) -> Vec<u8> {
+        let mut t = vec![0x02, 0x00];
+        t.extend_from_slice(&u16::try_from(data.len()).unwrap().to_le_bytes());
+        t.extend_from_slice(data);
+        let crc = ima_sick_lms::wire::crc16(&t);
+        t.extend_from_slice(&crc.to_le_bytes());
+        t
+    }
+
+    #[test]
+    fn the_short_config_write_is_crc_valid_acked_and_applied() {
+        assert_eq!(
+            telegram(&SHORT_CONFIG[4..12]),
+            SHORT_CONFIG,
+            "CRC CD FA is right"
+        );
+        let mut m = model();
+        run(&mut m, Instant::from_millis(1000));
+        let mut before = m.config();
+        before.set_units(0);
+        before.set_measuring_mode(MeasuringMode(0));
+        m.handle_rx(
+            &cmd(&Command::WriteConfig(before)),
+            Instant::from_millis(1000),
+        );
+        // Outside installation mode: ACK + 92, nothing written.
+        m.handle_rx(&SHORT_CONFIG, Instant::from_millis(1001));
+        let items = run(&mut m, Instant::from_millis(2000));
+        assert_eq!(items[0], vec![ACK]);
+        assert_eq!(items[1][4], 0x92);
+        assert_eq!(items[2], vec![ACK]);
+        assert_eq!(items[3][4], 0x92);
+        m.handle_rx(
+            &cmd(&Command::SetMode(ModeRequest::Installation {
+                password: DEFAULT_PASSWORD,
+            })),
+            Instant::from_millis(2000),
+        );
+        run(&mut m, Instant::from_millis(2500));
+        let untouched = m.config().as_bytes()[7..].to_vec();
+        m.handle_rx(&SHORT_CONFIG, Instant::from_millis(2500));
+        let items = run(&mut m, Instant::from_millis(4000));
+        assert_eq!(items[0], vec![ACK]);
+        let f7 = &items[1];
+        assert_eq!(f7[4], 0xF7);
+        assert_eq!(f7[5], 1, "accepted");
+        // The seven bytes were applied, the rest kept; F7 echoes the whole configuration.
+        assert_eq!(m.config().measuring_mode(), MeasuringMode(1));
+        assert_eq!(m.config().units(), 1);
+        assert_eq!(&m.config().as_bytes()[7..], &untouched[..]);
+        assert_eq!(&f7[6..6 + LmsConfig::LONG], m.config().as_bytes());
+        assert_eq!(m.stats().short_config_writes, 1);
+        assert_eq!(m.stats().eeprom_writes, 1);
+    }
+
+    #[test]
+    fn every_crc_valid_telegram_is_answered() {
+        let mut m = model();
+        run(&mut m, Instant::from_millis(1000));
+        // An unknown command: ACK, then the 92 refusal.
+        m.handle_rx(&telegram(&[0x45]), Instant::from_millis(1000));
+        let items = run(&mut m, Instant::from_millis(1500));
+        assert_eq!(items, vec![vec![ACK], items[1].clone()]);
+        assert_eq!(items[1][4], 0x92);
+        // A status request with a stray byte: answered as the status request.
+        m.handle_rx(&telegram(&[0x31, 0x07]), Instant::from_millis(1500));
+        let items = run(&mut m, Instant::from_millis(2000));
+        assert_eq!(items[0], vec![ACK]);
+        assert_eq!(items[1][4], 0xB1);
+        assert_eq!(m.stats().tolerated, 1);
+        // A known command with a malformed payload (a variant of 3 bytes): refused.
+        m.handle_rx(
+            &telegram(&[0x3B, 0xB4, 0x00, 0x32]),
+            Instant::from_millis(2000),
+        );
+        let items = run(&mut m, Instant::from_millis(2500));
+        assert_eq!(items[0], vec![ACK]);
+        assert_eq!(items[1][4], 0x92);
+        assert_eq!(m.stats().rejected, 2);
+        // Every code, with and without a stray byte, gets an ACK and exactly one telegram.
+        for code in 0u8..=0x7F {
+            for data in [vec![code], vec![code, 0x5A]] {
+                let mut m = SickLmsModel::running(
+                    SickLmsModelConfig::default(),
+                    Box::new(Flat(2.0)),
+                    Instant::ZERO,
+                    BaudRate::B9600,
+                );
+                m.handle_rx(&telegram(&data), Instant::ZERO);
+                let items = run(&mut m, Instant::from_millis(5000));
+                assert_eq!(items.first(), Some(&vec![ACK]), "{data:02X?}");
+                assert!(
+                    items.get(1).is_some_and(|t| t.len() > 1),
+                    "{data:02X?}: {items:02X?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn scripted_naks_lost_replies_and_refusals() {
+        let mut m = SickLmsModel::running(
+            SickLmsModelConfig::default(),
+            Box::new(Flat(2.0)),
+            Instant::ZERO,
+            BaudRate::B9600,
+        );
+        m.record_commands();
+        m.nak_next(1);
+        m.lose_reply_to(0x3A);
+        m.refuse(0x3B);
+        let t = Instant::ZERO;
+        m.handle_rx(&cmd(&Command::Type), t);
+        let items = run(&mut m, Instant::from_millis(100));
+        assert_eq!(items, vec![vec![NAK]]);
+        m.handle_rx(&cmd(&Command::Type), Instant::from_millis(100));
+        let items = run(&mut m, Instant::from_millis(200));
+        assert_eq!(items, vec![vec![ACK]], "reply lost after the ACK");
+        m.handle_rx(&cmd(&Command::Type), Instant::from_millis(200));
+        let items = run(&mut m, Instant::from_millis(300));
+        assert_eq!(items[1][4], 0xBA);
+        m.handle_rx(
+            &cmd(&Command::Variant {
+                angle_deg: 100,
+                res_centideg: 25,
+            }),
+            Instant::from_millis(300),
+        );
+        let items = run(&mut m, Instant::from_millis(400));
+        assert_eq!(items[1][4], 0x92);
+        assert_eq!(m.variant(), Variant::W180_R50);
+        assert_eq!(m.commands().len(), 4);
+        assert_eq!(m.stats().scripted_naks, 1);
+        assert_eq!(m.stats().lost_replies, 1);
     }
 
     #[test]

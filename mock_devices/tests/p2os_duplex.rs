@@ -6,8 +6,8 @@ use std::time::Duration;
 use ima_hal::Instant;
 use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
 use ima_hal::sonar::SonarArray;
-use ima_mock_devices::p2os::{P2osBody, P2osModelConfig, P2osRobot};
-use ima_p2os::params::SonarPose;
+use ima_mock_devices::body::DiffDriveBody;
+use ima_mock_devices::p2os::{P2osModelConfig, P2osRobot};
 use ima_p2os::shell::{FixedBaud, P2os};
 use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
@@ -37,27 +37,28 @@ impl Body {
     }
 }
 
-impl P2osBody for Body {
+impl DiffDriveBody for Body {
     fn drive(&mut self, v: f64, w: f64) {
         self.cmd = (v, w);
     }
     fn pose(&self) -> (f64, f64, f64) {
         (self.x, self.y, self.th)
     }
-    fn wheel_speeds_mm_s(&self) -> (f64, f64) {
+    fn track_width_m(&self) -> f64 {
+        0.588
+    }
+    fn wheel_speeds_m_s(&self) -> (f64, f64) {
         let ht = 0.294;
-        (
-            (self.v - self.w * ht) * 1000.0,
-            (self.v + self.w * ht) * 1000.0,
-        )
+        (self.v - self.w * ht, self.v + self.w * ht)
     }
-    fn wheel_travel_mm(&self) -> (f64, f64) {
-        self.travel
+    fn wheel_travel_m(&self) -> (f64, f64) {
+        (self.travel.0 / 1000.0, self.travel.1 / 1000.0)
     }
-    fn sonar_range_m(&mut self, m: &SonarPose) -> Option<f64> {
+    fn sonar_range_m(&mut self, m: &ima_hal::Isometry2) -> Option<f64> {
         let (s, c) = self.th.sin_cos();
-        let sx = self.x + c * m.x_mm / 1000.0 - s * m.y_mm / 1000.0;
-        let dir = self.th + m.heading_deg.to_radians();
+        let t = m.translation.vector;
+        let sx = self.x + c * t.x - s * t.y;
+        let dir = self.th + m.rotation.angle();
         let dx = dir.cos();
         if dx <= 1e-6 {
             return None;

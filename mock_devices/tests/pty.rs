@@ -207,3 +207,85 @@ fn a_device_can_step_the_world() {
     assert!(world.lock().robot(sk).unwrap().pose().x_m > 0.0);
     dev.stop().unwrap();
 }
+
+/// Packets (payloads) in `bytes` that pass the P2OS framer.
+fn p2os_packets(bytes: &[u8]) -> Vec<Vec<u8>> {
+    let mut f = ima_p2os::framer::Framer::new();
+    let mut v = Vec::new();
+    f.push(bytes, |ev| {
+        if let ima_p2os::framer::FrameEvent::Frame(p) = ev {
+            v.push(p.to_vec());
+        }
+    });
+    v
+}
+
+fn p2os_frame(c: ima_p2os::wire::Command<'_>) -> Vec<u8> {
+    let mut b = [0u8; 300];
+    let n = c.emit(&mut b).unwrap();
+    b[..n].to_vec()
+}
+
+/// A client switches the P2OS mock's line with HOSTBAUD, as ARIA does: the command at the old
+/// rate, its own port to the new one, then PULSE; the robot's packets arrive intact at the new
+/// rate, and CLOSE puts the robot back at its power-up rate.
+#[test]
+fn p2os_hostbaud_switches_the_line_over_a_pty() {
+    use ima_mock_devices::body::WorldBody;
+    use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
+    use ima_mock_devices::world::{RobotSpec, SharedWorld, World};
+    use ima_p2os::wire::{Command, IntCommand};
+    use serialport::SerialPort;
+
+    let mut w = World::new();
+    let id = w
+        .add_robot(RobotSpec::new("skeeter", 0.0, 0.0, 0.0))
+        .unwrap();
+    let world = SharedWorld::new(w);
+    let dev = PtyDevice::spawn(
+        P2osDevice::new(
+            P2osModelConfig::default(),
+            WorldBody::new(world.clone(), id, 1),
+        ),
+        PtyOptions::default(),
+    )
+    .unwrap();
+    let mut port = open(dev.path());
+    for c in [Command::Sync0, Command::Sync1, Command::Sync2] {
+        port.write_all(&p2os_frame(c)).unwrap();
+        let got = read_n(&mut port, 5, Duration::from_secs(5));
+        assert!(!p2os_packets(&got).is_empty(), "{c:?} answered");
+        std::thread::sleep(Duration::from_millis(50)); // the rest of the SYNC2 reply
+        let _ = read_n(&mut port, 4096, Duration::from_millis(100));
+    }
+    port.write_all(&p2os_frame(Command::OPEN)).unwrap();
+    let sips = read_n(&mut port, 200, Duration::from_secs(5));
+    assert!(!p2os_packets(&sips).is_empty(), "SIPs at 9600");
+    // HOSTBAUD 2 at 9600; give it time to reach the robot before the host's port switches
+    // (ARIA sleeps 10 ms), then PULSE at 38400. Retried: a loaded machine may be slow.
+    let mut switched = false;
+    for _ in 0..5 {
+        port.set_baud_rate(9600).unwrap();
+        port.write_all(&p2os_frame(Command::Int(IntCommand::HostBaud, 2)))
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        port.set_baud_rate(38400).unwrap();
+        let _ = port.clear(serialport::ClearBuffer::Input);
+        port.write_all(&p2os_frame(Command::PULSE)).unwrap();
+        let got = read_n(&mut port, 400, Duration::from_secs(2));
+        if !p2os_packets(&got).is_empty() {
+            switched = true;
+            break;
+        }
+    }
+    assert!(switched, "packets at 38400 after HOSTBAUD");
+    port.write_all(&p2os_frame(Command::CLOSE)).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    let dev_model = dev.stop().unwrap();
+    assert_eq!(dev_model.robot().stats().baud_switches, 1);
+    assert_eq!(
+        dev_model.robot().baud(),
+        9600,
+        "CLOSE restores the power-up rate"
+    );
+}

@@ -6,8 +6,9 @@ use std::time::Duration;
 use ima_hal::Instant;
 use ima_hal::base::{Bumpers, DifferentialBase, Odometer, VelocityCommand};
 use ima_hal::sonar::SonarArray;
-use ima_mock_devices::rflex::{RflexBody, RflexModelConfig, RflexRobot};
-use ima_rflex::machine::{Config, SonarMount};
+use ima_mock_devices::body::DiffDriveBody;
+use ima_mock_devices::rflex::{RflexModelConfig, RflexRobot};
+use ima_rflex::machine::Config;
 use ima_rflex::shell::Rflex;
 use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
@@ -39,12 +40,21 @@ impl Body {
     }
 }
 
-impl RflexBody for Body {
+impl DiffDriveBody for Body {
     fn drive(&mut self, v: f64, w: f64) {
         self.cmd = (v, w);
     }
     fn pose(&self) -> (f64, f64, f64) {
         (self.x, self.y, self.th)
+    }
+    fn track_width_m(&self) -> f64 {
+        0.5
+    }
+    fn wheel_speeds_m_s(&self) -> (f64, f64) {
+        (self.v - self.w * 0.25, self.v + self.w * 0.25)
+    }
+    fn wheel_travel_m(&self) -> (f64, f64) {
+        (self.dist - self.turn * 0.25, self.dist + self.turn * 0.25)
     }
     fn travel(&self) -> (f64, f64) {
         (self.dist, self.turn)
@@ -52,11 +62,11 @@ impl RflexBody for Body {
     fn velocity(&self) -> (f64, f64) {
         (self.v, self.w)
     }
-    fn sonar_range_m(&mut self, m: &SonarMount) -> Option<f64> {
+    fn sonar_range_m(&mut self, m: &ima_hal::Isometry2) -> Option<f64> {
         let (s, c) = self.th.sin_cos();
-        let t = m.pose.translation.vector;
+        let t = m.translation.vector;
         let sx = self.x + c * t.x - s * t.y;
-        let dir = self.th + m.pose.rotation.angle();
+        let dir = self.th + m.rotation.angle();
         let dx = dir.cos();
         if dx <= 1e-6 {
             return None;

@@ -1,10 +1,13 @@
-//! Session tests in virtual time (spec §4–§7).
+//! Session tests in virtual time (spec §4–§7); motion reports come from the mock's rFLEX
+//! model (`ima-mock-devices`), the one model of the base.
 
 use core::f64::consts::FRAC_PI_2;
 use core::time::Duration;
 
 use ima_hal::Instant;
 use ima_hal::base::VelocityCommand;
+use ima_mock_devices::body::DiffDriveBody;
+use ima_mock_devices::rflex::{RflexModelConfig, RflexRobot};
 use ima_rflex::machine::{CommandError, Config, Event, Machine, Phase, TX_BUF};
 use ima_rflex::wire::{
     Command, MAX_WIRE_FRAME, MotionReport, Report, SetDir, SonarRun, Stuffing, WireError,
@@ -462,29 +465,75 @@ fn legacy_mode_sends_unstuffed_nudged_frames() {
 
 // ---- reports -------------------------------------------------------------------------------
 
-fn motion_wire(id: u8, axis: u8, position: i32, velocity: i32) -> Vec<u8> {
-    let mut buf = [0u8; MAX_WIRE_FRAME];
-    let n = Report::Motion(MotionReport {
-        rv: 0,
-        ts: u32::from(id),
-        axis,
-        position,
-        velocity,
-        acceleration: 0,
-        torque: 0,
-    })
-    .emit_with(id, Stuffing::Full, &mut buf)
-    .unwrap();
-    buf[..n].to_vec()
+/// A base body whose axis counters the test sets, in controller units (the mock's model turns
+/// them into motion reports).
+#[derive(Default)]
+struct Counters {
+    /// (translation, rotation) positions and velocities, controller units.
+    position: (i32, i32),
+    velocity: (i32, i32),
 }
 
-/// Feed pairs of axis reports every 100 ms, starting at `t0`; returns the last odometry event.
+impl DiffDriveBody for Counters {
+    fn drive(&mut self, _: f64, _: f64) {}
+    fn pose(&self) -> (f64, f64, f64) {
+        (0.0, 0.0, 0.0)
+    }
+    fn track_width_m(&self) -> f64 {
+        0.5
+    }
+    fn wheel_speeds_m_s(&self) -> (f64, f64) {
+        (0.0, 0.0)
+    }
+    fn wheel_travel_m(&self) -> (f64, f64) {
+        (0.0, 0.0)
+    }
+    fn travel(&self) -> (f64, f64) {
+        let c = RflexModelConfig::default();
+        (
+            f64::from(self.position.0) / c.kd,
+            f64::from(self.position.1) / c.ka,
+        )
+    }
+    fn velocity(&self) -> (f64, f64) {
+        let c = RflexModelConfig::default();
+        (
+            f64::from(self.velocity.0) / c.kd,
+            f64::from(self.velocity.1) / c.ka,
+        )
+    }
+    fn sonar_range_m(&mut self, _: &ima_hal::Isometry2) -> Option<f64> {
+        None
+    }
+}
+
+/// The mock's rFLEX base reporting both axes every 100 ms, the counters of `pairs`
+/// (`(p0, v0, p1, v1)`, one pair per report) starting at `t0`, into the machine; returns the
+/// machine's events.
 fn feed_pairs(m: &mut Machine, t0: u64, pairs: &[(i32, i32, i32, i32)]) -> Vec<Event> {
+    let mut body = Counters::default();
+    let mut base = RflexRobot::new(RflexModelConfig::default(), &body);
+    let mut buf = [0u8; MAX_WIRE_FRAME];
+    let n = Command::SystemReportReq {
+        period_us: 100_000,
+        mask: 3,
+    }
+    .emit(&mut buf)
+    .unwrap();
+    // The model's clock: requested at 0, reports at 100, 200, … ms (machine time t0, t0 + 100,
+    // … ms).
+    base.handle_rx(&buf[..n], Instant::ZERO, &mut body);
+    let _ = base.take_output();
     let mut ev = Vec::new();
     for (k, &(p0, v0, p1, v1)) in pairs.iter().enumerate() {
         let t = ms(t0 + 100 * k as u64);
-        let mut bytes = motion_wire(k as u8, 0, p0, v0);
-        bytes.extend(motion_wire(k as u8, 1, p1, v1));
+        body.position = (p0, p1);
+        body.velocity = (v0, v1);
+        let model_t = ms(100 + 100 * k as u64);
+        while let Some(due) = base.poll_timeout().filter(|due| *due <= model_t) {
+            base.handle_timeout(due, &mut body);
+        }
+        let bytes = base.take_output();
         m.handle_bytes(&bytes, t);
         while let Some(e) = m.poll_event() {
             ev.push(e);
@@ -668,7 +717,18 @@ fn unknown_and_bad_frames_are_counted_not_fatal() {
     let mut bytes = buf[..n].to_vec(); // IR report: unknown here
     let n = ima_rflex::wire::encode_frame(1, 1, 1, &[1], Stuffing::Full, &mut buf).unwrap();
     bytes.extend(&buf[..n]); // SYS_STATUS with a wrong payload length
-    let mut bad = motion_wire(1, 0, 5, 5);
+    let n = Report::Motion(MotionReport {
+        rv: 0,
+        ts: 1,
+        axis: 0,
+        position: 5,
+        velocity: 5,
+        acceleration: 0,
+        torque: 0,
+    })
+    .emit_with(1, Stuffing::Full, &mut buf)
+    .unwrap();
+    let mut bad = buf[..n].to_vec();
     let k = bad.len() - 3;
     bad[k] ^= 1; // bad checksum
     bytes.extend(bad);

@@ -103,6 +103,7 @@ pub struct Framer {
     partial_timeout: Duration,
     report_bad_checksums: bool,
     bad_checksum_seen: bool,
+    any_code: bool,
 }
 
 impl Framer {
@@ -128,6 +129,7 @@ impl Framer {
             partial_timeout: PARTIAL_TIMEOUT,
             report_bad_checksums: false,
             bad_checksum_seen: false,
+            any_code: false,
         }
     }
 
@@ -143,6 +145,16 @@ impl Framer {
     #[must_use]
     pub const fn report_bad_checksums(mut self, on: bool) -> Self {
         self.report_bad_checksums = on;
+        self
+    }
+
+    /// Deliver every telegram whose header and CRC are good, whatever its code and payload
+    /// (the device role: a real LMS answers every CRC-valid telegram, refusing with `92`
+    /// what it cannot do, so its mock must see them). The payload is then the caller's to
+    /// check. Off by default.
+    #[must_use]
+    pub const fn accept_any_code(mut self, on: bool) -> Self {
+        self.any_code = on;
         self
     }
 
@@ -358,7 +370,7 @@ impl Framer {
             Direction::Replies => is_known_reply(code),
             Direction::Commands => is_known_command(code),
         };
-        if !known {
+        if !known && !self.any_code {
             self.counters.bad_headers = self.counters.bad_headers.saturating_add(1);
             return Check::Failed;
         }
@@ -367,6 +379,7 @@ impl Framer {
             return Check::NeedMore(total - w.len());
         };
         let verdict = Frame::new_checked(candidate).and_then(|f| match self.direction {
+            _ if self.any_code => Ok(()),
             Direction::Replies => Reply::from_frame(&f).map(|_| ()),
             Direction::Commands => Command::from_frame(&f).map(|_| ()),
         });

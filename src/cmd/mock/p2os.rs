@@ -4,7 +4,8 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig, WorldBody};
+use ima_mock_devices::body::WorldBody;
+use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::SharedWorld;
 

@@ -4,8 +4,9 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
-use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig, RflexWorldBody};
+use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::SharedWorld;
 
 /// Serve an rFLEX base for robot `robot` of `world` on a new pty.
@@ -22,7 +23,7 @@ pub fn serve_rflex(
     let plan = super::shared::fault_plan(faults, Some(seed))?;
     let dev = RflexDevice::new(
         RflexModelConfig::default(),
-        RflexWorldBody::new(world.clone(), id, seed),
+        WorldBody::new(world.clone(), id, seed),
     );
     PtyDevice::spawn(
         dev,
