@@ -279,7 +279,7 @@ pub fn metric_chart<'a>(
     let (w_px, h_px) = chart.plotting_area().dim_in_pixel();
     let ppm_x = f64::from(w_px) / frame.width().max(1e-9);
     let ppm_y = f64::from(h_px) / frame.height().max(1e-9);
-    let (sx, sy) = (grid_step(ppm_x, 40.0), grid_step(ppm_y, 30.0));
+    let (sx, sy) = (grid_step(ppm_x, 40.0), grid_step(ppm_y, 40.0));
     let ticks = |span: f64, step: f64| ((span / step).floor() as usize + 1).max(2);
     let fmt = |step: f64| move |v: &f64| format_tick(*v, step);
     let label = text_style(11.0, MUTED);

@@ -196,7 +196,8 @@ pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
             ima_plot::disc(&mut chart, (0.0, 0.0), 0.33, Some(skeeter.to_rgba()), None)?;
             let below = Pos::new(HPos::Center, VPos::Top);
             ima_plot::label(&mut chart, (0.0, -0.33), "Skeeter", (0, 3), &small, below)?;
-            // Starts and targets of the angle's four configurations, labelled once.
+            // Starts and targets of the angle's four configurations, labelled once, over
+            // the paths.
             let mut starts: Vec<(f64, [f64; 2])> = Vec::new();
             let mut targets: Vec<(f64, [f64; 2])> = Vec::new();
             for r in &runs {
@@ -206,6 +207,11 @@ pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
                 if !targets.iter().any(|t| t.0 == r.dt_m) {
                     targets.push((r.dt_m, r.target));
                 }
+            }
+            for r in runs.iter().filter(|r| r.rule == *rule) {
+                let colour = config_colour(r.ds_m, r.dt_m);
+                let path = r.trajectory.iter().map(|p| (p[0], p[1]));
+                ima_plot::line(&mut chart, path, colour, 2, false)?;
             }
             for (dt, t) in &targets {
                 let at = (t[0], t[1]);
@@ -221,10 +227,8 @@ pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
                 ima_plot::label_backed(&mut chart, at, &text, (10, 0), &small, right)?;
             }
             for r in runs.iter().filter(|r| r.rule == *rule) {
-                let colour = config_colour(r.ds_m, r.dt_m);
-                let path = r.trajectory.iter().map(|p| (p[0], p[1]));
-                ima_plot::line(&mut chart, path, colour, 2, false)?;
                 if let Some(end) = r.trajectory.last() {
+                    let colour = config_colour(r.ds_m, r.dt_m);
                     ima_plot::mark(&mut chart, (end[0], end[1]), Mark::Cross, colour)?;
                 }
             }
