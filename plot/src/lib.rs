@@ -1024,6 +1024,23 @@ mod tests {
     }
 
     #[test]
+    fn rings_are_clipped_to_the_chart() {
+        let frame = Frame::new(-1.0..1.0, -1.0..1.0);
+        let polylines = |r: f64| {
+            let svg = render(300, 300, |root| {
+                let mut chart = metric_chart(root, &frame, "x (m)", "y (m)")?;
+                ring(&mut chart, (0.0, 0.0), r, GRID, false)
+            });
+            inspect(&svg).unwrap().count("polyline")
+        };
+        let none = polylines(-1.0);
+        assert_eq!(polylines(10.0), none, "wholly outside: nothing drawn");
+        assert_eq!(polylines(0.5), none + 1, "wholly inside: one closed line");
+        // Cut by the four sides: four arcs, none drawn outside.
+        assert_eq!(polylines(1.2), none + 4);
+    }
+
+    #[test]
     fn a_failed_drawing_gives_a_page_that_says_so() {
         let svg = render(100, 100, |_| Err("no luck <here>".into()));
         let i = inspect(&svg).unwrap();

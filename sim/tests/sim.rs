@@ -235,6 +235,35 @@ fn table_csv_json_and_svg_writers() {
 }
 
 #[test]
+fn plots_survive_odd_results() {
+    // A NaN f, a NaN sample in a path, a run not reached, and no runs at all.
+    let mut odd = fake("thesis", 135.0, 2.0, 5.0, f64::NAN);
+    odd.trajectory.insert(1, [f64::NAN, 1.0]);
+    let mut late = fake("range-aware", 135.0, 5.0, 5.0, 0.0);
+    late.reason = "timeout";
+    let results = vec![odd, late];
+    let f = ima_plot::inspect(&svg_f(&results)).unwrap();
+    assert!(f.has_text("—*") || f.has_text("—"), "{:?}", f.texts);
+    assert!(
+        f.has_text("0.00*"),
+        "a run not reached is starred: {:?}",
+        f.texts
+    );
+    let t = ima_plot::inspect(&svg_trajectories(&results, 135.0)).unwrap();
+    assert!(t.has_text("Ds 2 m, Dt 5 m: f —"), "{:?}", t.texts);
+    assert!(
+        t.has_text("Ds 5 m, Dt 5 m: f 0.00, timeout"),
+        "{:?}",
+        t.texts
+    );
+    for svg in [svg_f(&[]), svg_trajectories(&[], 45.0)] {
+        ima_plot::inspect(&svg).unwrap();
+    }
+    let empty = ima_plot::inspect(&svg_trajectories(&[], 45.0)).unwrap();
+    assert!(empty.has_text("no run at θ = 45°"), "{:?}", empty.texts);
+}
+
+#[test]
 fn camera_observer_runs_the_real_vision_pipeline() {
     let mut cfg = SweepConfig::default();
     cfg.sim.observer = ima_sim::Observer::Camera;

@@ -30,6 +30,15 @@ fn colour_for(f: f64) -> RGBColor {
     RGBColor(r.clamp(0.0, 255.0) as u8, g.clamp(0.0, 220.0) as u8, 60)
 }
 
+/// `f` with two decimals, `—` when it is not a number.
+fn fmt_f(f: f64) -> String {
+    if f.is_finite() {
+        format!("{f:.2}")
+    } else {
+        "—".to_owned()
+    }
+}
+
 /// Pixels per metre of the `f` grids (a cell is 1 m of Ds by 1 m of Dt).
 const CELL_PX: f64 = 44.0;
 /// Width of the colour bar beside the `f` grids, pixels.
@@ -77,8 +86,8 @@ pub fn svg_f(results: &[RunResult]) -> String {
                         area.draw(&Rectangle::new(corners, fill.filled()))?;
                         area.draw(&Rectangle::new(corners, WHITE.stroke_width(1)))?;
                         let text = match run {
-                            Some(r) if r.reason == "reached" => format!("{:.2}", r.f),
-                            Some(r) => format!("{:.2}*", r.f),
+                            Some(r) if r.reason == "reached" => fmt_f(r.f),
+                            Some(r) => format!("{}*", fmt_f(r.f)),
                             None => "—".to_owned(),
                         };
                         ima_plot::label(
@@ -154,7 +163,12 @@ pub fn svg_trajectories(results: &[RunResult], angle_deg: f64) -> String {
             legend.push(LegendRow::entry(
                 Mark::Line,
                 config_colour(r.ds_m, r.dt_m),
-                format!("Ds {:.0} m, Dt {:.0} m: f {:.2}{end}", r.ds_m, r.dt_m, r.f),
+                format!(
+                    "Ds {:.0} m, Dt {:.0} m: f {}{end}",
+                    r.ds_m,
+                    r.dt_m,
+                    fmt_f(r.f)
+                ),
             ));
         }
     }
