@@ -43,9 +43,14 @@ fn mock_and_scan_talk_over_a_pty_in_separate_processes() {
     );
     let pic = std::fs::read_to_string(&svg).unwrap();
     let _ = std::fs::remove_file(&svg);
-    assert!(pic.starts_with("<svg") && pic.trim_end().ends_with("</svg>"));
-    // Scooter sits inside the 10 m arena: most beams hit something.
-    assert!(pic.matches(r##"fill="#c22""##).count() > 100);
+    let found = ima_plot::inspect(&pic).unwrap();
+    assert!(
+        found.any_text_contains("Laser scan: 361 beams over ±90°"),
+        "{:?}",
+        found.texts
+    );
+    // Scooter sits inside the 10 m arena: most beams hit something (one dot each).
+    assert!(pic.matches(r##"r="2" opacity="1" fill="#CC2222""##).count() > 100);
 }
 
 #[test]

@@ -90,7 +90,24 @@ fn demo_accomplishes_every_target_on_several_seeds() {
             assert!(gap < 1.5, "seed {seed}: Scooter ended {gap:.2} m from {t}");
         }
         let picture = std::fs::read_to_string(&svg).unwrap();
-        assert!(picture.starts_with("<svg") && picture.contains("<polyline"));
+        assert!(picture.contains("<polyline"));
+        let found = ima_plot::inspect(&picture).unwrap();
+        let title = format!("ima demo, seed {seed}: 3/3 targets done (red, blue, green)");
+        assert!(found.any_text_contains(&title), "{:?}", found.texts);
+        for text in ["x (m)", "y (m)", "scale 1 m", "red", "blue", "green"] {
+            assert!(
+                found.has_text(text),
+                "seed {seed}: {text} missing: {:?}",
+                found.texts
+            );
+        }
+        for robot in ["scooter: ", "skeeter: "] {
+            assert!(
+                found.any_text_contains(robot),
+                "seed {seed}: {:?}",
+                found.texts
+            );
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

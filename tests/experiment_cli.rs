@@ -50,6 +50,44 @@ fn experiment_heading_range_aware_json_and_files() {
     assert_eq!(csv.lines().count(), 49);
     let tables = std::fs::read_to_string(dir.join("tables.md")).unwrap();
     assert!(tables.contains("**range-aware, θ = 135°**"));
+    // The plots: well-formed, no NaN, the promised labels.
+    let f = ima_plot::inspect(&std::fs::read_to_string(dir.join("f.svg")).unwrap()).unwrap();
+    for text in [
+        "range-aware rule, θ = 45°",
+        "range-aware rule, θ = 135°",
+        "Ds (m)",
+        "Dt (m)",
+    ] {
+        assert!(f.has_text(text), "f.svg: {text} missing: {:?}", f.texts);
+    }
+    assert!(
+        !f.any_text_contains("thesis rule"),
+        "only the range-aware rule ran"
+    );
+    for angle in [45, 90, 135] {
+        let name = format!("trajectories-{angle}.svg");
+        let t = ima_plot::inspect(&std::fs::read_to_string(dir.join(&name)).unwrap()).unwrap();
+        let title = format!("Heading experiment, θ = {angle}°: Scooter's paths");
+        for text in [
+            title.as_str(),
+            "range-aware rule",
+            "x (m)",
+            "y (m)",
+            "Skeeter",
+            "scale 1 m",
+        ] {
+            assert!(t.has_text(text), "{name}: {text} missing: {:?}", t.texts);
+        }
+        // Each of the four corner configurations labelled with its f in the legend.
+        for (ds, dt) in [(2, 2), (2, 5), (5, 2), (5, 5)] {
+            let run = format!("Ds {ds} m, Dt {dt} m: f ");
+            assert!(
+                t.any_text_contains(&run),
+                "{name}: {run} missing: {:?}",
+                t.texts
+            );
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

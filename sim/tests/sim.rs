@@ -202,13 +202,65 @@ fn table_csv_json_and_svg_writers() {
     assert_eq!(j["speed_m_s"], 0.05);
     let s = summary(&results);
     assert!(s.contains("thesis: 2 runs, f min 0.250"), "{s}");
-    for svg in [svg_f(&results), svg_trajectories(&results, 45.0)] {
-        assert!(svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\""));
-        assert!(svg.trim_end().ends_with("</svg>"));
+    let f = ima_plot::inspect(&svg_f(&results)).unwrap();
+    for text in [
+        "Heading experiment: performance index f per configuration",
+        "thesis rule, θ = 45°",
+        "range-aware rule, θ = 135°",
+        "Ds (m)",
+        "Dt (m)",
+        "0.99",
+        "0.50",
+        "—",
+    ] {
+        assert!(f.has_text(text), "{text} missing: {:?}", f.texts);
     }
-    assert!(svg_f(&results).contains(">0.99</text>"));
-    // Only (Ds 5, Dt 2) is among the plotted corner configurations at 45°.
-    assert_eq!(svg_trajectories(&results, 45.0).matches("<path").count(), 1);
+    let t = ima_plot::inspect(&svg_trajectories(&results, 45.0)).unwrap();
+    for text in [
+        "Heading experiment, θ = 45°: Scooter's paths",
+        "thesis rule",
+        "x (m)",
+        "y (m)",
+        "Ds 5",
+        "Dt 2",
+        "Skeeter",
+        "scale 1 m",
+        // Only (Ds 5, Dt 2) is among the plotted corner configurations at 45°.
+        "Ds 5 m, Dt 2 m: f 0.25",
+    ] {
+        assert!(t.has_text(text), "{text} missing: {:?}", t.texts);
+    }
+    assert!(!t.any_text_contains("Ds 2 m, Dt 3 m"), "{:?}", t.texts);
+    assert!(!t.has_text("range-aware rule"), "no range-aware run at 45°");
+}
+
+#[test]
+fn plots_survive_odd_results() {
+    // A NaN f, a NaN sample in a path, a run not reached, and no runs at all.
+    let mut odd = fake("thesis", 135.0, 2.0, 5.0, f64::NAN);
+    odd.trajectory.insert(1, [f64::NAN, 1.0]);
+    let mut late = fake("range-aware", 135.0, 5.0, 5.0, 0.0);
+    late.reason = "timeout";
+    let results = vec![odd, late];
+    let f = ima_plot::inspect(&svg_f(&results)).unwrap();
+    assert!(f.has_text("—*") || f.has_text("—"), "{:?}", f.texts);
+    assert!(
+        f.has_text("0.00*"),
+        "a run not reached is starred: {:?}",
+        f.texts
+    );
+    let t = ima_plot::inspect(&svg_trajectories(&results, 135.0)).unwrap();
+    assert!(t.has_text("Ds 2 m, Dt 5 m: f —"), "{:?}", t.texts);
+    assert!(
+        t.has_text("Ds 5 m, Dt 5 m: f 0.00, timeout"),
+        "{:?}",
+        t.texts
+    );
+    for svg in [svg_f(&[]), svg_trajectories(&[], 45.0)] {
+        ima_plot::inspect(&svg).unwrap();
+    }
+    let empty = ima_plot::inspect(&svg_trajectories(&[], 45.0)).unwrap();
+    assert!(empty.has_text("no run at θ = 45°"), "{:?}", empty.texts);
 }
 
 #[test]

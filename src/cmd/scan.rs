@@ -1,7 +1,6 @@
 //! `ima scan`: connect to a SICK LMS on a serial port, initialise it, print the scan rate and
 //! a one-line summary per scan, and optionally write one scan as an SVG picture.
 
-use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -89,58 +88,93 @@ pub fn summary(s: &LaserScan) -> String {
     )
 }
 
-/// The scan as an SVG picture: sensor at the centre, x (ahead) up, one dot per valid beam,
-/// 1 m grid circles.
+/// The scan as an SVG picture, top view: the scanner at the origin looking up the page (x
+/// ahead, y to the left), one ray and dot per valid beam, range rings, axes in metres, a
+/// legend with the beam counts and a scale bar.
 #[must_use]
 pub fn svg(s: &LaserScan) -> String {
-    let max = s
-        .ranges_m()
+    use ima_plot::plotters::prelude::*;
+    use ima_plot::{LegendRow, Mark};
+
+    let ret = RGBColor(204, 34, 34);
+    let ray = RGBColor(244, 192, 192);
+    let scanner = RGBColor(34, 34, 102);
+    let ring_colour = RGBColor(170, 170, 170);
+    // Page coordinates: (right of the scanner, ahead) = (−y, x).
+    let hits: Vec<(f64, f64)> = s
+        .beams()
+        .filter(|(a, r, f)| f.is_valid() && r.is_finite() && *r >= 0.0 && a.is_finite())
+        .map(|(a, r, _)| (-f64::from(r) * a.sin(), f64::from(r) * a.cos()))
+        .collect();
+    let reach = hits
         .iter()
-        .copied()
-        .filter(|r| r.is_finite())
-        .fold(1.0f32, f32::max)
+        .map(|p| p.0.hypot(p.1))
+        .fold(1.0f64, f64::max)
         .ceil();
-    let size: f64 = 800.0;
-    let scale = (size / 2.0 - 20.0) / f64::from(max);
-    let c = size / 2.0;
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{size}" height="{size}" viewBox="0 0 {size} {size}">"#
+    let lowest = hits.iter().map(|p| p.1).fold(0.0f64, f64::min);
+    let frame = ima_plot::Frame::new(
+        (-reach - 0.2)..(reach + 0.2),
+        (lowest.min(0.0) - 0.5)..(reach + 0.2),
     );
-    let _ = writeln!(out, r#"<rect width="100%" height="100%" fill="white"/>"#);
-    for m in 1..=(max as u32) {
-        let _ = writeln!(
-            out,
-            r##"<circle cx="{c}" cy="{c}" r="{:.1}" fill="none" stroke="#ddd"/>"##,
-            f64::from(m) * scale
-        );
-    }
-    let mut path = String::new();
-    for (a, r, f) in s.beams() {
-        if !f.is_valid() || !r.is_finite() {
-            continue;
+    let px_per_m = (620.0 / frame.width().max(frame.height())).clamp(5.0, 200.0);
+    let ring_step = ima_plot::grid_step(px_per_m, 40.0);
+    let (cw, ch) = ima_plot::metric_chart_size(&frame, px_per_m);
+    let invalid = s.len() - hits.len();
+    let fov = s
+        .beams()
+        .map(|b| b.0.abs())
+        .fold(0.0f64, f64::max)
+        .to_degrees();
+    let nearest = hits
+        .iter()
+        .map(|p| p.0.hypot(p.1))
+        .fold(f64::INFINITY, f64::min);
+    let title = if nearest.is_finite() {
+        format!(
+            "Laser scan: {} beams over ±{fov:.0}°, {} valid, nearest {nearest:.2} m",
+            s.len(),
+            hits.len()
+        )
+    } else {
+        format!("Laser scan: {} beams over ±{fov:.0}°, none valid", s.len())
+    };
+    let step = if ring_step >= 1.0 {
+        format!("{ring_step:.0} m")
+    } else {
+        format!("{ring_step:.1} m")
+    };
+    let rows = vec![
+        LegendRow::Heading("Scan (top view)".into()),
+        LegendRow::entry(
+            Mark::Dot,
+            ret,
+            format!("return: {} valid beams", hits.len()),
+        ),
+        LegendRow::entry(Mark::Line, ray, "beam, scanner to return"),
+        LegendRow::entry(Mark::Square, scanner, "scanner, x ahead (up)"),
+        LegendRow::entry(Mark::Ring, ring_colour, format!("range ring every {step}")),
+        LegendRow::Note(format!("beams without a range (not drawn): {invalid}")),
+        LegendRow::scale_bar(px_per_m),
+    ];
+    let (lw, lh) = ima_plot::legend_size(&rows);
+    ima_plot::render(cw + lw, ch.max(lh) + ima_plot::TITLE_H, |root| {
+        let body = ima_plot::titled(root, &title, None)?;
+        let (plot, side) = body.split_horizontally(cw);
+        let x_desc = "right of the scanner, −y (m)";
+        let mut chart = ima_plot::metric_chart(&plot, &frame, x_desc, "ahead, x (m)")?;
+        let mut r = ring_step;
+        while r <= reach + 1e-9 {
+            ima_plot::ring(&mut chart, (0.0, 0.0), r, ring_colour, true)?;
+            r += ring_step;
         }
-        // Sensor frame: x ahead (screen up), y left (screen left).
-        let x = c - f64::from(r) * a.sin() * scale;
-        let y = c - f64::from(r) * a.cos() * scale;
-        let _ = write!(path, "M{c:.1},{c:.1}L{x:.1},{y:.1}");
-        let _ = writeln!(
-            out,
-            r##"<circle cx="{x:.1}" cy="{y:.1}" r="2" fill="#c22"/>"##
-        );
-    }
-    let _ = writeln!(
-        out,
-        r##"<path d="{path}" stroke="#f4c0c0" stroke-width="0.5" fill="none"/>"##
-    );
-    let _ = writeln!(
-        out,
-        r##"<circle cx="{c}" cy="{c}" r="5" fill="#226"/><text x="10" y="20" font-family="sans-serif" font-size="14">{} beams, grid 1 m</text>"##,
-        s.len()
-    );
-    out.push_str("</svg>\n");
-    out
+        // All rays as one polyline out and back through the scanner.
+        let rays = hits.iter().flat_map(|&p| [(0.0, 0.0), p]);
+        ima_plot::line(&mut chart, rays, ray, 1, false)?;
+        chart.draw_series(hits.iter().map(|&p| Circle::new(p, 2, ret.filled())))?;
+        ima_plot::line(&mut chart, [(0.0, 0.0), (0.0, 0.3)], scanner, 2, false)?;
+        ima_plot::mark(&mut chart, (0.0, 0.0), Mark::Square, scanner)?;
+        ima_plot::legend(&side, &rows)
+    })
 }
 
 /// The flags of a beam that is not a valid range, by name (`[]` for a valid one).
@@ -394,7 +428,27 @@ mod tests {
         let t = summary(&s);
         assert!(t.contains("3 beams, 2 valid"), "{t}");
         let pic = svg(&s);
-        assert!(pic.starts_with("<svg") && pic.ends_with("</svg>\n"));
-        assert_eq!(pic.matches(r##"fill="#c22""##).count(), 2);
+        let found = ima_plot::inspect(&pic).unwrap();
+        // One dot per valid beam (the legend's dot is larger).
+        assert_eq!(
+            pic.matches(r##"r="2" opacity="1" fill="#CC2222""##).count(),
+            2,
+            "{pic}"
+        );
+        for text in [
+            "Laser scan: 3 beams over ±57°, 2 valid, nearest 1.00 m",
+            "return: 2 valid beams",
+            "beams without a range (not drawn): 1",
+            "right of the scanner, −y (m)",
+            "ahead, x (m)",
+            "scale 50 cm",
+        ] {
+            assert!(found.has_text(text), "{text} missing: {:?}", found.texts);
+        }
+        // A scan without a valid beam still draws.
+        let mut none = LaserScan::new(-1.0, 1.0);
+        none.push(f32::NAN, BeamFlags::NO_RETURN).unwrap();
+        let found = ima_plot::inspect(&svg(&none)).unwrap();
+        assert!(found.has_text("Laser scan: 1 beams over ±57°, none valid"));
     }
 }

@@ -1,7 +1,5 @@
 //! Mission reporting: trajectories from the world's ground truth, the performance index per
-//! target, and a hand-written SVG of the world with both robots' paths.
-
-use std::fmt::Write as _;
+//! target, and an SVG of the world with both robots' paths (drawn with `ima-plot`).
 
 use ima_mock_devices::world::World;
 use serde::Serialize;
@@ -65,155 +63,123 @@ pub fn performance_index(d_min: f64, d_actual: f64, t_actual: f64, cruise_m_s: f
     ((d_min / d_actual) * (t_min / t_actual)).clamp(0.0, 1.0)
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
+/// A path's length over its finite samples (a non-finite sample is skipped), metres.
+fn finite_length(t: &Trajectory) -> f64 {
+    let pts = ima_plot::finite(t.points.iter().map(|p| (p.1, p.2)));
+    pts.windows(2)
+        .map(|w| match w {
+            [a, b] => (b.0 - a.0).hypot(b.1 - a.1),
+            _ => 0.0,
+        })
+        .fold(0.0, |a, b| a + b)
 }
 
-/// An SVG of `world` (walls, obstacles, coloured objects, robots' start poses) with the
-/// trajectories drawn over it; `title` goes in the top-left corner.
+/// An SVG of `world` (walls, obstacles, coloured objects, robots' final poses) with the
+/// trajectories drawn over it in distinct colours, axes in metres, a scale bar and a legend
+/// naming each robot's path (with its length), its start and its end; `title` on top.
 pub fn svg(world: &World, trajectories: &[Trajectory], title: &str) -> String {
+    use ima_plot::plotters::prelude::*;
+    use ima_plot::plotters::style::text_anchor::{HPos, Pos, VPos};
+    use ima_plot::{LegendRow, Mark};
+
     // Bounds: everything drawn.
-    let mut xs: Vec<f64> = Vec::new();
-    let mut ys: Vec<f64> = Vec::new();
+    let mut pts: Vec<(f64, f64)> = Vec::new();
     for w in world.walls() {
-        xs.extend([w.from[0], w.to[0]]);
-        ys.extend([w.from[1], w.to[1]]);
+        pts.extend([(w.from[0], w.from[1]), (w.to[0], w.to[1])]);
     }
     for o in world.objects() {
-        xs.push(o.center[0]);
-        ys.push(o.center[1]);
-    }
-    for t in trajectories {
-        for p in &t.points {
-            xs.push(p.1);
-            ys.push(p.2);
-        }
-    }
-    let min = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
-    let max = |v: &[f64]| v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let (mut x0, mut x1, mut y0, mut y1) = (min(&xs), max(&xs), min(&ys), max(&ys));
-    if !(x0.is_finite() && x1.is_finite() && y0.is_finite() && y1.is_finite()) {
-        (x0, x1, y0, y1) = (-5.0, 5.0, -5.0, 5.0);
-    }
-    let margin = 0.5;
-    let (x0, x1, y0, y1) = (x0 - margin, x1 + margin, y0 - margin, y1 + margin);
-    let scale = 60.0; // pixels per metre
-    let (w, h) = ((x1 - x0) * scale, (y1 - y0) * scale);
-    // World y up, SVG y down.
-    let px = |x: f64| (x - x0) * scale;
-    let py = |y: f64| (y1 - y) * scale;
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0}" height="{h:.0}" viewBox="0 0 {w:.0} {h:.0}">"#
-    );
-    let _ = writeln!(
-        s,
-        r##"<rect x="0" y="0" width="{w:.0}" height="{h:.0}" fill="#fafafa"/>"##
-    );
-    // 1 m grid.
-    let mut gx = x0.ceil();
-    while gx <= x1 {
-        let _ = writeln!(
-            s,
-            r##"<line x1="{0:.1}" y1="0" x2="{0:.1}" y2="{h:.0}" stroke="#e4e4e4" stroke-width="1"/>"##,
-            px(gx)
-        );
-        gx += 1.0;
-    }
-    let mut gy = y0.ceil();
-    while gy <= y1 {
-        let _ = writeln!(
-            s,
-            r##"<line x1="0" y1="{0:.1}" x2="{w:.0}" y2="{0:.1}" stroke="#e4e4e4" stroke-width="1"/>"##,
-            py(gy)
-        );
-        gy += 1.0;
-    }
-    for wl in world.walls() {
-        let _ = writeln!(
-            s,
-            r##"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="#333" stroke-width="4"/>"##,
-            px(wl.from[0]),
-            py(wl.from[1]),
-            px(wl.to[0]),
-            py(wl.to[1])
-        );
+        pts.push((o.center[0], o.center[1]));
     }
     for c in world.circles() {
-        let _ = writeln!(
-            s,
-            r##"<circle cx="{:.1}" cy="{:.1}" r="{:.1}" fill="#999"/>"##,
-            px(c.center[0]),
-            py(c.center[1]),
-            c.radius_m * scale
-        );
-    }
-    for o in world.objects() {
-        let [r, g, b] = o.rgb;
-        let _ = writeln!(
-            s,
-            r##"<circle cx="{:.1}" cy="{:.1}" r="{:.1}" fill="rgb({r},{g},{b})" stroke="#222"/><text x="{:.1}" y="{:.1}" font-family="sans-serif" font-size="12">{}</text>"##,
-            px(o.center[0]),
-            py(o.center[1]),
-            (o.radius_m * scale).max(3.0),
-            px(o.center[0]) + 10.0,
-            py(o.center[1]) - 10.0,
-            esc(&o.color)
-        );
-    }
-    let palette = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd"];
-    for (i, t) in trajectories.iter().enumerate() {
-        let colour = palette.get(i % palette.len()).copied().unwrap_or("#000");
-        if t.points.len() >= 2 {
-            let pts: Vec<String> = t
-                .points
-                .iter()
-                .map(|p| format!("{:.1},{:.1}", px(p.1), py(p.2)))
-                .collect();
-            let _ = writeln!(
-                s,
-                r#"<polyline points="{}" fill="none" stroke="{colour}" stroke-width="2"/>"#,
-                pts.join(" ")
-            );
-        }
-        if let Some(&(_, x, y)) = t.points.first() {
-            let _ = writeln!(
-                s,
-                r#"<circle cx="{:.1}" cy="{:.1}" r="5" fill="{colour}"/><text x="{:.1}" y="{:.1}" font-family="sans-serif" font-size="13" fill="{colour}">{}</text>"#,
-                px(x),
-                py(y),
-                px(x) + 8.0,
-                py(y) + 16.0,
-                esc(&t.robot)
-            );
-        }
+        pts.push((c.center[0], c.center[1]));
     }
     for r in world.robots() {
-        let p = r.pose();
-        let (dx, dy) = (p.theta_rad.cos(), p.theta_rad.sin());
-        let _ = writeln!(
-            s,
-            r##"<circle cx="{:.1}" cy="{:.1}" r="{:.1}" fill="none" stroke="#555" stroke-dasharray="4 3"/><line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="#555"/>"##,
-            px(p.x_m),
-            py(p.y_m),
-            r.radius_m() * scale,
-            px(p.x_m),
-            py(p.y_m),
-            px(p.x_m + dx * r.radius_m()),
-            py(p.y_m + dy * r.radius_m())
-        );
+        pts.push((r.pose().x_m, r.pose().y_m));
     }
-    let _ = writeln!(
-        s,
-        r#"<text x="10" y="20" font-family="sans-serif" font-size="14">{}</text>"#,
-        esc(title)
-    );
-    s.push_str("</svg>\n");
-    s
+    for t in trajectories {
+        pts.extend(t.points.iter().map(|p| (p.1, p.2)));
+    }
+    let frame = ima_plot::Frame::around(pts, 0.5)
+        .unwrap_or_else(|| ima_plot::Frame::new(-5.0..5.0, -5.0..5.0));
+    let px_per_m = (640.0 / frame.width().max(frame.height())).clamp(8.0, 80.0);
+    let (cw, ch) = ima_plot::metric_chart_size(&frame, px_per_m);
+    // A robot's colour: its path's, or grey for a robot without one.
+    let colour_of = |name: &str| {
+        trajectories
+            .iter()
+            .position(|t| t.robot == name)
+            .map_or(ima_plot::MUTED, ima_plot::run_colour)
+    };
+    let mut rows = vec![LegendRow::Heading("Paths (ground truth)".into())];
+    for (i, t) in trajectories.iter().enumerate() {
+        rows.push(LegendRow::entry(
+            Mark::Line,
+            ima_plot::run_colour(i),
+            format!("{}: {:.1} m", t.robot, finite_length(t)),
+        ));
+    }
+    rows.extend([
+        LegendRow::entry(Mark::Square, ima_plot::INK, "start (in the path's colour)"),
+        LegendRow::entry(Mark::Ring, ima_plot::INK, "robot at the end, heading"),
+        LegendRow::entry(Mark::Dot, RGBColor(220, 30, 30), "coloured post (name)"),
+        LegendRow::entry(Mark::Swatch, RGBColor(150, 150, 150), "obstacle"),
+        LegendRow::entry(Mark::Line, ima_plot::INK, "wall"),
+        LegendRow::scale_bar(px_per_m),
+    ]);
+    let (lw, lh) = ima_plot::legend_size(&rows);
+    ima_plot::render(cw + lw, ch.max(lh) + ima_plot::TITLE_H, |root| {
+        let body = ima_plot::titled(root, title, None)?;
+        let (plot, side) = body.split_horizontally(cw);
+        let mut chart = ima_plot::metric_chart(&plot, &frame, "x (m)", "y (m)")?;
+        for w in world.walls() {
+            let line = [(w.from[0], w.from[1]), (w.to[0], w.to[1])];
+            ima_plot::line(&mut chart, line, ima_plot::INK, 4, false)?;
+        }
+        for c in world.circles() {
+            let grey = RGBColor(150, 150, 150).to_rgba();
+            ima_plot::disc(
+                &mut chart,
+                (c.center[0], c.center[1]),
+                c.radius_m,
+                Some(grey),
+                None,
+            )?;
+        }
+        let small = ima_plot::text_style(11.0, ima_plot::INK);
+        for o in world.objects() {
+            let [r, g, b] = o.rgb;
+            let at = (o.center[0], o.center[1]);
+            let fill = RGBColor(r, g, b).to_rgba();
+            let outline = ima_plot::INK.stroke_width(1);
+            ima_plot::disc(
+                &mut chart,
+                at,
+                o.radius_m.max(0.05),
+                Some(fill),
+                Some(outline),
+            )?;
+            let pos = Pos::new(HPos::Left, VPos::Bottom);
+            ima_plot::label_backed(&mut chart, at, &o.color, (9, -7), &small, pos)?;
+        }
+        for (i, t) in trajectories.iter().enumerate() {
+            let colour = ima_plot::run_colour(i);
+            let line = t.points.iter().map(|p| (p.1, p.2));
+            ima_plot::line(&mut chart, line, colour, 2, false)?;
+            if let Some(&(_, x, y)) = t.points.first() {
+                ima_plot::mark(&mut chart, (x, y), Mark::Square, colour)?;
+            }
+        }
+        for r in world.robots() {
+            let p = r.pose();
+            let colour = colour_of(r.name());
+            let at = (p.x_m, p.y_m);
+            ima_plot::ring(&mut chart, at, r.radius_m(), colour, true)?;
+            let (dx, dy) = (p.theta_rad.cos(), p.theta_rad.sin());
+            let nose = (p.x_m + dx * r.radius_m(), p.y_m + dy * r.radius_m());
+            ima_plot::line(&mut chart, [at, nose], colour, 2, false)?;
+        }
+        ima_plot::legend(&side, &rows)
+    })
 }
 
 #[cfg(test)]
@@ -238,11 +204,28 @@ mod tests {
         assert_eq!(t.points.len(), 3);
         assert!((t.length() - 6.0).abs() < 1e-9);
         assert!((t.length_between(0.0, 2.5) - 5.0).abs() < 1e-9);
-        let s = svg(&World::default_world(), &[t], "a <title>");
-        assert!(s.starts_with("<svg"));
-        assert!(s.contains("<polyline"));
-        assert!(s.contains("a &lt;title&gt;"));
-        assert!(s.contains("rgb(220,30,30)"));
-        assert!(s.trim_end().ends_with("</svg>"));
+        let mut u = Trajectory::new("skeeter");
+        u.push(0.0, 1.0, 1.0);
+        u.push(1.0, f64::NAN, 1.0);
+        u.push(2.0, 1.0, 2.0);
+        let s = svg(&World::default_world(), &[t, u], "a <title>");
+        let pic = ima_plot::inspect(&s).unwrap();
+        for text in [
+            "a <title>",
+            "x (m)",
+            "y (m)",
+            "scooter: 6.0 m",
+            "scale 1 m",
+            "red",
+            "wall",
+            "start (in the path's colour)",
+        ] {
+            assert!(pic.has_text(text), "{text} missing: {:?}", pic.texts);
+        }
+        // The two paths (a NaN sample dropped, not drawn), in two colours.
+        assert!(pic.has_text("skeeter: 1.0 m"), "{:?}", pic.texts);
+        assert!(s.contains(r##"stroke="#0072B2""##) && s.contains(r##"stroke="#D55E00""##));
+        // The red post in its own colour.
+        assert!(s.contains(r##"fill="#DC1E1E""##), "{s}");
     }
 }
