@@ -34,6 +34,7 @@ pub async fn open_p2os(d: &BaseDevice) -> Result<P2os> {
     );
     let port = ima_p2os::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the P2OS base port {}", d.port))?;
+    let port = crate::record::tap(port, "base", &d.port, d.baud, "p2os"); // record: raw bytes
     let mut cfg = ima_p2os::Config::default();
     let mut bauds: heapless::Vec<u32, 8> = heapless::Vec::new();
     let _ = bauds.push(d.baud);
@@ -60,6 +61,7 @@ pub async fn open_rflex(d: &BaseDevice, time_scale: f64) -> Result<Rflex> {
     );
     let port = ima_rflex::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the rFLEX base port {}", d.port))?;
+    let port = crate::record::tap(port, "base", &d.port, d.baud, "rflex"); // record: raw bytes
     let mut cfg = ima_rflex::machine::Config::default();
     let k = if time_scale.is_finite() {
         time_scale.max(1.0)
@@ -93,6 +95,7 @@ pub async fn open_laser(d: &LaserDevice) -> Result<SickLms> {
     })?;
     let port = ima_sick_lms::shell::open_port(&d.port, 9600)
         .with_context(|| format!("opening the SICK LMS port {}", d.port))?;
+    let port = crate::record::tap(port, "laser", &d.port, 9600, "sick-lms"); // record: raw bytes
     let wait = secs(d.power_up_wait_s.max(0.0));
     let cfg = ima_sick_lms::machine::Config {
         baud,
@@ -122,6 +125,12 @@ pub async fn open_compass(d: &CompassDeviceConfig) -> Result<CompassDriver> {
     };
     let port = ima_compass::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the compass port {}", d.port))?;
+    let protocol = match d.dialect {
+        CompassDialect::Kvh => "compass-kvh",
+        CompassDialect::Nmea => "compass-nmea",
+        CompassDialect::Tcm2 => "compass-tcm2",
+    };
+    let port = crate::record::tap(port, "compass", &d.port, d.baud, protocol); // record: raw bytes
     CompassDriver::connect(
         port,
         CompassConfig::for_dialect(dialect),
@@ -136,6 +145,11 @@ pub async fn open_compass(d: &CompassDeviceConfig) -> Result<CompassDriver> {
 pub fn open_mux(d: &MuxDevice) -> Result<VideoMux> {
     let port = ima_video_mux::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the video switcher port {}", d.port))?;
+    let protocol = match d.dialect {
+        MuxDialect::Extron => "video-mux-extron",
+        MuxDialect::Kramer => "video-mux-kramer",
+    };
+    let port = crate::record::tap(port, "video_mux", &d.port, d.baud, protocol); // record: raw bytes
     let dialect = match d.dialect {
         MuxDialect::Extron => MuxWireDialect::Extron {
             kind: TieKind::All,
@@ -190,6 +204,18 @@ pub struct ScooterDevices {
     pub compass: Option<CompassDriver>,
 }
 
+/// record: name the robot whose ports these are (raw channels `/<robot>/serial/<device>`).
+fn label_ports(cfg: &RobotConfig) {
+    let d = &cfg.devices;
+    let ports = [
+        d.base.as_ref().map(|b| b.port.as_str()),
+        d.laser.as_ref().map(|l| l.port.as_str()),
+        d.compass.as_ref().map(|c| c.port.as_str()),
+        d.video_mux.as_ref().map(|m| m.port.as_str()),
+    ];
+    crate::record::label_ports(&cfg.robot, ports.into_iter().flatten());
+}
+
 fn missing(what: &str) -> anyhow::Error {
     anyhow::anyhow!("the configuration has no [devices.{what}]")
 }
@@ -198,6 +224,7 @@ fn missing(what: &str) -> anyhow::Error {
 pub async fn open_skeeter(cfg: &RobotConfig) -> Result<SkeeterDevices> {
     anyhow::ensure!(cfg.role == Role::Skeeter, "not a Skeeter configuration");
     let d = &cfg.devices;
+    label_ports(cfg); // record: raw channels named by robot
     let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?).await?;
     let mux = open_mux(d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?)?;
     let base = open_p2os(d.base.as_ref().ok_or_else(|| missing("base"))?).await?;
@@ -208,6 +235,7 @@ pub async fn open_skeeter(cfg: &RobotConfig) -> Result<SkeeterDevices> {
 pub async fn open_scooter(cfg: &RobotConfig) -> Result<ScooterDevices> {
     anyhow::ensure!(cfg.role == Role::Scooter, "not a Scooter configuration");
     let d = &cfg.devices;
+    label_ports(cfg); // record: raw channels named by robot
     let base = d.base.as_ref().ok_or_else(|| missing("base"))?;
     let laser = d.laser.as_ref().ok_or_else(|| missing("laser"))?;
     let compass = async {

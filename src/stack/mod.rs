@@ -99,6 +99,15 @@ impl Events {
             detail,
         };
         tracing::info!(robot, kind, detail = %e.detail, "event");
+        // record: every event as a log line on /events.
+        crate::record::with(|r| {
+            r.log_text(
+                "/events",
+                ima_record::messages::log::Level::Info,
+                robot,
+                &format!("{kind} {}", e.detail),
+            );
+        });
         if let Some(s) = &self.sink {
             let _ = s.send(e);
         }

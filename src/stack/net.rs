@@ -211,6 +211,7 @@ impl Bus {
     /// apart. Receivers drop duplicates by sequence number only, so the copies are new
     /// messages and the receivers are idempotent.
     pub async fn say(&self, b: &Broadcast) {
+        crate::record::with(|r| r.log_broadcast("broadcast", &b.to_string())); // record: broadcast
         let copies = if matches!(b, Broadcast::Status { .. }) {
             1
         } else {

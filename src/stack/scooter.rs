@@ -124,12 +124,14 @@ pub async fn run(
     let (scan_tx, mut scan_rx) = watch::channel::<Option<LaserScan>>(None);
     let laser_task = tokio::spawn({
         let mut laser = laser.clone();
+        let robot = me.clone();
         async move {
             let mut after = laser.now();
             loop {
                 match laser.next_scan(after).await {
                     Ok(s) => {
                         after = s.at;
+                        crate::record::with(|r| r.log_scan(&robot, &s.value)); // record: scan
                         if scan_tx.send(Some(s.value)).is_err() {
                             return;
                         }
@@ -262,12 +264,16 @@ pub async fn run(
             && Some(o.at) != last_odo_at
         {
             last_odo_at = Some(o.at);
+            crate::record::with(|r| {
+                r.log_odometry(&me, ima_record::convert::Pose2::from_isometry(&o.value.pose));
+            }); // record: odometry
             brain.handle_odometry(&o.value, now);
         }
         if let Some(c) = compass.as_ref().and_then(|c| c.latest())
             && Some(c.at) != last_compass_at
         {
             last_compass_at = Some(c.at);
+            crate::record::with(|r| r.log_compass(&me, common_heading(&c.value.heading, &cfg))); // record: compass
             brain.handle_compass(common_heading(&c.value.heading, &cfg), now);
         }
         if scan_rx.has_changed().unwrap_or(false) {
@@ -277,6 +283,11 @@ pub async fn run(
             }
         }
         let out = brain.step(now);
+        crate::record::with(|r| {
+            let dr = brain.dr_position();
+            let p = ima_record::convert::Pose2 { x_m: dr.x, y_m: dr.y, theta_rad: brain.heading().unwrap_or(0.0) };
+            r.log_pose(&format!("/{me}/belief"), "map", p);
+        }); // record: Scooter's belief (dead-reckoned position and computed heading)
         // Once Scooter has told Skeeter it reached the target it waits there for the end of
         // the mission (or a new target), whatever the brain selects meanwhile.
         let command = if reached.is_some() || halted {

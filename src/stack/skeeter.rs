@@ -26,6 +26,18 @@ use super::{Events, MissionClock};
 use crate::config::RobotConfig;
 
 /// The colour database of the configuration (the built-in one when empty).
+/// record: the SES records as dome marks for the live view.
+fn ses_marks(form: &ima_agents::ses::shared::SharedForm) -> Vec<ima_record::convert::SesMark> {
+    form.records
+        .iter()
+        .map(|r| ima_record::convert::SesMark {
+            azimuth_rad: r.bearing.azimuth_rad,
+            elevation_rad: r.bearing.elevation_rad,
+            tag: r.object.clone(),
+        })
+        .collect()
+}
+
 pub fn colour_db(cfg: &RobotConfig) -> Result<ColourDb> {
     if cfg.agent.colours.is_empty() {
         return Ok(ColourDb::default());
@@ -57,8 +69,9 @@ pub async fn run(
     let SkeeterDevices {
         mut base,
         mut mux,
-        mut frames,
+        frames,
     } = dev;
+    let mut frames = crate::record::frames(frames, &me); // record: camera frames
     // Skeeter does not move: make sure its base is stopped.
     let _ = base.stop().await;
     let bus = Bus::bind(&cfg, key.clone())?;
@@ -150,14 +163,17 @@ pub async fn run(
                 SkeeterOutput::StartScan => {
                     let _ = scan_req_tx.try_send(());
                 }
-                SkeeterOutput::PublishSes(form) => match form.to_bytes() {
-                    Ok(bytes) => {
-                        if let Err(e) = ses.publish(clock.now().as_micros(), &bytes) {
-                            tracing::warn!("publishing the SES: {e}");
+                SkeeterOutput::PublishSes(form) => {
+                    crate::record::with(|r| r.log_ses(&me, &ses_marks(&form))); // record: SES
+                    match form.to_bytes() {
+                        Ok(bytes) => {
+                            if let Err(e) = ses.publish(clock.now().as_micros(), &bytes) {
+                                tracing::warn!("publishing the SES: {e}");
+                            }
                         }
+                        Err(e) => tracing::warn!("encoding the SES: {e:?}"),
                     }
-                    Err(e) => tracing::warn!("encoding the SES: {e:?}"),
-                },
+                }
             }
         }
         let b = brain.behaviour().to_owned();
