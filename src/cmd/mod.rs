@@ -20,6 +20,7 @@ pub mod mock_world;
 pub mod num;
 pub mod output;
 pub mod peer;
+pub mod replay;
 pub mod run;
 pub mod san;
 pub mod scan;
