@@ -186,3 +186,76 @@ fn a_killed_recording_is_still_readable() {
         msgs.len()
     );
 }
+
+#[test]
+fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
+    use tokio_tungstenite::tungstenite::{self, Message, client::IntoClientRequest};
+    let port = common::mission::free_port(false);
+    let _demo = common::Child(
+        ima()
+            .args(["demo", "--json", "--speed", "4", "--svg"])
+            .arg(tmp("live.svg"))
+            .arg("--foxglove")
+            .arg(format!("127.0.0.1:{port}"))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let stream = loop {
+        match std::net::TcpStream::connect(("127.0.0.1", port)) {
+            Ok(s) => break s,
+            Err(e) => {
+                assert!(std::time::Instant::now() < deadline, "no server: {e}");
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+        }
+    };
+    stream
+        .set_read_timeout(Some(std::time::Duration::from_secs(5)))
+        .unwrap();
+    let mut req = format!("ws://127.0.0.1:{port}")
+        .into_client_request()
+        .unwrap();
+    req.headers_mut()
+        .insert("sec-websocket-protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tungstenite::client(req, stream).unwrap();
+    let mut schemas: BTreeMap<String, String> = BTreeMap::new();
+    let mut laser = None;
+    while laser.is_none() {
+        assert!(std::time::Instant::now() < deadline, "advertised: {schemas:?}");
+        let Ok(Message::Text(t)) = ws.read() else {
+            continue;
+        };
+        let v: serde_json::Value = serde_json::from_str(&t).unwrap();
+        if v["op"] == "advertise" {
+            for c in v["channels"].as_array().unwrap() {
+                let topic = c["topic"].as_str().unwrap().to_owned();
+                if topic == "/scooter/laser/scan" {
+                    laser = c["id"].as_u64();
+                }
+                schemas.insert(topic, c["schemaName"].as_str().unwrap_or("").to_owned());
+            }
+        }
+    }
+    assert_eq!(schemas["/scooter/laser/scan"], "foxglove.LaserScan");
+    assert!(
+        !schemas.keys().any(|t| t.contains("/serial/")),
+        "raw bytes stay off the live view: {schemas:?}"
+    );
+    let sub = serde_json::json!({"op": "subscribe",
+        "subscriptions": [{"id": 3, "channelId": laser.unwrap()}]});
+    ws.send(Message::Text(sub.to_string().into())).unwrap();
+    loop {
+        assert!(std::time::Instant::now() < deadline, "no scan arrived");
+        if let Ok(Message::Binary(b)) = ws.read() {
+            assert_eq!(b[0], 1, "message data");
+            assert_eq!(u32::from_le_bytes(b[1..5].try_into().unwrap()), 3);
+            let s = ima_record::messages::LaserScan::decode(&b[13..]).unwrap();
+            assert_eq!(s.frame_id, "scooter/laser");
+            assert!(!s.ranges.is_empty());
+            break;
+        }
+    }
+}
