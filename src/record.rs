@@ -76,8 +76,12 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
         name: name.to_owned(),
     })?;
     if let Some(port) = rec.server_port() {
-        let host = args.foxglove.map_or("127.0.0.1".into(), |a| a.ip().to_string());
-        eprintln!("ima: live view for Foxglove on ws://{host}:{port} (open docs/foxglove-layout.json)");
+        let host = args
+            .foxglove
+            .map_or("127.0.0.1".into(), |a| a.ip().to_string());
+        eprintln!(
+            "ima: live view for Foxglove on ws://{host}:{port} (open docs/foxglove-layout.json)"
+        );
     }
     *current().write().unwrap_or_else(PoisonError::into_inner) = Some(rec);
     Ok(())

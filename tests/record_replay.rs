@@ -21,7 +21,15 @@ fn tmp(name: &str) -> std::path::PathBuf {
 fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     let file = tmp("demo.mcap");
     let out = ima()
-        .args(["demo", "--json", "--speed", "10", "--targets", "red", "--svg"])
+        .args([
+            "demo",
+            "--json",
+            "--speed",
+            "10",
+            "--targets",
+            "red",
+            "--svg",
+        ])
         .arg(tmp("demo.svg"))
         .arg("--record")
         .arg(&file)
@@ -86,7 +94,11 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         .arg(&file)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let replayed: Vec<Vec<Option<f32>>> = json_lines(&out.stdout)
         .iter()
         .filter(|l| l["kind"] == "scan" && l["robot"] == "scooter")
@@ -152,7 +164,10 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("/scooter/serial/laser"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("/scooter/serial/laser"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -224,7 +239,10 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     let mut schemas: BTreeMap<String, String> = BTreeMap::new();
     let mut laser = None;
     while laser.is_none() {
-        assert!(std::time::Instant::now() < deadline, "advertised: {schemas:?}");
+        assert!(
+            std::time::Instant::now() < deadline,
+            "advertised: {schemas:?}"
+        );
         let Ok(Message::Text(t)) = ws.read() else {
             continue;
         };
@@ -258,4 +276,55 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
             break;
         }
     }
+}
+
+/// `ima drive` against a mock P2OS robot, recorded; then `ima drive` against that recording
+/// served by `ima replay --as-mock` connects the same way and reads the same odometry.
+#[test]
+fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
+    use std::io::BufRead;
+    let file = tmp("p2os.mcap");
+    let (_mock, pty) = common::spawn_mock(&["p2os"]);
+    let drive = |port: &str, record: Option<&std::path::Path>| {
+        let mut cmd = ima();
+        cmd.args([
+            "drive", "--vel", "0.2", "--for", "1", "--json", "--port", port,
+        ]);
+        if let Some(f) = record {
+            cmd.arg("--record").arg(f);
+        }
+        let out = cmd.output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        json_lines(&out.stdout)
+            .iter()
+            .map(|l| {
+                (
+                    l["x_m"].to_string(),
+                    l["y_m"].to_string(),
+                    l["theta_rad"].to_string(),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    let live = drive(&pty, Some(&file));
+    assert!(live.len() >= 3, "{live:?}");
+    let mut served = common::Child(
+        ima()
+            .args(["replay", "--as-mock", "robot/base"])
+            .arg(&file)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut path = String::new();
+    std::io::BufReader::new(served.0.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let replayed = drive(path.trim(), None);
+    assert_eq!(replayed, live);
 }

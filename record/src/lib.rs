@@ -35,9 +35,9 @@ use std::time::Duration;
 
 use foxglove::{Context, Encode, PartialMetadata, Schema};
 
-pub use foxglove::messages;
 /// Decoding of recorded `foxglove.*` messages (protobuf).
 pub use foxglove::Decode;
+pub use foxglove::messages;
 
 /// Messages the queue holds before new ones are dropped.
 pub const DEFAULT_QUEUE: usize = 8192;

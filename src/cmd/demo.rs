@@ -177,11 +177,14 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                         .iter()
                         .filter_map(|name| {
                             let p = w.robot_id(name).and_then(|id| w.robot(id))?.pose();
-                            Some(((*name).to_owned(), ima_record::convert::Pose2 {
-                                x_m: p.x_m,
-                                y_m: p.y_m,
-                                theta_rad: p.theta_rad,
-                            }))
+                            Some((
+                                (*name).to_owned(),
+                                ima_record::convert::Pose2 {
+                                    x_m: p.x_m,
+                                    y_m: p.y_m,
+                                    theta_rad: p.theta_rad,
+                                },
+                            ))
                         })
                         .collect()
                 });

@@ -173,10 +173,7 @@ impl Clock {
 
     fn at(&self, offset: usize) -> u64 {
         let i = self.ends.partition_point(|(end, _)| *end <= offset);
-        self.ends
-            .get(i)
-            .or(self.ends.last())
-            .map_or(0, |(_, t)| *t)
+        self.ends.get(i).or(self.ends.last()).map_or(0, |(_, t)| *t)
     }
 }
 
@@ -200,7 +197,9 @@ pub fn decode_stream(s: &RawStream) -> Result<Vec<Stamped>> {
                 y_m: v["y_m"].as_f64().unwrap_or(0.0),
                 theta_rad: v["theta_rad"].as_f64().unwrap_or(0.0),
             })),
-            (Protocol::Rflex, Some("motion")) => rflex_odometry(&mut rflex, &v).map(Reading::Odometry),
+            (Protocol::Rflex, Some("motion")) => {
+                rflex_odometry(&mut rflex, &v).map(Reading::Odometry)
+            }
             (Protocol::Compass, _) => v["heading_rad"]
                 .as_f64()
                 .map(|h| Reading::Compass(std::f64::consts::FRAC_PI_2 - h)),

@@ -22,6 +22,9 @@ pub struct RunArgs {
     /// Use the documented insecure all-zero key when the configuration names no key file.
     #[arg(long)]
     insecure: bool,
+    /// Recording and live view.
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 /// Point the devices of `cfg` at a world served in this process (`mock = true`).
@@ -54,6 +57,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     } else {
         None
     };
+    crate::record::start(&args.rec, "ima run")?; // record
     crate::safety::block_on(async {
         let key = net::group_key(&cfg, None)?;
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<crate::stack::Event>();

@@ -265,7 +265,10 @@ pub async fn run(
         {
             last_odo_at = Some(o.at);
             crate::record::with(|r| {
-                r.log_odometry(&me, ima_record::convert::Pose2::from_isometry(&o.value.pose));
+                r.log_odometry(
+                    &me,
+                    ima_record::convert::Pose2::from_isometry(&o.value.pose),
+                );
             }); // record: odometry
             brain.handle_odometry(&o.value, now);
         }
@@ -285,7 +288,11 @@ pub async fn run(
         let out = brain.step(now);
         crate::record::with(|r| {
             let dr = brain.dr_position();
-            let p = ima_record::convert::Pose2 { x_m: dr.x, y_m: dr.y, theta_rad: brain.heading().unwrap_or(0.0) };
+            let p = ima_record::convert::Pose2 {
+                x_m: dr.x,
+                y_m: dr.y,
+                theta_rad: brain.heading().unwrap_or(0.0),
+            };
             r.log_pose(&format!("/{me}/belief"), "map", p);
         }); // record: Scooter's belief (dead-reckoned position and computed heading)
         // Once Scooter has told Skeeter it reached the target it waits there for the end of
