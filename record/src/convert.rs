@@ -186,7 +186,7 @@ pub fn ses_scene(frame_id: &str, at_ns: u64, marks: &[SesMark]) -> SceneUpdate {
             orientation: Some(quat_z(0.0)),
         };
         e.spheres.push(SpherePrimitive {
-            pose: Some(pose.clone()),
+            pose: Some(pose),
             size: Some(Vector3 {
                 x: 0.12,
                 y: 0.12,
@@ -224,7 +224,7 @@ pub fn map_markers(at_ns: u64, markers: &[MapMarker]) -> SceneUpdate {
                 frame_id: "map".to_owned(),
                 id: m.id.clone(),
                 spheres: vec![SpherePrimitive {
-                    pose: Some(pose.clone()),
+                    pose: Some(pose),
                     size: Some(Vector3 {
                         x: 0.3,
                         y: 0.3,

@@ -60,7 +60,7 @@ fn speed(s: &str) -> Result<f64, String> {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Reading {
     /// A laser scan.
-    Scan(LaserScan),
+    Scan(Box<LaserScan>),
     /// An odometry pose (odometry frame).
     Odometry(Pose2),
     /// A compass heading, radians, east-north-up (counter-clockwise from east).
@@ -191,7 +191,7 @@ pub fn decode_stream(s: &RawStream) -> Result<Vec<Stamped>> {
     let mut emit = |v: Value| -> Result<()> {
         let t_ns = clock.at(v["offset"].as_u64().unwrap_or(0) as usize);
         let reading = match (protocol, v["kind"].as_str()) {
-            (Protocol::SickLms, Some("scan")) => scan_of(&v).map(Reading::Scan),
+            (Protocol::SickLms, Some("scan")) => scan_of(&v).map(|s| Reading::Scan(Box::new(s))),
             (Protocol::P2os, Some("sip")) => Some(Reading::Odometry(Pose2 {
                 x_m: v["x_m"].as_f64().unwrap_or(0.0),
                 y_m: v["y_m"].as_f64().unwrap_or(0.0),
