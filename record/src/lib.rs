@@ -28,7 +28,7 @@ pub mod read;
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
@@ -41,6 +41,10 @@ pub use foxglove::messages;
 
 /// Messages the queue holds before new ones are dropped.
 pub const DEFAULT_QUEUE: usize = 8192;
+
+/// Bytes the queue may hold (encoded sizes, estimated) before new messages are dropped:
+/// memory stays bounded even when every queued message is a camera frame.
+pub const MAX_QUEUED_BYTES: usize = 64 << 20;
 
 /// MCAP chunk size, bytes (uncompressed): small enough that a crash loses little.
 const CHUNK_SIZE: u64 = 256 * 1024;
@@ -132,12 +136,16 @@ impl Report {
 
 /// A message that the background thread encodes and logs.
 trait Payload: Send {
+    fn size(&self) -> usize;
     fn schema(&self) -> Option<Schema>;
     fn encoding(&self) -> String;
     fn encode_into(&self, buf: &mut Vec<u8>);
 }
 
 impl<T: Encode + Send> Payload for T {
+    fn size(&self) -> usize {
+        self.encoded_len().unwrap_or(1024)
+    }
     fn schema(&self) -> Option<Schema> {
         T::get_schema()
     }
@@ -161,6 +169,16 @@ enum Body {
     DeclareRaw(RawDesc),
 }
 
+impl Body {
+    fn size(&self) -> usize {
+        match self {
+            Self::Typed(p) => p.size(),
+            Self::Raw(b) => b.len(),
+            Self::DeclareRaw(_) => 0,
+        }
+    }
+}
+
 enum Msg {
     Log {
         topic: Arc<str>,
@@ -173,6 +191,7 @@ enum Msg {
 struct Shared {
     tx: SyncSender<Msg>,
     dropped: AtomicU64,
+    queued_bytes: Arc<AtomicUsize>,
     wall0_ns: u64,
     mono0: std::time::Instant,
     finished: Mutex<Option<Report>>,
@@ -230,9 +249,11 @@ impl Recorder {
         };
         let server_port = server.as_ref().map(|(h, _)| h.port());
         let path = opts.mcap.clone();
+        let queued_bytes = Arc::new(AtomicUsize::new(0));
         let shared = Arc::new(Shared {
             tx,
             dropped: AtomicU64::new(0),
+            queued_bytes: Arc::clone(&queued_bytes),
             wall0_ns: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)),
@@ -241,6 +262,7 @@ impl Recorder {
             server_port,
         });
         let worker = Worker {
+            queued_bytes,
             ctx,
             writer,
             server,
@@ -275,23 +297,28 @@ impl Recorder {
         self.shared.dropped.load(Ordering::Relaxed)
     }
 
-    fn send(&self, topic: &str, body: Body) {
+    fn send(&self, topic: Arc<str>, body: Body) {
+        let size = body.size();
+        let q = &self.shared.queued_bytes;
+        if q.fetch_add(size, Ordering::Relaxed).saturating_add(size) > MAX_QUEUED_BYTES {
+            q.fetch_sub(size, Ordering::Relaxed);
+            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
         let msg = Msg::Log {
-            topic: Arc::from(topic),
+            topic,
             log_time: self.now_ns(),
             body,
         };
-        match self.shared.tx.try_send(msg) {
-            Ok(()) => {}
-            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
-                self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-            }
+        if self.shared.tx.try_send(msg).is_err() {
+            q.fetch_sub(size, Ordering::Relaxed);
+            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
     /// Log any `foxglove` well-known message on `topic`.
     pub fn log<T: Encode + Send + 'static>(&self, topic: &str, msg: T) {
-        self.send(topic, Body::Typed(Box::new(msg)));
+        self.send(Arc::from(topic), Body::Typed(Box::new(msg)));
     }
 
     /// Declare a raw serial port and get the handle that records its bytes.
@@ -308,14 +335,7 @@ impl Recorder {
     }
 
     pub(crate) fn send_raw(&self, topic: &Arc<str>, bytes: Vec<u8>) {
-        let msg = Msg::Log {
-            topic: Arc::clone(topic),
-            log_time: self.now_ns(),
-            body: Body::Raw(bytes),
-        };
-        if self.shared.tx.try_send(msg).is_err() {
-            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-        }
+        self.send(Arc::clone(topic), Body::Raw(bytes));
     }
 
     /// Finish: write what is queued, close the file (summary, indexes) and stop the server.
@@ -396,6 +416,7 @@ enum Chan {
 }
 
 struct Worker {
+    queued_bytes: Arc<AtomicUsize>,
     ctx: Arc<Context>,
     writer: Option<foxglove::McapWriterHandle<std::io::BufWriter<std::fs::File>>>,
     server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
@@ -479,6 +500,7 @@ impl Worker {
     }
 
     fn log(&mut self, topic: Arc<str>, log_time: u64, body: Body) {
+        self.queued_bytes.fetch_sub(body.size(), Ordering::Relaxed);
         if let Body::DeclareRaw(d) = body {
             self.raw_meta.insert(topic, d.metadata);
             return;
