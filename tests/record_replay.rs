@@ -328,3 +328,43 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     let replayed = drive(path.trim(), None);
     assert_eq!(replayed, live);
 }
+
+/// Ctrl-C during a recorded demo: the guard closes the file, which then has its summary.
+#[test]
+fn an_interrupted_recording_is_closed_properly() {
+    let file = tmp("sigint.mcap");
+    let mut child = common::Child(
+        ima()
+            .args(["demo", "--json", "--speed", "10", "--svg"])
+            .arg(tmp("sigint.svg"))
+            .arg("--record")
+            .arg(&file)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut waited = 0;
+    while std::fs::metadata(&file).map_or(0, |m| m.len()) < 200_000 && waited < 600 {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        waited += 1;
+    }
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &child.0.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let out = std::mem::replace(
+        &mut child.0,
+        std::process::Command::new("true").spawn().unwrap(),
+    )
+    .wait_with_output()
+    .unwrap();
+    assert_eq!(out.status.code(), Some(130));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("recorded") && err.contains("sigint.mcap"), "{err}");
+    let rec = Recording::open(&file).unwrap();
+    let (msgs, cut) = rec.messages();
+    assert_eq!(cut.0, None, "the file ends with its summary");
+    assert!(msgs.iter().any(|m| m.topic == "/scooter/laser/scan"));
+}
