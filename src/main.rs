@@ -144,6 +144,8 @@ fn main() -> ExitCode {
         Command::Peer(c) => cmd::peer::run(&c),
         Command::Experiment(c) => cmd::experiment::run(&c),
     };
+    // record: a command that failed before its guarded part still closes its recording.
+    let _ = record::finish();
     let (code, message) = safety::exit_status(&result);
     if let Some(m) = message {
         let _ = writeln!(std::io::stderr(), "ima: error: {m}");

@@ -362,7 +362,10 @@ fn an_interrupted_recording_is_closed_properly() {
     .unwrap();
     assert_eq!(out.status.code(), Some(130));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("recorded") && err.contains("sigint.mcap"), "{err}");
+    assert!(
+        err.contains("recorded") && err.contains("sigint.mcap"),
+        "{err}"
+    );
     let rec = Recording::open(&file).unwrap();
     let (msgs, cut) = rec.messages();
     assert_eq!(cut.0, None, "the file ends with its summary");

@@ -228,13 +228,24 @@ fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_fo
     }
     let report = rec.finish(Duration::from_secs(60));
     assert_eq!(
-        report.written.get("/skeeter/camera/2").copied().unwrap_or(0) + report.dropped,
+        report
+            .written
+            .get("/skeeter/camera/2")
+            .copied()
+            .unwrap_or(0)
+            + report.dropped,
         400
     );
     let (msgs, _) = Recording::open(&path).unwrap().messages();
-    let img = msgs.iter().find(|m| m.topic == "/skeeter/camera/2").unwrap();
+    let img = msgs
+        .iter()
+        .find(|m| m.topic == "/skeeter/camera/2")
+        .unwrap();
     assert_eq!(img.schema, "foxglove.RawImage");
     let f = foxglove::messages::RawImage::decode(&img.data[..]).unwrap();
-    assert_eq!((f.width, f.height, f.step, f.encoding.as_str()), (320, 240, 960, "rgb8"));
+    assert_eq!(
+        (f.width, f.height, f.step, f.encoding.as_str()),
+        (320, 240, 960, "rgb8")
+    );
     assert_eq!(f.data.len(), 320 * 240 * 3);
 }

@@ -91,9 +91,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     super::output::check_file("--svg", &args.svg)?;
     let started = std::time::Instant::now();
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
-    crate::record::start(&args.rec, "ima demo")?; // record
     let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());
     super::check_colours(&args.targets, &known, "the world's object colours")?;
+    crate::record::start(&args.rec, "ima demo")?; // record
     let served = ServedWorld::start(
         world.clone(),
         &ServeOptions {
