@@ -192,6 +192,8 @@ struct Shared {
     tx: SyncSender<Msg>,
     dropped: AtomicU64,
     queued_bytes: Arc<AtomicUsize>,
+    /// Stamp of everything logged while non-zero (a replay's recorded time).
+    stamp_override: AtomicU64,
     wall0_ns: u64,
     mono0: std::time::Instant,
     finished: Mutex<Option<Report>>,
@@ -254,6 +256,7 @@ impl Recorder {
             tx,
             dropped: AtomicU64::new(0),
             queued_bytes: Arc::clone(&queued_bytes),
+            stamp_override: AtomicU64::new(0),
             wall0_ns: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)),
@@ -283,6 +286,10 @@ impl Recorder {
 
     /// The recorder's clock now: Unix nanoseconds.
     pub fn now_ns(&self) -> u64 {
+        let o = self.shared.stamp_override.load(Ordering::Relaxed);
+        if o != 0 {
+            return o;
+        }
         let since = u64::try_from(self.shared.mono0.elapsed().as_nanos()).unwrap_or(u64::MAX);
         self.shared.wall0_ns.saturating_add(since)
     }
@@ -290,6 +297,14 @@ impl Recorder {
     /// The port the WebSocket server listens on, if one runs (useful with port 0).
     pub fn server_port(&self) -> Option<u16> {
         self.shared.server_port
+    }
+
+    /// Stamp everything logged from now on with `ns` (Unix nanoseconds) instead of the clock:
+    /// a replay keeps the recorded stamps. `None` goes back to the clock.
+    pub fn set_stamp(&self, ns: Option<u64>) {
+        self.shared
+            .stamp_override
+            .store(ns.unwrap_or(0), Ordering::Relaxed);
     }
 
     /// Messages dropped so far (queue full).

@@ -126,10 +126,14 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
 }
 
 fn publish(r: &Stamped) {
-    crate::record::with(|rec| match &r.reading {
-        Reading::Scan(s) => rec.log_scan(&r.robot, s),
-        Reading::Odometry(p) => rec.log_odometry(&r.robot, *p),
-        Reading::Compass(h) => rec.log_compass(&r.robot, *h),
+    crate::record::with(|rec| {
+        // The recorded stamp, so a recording of the replay has the original times.
+        rec.set_stamp(Some(r.t_ns));
+        match &r.reading {
+            Reading::Scan(s) => rec.log_scan(&r.robot, s),
+            Reading::Odometry(p) => rec.log_odometry(&r.robot, *p),
+            Reading::Compass(h) => rec.log_compass(&r.robot, *h),
+        }
     });
 }
 
