@@ -95,15 +95,21 @@ pub fn with(f: impl FnOnce(&Recorder)) {
 }
 
 /// Finish the recording (if any): close the file, stop the server, print one line to stderr.
-/// Later calls return the same report without printing again.
+/// Callers racing each other (the command's guard, the signal thread before its forced exit)
+/// all wait until the file is closed; the line is printed once.
 pub fn finish() -> Option<Report> {
+    static PRINTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
     let rec = current()
-        .write()
+        .read()
         .unwrap_or_else(PoisonError::into_inner)
-        .take()?;
+        .clone()?;
+    // Serialised inside the recorder: a second caller waits for the first's report.
     let report = rec.finish(Duration::from_secs(5));
-    eprintln!("ima: {}", report.summary());
-    *last().write().unwrap_or_else(PoisonError::into_inner) = Some(report.clone());
+    *current().write().unwrap_or_else(PoisonError::into_inner) = None;
+    if !PRINTED.swap(true, std::sync::atomic::Ordering::SeqCst) {
+        *last().write().unwrap_or_else(PoisonError::into_inner) = Some(report.clone());
+        eprintln!("ima: {}", report.summary());
+    }
     Some(report)
 }
 
