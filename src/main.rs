@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 
 mod cmd;
 mod config;
+mod record;
 mod safety;
 mod stack;
 mod wiring;
@@ -35,6 +36,9 @@ enum Command {
     Drive(cmd::drive::DriveArgs),
     /// Decode a capture of a serial protocol into JSON Lines.
     Decode(cmd::decode::DecodeArgs),
+    /// Replay an MCAP recording: re-decode its raw bytes, republish the readings, or serve a
+    /// recorded port on a pty (`--as-mock`).
+    Replay(cmd::replay::ReplayArgs),
     /// Configure a serial compass and print its heading live.
     Compass(cmd::compass::CompassArgs),
     /// Camera head tools (the mock head: grab a frame as PNG).
@@ -131,6 +135,7 @@ fn main() -> ExitCode {
         Command::Mock(a) => cmd::mock::run(&a),
         Command::Drive(a) => cmd::drive::run(&a),
         Command::Decode(a) => cmd::decode::run(&a),
+        Command::Replay(a) => cmd::replay::run(&a),
         Command::Scan(a) => cmd::scan::run(&a),
         Command::San(SanCommand::Simulate(a)) => cmd::san::run(&a),
         Command::Compass(a) => cmd::compass::run(&a),
@@ -140,6 +145,8 @@ fn main() -> ExitCode {
         Command::Peer(c) => cmd::peer::run(&c),
         Command::Experiment(c) => cmd::experiment::run(&c),
     };
+    // record: a command that failed before its guarded part still closes its recording.
+    let _ = record::finish();
     let (code, message) = safety::exit_status(&result);
     if let Some(m) = message {
         let _ = writeln!(std::io::stderr(), "ima: error: {m}");

@@ -206,6 +206,8 @@ pub fn install() {
             ));
         }
         cancel_channel().send_replace(true);
+        // record: the recording gets its summary even after a panic.
+        let _ = crate::record::finish();
         previous(info);
     }));
     #[cfg(unix)]
@@ -265,6 +267,8 @@ fn signal_thread() {
                 pending.join(", ")
             ));
         }
+        // record: close the recording before the forced exit.
+        let _ = crate::record::finish();
         std::process::exit(i32::from(code));
     });
 }
@@ -325,6 +329,8 @@ where
         }
     };
     halt_and_wait().await;
+    // record: every way out of a command closes the recording (its summary and indexes).
+    let _ = crate::record::finish();
     r
 }
 

@@ -46,6 +46,7 @@ pub async fn open_p2os(d: &BaseDevice, clock: &SharedClock) -> Result<P2os> {
     );
     let port = ima_p2os::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the P2OS base port {}", d.port))?;
+    let port = crate::record::tap(port, "base", &d.port, d.baud, "p2os"); // record: raw bytes
     let mut cfg = ima_p2os::Config::default();
     let mut bauds: heapless::Vec<u32, 8> = heapless::Vec::new();
     let _ = bauds.push(d.baud);
@@ -72,6 +73,7 @@ pub async fn open_rflex(d: &BaseDevice, time_scale: f64, clock: &SharedClock) ->
     );
     let port = ima_rflex::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the rFLEX base port {}", d.port))?;
+    let port = crate::record::tap(port, "base", &d.port, d.baud, "rflex"); // record: raw bytes
     let mut cfg = ima_rflex::machine::Config::default();
     let k = if time_scale.is_finite() {
         time_scale.max(1.0)
@@ -105,6 +107,7 @@ pub async fn open_laser(d: &LaserDevice, clock: &SharedClock) -> Result<SickLms>
     })?;
     let port = ima_sick_lms::shell::open_port(&d.port, 9600)
         .with_context(|| format!("opening the SICK LMS port {}", d.port))?;
+    let port = crate::record::tap(port, "laser", &d.port, 9600, "sick-lms"); // record: raw bytes
     let wait = secs(d.power_up_wait_s.max(0.0));
     let cfg = ima_sick_lms::machine::Config {
         baud,
@@ -134,6 +137,12 @@ pub async fn open_compass(d: &CompassDeviceConfig, clock: &SharedClock) -> Resul
     };
     let port = ima_compass::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the compass port {}", d.port))?;
+    let protocol = match d.dialect {
+        CompassDialect::Kvh => "compass-kvh",
+        CompassDialect::Nmea => "compass-nmea",
+        CompassDialect::Tcm2 => "compass-tcm2",
+    };
+    let port = crate::record::tap(port, "compass", &d.port, d.baud, protocol); // record: raw bytes
     CompassDriver::connect(
         port,
         CompassConfig::for_dialect(dialect),
@@ -149,6 +158,11 @@ pub async fn open_compass(d: &CompassDeviceConfig, clock: &SharedClock) -> Resul
 pub fn open_mux(d: &MuxDevice, clock: &SharedClock) -> Result<VideoMux> {
     let port = ima_video_mux::shell::open_port(&d.port, d.baud)
         .with_context(|| format!("opening the video switcher port {}", d.port))?;
+    let protocol = match d.dialect {
+        MuxDialect::Extron => "video-mux-extron",
+        MuxDialect::Kramer => "video-mux-kramer",
+    };
+    let port = crate::record::tap(port, "video_mux", &d.port, d.baud, protocol); // record: raw bytes
     let dialect = match d.dialect {
         MuxDialect::Extron => MuxWireDialect::Extron {
             kind: TieKind::All,
@@ -240,6 +254,18 @@ pub struct ScooterHw {
     compass: Option<CompassDriver>,
 }
 
+/// record: name the robot whose ports these are (raw channels `/<robot>/serial/<device>`).
+fn label_ports(cfg: &RobotConfig) {
+    let d = &cfg.devices;
+    let ports = [
+        d.base.as_ref().map(|b| b.port.as_str()),
+        d.laser.as_ref().map(|l| l.port.as_str()),
+        d.compass.as_ref().map(|c| c.port.as_str()),
+        d.video_mux.as_ref().map(|m| m.port.as_str()),
+    ];
+    crate::record::label_ports(&cfg.robot, ports.into_iter().flatten());
+}
+
 fn missing(what: &str) -> anyhow::Error {
     anyhow::anyhow!("the configuration has no [devices.{what}]")
 }
@@ -248,6 +274,7 @@ fn missing(what: &str) -> anyhow::Error {
 pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<SkeeterHw> {
     anyhow::ensure!(cfg.role == Role::Skeeter, "not a Skeeter configuration");
     let d = &cfg.devices;
+    label_ports(cfg); // record: raw channels named by robot
     let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?, clock).await?;
     let mux = open_mux(
         d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?,
@@ -267,6 +294,7 @@ pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Skee
 pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<ScooterHw> {
     anyhow::ensure!(cfg.role == Role::Scooter, "not a Scooter configuration");
     let d = &cfg.devices;
+    label_ports(cfg); // record: raw channels named by robot
     let base = d.base.as_ref().ok_or_else(|| missing("base"))?;
     let laser = d.laser.as_ref().ok_or_else(|| missing("laser"))?;
     let compass = async {
@@ -312,10 +340,13 @@ pub async fn run_scooter(
         compass,
     } = hw;
     let halt = Some(base.halt_signal());
+    // record: scans, odometry and headings as the runtime reads them.
+    let laser = crate::record::Recorded::new(laser, &cfg.robot);
+    let compass = compass.map(|c| crate::record::Recorded::new(c, &cfg.robot));
     match base {
         Base::P2os(base) => {
             let dev = scooter::ScooterDevices {
-                base,
+                base: crate::record::Recorded::new(base, &cfg.robot),
                 laser,
                 compass,
                 halt,
@@ -324,7 +355,7 @@ pub async fn run_scooter(
         }
         Base::Rflex(base) => {
             let dev = scooter::ScooterDevices {
-                base,
+                base: crate::record::Recorded::new(base, &cfg.robot),
                 laser,
                 compass,
                 halt,
@@ -352,6 +383,7 @@ pub async fn run_skeeter(
         .await
         .context("starting Skeeter's Peer Agent manager")?;
     let SkeeterHw { base, mux, frames } = hw;
+    let frames = crate::record::frames(frames, &cfg.robot); // record: camera frames
     match base {
         Base::P2os(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };

@@ -30,6 +30,7 @@ fn base_args(path: &str, out_dir: &str) -> Vec<(String, Option<String>)> {
         "peer client" => vec![f("--connect", "127.0.0.1:9"), f("--request", "ses")],
         "peer send" => vec![pos("stop")],
         "san simulate" => vec![pos("/nonexistent/net.toml")],
+        "replay" => vec![pos("/nonexistent/recording.mcap")],
         other => panic!("no base arguments for `ima {other}`: add them to tests/flag_fuzz.rs"),
     }
 }

@@ -44,6 +44,9 @@ pub struct CompassArgs {
     /// One JSON object per reading instead of text.
     #[arg(long)]
     json: bool,
+    /// Recording and live view.
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 fn config(args: &CompassArgs) -> Config {
@@ -65,13 +68,22 @@ pub fn run(args: &CompassArgs) -> Result<()> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
-    rt.block_on(run_async(args))
+    crate::record::start(&args.rec, "ima compass")?; // record
+    let r = rt.block_on(run_async(args));
+    let _ = crate::record::finish(); // record: close the file
+    r
 }
 
 async fn run_async(args: &CompassArgs) -> Result<()> {
     let cfg = config(args);
     let baud = args.baud.unwrap_or_else(|| default_baud(cfg.dialect));
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
+    let protocol = match args.dialect {
+        DriverDialect::Kvh => "compass-kvh",
+        DriverDialect::Nmea => "compass-nmea",
+        DriverDialect::Tcm2 => "compass-tcm2",
+    };
+    let port = crate::record::tap(port, "compass", &args.port, baud, protocol); // record: raw bytes
     tracing::info!(
         target: "ima::connect",
         "compass: configuring a {} at {baud} baud on {}",
@@ -120,6 +132,7 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         };
         after = r.at;
         let h = &r.value.heading;
+        crate::record::with(|rec| rec.log_compass("robot", h.yaw_enu_rad())); // record: heading
         let t = r.at.saturating_duration_since(start).as_secs_f64();
         let reference = match h.reference {
             HeadingReference::Magnetic => "magnetic",

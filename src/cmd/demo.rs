@@ -65,6 +65,9 @@ pub struct DemoArgs {
     /// same runtime drives either).
     #[arg(long, value_enum, default_value_t = BaseChoice::Rflex)]
     scooter_base: BaseChoice,
+    /// Recording and live view.
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 /// A base controller for `--scooter-base`.
@@ -108,6 +111,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     super::check_colours(&args.targets, &known, "the world's object colours")?;
     // The process's one clock: the served devices' models and every driver run on it.
     let clock = ima_hal::time::TokioClock::shared();
+    crate::record::start(&args.rec, "ima demo")?; // record
     let served = ServedWorld::start(
         world.clone(),
         &ServeOptions {
@@ -154,6 +158,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             let world = world.clone();
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
+                    crate::record::log_event(&e); // record: events, broadcasts, SES, belief
                     let (wt, truth) = world.with(|w| {
                         let p = w
                             .robot_id(&e.robot)
@@ -188,8 +193,27 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             let paths = Arc::clone(&paths);
             tokio::spawn(async move {
                 let mut tick = tokio::time::interval(Duration::from_millis(50));
+                let mut n = 0u64;
+                // record: where each robot started (its odometry frame's origin in `map`).
+                let starts: Vec<(String, ima_record::convert::Pose2)> = world.with(|w| {
+                    ["skeeter", "scooter"]
+                        .iter()
+                        .filter_map(|name| {
+                            let p = w.robot_id(name).and_then(|id| w.robot(id))?.pose();
+                            Some((
+                                (*name).to_owned(),
+                                ima_record::convert::Pose2 {
+                                    x_m: p.x_m,
+                                    y_m: p.y_m,
+                                    theta_rad: p.theta_rad,
+                                },
+                            ))
+                        })
+                        .collect()
+                });
                 loop {
                     tick.tick().await;
+                    n += 1;
                     let mut tr = paths.lock().unwrap_or_else(PoisonError::into_inner);
                     world.with(|w| {
                         let t = w.time().as_secs_f64();
@@ -197,9 +221,33 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                             if let Some(r) = w.robot_id(&tj.robot).and_then(|id| w.robot(id)) {
                                 let p = r.pose();
                                 tj.push(t, p.x_m, p.y_m);
+                                // record: ground truth
+                                crate::record::with(|rec| {
+                                    rec.log_ground_truth(
+                                        &tj.robot,
+                                        ima_record::convert::Pose2 {
+                                            x_m: p.x_m,
+                                            y_m: p.y_m,
+                                            theta_rad: p.theta_rad,
+                                        },
+                                    );
+                                });
                             }
                         }
                     });
+                    if n % 20 == 1 {
+                        world_markers(&world); // record: targets, once a second
+                        crate::record::with(|rec| {
+                            for (name, p) in &starts {
+                                rec.log_transform("map", &format!("{name}/odom"), *p);
+                                rec.log_transform(
+                                    &format!("{name}/base_link"),
+                                    &format!("{name}/laser"),
+                                    ima_record::convert::Pose2::default(),
+                                );
+                            }
+                        });
+                    }
                 }
             })
         };
@@ -257,6 +305,25 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let log = log.lock().unwrap_or_else(PoisonError::into_inner).clone();
     let paths = paths.lock().unwrap_or_else(PoisonError::into_inner).clone();
     summarise(args, &served, &outcomes, &log, &paths, started.elapsed())
+}
+
+/// record: the world's objects as markers on `/world/objects`.
+fn world_markers(world: &ima_mock_devices::world::SharedWorld) {
+    crate::record::with(|rec| {
+        let marks: Vec<_> = world.with(|w| {
+            w.objects()
+                .iter()
+                .map(|o| ima_record::convert::MapMarker {
+                    id: o.color.clone(),
+                    x_m: o.center[0],
+                    y_m: o.center[1],
+                    label: o.color.clone(),
+                    colour: o.color.clone(),
+                })
+                .collect()
+        });
+        rec.log_markers("/world/objects", &marks);
+    });
 }
 
 fn print_live(world_t: f64, e: &Event) {
@@ -374,6 +441,11 @@ fn summarise(
         "wall_time_s": wall.as_secs_f64(),
         "scooter_distance_m": scooter.length(),
         "svg": args.svg,
+        // record: what the recording wrote (null without --record/--foxglove).
+        "recording": crate::record::last_report().map(|r| json!({
+            "path": r.path, "written": r.written, "dropped": r.dropped,
+            "bytes": r.bytes, "error": r.error,
+        })),
     });
     if args.json {
         outln!("{summary}")?;

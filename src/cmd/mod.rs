@@ -17,6 +17,7 @@ pub mod mock;
 pub mod num;
 pub mod output;
 pub mod peer;
+pub mod replay;
 pub mod run;
 pub mod san;
 pub mod scan;

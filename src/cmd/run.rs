@@ -23,6 +23,9 @@ pub struct RunArgs {
     /// Use the documented insecure all-zero key when the configuration names no key file.
     #[arg(long)]
     insecure: bool,
+    /// Recording and live view.
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 /// Point the devices of `cfg` at a world served in this process (`mock = true`).
@@ -55,6 +58,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     } else {
         None
     };
+    crate::record::start(&args.rec, "ima run")?; // record
     crate::safety::block_on(async {
         let key = net::group_key(&cfg, None)?;
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
@@ -66,6 +70,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
             let stop_tx = std::sync::Arc::clone(&stop_tx);
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
+                    crate::record::log_event(&e); // record: events, broadcasts, SES, belief
                     let written = if let EventKind::AuthFailure(text) = &e.kind {
                         // Frames under another group key: a warning, on stderr in either mode.
                         eprintln!("ima: warning: {text}");

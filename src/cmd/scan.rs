@@ -46,6 +46,9 @@ pub struct ScanArgs {
     /// connection and summary lines go to stderr.
     #[arg(long)]
     json: bool,
+    /// Recording and live view.
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 fn parse_variant(s: &str) -> Result<Variant> {
@@ -277,8 +280,10 @@ pub fn run(args: &ScanArgs) -> Result<()> {
         .worker_threads(1)
         .enable_all()
         .build()?;
-    rt.block_on(async {
+    crate::record::start(&args.rec, "ima scan")?; // record
+    let r = rt.block_on(async {
         let port = open_port(&args.port, 9600).with_context(|| format!("opening {}", args.port))?;
+        let port = crate::record::tap(port, "laser", &args.port, 9600, "sick-lms"); // record: raw bytes
         let wait = cfg.power_up_wait.unwrap_or_default();
         let connect = SickLms::connect(
             port,
@@ -299,7 +304,9 @@ pub fn run(args: &ScanArgs) -> Result<()> {
         let closed = lms.close().await;
         result?;
         closed.context("closing the LMS (it may be left at the session's rate)")
-    })
+    });
+    let _ = crate::record::finish(); // record: close the file
+    r
 }
 
 async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Result<()> {
@@ -330,6 +337,7 @@ async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Resul
             _ = &mut stop => break,
         };
         last = s.at;
+        crate::record::with(|r| r.log_scan("robot", &s.value)); // record: scan
         n += 1;
         let t0 = *first.get_or_insert(s.at);
         let secs = s.at.saturating_duration_since(t0).as_secs_f64();

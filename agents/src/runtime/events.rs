@@ -36,6 +36,17 @@ impl Event {
     }
 }
 
+/// One record of a published SES sample: what was seen, and where on Skeeter's sphere.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SesMark {
+    /// The object's tag (a colour, or Scooter's).
+    pub tag: String,
+    /// Azimuth in Skeeter's (common) frame, radians, counter-clockwise.
+    pub azimuth_rad: f64,
+    /// Elevation, radians.
+    pub elevation_rad: f64,
+}
+
 /// What happened, with its details.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", content = "detail", rename_all = "kebab-case")]
@@ -86,6 +97,12 @@ pub enum EventKind {
     },
     /// Peer Agent link news.
     Peer(PeerNote),
+    /// Skeeter: the SES sample it published — what its cameras saw, as bearings — for live
+    /// views and recordings.
+    SesPublished {
+        /// One mark per SES record.
+        marks: Vec<SesMark>,
+    },
     /// Skeeter: a sweep of its cameras ended.
     Scan {
         /// Tags seen.
@@ -152,6 +169,7 @@ impl EventKind {
             EventKind::FleetStop { .. } => "fleet-stop",
             EventKind::FleetResume { .. } => "fleet-resume",
             EventKind::Peer(_) => "peer",
+            EventKind::SesPublished { .. } => "ses-published",
             EventKind::Scan { .. } => "scan",
             EventKind::Lagged { .. } => "lagged",
             EventKind::AuthFailure(_) => "auth-failure",

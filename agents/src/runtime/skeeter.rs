@@ -142,6 +142,16 @@ where
                     let _ = scan_req_tx.try_send(());
                 }
                 SkeeterOutput::PublishSes(form) => {
+                    let marks = form
+                        .records
+                        .iter()
+                        .map(|r| crate::runtime::events::SesMark {
+                            tag: r.object.clone(),
+                            azimuth_rad: r.bearing.azimuth_rad,
+                            elevation_rad: r.bearing.elevation_rad,
+                        })
+                        .collect();
+                    events.emit(&time, &me, EventKind::SesPublished { marks });
                     if link.publish.try_send(form).is_err() {
                         tracing::warn!("Skeeter's SES queue is full or closed: a sample is lost");
                     }

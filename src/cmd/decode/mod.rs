@@ -58,8 +58,17 @@ pub enum Direction {
 /// Arguments of `ima decode`.
 #[derive(Debug, Args)]
 pub struct DecodeArgs {
-    /// Protocol of the capture.
-    protocol: Protocol,
+    /// Protocol of the capture (with `--mcap`: the port's recorded protocol when absent).
+    #[arg(required_unless_present = "mcap")]
+    protocol: Option<Protocol>,
+    /// Read the bytes of one serial port from an MCAP recording (`ima ... --record`) instead;
+    /// `--from` picks the direction.
+    #[arg(long, value_name = "FILE.mcap", requires = "port", conflicts_with_all = ["file", "hex"])]
+    mcap: Option<PathBuf>,
+    /// With `--mcap`: the port, as its topic (`/scooter/serial/laser`), `robot/device`
+    /// (`scooter/laser`) or path.
+    #[arg(long, requires = "mcap")]
+    port: Option<String>,
     /// Which side sent the bytes.
     #[arg(long, value_enum, default_value = "robot")]
     from: Direction,
@@ -76,7 +85,13 @@ pub struct DecodeArgs {
 /// Run `ima decode`.
 pub fn run(args: &DecodeArgs) -> Result<()> {
     let mut raw = Vec::new();
+    let mut protocol = args.protocol;
     match &args.file {
+        _ if args.mcap.is_some() => {
+            let (bytes, recorded) = mcap_bytes(args)?;
+            raw = bytes;
+            protocol = protocol.or(recorded);
+        }
         Some(p) => {
             raw = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
         }
@@ -101,7 +116,10 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         out.write_all(b"\n")?;
         Ok(())
     };
-    match args.protocol {
+    let Some(protocol) = protocol else {
+        anyhow::bail!("give the protocol: the recording's port names none that `ima decode` knows");
+    };
+    match protocol {
         Protocol::P2os => p2os::decode_p2os(&bytes, host, params, &mut emit)?,
         Protocol::Compass => compass::decode(&bytes, host, &mut emit)?,
         Protocol::SickLms => sick::decode_sick_lms(&bytes, host, &mut emit)?,
@@ -111,4 +129,37 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     }
     out.flush()?;
     Ok(())
+}
+
+/// The protocol of a recorded port's `protocol` metadata.
+pub fn recorded_protocol(name: &str) -> Option<Protocol> {
+    Some(match name {
+        "p2os" => Protocol::P2os,
+        "rflex" => Protocol::Rflex,
+        "sick-lms" => Protocol::SickLms,
+        "compass-kvh" | "compass-nmea" | "compass-tcm2" => Protocol::Compass,
+        "video-mux-extron" => Protocol::VideoMux,
+        "video-mux-kramer" => Protocol::Kramer,
+        _ => return None,
+    })
+}
+
+/// `--mcap FILE --port NAME`: the port's bytes in the `--from` direction, and its protocol.
+fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
+    let (Some(path), Some(port)) = (&args.mcap, &args.port) else {
+        anyhow::bail!("--mcap needs --port");
+    };
+    let rec = ima_record::read::Recording::open(path)?;
+    let stream = rec.raw_stream(port)?;
+    let want = match args.from {
+        Direction::Robot => ima_record::raw::Dir::Rx,
+        Direction::Host => ima_record::raw::Dir::Tx,
+    };
+    let bytes = stream
+        .chunks
+        .iter()
+        .filter(|c| c.1 == want)
+        .flat_map(|c| c.2.iter().copied())
+        .collect();
+    Ok((bytes, recorded_protocol(&stream.port.protocol)))
 }

@@ -66,10 +66,14 @@ pub struct DriveArgs {
     /// How long to wait for the robot to answer, seconds (more than 0, at most 3600).
     #[arg(long, default_value_t = 10.0, value_parser = num::timeout_seconds)]
     connect_timeout: f64,
+    /// Recording and live view.
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 /// Run `ima drive`.
 pub fn run(args: &DriveArgs) -> Result<()> {
+    crate::record::start(&args.rec, "ima drive")?; // record
     if args.robot == Robot::AtrvJr {
         let opts = rflex::DriveOptions {
             port: args.port.clone(),
@@ -104,6 +108,7 @@ async fn drive(args: &DriveArgs) -> Result<()> {
         cfg.params_override = Some(*p);
     }
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
+    let port = crate::record::tap(port, "base", &args.port, baud, "p2os"); // record: raw bytes
     let connect = P2os::connect(
         port,
         cfg,
@@ -135,6 +140,10 @@ async fn drive(args: &DriveArgs) -> Result<()> {
             robot.set_velocity(cmd).await?;
             let st = robot.next_state(last, Duration::from_secs(1)).await?;
             last = st.odometry.at;
+            crate::record::with(|r| {
+                let p = &st.odometry.value.pose;
+                r.log_odometry("robot", ima_record::convert::Pose2::from_isometry(p));
+            }); // record: odometry
             print_state(&st, start, args.json)?;
         }
         anyhow::Ok(())

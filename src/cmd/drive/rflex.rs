@@ -43,6 +43,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
         }
     }
     let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
+    let port = crate::record::tap(port, "base", &o.port, o.baud, "rflex"); // record: raw bytes
     let connect = Rflex::connect(
         port,
         cfg,
@@ -73,6 +74,10 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
             base.set_velocity(cmd).await?;
             let odo = base.next_odometry(last).await?;
             last = odo.at;
+            crate::record::with(|r| {
+                let p = ima_record::convert::Pose2::from_isometry(&odo.value.pose);
+                r.log_odometry("robot", p);
+            }); // record: odometry
             latest = Some(odo.value);
             report(&mut base, odo, start, o.json).await?;
         }

@@ -1,0 +1,343 @@
+//! ima's readings as `foxglove.*` messages, and the [`Recorder`]'s sink API over them.
+//!
+//! Frames: `map` → `<robot>/odom` → `<robot>/base_link` → `<robot>/laser` (one tree for
+//! every robot of a session). Topics: `/<robot>/laser/scan`, `/<robot>/odom` (pose in the
+//! odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>`, `/<robot>/ses`,
+//! `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
+
+use foxglove::messages::{
+    Color, FrameTransform, LaserScan, Log, Pose, PoseInFrame, Quaternion, RawImage, SceneEntity,
+    SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp, Vector3, log,
+};
+use ima_hal::camera::Frame;
+
+use crate::Recorder;
+
+/// A planar pose: metres and radians (counter-clockwise).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Pose2 {
+    /// x, metres.
+    pub x_m: f64,
+    /// y, metres.
+    pub y_m: f64,
+    /// Heading, radians.
+    pub theta_rad: f64,
+}
+
+impl Pose2 {
+    /// From the HAL's isometry.
+    pub fn from_isometry(p: &ima_hal::Isometry2) -> Self {
+        Self {
+            x_m: p.translation.x,
+            y_m: p.translation.y,
+            theta_rad: p.rotation.angle(),
+        }
+    }
+}
+
+/// A Sensory EgoSphere mark: a dome vertex holding a tag.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SesMark {
+    /// Azimuth, radians, counter-clockwise from the robot's forward axis.
+    pub azimuth_rad: f64,
+    /// Elevation, radians.
+    pub elevation_rad: f64,
+    /// The tag (a colour name, or anything else).
+    pub tag: String,
+}
+
+/// A marker on the map (a target, a robot's belief).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapMarker {
+    /// The marker's id (one entity per id).
+    pub id: String,
+    /// Position, metres, in `map`.
+    pub x_m: f64,
+    /// Position, metres, in `map`.
+    pub y_m: f64,
+    /// Label shown next to it.
+    pub label: String,
+    /// A colour name (see [`colour`]).
+    pub colour: String,
+}
+
+/// Timestamp of Unix nanoseconds.
+pub fn stamp(ns: u64) -> Timestamp {
+    let sec = u32::try_from(ns / 1_000_000_000).unwrap_or(u32::MAX);
+    Timestamp::new(sec, (ns % 1_000_000_000) as u32)
+}
+
+fn quat_z(theta: f64) -> Quaternion {
+    let h = theta / 2.0;
+    Quaternion {
+        x: 0.0,
+        y: 0.0,
+        z: h.sin(),
+        w: h.cos(),
+    }
+}
+
+fn pose3(p: Pose2) -> Pose {
+    Pose {
+        position: Some(Vector3 {
+            x: p.x_m,
+            y: p.y_m,
+            z: 0.0,
+        }),
+        orientation: Some(quat_z(p.theta_rad)),
+    }
+}
+
+/// An RGBA colour for a tag: the usual colour names, grey for anything else.
+pub fn colour(tag: &str) -> Color {
+    let (r, g, b) = match tag.to_ascii_lowercase().as_str() {
+        "red" => (0.9, 0.1, 0.1),
+        "green" => (0.1, 0.75, 0.2),
+        "blue" => (0.15, 0.3, 0.95),
+        "yellow" => (0.95, 0.85, 0.1),
+        "orange" => (1.0, 0.55, 0.0),
+        "purple" | "magenta" => (0.7, 0.2, 0.8),
+        "cyan" => (0.1, 0.8, 0.85),
+        "white" => (0.95, 0.95, 0.95),
+        "black" => (0.1, 0.1, 0.1),
+        _ => (0.6, 0.6, 0.6),
+    };
+    Color { r, g, b, a: 1.0 }
+}
+
+/// A laser scan in `frame_id`.
+pub fn laser_scan(frame_id: &str, at_ns: u64, s: &ima_hal::laser::LaserScan) -> LaserScan {
+    let n = s.len();
+    LaserScan {
+        timestamp: Some(stamp(at_ns)),
+        frame_id: frame_id.to_owned(),
+        pose: Some(pose3(Pose2::default())),
+        start_angle: s.start_angle_rad,
+        end_angle: s.angle_rad(n.saturating_sub(1)),
+        ranges: s.ranges_m().iter().map(|&r| f64::from(r)).collect(),
+        intensities: Vec::new(),
+    }
+}
+
+/// A transform `parent` → `child`.
+pub fn transform(parent: &str, child: &str, at_ns: u64, p: Pose2) -> FrameTransform {
+    let q = pose3(p);
+    FrameTransform {
+        timestamp: Some(stamp(at_ns)),
+        parent_frame_id: parent.to_owned(),
+        child_frame_id: child.to_owned(),
+        translation: q.position,
+        rotation: q.orientation,
+    }
+}
+
+/// A pose in `frame_id`.
+pub fn pose_in_frame(frame_id: &str, at_ns: u64, p: Pose2) -> PoseInFrame {
+    PoseInFrame {
+        timestamp: Some(stamp(at_ns)),
+        frame_id: frame_id.to_owned(),
+        pose: Some(pose3(p)),
+    }
+}
+
+/// An RGB frame.
+pub fn raw_image(frame_id: &str, at_ns: u64, f: &Frame) -> RawImage {
+    RawImage {
+        timestamp: Some(stamp(at_ns)),
+        frame_id: frame_id.to_owned(),
+        width: f.width,
+        height: f.height,
+        encoding: "rgb8".to_owned(),
+        step: f.width.saturating_mul(3),
+        data: f.pixels.clone().into(),
+    }
+}
+
+/// A log line.
+pub fn log_line(at_ns: u64, level: log::Level, name: &str, message: &str) -> Log {
+    Log {
+        timestamp: Some(stamp(at_ns)),
+        level: level as i32,
+        message: message.to_owned(),
+        name: name.to_owned(),
+        file: String::new(),
+        line: 0,
+    }
+}
+
+/// The SES as a scene: one sphere per occupied vertex on a 1 m dome around `frame_id`,
+/// coloured by tag, with the tag as text.
+pub fn ses_scene(frame_id: &str, at_ns: u64, marks: &[SesMark]) -> SceneUpdate {
+    let mut e = SceneEntity {
+        timestamp: Some(stamp(at_ns)),
+        frame_id: frame_id.to_owned(),
+        id: "ses".to_owned(),
+        ..SceneEntity::default()
+    };
+    for m in marks {
+        let (ce, se) = (m.elevation_rad.cos(), m.elevation_rad.sin());
+        let pos = Vector3 {
+            x: ce * m.azimuth_rad.cos(),
+            y: ce * m.azimuth_rad.sin(),
+            z: se,
+        };
+        let pose = Pose {
+            position: Some(pos),
+            orientation: Some(quat_z(0.0)),
+        };
+        e.spheres.push(SpherePrimitive {
+            pose: Some(pose),
+            size: Some(Vector3 {
+                x: 0.12,
+                y: 0.12,
+                z: 0.12,
+            }),
+            color: Some(colour(&m.tag)),
+        });
+        e.texts.push(TextPrimitive {
+            pose: Some(pose),
+            billboard: true,
+            font_size: 12.0,
+            scale_invariant: true,
+            color: Some(colour(&m.tag)),
+            text: m.tag.clone(),
+        });
+    }
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![e],
+    }
+}
+
+/// Markers on the map, one entity each.
+pub fn map_markers(at_ns: u64, markers: &[MapMarker]) -> SceneUpdate {
+    let entities = markers
+        .iter()
+        .map(|m| {
+            let pose = pose3(Pose2 {
+                x_m: m.x_m,
+                y_m: m.y_m,
+                theta_rad: 0.0,
+            });
+            SceneEntity {
+                timestamp: Some(stamp(at_ns)),
+                frame_id: "map".to_owned(),
+                id: m.id.clone(),
+                spheres: vec![SpherePrimitive {
+                    pose: Some(pose),
+                    size: Some(Vector3 {
+                        x: 0.3,
+                        y: 0.3,
+                        z: 0.3,
+                    }),
+                    color: Some(colour(&m.colour)),
+                }],
+                texts: vec![TextPrimitive {
+                    pose: Some(pose),
+                    billboard: true,
+                    font_size: 14.0,
+                    scale_invariant: true,
+                    color: Some(colour("white")),
+                    text: m.label.clone(),
+                }],
+                ..SceneEntity::default()
+            }
+        })
+        .collect();
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities,
+    }
+}
+
+/// The sink API: readings by robot, on the topics and frames of this module.
+impl Recorder {
+    /// A laser scan of `robot` (frame `<robot>/laser`).
+    pub fn log_scan(&self, robot: &str, s: &ima_hal::laser::LaserScan) {
+        let at = self.now_ns();
+        self.log(
+            &format!("/{robot}/laser/scan"),
+            laser_scan(&format!("{robot}/laser"), at, s),
+        );
+    }
+
+    /// Odometry of `robot`: the transform `<robot>/odom` → `<robot>/base_link` on `/tf` and
+    /// the pose on `/<robot>/odom`.
+    pub fn log_odometry(&self, robot: &str, p: Pose2) {
+        let at = self.now_ns();
+        let odom = format!("{robot}/odom");
+        self.log(
+            "/tf",
+            transform(&odom, &format!("{robot}/base_link"), at, p),
+        );
+        self.log(&format!("/{robot}/odom"), pose_in_frame(&odom, at, p));
+    }
+
+    /// A static or slow transform `parent` → `child` on `/tf`.
+    pub fn log_transform(&self, parent: &str, child: &str, p: Pose2) {
+        let at = self.now_ns();
+        self.log("/tf", transform(parent, child, at, p));
+    }
+
+    /// A pose in `frame` on `topic` (a belief, a goal).
+    pub fn log_pose(&self, topic: &str, frame: &str, p: Pose2) {
+        let at = self.now_ns();
+        self.log(topic, pose_in_frame(frame, at, p));
+    }
+
+    /// The world's ground truth for `robot`: its pose in `map` on `/<robot>/truth`.
+    pub fn log_ground_truth(&self, robot: &str, p: Pose2) {
+        self.log_pose(&format!("/{robot}/truth"), "map", p);
+    }
+
+    /// A compass heading of `robot` (radians, counter-clockwise in the robot's common frame)
+    /// as a pose at the robot's origin on `/<robot>/compass`.
+    pub fn log_compass(&self, robot: &str, heading_rad: f64) {
+        self.log_pose(
+            &format!("/{robot}/compass"),
+            &format!("{robot}/base_link"),
+            Pose2 {
+                x_m: 0.0,
+                y_m: 0.0,
+                theta_rad: heading_rad,
+            },
+        );
+    }
+
+    /// A camera frame of `robot` on `/<robot>/camera/<channel>` (or `/<robot>/camera`).
+    pub fn log_image(&self, robot: &str, f: &Frame) {
+        let at = self.now_ns();
+        let topic = match f.channel {
+            Some(c) => format!("/{robot}/camera/{c}"),
+            None => format!("/{robot}/camera"),
+        };
+        self.log(&topic, raw_image(&format!("{robot}/camera"), at, f));
+    }
+
+    /// The SES of `robot` on `/<robot>/ses` (around `<robot>/base_link`).
+    pub fn log_ses(&self, robot: &str, marks: &[SesMark]) {
+        let at = self.now_ns();
+        self.log(
+            &format!("/{robot}/ses"),
+            ses_scene(&format!("{robot}/base_link"), at, marks),
+        );
+    }
+
+    /// Markers on the map on `topic` (targets, beliefs).
+    pub fn log_markers(&self, topic: &str, markers: &[MapMarker]) {
+        let at = self.now_ns();
+        self.log(topic, map_markers(at, markers));
+    }
+
+    /// A line of text on `topic` (`/broadcasts`, `/events`) as `foxglove.Log`, `name` being
+    /// who said it.
+    pub fn log_text(&self, topic: &str, level: log::Level, name: &str, message: &str) {
+        let at = self.now_ns();
+        self.log(topic, log_line(at, level, name, message));
+    }
+
+    /// A broadcast heard or said by `robot`, on `/broadcasts`.
+    pub fn log_broadcast(&self, robot: &str, text: &str) {
+        self.log_text("/broadcasts", log::Level::Info, robot, text);
+    }
+}

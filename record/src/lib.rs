@@ -1,0 +1,566 @@
+//! Recording (MCAP) and live view (Foxglove WebSocket) of ima's devices and readings, on the
+//! Foxglove SDK.
+//!
+//! A [`Recorder`] is a cheap, cloneable handle. Logging never blocks the caller: every message
+//! goes into a bounded queue read by one background thread, which encodes it (protobuf, the
+//! `foxglove.*` well-known schemas), writes it to the MCAP file (zstd-compressed chunks,
+//! message and chunk indexes, a summary) and hands it to the WebSocket server. When the queue
+//! is full the message is dropped and counted; [`Recorder::finish`] reports the counts.
+//!
+//! What is recorded:
+//!
+//! * raw serial bytes, both directions, one channel per port ([`raw`], [`Recorder::raw_port`]);
+//! * decoded readings through the sink API: [`Recorder::log_scan`],
+//!   [`Recorder::log_odometry`], [`Recorder::log_transform`], [`Recorder::log_pose`],
+//!   [`Recorder::log_compass`], [`Recorder::log_image`], [`Recorder::log_ses`],
+//!   [`Recorder::log_text`].
+//!
+//! Stamps: every message's MCAP log time is the recorder's clock (Unix time at the start plus
+//! monotonic time since), taken when the message is logged.
+//!
+//! A crash leaves a file whose complete chunks any MCAP reader recovers (chunks are small, and
+//! the data section is flushed every second); [`read`] reads such files too.
+
+pub mod convert;
+pub mod raw;
+pub mod read;
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use foxglove::{Context, Encode, PartialMetadata, Schema};
+
+/// Decoding of recorded `foxglove.*` messages (protobuf).
+pub use foxglove::Decode;
+pub use foxglove::messages;
+
+/// Messages the queue holds before new ones are dropped.
+pub const DEFAULT_QUEUE: usize = 8192;
+
+/// Bytes the queue may hold (encoded sizes, estimated) before new messages are dropped:
+/// memory stays bounded even when every queued message is a camera frame.
+pub const MAX_QUEUED_BYTES: usize = 64 << 20;
+
+/// MCAP chunk size, bytes (uncompressed): small enough that a crash loses little.
+const CHUNK_SIZE: u64 = 256 * 1024;
+
+/// Where the recording goes.
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// The MCAP file to create (it must not exist yet).
+    pub mcap: Option<PathBuf>,
+    /// The address of the Foxglove WebSocket server.
+    pub foxglove: Option<SocketAddr>,
+    /// Queue length (0: [`DEFAULT_QUEUE`]).
+    pub queue: usize,
+    /// Name of the session (the server's name and the file's `ima` metadata).
+    pub name: String,
+}
+
+/// A recorder that could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The MCAP file could not be created.
+    #[error("--record {path}: {source}")]
+    Create {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: foxglove::FoxgloveError,
+    },
+    /// The WebSocket server could not start.
+    #[error("--foxglove {addr}: {reason}")]
+    Server {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        reason: String,
+    },
+    /// The background thread could not start.
+    #[error("starting the recorder thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// What a recording wrote, reported at its end.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Report {
+    /// The MCAP file, if any.
+    pub path: Option<PathBuf>,
+    /// Messages written per topic.
+    pub written: BTreeMap<String, u64>,
+    /// Messages dropped because the queue was full.
+    pub dropped: u64,
+    /// The first error writing the file (the recording stopped there), if any.
+    pub error: Option<String>,
+    /// Size of the file at the end, bytes.
+    pub bytes: u64,
+    /// The WebSocket server's port, if one ran.
+    pub server_port: Option<u16>,
+}
+
+impl Report {
+    /// All messages written.
+    pub fn total(&self) -> u64 {
+        self.written.values().sum()
+    }
+
+    /// One line for a person.
+    pub fn summary(&self) -> String {
+        let mut s = match &self.path {
+            Some(p) => format!(
+                "recorded {} messages on {} topics to {} ({} kB)",
+                self.total(),
+                self.written.len(),
+                p.display(),
+                self.bytes.div_ceil(1024)
+            ),
+            None => format!("published {} messages", self.total()),
+        };
+        if self.dropped > 0 {
+            s.push_str(&format!(
+                "; {} dropped (the recorder could not keep up)",
+                self.dropped
+            ));
+        }
+        if let Some(e) = &self.error {
+            s.push_str(&format!("; writing stopped: {e}"));
+        }
+        s
+    }
+}
+
+/// A message that the background thread encodes and logs.
+trait Payload: Send {
+    fn size(&self) -> usize;
+    fn schema(&self) -> Option<Schema>;
+    fn encoding(&self) -> String;
+    fn encode_into(&self, buf: &mut Vec<u8>);
+}
+
+impl<T: Encode + Send> Payload for T {
+    fn size(&self) -> usize {
+        self.encoded_len().unwrap_or(1024)
+    }
+    fn schema(&self) -> Option<Schema> {
+        T::get_schema()
+    }
+    fn encoding(&self) -> String {
+        T::get_message_encoding()
+    }
+    fn encode_into(&self, buf: &mut Vec<u8>) {
+        // Encoding into a Vec cannot run out of room.
+        let _ = self.encode(buf);
+    }
+}
+
+/// A raw channel's description (sent once, before its first bytes).
+struct RawDesc {
+    metadata: BTreeMap<String, String>,
+}
+
+enum Body {
+    Typed(Box<dyn Payload>),
+    Raw(Vec<u8>),
+    DeclareRaw(RawDesc),
+}
+
+impl Body {
+    fn size(&self) -> usize {
+        match self {
+            Self::Typed(p) => p.size(),
+            Self::Raw(b) => b.len(),
+            Self::DeclareRaw(_) => 0,
+        }
+    }
+}
+
+enum Msg {
+    Log {
+        topic: Arc<str>,
+        log_time: u64,
+        body: Body,
+    },
+    Finish(mpsc::Sender<Report>),
+}
+
+struct Shared {
+    tx: SyncSender<Msg>,
+    dropped: AtomicU64,
+    queued_bytes: Arc<AtomicUsize>,
+    /// Stamp of everything logged while non-zero (a replay's recorded time).
+    stamp_override: AtomicU64,
+    wall0_ns: u64,
+    mono0: std::time::Instant,
+    finished: Mutex<Option<Report>>,
+    server_port: Option<u16>,
+}
+
+/// A recorder: a handle on the background writer (clone it freely).
+#[derive(Clone)]
+pub struct Recorder {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("dropped", &self.dropped())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Recorder {
+    /// Start recording to a file and/or serving a live view, as `opts` say.
+    pub fn start(opts: &Options) -> Result<Self, Error> {
+        let cap = if opts.queue == 0 {
+            DEFAULT_QUEUE
+        } else {
+            opts.queue
+        };
+        let (tx, rx) = mpsc::sync_channel(cap);
+        let ctx = Context::new();
+        let writer = match &opts.mcap {
+            Some(path) => {
+                let options = foxglove::McapWriteOptions::new()
+                    .compression(Some(foxglove::McapCompression::Zstd))
+                    .chunk_size(Some(CHUNK_SIZE))
+                    .profile("");
+                let w = ctx
+                    .mcap_writer_with_options(options)
+                    .create_new_buffered_file(path)
+                    .map_err(|source| Error::Create {
+                        path: path.clone(),
+                        source,
+                    })?;
+                let mut meta = BTreeMap::new();
+                meta.insert("name".to_owned(), opts.name.clone());
+                meta.insert("version".to_owned(), env!("CARGO_PKG_VERSION").to_owned());
+                let _ = w.write_metadata("ima", meta);
+                Some(w)
+            }
+            None => None,
+        };
+        let server = match opts.foxglove {
+            Some(addr) => Some(start_server(&ctx, addr, &opts.name)?),
+            None => None,
+        };
+        let server_port = server.as_ref().map(|(h, _)| h.port());
+        let path = opts.mcap.clone();
+        let queued_bytes = Arc::new(AtomicUsize::new(0));
+        let shared = Arc::new(Shared {
+            tx,
+            dropped: AtomicU64::new(0),
+            queued_bytes: Arc::clone(&queued_bytes),
+            stamp_override: AtomicU64::new(0),
+            wall0_ns: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)),
+            mono0: std::time::Instant::now(),
+            finished: Mutex::new(None),
+            server_port,
+        });
+        let worker = Worker {
+            queued_bytes,
+            ctx,
+            writer,
+            server,
+            server_port,
+            path,
+            channels: BTreeMap::new(),
+            raw_meta: BTreeMap::new(),
+            written: BTreeMap::new(),
+            error: None,
+            buf: Vec::new(),
+        };
+        std::thread::Builder::new()
+            .name("ima-record".into())
+            .spawn(move || worker.run(rx))
+            .map_err(Error::Thread)?;
+        Ok(Self { shared })
+    }
+
+    /// The recorder's clock now: Unix nanoseconds.
+    pub fn now_ns(&self) -> u64 {
+        let o = self.shared.stamp_override.load(Ordering::Relaxed);
+        if o != 0 {
+            return o;
+        }
+        let since = u64::try_from(self.shared.mono0.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.shared.wall0_ns.saturating_add(since)
+    }
+
+    /// The port the WebSocket server listens on, if one runs (useful with port 0).
+    pub fn server_port(&self) -> Option<u16> {
+        self.shared.server_port
+    }
+
+    /// Stamp everything logged from now on with `ns` (Unix nanoseconds) instead of the clock:
+    /// a replay keeps the recorded stamps. `None` goes back to the clock.
+    pub fn set_stamp(&self, ns: Option<u64>) {
+        self.shared
+            .stamp_override
+            .store(ns.unwrap_or(0), Ordering::Relaxed);
+    }
+
+    /// Messages dropped so far (queue full).
+    pub fn dropped(&self) -> u64 {
+        self.shared.dropped.load(Ordering::Relaxed)
+    }
+
+    fn send(&self, topic: Arc<str>, body: Body) {
+        let size = body.size();
+        let q = &self.shared.queued_bytes;
+        if q.fetch_add(size, Ordering::Relaxed).saturating_add(size) > MAX_QUEUED_BYTES {
+            q.fetch_sub(size, Ordering::Relaxed);
+            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        let msg = Msg::Log {
+            topic,
+            log_time: self.now_ns(),
+            body,
+        };
+        if self.shared.tx.try_send(msg).is_err() {
+            q.fetch_sub(size, Ordering::Relaxed);
+            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Log any `foxglove` well-known message on `topic`.
+    pub fn log<T: Encode + Send + 'static>(&self, topic: &str, msg: T) {
+        self.send(Arc::from(topic), Body::Typed(Box::new(msg)));
+    }
+
+    /// Declare a raw serial port and get the handle that records its bytes.
+    pub fn raw_port(&self, port: raw::PortInfo) -> raw::RawPort {
+        let topic: Arc<str> = Arc::from(port.topic().as_str());
+        let _ = self.shared.tx.try_send(Msg::Log {
+            topic: Arc::clone(&topic),
+            log_time: self.now_ns(),
+            body: Body::DeclareRaw(RawDesc {
+                metadata: port.metadata(),
+            }),
+        });
+        raw::RawPort::new(self.clone(), topic)
+    }
+
+    pub(crate) fn send_raw(&self, topic: &Arc<str>, bytes: Vec<u8>) {
+        self.send(Arc::clone(topic), Body::Raw(bytes));
+    }
+
+    /// Finish: write what is queued, close the file (summary, indexes) and stop the server.
+    /// Waits at most `wait`; later calls return the first call's report.
+    pub fn finish(&self, wait: Duration) -> Report {
+        let mut done = self
+            .shared
+            .finished
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(r) = &*done {
+            return r.clone();
+        }
+        let (tx, rx) = mpsc::channel();
+        // The finish request must get in even when the queue is full: retry until it does.
+        let deadline = std::time::Instant::now() + wait;
+        let mut req = Msg::Finish(tx);
+        loop {
+            match self.shared.tx.try_send(req) {
+                Ok(()) => break,
+                Err(TrySendError::Full(m)) if std::time::Instant::now() < deadline => {
+                    req = m;
+                    std::thread::sleep(Duration::from_millis(2));
+                }
+                Err(_) => {
+                    let r = Report {
+                        dropped: self.dropped(),
+                        error: Some("the recorder did not answer".into()),
+                        ..Report::default()
+                    };
+                    *done = Some(r.clone());
+                    return r;
+                }
+            }
+        }
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        let mut r = rx.recv_timeout(left).unwrap_or_else(|_| Report {
+            error: Some("the recorder did not finish in time".into()),
+            ..Report::default()
+        });
+        r.dropped += self.dropped();
+        *done = Some(r.clone());
+        r
+    }
+}
+
+fn start_server(
+    ctx: &Arc<Context>,
+    addr: SocketAddr,
+    name: &str,
+) -> Result<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime), Error> {
+    let fail = |reason: String| Error::Server { addr, reason };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("ima-foxglove")
+        .enable_all()
+        .build()
+        .map_err(|e| fail(e.to_string()))?;
+    let server = ctx
+        .websocket_server()
+        .name(name)
+        .bind(addr.ip().to_string(), addr.port())
+        .tokio_runtime(rt.handle())
+        // Raw serial bytes stay in the file: a viewer cannot decode them.
+        .channel_filter_fn(|c| !c.topic().contains("/serial/"));
+    // Started from a plain thread: the caller may be inside another runtime.
+    let handle = std::thread::scope(|s| {
+        s.spawn(|| rt.block_on(server.start()))
+            .join()
+            .map_err(|_| fail("the server's start panicked".into()))
+    })?
+    .map_err(|e| fail(e.to_string()))?;
+    Ok((handle, rt))
+}
+
+enum Chan {
+    Raw(Arc<foxglove::RawChannel>),
+}
+
+struct Worker {
+    queued_bytes: Arc<AtomicUsize>,
+    ctx: Arc<Context>,
+    writer: Option<foxglove::McapWriterHandle<std::io::BufWriter<std::fs::File>>>,
+    server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
+    server_port: Option<u16>,
+    path: Option<PathBuf>,
+    channels: BTreeMap<Arc<str>, Chan>,
+    raw_meta: BTreeMap<Arc<str>, BTreeMap<String, String>>,
+    written: BTreeMap<String, u64>,
+    error: Option<String>,
+    buf: Vec<u8>,
+}
+
+impl Worker {
+    fn run(mut self, rx: Receiver<Msg>) {
+        let mut last_flush = std::time::Instant::now();
+        loop {
+            match rx.recv_timeout(Duration::from_secs(1)) {
+                Ok(Msg::Log {
+                    topic,
+                    log_time,
+                    body,
+                }) => self.log(topic, log_time, body),
+                Ok(Msg::Finish(reply)) => {
+                    // Whatever is still queued goes in first.
+                    while let Ok(m) = rx.try_recv() {
+                        match m {
+                            Msg::Log {
+                                topic,
+                                log_time,
+                                body,
+                            } => self.log(topic, log_time, body),
+                            Msg::Finish(other) => {
+                                let _ = other.send(Report::default());
+                            }
+                        }
+                    }
+                    let report = self.close();
+                    let _ = reply.send(report);
+                    return;
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => {
+                    let _ = self.close();
+                    return;
+                }
+            }
+            if last_flush.elapsed() >= Duration::from_secs(1) {
+                last_flush = std::time::Instant::now();
+                if let Some(w) = &self.writer
+                    && let Err(e) = w.flush()
+                {
+                    self.error.get_or_insert(e.to_string());
+                }
+            }
+        }
+    }
+
+    fn channel(&mut self, topic: &Arc<str>, body: &Body) -> Option<Arc<foxglove::RawChannel>> {
+        if let Some(Chan::Raw(c)) = self.channels.get(topic) {
+            return Some(Arc::clone(c));
+        }
+        let builder = self.ctx.channel_builder(&**topic);
+        let builder = match body {
+            Body::Typed(p) => builder.schema(p.schema()).message_encoding(p.encoding()),
+            Body::Raw(_) => builder
+                .message_encoding(raw::ENCODING)
+                .metadata(self.raw_meta.get(topic).cloned().unwrap_or_default()),
+            Body::DeclareRaw(_) => return None,
+        };
+        match builder.build_raw() {
+            Ok(c) => {
+                self.channels
+                    .insert(Arc::clone(topic), Chan::Raw(Arc::clone(&c)));
+                Some(c)
+            }
+            Err(e) => {
+                tracing::warn!("recorder: channel {topic}: {e}");
+                None
+            }
+        }
+    }
+
+    fn log(&mut self, topic: Arc<str>, log_time: u64, body: Body) {
+        self.queued_bytes.fetch_sub(body.size(), Ordering::Relaxed);
+        if let Body::DeclareRaw(d) = body {
+            self.raw_meta.insert(topic, d.metadata);
+            return;
+        }
+        let Some(chan) = self.channel(&topic, &body) else {
+            return;
+        };
+        let meta = PartialMetadata::with_log_time(log_time);
+        match &body {
+            Body::Typed(p) => {
+                self.buf.clear();
+                p.encode_into(&mut self.buf);
+                chan.log_with_meta(&self.buf, meta);
+            }
+            Body::Raw(bytes) => chan.log_with_meta(bytes, meta),
+            Body::DeclareRaw(_) => return,
+        }
+        *self.written.entry(topic.to_string()).or_insert(0) += 1;
+    }
+
+    fn close(&mut self) -> Report {
+        if let Some(w) = self.writer.take()
+            && let Err(e) = w.close()
+        {
+            self.error.get_or_insert(e.to_string());
+        }
+        if let Some((h, rt)) = self.server.take() {
+            let shutdown = h.stop();
+            rt.block_on(async {
+                let _ = tokio::time::timeout(Duration::from_secs(1), shutdown.wait()).await;
+            });
+            rt.shutdown_timeout(Duration::from_millis(200));
+        }
+        let bytes = self
+            .path
+            .as_deref()
+            .and_then(|p: &Path| std::fs::metadata(p).ok())
+            .map_or(0, |m| m.len());
+        Report {
+            path: self.path.clone(),
+            written: std::mem::take(&mut self.written),
+            dropped: 0,
+            error: self.error.clone(),
+            bytes,
+            server_port: self.server_port,
+        }
+    }
+}

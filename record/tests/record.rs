@@ -1,0 +1,251 @@
+//! A recording read back with the `mcap` crate, and the live view over a WebSocket client.
+
+use std::time::Duration;
+
+use foxglove::Decode;
+use futures_util::{SinkExt, StreamExt};
+use ima_hal::laser::{BeamFlags, LaserScan};
+use ima_record::convert::{Pose2, SesMark};
+use ima_record::raw::{Dir, PortInfo};
+use ima_record::read::Recording;
+use ima_record::{Options, Recorder};
+use tokio_tungstenite::tungstenite::Message as WsMessage;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+
+fn scan(n: usize) -> LaserScan {
+    let mut s = LaserScan::new(-1.0, 0.01);
+    for i in 0..n {
+        s.push(1.0 + i as f32 * 0.01, BeamFlags::default()).unwrap();
+    }
+    s
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("ima-record-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    let _ = std::fs::remove_file(&p);
+    p
+}
+
+#[test]
+fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
+    let path = tmp("a.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        name: "test".into(),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.raw_port(PortInfo {
+        robot: "scooter".into(),
+        device: "laser".into(),
+        port: "/dev/pts/9".into(),
+        baud: 9600,
+        protocol: "sick-lms".into(),
+    });
+    port.tx(b"\x02\x00");
+    port.baud(38400);
+    port.rx(b"\x06\x02\x80");
+    for i in 0..25 {
+        rec.log_scan("scooter", &scan(181));
+        rec.log_odometry(
+            "scooter",
+            Pose2 {
+                x_m: f64::from(i) * 0.1,
+                ..Pose2::default()
+            },
+        );
+    }
+    rec.log_ses(
+        "skeeter",
+        &[SesMark {
+            azimuth_rad: 0.5,
+            elevation_rad: 0.1,
+            tag: "red".into(),
+        }],
+    );
+    rec.log_broadcast("skeeter", "skeeter: found red");
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.dropped, 0);
+    assert_eq!(report.error, None);
+    assert_eq!(report.written["/scooter/laser/scan"], 25);
+    assert_eq!(report.written["/tf"], 25);
+    assert!(report.bytes > 0);
+
+    let r = Recording::open(&path).unwrap();
+    let ch = r.channels();
+    assert_eq!(ch["/scooter/laser/scan"].0, "foxglove.LaserScan");
+    assert_eq!(ch["/tf"].0, "foxglove.FrameTransform");
+    assert_eq!(ch["/scooter/odom"].0, "foxglove.PoseInFrame");
+    assert_eq!(ch["/skeeter/ses"].0, "foxglove.SceneUpdate");
+    assert_eq!(ch["/broadcasts"].0, "foxglove.Log");
+    assert_eq!(ch["/scooter/serial/laser"].1["protocol"], "sick-lms");
+    assert_eq!(ch["/scooter/serial/laser"].1["baud"], "9600");
+    let (msgs, cut) = r.messages();
+    assert_eq!(cut.0, None);
+    let scans: Vec<_> = msgs
+        .iter()
+        .filter(|m| m.topic == "/scooter/laser/scan")
+        .collect();
+    assert_eq!(scans.len(), 25);
+    let s = foxglove::messages::LaserScan::decode(&scans[0].data[..]).unwrap();
+    assert_eq!(s.ranges.len(), 181);
+    assert_eq!(s.frame_id, "scooter/laser");
+    assert!((s.ranges[10] - 1.1).abs() < 1e-6);
+    let raw = r.raw_stream("scooter/laser").unwrap();
+    assert_eq!(raw.rx_bytes(), b"\x06\x02\x80");
+    let dirs: Vec<Dir> = raw.chunks.iter().map(|c| c.1).collect();
+    assert_eq!(dirs, [Dir::Tx, Dir::Baud, Dir::Rx]);
+    // Stamps are in order.
+    assert!(msgs.windows(2).all(|w| w[0].log_time <= w[1].log_time));
+    assert!(r.raw_stream("nothing").is_err());
+    // Finishing twice gives the same report.
+    assert_eq!(rec.finish(Duration::from_secs(1)), report);
+}
+
+#[test]
+fn a_full_queue_drops_and_counts_instead_of_blocking() {
+    let path = tmp("b.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        queue: 4,
+        ..Options::default()
+    })
+    .unwrap();
+    for _ in 0..20_000 {
+        rec.log_scan("scooter", &scan(361));
+    }
+    let report = rec.finish(Duration::from_secs(30));
+    assert!(report.dropped > 0, "{report:?}");
+    assert_eq!(
+        report.written["/scooter/laser/scan"] + report.dropped,
+        20_000
+    );
+    assert!(report.summary().contains("dropped"));
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    assert_eq!(msgs.len() as u64, report.written["/scooter/laser/scan"]);
+}
+
+#[test]
+fn an_existing_file_is_refused_and_named() {
+    let path = tmp("c.mcap");
+    std::fs::write(&path, b"x").unwrap();
+    let e = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        ..Options::default()
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("c.mcap"), "{e}");
+    let e = Recording::open(&path).unwrap_err();
+    assert!(e.to_string().contains("not an MCAP file"), "{e}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_websocket_client_sees_the_channels_and_receives_a_scan() {
+    let rec = Recorder::start(&Options {
+        foxglove: Some("127.0.0.1:0".parse().unwrap()),
+        name: "test".into(),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.server_port().unwrap();
+    // Channels exist once something was logged on them.
+    rec.log_scan("scooter", &scan(181));
+    rec.log_broadcast("skeeter", "hello");
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut req = format!("ws://127.0.0.1:{port}")
+        .into_client_request()
+        .unwrap();
+    req.headers_mut()
+        .insert("sec-websocket-protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tokio_tungstenite::connect_async(req).await.unwrap();
+    let mut laser_id = None;
+    let mut saw_server_info = false;
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
+    while laser_id.is_none() {
+        let msg = tokio::time::timeout_at(deadline, ws.next())
+            .await
+            .expect("an advertisement")
+            .unwrap()
+            .unwrap();
+        let WsMessage::Text(t) = msg else { continue };
+        let v: serde_json::Value = serde_json::from_str(&t).unwrap();
+        match v["op"].as_str() {
+            Some("serverInfo") => saw_server_info = true,
+            Some("advertise") => {
+                for c in v["channels"].as_array().unwrap() {
+                    if c["topic"] == "/scooter/laser/scan" {
+                        assert_eq!(c["schemaName"], "foxglove.LaserScan");
+                        assert_eq!(c["encoding"], "protobuf");
+                        laser_id = c["id"].as_u64();
+                    }
+                    assert!(
+                        !c["topic"].as_str().unwrap().contains("/serial/"),
+                        "raw channels stay off the live view"
+                    );
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(saw_server_info);
+    let sub = serde_json::json!({"op": "subscribe",
+        "subscriptions": [{"id": 7, "channelId": laser_id.unwrap()}]});
+    ws.send(WsMessage::Text(sub.to_string().into()))
+        .await
+        .unwrap();
+    // Keep logging until a scan arrives.
+    let got = loop {
+        rec.log_scan("scooter", &scan(181));
+        match tokio::time::timeout(Duration::from_millis(200), ws.next()).await {
+            Ok(Some(Ok(WsMessage::Binary(b)))) => break b,
+            Ok(Some(Ok(_))) | Err(_) => {}
+            Ok(other) => panic!("connection ended: {other:?}"),
+        }
+        assert!(tokio::time::Instant::now() < deadline, "no scan arrived");
+    };
+    // opcode 1 (message data), subscription id, timestamp, payload.
+    assert_eq!(got[0], 1);
+    assert_eq!(u32::from_le_bytes(got[1..5].try_into().unwrap()), 7);
+    let s = foxglove::messages::LaserScan::decode(&got[13..]).unwrap();
+    assert_eq!(s.ranges.len(), 181);
+    let report = rec.finish(Duration::from_secs(5));
+    assert_eq!(report.server_port, Some(port));
+}
+
+#[test]
+fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_for() {
+    let path = tmp("d.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        ..Options::default()
+    })
+    .unwrap();
+    let frame = ima_hal::camera::Frame::black(320, 240, Some(2)).unwrap();
+    for _ in 0..400 {
+        rec.log_image("skeeter", &frame);
+    }
+    let report = rec.finish(Duration::from_secs(60));
+    assert_eq!(
+        report
+            .written
+            .get("/skeeter/camera/2")
+            .copied()
+            .unwrap_or(0)
+            + report.dropped,
+        400
+    );
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    let img = msgs
+        .iter()
+        .find(|m| m.topic == "/skeeter/camera/2")
+        .unwrap();
+    assert_eq!(img.schema, "foxglove.RawImage");
+    let f = foxglove::messages::RawImage::decode(&img.data[..]).unwrap();
+    assert_eq!(
+        (f.width, f.height, f.step, f.encoding.as_str()),
+        (320, 240, 960, "rgb8")
+    );
+    assert_eq!(f.data.len(), 320 * 240 * 3);
+}

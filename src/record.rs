@@ -1,0 +1,460 @@
+//! `--record FILE.mcap` and `--foxglove [ADDR]`: the process's one recorder (an
+//! [`ima_record::Recorder`]), the tap that records a serial port's bytes, and the frame source
+//! that records camera frames.
+//!
+//! A command starts the recorder with [`start`] from its [`RecordArgs`]; anything may then log
+//! through [`with`] (nothing happens when no recorder runs). [`finish`] closes the file and
+//! prints what was written; the safety guard ([`crate::safety`]) calls [`finish`] on every way
+//! out (done, error, signal, closed stdout, panic), so the file always gets its summary.
+//!
+//! Hook points elsewhere are marked `// record:` so they can be moved as one.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::sync::{PoisonError, RwLock};
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use anyhow::Result;
+use clap::Args;
+use ima_record::raw::{PortInfo, RawPort};
+use ima_record::{Options, Recorder, Report};
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+
+/// The default address of the live view.
+pub const DEFAULT_FOXGLOVE: &str = "127.0.0.1:8765";
+
+/// `--record` and `--foxglove`.
+#[derive(Debug, Clone, Default, Args)]
+pub struct RecordArgs {
+    /// Record every device's raw bytes and the decoded readings to this MCAP file (it must not
+    /// exist yet).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Serve a live view to Foxglove on this address (WebSocket; default 127.0.0.1:8765,
+    /// loopback only unless another address is given).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_FOXGLOVE)]
+    pub foxglove: Option<SocketAddr>,
+}
+
+impl RecordArgs {
+    /// Neither asked for.
+    pub fn is_off(&self) -> bool {
+        self.record.is_none() && self.foxglove.is_none()
+    }
+}
+
+fn current() -> &'static RwLock<Option<Recorder>> {
+    static CURRENT: RwLock<Option<Recorder>> = RwLock::new(None);
+    &CURRENT
+}
+
+/// Port path → robot name, for the raw channels' topics.
+fn robots() -> &'static RwLock<Vec<(String, String)>> {
+    static ROBOTS: RwLock<Vec<(String, String)>> = RwLock::new(Vec::new());
+    &ROBOTS
+}
+
+/// Start the recorder `args` ask for (none: nothing). `name` names the session.
+pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
+    if args.is_off() {
+        return Ok(());
+    }
+    if let Some(p) = &args.record {
+        crate::cmd::output::check_file("--record", p)?;
+        anyhow::ensure!(
+            !p.exists(),
+            "--record {}: the file exists (a recording never overwrites one)",
+            p.display()
+        );
+    }
+    let rec = Recorder::start(&Options {
+        mcap: args.record.clone(),
+        foxglove: args.foxglove,
+        queue: 0,
+        name: name.to_owned(),
+    })?;
+    if let Some(port) = rec.server_port() {
+        let host = args
+            .foxglove
+            .map_or("127.0.0.1".into(), |a| a.ip().to_string());
+        eprintln!(
+            "ima: live view for Foxglove on ws://{host}:{port} (open docs/foxglove-layout.json)"
+        );
+    }
+    *current().write().unwrap_or_else(PoisonError::into_inner) = Some(rec);
+    Ok(())
+}
+
+/// Use the recorder, if one runs.
+pub fn with(f: impl FnOnce(&Recorder)) {
+    if let Some(r) = &*current().read().unwrap_or_else(PoisonError::into_inner) {
+        f(r);
+    }
+}
+
+/// Finish the recording (if any): close the file, stop the server, print one line to stderr.
+/// Callers racing each other (the command's guard, the signal thread before its forced exit)
+/// all wait until the file is closed; the line is printed once.
+pub fn finish() -> Option<Report> {
+    static PRINTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let rec = current()
+        .read()
+        .unwrap_or_else(PoisonError::into_inner)
+        .clone()?;
+    // Serialised inside the recorder: a second caller waits for the first's report.
+    let report = rec.finish(Duration::from_secs(5));
+    *current().write().unwrap_or_else(PoisonError::into_inner) = None;
+    if !PRINTED.swap(true, std::sync::atomic::Ordering::SeqCst) {
+        *last().write().unwrap_or_else(PoisonError::into_inner) = Some(report.clone());
+        eprintln!("ima: {}", report.summary());
+    }
+    Some(report)
+}
+
+fn last() -> &'static RwLock<Option<Report>> {
+    static LAST: RwLock<Option<Report>> = RwLock::new(None);
+    &LAST
+}
+
+/// The report of the finished recording, if one finished.
+pub fn last_report() -> Option<Report> {
+    last()
+        .read()
+        .unwrap_or_else(PoisonError::into_inner)
+        .clone()
+}
+
+/// Name the robot whose devices are on `ports` (so their raw channels are
+/// `/<robot>/serial/<device>`).
+pub fn label_ports<'a>(robot: &str, ports: impl IntoIterator<Item = &'a str>) {
+    let mut m = robots().write().unwrap_or_else(PoisonError::into_inner);
+    for p in ports {
+        m.retain(|(port, _)| port != p);
+        m.push((p.to_owned(), robot.to_owned()));
+    }
+}
+
+/// Wrap a serial port so its bytes are recorded (a pass-through when no recorder runs).
+/// `device` is `base`, `laser`, `compass` or `video_mux`; `protocol` the protocol spoken.
+pub fn tap<S>(stream: S, device: &str, port: &str, baud: u32, protocol: &str) -> Tap<S> {
+    let mut raw = None;
+    with(|r| {
+        let robot = robots()
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .iter()
+            .find(|(p, _)| p == port)
+            .map_or_else(|| "robot".to_owned(), |(_, r)| r.clone());
+        raw = Some(r.raw_port(PortInfo {
+            robot,
+            device: device.to_owned(),
+            port: port.to_owned(),
+            baud,
+            protocol: protocol.to_owned(),
+        }));
+    });
+    Tap { inner: stream, raw }
+}
+
+/// A serial stream whose bytes, both ways, go to the recorder.
+#[derive(Debug)]
+pub struct Tap<S> {
+    inner: S,
+    raw: Option<RawPort>,
+}
+
+impl<S: AsyncRead + Unpin> AsyncRead for Tap<S> {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let r = Pin::new(&mut self.inner).poll_read(cx, buf);
+        if let (Poll::Ready(Ok(())), Some(raw)) = (&r, &self.raw) {
+            raw.rx(buf.filled().get(before..).unwrap_or_default());
+        }
+        r
+    }
+}
+
+impl<S: AsyncWrite + Unpin> AsyncWrite for Tap<S> {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        data: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        let r = Pin::new(&mut self.inner).poll_write(cx, data);
+        if let (Poll::Ready(Ok(n)), Some(raw)) = (&r, &self.raw) {
+            raw.tx(data.get(..*n).unwrap_or_default());
+        }
+        r
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+impl<S: ima_p2os::driver::BaudControl> ima_p2os::driver::BaudControl for Tap<S> {
+    fn set_baud(&mut self, baud: u32) -> std::io::Result<()> {
+        self.inner.set_baud(baud)?;
+        if let Some(raw) = &self.raw {
+            raw.baud(baud);
+        }
+        Ok(())
+    }
+}
+
+impl<S: ima_sick_lms::driver::BaudControl> ima_sick_lms::driver::BaudControl for Tap<S> {
+    fn set_baud(&mut self, baud: u32) -> std::io::Result<()> {
+        self.inner.set_baud(baud)?;
+        if let Some(raw) = &self.raw {
+            raw.baud(baud);
+        }
+        Ok(())
+    }
+
+    fn clear_input(&mut self) -> std::io::Result<()> {
+        self.inner.clear_input()
+    }
+}
+
+/// A frame source whose frames go to the recorder as `foxglove.RawImage`.
+#[derive(Debug)]
+pub struct RecordedFrames<F> {
+    inner: F,
+    robot: String,
+}
+
+/// Record the frames `inner` gives, as `robot`'s camera.
+pub fn frames<F>(inner: F, robot: &str) -> RecordedFrames<F> {
+    RecordedFrames {
+        inner,
+        robot: robot.to_owned(),
+    }
+}
+
+impl<F: ima_hal::ErrorType> ima_hal::ErrorType for RecordedFrames<F> {
+    type Error = F::Error;
+}
+
+impl<F: ima_hal::camera::FrameSource + Send> ima_hal::camera::FrameSource for RecordedFrames<F> {
+    async fn grab(&mut self) -> Result<ima_hal::Stamped<ima_hal::camera::Frame>, Self::Error> {
+        let f = self.inner.grab().await?;
+        with(|r| r.log_image(&self.robot, &f.value));
+        Ok(f)
+    }
+}
+
+/// A HAL device whose readings go to the recorder as the runtime reads them (each stamp
+/// once): scans as `foxglove.LaserScan`, odometry as the `odom → base_link` transform,
+/// headings on the compass topic. Commands pass through untouched.
+#[derive(Debug)]
+pub struct Recorded<T> {
+    inner: T,
+    robot: String,
+    last: Option<ima_hal::Instant>,
+}
+
+impl<T> Recorded<T> {
+    /// Record what `inner` reads, as `robot`'s.
+    pub fn new(inner: T, robot: &str) -> Self {
+        Self {
+            inner,
+            robot: robot.to_owned(),
+            last: None,
+        }
+    }
+
+    /// Whether `at` is a reading not yet recorded.
+    fn fresh(&mut self, at: ima_hal::Instant) -> bool {
+        let fresh = self.last != Some(at);
+        self.last = Some(at);
+        fresh
+    }
+}
+
+impl<T: ima_hal::ErrorType> ima_hal::ErrorType for Recorded<T> {
+    type Error = T::Error;
+}
+
+impl<T: ima_hal::laser::LaserScanner + Send> ima_hal::laser::LaserScanner for Recorded<T> {
+    fn description(&self) -> ima_hal::laser::LaserDescription {
+        self.inner.description()
+    }
+
+    async fn scan(&mut self) -> Result<ima_hal::Stamped<ima_hal::laser::LaserScan>, Self::Error> {
+        let s = self.inner.scan().await?;
+        if self.fresh(s.at) {
+            with(|r| r.log_scan(&self.robot, &s.value));
+        }
+        Ok(s)
+    }
+
+    async fn next_scan(
+        &mut self,
+        after: ima_hal::Instant,
+    ) -> Result<ima_hal::Stamped<ima_hal::laser::LaserScan>, Self::Error> {
+        let s = self.inner.next_scan(after).await?;
+        if self.fresh(s.at) {
+            with(|r| r.log_scan(&self.robot, &s.value));
+        }
+        Ok(s)
+    }
+}
+
+impl<T: ima_hal::compass::Compass + Send> ima_hal::compass::Compass for Recorded<T> {
+    async fn heading(
+        &mut self,
+    ) -> Result<ima_hal::Stamped<ima_hal::compass::Heading>, Self::Error> {
+        let h = self.inner.heading().await?;
+        if self.fresh(h.at) {
+            with(|r| r.log_compass(&self.robot, h.value.yaw_enu_rad()));
+        }
+        Ok(h)
+    }
+
+    async fn next_heading(
+        &mut self,
+        after: ima_hal::Instant,
+    ) -> Result<ima_hal::Stamped<ima_hal::compass::Heading>, Self::Error> {
+        let h = self.inner.next_heading(after).await?;
+        if self.fresh(h.at) {
+            with(|r| r.log_compass(&self.robot, h.value.yaw_enu_rad()));
+        }
+        Ok(h)
+    }
+}
+
+impl<T: ima_hal::base::DifferentialBase + Send> ima_hal::base::DifferentialBase for Recorded<T> {
+    fn limits(&self) -> ima_hal::base::BaseLimits {
+        self.inner.limits()
+    }
+
+    async fn enable_motors(&mut self, enable: bool) -> Result<(), Self::Error> {
+        self.inner.enable_motors(enable).await
+    }
+
+    async fn set_velocity(
+        &mut self,
+        cmd: ima_hal::base::VelocityCommand,
+    ) -> Result<(), Self::Error> {
+        self.inner.set_velocity(cmd).await
+    }
+
+    async fn stop(&mut self) -> Result<(), Self::Error> {
+        self.inner.stop().await
+    }
+
+    async fn emergency_stop(&mut self) -> Result<(), Self::Error> {
+        self.inner.emergency_stop().await
+    }
+}
+
+impl<T: ima_hal::base::Odometer + Send> ima_hal::base::Odometer for Recorded<T> {
+    async fn odometry(&mut self) -> Result<ima_hal::Stamped<ima_hal::base::Odometry>, Self::Error> {
+        let o = self.inner.odometry().await?;
+        if self.fresh(o.at) {
+            with(|r| {
+                r.log_odometry(
+                    &self.robot,
+                    ima_record::convert::Pose2::from_isometry(&o.value.pose),
+                );
+            });
+        }
+        Ok(o)
+    }
+
+    async fn next_odometry(
+        &mut self,
+        after: ima_hal::Instant,
+    ) -> Result<ima_hal::Stamped<ima_hal::base::Odometry>, Self::Error> {
+        let o = self.inner.next_odometry(after).await?;
+        if self.fresh(o.at) {
+            with(|r| {
+                r.log_odometry(
+                    &self.robot,
+                    ima_record::convert::Pose2::from_isometry(&o.value.pose),
+                );
+            });
+        }
+        Ok(o)
+    }
+
+    async fn reset_odometry(&mut self) -> Result<(), Self::Error> {
+        self.inner.reset_odometry().await
+    }
+}
+
+/// Record a runtime event: every event as a line on `/events`, broadcasts said on the
+/// broadcast log, Skeeter's published SES as the dome, Scooter's belief (dead-reckoned
+/// position and heading, from its control reports) as a pose in `map`.
+pub fn log_event(e: &ima_agents::runtime::Event) {
+    use ima_agents::runtime::EventKind;
+    with(|r| {
+        let detail = serde_json::to_value(&e.kind).unwrap_or_default();
+        r.log_text(
+            "/events",
+            ima_record::messages::log::Level::Info,
+            &e.robot,
+            &format!(
+                "{} {}",
+                e.kind.name(),
+                detail.get("detail").cloned().unwrap_or_default()
+            ),
+        );
+        match &e.kind {
+            EventKind::Say(text) => r.log_broadcast(&e.robot, text),
+            EventKind::SesPublished { marks } => {
+                let marks: Vec<ima_record::convert::SesMark> = marks
+                    .iter()
+                    .map(|m| ima_record::convert::SesMark {
+                        azimuth_rad: m.azimuth_rad,
+                        elevation_rad: m.elevation_rad,
+                        tag: m.tag.clone(),
+                    })
+                    .collect();
+                r.log_ses(&e.robot, &marks);
+            }
+            EventKind::Control(c) => r.log_pose(
+                &format!("/{}/belief", e.robot),
+                "map",
+                ima_record::convert::Pose2 {
+                    x_m: c.dr[0],
+                    y_m: c.dr[1],
+                    theta_rad: c.heading_rad.unwrap_or(0.0),
+                },
+            ),
+            _ => {}
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    #[tokio::test]
+    async fn a_tap_without_a_recorder_passes_bytes_through() {
+        let (a, mut b) = tokio::io::duplex(64);
+        let mut t = Tap {
+            inner: a,
+            raw: None,
+        };
+        t.write_all(b"ping").await.unwrap();
+        let mut buf = [0u8; 4];
+        b.read_exact(&mut buf).await.unwrap();
+        assert_eq!(&buf, b"ping");
+        b.write_all(b"pong").await.unwrap();
+        t.read_exact(&mut buf).await.unwrap();
+        assert_eq!(&buf, b"pong");
+    }
+}
