@@ -257,7 +257,7 @@ async fn driver_recovers_after_the_mock_hangs_up() {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         let back = std::time::Instant::now();
-        while base.link() != LinkStatus::Connected {
+        while base.link() != LinkStatus::Connected(()) {
             assert!(
                 back.elapsed() < Duration::from_secs(5),
                 "no recovery within 5 s (reset = {reset})"
@@ -448,6 +448,7 @@ fn blocking_shell_drives_the_mock() {
         port,
         ima_rflex::machine::Config::default(),
         Duration::from_secs(10),
+        ima_hal::time::MonotonicClock::shared(),
     )
     .unwrap();
     assert!((base.power().unwrap().value.battery_v - 27.5).abs() < 1e-9);

@@ -147,6 +147,16 @@ impl std::fmt::Display for DriverError {
 
 impl std::error::Error for DriverError {}
 
+impl From<ima_serial::LinkError> for DriverError {
+    fn from(e: ima_serial::LinkError) -> Self {
+        match e {
+            ima_serial::LinkError::Disconnected => Self::Disconnected,
+            ima_serial::LinkError::Timeout => Self::Timeout,
+            ima_serial::LinkError::Io(k) => Self::Io(k),
+        }
+    }
+}
+
 impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {

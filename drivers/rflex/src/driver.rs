@@ -81,6 +81,27 @@ impl ima_hal::Error for DriverError {
     }
 }
 
+impl From<ima_serial::LinkError> for DriverError {
+    fn from(e: ima_serial::LinkError) -> Self {
+        match e {
+            ima_serial::LinkError::Disconnected => Self::Disconnected,
+            ima_serial::LinkError::Timeout => Self::Timeout,
+            ima_serial::LinkError::Io(k) => Self::Io(k),
+        }
+    }
+}
+
+/// The connect error when no motion report came: what the line carried.
+#[cfg(feature = "tokio")]
+#[must_use]
+pub fn no_report(st: &crate::shell::ShellStats) -> DriverError {
+    DriverError::NoReport {
+        bytes: st.bytes,
+        frames: st.framer.frames,
+        bad_frames: st.framer.errors(),
+    }
+}
+
 impl From<CommandError> for DriverError {
     fn from(e: CommandError) -> Self {
         Self::Command(e)

@@ -1,6 +1,6 @@
 //! The host-side session (spec §4 "Recommended sequence", §2 timing, §6 pitfalls).
 //!
-//! Sans-IO: inputs are bytes ([`Machine::handle_bytes`]) or pre-framed items
+//! Sans-IO: inputs are bytes ([`Machine::handle_bytes_with`]) or pre-framed items
 //! ([`Machine::handle_frame`], [`Machine::handle_ack`], [`Machine::handle_nak`]) and timer
 //! expiry ([`Machine::handle_timeout`]); outputs are telegrams ([`Machine::poll_transmit`]),
 //! [`Event`]s ([`Machine::poll_event`]) and the next deadline ([`Machine::poll_timeout`]).
@@ -472,7 +472,7 @@ impl Machine {
 
     /// Feed received bytes. Every B0 scan is handed to `on_scan` with `now`, borrowed from the
     /// framer's buffer (decode it there, e.g. with [`crate::decode::decode_scan`]).
-    pub fn handle_bytes(
+    pub fn handle_bytes_with(
         &mut self,
         mut bytes: &[u8],
         now: Instant,
@@ -509,12 +509,18 @@ impl Machine {
     /// expiry). Scans recovered by a partial-frame expiry go to `on_scan`.
     pub fn handle_timeout_with(&mut self, now: Instant, on_scan: impl FnMut(&Scan<'_>, Instant)) {
         if self.framer.poll_timeout().is_some_and(|t| t <= now) {
-            self.handle_bytes(&[], now, on_scan);
+            self.handle_bytes_with(&[], now, on_scan);
         }
         self.core.handle_timers(now);
         if core::mem::take(&mut self.core.flush) {
             self.framer.clear();
         }
+    }
+
+    /// [`Machine::handle_bytes_with`] discarding the scans (they still count in
+    /// [`Stats::scans`]).
+    pub fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
+        self.handle_bytes_with(bytes, now, |_, _| {});
     }
 
     /// [`Machine::handle_timeout_with`] discarding scans recovered by a partial-frame expiry
@@ -1254,5 +1260,32 @@ impl Core {
             self.phase = Phase::Ready;
             self.emit(Event::Ready(self.session()));
         }
+    }
+}
+
+/// Through the trait, scans are counted but not handed out: a shell that wants them (without
+/// a copy) calls [`Machine::handle_bytes_with`] and [`Machine::handle_timeout_with`].
+impl ima_serial::Machine for Machine {
+    type Event = Event;
+
+    fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
+        Machine::handle_bytes(self, bytes, now);
+    }
+
+    fn handle_timeout(&mut self, now: Instant) {
+        Machine::handle_timeout(self, now);
+    }
+
+    /// Frames are not paced: `now` is not needed.
+    fn poll_transmit(&mut self, _now: Instant, buf: &mut [u8]) -> Option<usize> {
+        Machine::poll_transmit(self, buf)
+    }
+
+    fn poll_event(&mut self) -> Option<Event> {
+        Machine::poll_event(self)
+    }
+
+    fn poll_timeout(&self) -> Option<Instant> {
+        Machine::poll_timeout(self)
     }
 }

@@ -391,13 +391,14 @@ impl World {
                 if rate.bps() == self.host_bps {
                     let scans = &mut self.scans;
                     for c in bytes.chunks(self.chunk) {
-                        self.m
-                            .handle_bytes(c, now, |s, at| scans.push((at, s.count_word.count())));
+                        self.m.handle_bytes_with(c, now, |s, at| {
+                            scans.push((at, s.count_word.count()))
+                        });
                     }
                 } else {
                     // Read at the wrong rate: garbage (never STX/ACK/NAK here).
                     let junk = vec![0xE0; bytes.len() / 3 + 1];
-                    self.m.handle_bytes(&junk, now, |_, _| {});
+                    self.m.handle_bytes_with(&junk, now, |_, _| {});
                 }
             }
             if self.m.poll_timeout().is_some_and(|t| t <= now) {
