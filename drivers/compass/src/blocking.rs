@@ -18,7 +18,7 @@ pub use ima_serial::{BaudControl, FixedBaud};
 
 pub use crate::driver::DriverError;
 use crate::machine::{Config, Reading, Stats};
-use crate::shell::{CompassShell, HEADING_TIMEOUT, LinkStatus, Watches};
+use crate::shell::{CompassShell, HEADING_TIMEOUT, Watches};
 /// Open a serial port for the blocking shell: 8N1, no flow control, 10 ms read timeout.
 pub use ima_serial::open_blocking_port as open_port;
 
@@ -44,12 +44,7 @@ impl<S: Read + Write + BaudControl> BlockingCompass<S> {
     ) -> Result<Self, DriverError> {
         let (shell, w) = CompassShell::new(cfg);
         let mut run = Blocking::new(shell, stream, clock);
-        let link = w.link.clone();
-        run.wait_for(timeout, |_| match *link.borrow() {
-            LinkStatus::Connected(()) => Some(Ok(())),
-            LinkStatus::Failed(e) => Some(Err(e)),
-            _ => None,
-        })??;
+        run.wait_connected(&w.link, timeout)?;
         Ok(Self { run, w })
     }
 

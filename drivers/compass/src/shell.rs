@@ -213,15 +213,6 @@ impl Shell for CompassShell {
         self.stats_tx.send_replace(self.machine.stats());
     }
 
-    /// Nothing is sent on close (the device keeps streaming).
-    fn begin_close(&mut self, _now: Instant) -> Duration {
-        Duration::ZERO
-    }
-
-    fn is_closed(&mut self) -> bool {
-        true
-    }
-
     fn end(&mut self, how: End) {
         let e = match how {
             End::Closed { .. } => DriverError::Disconnected,

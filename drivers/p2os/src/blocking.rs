@@ -21,7 +21,7 @@ use ima_serial::blocking::Blocking;
 pub use crate::driver::{BaudControl, DriverError, FixedBaud};
 use crate::machine::{Config, RobotIdentity, RobotState, SessionStats};
 use crate::params::RobotParams;
-use crate::shell::{Connection, LinkStatus, P2osShell, Request, Watches};
+use crate::shell::{Connection, P2osShell, Request, Watches};
 /// Open a serial port for the blocking shell: 8N1, no flow control, 10 ms read timeout.
 pub use ima_serial::open_blocking_port as open_port;
 
@@ -50,12 +50,7 @@ impl<S: Read + Write + BaudControl> BlockingP2os<S> {
     ) -> Result<Self, DriverError> {
         let (shell, w) = P2osShell::new(cfg);
         let mut run = Blocking::new(shell, stream, clock);
-        let link = w.link.clone();
-        let conn = run.wait_for(timeout, |_| match &*link.borrow() {
-            LinkStatus::Connected(c) => Some(Ok(c.clone())),
-            LinkStatus::Failed(e) => Some(Err(e.clone())),
-            _ => None,
-        })??;
+        let conn = run.wait_connected(&w.link, timeout)?;
         Ok(Self {
             run,
             w,

@@ -1102,26 +1102,4 @@ pub fn unwrap12(prev: i16, new: i16) -> i32 {
     if d >= 2048 { d - 4096 } else { d }
 }
 
-impl ima_serial::Machine for Machine {
-    type Event = Event;
-
-    fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
-        Machine::handle_bytes(self, bytes, now);
-    }
-
-    fn handle_timeout(&mut self, now: Instant) {
-        Machine::handle_timeout(self, now);
-    }
-
-    fn poll_transmit(&mut self, now: Instant, buf: &mut [u8]) -> Option<usize> {
-        Machine::poll_transmit(self, now, buf)
-    }
-
-    fn poll_event(&mut self) -> Option<Event> {
-        Machine::poll_event(self)
-    }
-
-    fn poll_timeout(&self) -> Option<Instant> {
-        Machine::poll_timeout(self)
-    }
-}
+ima_serial::impl_machine!(Machine, Event, |m, now, buf| m.poll_transmit(now, buf));

@@ -231,7 +231,10 @@ impl Shell for P2osShell {
             Request::Stop(tx) => (m.stop(), tx),
             Request::EStop(tx) => (m.emergency_stop(), tx),
             Request::Sonar(on, tx) => (m.set_sonar(on), tx),
-            Request::ResetOdometry(tx) => (Ok(m.reset_odometry()), tx),
+            Request::ResetOdometry(tx) => {
+                m.reset_odometry();
+                (Ok(()), tx)
+            }
             Request::Motors(on, tx) => match m.enable_motors(on, now) {
                 Ok(()) => {
                     self.motors_waiters.push((on, tx));

@@ -20,7 +20,7 @@ pub use ima_serial::{BaudControl, FixedBaud};
 
 pub use crate::driver::DriverError;
 use crate::machine::{Config, Stats};
-use crate::shell::{LinkStatus, Reply, Request, RflexShell, WAIT_TIMEOUT, Watches, newer};
+use crate::shell::{Reply, Request, RflexShell, WAIT_TIMEOUT, Watches, newer};
 /// Open a serial port for the blocking shell: 8N1, no flow control, 10 ms read timeout.
 pub use ima_serial::open_blocking_port as open_port;
 
@@ -45,12 +45,7 @@ impl<S: Read + Write + BaudControl> BlockingRflex<S> {
     ) -> Result<Self, DriverError> {
         let (shell, w) = RflexShell::new(cfg, clock.now());
         let mut run = Blocking::new(shell, stream, clock);
-        let link = w.link.clone();
-        run.wait_for(timeout, |_| match *link.borrow() {
-            LinkStatus::Connected(()) => Some(Ok(())),
-            LinkStatus::Failed(e) => Some(Err(e)),
-            _ => None,
-        })??;
+        run.wait_connected(&w.link, timeout)?;
         Ok(Self { run, w })
     }
 

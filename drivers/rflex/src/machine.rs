@@ -1057,28 +1057,8 @@ impl Machine {
 /// Bytes a transmit buffer needs.
 pub const TX_BUF: usize = MAX_WIRE_FRAME;
 
-impl ima_serial::Machine for Machine {
-    type Event = Event;
-
-    fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
-        Machine::handle_bytes(self, bytes, now);
-    }
-
-    fn handle_timeout(&mut self, now: Instant) {
-        Machine::handle_timeout(self, now);
-    }
-
-    /// Time passes to `now` first (frames keep their minimum gap).
-    fn poll_transmit(&mut self, now: Instant, buf: &mut [u8]) -> Option<usize> {
-        self.advance(now);
-        Machine::poll_transmit(self, buf)
-    }
-
-    fn poll_event(&mut self) -> Option<Event> {
-        Machine::poll_event(self)
-    }
-
-    fn poll_timeout(&self) -> Option<Instant> {
-        Machine::poll_timeout(self)
-    }
-}
+ima_serial::impl_machine!(Machine, Event, |m, now, buf| {
+    // Time passes to `now` first (frames keep their minimum gap).
+    m.advance(now);
+    m.poll_transmit(buf)
+});

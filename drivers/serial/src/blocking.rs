@@ -139,6 +139,23 @@ impl<D: Shell, S: Read + Write + BaudControl> Blocking<D, S> {
         }
     }
 
+    /// Run rounds until `link` is connected (its connection) or failed (the error), at most
+    /// `timeout`.
+    ///
+    /// # Errors
+    /// The link's failure, or [`LinkError::Timeout`] (converted).
+    pub fn wait_connected<U: Clone, E: Clone + From<LinkError>>(
+        &mut self,
+        link: &tokio::sync::watch::Receiver<crate::LinkStatus<U, E>>,
+        timeout: Duration,
+    ) -> Result<U, E> {
+        self.wait_for(timeout, |_| match &*link.borrow() {
+            crate::LinkStatus::Connected(u) => Some(Ok(u.clone())),
+            crate::LinkStatus::Failed(e) => Some(Err(e.clone())),
+            _ => None,
+        })?
+    }
+
     /// Hand the shell a request made by `make` around a reply channel, then run rounds
     /// until it answers, at most `timeout`.
     ///

@@ -25,7 +25,8 @@
     )
 )]
 
-use ima_hal::Instant;
+/// The time stamps machines take.
+pub use ima_hal::Instant;
 
 #[cfg(feature = "serial")]
 pub mod blocking;
@@ -44,6 +45,43 @@ pub use port::open_blocking_port;
 pub use port::open_port;
 #[cfg(feature = "std")]
 pub use port::{BaudControl, FixedBaud};
+
+/// Implement [`Machine`] for a machine type whose inherent methods already have the trait's
+/// names (`handle_bytes`, `handle_timeout`, `poll_event`, `poll_timeout`), giving the body of
+/// `poll_transmit` (which may or may not need `now`):
+///
+/// ```ignore
+/// ima_serial::impl_machine!(Machine, Event, |m, now, buf| m.poll_transmit(buf));
+/// ```
+#[macro_export]
+macro_rules! impl_machine {
+    ($machine:ty, $event:ty, |$m:ident, $now:ident, $buf:ident| $transmit:expr) => {
+        impl $crate::Machine for $machine {
+            type Event = $event;
+
+            fn handle_bytes(&mut self, bytes: &[u8], now: $crate::Instant) {
+                <$machine>::handle_bytes(self, bytes, now);
+            }
+
+            fn handle_timeout(&mut self, now: $crate::Instant) {
+                <$machine>::handle_timeout(self, now);
+            }
+
+            fn poll_transmit(&mut self, $now: $crate::Instant, $buf: &mut [u8]) -> Option<usize> {
+                let $m = self;
+                $transmit
+            }
+
+            fn poll_event(&mut self) -> Option<$event> {
+                <$machine>::poll_event(self)
+            }
+
+            fn poll_timeout(&self) -> Option<$crate::Instant> {
+                <$machine>::poll_timeout(self)
+            }
+        }
+    };
+}
 
 /// A sans-IO protocol machine: it never touches a port or reads a clock. The caller feeds it
 /// received bytes and the time, drains the frames it wants written and the events it

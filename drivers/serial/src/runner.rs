@@ -90,11 +90,15 @@ pub trait Shell {
     fn after_round(&mut self) {}
 
     /// Start closing at `now` (queue the last frames); returns the longest the runner keeps
-    /// writing them.
-    fn begin_close(&mut self, now: Instant) -> Duration;
+    /// writing them (by default: nothing to send, close at once).
+    fn begin_close(&mut self, _now: Instant) -> Duration {
+        Duration::ZERO
+    }
 
-    /// Whether the last frames are out (closing ends early).
-    fn is_closed(&mut self) -> bool;
+    /// Whether the last frames are out (closing ends early; by default: yes).
+    fn is_closed(&mut self) -> bool {
+        true
+    }
 
     /// The task ends (answer waiters, publish the final link status). The stream is
     /// already released.

@@ -51,12 +51,7 @@ impl<S: Read + Write + BaudControl> BlockingSickLms<S> {
             seq: 0,
             pose: Isometry2::identity(),
         };
-        let link = me.w.link.clone();
-        me.run.wait_for(timeout, |_| match &*link.borrow() {
-            LinkStatus::Connected(_) => Some(Ok(())),
-            LinkStatus::Failed(e) => Some(Err(e.clone())),
-            _ => None,
-        })??;
+        me.run.wait_connected(&me.w.link, timeout)?;
         Ok(me)
     }
 

@@ -1263,29 +1263,6 @@ impl Core {
     }
 }
 
-/// Through the trait, scans are counted but not handed out: a shell that wants them (without
-/// a copy) calls [`Machine::handle_bytes_with`] and [`Machine::handle_timeout_with`].
-impl ima_serial::Machine for Machine {
-    type Event = Event;
-
-    fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
-        Machine::handle_bytes(self, bytes, now);
-    }
-
-    fn handle_timeout(&mut self, now: Instant) {
-        Machine::handle_timeout(self, now);
-    }
-
-    /// Frames are not paced: `now` is not needed.
-    fn poll_transmit(&mut self, _now: Instant, buf: &mut [u8]) -> Option<usize> {
-        Machine::poll_transmit(self, buf)
-    }
-
-    fn poll_event(&mut self) -> Option<Event> {
-        Machine::poll_event(self)
-    }
-
-    fn poll_timeout(&self) -> Option<Instant> {
-        Machine::poll_timeout(self)
-    }
-}
+// Through the trait, scans are counted but not handed out: a shell that wants them (without
+// a copy) calls [`Machine::handle_bytes_with`] and [`Machine::handle_timeout_with`].
+ima_serial::impl_machine!(Machine, Event, |m, _now, buf| m.poll_transmit(buf));

@@ -597,30 +597,7 @@ impl Machine {
     }
 }
 
-impl ima_serial::Machine for Machine {
-    type Event = Event;
-
-    fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
-        Machine::handle_bytes(self, bytes, now);
-    }
-
-    fn handle_timeout(&mut self, now: Instant) {
-        Machine::handle_timeout(self, now);
-    }
-
-    /// Frames are not paced: `now` is not needed.
-    fn poll_transmit(&mut self, _now: Instant, buf: &mut [u8]) -> Option<usize> {
-        Machine::poll_transmit(self, buf)
-    }
-
-    fn poll_event(&mut self) -> Option<Event> {
-        Machine::poll_event(self)
-    }
-
-    fn poll_timeout(&self) -> Option<Instant> {
-        Machine::poll_timeout(self)
-    }
-}
+ima_serial::impl_machine!(Machine, Event, |m, _now, buf| m.poll_transmit(buf));
 
 #[cfg(test)]
 mod tests;
