@@ -147,15 +147,7 @@ impl std::fmt::Display for DriverError {
 
 impl std::error::Error for DriverError {}
 
-impl From<ima_serial::LinkError> for DriverError {
-    fn from(e: ima_serial::LinkError) -> Self {
-        match e {
-            ima_serial::LinkError::Disconnected => Self::Disconnected,
-            ima_serial::LinkError::Timeout => Self::Timeout,
-            ima_serial::LinkError::Io(k) => Self::Io(k),
-        }
-    }
-}
+ima_serial::impl_from_link_error!(DriverError);
 
 impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {

@@ -214,10 +214,7 @@ impl Shell for CompassShell {
     }
 
     fn end(&mut self, how: End) {
-        let e = match how {
-            End::Closed { .. } => DriverError::Disconnected,
-            End::Failed(e) => e.into(),
-        };
+        let e = how.error();
         self.finish_job(Err(e));
         let link = match how {
             End::Closed { .. } => LinkStatus::Closed,

@@ -6,7 +6,7 @@ use ima_hal::ErrorKind;
 
 use crate::machine::SessionError;
 
-pub use ima_serial::{BaudControl, FixedBaud, LinkError};
+pub use ima_serial::{BaudControl, FixedBaud};
 
 /// Errors of the P2OS drivers (both shells).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -57,15 +57,7 @@ impl std::fmt::Display for DriverError {
 
 impl std::error::Error for DriverError {}
 
-impl From<LinkError> for DriverError {
-    fn from(e: LinkError) -> Self {
-        match e {
-            LinkError::Disconnected => Self::Disconnected,
-            LinkError::Timeout => Self::Timeout,
-            LinkError::Io(k) => Self::Io(k),
-        }
-    }
-}
+ima_serial::impl_from_link_error!(DriverError);
 
 /// The speed limits of `params`.
 #[must_use]

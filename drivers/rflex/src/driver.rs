@@ -81,15 +81,7 @@ impl ima_hal::Error for DriverError {
     }
 }
 
-impl From<ima_serial::LinkError> for DriverError {
-    fn from(e: ima_serial::LinkError) -> Self {
-        match e {
-            ima_serial::LinkError::Disconnected => Self::Disconnected,
-            ima_serial::LinkError::Timeout => Self::Timeout,
-            ima_serial::LinkError::Io(k) => Self::Io(k),
-        }
-    }
-}
+ima_serial::impl_from_link_error!(DriverError);
 
 /// The connect error when no motion report came: what the line carried.
 #[cfg(feature = "tokio")]

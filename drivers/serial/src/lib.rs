@@ -83,6 +83,24 @@ macro_rules! impl_machine {
     };
 }
 
+/// Implement `From<LinkError>` for a driver error with `Disconnected`, `Timeout` and
+/// `Io(io::ErrorKind)` variants.
+#[cfg(feature = "std")]
+#[macro_export]
+macro_rules! impl_from_link_error {
+    ($error:ty) => {
+        impl From<$crate::LinkError> for $error {
+            fn from(e: $crate::LinkError) -> Self {
+                match e {
+                    $crate::LinkError::Disconnected => Self::Disconnected,
+                    $crate::LinkError::Timeout => Self::Timeout,
+                    $crate::LinkError::Io(k) => Self::Io(k),
+                }
+            }
+        }
+    };
+}
+
 /// A sans-IO protocol machine: it never touches a port or reads a clock. The caller feeds it
 /// received bytes and the time, drains the frames it wants written and the events it
 /// raised, and calls it back at its next deadline.

@@ -40,6 +40,18 @@ pub enum End {
     Failed(LinkError),
 }
 
+impl End {
+    /// What a request still waiting when the task ends is answered with: the link's
+    /// failure, or [`LinkError::Disconnected`] after a close.
+    #[must_use]
+    pub fn error<E: From<LinkError>>(self) -> E {
+        match self {
+            Self::Closed { .. } => LinkError::Disconnected.into(),
+            Self::Failed(e) => e.into(),
+        }
+    }
+}
+
 /// The driver-specific half of a shell: it owns the machine, turns its events into readings
 /// for the handles, and handle requests into machine calls. The runners do the rest.
 pub trait Shell {

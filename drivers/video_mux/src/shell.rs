@@ -193,10 +193,7 @@ impl Shell for MuxShell {
     }
 
     fn end(&mut self, how: End) {
-        let e = match how {
-            End::Closed { .. } => DriverError::Disconnected,
-            End::Failed(e) => e.into(),
-        };
+        let e = how.error();
         match self.waiter.take() {
             Some(Waiter::Select(w)) => drop(w.send(Err(e))),
             Some(Waiter::Query(w)) => drop(w.send(Err(e))),
