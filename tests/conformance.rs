@@ -449,7 +449,7 @@ mod rflex {
         }
         fn link(d: &Rflex) -> Link {
             match d.link() {
-                LinkStatus::Connected => Link::Up,
+                LinkStatus::Connected(()) => Link::Up,
                 LinkStatus::Lost => Link::Down,
                 other => Link::Other(format!("{other:?}")),
             }
@@ -540,7 +540,7 @@ mod sick_lms {
         }
         fn link(d: &SickLms) -> Link {
             match d.link() {
-                LinkStatus::Ready(_) => Link::Up,
+                LinkStatus::Connected(_) => Link::Up,
                 LinkStatus::Lost | LinkStatus::Connecting => Link::Down,
                 other => Link::Other(format!("{other:?}")),
             }
@@ -622,8 +622,8 @@ mod compass {
         }
         fn link(d: &CompassDriver) -> Link {
             match d.link() {
-                LinkStatus::Running => Link::Up,
-                LinkStatus::Silent => Link::Down,
+                LinkStatus::Connected(()) => Link::Up,
+                LinkStatus::Lost => Link::Down,
                 other => Link::Other(format!("{other:?}")),
             }
         }

@@ -17,7 +17,7 @@ use ima_mock_devices::model::DeviceModel;
 use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::{RobotSpec, SharedWorld, Wall, World};
-use ima_p2os::shell::{LinkStatus, P2os, open_port};
+use ima_p2os::shell::{Connection, LinkStatus, P2os, open_port};
 
 fn world_with_skeeter(wall_x: Option<f64>) -> (SharedWorld, ima_mock_devices::world::RobotId) {
     let mut w = World::new();
@@ -90,10 +90,11 @@ async fn handshake_from_each_baud() {
                 "",
             );
             let p2os = connect(dev.path()).await;
-            let LinkStatus::Connected {
+            let LinkStatus::Connected(Connection {
                 baud: got,
                 identity,
-            } = p2os.link()
+                ..
+            }) = p2os.link()
             else {
                 panic!("not connected")
             };
@@ -210,7 +211,7 @@ impl DeviceModel for Recording {
 /// read (the injector only corrupts, so byte positions match).
 #[test]
 fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted() {
-    use ima_p2os::machine::{Event, Session};
+    use ima_p2os::machine::{Event, Machine};
     use std::io::{Read, Write};
 
     let (world, id) = world_with_skeeter(Some(3.0));
@@ -240,7 +241,7 @@ fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted()
         .open_native()
         .unwrap();
     let clock = ima_hal::time::MonotonicClock::new();
-    let mut s = Session::new(ima_p2os::Config {
+    let mut s = Machine::new(ima_p2os::Config {
         sip_timeout: Duration::from_millis(300),
         ..ima_p2os::Config::default()
     });
@@ -258,7 +259,7 @@ fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted()
         }
         if let Ok(n) = port.read(&mut buf) {
             received.extend_from_slice(&buf[..n]);
-            s.handle_input(&buf[..n], clock.now());
+            s.handle_bytes(&buf[..n], clock.now());
         }
         if s.poll_timeout().is_some_and(|t| t <= clock.now()) {
             s.handle_timeout(clock.now());
@@ -347,8 +348,13 @@ fn blocking_shell_drives_the_mock() {
     let (world, id) = world_with_skeeter(Some(2.0));
     let dev = serve(&world, id, P2osModelConfig::default(), "");
     let port = open_blocking(dev.path().to_str().unwrap(), 9600).unwrap();
-    let mut robot =
-        BlockingP2os::connect(port, ima_p2os::Config::default(), Duration::from_secs(10)).unwrap();
+    let mut robot = BlockingP2os::connect(
+        port,
+        ima_p2os::Config::default(),
+        Duration::from_secs(10),
+        ima_hal::time::MonotonicClock::shared(),
+    )
+    .unwrap();
     assert_eq!(robot.identity().unwrap().subclass.as_str(), "p2at");
     robot.enable_motors(true).unwrap();
     let start = robot.odometry().unwrap().value.x_m();

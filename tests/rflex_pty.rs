@@ -296,6 +296,7 @@ fn blocking_shell_drives_the_mock() {
         port,
         ima_rflex::machine::Config::default(),
         Duration::from_secs(10),
+        ima_hal::time::MonotonicClock::shared(),
     )
     .unwrap();
     assert!((base.power().unwrap().value.battery_v - 27.5).abs() < 1e-9);

@@ -303,7 +303,7 @@ async fn one_percent_byte_corruption_counts_bad_frames_and_delivers_none() {
     assert_eq!(st.decode_errors, 0);
     assert!(matches!(
         l.link(),
-        ima_sick_lms::shell::LinkStatus::Ready(_)
+        ima_sick_lms::shell::LinkStatus::Connected(_)
     ));
     l.close().await.unwrap();
     let m = dev.stop().unwrap();
@@ -403,7 +403,13 @@ fn blocking_shell_streams_over_a_pty() {
     let (w, id) = boxed();
     let dev = serve(&w, id, SickLmsModelConfig::default(), 0.05, "");
     let port = open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    let mut l = BlockingSickLms::connect(port, fast(), Duration::from_secs(60)).unwrap();
+    let mut l = BlockingSickLms::connect(
+        port,
+        fast(),
+        Duration::from_secs(60),
+        ima_hal::time::MonotonicClock::shared(),
+    )
+    .unwrap();
     assert_eq!(l.session().baud, BaudRate::B500000);
     let mut last = ima_hal::Instant::ZERO;
     for _ in 0..5 {

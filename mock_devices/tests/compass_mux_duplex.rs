@@ -61,11 +61,11 @@ async fn tcm2_configures_goes_silent_and_recovers() {
     // Silence: the data watchdog (2 s) reports it, and data coming back clears it.
     dev.hang_up_for(Duration::from_secs(4));
     tokio::time::sleep(Duration::from_secs(3)).await;
-    assert_eq!(drv.link(), LinkStatus::Silent);
+    assert_eq!(drv.link(), LinkStatus::Lost);
     tokio::time::sleep(Duration::from_secs(2)).await;
     let now = drv.now();
     drv.next_heading(now).await.unwrap();
-    assert_eq!(drv.link(), LinkStatus::Running);
+    assert_eq!(drv.link(), LinkStatus::Connected(()));
     let model = dev.stop().await.unwrap();
     assert_eq!(model.stats().bad_commands, 0);
 }

@@ -199,6 +199,7 @@ fn blocking_shell_reads_the_mock() {
             rate_per_minute: 600,
         }),
         Duration::from_secs(10),
+        ima_hal::time::MonotonicClock::shared(),
     )
     .unwrap();
     let h = c.heading().unwrap();

@@ -94,7 +94,8 @@ async fn outage_is_detected_and_recovered_in_virtual_time() {
     runner.hang_up_for(Duration::from_secs(3));
     tokio::time::sleep(Duration::from_secs(2)).await;
     assert!(
-        lms.stats().losses >= 1 || !matches!(lms.link(), ima_sick_lms::shell::LinkStatus::Ready(_)),
+        lms.stats().losses >= 1
+            || !matches!(lms.link(), ima_sick_lms::shell::LinkStatus::Connected(_)),
         "{:?}",
         lms.link()
     );
@@ -121,7 +122,7 @@ async fn stream_stops_and_starts_on_request() {
     ));
     assert!(matches!(
         lms.link(),
-        ima_sick_lms::shell::LinkStatus::Ready(_)
+        ima_sick_lms::shell::LinkStatus::Connected(_)
     ));
     let info = lms.set_streaming(true).await.unwrap();
     assert!(info.streaming);

@@ -151,7 +151,11 @@ fn blocking_shell_selects_and_queries() {
     )
     .unwrap();
     let port = ima_video_mux::blocking::open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    let mut mux = ima_video_mux::blocking::BlockingVideoMux::new(port, Config::default());
+    let mut mux = ima_video_mux::blocking::BlockingVideoMux::new(
+        port,
+        Config::default(),
+        ima_hal::time::MonotonicClock::shared(),
+    );
     let sel = mux.select(4).unwrap();
     assert_eq!(sel.channel, 4);
     assert_eq!(bus.current().0, Some(4));

@@ -1,92 +1,74 @@
-//! The blocking I/O shell (feature `serial`): the sans-IO [`Machine`] over any `Read + Write`
-//! stream, for simple tools that do not want an async runtime.
+//! The blocking I/O shell (feature `serial`): the [`CompassShell`] run by
+//! [`ima_serial::blocking::Blocking`] over any `Read + Write` stream (a port from
+//! [`open_port`], or one wrapped in [`FixedBaud`]), implementing
+//! [`ima_hal::blocking::Compass`].
 //!
-//! The stream's `read` must return within a few milliseconds when nothing arrives (a port from
-//! [`open_port`] has a 10 ms timeout; `TimedOut` and `WouldBlock` count as "nothing"), because
-//! the session's timers run between reads. Time only advances inside the driver's calls.
-//! [`BlockingCompass`] implements [`ima_hal::blocking::Compass`], the blocking mirror of
-//! [`ima_hal::compass::Compass`].
+//! The stream's `read` must return within a few milliseconds when nothing arrives: the
+//! machine's timers (configuration retries, data timeout) run between reads.
 
-use std::io::{self, Read, Write};
+use std::io::{Read, Write};
 use std::time::Duration;
 
 use ima_hal::blocking;
 use ima_hal::compass::Heading;
-use ima_hal::time::MonotonicClock;
+use ima_hal::time::SharedClock;
 use ima_hal::{ErrorType, Instant, Stamped};
+use ima_serial::blocking::Blocking;
+pub use ima_serial::{BaudControl, FixedBaud};
 
 pub use crate::driver::DriverError;
-use crate::machine::{Config, Event, Job, Machine, Reading, Stats};
-
-/// Open a serial port for the blocking shell: `baud` 8N1, no flow control, 10 ms read
-/// timeout.
-///
-/// A path that is not a serial port (a regular file, `/dev/null`) fails with
-/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
-pub fn open_port(path: &str, baud: u32) -> io::Result<serialport::TTYPort> {
-    serialport::new(path, baud)
-        .timeout(Duration::from_millis(10))
-        .open_native()
-        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
-}
+use crate::machine::{Config, Reading, Stats};
+use crate::shell::{CompassShell, HEADING_TIMEOUT, Watches};
+/// Open a serial port for the blocking shell: 8N1, no flow control, 10 ms read timeout.
+pub use ima_serial::open_blocking_port as open_port;
 
 /// A configured compass, read synchronously.
 #[derive(Debug)]
 pub struct BlockingCompass<S> {
-    stream: S,
-    machine: Machine,
-    clock: MonotonicClock,
-    latest: Option<Stamped<Reading>>,
-    configured: bool,
-    failed: Option<DriverError>,
+    run: Blocking<CompassShell, S>,
+    w: Watches,
 }
 
-impl<S: Read + Write> BlockingCompass<S> {
-    /// Configure the device on `stream` and wait until headings flow, or `timeout` passes.
+impl<S: Read + Write + BaudControl> BlockingCompass<S> {
+    /// Configure the device on `stream` and wait until headings flow, or `timeout` passes;
+    /// `clock` is the process's time base.
     ///
     /// # Errors
-    /// [`DriverError::JobFailed`], [`DriverError::Timeout`], [`DriverError::Io`].
-    pub fn connect(stream: S, cfg: Config, timeout: Duration) -> Result<Self, DriverError> {
-        let mut me = Self {
-            stream,
-            machine: Machine::new(cfg),
-            clock: MonotonicClock::new(),
-            latest: None,
-            configured: false,
-            failed: None,
-        };
-        me.machine.start(me.clock.now());
-        let deadline = std::time::Instant::now() + timeout;
-        while !me.configured {
-            if std::time::Instant::now() >= deadline {
-                return Err(DriverError::Timeout);
-            }
-            me.pump_once()?;
-        }
-        Ok(me)
+    /// [`DriverError::NoAnswer`] / [`DriverError::WrongDialect`], [`DriverError::Timeout`],
+    /// [`DriverError::Io`].
+    pub fn connect(
+        stream: S,
+        cfg: Config,
+        timeout: Duration,
+        clock: SharedClock,
+    ) -> Result<Self, DriverError> {
+        let (shell, w) = CompassShell::new(cfg);
+        let mut run = Blocking::new(shell, stream, clock);
+        run.wait_connected(&w.link, timeout)?;
+        Ok(Self { run, w })
     }
 
     /// Session counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        self.machine.stats()
+        *self.w.stats.borrow()
     }
 
     /// The driver's clock.
     #[must_use]
     pub fn now(&self) -> Instant {
-        self.clock.now()
+        self.run.now()
     }
 
     /// The latest reading, if any.
     #[must_use]
     pub fn latest(&self) -> Option<Stamped<Reading>> {
-        self.latest
+        *self.w.reading.borrow()
     }
 
     /// Give the stream back.
     pub fn into_inner(self) -> S {
-        self.stream
+        self.run.close().0
     }
 
     /// Read, run timers and send until a reading stamped after `after` arrives, or `timeout`.
@@ -98,74 +80,9 @@ impl<S: Read + Write> BlockingCompass<S> {
         after: Instant,
         timeout: Duration,
     ) -> Result<Stamped<Reading>, DriverError> {
-        let deadline = std::time::Instant::now() + timeout;
-        loop {
-            if let Some(r) = self.latest
-                && r.at > after
-            {
-                return Ok(r);
-            }
-            if std::time::Instant::now() >= deadline {
-                return Err(DriverError::Timeout);
-            }
-            self.pump_once()?;
-        }
-    }
-
-    fn pump_available(&mut self) -> Result<(), DriverError> {
-        // One pass: whatever is buffered now (bounded by the port timeout).
-        self.pump_once()
-    }
-
-    fn pump_once(&mut self) -> Result<(), DriverError> {
-        if let Some(e) = self.failed {
-            return Err(e);
-        }
-        let mut tbuf = [0u8; crate::wire::command::MAX_COMMAND];
-        while let Some(n) = self.machine.poll_transmit(&mut tbuf) {
-            let cmd = tbuf.get(..n).unwrap_or(&[]);
-            self.stream
-                .write_all(cmd)
-                .and_then(|()| self.stream.flush())
-                .map_err(|e| DriverError::Io(e.kind()))?;
-        }
-        let mut rbuf = [0u8; 256];
-        match self.stream.read(&mut rbuf) {
-            Ok(0) => return Err(DriverError::Disconnected),
-            Ok(n) => {
-                let now = self.clock.now();
-                self.machine.handle_bytes(rbuf.get(..n).unwrap_or(&[]), now);
-            }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::TimedOut
-                        | io::ErrorKind::WouldBlock
-                        | io::ErrorKind::Interrupted
-                ) => {}
-            Err(e) => return Err(DriverError::Io(e.kind())),
-        }
-        let now = self.clock.now();
-        if self.machine.poll_timeout().is_some_and(|t| now >= t) {
-            self.machine.handle_timeout(now);
-        }
-        while let Some(ev) = self.machine.poll_event() {
-            match ev {
-                Event::Heading(r) => self.latest = Some(r),
-                Event::Configured => self.configured = true,
-                Event::JobFailed {
-                    job: Job::Configure,
-                    step,
-                } => {
-                    let e = crate::driver::configuration_failed(&self.machine, step);
-                    self.failed = Some(e);
-                    return Err(e);
-                }
-                _ => {}
-            }
-        }
-        // Commands a timer queued go out on the next call.
-        Ok(())
+        let rx = self.w.reading.clone();
+        let newer = |_: &mut CompassShell| rx.borrow().filter(|r| r.at > after);
+        Ok(self.run.wait_for(timeout, newer)?)
     }
 }
 
@@ -173,20 +90,21 @@ impl<S> ErrorType for BlockingCompass<S> {
     type Error = DriverError;
 }
 
-impl<S: Read + Write> blocking::Compass for BlockingCompass<S> {
-    /// The most recent heading (waits up to 3 s for the first one).
+impl<S: Read + Write + BaudControl> blocking::Compass for BlockingCompass<S> {
+    /// The freshest heading: what is buffered now, else the next one.
     fn heading(&mut self) -> Result<Stamped<Heading>, DriverError> {
-        self.pump_available()?;
-        match self.latest {
-            Some(r) => Ok(r.map(|r| r.heading)),
-            None => self.next_heading(Instant::ZERO),
+        self.run.pump_once()?;
+        if let Some(r) = self.latest() {
+            return Ok(r.map(|r| r.heading));
         }
+        Ok(self
+            .next_reading(Instant::ZERO, HEADING_TIMEOUT)?
+            .map(|r| r.heading))
     }
 
-    /// A heading measured after `after` (waits up to 3 s).
     fn next_heading(&mut self, after: Instant) -> Result<Stamped<Heading>, DriverError> {
         Ok(self
-            .next_reading(after, Duration::from_secs(3))?
+            .next_reading(after, HEADING_TIMEOUT)?
             .map(|r| r.heading))
     }
 }

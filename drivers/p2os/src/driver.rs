@@ -1,4 +1,4 @@
-//! What both I/O shells share: the driver error and line-speed control (feature `std`).
+//! What both I/O shells share: the driver error, the speed limits and the sonar ring (feature `std`).
 
 use std::io;
 
@@ -6,92 +6,7 @@ use ima_hal::ErrorKind;
 
 use crate::machine::SessionError;
 
-/// A byte stream whose line speed can be changed (for baud probing).
-pub trait BaudControl {
-    /// Set the line speed.
-    fn set_baud(&mut self, baud: u32) -> io::Result<()>;
-}
-
-#[cfg(feature = "tokio")]
-impl BaudControl for tokio_serial::SerialStream {
-    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
-        tokio_serial::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
-    }
-}
-
-/// Wraps a stream that has no line speed (an in-memory duplex, a TCP bridge): baud changes
-/// are accepted and ignored.
-#[derive(Debug)]
-pub struct FixedBaud<S>(pub S);
-
-impl<S> BaudControl for FixedBaud<S> {
-    fn set_baud(&mut self, _baud: u32) -> io::Result<()> {
-        Ok(())
-    }
-}
-
-#[cfg(feature = "tokio")]
-impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for FixedBaud<S> {
-    fn poll_read(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &mut tokio::io::ReadBuf<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_read(cx, buf)
-    }
-}
-
-#[cfg(feature = "tokio")]
-impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for FixedBaud<S> {
-    fn poll_write(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &[u8],
-    ) -> std::task::Poll<io::Result<usize>> {
-        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
-    }
-    fn poll_flush(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_flush(cx)
-    }
-    fn poll_shutdown(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
-    }
-}
-
-#[cfg(feature = "serial")]
-impl BaudControl for serialport::TTYPort {
-    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
-        serialport::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
-    }
-}
-
-#[cfg(feature = "serial")]
-impl BaudControl for Box<dyn serialport::SerialPort> {
-    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
-        self.set_baud_rate(baud).map_err(io::Error::from)
-    }
-}
-
-impl<S: io::Read> io::Read for FixedBaud<S> {
-    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        self.0.read(buf)
-    }
-}
-
-impl<S: io::Write> io::Write for FixedBaud<S> {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        self.0.write(buf)
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        self.0.flush()
-    }
-}
+pub use ima_serial::{BaudControl, FixedBaud};
 
 /// Errors of the P2OS drivers (both shells).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -141,6 +56,17 @@ impl std::fmt::Display for DriverError {
 }
 
 impl std::error::Error for DriverError {}
+
+ima_serial::impl_from_link_error!(DriverError);
+
+/// The speed limits of `params`.
+#[must_use]
+pub fn limits(params: &crate::params::RobotParams) -> ima_hal::base::BaseLimits {
+    ima_hal::base::BaseLimits {
+        max_v_m_s: params.max_velocity_mm_s / 1000.0,
+        max_omega_rad_s: params.max_rot_velocity_deg_s.to_radians(),
+    }
+}
 
 impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {

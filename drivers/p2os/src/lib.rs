@@ -39,6 +39,6 @@ pub mod shell;
 pub mod wire;
 
 pub use framer::{FrameEvent, Framer, FramerStats};
-pub use machine::{Config, Event, Session, SessionError, SessionState};
+pub use machine::{Config, Event, Machine, SessionError, SessionState};
 pub use params::RobotParams;
 pub use wire::{Command, Packet, WireError};

@@ -1,6 +1,6 @@
 //! The P2OS client session, sans-IO.
 //!
-//! [`Session`] holds everything a host needs to talk to a Pioneer: the handshake with baud
+//! [`Machine`] holds everything a host needs to talk to a Pioneer: the handshake with baud
 //! probing (spec §5.1), the stale-session CLOSE (§10 item 6), motor enabling checked through
 //! the FLAGS bit (§10 item 7), a keep-alive so the robot's 2 s watchdog never fires while the
 //! host is alive (§5.2, §10 item 8), a host-side command timeout that stops the robot when the
@@ -9,13 +9,13 @@
 //! reconnection.
 //!
 //! It does no I/O and never reads a clock. Drive it with:
-//! * [`Session::connect`] once, then
-//! * [`Session::handle_input`] with every chunk of bytes read from the port,
-//! * [`Session::handle_timeout`] whenever [`Session::poll_timeout`]'s instant has passed,
-//! * [`Session::poll_transmit`] until it returns `None`, writing each frame to the port,
-//! * [`Session::poll_event`] until it returns `None`.
+//! * [`Machine::connect`] once, then
+//! * [`Machine::handle_bytes`] with every chunk of bytes read from the port,
+//! * [`Machine::handle_timeout`] whenever [`Machine::poll_timeout`]'s instant has passed,
+//! * [`Machine::poll_transmit`] until it returns `None`, writing each frame to the port,
+//! * [`Machine::poll_event`] until it returns `None`.
 //!
-//! Commands ([`Session::set_velocity`], [`Session::enable_motors`], …) queue frames; the
+//! Commands ([`Machine::set_velocity`], [`Machine::enable_motors`], …) queue frames; the
 //! session paces them at least [`Config::command_spacing`] apart (§5.2).
 
 use core::time::Duration;
@@ -33,7 +33,7 @@ use crate::wire::{self, Command, EncodeOptions, IntCommand, Packet, Sip};
 /// Serial rates P2OS supports, in the order they are probed (spec §1, §10 item 5).
 pub const DEFAULT_BAUDS: [u32; 5] = [9600, 19200, 38400, 57600, 115200];
 
-/// Session settings. `Config::default()` suits a P2-AT on a serial line.
+/// Machine settings. `Config::default()` suits a P2-AT on a serial line.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
     /// Rates to probe, in order (at most 8).
@@ -221,7 +221,7 @@ pub enum Event {
 /// Where the session is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SessionState {
-    /// [`Session::connect`] not called yet.
+    /// [`Machine::connect`] not called yet.
     Idle,
     /// Running the SYNC0–SYNC2 handshake.
     Syncing,
@@ -315,7 +315,7 @@ struct OdoTrack {
 
 /// The P2OS client session. See the [module docs](self).
 #[derive(Debug)]
-pub struct Session {
+pub struct Machine {
     cfg: Config,
     state: SessionState,
     framer: Framer,
@@ -363,7 +363,7 @@ fn owned<const N: usize>(bytes: &[u8]) -> String<N> {
     s
 }
 
-impl Session {
+impl Machine {
     /// A session with `cfg`, not yet connecting.
     #[must_use]
     pub fn new(cfg: Config) -> Self {
@@ -576,7 +576,7 @@ impl Session {
     // ----------------------------------------------------------------------------------------
 
     /// Bytes read from the port at `now`.
-    pub fn handle_input(&mut self, bytes: &[u8], now: Instant) {
+    pub fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
         self.last_rx = Some(now);
         let mut input = bytes;
         loop {
@@ -659,7 +659,7 @@ impl Session {
         {
             self.framer.abandon_partial();
             // Rescan what is left, now that the partial frame is gone.
-            self.handle_input(&[], now);
+            self.handle_bytes(&[], now);
         }
         match self.state {
             SessionState::Syncing | SessionState::Opening => {
@@ -1108,3 +1108,5 @@ pub fn unwrap12(prev: i16, new: i16) -> i32 {
     let d = (i32::from(new) - i32::from(prev)).rem_euclid(4096);
     if d >= 2048 { d - 4096 } else { d }
 }
+
+ima_serial::impl_machine!(Machine, Event, |m, now, buf| m.poll_transmit(now, buf));

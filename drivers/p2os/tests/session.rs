@@ -6,7 +6,7 @@ use ima_hal::Instant;
 use ima_hal::base::VelocityCommand;
 use ima_p2os::machine::{DisconnectReason, Event, SessionState};
 use ima_p2os::wire::{self, Command, IntCommand, Packet, Sip, SonarRaw};
-use ima_p2os::{Config, Session};
+use ima_p2os::{Config, Machine};
 
 fn ms(t: u64) -> Instant {
     Instant::from_millis(t)
@@ -19,7 +19,7 @@ fn frame(p: &Packet<'_>) -> Vec<u8> {
 }
 
 /// Everything the session sends at `now` (spacing permitting), as parsed commands.
-fn sent(s: &mut Session, now: Instant) -> Vec<Command<'static>> {
+fn sent(s: &mut Machine, now: Instant) -> Vec<Command<'static>> {
     let mut out = Vec::new();
     let mut buf = [0u8; 300];
     let mut t = now;
@@ -51,7 +51,7 @@ fn to_static(c: Command<'_>) -> Command<'static> {
     }
 }
 
-fn events(s: &mut Session) -> Vec<Event> {
+fn events(s: &mut Machine) -> Vec<Event> {
     std::iter::from_fn(|| s.poll_event()).collect()
 }
 
@@ -66,8 +66,8 @@ fn sip(x: u16, y: u16, th: i16, flags: u16) -> Sip {
     }
 }
 
-fn feed(s: &mut Session, p: &Packet<'_>, now: Instant) {
-    s.handle_input(&frame(p), now);
+fn feed(s: &mut Machine, p: &Packet<'_>, now: Instant) {
+    s.handle_bytes(&frame(p), now);
 }
 
 const P2AT_REPLY: Packet<'static> = Packet::SyncReply {
@@ -77,7 +77,7 @@ const P2AT_REPLY: Packet<'static> = Packet::SyncReply {
 };
 
 /// Run the handshake to an open session at t = 0..; returns the time after the first SIP.
-fn open(s: &mut Session) -> Instant {
+fn open(s: &mut Machine) -> Instant {
     s.connect(ms(0));
     assert_eq!(sent(s, ms(0)), vec![Command::Sync0]);
     feed(s, &Packet::SyncEcho(0), ms(10));
@@ -94,7 +94,7 @@ fn open(s: &mut Session) -> Instant {
 
 #[test]
 fn handshake_opens_and_configures_the_robot() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let evs = events(&mut s);
     assert_eq!(evs[0], Event::SetBaud(9600));
@@ -125,7 +125,7 @@ fn handshake_opens_and_configures_the_robot() {
 
 #[test]
 fn probes_the_next_baud_after_silence() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     s.connect(ms(0));
     assert_eq!(events(&mut s), vec![Event::SetBaud(9600)]);
     assert_eq!(sent(&mut s, ms(0)), vec![Command::Sync0]);
@@ -156,7 +156,7 @@ fn probes_the_next_baud_after_silence() {
 
 #[test]
 fn gives_up_after_max_sweeps() {
-    let mut s = Session::new(Config {
+    let mut s = Machine::new(Config {
         max_sweeps: Some(1),
         ..Config::default()
     });
@@ -178,7 +178,7 @@ fn gives_up_after_max_sweeps() {
 
 #[test]
 fn stale_open_session_is_closed_then_resynced() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     s.connect(ms(0));
     let _ = sent(&mut s, ms(0));
     // The robot was left open: SYNC0 is a PULSE to it and SIPs keep coming.
@@ -196,7 +196,7 @@ fn stale_open_session_is_closed_then_resynced() {
 
 #[test]
 fn out_of_sequence_reply_restarts_at_sync0() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     s.connect(ms(0));
     let _ = sent(&mut s, ms(0));
     feed(&mut s, &Packet::SyncEcho(1), ms(10));
@@ -210,7 +210,7 @@ fn unknown_subclass_is_an_error_unless_overridden() {
         class: b"Pioneer",
         subclass: b"p9zz",
     };
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     s.connect(ms(0));
     feed(&mut s, &Packet::SyncEcho(0), ms(1));
     feed(&mut s, &Packet::SyncEcho(1), ms(2));
@@ -222,7 +222,7 @@ fn unknown_subclass_is_an_error_unless_overridden() {
             .any(|e| matches!(e, Event::UnsupportedRobot(id) if id.subclass.as_str() == "p9zz"))
     );
 
-    let mut s = Session::new(Config {
+    let mut s = Machine::new(Config {
         params_override: Some(ima_p2os::params::P2DX),
         ..Config::default()
     });
@@ -236,7 +236,7 @@ fn unknown_subclass_is_an_error_unless_overridden() {
 
 #[test]
 fn keepalive_keeps_the_watchdog_fed() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let mut t = open(&mut s);
     let mut last_tx = t;
     let _ = sent(&mut s, t);
@@ -262,7 +262,7 @@ fn keepalive_keeps_the_watchdog_fed() {
 
 #[test]
 fn caller_going_quiet_stops_the_robot() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let _ = sent(&mut s, t);
     s.set_velocity(VelocityCommand::new(0.3, -0.5), t).unwrap();
@@ -290,7 +290,7 @@ fn caller_going_quiet_stops_the_robot() {
 
 #[test]
 fn velocity_is_clamped_and_latest_wins_in_the_queue() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let _ = sent(&mut s, t);
     s.set_velocity(VelocityCommand::new(0.1, 0.0), t).unwrap();
@@ -310,7 +310,7 @@ fn velocity_is_clamped_and_latest_wins_in_the_queue() {
 
 #[test]
 fn commands_before_connect_are_refused() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     assert_eq!(
         s.set_velocity(VelocityCommand::new(0.1, 0.0), ms(0)),
         Err(ima_p2os::SessionError::NotConnected)
@@ -323,7 +323,7 @@ fn commands_before_connect_are_refused() {
 
 #[test]
 fn motors_enable_is_confirmed_by_flags_or_refused() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let _ = sent(&mut s, t);
     let _ = events(&mut s);
@@ -337,7 +337,7 @@ fn motors_enable_is_confirmed_by_flags_or_refused() {
     assert!(events(&mut s).contains(&Event::MotorsEnabled(true)));
 
     // A robot with its E-stop engaged never sets the flag.
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let mut now = open(&mut s);
     let _ = sent(&mut s, now);
     s.enable_motors(true, now).unwrap();
@@ -358,7 +358,7 @@ fn motors_enable_is_confirmed_by_flags_or_refused() {
 
 #[test]
 fn enabling_motors_that_are_already_on_is_confirmed() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     feed(
         &mut s,
@@ -378,7 +378,7 @@ fn enabling_motors_that_are_already_on_is_confirmed() {
 
 #[test]
 fn link_loss_is_detected_and_the_session_reconnects_at_the_same_rate() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let _ = sent(&mut s, t);
     let _ = events(&mut s);
@@ -421,7 +421,7 @@ fn odometry_unwraps_15_bit_positions_t22() {
     assert_eq!(ima_p2os::machine::unwrap15(32760, 5), 13);
     assert_eq!(ima_p2os::machine::unwrap15(5, 32760), -13);
     assert_eq!(ima_p2os::machine::unwrap12(2047, -2048), 1);
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     s.connect(ms(0));
     feed(&mut s, &Packet::SyncEcho(0), ms(1));
     feed(&mut s, &Packet::SyncEcho(1), ms(2));
@@ -441,7 +441,7 @@ fn odometry_unwraps_15_bit_positions_t22() {
 
 #[test]
 fn t20_sip_state_in_si_units() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let _ = events(&mut s);
     let mut p = sip(100, 100, 0, 1);
@@ -480,7 +480,7 @@ fn t20_sip_state_in_si_units() {
 
 #[test]
 fn implausible_sips_are_dropped_and_counted() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     // A position jump of 2000 units (2.6 m) in 100 ms.
     feed(
@@ -507,7 +507,7 @@ fn implausible_sips_are_dropped_and_counted() {
 
 #[test]
 fn reset_odometry_makes_the_current_pose_the_origin() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let mut t = open(&mut s);
     for i in 1..=10u16 {
         t = t + Duration::from_millis(100);
@@ -529,7 +529,7 @@ fn reset_odometry_makes_the_current_pose_the_origin() {
 
 #[test]
 fn close_stops_then_closes() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let t = open(&mut s);
     let _ = sent(&mut s, t);
     s.close();
@@ -543,7 +543,7 @@ fn close_stops_then_closes() {
 /// at the old rate as soon as it answers.
 #[test]
 fn reconnect_probing_keeps_the_line_speed_in_step() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let mut now = open(&mut s);
     let _ = sent(&mut s, now);
     let mut line = 0u32;
@@ -616,7 +616,7 @@ fn reconnect_probing_keeps_the_line_speed_in_step() {
 
 #[test]
 fn unchanged_velocity_is_not_resent_every_call() {
-    let mut s = Session::new(Config::default());
+    let mut s = Machine::new(Config::default());
     let mut t = open(&mut s);
     let _ = sent(&mut s, t);
     let mut frames = 0;

@@ -81,6 +81,19 @@ impl ima_hal::Error for DriverError {
     }
 }
 
+ima_serial::impl_from_link_error!(DriverError);
+
+/// The connect error when no motion report came: what the line carried.
+#[cfg(feature = "tokio")]
+#[must_use]
+pub fn no_report(st: &crate::shell::ShellStats) -> DriverError {
+    DriverError::NoReport {
+        bytes: st.bytes,
+        frames: st.framer.frames,
+        bad_frames: st.framer.errors(),
+    }
+}
+
 impl From<CommandError> for DriverError {
     fn from(e: CommandError) -> Self {
         Self::Command(e)

@@ -1097,6 +1097,12 @@ impl Machine {
 /// Bytes a transmit buffer needs.
 pub const TX_BUF: usize = MAX_WIRE_FRAME;
 
+ima_serial::impl_machine!(Machine, Event, |m, now, buf| {
+    // Time passes to `now` first (frames keep their minimum gap).
+    m.advance(now);
+    m.poll_transmit(buf)
+});
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -169,7 +169,7 @@ fn machine_16_scans_per_read(b: Bencher) {
         .counter(ItemsCount::new(16usize))
         .bench_local(|| {
             let mut n = 0;
-            m.handle_bytes(black_box(&stream), Instant::ZERO, |s, _| {
+            m.handle_bytes_with(black_box(&stream), Instant::ZERO, |s, _| {
                 decode_scan(s, MeasuringMode::DEFAULT, None, &mut scan).unwrap();
                 n += 1;
             });

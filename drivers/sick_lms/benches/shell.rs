@@ -119,7 +119,13 @@ fn next_scan_361(b: Bencher) {
         baud: BaudRate::B9600,
         ..Config::default()
     };
-    let mut lms = BlockingSickLms::connect(FakeLms::new(), cfg, Duration::from_secs(5)).unwrap();
+    let mut lms = BlockingSickLms::connect(
+        FakeLms::new(),
+        cfg,
+        Duration::from_secs(5),
+        ima_hal::time::MonotonicClock::shared(),
+    )
+    .unwrap();
     for _ in 0..5 {
         lms.next_scan(Duration::from_secs(1)).unwrap();
     }

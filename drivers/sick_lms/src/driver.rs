@@ -11,100 +11,7 @@ use crate::framer::Counters;
 use crate::machine::{MachineError, SessionInfo, Stats};
 use crate::wire::{BaudRate, MeasuringMode, Units};
 
-/// A byte stream whose line speed can be changed (baud probe and baud change, spec §4).
-pub trait BaudControl {
-    /// Set the line speed.
-    fn set_baud(&mut self, baud: u32) -> io::Result<()>;
-
-    /// Discard bytes received but not yet read (after a rate change they are garbage).
-    /// Default: nothing (the machine's framer drops its partial frame anyway).
-    fn clear_input(&mut self) -> io::Result<()> {
-        Ok(())
-    }
-}
-
-#[cfg(feature = "tokio")]
-impl BaudControl for tokio_serial::SerialStream {
-    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
-        tokio_serial::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
-    }
-
-    fn clear_input(&mut self) -> io::Result<()> {
-        tokio_serial::SerialPort::clear(self, tokio_serial::ClearBuffer::Input)
-            .map_err(io::Error::from)
-    }
-}
-
-#[cfg(feature = "serial")]
-impl BaudControl for serialport::TTYPort {
-    fn set_baud(&mut self, baud: u32) -> io::Result<()> {
-        serialport::SerialPort::set_baud_rate(self, baud).map_err(io::Error::from)
-    }
-
-    fn clear_input(&mut self) -> io::Result<()> {
-        serialport::SerialPort::clear(self, serialport::ClearBuffer::Input).map_err(io::Error::from)
-    }
-}
-
-/// Wraps a stream that has no line speed (an in-memory duplex, a TCP bridge): rate changes
-/// are accepted and ignored.
-#[derive(Debug)]
-pub struct FixedBaud<S>(pub S);
-
-impl<S> BaudControl for FixedBaud<S> {
-    fn set_baud(&mut self, _baud: u32) -> io::Result<()> {
-        Ok(())
-    }
-}
-
-#[cfg(feature = "tokio")]
-impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for FixedBaud<S> {
-    fn poll_read(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &mut tokio::io::ReadBuf<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_read(cx, buf)
-    }
-}
-
-#[cfg(feature = "tokio")]
-impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for FixedBaud<S> {
-    fn poll_write(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &[u8],
-    ) -> std::task::Poll<io::Result<usize>> {
-        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
-    }
-    fn poll_flush(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_flush(cx)
-    }
-    fn poll_shutdown(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<io::Result<()>> {
-        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
-    }
-}
-
-impl<S: io::Read> io::Read for FixedBaud<S> {
-    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        self.0.read(buf)
-    }
-}
-
-impl<S: io::Write> io::Write for FixedBaud<S> {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        self.0.write(buf)
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        self.0.flush()
-    }
-}
+pub use ima_serial::{BaudControl, FixedBaud};
 
 /// How long closing may take: stopping the stream and switching the unit back to 9600
 /// ([`crate::machine::Machine::close`]) each need one acknowledged telegram.
@@ -160,6 +67,8 @@ impl std::fmt::Display for DriverError {
 
 impl std::error::Error for DriverError {}
 
+ima_serial::impl_from_link_error!(DriverError);
+
 impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {
@@ -192,20 +101,9 @@ pub struct ScanStats {
     pub losses: u64,
 }
 
-/// Link status as seen by handles.
-#[derive(Debug, Clone, PartialEq)]
-pub enum LinkStatus {
-    /// Probing / initialising (first time, after a loss, or reconfiguring).
-    Connecting,
-    /// Initialised; scans flow if streaming was asked for.
-    Ready(SessionInfo),
-    /// Lost (stream stalled, unit restarted); the session is re-initialising.
-    Lost,
-    /// Failed for good.
-    Failed(DriverError),
-    /// The task ended.
-    Closed,
-}
+/// Link status as seen by handles: connected once initialised (scans flow if streaming was
+/// asked for), with what the session runs with.
+pub type LinkStatus = ima_serial::LinkStatus<SessionInfo, DriverError>;
 
 /// The [`LaserDescription`] of a session (defaults: 180°/0.5°, mode 00, mm), for a scanner
 /// mounted at `pose`. The scan-rate limit is the lower of the mirror's and the line's (§4).

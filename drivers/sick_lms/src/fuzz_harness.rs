@@ -71,7 +71,7 @@ pub fn sick_lms_framer(data: &[u8]) {
                 assert!(Command::from_frame(&f).is_ok());
             }
         });
-        machine.handle_bytes(chunk, now, |s, _| {
+        machine.handle_bytes_with(chunk, now, |s, _| {
             let _ = decode_scan(s, MeasuringMode::DEFAULT, None, &mut scan);
         });
         if machine.poll_timeout().is_some_and(|t| t <= now) {

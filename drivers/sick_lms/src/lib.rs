@@ -35,7 +35,7 @@
 //! assert_eq!(&tx[..n], &[0x02, 0x00, 0x02, 0x00, 0x20, 0x25, 0x35, 0x08]);
 //! // 3. Bytes read from the port; B0 scans come out borrowed, decoded in place.
 //! let mut scan = LaserScan::default();
-//! m.handle_bytes(&[0x06], Instant::from_millis(3), |b0, _at| {
+//! m.handle_bytes_with(&[0x06], Instant::from_millis(3), |b0, _at| {
 //!     let _ = ima_sick_lms::decode::decode_scan(b0, Default::default(), None, &mut scan);
 //! });
 //! // 4. Sleep until poll_timeout(), then call handle_timeout(now).

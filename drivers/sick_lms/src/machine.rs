@@ -1,6 +1,6 @@
 //! The host-side session (spec §4 "Recommended sequence", §2 timing, §6 pitfalls).
 //!
-//! Sans-IO: inputs are bytes ([`Machine::handle_bytes`]) or pre-framed items
+//! Sans-IO: inputs are bytes ([`Machine::handle_bytes_with`]) or pre-framed items
 //! ([`Machine::handle_frame`], [`Machine::handle_ack`], [`Machine::handle_nak`]) and timer
 //! expiry ([`Machine::handle_timeout`]); outputs are telegrams ([`Machine::poll_transmit`]),
 //! [`Event`]s ([`Machine::poll_event`]) and the next deadline ([`Machine::poll_timeout`]).
@@ -472,7 +472,7 @@ impl Machine {
 
     /// Feed received bytes. Every B0 scan is handed to `on_scan` with `now`, borrowed from the
     /// framer's buffer (decode it there, e.g. with [`crate::decode::decode_scan`]).
-    pub fn handle_bytes(
+    pub fn handle_bytes_with(
         &mut self,
         mut bytes: &[u8],
         now: Instant,
@@ -509,12 +509,18 @@ impl Machine {
     /// expiry). Scans recovered by a partial-frame expiry go to `on_scan`.
     pub fn handle_timeout_with(&mut self, now: Instant, on_scan: impl FnMut(&Scan<'_>, Instant)) {
         if self.framer.poll_timeout().is_some_and(|t| t <= now) {
-            self.handle_bytes(&[], now, on_scan);
+            self.handle_bytes_with(&[], now, on_scan);
         }
         self.core.handle_timers(now);
         if core::mem::take(&mut self.core.flush) {
             self.framer.clear();
         }
+    }
+
+    /// [`Machine::handle_bytes_with`] discarding the scans (they still count in
+    /// [`Stats::scans`]).
+    pub fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
+        self.handle_bytes_with(bytes, now, |_, _| {});
     }
 
     /// [`Machine::handle_timeout_with`] discarding scans recovered by a partial-frame expiry
@@ -1256,3 +1262,7 @@ impl Core {
         }
     }
 }
+
+// Through the trait, scans are counted but not handed out: a shell that wants them (without
+// a copy) calls [`Machine::handle_bytes_with`] and [`Machine::handle_timeout_with`].
+ima_serial::impl_machine!(Machine, Event, |m, _now, buf| m.poll_transmit(buf));

@@ -13,15 +13,15 @@
 //!
 //! **Losses.** When the stream stalls (watchdog) or the unit restarts, the machine re-probes
 //! and re-initialises by itself; handles see [`LinkStatus::Lost`] and then
-//! [`LinkStatus::Ready`] again. Only a failed initialisation is final.
+//! [`LinkStatus::Connected`](ima_serial::LinkStatus::Connected) again. Only a failed initialisation is final.
 
-use std::io;
 use std::time::Duration;
 
 use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
 use ima_hal::link::ProbeReport;
 use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use ima_serial::runner::{self, End, Flow, Shell};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::decode::{Variant, decode_scan};
@@ -30,32 +30,19 @@ pub use crate::driver::{
 };
 use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionInfo};
 use crate::wire::{MeasuringMode, StatusByte};
-
-/// Open a serial port for the shell: 8N1, no flow control, at `baud` (the probe changes it).
-///
-/// A path that is not a serial port (a regular file, `/dev/null`) fails with
-/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`.
-pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
-    use tokio_serial::SerialPortBuilderExt;
-    tokio_serial::new(path, baud)
-        .data_bits(tokio_serial::DataBits::Eight)
-        .parity(tokio_serial::Parity::None)
-        .stop_bits(tokio_serial::StopBits::One)
-        .flow_control(tokio_serial::FlowControl::None)
-        .open_native_async()
-        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
-}
-
 /// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
 /// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
 /// stamp the driver produces is on that time line.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
+/// Open a serial port for the shell: 8N1, no flow control, at `baud` (the probe changes it).
+pub use ima_serial::open_port;
 
 /// The latest scan and its sequence number (0: none yet).
 #[derive(Debug, Clone)]
-struct Slot {
-    seq: u64,
-    scan: Stamped<LaserScan>,
+pub(crate) struct Slot {
+    /// 0: none yet.
+    pub(crate) seq: u64,
+    pub(crate) scan: Stamped<LaserScan>,
 }
 
 impl Default for Slot {
@@ -67,18 +54,28 @@ impl Default for Slot {
     }
 }
 
-type Reply = oneshot::Sender<Result<SessionInfo, DriverError>>;
+pub(crate) type Reply = oneshot::Sender<Result<SessionInfo, DriverError>>;
 
-enum Request {
+/// A request from a handle to the driver task.
+#[derive(Debug)]
+pub enum Request {
+    /// Change the scan variant (answered at `Ready`).
     Variant(Variant, Reply),
+    /// Start or stop the B0 stream.
     Stream(bool, Reply),
+    /// Stop, restore 9600 and end the task (answered at once; the link says when it ended).
     Close(oneshot::Sender<()>),
 }
 
-impl std::fmt::Debug for Request {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("Request")
-    }
+/// The receiving ends of what [`SickShell`] publishes.
+#[derive(Debug, Clone)]
+pub(crate) struct Watches {
+    pub(crate) scan: watch::Receiver<Slot>,
+    pub(crate) link: watch::Receiver<LinkStatus>,
+    pub(crate) stats: watch::Receiver<ScanStats>,
+    pub(crate) device_type: watch::Receiver<String>,
+    pub(crate) probe: watch::Receiver<ProbeReport>,
+    pub(crate) status: watch::Receiver<Option<StatusByte>>,
 }
 
 /// How long [`SickLms::connect`] waits by default: a probe round over four rates with
@@ -89,12 +86,7 @@ pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
 #[derive(Debug, Clone)]
 pub struct SickLms {
     tx: mpsc::Sender<Request>,
-    scan: watch::Receiver<Slot>,
-    link: watch::Receiver<LinkStatus>,
-    stats: watch::Receiver<ScanStats>,
-    device_type: watch::Receiver<String>,
-    probe: watch::Receiver<ProbeReport>,
-    status: watch::Receiver<Option<StatusByte>>,
+    w: Watches,
     pose: Isometry2,
     clock: SharedClock,
     scan_timeout: Duration,
@@ -114,71 +106,26 @@ impl SickLms {
     where
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
-        let (tx, rx) = mpsc::channel(8);
-        let (scan_tx, scan) = watch::channel(Slot::default());
-        let (link_tx, mut link) = watch::channel(LinkStatus::Connecting);
-        let (stats_tx, stats) = watch::channel(ScanStats::default());
-        let (type_tx, device_type) = watch::channel(String::new());
-        let (probe_tx, probe) = watch::channel(ProbeReport::new());
-        let (status_tx, status) = watch::channel(None);
         let rs422 = cfg.rs422;
-        let task = Task {
-            machine: Machine::new(cfg, clock.now()),
-            clock: clock.clone(),
-            rx,
-            scan_tx,
-            link_tx,
-            stats_tx,
-            type_tx,
-            waiter: None,
-            work: LaserScan::default(),
-            stats: ScanStats::default(),
-            seq: 0,
-            probe: ProbeReport::new(),
-            probe_tx,
-            status_tx,
-            connected: false,
-            close_deadline: None,
-        };
-        tokio::spawn(task.run(stream));
-        let waited = tokio::time::timeout(connect_timeout, async {
-            loop {
-                match &*link.borrow_and_update() {
-                    LinkStatus::Ready(_) => return Ok(()),
-                    LinkStatus::Failed(e) => return Err(e.clone()),
-                    LinkStatus::Closed => return Err(DriverError::Disconnected),
-                    LinkStatus::Connecting | LinkStatus::Lost => {}
-                }
-                if link.changed().await.is_err() {
-                    return Err(DriverError::Disconnected);
-                }
-            }
-        })
-        .await;
-        match waited {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(e),
-            Err(_) => {
+        let (shell, mut w) = SickShell::new(cfg, clock.now());
+        let tx = runner::spawn(shell, stream, clock.clone(), None);
+        match runner::wait_connected(&mut w.link, connect_timeout).await {
+            Ok(_) => {}
+            Err(Some(e)) => return Err(e),
+            Err(None) => {
                 let _ = tx.try_send(Request::Close(oneshot::channel().0));
-                let report = probe.borrow().clone();
+                let report = w.probe.borrow().clone();
                 // Nothing valid came back: say what was seen at each rate.
                 if report.total_frames() == 0 {
-                    return Err(DriverError::NotFound {
-                        report: Box::new(report),
-                        rs422,
-                    });
+                    let report = Box::new(report);
+                    return Err(DriverError::NotFound { report, rs422 });
                 }
                 return Err(DriverError::Timeout);
             }
         }
         Ok(SickLms {
             tx,
-            scan,
-            link,
-            stats,
-            device_type,
-            probe,
-            status,
+            w,
             pose: Isometry2::identity(),
             clock,
             scan_timeout: Duration::from_secs(3),
@@ -202,41 +149,38 @@ impl SickLms {
     /// Current link status.
     #[must_use]
     pub fn link(&self) -> LinkStatus {
-        self.link.borrow().clone()
+        self.w.link.borrow().clone()
     }
 
     /// What the session runs with, when ready.
     #[must_use]
     pub fn session(&self) -> Option<SessionInfo> {
-        match &*self.link.borrow() {
-            LinkStatus::Ready(i) => Some(*i),
-            _ => None,
-        }
+        self.w.link.borrow().connection().copied()
     }
 
     /// Counters (scans delivered, bad CRCs, retransmissions, losses…).
     #[must_use]
     pub fn stats(&self) -> ScanStats {
-        *self.stats.borrow()
+        *self.w.stats.borrow()
     }
 
     /// The type string the unit reported (e.g. `LMS200;30106`), empty until identified.
     #[must_use]
     pub fn device_type(&self) -> String {
-        self.device_type.borrow().clone()
+        self.w.device_type.borrow().clone()
     }
 
     /// The unit's latest status byte (pollution, implausible values, errors), once any
     /// telegram arrived.
     #[must_use]
     pub fn device_status(&self) -> Option<StatusByte> {
-        *self.status.borrow()
+        *self.w.status.borrow()
     }
 
     /// What the first connection saw at each rate it tried (bytes, valid frames).
     #[must_use]
     pub fn probe_report(&self) -> ProbeReport {
-        self.probe.borrow().clone()
+        self.w.probe.borrow().clone()
     }
 
     /// The driver's clock (the time base of every stamp it produces).
@@ -247,22 +191,10 @@ impl SickLms {
 
     /// Wait until the link is ready again (after a loss), at most `timeout`.
     pub async fn wait_ready(&self, timeout: Duration) -> Result<SessionInfo, DriverError> {
-        let mut link = self.link.clone();
-        tokio::time::timeout(timeout, async move {
-            loop {
-                match &*link.borrow_and_update() {
-                    LinkStatus::Ready(i) => return Ok(*i),
-                    LinkStatus::Failed(e) => return Err(e.clone()),
-                    LinkStatus::Closed => return Err(DriverError::Disconnected),
-                    LinkStatus::Connecting | LinkStatus::Lost => {}
-                }
-                link.changed()
-                    .await
-                    .map_err(|_| DriverError::Disconnected)?;
-            }
-        })
-        .await
-        .map_err(|_| DriverError::Timeout)?
+        let mut link = self.w.link.clone();
+        runner::wait_connected(&mut link, timeout)
+            .await
+            .map_err(|e| e.unwrap_or(DriverError::Timeout))
     }
 
     async fn request(
@@ -270,16 +202,7 @@ impl SickLms {
         make: impl FnOnce(Reply) -> Request,
         timeout: Duration,
     ) -> Result<SessionInfo, DriverError> {
-        let (tx, rx) = oneshot::channel();
-        self.tx
-            .send(make(tx))
-            .await
-            .map_err(|_| DriverError::Disconnected)?;
-        match tokio::time::timeout(timeout, rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(DriverError::Disconnected),
-            Err(_) => Err(DriverError::Timeout),
-        }
+        runner::request(&self.tx, make, timeout).await
     }
 
     /// Change the scan variant (stream stopped, `3B`, stream restarted; spec §3.6).
@@ -304,7 +227,7 @@ impl SickLms {
             .send(Request::Close(tx))
             .await
             .map_err(|_| DriverError::Disconnected)?;
-        let mut link = self.link.clone();
+        let mut link = self.w.link.clone();
         tokio::time::timeout(CLOSE_TIMEOUT + Duration::from_secs(1), async move {
             let _ = rx.await;
             // Wait until the task has let go of the port.
@@ -323,8 +246,8 @@ impl SickLms {
 
     /// Wait for a scan with sequence number above `after_seq` and stamped after `after`.
     async fn wait_scan(&self, after: Instant) -> Result<Stamped<LaserScan>, DriverError> {
-        let mut rx = self.scan.clone();
-        let mut link = self.link.clone();
+        let mut rx = self.w.scan.clone();
+        let mut link = self.w.link.clone();
         tokio::time::timeout(self.scan_timeout, async move {
             loop {
                 {
@@ -358,7 +281,7 @@ impl LaserScanner for SickLms {
 
     async fn scan(&mut self) -> Result<Stamped<LaserScan>, DriverError> {
         {
-            let s = self.scan.borrow();
+            let s = self.w.scan.borrow();
             if s.seq > 0 {
                 return Ok(s.scan.clone());
             }
@@ -371,14 +294,16 @@ impl LaserScanner for SickLms {
     }
 }
 
-struct Task {
+/// Machine events → scans, status and answers, for both shells.
+#[derive(Debug)]
+pub struct SickShell {
     machine: Machine,
-    clock: SharedClock,
-    rx: mpsc::Receiver<Request>,
     scan_tx: watch::Sender<Slot>,
     link_tx: watch::Sender<LinkStatus>,
     stats_tx: watch::Sender<ScanStats>,
     type_tx: watch::Sender<String>,
+    probe_tx: watch::Sender<ProbeReport>,
+    status_tx: watch::Sender<Option<StatusByte>>,
     /// The caller of the reconfiguration in flight (answered at `Ready` or `Error`).
     waiter: Option<Reply>,
     /// Decoding buffer, swapped into the watch slot (no allocation per scan).
@@ -387,77 +312,82 @@ struct Task {
     seq: u64,
     /// What the first connection saw per rate (counted until the first `Ready`).
     probe: ProbeReport,
-    probe_tx: watch::Sender<ProbeReport>,
-    status_tx: watch::Sender<Option<StatusByte>>,
     /// The session was ready once (the probe report is final).
     connected: bool,
-    /// Closing: release the port when the machine is closed or at this instant.
-    close_deadline: Option<Instant>,
 }
 
-impl Task {
-    async fn run<S>(mut self, mut stream: S)
-    where
-        S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
-    {
-        let mut rbuf = [0u8; 1024];
-        let mut tbuf = [0u8; MAX_COMMAND];
-        let mut closing = false;
-        loop {
-            // Events first: a rate change must take effect before the next write.
-            if let Err(e) = self.drain_events(&mut stream) {
-                self.fail(DriverError::Io(e.kind()));
-                return;
-            }
-            while let Some(n) = self.machine.poll_transmit(&mut tbuf) {
-                let Some(frame) = tbuf.get(..n) else { break };
-                if let Err(e) = stream.write_all(frame).await {
-                    self.fail(DriverError::Io(e.kind()));
-                    return;
-                }
-                let _ = stream.flush().await;
-            }
-            self.publish_stats();
-            let now = self.clock.now();
-            if closing && (self.machine.is_closed() || self.close_deadline.is_none_or(|d| now >= d))
-            {
-                // Release the port before reporting: a caller may reopen it at once.
-                drop(stream);
-                self.link_tx.send_replace(LinkStatus::Closed);
-                return;
-            }
-            let mut sleep_for = self
-                .machine
-                .poll_timeout()
-                .map_or(Duration::from_millis(500), |t| {
-                    t.saturating_duration_since(now)
-                });
-            if let Some(d) = self.close_deadline {
-                sleep_for = sleep_for.min(d.saturating_duration_since(now));
-            }
-            tokio::select! {
-                r = stream.read(&mut rbuf) => match r {
-                    Ok(0) => { self.fail(DriverError::Disconnected); return; }
-                    Ok(n) => {
-                        let now = self.clock.now();
-                        self.input(rbuf.get(..n).unwrap_or(&[]), now);
-                    }
-                    Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                    Err(e) => { self.fail(DriverError::Io(e.kind())); return; }
-                },
-                () = tokio::time::sleep(sleep_for) => {
-                    let now = self.clock.now();
-                    self.timeout(now);
-                }
-                req = self.rx.recv(), if !closing => match req {
-                    None => closing = self.close(),
-                    Some(req) => closing = self.handle_request(req),
-                },
-            }
-        }
+impl SickShell {
+    pub(crate) fn new(cfg: Config, now: Instant) -> (Self, Watches) {
+        let (scan_tx, scan) = watch::channel(Slot::default());
+        let (link_tx, link) = watch::channel(LinkStatus::Connecting);
+        let (stats_tx, stats) = watch::channel(ScanStats::default());
+        let (type_tx, device_type) = watch::channel(String::new());
+        let (probe_tx, probe) = watch::channel(ProbeReport::new());
+        let (status_tx, status) = watch::channel(None);
+        let shell = Self {
+            machine: Machine::new(cfg, now),
+            scan_tx,
+            link_tx,
+            stats_tx,
+            type_tx,
+            probe_tx,
+            status_tx,
+            waiter: None,
+            work: LaserScan::default(),
+            stats: ScanStats::default(),
+            seq: 0,
+            probe: ProbeReport::new(),
+            connected: false,
+        };
+        let w = Watches {
+            scan,
+            link,
+            stats,
+            device_type,
+            probe,
+            status,
+        };
+        (shell, w)
     }
 
-    fn input(&mut self, bytes: &[u8], now: Instant) {
+    /// The machine (read-only).
+    pub(crate) fn machine_ref(&self) -> &Machine {
+        &self.machine
+    }
+
+    /// If a scan newer than `seq` arrived, swap it into `into` (no copy) and return its
+    /// sequence number.
+    pub(crate) fn take_newer(&mut self, seq: u64, into: &mut Stamped<LaserScan>) -> Option<u64> {
+        let mut got = None;
+        self.scan_tx.send_if_modified(|slot| {
+            if slot.seq > seq {
+                core::mem::swap(&mut slot.scan, into);
+                got = Some(slot.seq);
+            }
+            false
+        });
+        got
+    }
+
+    fn answer(&mut self, r: Result<SessionInfo, DriverError>) {
+        if let Some(w) = self.waiter.take() {
+            let _ = w.send(r);
+        }
+    }
+}
+
+impl Shell for SickShell {
+    type Machine = Machine;
+    type Request = Request;
+    const MAX_FRAME: usize = MAX_COMMAND;
+
+    fn machine(&mut self) -> &mut Machine {
+        &mut self.machine
+    }
+
+    /// Decodes every B0 in place (borrowed from the framer); counts bytes and frames per
+    /// rate until the first connection.
+    fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
         let before = (!self.connected).then(|| self.machine.counters());
         let mode = self.machine.measuring_mode();
         let mut out = Out {
@@ -467,9 +397,8 @@ impl Task {
             scan_tx: &self.scan_tx,
             seq: &mut self.seq,
         };
-        self.machine.handle_bytes(bytes, now, |b0, at| {
-            out.publish(b0, at, mode);
-        });
+        self.machine
+            .handle_bytes_with(bytes, now, |b0, at| out.publish(b0, at, mode));
         if let Some(b) = before {
             let a = self.machine.counters();
             let bad = |c: crate::framer::Counters| {
@@ -484,7 +413,7 @@ impl Task {
         }
     }
 
-    fn timeout(&mut self, now: Instant) {
+    fn on_timeout(&mut self, now: Instant) {
         let mode = self.machine.measuring_mode();
         let mut out = Out {
             work: &mut self.work,
@@ -493,61 +422,109 @@ impl Task {
             scan_tx: &self.scan_tx,
             seq: &mut self.seq,
         };
-        self.machine.handle_timeout_with(now, |b0, at| {
-            out.publish(b0, at, mode);
-        });
+        self.machine
+            .handle_timeout_with(now, |b0, at| out.publish(b0, at, mode));
     }
 
-    fn publish_stats(&mut self) {
-        self.stats.framer = self.machine.counters();
-        self.stats.session = self.machine.stats();
-        let s = self.stats;
-        self.stats_tx.send_if_modified(|old| {
-            let changed = *old != s;
-            *old = s;
-            changed
-        });
-    }
-
-    fn fail(&mut self, e: DriverError) {
-        if let Some(w) = self.waiter.take() {
-            let _ = w.send(Err(e.clone()));
+    fn on_event(&mut self, ev: Event, line: &mut dyn BaudControl) -> std::io::Result<()> {
+        match ev {
+            Event::SetHostBaud(b) => {
+                tracing::debug!(baud = b, "sick_lms: line speed");
+                line.set_baud(b)?;
+                line.clear_input()?;
+                if !self.connected {
+                    if self.machine.is_probing() {
+                        self.probe.attempt(b);
+                        let n = self.probe.current_tally().map_or(1, |t| t.attempts);
+                        tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
+                    } else {
+                        self.probe.set_rate(b);
+                        tracing::info!(target: "ima::connect", "SICK LMS: switching to {b} baud");
+                    }
+                    self.probe_tx.send_replace(self.probe.clone());
+                }
+            }
+            Event::Identified => {
+                if let Some(t) = self.machine.device_type() {
+                    let t = String::from_utf8_lossy(t).trim().to_owned();
+                    self.type_tx.send_replace(t);
+                }
+            }
+            Event::Ready(info) => {
+                let baud = info.baud.bps();
+                tracing::info!(baud, streaming = info.streaming, "sick_lms: ready");
+                self.stats.readies = self.stats.readies.saturating_add(1);
+                self.connected = true;
+                self.answer(Ok(info));
+                self.link_tx.send_replace(LinkStatus::Connected(info));
+            }
+            // A stream start/stop request ends with `Ready` only during initialisation;
+            // answer the waiter here too.
+            Event::StreamStarted | Event::StreamStopped if self.machine.is_ready() => {
+                let info = self.machine.session();
+                self.answer(Ok(info));
+                self.link_tx.send_replace(LinkStatus::Connected(info));
+            }
+            Event::Restarted => {
+                tracing::warn!("sick_lms: unit restarted, re-initialising");
+                self.stats.losses = self.stats.losses.saturating_add(1);
+                self.link_tx.send_replace(LinkStatus::Lost);
+            }
+            Event::Error(e) => {
+                self.answer(Err(DriverError::Session(e)));
+                if self.machine.is_failed() {
+                    let err = if e == MachineError::NoDevice {
+                        let report = Box::new(self.probe.clone());
+                        let rs422 = self.machine.config().rs422;
+                        DriverError::NotFound { report, rs422 }
+                    } else {
+                        DriverError::Session(e)
+                    };
+                    self.link_tx.send_replace(LinkStatus::Failed(err));
+                } else if e == MachineError::StreamStalled {
+                    tracing::warn!("sick_lms: stream stalled, re-probing");
+                    self.stats.losses = self.stats.losses.saturating_add(1);
+                    self.link_tx.send_replace(LinkStatus::Lost);
+                } else if self.machine.is_ready() {
+                    let info = self.machine.session();
+                    self.link_tx.send_replace(LinkStatus::Connected(info));
+                } else {
+                    tracing::debug!(error = ?e, "sick_lms: request failed");
+                }
+            }
+            Event::DeviceStatus(s) => {
+                if s.pollution() || s.is_error() {
+                    tracing::warn!(status = s.0, "sick_lms: device status");
+                }
+                self.status_tx.send_replace(Some(s));
+            }
+            Event::BaudDetected(b) if !self.connected => {
+                tracing::info!(target: "ima::connect", "SICK LMS: answered at {} baud", b.bps());
+            }
+            Event::StreamStarted
+            | Event::StreamStopped
+            | Event::PowerOn
+            | Event::Closed
+            | Event::BaudDetected(_)
+            | Event::ConfigWritten => {}
         }
-        self.link_tx.send_replace(LinkStatus::Failed(e));
+        Ok(())
     }
 
-    /// Start closing (stream stopped, unit back at 9600, within [`CLOSE_TIMEOUT`]); returns
-    /// true: the task ends once the machine is closed or the deadline passes.
-    fn close(&mut self) -> bool {
-        let now = self.clock.now();
-        if let Some(w) = self.waiter.take() {
-            let _ = w.send(Err(DriverError::Disconnected));
-        }
-        self.machine.close(now);
-        self.close_deadline = Some(now + CLOSE_TIMEOUT);
-        true
-    }
-
-    fn handle_request(&mut self, req: Request) -> bool {
-        let now = self.clock.now();
+    fn on_request(&mut self, req: Request, now: Instant) -> Flow {
+        let m = &mut self.machine;
         let (result, tx) = match req {
             Request::Close(tx) => {
                 let _ = tx.send(());
-                return self.close();
+                return Flow::Close;
             }
-            Request::Variant(v, tx) => (self.machine.set_variant(v, now), tx),
-            Request::Stream(on, tx) => {
-                if on == self.machine.is_streaming() && self.machine.is_ready() {
-                    let _ = tx.send(Ok(self.machine.session()));
-                    return false;
-                }
-                let r = if on {
-                    self.machine.start_stream(now)
-                } else {
-                    self.machine.stop_stream(now)
-                };
-                (r, tx)
+            Request::Variant(v, tx) => (m.set_variant(v, now), tx),
+            Request::Stream(on, tx) if on == m.is_streaming() && m.is_ready() => {
+                let _ = tx.send(Ok(m.session()));
+                return Flow::Continue;
             }
+            Request::Stream(true, tx) => (m.start_stream(now), tx),
+            Request::Stream(false, tx) => (m.stop_stream(now), tx),
         };
         match result {
             Ok(()) => {
@@ -558,105 +535,44 @@ impl Task {
                 let _ = tx.send(Err(DriverError::Session(e)));
             }
         }
-        false
+        Flow::Continue
     }
 
-    fn drain_events<S: BaudControl>(&mut self, stream: &mut S) -> io::Result<()> {
-        while let Some(ev) = self.machine.poll_event() {
-            match ev {
-                Event::SetHostBaud(b) => {
-                    tracing::debug!(baud = b, "sick_lms: line speed");
-                    stream.set_baud(b)?;
-                    stream.clear_input()?;
-                    if !self.connected {
-                        if self.machine.is_probing() {
-                            self.probe.attempt(b);
-                            let n = self.probe.current_tally().map_or(1, |t| t.attempts);
-                            tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
-                        } else {
-                            self.probe.set_rate(b);
-                            tracing::info!(target: "ima::connect", "SICK LMS: switching to {b} baud");
-                        }
-                        self.probe_tx.send_replace(self.probe.clone());
-                    }
-                }
-                Event::Identified => {
-                    if let Some(t) = self.machine.device_type() {
-                        let t = String::from_utf8_lossy(t).trim().to_owned();
-                        self.type_tx.send_replace(t);
-                    }
-                }
-                Event::Ready(info) => {
-                    tracing::info!(
-                        baud = info.baud.bps(),
-                        streaming = info.streaming,
-                        "sick_lms: ready"
-                    );
-                    self.stats.readies = self.stats.readies.saturating_add(1);
-                    self.connected = true;
-                    if let Some(w) = self.waiter.take() {
-                        let _ = w.send(Ok(info));
-                    }
-                    self.link_tx.send_replace(LinkStatus::Ready(info));
-                }
-                Event::StreamStarted | Event::StreamStopped => {
-                    // A stream start/stop request ends with `Ready` only during
-                    // initialisation; answer the waiter here too.
-                    if self.machine.is_ready() {
-                        let info = self.machine.session();
-                        if let Some(w) = self.waiter.take() {
-                            let _ = w.send(Ok(info));
-                        }
-                        self.link_tx.send_replace(LinkStatus::Ready(info));
-                    }
-                }
-                Event::Restarted => {
-                    tracing::warn!("sick_lms: unit restarted, re-initialising");
-                    self.stats.losses = self.stats.losses.saturating_add(1);
-                    self.link_tx.send_replace(LinkStatus::Lost);
-                }
-                Event::Error(e) => {
-                    if let Some(w) = self.waiter.take() {
-                        let _ = w.send(Err(DriverError::Session(e)));
-                    }
-                    if self.machine.is_failed() {
-                        let err = if e == MachineError::NoDevice {
-                            DriverError::NotFound {
-                                report: Box::new(self.probe.clone()),
-                                rs422: self.machine.config().rs422,
-                            }
-                        } else {
-                            DriverError::Session(e)
-                        };
-                        self.link_tx.send_replace(LinkStatus::Failed(err));
-                    } else if e == MachineError::StreamStalled {
-                        tracing::warn!("sick_lms: stream stalled, re-probing");
-                        self.stats.losses = self.stats.losses.saturating_add(1);
-                        self.link_tx.send_replace(LinkStatus::Lost);
-                    } else if self.machine.is_ready() {
-                        self.link_tx
-                            .send_replace(LinkStatus::Ready(self.machine.session()));
-                    } else {
-                        tracing::debug!(error = ?e, "sick_lms: request failed");
-                    }
-                }
-                Event::DeviceStatus(s) => {
-                    if s.pollution() || s.is_error() {
-                        tracing::warn!(status = s.0, "sick_lms: device status");
-                    }
-                    self.status_tx.send_replace(Some(s));
-                }
-                Event::BaudDetected(b) if !self.connected => {
-                    tracing::info!(target: "ima::connect", "SICK LMS: answered at {} baud", b.bps());
-                }
-                Event::PowerOn | Event::Closed | Event::BaudDetected(_) | Event::ConfigWritten => {}
-            }
+    fn after_round(&mut self) {
+        self.stats.framer = self.machine.counters();
+        self.stats.session = self.machine.stats();
+        let s = self.stats;
+        self.stats_tx.send_if_modified(|old| {
+            let changed = *old != s;
+            *old = s;
+            changed
+        });
+    }
+
+    /// Stop the stream and put the unit back at 9600, within [`CLOSE_TIMEOUT`].
+    fn begin_close(&mut self, now: Instant) -> Duration {
+        self.answer(Err(DriverError::Disconnected));
+        self.machine.close(now);
+        CLOSE_TIMEOUT
+    }
+
+    fn is_closed(&mut self) -> bool {
+        self.machine.is_closed()
+    }
+
+    fn end(&mut self, how: End) {
+        let link = match how {
+            End::Closed { .. } => LinkStatus::Closed,
+            End::Failed(e) => LinkStatus::Failed(e.into()),
+        };
+        if let End::Failed(e) = how {
+            self.answer(Err(e.into()));
         }
-        Ok(())
+        self.link_tx.send_replace(link);
     }
 }
 
-/// Where decoded scans go (borrowed from the task while the machine holds the frame).
+/// Where decoded scans go (borrowed from the shell while the machine holds the frame).
 struct Out<'a> {
     work: &'a mut LaserScan,
     stats: &'a mut ScanStats,
@@ -667,7 +583,8 @@ struct Out<'a> {
 
 impl Out<'_> {
     /// Decode one B0 into the work buffer and swap it into the watch slot (counters are
-    /// published first, so a handle woken by the scan sees it counted).
+    /// published first, so a handle woken by the scan sees it counted). A bad B0 never
+    /// clobbers the latest good scan.
     fn publish(&mut self, b0: &crate::wire::Scan<'_>, at: Instant, mode: MeasuringMode) {
         match decode_scan(b0, mode, None, self.work) {
             Ok(()) => {

@@ -135,7 +135,7 @@ impl World {
                 let scans = &mut self.scans;
                 for c in bytes.chunks(self.chunk) {
                     self.m
-                        .handle_bytes(c, now, |s, at| scans.push((at, s.count_word.count())));
+                        .handle_bytes_with(c, now, |s, at| scans.push((at, s.count_word.count())));
                 }
             }
             if self.m.poll_timeout().is_some_and(|t| t <= now) {

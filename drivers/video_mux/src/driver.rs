@@ -48,6 +48,8 @@ impl std::fmt::Display for DriverError {
 
 impl std::error::Error for DriverError {}
 
+ima_serial::impl_from_link_error!(DriverError);
+
 impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {

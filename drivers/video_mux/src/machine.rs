@@ -597,5 +597,7 @@ impl Machine {
     }
 }
 
+ima_serial::impl_machine!(Machine, Event, |m, _now, buf| m.poll_transmit(buf));
+
 #[cfg(test)]
 mod tests;

@@ -118,7 +118,12 @@ async fn drive(args: &DriveArgs) -> Result<()> {
     let mut robot = safety::until_cancelled(connect)
         .await?
         .with_context(|| format!("connecting to a P2OS robot on {}", args.port))?;
-    if let ima_p2os::shell::LinkStatus::Connected { identity, baud } = robot.link() {
+    if let ima_p2os::shell::LinkStatus::Connected(ima_p2os::shell::Connection {
+        identity,
+        baud,
+        ..
+    }) = robot.link()
+    {
         eprintln!(
             "connected to {} ({} {}) at {baud} baud",
             identity.name, identity.class, identity.subclass

@@ -125,7 +125,9 @@ async fn square(
     )
     .await
     .context("connecting to the simulated robot")?;
-    if let (LinkStatus::Connected { identity, baud }, false) = (robot.link(), args.json) {
+    if let (LinkStatus::Connected(ima_p2os::shell::Connection { identity, baud, .. }), false) =
+        (robot.link(), args.json)
+    {
         outln!(
             "connected to {} ({} {}) at {baud} baud; motors on",
             identity.name,

@@ -1,0 +1,126 @@
+//! `ima-serial`: what every ima serial driver shares around its protocol core.
+//!
+//! * [`Machine`] — the one shape of a sans-IO protocol machine: bytes in, timeouts, frames
+//!   out, events, next deadline. `no_std`, no heap.
+//! * [`LinkStatus`] and [`LinkError`] — the link as handles see it, and the ways a link
+//!   ends that no protocol explains (`std`).
+//! * [`BaudControl`] / [`FixedBaud`] — streams whose line speed can (or cannot) change, and
+//!   the port opening (`open_port`, feature `tokio`; `open_blocking_port`, feature `serial`).
+//! * [`runner`] (feature `tokio`) — the one async loop that runs a machine over a byte
+//!   stream (drain events → transmit → flush → wait on read / deadline / request), with the
+//!   connect and request helpers; [`blocking`] (feature `serial`) the same loop, blocking.
+//!
+//! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
+//! so every stamp a driver produces is on one time line.
+#![cfg_attr(not(feature = "std"), no_std)]
+#![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::unreachable
+    )
+)]
+
+/// The time stamps machines take.
+pub use ima_hal::Instant;
+
+#[cfg(feature = "serial")]
+pub mod blocking;
+#[cfg(feature = "std")]
+mod link;
+#[cfg(feature = "std")]
+mod port;
+#[cfg(feature = "tokio")]
+pub mod runner;
+
+#[cfg(feature = "std")]
+pub use link::{LinkError, LinkStatus};
+#[cfg(feature = "serial")]
+pub use port::open_blocking_port;
+#[cfg(feature = "tokio")]
+pub use port::open_port;
+#[cfg(feature = "std")]
+pub use port::{BaudControl, FixedBaud};
+
+/// Implement [`Machine`] for a machine type whose inherent methods already have the trait's
+/// names (`handle_bytes`, `handle_timeout`, `poll_event`, `poll_timeout`), giving the body of
+/// `poll_transmit` (which may or may not need `now`):
+///
+/// ```ignore
+/// ima_serial::impl_machine!(Machine, Event, |m, now, buf| m.poll_transmit(buf));
+/// ```
+#[macro_export]
+macro_rules! impl_machine {
+    ($machine:ty, $event:ty, |$m:ident, $now:ident, $buf:ident| $transmit:expr) => {
+        impl $crate::Machine for $machine {
+            type Event = $event;
+
+            fn handle_bytes(&mut self, bytes: &[u8], now: $crate::Instant) {
+                <$machine>::handle_bytes(self, bytes, now);
+            }
+
+            fn handle_timeout(&mut self, now: $crate::Instant) {
+                <$machine>::handle_timeout(self, now);
+            }
+
+            fn poll_transmit(&mut self, $now: $crate::Instant, $buf: &mut [u8]) -> Option<usize> {
+                let $m = self;
+                $transmit
+            }
+
+            fn poll_event(&mut self) -> Option<$event> {
+                <$machine>::poll_event(self)
+            }
+
+            fn poll_timeout(&self) -> Option<$crate::Instant> {
+                <$machine>::poll_timeout(self)
+            }
+        }
+    };
+}
+
+/// Implement `From<LinkError>` for a driver error with `Disconnected`, `Timeout` and
+/// `Io(io::ErrorKind)` variants.
+#[cfg(feature = "std")]
+#[macro_export]
+macro_rules! impl_from_link_error {
+    ($error:ty) => {
+        impl From<$crate::LinkError> for $error {
+            fn from(e: $crate::LinkError) -> Self {
+                match e {
+                    $crate::LinkError::Disconnected => Self::Disconnected,
+                    $crate::LinkError::Timeout => Self::Timeout,
+                    $crate::LinkError::Io(k) => Self::Io(k),
+                }
+            }
+        }
+    };
+}
+
+/// A sans-IO protocol machine: it never touches a port or reads a clock. The caller feeds it
+/// received bytes and the time, drains the frames it wants written and the events it
+/// raised, and calls it back at its next deadline.
+pub trait Machine {
+    /// What the machine tells its shell (readings, link changes, answers to requests).
+    type Event;
+
+    /// Feed bytes received at `now` (any split: a byte at a time or many frames at once).
+    fn handle_bytes(&mut self, bytes: &[u8], now: Instant);
+
+    /// Run the timers that are due at `now` (retries, keep-alives, watchdogs).
+    fn handle_timeout(&mut self, now: Instant);
+
+    /// Write the next frame due at `now` into `buf`; its length, or `None` when nothing
+    /// is due (a frame larger than `buf` stays queued).
+    fn poll_transmit(&mut self, now: Instant, buf: &mut [u8]) -> Option<usize>;
+
+    /// The next event, if any.
+    fn poll_event(&mut self) -> Option<Self::Event>;
+
+    /// When [`handle_timeout`](Self::handle_timeout) should next be called, if ever.
+    fn poll_timeout(&self) -> Option<Instant>;
+}

@@ -1,0 +1,75 @@
+//! The link as handles see it, and the ways a link ends that no protocol explains.
+
+use std::io;
+
+/// A driver's link, as its handles see it. `U` is what a connected link reports (who
+/// answered, at what rate; `()` when there is nothing to say), `E` the driver's error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkStatus<U, E> {
+    /// Handshaking or configuring (first time, or after a request that re-configures).
+    Connecting,
+    /// The device answers and data flows.
+    Connected(U),
+    /// The device went quiet or restarted; the driver is recovering by itself.
+    Lost,
+    /// Failed for good.
+    Failed(E),
+    /// The driver task ended.
+    Closed,
+}
+
+impl<U, E> LinkStatus<U, E> {
+    /// Whether the link is connected.
+    #[must_use]
+    pub fn is_connected(&self) -> bool {
+        matches!(self, Self::Connected(_))
+    }
+
+    /// What a connected link reports.
+    #[must_use]
+    pub fn connection(&self) -> Option<&U> {
+        match self {
+            Self::Connected(u) => Some(u),
+            _ => None,
+        }
+    }
+}
+
+/// How a link ended or a wait failed, whatever the protocol: every driver error converts
+/// from it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkError {
+    /// The driver task has ended (port closed, end of stream, or `close`).
+    Disconnected,
+    /// No answer in time.
+    Timeout,
+    /// An I/O error on the port.
+    Io(io::ErrorKind),
+}
+
+impl From<io::Error> for LinkError {
+    fn from(e: io::Error) -> Self {
+        Self::Io(e.kind())
+    }
+}
+
+impl core::fmt::Display for LinkError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Disconnected => f.write_str("driver disconnected"),
+            Self::Timeout => f.write_str("no answer in time"),
+            Self::Io(k) => write!(f, "serial I/O error: {k}"),
+        }
+    }
+}
+
+impl std::error::Error for LinkError {}
+
+impl ima_hal::Error for LinkError {
+    fn kind(&self) -> ima_hal::ErrorKind {
+        match self {
+            Self::Disconnected | Self::Io(_) => ima_hal::ErrorKind::Disconnected,
+            Self::Timeout => ima_hal::ErrorKind::Timeout,
+        }
+    }
+}
