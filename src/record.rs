@@ -203,7 +203,7 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for Tap<S> {
 }
 
 /// One `BaudControl` (`ima_serial`) for every driver: line-speed changes are recorded too.
-impl<S: ima_sick_lms::driver::BaudControl> ima_sick_lms::driver::BaudControl for Tap<S> {
+impl<S: ima_serial::BaudControl> ima_serial::BaudControl for Tap<S> {
     fn set_baud(&mut self, baud: u32) -> std::io::Result<()> {
         self.inner.set_baud(baud)?;
         if let Some(raw) = &self.raw {

@@ -17,6 +17,10 @@ const ALLOWED: &[(&str, &str)] = &[
         "the wiring module: opens every robot device from the configuration",
     ),
     (
+        "src/cmd/replay.rs",
+        "`ima replay`: re-decodes a recording through the drivers' decoders",
+    ),
+    (
         "src/cmd/camera.rs",
         "`ima camera`: one video switcher and frame source",
     ),
