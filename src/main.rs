@@ -11,6 +11,7 @@ mod cmd;
 mod config;
 mod safety;
 mod stack;
+mod web;
 
 /// Drivers, mock devices and agents for a Pioneer 2-AT (P2OS) and an ATRV-Jr (rFLEX).
 #[derive(Debug, Parser)]

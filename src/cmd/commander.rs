@@ -5,6 +5,7 @@
 
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -58,6 +59,11 @@ pub struct CommanderArgs {
     /// Use the documented insecure all-zero key when the configuration names no key file.
     #[arg(long)]
     insecure: bool,
+    /// Serve the commander console in the browser on ADDR (default 127.0.0.1:8080; port 0
+    /// picks a free one). With it the commander keeps running when every target is final
+    /// (more can be added from the page) until Ctrl-C.
+    #[command(flatten)]
+    web: super::WebArgs,
 }
 
 /// `ima commander stop|resume|cancel`: one command to the fleet, sent several times.
@@ -391,6 +397,11 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         #[cfg(not(unix))]
         let interrupt = CtrlC;
         let (op_tx, op_rx) = tokio::sync::mpsc::unbounded_channel();
+        // web console (issue 17): the page's commands join the operator's requests.
+        let web = args
+            .web
+            .start("commander", known.clone(), Some(op_tx.clone()))?;
+        let console = web.as_ref().map(|(c, _)| Arc::clone(c));
         let op_task = tokio::spawn(operator(op_tx, args.stop_on_exit, interrupt));
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
         let json = args.json;
@@ -398,6 +409,9 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             // Text mode: a robot's status is shown when its behaviour changes, not every second.
             let mut last: std::collections::BTreeMap<String, String> = Default::default();
             while let Some(e) = rx.recv().await {
+                if let Some(c) = &console {
+                    c.apply(&e);
+                }
                 if !json && e.kind == "broadcast" && e.detail["type"] == "status" {
                     let robot = e.detail["robot"].as_str().unwrap_or("").to_owned();
                     let b = e.detail["behaviour"].as_str().unwrap_or("").to_owned();
@@ -419,16 +433,20 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             key,
             &args.targets,
             (&args.wait_for, wait),
-            Events::with_sink(tx),
+            Events::with_sink(tx).detailed(web.is_some()),
             Control {
                 lost_after: Some(Duration::from_secs_f64(cfg.agent.robot_lost_after_s)),
                 ops: Some(op_rx),
+                keep_running: web.is_some(),
             },
         )
         .await
         .context("commanding");
         op_task.abort();
         let _ = printer.await;
+        if let Some((c, _server)) = &web {
+            c.close_commands();
+        }
         r
     })?;
     let outcomes = &finished.outcomes;

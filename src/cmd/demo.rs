@@ -58,6 +58,10 @@ pub struct DemoArgs {
     /// Machine-readable JSON events on stdout instead of the live display.
     #[arg(long)]
     json: bool,
+    /// Serve the commander console in the browser on ADDR (default 127.0.0.1:8080); it
+    /// keeps serving after the mission, with the summary, until Ctrl-C.
+    #[command(flatten)]
+    web: super::WebArgs,
 }
 
 /// `ima demo` sub-commands.
@@ -123,15 +127,27 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         Trajectory::new("skeeter"),
         Trajectory::new("scooter"),
     ]));
+    // web console (issue 17): fed from the events below, commands into the commander.
+    let (op_tx, op_rx) = tokio::sync::mpsc::unbounded_channel();
+    let web = args.web.start("demo", known.clone(), Some(op_tx))?;
+    let console = web.as_ref().map(|(c, _)| Arc::clone(c));
+    if let Some(c) = &console {
+        let w = world.with(|w| crate::web::world_json(w));
+        c.update(|s| s.world = Some(w));
+    }
     let outcomes = crate::safety::block_on(async {
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Event>();
-        let events = Events::with_sink(tx);
+        let events = Events::with_sink(tx).detailed(console.is_some());
         // Events stamped with world time as they arrive; printed live.
         let printer = {
             let log = Arc::clone(&log);
             let world = world.clone();
+            let console = console.clone();
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
+                    if let Some(c) = &console {
+                        c.apply(&e);
+                    }
                     let (wt, truth) = world.with(|w| {
                         let p = w
                             .robot_id(&e.robot)
@@ -164,6 +180,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let sampler = {
             let world = world.clone();
             let paths = Arc::clone(&paths);
+            let console = console.clone();
             tokio::spawn(async move {
                 let mut tick = tokio::time::interval(Duration::from_millis(50));
                 loop {
@@ -175,6 +192,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                             if let Some(r) = w.robot_id(&tj.robot).and_then(|id| w.robot(id)) {
                                 let p = r.pose();
                                 tj.push(t, p.x_m, p.y_m);
+                                if let Some(c) = &console {
+                                    c.update(|s| s.truth(&tj.robot, p.x_m, p.y_m, p.theta_rad));
+                                }
                             }
                         }
                     });
@@ -201,14 +221,22 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             stop_rx_sc,
         ));
         let robots = ["skeeter".to_owned(), "scooter".to_owned()];
-        let outcomes = crate::stack::commander::run(
+        let outcomes = crate::stack::commander::run_with(
             &cmd,
             key,
             &args.targets,
             (&robots, Duration::from_secs(30)),
             events.clone(),
+            crate::stack::commander::Control {
+                lost_after: console
+                    .is_some()
+                    .then(|| Duration::from_secs_f64(cmd.agent.robot_lost_after_s)),
+                ops: Some(op_rx),
+                keep_running: false,
+            },
         )
-        .await;
+        .await
+        .map(|f| f.outcomes);
         // Scooter (the client) first, then Skeeter (its manager).
         for (name, stop, h) in [("scooter", stop_sc, scooter), ("skeeter", stop_sk, skeeter)] {
             let _ = stop.send(true);
@@ -226,7 +254,29 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     })?;
     let log = log.lock().unwrap_or_else(PoisonError::into_inner).clone();
     let paths = paths.lock().unwrap_or_else(PoisonError::into_inner).clone();
-    summarise(args, &served, &outcomes, &log, &paths, started.elapsed())
+    if let Some(c) = &console {
+        c.close_commands();
+    }
+    let r = summarise(
+        args,
+        &served,
+        &outcomes,
+        &log,
+        &paths,
+        started.elapsed(),
+        console.as_deref(),
+    );
+    if let Some((_, server)) = &web {
+        // web console (issue 17): the page keeps the summary and trajectories until Ctrl-C.
+        eprintln!(
+            "ima demo: the mission is over; the console stays at http://{}/ until Ctrl-C",
+            server.addr
+        );
+        while crate::safety::signal().is_none() {
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+    r
 }
 
 fn print_live(world_t: f64, e: &Event) {
@@ -266,6 +316,7 @@ fn summarise(
     log: &[(f64, Event)],
     paths: &[Trajectory; 2],
     wall: Duration,
+    console: Option<&crate::web::Console>,
 ) -> Result<()> {
     let scooter = &paths[1];
     // World times of the commander's "processing" and final events per target.
@@ -349,6 +400,16 @@ fn summarise(
         "scooter_distance_m": scooter.length(),
         "svg": args.svg,
     });
+    if let Some(c) = console {
+        c.update(|s| {
+            for (i, r) in rows.iter().enumerate() {
+                if let Some(f) = r["performance"].as_f64() {
+                    s.set_performance(i, f);
+                }
+            }
+            s.finish(summary.clone());
+        });
+    }
     if args.json {
         outln!("{summary}")?;
     } else {

@@ -54,6 +54,16 @@ pub enum Operator {
     Stop(String),
     /// Send a fleet resume.
     Resume,
+    /// Append a target to the series ([`Commander::add`]).
+    Add(String),
+    /// Move the waiting target at position `from` to position `to`
+    /// ([`Commander::move_target`]).
+    Move {
+        /// Position now.
+        from: usize,
+        /// Position wanted.
+        to: usize,
+    },
     /// End the commander, after a fleet stop if `stop`.
     Quit {
         /// Send a fleet stop first.
@@ -61,13 +71,16 @@ pub enum Operator {
     },
 }
 
-/// Options of [`run_with`] beyond those of [`run`].
+/// Options of [`run_with`]: liveness and the operator's requests.
 #[derive(Debug, Default)]
 pub struct Control {
     /// Report a robot lost after this much (mission) silence; `None`: no liveness reports.
     pub lost_after: Option<Duration>,
     /// The operator's requests.
     pub ops: Option<tokio::sync::mpsc::UnboundedReceiver<Operator>>,
+    /// Keep running when every target is final (more may be added), until
+    /// [`Operator::Quit`] (the web console).
+    pub keep_running: bool,
 }
 
 /// How a [`run_with`] ended.
@@ -80,25 +93,6 @@ pub struct Finished {
     pub interrupted: Option<bool>,
 }
 
-/// Run the commander ([`Commander`], the Commander Interface Agent's logic) over `targets`;
-/// events go to `events` (kinds `target` on every state change, and `broadcast`).
-///
-/// Before the first target it waits (at most `wait.1`, real time) until every robot of
-/// `wait.0` has been heard on the broadcast channel, so that no robot misses it.
-pub async fn run(
-    cfg: &RobotConfig,
-    key: GroupKey,
-    targets: &[String],
-    wait: (&[String], Duration),
-    events: Events,
-) -> Result<Vec<TargetOutcome>> {
-    Ok(
-        run_with(cfg, key, targets, wait, events, Control::default())
-            .await?
-            .outcomes,
-    )
-}
-
 fn life_event(events: &Events, clock: &MissionClock, me: &str, c: &LifeChange) {
     events.emit(
         clock,
@@ -108,7 +102,14 @@ fn life_event(events: &Events, clock: &MissionClock, me: &str, c: &LifeChange) {
     );
 }
 
-/// [`run`] with liveness reports (kind `robot`: `{robot, state: alive|lost, silent_s}`) and
+/// Run the commander ([`Commander`], the Commander Interface Agent's logic) over `targets`;
+/// events go to `events` (kinds `target` on every state change, and `broadcast`; `queue`,
+/// the whole series, when a console listens).
+///
+/// Before the first target it waits (at most `wait.1`, real time) until every robot of
+/// `wait.0` has been heard on the broadcast channel, so that no robot misses it.
+///
+/// With `control`: liveness reports (kind `robot`: `{robot, state: alive|lost, silent_s}`) and
 /// the operator's requests (kinds `fleet` for a stop or resume sent, `operator` for a
 /// request that could not be carried out). Frames under another group key are reported on
 /// stderr (rate-limited).
@@ -126,6 +127,7 @@ pub async fn run_with(
     let Control {
         lost_after,
         mut ops,
+        keep_running,
     } = control;
     let mut live = lost_after.map(|d| Liveness::new(d, &[me.as_str(), COMMANDER]));
     let mut missing: Vec<&String> = wait.0.iter().collect();
@@ -148,6 +150,8 @@ pub async fn run_with(
         .iter()
         .map(|t| (t.state, t.cancelled))
         .collect();
+    // web console (issue 17): the whole series as a `queue` event on every change.
+    let mut queue_changed = true;
     let mut waiting = !missing.is_empty();
     if waiting {
         events.emit(&clock, &me, "waiting", json!({"for": missing}));
@@ -162,8 +166,13 @@ pub async fn run_with(
         while let Some(b) = cmd.poll_broadcast() {
             bus.send(&b).await;
         }
+        if shown.len() != cmd.targets().len() {
+            queue_changed = true;
+            shown.resize(cmd.targets().len(), (CoreState::Waiting, false));
+        }
         for (t, old) in cmd.targets().iter().zip(shown.iter_mut()) {
             if (t.state, t.cancelled) != *old {
+                queue_changed = true;
                 *old = (t.state, t.cancelled);
                 let time_s = t.duration().map(|d| d.as_secs_f64());
                 let mut d = json!({"target": t.colour, "state": t.state.as_str()});
@@ -175,7 +184,10 @@ pub async fn run_with(
                 events.emit(&clock, &me, "target", d);
             }
         }
-        if interrupted.is_some() || (!waiting && cmd.is_finished()) {
+        if std::mem::take(&mut queue_changed) && events.wants_detail() {
+            events.emit(&clock, &me, "queue", queue_json(&cmd));
+        }
+        if interrupted.is_some() || (!waiting && !keep_running && cmd.is_finished()) {
             break;
         }
         let to_real = |t: ima_hal::Instant| {
@@ -224,6 +236,18 @@ pub async fn run_with(
                         cmd.fleet_stop(&reason);
                         events.emit(&clock, &me, "fleet", json!({"command": "stop", "reason": reason}));
                     }
+                    Some(Operator::Add(colour)) => {
+                        // Before the robots are heard it only queues (`start` sends it).
+                        cmd.add(&colour, now);
+                    }
+                    Some(Operator::Move { from, to }) => {
+                        if let Err(e) = cmd.move_target(from, to) {
+                            events.emit(&clock, &me, "operator", json!({"error": format!("cannot move the target: {e}")}));
+                        }
+                        // `shown` follows the series' order from now on.
+                        shown = cmd.targets().iter().map(|t| (t.state, t.cancelled)).collect();
+                        queue_changed = true;
+                    }
                     Some(Operator::Resume) => {
                         cmd.fleet_resume();
                         events.emit(&clock, &me, "fleet", json!({"command": "resume"}));
@@ -254,7 +278,13 @@ pub async fn run_with(
                     life_event(&events, &clock, &me, &c);
                 }
             }
-            _ = check.tick() => bus.warn_auth(),
+            _ = check.tick() => {
+                bus.warn_auth();
+                // web console (issue 17): the commander's channel counters.
+                if events.wants_detail() {
+                    events.emit(&clock, &me, "peer-status", json!({"broadcast": crate::web::feed::bus_json(&bus.stats())}));
+                }
+            }
         }
     }
     let secs = |i: Option<ima_hal::Instant>| i.map(ima_hal::Instant::as_secs_f64);
@@ -332,6 +362,25 @@ pub async fn send_once(cfg: &RobotConfig, key: GroupKey, b: &Broadcast) -> Resul
         reached = r.map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     Ok(reached)
+}
+
+/// The whole series (kind `queue`): per target its position, colour, state, times (mission
+/// seconds) and why it failed.
+pub fn queue_json(cmd: &Commander) -> serde_json::Value {
+    let secs = |i: Option<ima_hal::Instant>| i.map(ima_hal::Instant::as_secs_f64);
+    let list: Vec<serde_json::Value> = cmd
+        .targets()
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            json!({"index": i, "target": t.colour, "state": t.state.as_str(),
+                "sent_s": secs(t.sent_at), "accepted_s": secs(t.accepted_at),
+                "ended_s": secs(t.finished_at),
+                "time_s": t.duration().map(|d| d.as_secs_f64()),
+                "cancelled": t.cancelled, "given_up": t.given_up, "sends": t.sends})
+        })
+        .collect();
+    json!({"targets": list})
 }
 
 /// A broadcast as JSON for the event stream.

@@ -76,6 +76,9 @@ pub struct Event {
 #[derive(Clone, Default)]
 pub struct Events {
     sink: Option<tokio::sync::mpsc::UnboundedSender<Event>>,
+    /// Whether the stacks also report the web console's detail (kinds `san`, `map`,
+    /// `ses-form`, `peer-status`), see [`Events::detailed`].
+    detail: bool,
 }
 
 impl std::fmt::Debug for Events {
@@ -87,7 +90,23 @@ impl std::fmt::Debug for Events {
 impl Events {
     /// Events forwarded to `sink` too.
     pub fn with_sink(sink: tokio::sync::mpsc::UnboundedSender<Event>) -> Self {
-        Self { sink: Some(sink) }
+        Self {
+            sink: Some(sink),
+            detail: false,
+        }
+    }
+
+    /// These events with the web console's detail too (periodic SAN activations, map and
+    /// Peer Agent status; see [`crate::web`]).
+    #[must_use]
+    pub fn detailed(mut self, on: bool) -> Self {
+        self.detail = on;
+        self
+    }
+
+    /// Whether the web console's detail is wanted (cheap to ask on every loop).
+    pub fn wants_detail(&self) -> bool {
+        self.detail && self.sink.is_some()
     }
 
     /// Report an event.

@@ -153,6 +153,11 @@ impl Bus {
         }
     }
 
+    /// The channel's counters (web console, issue 17).
+    pub fn stats(&self) -> ima_agents::peer::net::BroadcastStats {
+        self.chan.stats()
+    }
+
     /// Frames refused for a bad MAC since the last report (at most one report per
     /// [`ima_agents::peer::net::AUTH_REPORT_INTERVAL`]; see
     /// [`BroadcastChannel::take_auth_report`]).

@@ -72,6 +72,9 @@ fn common_heading(h: &ima_hal::compass::Heading, cfg: &RobotConfig) -> f64 {
     normalize_angle(h.yaw_enu_rad() - deviation - common_yaw)
 }
 
+/// How often (mission time) the web console's detail is reported.
+const DETAIL_EVERY: Duration = Duration::from_millis(500);
+
 /// Run Scooter until `stop` turns true (or a fatal error).
 pub async fn run(
     cfg: RobotConfig,
@@ -165,6 +168,7 @@ pub async fn run(
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_behaviour = String::new();
+    let mut last_detail: Option<ima_hal::Instant> = None; // web console (issue 17)
     let mut last_ses: Option<(ima_hal::Instant, SharedForm)> = None;
     let mut reached: Option<String> = None;
     let mut last_control: Option<ima_hal::Instant> = None;
@@ -301,6 +305,29 @@ pub async fn run(
                     "halted": halted,
                 }),
             );
+        }
+        // web console (issue 17): map, SAN and Peer Agent detail.
+        if events.wants_detail()
+            && last_detail.is_none_or(|t| now.saturating_duration_since(t) >= DETAIL_EVERY)
+        {
+            last_detail = Some(now);
+            events.emit(
+                &clock,
+                &me,
+                "map",
+                crate::web::feed::scooter_map_json(&brain),
+            );
+            let san = crate::web::feed::san_json(brain.san(), out.behaviour.as_str());
+            events.emit(&clock, &me, "san", san);
+            let mut v = match &_manager {
+                Some(m) => match (m.stats().await, m.status().await) {
+                    (Ok(stats), Ok(clients)) => crate::web::feed::manager_json(&stats, &clients),
+                    _ => json!({}),
+                },
+                None => json!({}),
+            };
+            v["broadcast"] = crate::web::feed::bus_json(&bus.stats());
+            events.emit(&clock, &me, "peer-status", v);
         }
         let b = out.behaviour.as_str().to_owned();
         if b != last_behaviour {

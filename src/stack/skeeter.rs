@@ -43,6 +43,9 @@ pub fn colour_db(cfg: &RobotConfig) -> Result<ColourDb> {
     ColourDb::new(colours).map_err(|e| anyhow::anyhow!("agent.colours: {e:?}"))
 }
 
+/// How often (mission time) the web console's detail is reported.
+const DETAIL_EVERY: Duration = Duration::from_secs(1);
+
 /// Run Skeeter until `stop` turns true.
 pub async fn run(
     cfg: RobotConfig,
@@ -134,6 +137,7 @@ pub async fn run(
     let (mut heard_rx, rx_task) = bus.spawn_reader();
     brain.start(clock.now());
     let mut last_behaviour = String::new();
+    let mut last_detail: Option<ima_hal::Instant> = None; // web console (issue 17)
     // A fleet stop was heard (reported once; Skeeter's base is held stopped anyway).
     let mut fleet_stopped = false;
     let result: Result<()> = loop {
@@ -151,6 +155,13 @@ pub async fn run(
                     let _ = scan_req_tx.try_send(());
                 }
                 SkeeterOutput::PublishSes(form) => match form.to_bytes() {
+                    // web console (issue 17): the SES as Skeeter publishes it.
+                    Ok(bytes) if events.wants_detail() => {
+                        events.emit(&clock, &me, "ses-form", crate::web::feed::ses_json(&form));
+                        if let Err(e) = ses.publish(clock.now().as_micros(), &bytes) {
+                            tracing::warn!("publishing the SES: {e}");
+                        }
+                    }
                     Ok(bytes) => {
                         if let Err(e) = ses.publish(clock.now().as_micros(), &bytes) {
                             tracing::warn!("publishing the SES: {e}");
@@ -164,6 +175,20 @@ pub async fn run(
         if b != last_behaviour {
             events.emit(&clock, &me, "behaviour", json!(b));
             last_behaviour = b;
+        }
+        // web console (issue 17): SAN activations and the manager's status, once a second.
+        if events.wants_detail()
+            && last_detail.is_none_or(|t| clock.now().saturating_duration_since(t) >= DETAIL_EVERY)
+        {
+            last_detail = Some(clock.now());
+            let san = crate::web::feed::san_json(brain.network(), brain.behaviour());
+            events.emit(&clock, &me, "san", san);
+            if let (Ok(stats), Ok(clients)) = (manager.stats().await, manager.status().await) {
+                let mut v = crate::web::feed::manager_json(&stats, &clients);
+                v["broadcast"] = crate::web::feed::bus_json(&bus.stats());
+                v["address"] = json!(manager.local_addr().to_string());
+                events.emit(&clock, &me, "peer-status", v);
+            }
         }
         let wake = brain.poll_timeout().map(|t| {
             let wait = t.saturating_duration_since(clock.now());
