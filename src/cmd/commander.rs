@@ -412,6 +412,9 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
                 if let Some(c) = &console {
                     c.apply(&e);
                 }
+                if !json && crate::web::DETAIL_KINDS.contains(&e.kind.as_str()) {
+                    continue;
+                }
                 if !json && e.kind == "broadcast" && e.detail["type"] == "status" {
                     let robot = e.detail["robot"].as_str().unwrap_or("").to_owned();
                     let b = e.detail["behaviour"].as_str().unwrap_or("").to_owned();

@@ -45,6 +45,10 @@ const INDEX_HTML: &str = include_str!("assets/index.html");
 const APP_JS: &str = include_str!("assets/app.js");
 const STYLE_CSS: &str = include_str!("assets/style.css");
 
+/// Event kinds reported for the console only ([`crate::stack::Events::detailed`]); text
+/// displays leave them out.
+pub const DETAIL_KINDS: &[&str] = &["queue", "san", "map", "ses-form", "peer-status"];
+
 /// Default address of `--web` without a value.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8080";
 
