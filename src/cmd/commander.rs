@@ -369,6 +369,7 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             "--config is required (a commander configuration, see configs/commander.toml)"
         );
     };
+    args.web.check()?;
     let mut cfg = load(config, args.insecure)?;
     if let Some(s) = args.lost_after {
         anyhow::ensure!(

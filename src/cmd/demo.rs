@@ -90,6 +90,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     );
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
     super::output::check_file("--svg", &args.svg)?;
+    args.web.check()?;
     let started = std::time::Instant::now();
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
     let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());

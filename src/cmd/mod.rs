@@ -44,6 +44,24 @@ pub struct WebArgs {
 }
 
 impl WebArgs {
+    /// Checks `--web` and `--web-token` before any work (the address parses, the token is
+    /// usable); the address when `--web` was given.
+    pub fn check(&self) -> anyhow::Result<Option<std::net::SocketAddr>> {
+        let Some(addr) = &self.web else {
+            return Ok(None);
+        };
+        let addr = crate::web::parse_addr(addr)?;
+        if let Some(t) = &self.web_token {
+            anyhow::ensure!(
+                t.len() >= 8
+                    && t.bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_'),
+                "--web-token: at least 8 letters, digits, '-' or '_'"
+            );
+        }
+        Ok(Some(addr))
+    }
+
     /// Start the console when `--web` was given: the console and its server. The URL goes
     /// to stderr (`ima: web console at URL`).
     pub fn start(
@@ -52,20 +70,11 @@ impl WebArgs {
         colours: Vec<String>,
         ops: Option<tokio::sync::mpsc::UnboundedSender<crate::stack::commander::Operator>>,
     ) -> anyhow::Result<Option<(std::sync::Arc<crate::web::Console>, crate::web::WebServer)>> {
-        let Some(addr) = &self.web else {
+        let Some(addr) = self.check()? else {
             return Ok(None);
         };
-        let addr = crate::web::parse_addr(addr)?;
         let token = match &self.web_token {
-            Some(t) => {
-                anyhow::ensure!(
-                    t.len() >= 8
-                        && t.bytes()
-                            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_'),
-                    "--web-token: at least 8 letters, digits, '-' or '_'"
-                );
-                Some(t.clone())
-            }
+            Some(t) => Some(t.clone()),
             None if !addr.ip().is_loopback() => Some(crate::web::random_token()),
             None => None,
         };

@@ -390,7 +390,7 @@ async fn ses_loop(
                 &clock,
                 &me,
                 "peer",
-                json!({"granted": SES_SOURCE, "manager": addr}),
+                json!({"granted": SES_SOURCE, "manager": addr, "priority": prio}),
             );
             loop {
                 let ev = tokio::select! {

@@ -333,8 +333,9 @@ function renderSan(s) {
     const L = v.latest;
     const modules = L.modules || [];
     const canvas = el('canvas', { class: 'chart', width: 600, height: 120, 'aria-label': `${name} activations over time` });
+    const most = Math.max(1e-9, ...modules.map((m) => m.activation || 0));
     const rows = modules.map((m, i) => el('tr', { class: m.name === L.selected ? 'selected module' : 'module', 'data-module': m.name },
-      el('td', {}, el('span', { class: 'bar', style: `width:${Math.min(60, Math.max(0, m.activation) * 30)}px;background:${chartColours[i % chartColours.length]}` })),
+      el('td', {}, el('span', { class: 'bar', style: `width:${Math.round(60 * Math.max(0, m.activation || 0) / most)}px;background:${chartColours[i % chartColours.length]}` })),
       el('td', { text: m.name }),
       el('td', { class: 'act num', text: fmt(m.activation, 3) }),
       el('td', {}, badge(`flag-${m.executable}`, m.executable ? 'executable' : 'not executable'))));
