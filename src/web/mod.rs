@@ -10,7 +10,7 @@
 //! * `GET /` — the page (HTML, CSS and JS embedded in the binary from `src/web/assets/`);
 //! * `GET /api/state` — the state as one JSON object (`type: state`);
 //! * `GET /api/events` — server-sent events: the state again (event `state`) whenever it
-//!   changes, at most five times a second per client;
+//!   changes, at most four times a second per client;
 //! * `POST /api/command` — one [`msg::Command`] as JSON; answered with a [`msg::Reply`].
 //!
 //! Bound beyond loopback the console asks for a token: `?token=` in the URL (the page passes it
@@ -53,7 +53,7 @@ pub const DETAIL_KINDS: &[&str] = &["queue", "san", "map", "ses-form", "peer-sta
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8080";
 
 /// Shortest time between two state pushes to one client.
-const PUSH_EVERY: Duration = Duration::from_millis(200);
+const PUSH_EVERY: Duration = Duration::from_millis(250);
 
 /// The console: state, change notification, the commander's request queue and the token.
 pub struct Console {

@@ -9,9 +9,9 @@ use serde_json::{Value, json};
 use crate::stack::Event;
 
 /// Lines kept in the broadcast log.
-pub const MAX_LOG: usize = 400;
+pub const MAX_LOG: usize = 250;
 /// Points kept per trail (older ones are thinned out, never the newest).
-pub const MAX_TRAIL: usize = 600;
+pub const MAX_TRAIL: usize = 400;
 /// Samples kept per robot of the SAN activations.
 pub const MAX_SAN_HISTORY: usize = 120;
 /// Notices (command replies, operator errors) kept.
@@ -109,6 +109,8 @@ fn push_trail(trail: &mut Vec<[f64; 2]>, p: [f64; 2]) {
     if !(p[0].is_finite() && p[1].is_finite()) {
         return;
     }
+    // Millimetres are plenty on the map, and keep the state small.
+    let p = p.map(|v| (v * 1000.0).round() / 1000.0);
     if trail
         .last()
         .is_some_and(|l| (l[0] - p[0]).hypot(l[1] - p[1]) < 0.02)

@@ -131,7 +131,7 @@ fn logs_and_trails_stay_bounded() {
     assert!(r.trail.len() <= state::MAX_TRAIL);
     assert_eq!(
         r.trail.last(),
-        Some(&[4999.0 / 10.0, 0.0]),
+        Some(&[499.9, 0.0]),
         "the newest point is kept"
     );
     assert_eq!(s.log.len(), state::MAX_LOG);

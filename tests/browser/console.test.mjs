@@ -95,6 +95,7 @@ try {
   await page.click('nav [data-tab="peer"]');
   await page.waitForFunction(() => document.querySelectorAll('.card.peer').length >= 2);
   check((await page.textContent('#peer')).includes('broadcasts'), 'the Peer Agent page shows broadcast counters');
+  await page.screenshot({ path: path.join(out, 'console-peer.png'), fullPage: true });
 
   // Mission: the three targets reach "done" on screen.
   await page.click('nav [data-tab="mission"]');

@@ -281,7 +281,8 @@ function renderMap(s) {
 // ---------- Peer Agents ----------
 function counters(obj) {
   if (!obj) return '—';
-  return Object.entries(obj).filter(([, v]) => typeof v === 'number').map(([k, v]) => `${k} ${v}`).join(', ');
+  const nz = Object.entries(obj).filter(([, v]) => typeof v === 'number' && v !== 0).map(([k, v]) => `${k.replace(/_/g, ' ')} ${v}`);
+  return nz.length ? nz.join(', ') : 'none';
 }
 function renderPeer(s) {
   const names = new Set([...Object.keys(s.peer), ...Object.keys(s.peer_events)]);
@@ -309,7 +310,7 @@ function renderPeer(s) {
     }
     const evs = s.peer_events[name] || [];
     if (evs.length) {
-      parts.push(el('h4', { text: 'as a client: requests and outcomes' }), el('ul', {}, evs.slice(-8).reverse().map((e) =>
+      parts.push(el('h4', { text: 'Peer Agent events (requests, grants, losses, retries)' }), el('ul', {}, evs.slice(-8).reverse().map((e) =>
         el('li', { text: `[${fmt(e.t_s)} s] ${e.kind} ${JSON.stringify(e.detail)}` }))));
     }
     return el('div', { class: 'card peer', 'data-robot': name }, parts);
