@@ -325,3 +325,92 @@ fn addresses_parse_or_say_why_not() {
     let e = format!("{:#}", parse_addr("nowhere").unwrap_err());
     assert!(e.contains("not an address"), "{e}");
 }
+
+#[test]
+fn typed_runtime_events_become_the_pages_json() {
+    use ima_agents::runtime::events::{
+        Control, PeerStatus, QueueEntry, SanModuleView, SanView, SesMark,
+    };
+    use ima_agents::runtime::{Event, EventKind};
+    let e = |robot: &str, kind: EventKind| Event {
+        t_s: 2.0,
+        robot: robot.into(),
+        kind,
+    };
+    let mut s = ConsoleState::new("demo", colours());
+    s.apply(&e(
+        "commander",
+        EventKind::Queue {
+            targets: vec![QueueEntry {
+                index: 0,
+                target: "red".into(),
+                state: "sent".into(),
+                sent_s: Some(1.0),
+                accepted_s: None,
+                ended_s: None,
+                time_s: None,
+                cancelled: false,
+                given_up: false,
+                sends: 1,
+            }],
+        },
+    ));
+    s.apply(&e(
+        "skeeter",
+        EventKind::San(SanView {
+            network: "skeeter".into(),
+            modules: vec![SanModuleView {
+                name: "scan".into(),
+                activation: 0.75,
+                executable: true,
+            }],
+            threshold: 0.5,
+            conditions: Vec::new(),
+            selected: "scan".into(),
+        }),
+    ));
+    s.apply(&e(
+        "skeeter",
+        EventKind::SesPublished {
+            marks: vec![SesMark {
+                tag: "red".into(),
+                azimuth_rad: 0.5,
+                elevation_rad: 0.0,
+            }],
+        },
+    ));
+    s.apply(&e(
+        "commander",
+        EventKind::PeerStatus(Box::new(PeerStatus {
+            broadcast: Some(Default::default()),
+            manager: None,
+            clients: Vec::new(),
+            address: None,
+        })),
+    ));
+    s.apply(&e(
+        "scooter",
+        EventKind::Control(Control {
+            v_m_s: 0.2,
+            omega_rad_s: 0.0,
+            heading_rad: Some(1.0),
+            desired_rad: None,
+            dr: [1.0, 2.0],
+            behaviour: "move-to-target",
+            halted: false,
+        }),
+    ));
+    let v = s.snapshot();
+    assert_eq!(v["targets"][0]["target"], "red");
+    assert_eq!(v["targets"][0]["state"], "sent");
+    assert_eq!(
+        v["san"]["skeeter"]["latest"]["modules"][0]["activation"],
+        0.75
+    );
+    assert_eq!(v["san"]["skeeter"]["history"][0][1][0], 0.75);
+    assert_eq!(v["ses"]["form"]["records"][0]["object"], "red");
+    assert_eq!(v["ses"]["form"]["records"][0]["bearing_rad"], 0.5);
+    assert_eq!(v["peer"]["commander"]["broadcast"]["sent"], 0);
+    assert_eq!(v["robots"]["scooter"]["pose"][0], 1.0);
+    assert_eq!(v["robots"]["scooter"]["pose"][2], 1.0);
+}

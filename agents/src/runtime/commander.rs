@@ -367,3 +367,129 @@ fn queue(cmd: &Commander) -> Vec<QueueEntry> {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mission::msg::{Broadcast, MissionEvent};
+    use crate::peer::net::{BroadcastMode, PeerNetConfig};
+    use crate::peer::wire::GroupKey;
+    use crate::runtime::EventReceiver;
+
+    fn udp_port() -> u16 {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port()
+    }
+
+    fn net(robot: &str, port: u16, peer: u16) -> PeerNetConfig {
+        let mut c = PeerNetConfig::loopback(robot);
+        c.broadcast.mode = BroadcastMode::Unicast;
+        c.broadcast.bind = "127.0.0.1".into();
+        c.broadcast.port = port;
+        c.broadcast.bind_port = Some(port);
+        c.broadcast.peers = vec![format!("127.0.0.1:{peer}")];
+        c
+    }
+
+    /// The next `Queue` event's colours and states.
+    async fn next_queue(rx: &mut EventReceiver) -> Vec<(String, String)> {
+        loop {
+            let e = tokio::time::timeout(Duration::from_secs(20), rx.recv())
+                .await
+                .expect("no queue event in 20 s")
+                .expect("events closed");
+            if let EventKind::Queue { targets } = e.kind {
+                return targets.into_iter().map(|t| (t.target, t.state)).collect();
+            }
+        }
+    }
+
+    fn q(list: &[(&str, &str)]) -> Vec<(String, String)> {
+        list.iter()
+            .map(|(a, b)| ((*a).to_owned(), (*b).to_owned()))
+            .collect()
+    }
+
+    #[tokio::test]
+    async fn the_operator_adds_and_moves_targets_and_a_kept_commander_waits_for_more() {
+        let key = GroupKey::new(b"a test group key, 16+").unwrap();
+        let (pc, ps) = (udp_port(), udp_port());
+        let clock = ima_hal::time::TokioClock::shared();
+        let bus = Bus::bind(&net("commander", pc, ps), key.clone(), clock.clone()).unwrap();
+        let skeeter = Bus::bind(&net("skeeter", ps, pc), key, clock.clone()).unwrap();
+        let (events, mut rx) = Events::channel(1024);
+        let cfg = CommanderRuntimeConfig {
+            core: CommanderConfig::default(),
+            time_scale: 1.0,
+            lost_after: None,
+            wait_for: Vec::new(),
+            wait_timeout: Duration::from_secs(1),
+            keep_running: true,
+        };
+        let (ops, ops_rx) = tokio::sync::mpsc::unbounded_channel();
+        let events = events.detailed(true);
+        let run = tokio::spawn(async move {
+            run(cfg, &["red".to_owned()], bus, clock, events, Some(ops_rx)).await
+        });
+        assert_eq!(next_queue(&mut rx).await, q(&[("red", "sent")]));
+        ops.send(Operator::Add("blue".into())).unwrap();
+        assert_eq!(
+            next_queue(&mut rx).await,
+            q(&[("red", "sent"), ("blue", "waiting")])
+        );
+        ops.send(Operator::Add("green".into())).unwrap();
+        let _ = next_queue(&mut rx).await;
+        ops.send(Operator::Move { from: 2, to: 1 }).unwrap();
+        assert_eq!(
+            next_queue(&mut rx).await,
+            q(&[("red", "sent"), ("green", "waiting"), ("blue", "waiting")])
+        );
+        // A move of a sent target is refused with a message.
+        ops.send(Operator::Move { from: 0, to: 2 }).unwrap();
+        let err = loop {
+            let e = rx.recv().await.unwrap();
+            if let EventKind::Operator { error } = e.kind {
+                break error;
+            }
+        };
+        assert!(err.contains("only waiting targets move"), "{err}");
+        let said = |c: &str| Broadcast::Mission {
+            robot: "skeeter".into(),
+            event: MissionEvent::Accomplished,
+            target: c.into(),
+        };
+        for c in ["red", "green", "blue"] {
+            // Until the commander hears it (UDP), say it again on every queue change seen.
+            loop {
+                skeeter.send(&said(c)).await;
+                let s = next_queue(&mut rx).await;
+                if s.iter().any(|(t, st)| t == c && st == "done") {
+                    break;
+                }
+            }
+        }
+        // Every target is done, yet the commander keeps running for more.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        assert!(!run.is_finished());
+        ops.send(Operator::Quit { stop: false }).unwrap();
+        let f = tokio::time::timeout(Duration::from_secs(20), run)
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
+        let order: Vec<_> = f.outcomes.iter().map(|o| o.target.as_str()).collect();
+        assert_eq!(order, ["red", "green", "blue"]);
+        assert!(f.outcomes.iter().all(|o| o.state == TargetState::Done));
+    }
+
+    #[test]
+    fn detail_is_off_unless_asked_for() {
+        let (e, _rx) = Events::channel(4);
+        assert!(!e.wants_detail());
+        assert!(e.detailed(true).wants_detail());
+        assert!(!Events::log_only().detailed(true).wants_detail());
+    }
+}
