@@ -12,6 +12,7 @@ mod config;
 mod record;
 mod safety;
 mod stack;
+mod web;
 mod wiring;
 
 /// Drivers, mock devices and agents for a Pioneer 2-AT (P2OS) and an ATRV-Jr (rFLEX).

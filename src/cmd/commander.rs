@@ -5,6 +5,7 @@
 
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -60,6 +61,11 @@ pub struct CommanderArgs {
     /// Use the documented insecure all-zero key when the configuration names no key file.
     #[arg(long)]
     insecure: bool,
+    /// Serve the commander console in the browser on ADDR (default 127.0.0.1:8080; port 0
+    /// picks a free one). With it the commander keeps running when every target is final
+    /// (more can be added from the page) until Ctrl-C.
+    #[command(flatten)]
+    web: super::WebArgs,
 }
 
 /// `ima commander stop|resume|cancel`: one command to the fleet, sent several times.
@@ -371,6 +377,7 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             "--config is required (a commander configuration, see configs/commander.toml)"
         );
     };
+    args.web.check()?;
     let mut cfg = load(config, args.insecure)?;
     if let Some(s) = args.lost_after {
         anyhow::ensure!(
@@ -399,13 +406,25 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         #[cfg(not(unix))]
         let interrupt = CtrlC;
         let (op_tx, op_rx) = tokio::sync::mpsc::unbounded_channel();
+        // web console (issue 17): the page's commands join the operator's requests.
+        let web = args
+            .web
+            .start("commander", known.clone(), Some(op_tx.clone()))?;
+        let console = web.as_ref().map(|(c, _)| Arc::clone(c));
         let op_task = tokio::spawn(operator(op_tx, args.stop_on_exit, interrupt));
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
+        let events = events.detailed(web.is_some());
         let json = args.json;
         let printer = tokio::spawn(async move {
             // Text mode: a robot's status is shown when its behaviour changes, not every second.
             let mut last: std::collections::BTreeMap<String, String> = Default::default();
             while let Some(e) = rx.recv().await {
+                if let Some(c) = &console {
+                    c.apply(&e);
+                }
+                if !json && crate::web::DETAIL_KINDS.contains(&e.name()) {
+                    continue;
+                }
                 if !json
                     && let EventKind::Broadcast(BroadcastView::Status {
                         robot, behaviour, ..
@@ -430,6 +449,11 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             (&args.wait_for, wait),
             Some(Duration::from_secs_f64(cfg.agent.robot_lost_after_s)),
         );
+        let rt = ima_agents::runtime::commander::CommanderRuntimeConfig {
+            // web console (issue 17): more targets may be added from the page.
+            keep_running: web.is_some(),
+            ..rt
+        };
         let r = async {
             // The process's one clock.
             let clock = ima_hal::time::TokioClock::shared();
@@ -450,6 +474,9 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         .context("commanding");
         op_task.abort();
         let _ = printer.await;
+        if let Some((c, _server)) = &web {
+            c.close_commands();
+        }
         r
     })?;
     let outcomes = &finished.outcomes;

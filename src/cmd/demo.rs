@@ -68,6 +68,10 @@ pub struct DemoArgs {
     /// Recording and live view.
     #[command(flatten)]
     rec: crate::record::RecordArgs,
+    /// Serve the commander console in the browser on ADDR (default 127.0.0.1:8080); it
+    /// keeps serving after the mission, with the summary, until Ctrl-C.
+    #[command(flatten)]
+    web: super::WebArgs,
 }
 
 /// A base controller for `--scooter-base`.
@@ -105,6 +109,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     );
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
     super::output::check_file("--svg", &args.svg)?;
+    args.web.check()?;
     let started = std::time::Instant::now();
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
     let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());
@@ -150,15 +155,28 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         Trajectory::new("skeeter"),
         Trajectory::new("scooter"),
     ]));
+    // web console (issue 17): fed from the events below, commands into the commander.
+    let (op_tx, op_rx) = tokio::sync::mpsc::unbounded_channel();
+    let web = args.web.start("demo", known.clone(), Some(op_tx))?;
+    let console = web.as_ref().map(|(c, _)| Arc::clone(c));
+    if let Some(c) = &console {
+        let w = world.with(|w| crate::web::world_json(w));
+        c.update(|s| s.world = Some(w));
+    }
     let outcomes = crate::safety::block_on(async {
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
+        let events = events.detailed(console.is_some());
         // Events stamped with world time as they arrive; printed live.
         let printer = {
             let log = Arc::clone(&log);
             let world = world.clone();
+            let console = console.clone();
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
                     crate::record::log_event(&e); // record: events, broadcasts, SES, belief
+                    if let Some(c) = &console {
+                        c.apply(&e);
+                    }
                     let (wt, truth) = world.with(|w| {
                         let p = w
                             .robot_id(&e.robot)
@@ -191,6 +209,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let sampler = {
             let world = world.clone();
             let paths = Arc::clone(&paths);
+            let console = console.clone();
             tokio::spawn(async move {
                 let mut tick = tokio::time::interval(Duration::from_millis(50));
                 let mut n = 0u64;
@@ -232,6 +251,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                                         },
                                     );
                                 });
+                                if let Some(c) = &console {
+                                    c.update(|s| s.truth(&tj.robot, p.x_m, p.y_m, p.theta_rad));
+                                }
                             }
                         }
                     });
@@ -273,7 +295,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             let rt = crate::stack::commander::runtime_config(
                 &cmd,
                 (&robots, Duration::from_secs(30)),
-                None,
+                console
+                    .is_some()
+                    .then(|| Duration::from_secs_f64(cmd.agent.robot_lost_after_s)),
             );
             let f = ima_agents::runtime::commander::run(
                 rt,
@@ -281,7 +305,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                 bus,
                 clock.clone(),
                 events.clone(),
-                None,
+                Some(op_rx),
             )
             .await?;
             anyhow::Ok(f.outcomes)
@@ -304,7 +328,29 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     })?;
     let log = log.lock().unwrap_or_else(PoisonError::into_inner).clone();
     let paths = paths.lock().unwrap_or_else(PoisonError::into_inner).clone();
-    summarise(args, &served, &outcomes, &log, &paths, started.elapsed())
+    if let Some(c) = &console {
+        c.close_commands();
+    }
+    let r = summarise(
+        args,
+        &served,
+        &outcomes,
+        &log,
+        &paths,
+        started.elapsed(),
+        console.as_deref(),
+    );
+    if let Some((_, server)) = &web {
+        // web console (issue 17): the page keeps the summary and trajectories until Ctrl-C.
+        eprintln!(
+            "ima demo: the mission is over; the console stays at http://{}/ until Ctrl-C",
+            server.addr
+        );
+        while crate::safety::signal().is_none() {
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+    r
 }
 
 /// record: the world's objects as markers on `/world/objects`.
@@ -362,6 +408,7 @@ fn summarise(
     log: &[(f64, Event)],
     paths: &[Trajectory; 2],
     wall: Duration,
+    console: Option<&crate::web::Console>,
 ) -> Result<()> {
     let scooter = &paths[1];
     // World times of the commander's "processing" and final events per target.
@@ -447,6 +494,16 @@ fn summarise(
             "bytes": r.bytes, "error": r.error,
         })),
     });
+    if let Some(c) = console {
+        c.update(|s| {
+            for (i, r) in rows.iter().enumerate() {
+                if let Some(f) = r["performance"].as_f64() {
+                    s.set_performance(i, f);
+                }
+            }
+            s.finish(summary.clone());
+        });
+    }
     if args.json {
         outln!("{summary}")?;
     } else {

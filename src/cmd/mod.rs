@@ -28,6 +28,70 @@ pub mod scan;
 pub use self::drive::square as demo_square;
 pub use self::mock::world as mock_world;
 
+/// `--web [ADDR]` and `--web-token` of `ima commander` and `ima demo`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct WebArgs {
+    /// Serve the console in the browser on ADDR (default 127.0.0.1:8080; port 0 picks a free
+    /// one). Beyond loopback it asks for a token (see --web-token).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::web::DEFAULT_ADDR)]
+    pub web: Option<String>,
+    /// The console's token when bound beyond loopback (a random one is made and printed
+    /// when absent); also required on loopback when given.
+    #[arg(
+        long,
+        value_name = "TOKEN",
+        requires = "web",
+        env = "IMA_WEB_TOKEN",
+        hide_env_values = true
+    )]
+    pub web_token: Option<String>,
+}
+
+impl WebArgs {
+    /// Checks `--web` and `--web-token` before any work (the address parses, the token is
+    /// usable); the address when `--web` was given.
+    pub fn check(&self) -> anyhow::Result<Option<std::net::SocketAddr>> {
+        let Some(addr) = &self.web else {
+            return Ok(None);
+        };
+        let addr = crate::web::parse_addr(addr)?;
+        if let Some(t) = &self.web_token {
+            anyhow::ensure!(
+                t.len() >= 8
+                    && t.bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_'),
+                "--web-token: at least 8 letters, digits, '-' or '_'"
+            );
+        }
+        Ok(Some(addr))
+    }
+
+    /// Start the console when `--web` was given: the console and its server. The URL goes
+    /// to stderr (`ima: web console at URL`).
+    pub fn start(
+        &self,
+        mode: &str,
+        colours: Vec<String>,
+        ops: Option<tokio::sync::mpsc::UnboundedSender<ima_agents::runtime::commander::Operator>>,
+    ) -> anyhow::Result<Option<(std::sync::Arc<crate::web::Console>, crate::web::WebServer)>> {
+        let Some(addr) = self.check()? else {
+            return Ok(None);
+        };
+        let token = match &self.web_token {
+            Some(t) => Some(t.clone()),
+            None if !addr.ip().is_loopback() => Some(crate::web::random_token()),
+            None => None,
+        };
+        let console = crate::web::Console::new(mode, colours, ops, token.clone());
+        let server = crate::web::start(std::sync::Arc::clone(&console), addr)?;
+        eprintln!(
+            "ima: web console at {}",
+            crate::web::url(server.addr, token.as_deref())
+        );
+        Ok(Some((console, server)))
+    }
+}
+
 /// Checks that every target colour is one of `known`; the error lists the known colours
 /// (`what` says where they come from, e.g. "the world's objects").
 ///

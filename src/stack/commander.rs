@@ -32,6 +32,7 @@ pub fn runtime_config(
         lost_after,
         wait_for: wait.0.to_vec(),
         wait_timeout: wait.1,
+        keep_running: false,
     }
 }
 

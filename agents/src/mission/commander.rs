@@ -437,6 +437,56 @@ impl Commander {
         }
     }
 
+    /// The operator appends `colour` to the series (waiting). When the series had run out
+    /// (every target final) and the commander has started, it goes out at once.
+    pub fn add(&mut self, colour: &str, now: Instant) {
+        self.targets.push(Target {
+            colour: colour.to_owned(),
+            state: TargetState::Waiting,
+            sent_at: None,
+            accepted_at: None,
+            finished_at: None,
+            sends: 0,
+            given_up: false,
+            cancelled: false,
+        });
+        if self.started && self.current().is_none_or(|t| t.state.is_final()) {
+            self.advance(now);
+        }
+    }
+
+    /// The operator moves the waiting target at position `from` of the series to position
+    /// `to`, which must hold a waiting target too (targets already sent or final keep their
+    /// places).
+    ///
+    /// # Errors
+    /// A message naming the problem when either position is out of the series or not a
+    /// waiting target.
+    pub fn move_target(&mut self, from: usize, to: usize) -> Result<(), String> {
+        let n = self.targets.len();
+        for (what, i) in [("from", from), ("to", to)] {
+            match self.targets.get(i) {
+                None => {
+                    return Err(format!(
+                        "{what}: no target at position {i} (the series has {n})"
+                    ));
+                }
+                Some(t) if t.state != TargetState::Waiting => {
+                    return Err(format!(
+                        "{what}: target {i} ({}) is {}, only waiting targets move",
+                        t.colour,
+                        t.state.as_str()
+                    ));
+                }
+                Some(_) => {}
+            }
+        }
+        // Both are waiting, so both come after the current target: its index is unchanged.
+        let t = self.targets.remove(from);
+        self.targets.insert(to, t);
+        Ok(())
+    }
+
     /// Queues [`FLEET_COPIES`] copies of `fleet-resume`.
     pub fn fleet_resume(&mut self) {
         for _ in 0..FLEET_COPIES {
@@ -640,6 +690,43 @@ mod tests {
 
     fn states(c: &Commander) -> Vec<&'static str> {
         c.targets().iter().map(|t| t.state.as_str()).collect()
+    }
+
+    #[test]
+    fn added_targets_queue_up_and_restart_a_finished_series() {
+        let mut c = Commander::new(&["red"], CommanderConfig::default());
+        c.add("blue", t(0));
+        c.start(t(0));
+        let _ = drain(&mut c);
+        assert_eq!(states(&c), ["sent", "waiting"]);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "red"), t(1));
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "blue"), t(2));
+        assert!(c.is_finished());
+        let _ = drain(&mut c);
+        c.add("green", t(3));
+        assert_eq!(states(&c), ["done", "done", "sent"]);
+        assert_eq!(drain(&mut c), [Broadcast::new_target("green")]);
+    }
+
+    #[test]
+    fn only_waiting_targets_move() {
+        let mut c = Commander::new(
+            &["red", "blue", "green", "yellow"],
+            CommanderConfig::default(),
+        );
+        c.start(t(0));
+        let _ = drain(&mut c);
+        assert!(c.move_target(0, 2).unwrap_err().contains("only waiting"));
+        assert!(
+            c.move_target(1, 9)
+                .unwrap_err()
+                .contains("no target at position 9")
+        );
+        c.move_target(3, 1).unwrap();
+        let order: Vec<&str> = c.targets().iter().map(|t| t.colour.as_str()).collect();
+        assert_eq!(order, ["red", "yellow", "blue", "green"]);
+        c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "red"), t(1));
+        assert_eq!(drain(&mut c), [Broadcast::new_target("yellow")]);
     }
 
     #[test]

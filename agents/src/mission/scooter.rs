@@ -336,6 +336,12 @@ impl ScooterBrain {
         self.heading.dr()
     }
 
+    /// The laser obstacles remembered for avoidance, in the DR frame (metres).
+    #[must_use]
+    pub fn obstacles_dr(&self) -> &[Vector2] {
+        self.obstacle.seen_dr()
+    }
+
     /// The desired common-frame heading θd right now (from the plan), if any.
     #[must_use]
     pub fn desired_heading(&self) -> Option<f64> {

@@ -10,7 +10,7 @@ use ima_hal::Instant;
 use ima_hal::time::SharedClock;
 use serde::Serialize;
 
-use super::events::{EventKind, Events, TargetChange, Waiting};
+use super::events::{EventKind, Events, PeerStatus, QueueEntry, TargetChange, Waiting};
 use super::link::Bus;
 use super::{MissionTime, RuntimeError};
 use crate::mission::commander::{
@@ -54,6 +54,16 @@ pub enum Operator {
     Stop(String),
     /// Send a fleet resume.
     Resume,
+    /// Append a target to the series ([`Commander::add`]).
+    Add(String),
+    /// Move the waiting target at position `from` to position `to`
+    /// ([`Commander::move_target`]).
+    Move {
+        /// Position now.
+        from: usize,
+        /// Position wanted.
+        to: usize,
+    },
     /// End the commander, after a fleet stop if `stop`.
     Quit {
         /// Send a fleet stop first.
@@ -74,6 +84,9 @@ pub struct CommanderRuntimeConfig {
     pub wait_for: Vec<String>,
     /// Longest wait for them (real time); then the targets go anyway.
     pub wait_timeout: Duration,
+    /// Keep running when every target is final (more may be added with
+    /// [`Operator::Add`]), until [`Operator::Quit`] or the operator's channel closes.
+    pub keep_running: bool,
 }
 
 /// How a [`run`] ended.
@@ -104,6 +117,10 @@ fn life_event(events: &Events, time: &MissionTime, me: &str, c: &LifeChange) {
 /// [`EventKind::Waiting`], [`EventKind::Fleet`], [`EventKind::Operator`], and
 /// [`EventKind::AuthFailure`] for frames under another group key (rate-limited).
 ///
+/// With [`Events::detailed`] it also reports the whole series ([`EventKind::Queue`]) after
+/// every change and its broadcast channel's counters ([`EventKind::PeerStatus`]) once a
+/// second.
+///
 /// Before the first target it waits (at most `cfg.wait_timeout`, real time) until every
 /// robot of `cfg.wait_for` has been heard, so that no robot misses it.
 pub async fn run(
@@ -131,6 +148,8 @@ pub async fn run(
         .iter()
         .map(|t| (t.state, t.cancelled))
         .collect();
+    // The whole series as a `Queue` event on every change (detail only).
+    let mut queue_changed = true;
     let mut waiting = !missing.is_empty();
     if waiting {
         events.emit(
@@ -149,8 +168,13 @@ pub async fn run(
         while let Some(b) = cmd.poll_broadcast() {
             bus.send(&b).await;
         }
+        if shown.len() != cmd.targets().len() {
+            queue_changed = true;
+            shown.resize(cmd.targets().len(), (CoreState::Waiting, false));
+        }
         for (t, old) in cmd.targets().iter().zip(shown.iter_mut()) {
             if (t.state, t.cancelled) != *old {
+                queue_changed = true;
                 *old = (t.state, t.cancelled);
                 let fin = t.state.is_final();
                 events.emit(
@@ -170,7 +194,17 @@ pub async fn run(
                 );
             }
         }
-        if interrupted.is_some() || (!waiting && cmd.is_finished()) {
+        if std::mem::take(&mut queue_changed) && events.wants_detail() {
+            events.emit(
+                &time,
+                &me,
+                EventKind::Queue {
+                    targets: queue(&cmd),
+                },
+            );
+        }
+        let done = !waiting && cmd.is_finished() && (!cfg.keep_running || ops.is_none());
+        if interrupted.is_some() || done {
             break;
         }
         let to_real = |t: Instant| {
@@ -221,6 +255,20 @@ pub async fn run(
                         cmd.fleet_stop(&reason);
                         events.emit(&time, &me, EventKind::Fleet { command: "stop".into(), reason: Some(reason) });
                     }
+                    Some(Operator::Add(colour)) => {
+                        // Before the robots are heard it only queues (`start` sends it).
+                        cmd.add(&colour, now);
+                    }
+                    Some(Operator::Move { from, to }) => {
+                        if let Err(e) = cmd.move_target(from, to) {
+                            events.emit(&time, &me, EventKind::Operator {
+                                error: format!("cannot move the target: {e}"),
+                            });
+                        }
+                        // `shown` follows the series' order from now on.
+                        shown = cmd.targets().iter().map(|t| (t.state, t.cancelled)).collect();
+                        queue_changed = true;
+                    }
                     Some(Operator::Resume) => {
                         cmd.fleet_resume();
                         events.emit(&time, &me, EventKind::Fleet { command: "resume".into(), reason: None });
@@ -257,6 +305,14 @@ pub async fn run(
                 if let Some(a) = bus.take_auth_report() {
                     events.emit(&time, &me, EventKind::AuthFailure(a.to_string()));
                 }
+                if events.wants_detail() {
+                    events.emit(&time, &me, EventKind::PeerStatus(Box::new(PeerStatus {
+                        broadcast: Some(bus.channel().stats()),
+                        manager: None,
+                        clients: Vec::new(),
+                        address: None,
+                    })));
+                }
             }
         }
     }
@@ -289,4 +345,151 @@ pub async fn run(
         outcomes,
         interrupted,
     })
+}
+
+/// The whole series for [`EventKind::Queue`].
+fn queue(cmd: &Commander) -> Vec<QueueEntry> {
+    let secs = |i: Option<Instant>| i.map(Instant::as_secs_f64);
+    cmd.targets()
+        .iter()
+        .enumerate()
+        .map(|(i, t)| QueueEntry {
+            index: i,
+            target: t.colour.clone(),
+            state: t.state.as_str().to_owned(),
+            sent_s: secs(t.sent_at),
+            accepted_s: secs(t.accepted_at),
+            ended_s: secs(t.finished_at),
+            time_s: t.duration().map(|d| d.as_secs_f64()),
+            cancelled: t.cancelled,
+            given_up: t.given_up,
+            sends: t.sends,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mission::msg::{Broadcast, MissionEvent};
+    use crate::peer::net::{BroadcastMode, PeerNetConfig};
+    use crate::peer::wire::GroupKey;
+    use crate::runtime::EventReceiver;
+
+    fn udp_port() -> u16 {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port()
+    }
+
+    fn net(robot: &str, port: u16, peer: u16) -> PeerNetConfig {
+        let mut c = PeerNetConfig::loopback(robot);
+        c.broadcast.mode = BroadcastMode::Unicast;
+        c.broadcast.bind = "127.0.0.1".into();
+        c.broadcast.port = port;
+        c.broadcast.bind_port = Some(port);
+        c.broadcast.peers = vec![format!("127.0.0.1:{peer}")];
+        c
+    }
+
+    /// The next `Queue` event's colours and states.
+    async fn next_queue(rx: &mut EventReceiver) -> Vec<(String, String)> {
+        loop {
+            let e = tokio::time::timeout(Duration::from_secs(20), rx.recv())
+                .await
+                .expect("no queue event in 20 s")
+                .expect("events closed");
+            if let EventKind::Queue { targets } = e.kind {
+                return targets.into_iter().map(|t| (t.target, t.state)).collect();
+            }
+        }
+    }
+
+    fn q(list: &[(&str, &str)]) -> Vec<(String, String)> {
+        list.iter()
+            .map(|(a, b)| ((*a).to_owned(), (*b).to_owned()))
+            .collect()
+    }
+
+    #[tokio::test]
+    async fn the_operator_adds_and_moves_targets_and_a_kept_commander_waits_for_more() {
+        let key = GroupKey::new(b"a test group key, 16+").unwrap();
+        let (pc, ps) = (udp_port(), udp_port());
+        let clock = ima_hal::time::TokioClock::shared();
+        let bus = Bus::bind(&net("commander", pc, ps), key.clone(), clock.clone()).unwrap();
+        let skeeter = Bus::bind(&net("skeeter", ps, pc), key, clock.clone()).unwrap();
+        let (events, mut rx) = Events::channel(1024);
+        let cfg = CommanderRuntimeConfig {
+            core: CommanderConfig::default(),
+            time_scale: 1.0,
+            lost_after: None,
+            wait_for: Vec::new(),
+            wait_timeout: Duration::from_secs(1),
+            keep_running: true,
+        };
+        let (ops, ops_rx) = tokio::sync::mpsc::unbounded_channel();
+        let events = events.detailed(true);
+        let run = tokio::spawn(async move {
+            run(cfg, &["red".to_owned()], bus, clock, events, Some(ops_rx)).await
+        });
+        assert_eq!(next_queue(&mut rx).await, q(&[("red", "sent")]));
+        ops.send(Operator::Add("blue".into())).unwrap();
+        assert_eq!(
+            next_queue(&mut rx).await,
+            q(&[("red", "sent"), ("blue", "waiting")])
+        );
+        ops.send(Operator::Add("green".into())).unwrap();
+        let _ = next_queue(&mut rx).await;
+        ops.send(Operator::Move { from: 2, to: 1 }).unwrap();
+        assert_eq!(
+            next_queue(&mut rx).await,
+            q(&[("red", "sent"), ("green", "waiting"), ("blue", "waiting")])
+        );
+        // A move of a sent target is refused with a message.
+        ops.send(Operator::Move { from: 0, to: 2 }).unwrap();
+        let err = loop {
+            let e = rx.recv().await.unwrap();
+            if let EventKind::Operator { error } = e.kind {
+                break error;
+            }
+        };
+        assert!(err.contains("only waiting targets move"), "{err}");
+        let said = |c: &str| Broadcast::Mission {
+            robot: "skeeter".into(),
+            event: MissionEvent::Accomplished,
+            target: c.into(),
+        };
+        for c in ["red", "green", "blue"] {
+            // Until the commander hears it (UDP), say it again on every queue change seen.
+            loop {
+                skeeter.send(&said(c)).await;
+                let s = next_queue(&mut rx).await;
+                if s.iter().any(|(t, st)| t == c && st == "done") {
+                    break;
+                }
+            }
+        }
+        // Every target is done, yet the commander keeps running for more.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        assert!(!run.is_finished());
+        ops.send(Operator::Quit { stop: false }).unwrap();
+        let f = tokio::time::timeout(Duration::from_secs(20), run)
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
+        let order: Vec<_> = f.outcomes.iter().map(|o| o.target.as_str()).collect();
+        assert_eq!(order, ["red", "green", "blue"]);
+        assert!(f.outcomes.iter().all(|o| o.state == TargetState::Done));
+    }
+
+    #[test]
+    fn detail_is_off_unless_asked_for() {
+        let (e, _rx) = Events::channel(4);
+        assert!(!e.wants_detail());
+        assert!(e.detailed(true).wants_detail());
+        assert!(!Events::log_only().detailed(true).wants_detail());
+    }
 }

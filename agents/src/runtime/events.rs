@@ -152,6 +152,17 @@ pub enum EventKind {
         /// Why.
         error: String,
     },
+    /// The commander: the whole series after any change (detail, see [`Events::detailed`]).
+    Queue {
+        /// Every target, in the series' order.
+        targets: Vec<QueueEntry>,
+    },
+    /// A robot's SAN now (detail, see [`Events::detailed`]).
+    San(SanView),
+    /// Scooter's belief for a map (detail, see [`Events::detailed`]).
+    Map(MapView),
+    /// Peer Agent counters and status (detail, see [`Events::detailed`]).
+    PeerStatus(Box<PeerStatus>),
 }
 
 impl EventKind {
@@ -179,6 +190,10 @@ impl EventKind {
             EventKind::Waiting(_) => "waiting",
             EventKind::Fleet { .. } => "fleet",
             EventKind::Operator { .. } => "operator",
+            EventKind::Queue { .. } => "queue",
+            EventKind::San(_) => "san",
+            EventKind::Map(_) => "map",
+            EventKind::PeerStatus(_) => "peer-status",
         }
     }
 }
@@ -210,6 +225,9 @@ pub enum PeerNote {
     Granted {
         /// The source.
         granted: String,
+        /// Scooter: the priority it asked with.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        priority: Option<u8>,
         /// Scooter: the manager that granted it (first grant of a connection).
         #[serde(skip_serializing_if = "Option::is_none")]
         manager: Option<String>,
@@ -343,12 +361,191 @@ impl From<&Broadcast> for BroadcastView {
     }
 }
 
+/// One target of the commander's series ([`EventKind::Queue`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct QueueEntry {
+    /// Position in the series.
+    pub index: usize,
+    /// The colour.
+    pub target: String,
+    /// Its state (`waiting`, `sent`, `processing`, `done`, `failed`).
+    pub state: String,
+    /// Mission second it was (last) sent.
+    pub sent_s: Option<f64>,
+    /// Mission second Skeeter accepted it.
+    pub accepted_s: Option<f64>,
+    /// Mission second it ended.
+    pub ended_s: Option<f64>,
+    /// From sending to the end, seconds.
+    pub time_s: Option<f64>,
+    /// The operator cancelled it.
+    pub cancelled: bool,
+    /// The commander gave up on it.
+    pub given_up: bool,
+    /// How often it was sent.
+    pub sends: u32,
+}
+
+/// One SAN module's state ([`SanView`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SanModuleView {
+    /// The module (behaviour).
+    pub name: String,
+    /// Its activation.
+    pub activation: f64,
+    /// Every precondition true.
+    pub executable: bool,
+}
+
+/// One SAN condition's truth ([`SanView`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SanConditionView {
+    /// The condition.
+    pub name: String,
+    /// Whether it is true (unknown counts as false).
+    pub value: bool,
+}
+
+/// A SAN's state: each module's activation and executable flag, the threshold θ, each
+/// condition's truth and the selected behaviour ([`EventKind::San`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SanView {
+    /// The network's name.
+    pub network: String,
+    /// The modules, in declaration order.
+    pub modules: Vec<SanModuleView>,
+    /// The threshold θ.
+    pub threshold: f64,
+    /// The conditions.
+    pub conditions: Vec<SanConditionView>,
+    /// The selected behaviour.
+    pub selected: String,
+}
+
+impl SanView {
+    /// The state of `net` with `selected` running.
+    #[must_use]
+    pub fn of(net: &crate::san::Network, selected: &str) -> Self {
+        let modules = net
+            .module_names()
+            .zip(net.activations())
+            .zip(net.executable_flags())
+            .map(|((name, a), e)| SanModuleView {
+                name: name.to_string(),
+                activation: *a,
+                executable: e,
+            })
+            .collect();
+        let conditions = net
+            .condition_names()
+            .map(|c| SanConditionView {
+                name: c.to_string(),
+                value: net.condition(c) == Some(true),
+            })
+            .collect();
+        Self {
+            network: net.name().to_string(),
+            modules,
+            threshold: net.threshold(),
+            conditions,
+            selected: selected.to_owned(),
+        }
+    }
+}
+
+/// Scooter's plan ([`MapView`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum PlanView {
+    /// A fixed common-frame heading.
+    Heading {
+        /// Radians.
+        heading_rad: f64,
+    },
+    /// A point in the DR frame.
+    Point {
+        /// Metres.
+        point: [f64; 2],
+    },
+}
+
+/// At most this many laser obstacles go into one [`MapView`].
+pub const MAX_MAP_OBSTACLES: usize = 120;
+
+/// Scooter's belief for a map ([`EventKind::Map`]): DR position, heading, desired heading,
+/// plan, the laser obstacles it remembers (DR frame, metres, thinned to
+/// [`MAX_MAP_OBSTACLES`]) and its target.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MapView {
+    /// Dead-reckoned position, metres.
+    pub dr: [f64; 2],
+    /// Heading, radians, if known.
+    pub heading_rad: Option<f64>,
+    /// The heading it wants, if any.
+    pub desired_rad: Option<f64>,
+    /// Its plan, if any.
+    pub plan: Option<PlanView>,
+    /// Obstacles, DR frame.
+    pub obstacles: Vec<[f64; 2]>,
+    /// Its target, if any.
+    pub target: Option<String>,
+}
+
+impl MapView {
+    /// Scooter's belief now.
+    #[must_use]
+    pub fn of(brain: &crate::mission::scooter::ScooterBrain) -> Self {
+        use crate::mission::scooter::Plan;
+        let dr = brain.dr_position();
+        let obs = brain.obstacles_dr();
+        let step = obs.len().div_ceil(MAX_MAP_OBSTACLES).max(1);
+        Self {
+            dr: [dr.x, dr.y],
+            heading_rad: brain.heading(),
+            desired_rad: brain.desired_heading(),
+            plan: brain.plan().map(|p| match p {
+                Plan::Heading(h) => PlanView::Heading { heading_rad: h },
+                Plan::Point(p) => PlanView::Point { point: [p.x, p.y] },
+            }),
+            obstacles: obs
+                .iter()
+                .step_by(step)
+                .filter(|p| p.x.is_finite() && p.y.is_finite())
+                .map(|p| [p.x, p.y])
+                .collect(),
+            target: brain.target().map(str::to_owned),
+        }
+    }
+}
+
+/// Peer Agent counters and status ([`EventKind::PeerStatus`]): the broadcast channel's
+/// counters and, for a manager, its sources, sessions and clients. The counters' types have
+/// no JSON form of their own: the JSON line carries the manager's address only, and the web
+/// console renders the rest.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PeerStatus {
+    /// The broadcast channel's counters.
+    #[serde(skip)]
+    pub broadcast: Option<crate::peer::net::BroadcastStats>,
+    /// The manager's counters.
+    #[serde(skip)]
+    pub manager: Option<crate::peer::net::ManagerNetStats>,
+    /// The manager's clients.
+    #[serde(skip)]
+    pub clients: Vec<crate::peer::manager::ClientStatus>,
+    /// Where the manager listens.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub address: Option<String>,
+}
+
 /// Where runtimes report their events: the log and, if made with [`Events::channel`], a
 /// bounded drop-oldest channel. Cheap to clone; the channel closes when every clone is
 /// dropped.
 #[derive(Debug, Clone, Default)]
 pub struct Events {
     tx: Option<broadcast::Sender<Event>>,
+    /// Whether the runtimes also report detail for a live console.
+    detail: bool,
 }
 
 impl Events {
@@ -363,7 +560,29 @@ impl Events {
     #[must_use]
     pub fn channel(capacity: usize) -> (Self, EventReceiver) {
         let (tx, rx) = broadcast::channel(capacity.max(1));
-        (Self { tx: Some(tx) }, EventReceiver { rx, dropped: 0 })
+        (
+            Self {
+                tx: Some(tx),
+                detail: false,
+            },
+            EventReceiver { rx, dropped: 0 },
+        )
+    }
+
+    /// These events with a live console's detail too, when `on`: the commander's whole
+    /// series ([`EventKind::Queue`]), SAN activations ([`EventKind::San`]), Scooter's map
+    /// ([`EventKind::Map`]) and Peer Agent status ([`EventKind::PeerStatus`]), reported
+    /// periodically. Off by default, so that ordinary event output does not change.
+    #[must_use]
+    pub fn detailed(mut self, on: bool) -> Self {
+        self.detail = on;
+        self
+    }
+
+    /// Whether the detail of [`Events::detailed`] is wanted (cheap to ask on every loop).
+    #[must_use]
+    pub fn wants_detail(&self) -> bool {
+        self.detail && self.tx.is_some()
     }
 
     /// Another receiver of this channel's events from now on (`None` for [`Events::log_only`]).

@@ -14,7 +14,7 @@ use ima_hal::time::SharedClock;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::events::{EventKind, Events, PeerNote};
+use super::events::{EventKind, Events, PeerNote, PeerStatus};
 use super::{MissionTime, RuntimeError};
 use crate::mission::msg::{Broadcast, SES_SOURCE};
 use crate::peer::manager::FixedSelfAgent;
@@ -203,7 +203,8 @@ pub struct ScooterLink {
     /// Sent with `try_send`: a full queue loses the message (logged), never the robot's time.
     pub say: mpsc::Sender<Broadcast>,
     tasks: Vec<JoinHandle<()>>,
-    _manager: Option<ManagerHandle>,
+    manager: Option<ManagerHandle>,
+    bus: Option<Bus>,
 }
 
 /// The caller's ends of [`ScooterLink::channels`].
@@ -234,7 +235,8 @@ impl ScooterLink {
                 rerequest,
                 say,
                 tasks: Vec::new(),
-                _manager: None,
+                manager: None,
+                bus: None,
             },
             ScooterLinkEnds {
                 ses: ses_tx,
@@ -294,9 +296,35 @@ impl ScooterLink {
                 time,
             )));
         }
-        link._manager = manager;
+        link.manager = manager;
+        link.bus = Some(bus);
         Ok(link)
     }
+
+    /// The link's Peer Agent counters and status (network links only).
+    pub async fn peer_status(&self) -> Option<PeerStatus> {
+        peer_status(self.bus.as_ref(), self.manager.as_ref()).await
+    }
+}
+
+/// The counters of `bus` and the status of `manager`, if there is either.
+async fn peer_status(bus: Option<&Bus>, manager: Option<&ManagerHandle>) -> Option<PeerStatus> {
+    if bus.is_none() && manager.is_none() {
+        return None;
+    }
+    let (stats, clients, address) = match manager {
+        Some(m) => match (m.stats().await, m.status().await) {
+            (Ok(s), Ok(c)) => (Some(s), c, Some(m.local_addr().to_string())),
+            _ => (None, Vec::new(), Some(m.local_addr().to_string())),
+        },
+        None => (None, Vec::new(), None),
+    };
+    Some(PeerStatus {
+        broadcast: bus.map(|b| b.channel().stats()),
+        manager: stats,
+        clients,
+        address,
+    })
 }
 
 impl Drop for ScooterLink {
@@ -338,6 +366,7 @@ async fn ses_loop(
                 .map_err(|e| e.to_string())?;
             note(PeerNote::Granted {
                 granted: SES_SOURCE.to_owned(),
+                priority: Some(req.priority),
                 manager: Some(req.manager.clone()),
                 again: None,
                 to: None,
@@ -353,6 +382,7 @@ async fn ses_loop(
                             .map_err(|e| e.to_string())?;
                         note(PeerNote::Granted {
                             granted: SES_SOURCE.to_owned(),
+                            priority: Some(req.priority),
                             manager: None,
                             again: Some(true),
                             to: None,
@@ -419,6 +449,7 @@ pub struct SkeeterLink {
     /// SES forms to publish on its `ses` source (sent with `try_send`).
     pub publish: mpsc::Sender<SharedForm>,
     manager: Option<ManagerHandle>,
+    bus: Option<Bus>,
     tasks: Vec<JoinHandle<()>>,
 }
 
@@ -450,6 +481,7 @@ impl SkeeterLink {
                 grants,
                 publish,
                 manager: None,
+                bus: None,
                 tasks: Vec::new(),
             },
             SkeeterLinkEnds {
@@ -532,7 +564,13 @@ impl SkeeterLink {
             }
         }));
         link.manager = Some(manager);
+        link.bus = Some(bus);
         Ok(link)
+    }
+
+    /// The link's Peer Agent counters and status (network links only).
+    pub async fn peer_status(&self) -> Option<PeerStatus> {
+        peer_status(self.bus.as_ref(), self.manager.as_ref()).await
     }
 
     /// Where the link's manager listens (network links only).

@@ -29,7 +29,7 @@ use ima_hal::time::{SharedClock, Stamped};
 use ima_hal::{ErrorType, Instant, normalize_angle};
 use tokio::sync::watch;
 
-use super::events::{Control, EventKind, Events};
+use super::events::{Control, EventKind, Events, MapView, SanView};
 use super::link::ScooterLink;
 use super::{HaltOnDrop, MissionTime, RuntimeError, StopRequest, stopped};
 use crate::mission::msg::{Broadcast, Emergency};
@@ -333,6 +333,20 @@ where
                 }),
             );
         }
+        // A live console's detail: map, SAN and Peer Agent status.
+        if events.wants_detail()
+            && st
+                .last_detail
+                .is_none_or(|t| now.saturating_duration_since(t) >= DETAIL_EVERY)
+        {
+            st.last_detail = Some(now);
+            events.emit(&time, &me, EventKind::Map(MapView::of(&brain)));
+            let san = SanView::of(brain.san(), out.behaviour.as_str());
+            events.emit(&time, &me, EventKind::San(san));
+            if let Some(p) = link.peer_status().await {
+                events.emit(&time, &me, EventKind::PeerStatus(Box::new(p)));
+            }
+        }
         let b = out.behaviour.as_str();
         if b != st.last_behaviour {
             events.emit(&time, &me, EventKind::Behaviour(b.to_owned()));
@@ -373,6 +387,9 @@ where
     Ok(())
 }
 
+/// How often (mission time) a live console's detail is reported ([`Events::detailed`]).
+const DETAIL_EVERY: Duration = Duration::from_millis(500);
+
 /// Tasks aborted when dropped.
 #[derive(Default)]
 struct Tasks(Vec<tokio::task::JoinHandle<()>>);
@@ -393,6 +410,8 @@ struct LoopState {
     /// The target Scooter said it reached: the base is held at zero.
     reached: Option<String>,
     last_control: Option<Instant>,
+    /// When a console's detail was last reported.
+    last_detail: Option<Instant>,
     last_odo_at: Option<Instant>,
     /// A fleet stop holds the base at zero until a fleet resume or a new target.
     halted: bool,

@@ -15,7 +15,7 @@ use ima_hal::camera::{CameraMux, FrameSource};
 use ima_hal::time::SharedClock;
 use tokio::sync::mpsc;
 
-use super::events::{EventKind, Events, PeerNote};
+use super::events::{EventKind, Events, PeerNote, SanView};
 use super::link::{SesGrant, SkeeterLink};
 use super::{MissionTime, RuntimeError, StopRequest, stopped};
 use crate::mission::msg::{Broadcast, Emergency, SCOOTER_TAG, SES_SOURCE};
@@ -47,6 +47,9 @@ pub struct SkeeterDevices<B, M, F> {
     /// The frame grabber.
     pub frames: F,
 }
+
+/// How often (mission time) a live console's detail is reported ([`Events::detailed`]).
+const DETAIL_EVERY: Duration = Duration::from_secs(1);
 
 /// Run Skeeter until `stop` asks it to end, or its link's manager stops (an error).
 ///
@@ -122,6 +125,7 @@ where
     });
     brain.start(time.now());
     let mut last_behaviour = String::new();
+    let mut last_detail: Option<ima_hal::Instant> = None;
     // A fleet stop was heard (reported once; the base is held stopped anyway).
     let mut fleet_stopped = false;
     let result = loop {
@@ -161,6 +165,17 @@ where
         if brain.behaviour() != last_behaviour {
             last_behaviour = brain.behaviour().to_owned();
             events.emit(&time, &me, EventKind::Behaviour(last_behaviour.clone()));
+        }
+        // A live console's detail: SAN activations and the manager's status, once a second.
+        if events.wants_detail()
+            && last_detail.is_none_or(|t| time.now().saturating_duration_since(t) >= DETAIL_EVERY)
+        {
+            last_detail = Some(time.now());
+            let san = SanView::of(brain.network(), brain.behaviour());
+            events.emit(&time, &me, EventKind::San(san));
+            if let Some(p) = link.peer_status().await {
+                events.emit(&time, &me, EventKind::PeerStatus(Box::new(p)));
+            }
         }
         let wake = brain.poll_timeout().map(|t| {
             let wait = t.saturating_duration_since(time.now());
@@ -207,7 +222,7 @@ where
             g = link.grants.recv() => match g {
                 Some(SesGrant::Granted { to }) => {
                     events.emit(&time, &me, EventKind::Peer(PeerNote::Granted {
-                        granted: SES_SOURCE.to_owned(), manager: None, again: None, to: Some(to),
+                        granted: SES_SOURCE.to_owned(), priority: None, manager: None, again: None, to: Some(to),
                     }));
                     brain.handle_heading_request(time.now());
                 }

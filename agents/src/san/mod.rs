@@ -309,6 +309,13 @@ impl Network {
         &self.activation
     }
 
+    /// Whether each module is executable now (every precondition true), in module
+    /// declaration order.
+    #[must_use]
+    pub fn executable_flags(&self) -> Vec<bool> {
+        self.modules.iter().map(|m| self.executable(m)).collect()
+    }
+
     /// Whether a condition is true (`None` if unknown).
     #[must_use]
     pub fn condition(&self, name: &str) -> Option<bool> {

@@ -72,6 +72,11 @@ impl ObstacleAgent {
     }
 
     /// Forget the avoider's locked side and hysteresis.
+    /// Obstacle points of the last scan and the memory, DR frame (metres).
+    pub(super) fn seen_dr(&self) -> &[Vector2] {
+        &self.seen_dr
+    }
+
     pub(super) fn reset(&mut self) {
         self.avoider.reset();
     }

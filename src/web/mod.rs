@@ -1,0 +1,404 @@
+//! The commander console in the browser (`ima commander --web`, `ima demo --web`).
+//!
+//! A [`Console`] holds what the page shows ([`state::ConsoleState`]), fed from the mission
+//! runtimes' typed events ([`ima_agents::runtime::Events`], made
+//! [`detailed`](ima_agents::runtime::Events::detailed): call [`Console::apply`] for each), and
+//! passes the page's commands to the commander as [`Operator`] requests, the same requests
+//! the text commander's stdin produces, so both go through the one commander logic.
+//!
+//! [`start`] serves it on its own thread (an axum server on a current-thread runtime):
+//!
+//! * `GET /` — the page (HTML, CSS and JS embedded in the binary from `src/web/assets/`);
+//! * `GET /api/state` — the state as one JSON object (`type: state`);
+//! * `GET /api/events` — server-sent events: the state again (event `state`) whenever it
+//!   changes, at most four times a second per client;
+//! * `POST /api/command` — one [`msg::Command`] as JSON; answered with a [`msg::Reply`].
+//!
+//! Bound beyond loopback the console asks for a token: `?token=` in the URL (the page passes it
+//! on) or an `x-ima-token` header. The group key stays in the `ima` process: the browser only
+//! ever gets the state and the replies.
+
+pub mod feed;
+pub mod msg;
+pub mod state;
+
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use axum::Router;
+use axum::extract::{Request, State};
+use axum::http::{StatusCode, header};
+use axum::middleware::Next;
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use serde_json::{Value, json};
+use tokio::sync::mpsc::UnboundedSender;
+
+use ima_agents::runtime::Event;
+use ima_agents::runtime::commander::Operator;
+use msg::Reply;
+use state::ConsoleState;
+
+const INDEX_HTML: &str = include_str!("assets/index.html");
+const APP_JS: &str = include_str!("assets/app.js");
+const STYLE_CSS: &str = include_str!("assets/style.css");
+
+/// Event kinds reported for the console only ([`ima_agents::runtime::Events::detailed`]);
+/// text displays leave them out.
+pub const DETAIL_KINDS: &[&str] = &["queue", "san", "map", "peer-status"];
+
+/// Default address of `--web` without a value.
+pub const DEFAULT_ADDR: &str = "127.0.0.1:8080";
+
+/// Shortest time between two state pushes to one client.
+const PUSH_EVERY: Duration = Duration::from_millis(250);
+
+/// The console: state, change notification, the commander's request queue and the token.
+pub struct Console {
+    state: Mutex<ConsoleState>,
+    changed: tokio::sync::watch::Sender<u64>,
+    ops: Mutex<Option<UnboundedSender<Operator>>>,
+    token: Option<String>,
+    cache: Mutex<(u64, Arc<str>)>,
+}
+
+impl std::fmt::Debug for Console {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Console")
+    }
+}
+
+impl Console {
+    /// A console in `mode` (`commander`, `demo`) offering `colours`, sending requests to
+    /// `ops` (none: read-only), asking for `token` when one is given.
+    pub fn new(
+        mode: &str,
+        colours: Vec<String>,
+        ops: Option<UnboundedSender<Operator>>,
+        token: Option<String>,
+    ) -> Arc<Self> {
+        let (changed, _) = tokio::sync::watch::channel(0);
+        Arc::new(Self {
+            state: Mutex::new(ConsoleState::new(mode, colours)),
+            changed,
+            ops: Mutex::new(ops),
+            token,
+            cache: Mutex::new((u64::MAX, Arc::from(""))),
+        })
+    }
+
+    /// Change the state with `f` and tell the clients.
+    pub fn update<T>(&self, f: impl FnOnce(&mut ConsoleState) -> T) -> T {
+        let (r, v) = {
+            let mut s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+            let r = f(&mut s);
+            (r, s.version)
+        };
+        self.changed.send_replace(v);
+        r
+    }
+
+    /// Take one runtime event.
+    pub fn apply(&self, e: &Event) {
+        self.update(|s| s.apply(e));
+    }
+
+    /// Take one event in its JSON form.
+    #[cfg(test)]
+    pub fn apply_json(&self, e: &state::JsonEvent) {
+        self.update(|s| s.apply_json(e));
+    }
+
+    /// The commander no longer takes requests (the mission is over).
+    pub fn close_commands(&self) {
+        *self.ops.lock().unwrap_or_else(PoisonError::into_inner) = None;
+    }
+
+    /// The state as JSON text (serialised once per version).
+    pub fn snapshot_text(&self) -> Arc<str> {
+        let s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut c = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
+        if c.0 != s.version {
+            *c = (s.version, Arc::from(s.snapshot().to_string()));
+        }
+        Arc::clone(&c.1)
+    }
+
+    /// Carry out a command body from the page; the reply is also kept as a notice.
+    pub fn command(&self, body: &[u8]) -> Reply {
+        let reply = self.command_inner(body);
+        self.update(|s| {
+            s.notice(if reply.ok { "info" } else { "error" }, &reply.message);
+        });
+        reply
+    }
+
+    fn command_inner(&self, body: &[u8]) -> Reply {
+        let cmd = match msg::parse_command(body) {
+            Ok(c) => c,
+            Err(e) => return Reply::refused(e),
+        };
+        let (op, lost) = {
+            let s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+            let op = msg::to_operator(&cmd, &s.colours, s.targets.len(), |c| s.open_target(c));
+            (op, s.lost_robots())
+        };
+        let op = match op {
+            Ok(op) => op,
+            Err(e) => return Reply::refused(e),
+        };
+        let what = match &op {
+            Operator::Add(c) => format!("target {c} added to the queue"),
+            Operator::Cancel(c) => format!("target {c} cancelled"),
+            Operator::Move { from, to } => format!("target moved from position {from} to {to}"),
+            Operator::Stop(_) => "fleet stop sent".to_owned(),
+            Operator::Resume => "fleet resume sent".to_owned(),
+            Operator::Quit { .. } => "quit".to_owned(),
+        };
+        let sent = self
+            .ops
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .as_ref()
+            .is_some_and(|tx| tx.send(op).is_ok());
+        if !sent {
+            return Reply::refused(
+                "the mission is over: the commander takes no more commands (the page only shows it)",
+            );
+        }
+        if lost.is_empty() {
+            Reply::ok(what)
+        } else {
+            Reply::ok(format!(
+                "{what}; but {} {} lost and may not hear it",
+                lost.join(", "),
+                if lost.len() == 1 { "is" } else { "are" }
+            ))
+        }
+    }
+
+    fn authorised(&self, req: &Request) -> bool {
+        let Some(want) = &self.token else {
+            return true;
+        };
+        let from_header = req
+            .headers()
+            .get("x-ima-token")
+            .and_then(|v| v.to_str().ok());
+        let from_query = req
+            .uri()
+            .query()
+            .and_then(|q| q.split('&').find_map(|kv| kv.strip_prefix("token=")));
+        [from_header, from_query]
+            .into_iter()
+            .flatten()
+            .any(|got| same(got.as_bytes(), want.as_bytes()))
+    }
+}
+
+/// Compares without stopping at the first difference.
+fn same(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// A fresh random token (128 bits, hex).
+pub fn random_token() -> String {
+    use ima_agents::peer::net::random_u64;
+    format!("{:016x}{:016x}", random_u64(), random_u64())
+}
+
+/// Parses a `--web` address; a host of `localhost` means 127.0.0.1.
+pub fn parse_addr(s: &str) -> Result<SocketAddr> {
+    let s = s.trim();
+    let fixed = s
+        .strip_prefix("localhost:")
+        .map(|p| format!("127.0.0.1:{p}"));
+    fixed.as_deref().unwrap_or(s).parse().with_context(|| {
+        format!("--web {s:?}: not an address such as {DEFAULT_ADDR} or 0.0.0.0:8080")
+    })
+}
+
+/// The ground-truth world for the map: walls, round obstacles and the coloured objects.
+pub fn world_json(w: &ima_mock_devices::world::World) -> Value {
+    let walls: Vec<Value> = w.walls().iter().map(|x| json!([x.from, x.to])).collect();
+    let circles: Vec<Value> = w
+        .circles()
+        .iter()
+        .map(|c| json!({"center": c.center, "radius_m": c.radius_m}))
+        .collect();
+    let objects: Vec<Value> = w
+        .objects()
+        .iter()
+        .map(
+            |o| json!({"color": o.color, "rgb": o.rgb, "center": o.center, "radius_m": o.radius_m}),
+        )
+        .collect();
+    json!({"walls": walls, "circles": circles, "objects": objects})
+}
+
+/// The running server; dropped, it ends (and its thread is joined).
+#[derive(Debug)]
+pub struct WebServer {
+    /// The address it is bound to (the port chosen when 0 was asked).
+    pub addr: SocketAddr,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl WebServer {
+    fn end(&mut self) {
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for WebServer {
+    fn drop(&mut self) {
+        self.end();
+    }
+}
+
+/// The URL to open (with the token when there is one).
+pub fn url(addr: SocketAddr, token: Option<&str>) -> String {
+    match token {
+        Some(t) => format!("http://{addr}/?token={t}"),
+        None => format!("http://{addr}/"),
+    }
+}
+
+/// Serve `console` on `addr` from a thread of its own. Bound beyond loopback, the console
+/// must have a token ([`Console::new`]).
+pub fn start(console: Arc<Console>, addr: SocketAddr) -> Result<WebServer> {
+    anyhow::ensure!(
+        addr.ip().is_loopback() || console.token.is_some(),
+        "--web {addr}: beyond loopback the console needs a token"
+    );
+    let listener = std::net::TcpListener::bind(addr)
+        .with_context(|| format!("--web {addr}: binding the console's address"))?;
+    listener.set_nonblocking(true)?;
+    let addr = listener.local_addr()?;
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the console's runtime")?;
+    let thread = std::thread::Builder::new()
+        .name("ima-web".into())
+        .spawn(move || {
+            rt.block_on(async move {
+                let listener = match tokio::net::TcpListener::from_std(listener) {
+                    Ok(l) => l,
+                    Err(e) => {
+                        eprintln!("ima: web console: {e}");
+                        return;
+                    }
+                };
+                let app = router(console);
+                tokio::select! {
+                    r = axum::serve(listener, app) => {
+                        if let Err(e) = r {
+                            eprintln!("ima: web console stopped: {e}");
+                        }
+                    }
+                    _ = rx => {}
+                }
+            });
+        })
+        .context("starting the console's thread")?;
+    Ok(WebServer {
+        addr,
+        shutdown: Some(tx),
+        thread: Some(thread),
+    })
+}
+
+fn router(console: Arc<Console>) -> Router {
+    Router::new()
+        .route(
+            "/",
+            get(|| async { asset("text/html; charset=utf-8", INDEX_HTML) }),
+        )
+        .route(
+            "/app.js",
+            get(|| async { asset("text/javascript; charset=utf-8", APP_JS) }),
+        )
+        .route(
+            "/style.css",
+            get(|| async { asset("text/css; charset=utf-8", STYLE_CSS) }),
+        )
+        .route("/api/state", get(state_handler))
+        .route("/api/events", get(events_handler))
+        .route("/api/command", post(command_handler))
+        .layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&console),
+            guard,
+        ))
+        .with_state(console)
+}
+
+fn asset(kind: &'static str, body: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, kind),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+async fn guard(State(c): State<Arc<Console>>, req: Request, next: Next) -> Response {
+    if c.authorised(&req) {
+        next.run(req).await
+    } else {
+        (
+            StatusCode::UNAUTHORIZED,
+            "this console needs its token: open the URL that ima printed (…/?token=…)\n",
+        )
+            .into_response()
+    }
+}
+
+async fn state_handler(State(c): State<Arc<Console>>) -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        c.snapshot_text().to_string(),
+    )
+        .into_response()
+}
+
+async fn command_handler(State(c): State<Arc<Console>>, body: axum::body::Bytes) -> Response {
+    let reply = c.command(&body);
+    let status = if reply.ok {
+        StatusCode::OK
+    } else {
+        StatusCode::BAD_REQUEST
+    };
+    (status, axum::Json(reply)).into_response()
+}
+
+async fn events_handler(State(c): State<Arc<Console>>) -> impl IntoResponse {
+    let rx = c.changed.subscribe();
+    let stream = futures_util::stream::unfold((c, rx, true), |(c, mut rx, first)| async move {
+        if !first {
+            tokio::time::sleep(PUSH_EVERY).await;
+            // The console is gone (never while serving): end the stream.
+            rx.changed().await.ok()?;
+        }
+        rx.borrow_and_update();
+        let text = c.snapshot_text();
+        let ev = SseEvent::default().event("state").data(&*text);
+        Some((Ok::<_, std::convert::Infallible>(ev), (c, rx, false)))
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default())
+}
+
+#[cfg(test)]
+mod tests;

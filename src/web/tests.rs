@@ -1,0 +1,416 @@
+//! Tests of the console's state, messages and server (plain HTTP/1.1 over TCP).
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::time::Duration;
+
+use serde_json::{Value, json};
+
+use super::*;
+
+fn ev(t_s: f64, robot: &str, kind: &str, detail: Value) -> state::JsonEvent {
+    state::JsonEvent {
+        t_s,
+        robot: robot.into(),
+        kind: kind.into(),
+        detail,
+    }
+}
+
+fn colours() -> Vec<String> {
+    ["red", "blue", "green"].map(String::from).to_vec()
+}
+
+/// One request; the status code and the body.
+fn http(addr: SocketAddr, method: &str, path: &str, body: &str) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut out = String::new();
+    s.read_to_string(&mut out).unwrap();
+    let code = out
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let body = out
+        .split_once("\r\n\r\n")
+        .map(|x| x.1)
+        .unwrap_or("")
+        .to_owned();
+    (code, body)
+}
+
+/// Opens the event stream and reads until the first `state` event's data.
+fn first_state(addr: SocketAddr) -> (BufReader<TcpStream>, Value) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(s, "GET /api/events HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    let mut r = BufReader::new(s);
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(r.read_line(&mut line).unwrap() > 0, "stream ended");
+        if let Some(d) = line.strip_prefix("data: ") {
+            return (r, serde_json::from_str(d.trim()).unwrap());
+        }
+    }
+}
+
+#[test]
+fn events_build_the_state_the_page_shows() {
+    let mut s = ConsoleState::new("demo", colours());
+    s.truth("scooter", 1.0, 2.0, 0.0);
+    s.apply_json(&ev(
+        1.0,
+        "commander",
+        "queue",
+        json!({"targets": [{"index": 0, "target": "red", "state": "sent"}]}),
+    ));
+    s.apply_json(&ev(
+        2.0,
+        "commander",
+        "broadcast",
+        json!({"type": "status", "robot": "scooter", "behaviour": "go-to-target", "san": "",
+            "pose": {"x_m": 0.5, "y_m": 0.0, "theta_rad": 0.1}}),
+    ));
+    s.apply_json(&ev(
+        2.5,
+        "commander",
+        "robot",
+        json!({"robot": "skeeter", "state": "lost", "silent_s": 6.0}),
+    ));
+    for (t, a) in [(3.0, 0.2), (4.0, 0.7)] {
+        s.apply_json(&ev(
+            t,
+            "skeeter",
+            "san",
+            json!({"modules": [{"name": "scan", "activation": a, "executable": true}],
+                "threshold": 0.5, "conditions": [], "selected": "scan"}),
+        ));
+    }
+    s.set_performance(0, 0.8);
+    let v = s.snapshot();
+    assert_eq!(v["type"], "state");
+    assert_eq!(v["targets"][0]["target"], "red");
+    assert_eq!(v["targets"][0]["performance"], 0.8);
+    // The belief is drawn from the robot's start (its first ground-truth pose).
+    assert_eq!(v["robots"]["scooter"]["pose"], json!([1.5, 2.0, 0.1]));
+    assert_eq!(v["robots"]["scooter"]["behaviour"], "go-to-target");
+    assert_eq!(v["robots"]["skeeter"]["life"], "lost");
+    assert_eq!(
+        v["san"]["skeeter"]["history"],
+        json!([[3.0, [0.2]], [4.0, [0.7]]])
+    );
+    assert_eq!(v["log"][0]["text"], "go-to-target");
+    assert_eq!(v["t_s"], 4.0);
+    assert_eq!(s.lost_robots(), ["skeeter"]);
+    assert!(s.open_target("red") && !s.open_target("blue"));
+}
+
+#[test]
+fn logs_and_trails_stay_bounded() {
+    let mut s = ConsoleState::new("demo", colours());
+    for i in 0..5000 {
+        let x = f64::from(i) / 10.0;
+        s.apply_json(&ev(
+            x,
+            "commander",
+            "broadcast",
+            json!({"type": "status", "robot": "scooter", "behaviour": "b", "san": "",
+                "pose": {"x_m": x, "y_m": 0.0, "theta_rad": 0.0}}),
+        ));
+        s.apply_json(&ev(x, "scooter", "san", json!({"modules": []})));
+    }
+    let r = &s.robots["scooter"];
+    assert!(r.trail.len() <= state::MAX_TRAIL);
+    assert_eq!(
+        r.trail.last(),
+        Some(&[499.9, 0.0]),
+        "the newest point is kept"
+    );
+    assert_eq!(s.log.len(), state::MAX_LOG);
+    assert_eq!(s.san["scooter"].history.len(), state::MAX_SAN_HISTORY);
+}
+
+#[test]
+fn odd_event_details_are_not_a_panic() {
+    let mut s = ConsoleState::new("commander", colours());
+    for kind in [
+        "queue",
+        "target",
+        "robot",
+        "broadcast",
+        "fleet",
+        "operator",
+        "behaviour",
+        "san",
+        "map",
+        "ses-form",
+        "peer-status",
+        "peer",
+        "waiting",
+        "what",
+    ] {
+        for d in [
+            json!(null),
+            json!(1),
+            json!("x"),
+            json!({"targets": 3, "dr": ["a"], "pose": {"x_m": "NaN"}}),
+        ] {
+            s.apply_json(&ev(f64::NAN, "r", kind, d));
+        }
+    }
+    s.truth("r", f64::NAN, 0.0, 0.0);
+    let _ = s.snapshot().to_string();
+}
+
+#[test]
+fn the_server_serves_the_page_state_and_commands() {
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let c = Console::new("commander", colours(), Some(tx), None);
+    c.apply_json(&ev(
+        0.0,
+        "commander",
+        "queue",
+        json!({"targets": [{"index": 0, "target": "red", "state": "sent"},
+            {"index": 1, "target": "blue", "state": "waiting"}]}),
+    ));
+    let srv = start(Arc::clone(&c), "127.0.0.1:0".parse().unwrap()).unwrap();
+    let (code, page) = http(srv.addr, "GET", "/", "");
+    assert_eq!(code, 200);
+    assert!(page.contains("<title>ima console</title>") && page.contains("app.js"));
+    assert!(
+        !page.contains("http://") && !page.contains("https://"),
+        "no CDN"
+    );
+    assert_eq!(http(srv.addr, "GET", "/app.js", "").0, 200);
+    assert_eq!(http(srv.addr, "GET", "/style.css", "").0, 200);
+    let (code, st) = http(srv.addr, "GET", "/api/state", "");
+    assert_eq!(code, 200);
+    let st: Value = serde_json::from_str(&st).unwrap();
+    assert_eq!(st["targets"][1]["target"], "blue");
+
+    let (code, r) = http(
+        srv.addr,
+        "POST",
+        "/api/command",
+        r#"{"cmd":"cancel","target":"blue"}"#,
+    );
+    assert_eq!(code, 200, "{r}");
+    let r: Reply = serde_json::from_str(&r).unwrap();
+    assert_eq!(r, Reply::ok("target blue cancelled"));
+    assert_eq!(rx.try_recv(), Ok(Operator::Cancel("blue".into())));
+
+    let (code, r) = http(
+        srv.addr,
+        "POST",
+        "/api/command",
+        r#"{"cmd":"add","target":"mauve"}"#,
+    );
+    assert_eq!(code, 400);
+    let r: Reply = serde_json::from_str(&r).unwrap();
+    assert!(
+        !r.ok && r.message.contains("unknown colour \"mauve\""),
+        "{r:?}"
+    );
+    let (code, r) = http(srv.addr, "POST", "/api/command", "{not json");
+    assert_eq!(code, 400, "{r}");
+    assert!(
+        rx.try_recv().is_err(),
+        "nothing refused reaches the commander"
+    );
+    // Replies are shown on the page too.
+    let st: Value = serde_json::from_str(&http(srv.addr, "GET", "/api/state", "").1).unwrap();
+    assert!(st["notices"].as_array().unwrap().len() >= 3);
+
+    // A lost robot: the command goes, with a warning.
+    c.apply_json(&ev(
+        1.0,
+        "commander",
+        "robot",
+        json!({"robot": "scooter", "state": "lost", "silent_s": 7.0}),
+    ));
+    let (_, r) = http(srv.addr, "POST", "/api/command", r#"{"cmd":"stop"}"#);
+    assert!(r.contains("scooter is lost"), "{r}");
+    assert_eq!(rx.try_recv(), Ok(Operator::Stop("operator".into())));
+
+    // The mission over: read-only.
+    c.close_commands();
+    let (code, r) = http(srv.addr, "POST", "/api/command", r#"{"cmd":"resume"}"#);
+    assert_eq!(code, 400);
+    assert!(r.contains("mission is over"), "{r}");
+    drop(srv);
+}
+
+#[test]
+fn beyond_loopback_a_token_is_needed_and_checked() {
+    let c = Console::new("demo", colours(), None, None);
+    assert!(
+        start(Arc::clone(&c), "0.0.0.0:0".parse().unwrap())
+            .unwrap_err()
+            .to_string()
+            .contains("needs a token")
+    );
+    let c = Console::new("demo", colours(), None, Some("s3cret".into()));
+    let srv = start(c, "127.0.0.1:0".parse().unwrap()).unwrap();
+    let (code, body) = http(srv.addr, "GET", "/", "");
+    assert_eq!(code, 401);
+    assert!(body.contains("token"));
+    assert_eq!(http(srv.addr, "GET", "/?token=wrong", "").0, 401);
+    assert_eq!(http(srv.addr, "GET", "/api/state?token=s3cret", "").0, 200);
+    assert_eq!(http(srv.addr, "GET", "/?token=s3cret", "").0, 200);
+    assert_eq!(
+        url(srv.addr, Some("s3cret")),
+        format!("http://{}/?token=s3cret", srv.addr)
+    );
+}
+
+#[test]
+fn fifty_clients_at_once_and_clients_that_vanish_mid_stream() {
+    let c = Console::new("demo", colours(), None, None);
+    let srv = start(Arc::clone(&c), "127.0.0.1:0".parse().unwrap()).unwrap();
+    let mut streams: Vec<_> = (0..50).map(|_| first_state(srv.addr)).collect();
+    for (_, v) in &streams {
+        assert_eq!(v["type"], "state");
+    }
+    // Half of them go away mid-stream, without a word.
+    streams.truncate(25);
+    c.apply_json(&ev(
+        5.0,
+        "commander",
+        "queue",
+        json!({"targets": [{"index": 0, "target": "green", "state": "sent"}]}),
+    ));
+    // The others get the change.
+    for (r, _) in &mut streams {
+        let mut line = String::new();
+        loop {
+            line.clear();
+            assert!(r.read_line(&mut line).unwrap() > 0);
+            if let Some(d) = line.strip_prefix("data: ") {
+                let v: Value = serde_json::from_str(d.trim()).unwrap();
+                if v["targets"][0]["target"] == "green" {
+                    break;
+                }
+            }
+        }
+    }
+    // One that sends half a request and disconnects.
+    {
+        let mut s = TcpStream::connect(srv.addr).unwrap();
+        let _ = s.write_all(b"POST /api/command HTTP/1.1\r\nContent-Length: 100\r\n\r\n{\"cmd\"");
+    }
+    drop(streams);
+    let (code, _) = http(srv.addr, "GET", "/api/state", "");
+    assert_eq!(code, 200, "the server still answers");
+    drop(srv);
+}
+
+#[test]
+fn addresses_parse_or_say_why_not() {
+    assert_eq!(
+        parse_addr("localhost:9000").unwrap(),
+        "127.0.0.1:9000".parse().unwrap()
+    );
+    assert_eq!(
+        parse_addr(DEFAULT_ADDR).unwrap(),
+        "127.0.0.1:8080".parse().unwrap()
+    );
+    let e = format!("{:#}", parse_addr("nowhere").unwrap_err());
+    assert!(e.contains("not an address"), "{e}");
+}
+
+#[test]
+fn typed_runtime_events_become_the_pages_json() {
+    use ima_agents::runtime::events::{
+        Control, PeerStatus, QueueEntry, SanModuleView, SanView, SesMark,
+    };
+    use ima_agents::runtime::{Event, EventKind};
+    let e = |robot: &str, kind: EventKind| Event {
+        t_s: 2.0,
+        robot: robot.into(),
+        kind,
+    };
+    let mut s = ConsoleState::new("demo", colours());
+    s.apply(&e(
+        "commander",
+        EventKind::Queue {
+            targets: vec![QueueEntry {
+                index: 0,
+                target: "red".into(),
+                state: "sent".into(),
+                sent_s: Some(1.0),
+                accepted_s: None,
+                ended_s: None,
+                time_s: None,
+                cancelled: false,
+                given_up: false,
+                sends: 1,
+            }],
+        },
+    ));
+    s.apply(&e(
+        "skeeter",
+        EventKind::San(SanView {
+            network: "skeeter".into(),
+            modules: vec![SanModuleView {
+                name: "scan".into(),
+                activation: 0.75,
+                executable: true,
+            }],
+            threshold: 0.5,
+            conditions: Vec::new(),
+            selected: "scan".into(),
+        }),
+    ));
+    s.apply(&e(
+        "skeeter",
+        EventKind::SesPublished {
+            marks: vec![SesMark {
+                tag: "red".into(),
+                azimuth_rad: 0.5,
+                elevation_rad: 0.0,
+            }],
+        },
+    ));
+    s.apply(&e(
+        "commander",
+        EventKind::PeerStatus(Box::new(PeerStatus {
+            broadcast: Some(Default::default()),
+            manager: None,
+            clients: Vec::new(),
+            address: None,
+        })),
+    ));
+    s.apply(&e(
+        "scooter",
+        EventKind::Control(Control {
+            v_m_s: 0.2,
+            omega_rad_s: 0.0,
+            heading_rad: Some(1.0),
+            desired_rad: None,
+            dr: [1.0, 2.0],
+            behaviour: "move-to-target",
+            halted: false,
+        }),
+    ));
+    let v = s.snapshot();
+    assert_eq!(v["targets"][0]["target"], "red");
+    assert_eq!(v["targets"][0]["state"], "sent");
+    assert_eq!(
+        v["san"]["skeeter"]["latest"]["modules"][0]["activation"],
+        0.75
+    );
+    assert_eq!(v["san"]["skeeter"]["history"][0][1][0], 0.75);
+    assert_eq!(v["ses"]["form"]["records"][0]["object"], "red");
+    assert_eq!(v["ses"]["form"]["records"][0]["bearing_rad"], 0.5);
+    assert_eq!(v["peer"]["commander"]["broadcast"]["sent"], 0);
+    assert_eq!(v["robots"]["scooter"]["pose"][0], 1.0);
+    assert_eq!(v["robots"]["scooter"]["pose"][2], 1.0);
+}
