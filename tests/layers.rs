@@ -25,14 +25,6 @@ const ALLOWED: &[(&str, &str)] = &[
         "`ima camera`: one video switcher and frame source",
     ),
     ("src/cmd/compass.rs", "`ima compass`: one compass"),
-    (
-        "src/record.rs",
-        "recording: taps the drivers' serial ports (their line-speed control)",
-    ),
-    (
-        "src/cmd/replay.rs",
-        "`ima replay`: re-decodes recorded bytes with a driver's decoder",
-    ),
     ("src/cmd/scan.rs", "`ima scan`: one SICK LMS"),
     (
         "src/cmd/drive/mod.rs",
