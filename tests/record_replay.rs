@@ -204,7 +204,9 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     let port = common::mission::free_port(false);
     let _demo = common::Child(
         ima()
-            .args(["demo", "--json", "--speed", "4", "--svg"])
+            // Real-time speed: the mission outlasts a slow start on a loaded machine, so the
+            // stream still flows when the client subscribes.
+            .args(["demo", "--json", "--speed", "1", "--svg"])
             .arg(tmp("live.svg"))
             .arg("--foxglove")
             .arg(format!("127.0.0.1:{port}"))
@@ -261,6 +263,7 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     let sub = serde_json::json!({"op": "subscribe",
         "subscriptions": [{"id": 3, "channelId": laser.unwrap()}]});
     ws.send(Message::Text(sub.to_string().into())).unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
     loop {
         assert!(std::time::Instant::now() < deadline, "no scan arrived");
         if let Ok(Message::Binary(b)) = ws.read() {
