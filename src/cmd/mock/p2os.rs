@@ -1,6 +1,5 @@
 //! `ima mock p2os`: serve a Pioneer 2-AT (P2OS) of the world on a pty.
 
-use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -44,16 +43,7 @@ pub fn serve_p2os(
 /// first line.
 pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32) -> Result<()> {
     let dev = serve_p2os(world, robot, seed, faults, baud, true)?;
-    {
-        let mut out = std::io::stdout().lock();
-        writeln!(out, "{}", dev.path().display())?;
-        out.flush()?;
-    }
-    eprintln!(
-        "serving a mock P2os on {} at {baud} baud; Ctrl-C to stop",
-        dev.path().display(),
-    );
-    super::shared::wait_for_interrupt()?;
+    super::shared::announce_and_wait(dev.path(), &format!("P2os at {baud} baud"))?;
     let status = dev.status();
     let model = dev
         .stop()

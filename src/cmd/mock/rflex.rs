@@ -1,6 +1,5 @@
 //! `ima mock rflex`: serve the mock ATRV-Jr (rFLEX controller, spec §8) on a pty.
 
-use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -39,16 +38,10 @@ pub fn serve_rflex(
 /// Serve until SIGINT/SIGTERM, printing the pty path on stdout's first line.
 pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str) -> Result<()> {
     let dev = serve_rflex(world, robot, seed, faults, true)?;
-    {
-        let mut out = std::io::stdout().lock();
-        writeln!(out, "{}", dev.path().display())?;
-        out.flush()?;
-    }
-    eprintln!(
-        "serving a mock ATRV-Jr (rFLEX) for {robot:?} on {} at 115200 baud; Ctrl-C to stop",
-        dev.path().display()
-    );
-    super::shared::wait_for_interrupt()?;
+    super::shared::announce_and_wait(
+        dev.path(),
+        &format!("ATRV-Jr (rFLEX) for {robot:?} at 115200 baud"),
+    )?;
     let status = dev.status();
     let model = dev
         .stop()

@@ -1,6 +1,5 @@
 //! `ima mock sick-lms`: the mock SICK LMS on a pty (called from the `ima mock` dispatcher).
 
-use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -44,16 +43,10 @@ pub fn serve_sick_lms(
 /// Serve until SIGINT/SIGTERM, then print the unit's counters on stderr.
 pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32) -> Result<()> {
     let dev = serve_sick_lms(world, robot, seed, faults, baud, true)?;
-    {
-        let mut out = std::io::stdout().lock();
-        writeln!(out, "{}", dev.path().display())?;
-        out.flush()?;
-    }
-    eprintln!(
-        "serving a mock SICK LMS (on {robot}) on {} powering up at {baud} baud; Ctrl-C to stop",
-        dev.path().display()
-    );
-    super::shared::wait_for_interrupt()?;
+    super::shared::announce_and_wait(
+        dev.path(),
+        &format!("SICK LMS (on {robot}) powering up at {baud} baud"),
+    )?;
     let status = dev.status();
     let model = dev
         .stop()
