@@ -12,7 +12,8 @@
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::pin::Pin;
-use std::sync::{PoisonError, RwLock};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, PoisonError, RwLock};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
@@ -222,13 +223,30 @@ impl<S: ima_serial::BaudControl> ima_serial::BaudControl for Tap<S> {
 pub struct RecordedFrames<F> {
     inner: F,
     robot: String,
+    /// Where to copy the source's own frame counter after each frame (see
+    /// [`RecordedFrames::counting`]).
+    count: Option<FrameCounter<F>>,
 }
+
+/// Where a frame source's own counter is copied, and how it is read.
+type FrameCounter<F> = (Arc<AtomicU64>, fn(&F) -> u64);
 
 /// Record the frames `inner` gives, as `robot`'s camera.
 pub fn frames<F>(inner: F, robot: &str) -> RecordedFrames<F> {
     RecordedFrames {
         inner,
         robot: robot.to_owned(),
+        count: None,
+    }
+}
+
+impl<F> RecordedFrames<F> {
+    /// After each frame, copy the source's own counter (`read`, e.g. the frame client's
+    /// frames received) into `into`, so it can be read while the runtime owns the source.
+    #[must_use]
+    pub fn counting(mut self, into: Arc<AtomicU64>, read: fn(&F) -> u64) -> Self {
+        self.count = Some((into, read));
+        self
     }
 }
 
@@ -239,6 +257,9 @@ impl<F: ima_hal::ErrorType> ima_hal::ErrorType for RecordedFrames<F> {
 impl<F: ima_hal::camera::FrameSource + Send> ima_hal::camera::FrameSource for RecordedFrames<F> {
     async fn grab(&mut self) -> Result<ima_hal::Stamped<ima_hal::camera::Frame>, Self::Error> {
         let f = self.inner.grab().await?;
+        if let Some((into, read)) = &self.count {
+            into.store(read(&self.inner), Ordering::Relaxed);
+        }
         with(|r| r.log_image(&self.robot, &f.value));
         Ok(f)
     }
@@ -252,6 +273,8 @@ pub struct Recorded<T> {
     inner: T,
     robot: String,
     last: Option<ima_hal::Instant>,
+    /// Readings read (each stamp once), counted whether or not a recorder runs.
+    read: Option<Arc<AtomicU64>>,
 }
 
 impl<T> Recorded<T> {
@@ -261,13 +284,25 @@ impl<T> Recorded<T> {
             inner,
             robot: robot.to_owned(),
             last: None,
+            read: None,
         }
+    }
+
+    /// Count the readings the runtime reads (each stamp once: exactly the messages this
+    /// decorator logs) in `into`.
+    #[must_use]
+    pub fn counting(mut self, into: Arc<AtomicU64>) -> Self {
+        self.read = Some(into);
+        self
     }
 
     /// Whether `at` is a reading not yet recorded.
     fn fresh(&mut self, at: ima_hal::Instant) -> bool {
         let fresh = self.last != Some(at);
         self.last = Some(at);
+        if fresh && let Some(n) = &self.read {
+            n.fetch_add(1, Ordering::Relaxed);
+        }
         fresh
     }
 }

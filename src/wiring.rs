@@ -7,6 +7,8 @@
 //! either robot runs on either base. A test (`tests` below) checks that no other module of
 //! the robots' path names a driver crate or type.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -197,8 +199,9 @@ pub async fn open_frames(f: &FramesSource, clock: &SharedClock) -> Result<NetFra
     Ok(frames)
 }
 
-/// A robot's base, of the kind its configuration names.
-#[derive(Debug)]
+/// A robot's base, of the kind its configuration names (a handle: clones talk to the same
+/// driver task).
+#[derive(Debug, Clone)]
 pub enum Base {
     /// A P2OS controller (Pioneer 2-AT).
     P2os(P2os),
@@ -244,6 +247,8 @@ pub struct SkeeterHw {
     base: Base,
     mux: VideoMux,
     frames: NetFrames,
+    /// The frame client's frames received, copied out while the runtime owns it.
+    frames_received: Arc<AtomicU64>,
 }
 
 /// Scooter's devices (opened, not yet running).
@@ -252,6 +257,114 @@ pub struct ScooterHw {
     base: Base,
     laser: SickLms,
     compass: Option<CompassDriver>,
+    /// Scans the runtime read (each once).
+    scans_read: Arc<AtomicU64>,
+}
+
+impl SkeeterHw {
+    /// A handle on the drivers' own counters, readable after the runtime has ended.
+    pub fn counters(&self) -> DriverCounters {
+        DriverCounters {
+            base: Some(self.base.clone()),
+            laser: None,
+            scans_read: None,
+            frames_received: Some(Arc::clone(&self.frames_received)),
+        }
+    }
+}
+
+impl ScooterHw {
+    /// A handle on the drivers' own counters, readable after the runtime has ended.
+    pub fn counters(&self) -> DriverCounters {
+        DriverCounters {
+            base: Some(self.base.clone()),
+            laser: Some(self.laser.clone()),
+            scans_read: Some(Arc::clone(&self.scans_read)),
+            frames_received: None,
+        }
+    }
+}
+
+/// What a robot's drivers counted, taken from the drivers themselves (not from the
+/// recorder), so a recording's message counts can be checked against them. Fields a robot
+/// has no device for are absent.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DriverCounts {
+    /// The base's protocol (`p2os`, `rflex`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base: Option<&'static str>,
+    /// Good frames the base's framer delivered (every packet the base sent with a good
+    /// checksum: status, motion, sonar, configuration, acknowledgements).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base_frames: Option<u64>,
+    /// P2OS only: server information packets (SIPs) decoded, delivered or rejected as
+    /// implausible.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base_sips: Option<u64>,
+    /// SICK LMS: scans the driver decoded and published.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub laser_scans: Option<u64>,
+    /// SICK LMS: scan telegrams that did not decode.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub laser_decode_errors: Option<u64>,
+    /// Scans the robot's runtime read (each scan once; scans the driver published while the
+    /// runtime was busy are superseded, so this is at most `laser_scans`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub laser_scans_read: Option<u64>,
+    /// Camera frames the frame client received.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera_frames: Option<u64>,
+}
+
+/// Handles on a robot's drivers for their counters ([`SkeeterHw::counters`],
+/// [`ScooterHw::counters`]). They keep the drivers running: call [`DriverCounters::close`]
+/// once the runtime has ended.
+#[derive(Debug)]
+pub struct DriverCounters {
+    base: Option<Base>,
+    laser: Option<SickLms>,
+    scans_read: Option<Arc<AtomicU64>>,
+    frames_received: Option<Arc<AtomicU64>>,
+}
+
+impl DriverCounters {
+    /// Close the drivers (so they read no more bytes: the counts are final and match the
+    /// raw bytes recorded) and read their counters.
+    pub async fn close(self) -> DriverCounts {
+        let base = async {
+            match &self.base {
+                Some(Base::P2os(b)) => {
+                    let _ = b.close().await;
+                    let s = b.stats();
+                    Some(("p2os", s.framer.frames, Some(s.sips + s.implausible_sips)))
+                }
+                Some(Base::Rflex(b)) => {
+                    let _ = b.close().await;
+                    Some(("rflex", u64::from(b.stats().framer.frames), None))
+                }
+                None => None,
+            }
+        };
+        let laser = async {
+            match &self.laser {
+                Some(l) => {
+                    let _ = l.close().await;
+                    Some(l.stats())
+                }
+                None => None,
+            }
+        };
+        let (base, laser) = tokio::join!(base, laser);
+        DriverCounts {
+            base: base.map(|b| b.0),
+            base_frames: base.map(|b| b.1),
+            base_sips: base.and_then(|b| b.2),
+            laser_scans: laser.map(|s| s.delivered),
+            laser_decode_errors: laser.map(|s| s.decode_errors),
+            laser_scans_read: self.scans_read.map(|n| n.load(Ordering::Relaxed)),
+            camera_frames: self.frames_received.map(|n| n.load(Ordering::Relaxed)),
+        }
+    }
 }
 
 /// record: name the robot whose ports these are (raw channels `/<robot>/serial/<device>`).
@@ -287,7 +400,12 @@ pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Skee
         clock,
     )
     .await?;
-    Ok(SkeeterHw { base, mux, frames })
+    Ok(SkeeterHw {
+        base,
+        mux,
+        frames,
+        frames_received: Arc::default(),
+    })
 }
 
 /// Open Scooter's devices (all three at once).
@@ -312,6 +430,7 @@ pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Scoo
         base: base?,
         laser: laser?,
         compass: compass?,
+        scans_read: Arc::default(),
     })
 }
 
@@ -338,10 +457,11 @@ pub async fn run_scooter(
         base,
         laser,
         compass,
+        scans_read,
     } = hw;
     let halt = Some(base.halt_signal());
     // record: scans, odometry and headings as the runtime reads them.
-    let laser = crate::record::Recorded::new(laser, &cfg.robot);
+    let laser = crate::record::Recorded::new(laser, &cfg.robot).counting(scans_read);
     let compass = compass.map(|c| crate::record::Recorded::new(c, &cfg.robot));
     match base {
         Base::P2os(base) => {
@@ -382,8 +502,15 @@ pub async fn run_skeeter(
     let link = SkeeterLink::network(&net, key, events.clone(), time)
         .await
         .context("starting Skeeter's Peer Agent manager")?;
-    let SkeeterHw { base, mux, frames } = hw;
-    let frames = crate::record::frames(frames, &cfg.robot); // record: camera frames
+    let SkeeterHw {
+        base,
+        mux,
+        frames,
+        frames_received,
+    } = hw;
+    // record: camera frames (and the client's own count of them)
+    let frames =
+        crate::record::frames(frames, &cfg.robot).counting(frames_received, NetFrames::grabs);
     match base {
         Base::P2os(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };

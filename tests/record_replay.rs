@@ -54,6 +54,62 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         *counted.entry(m.topic.clone()).or_default() += 1;
     }
     assert_eq!(counted, written);
+    // … and the drivers' own counters (the pipeline is lossless: nothing was dropped).
+    let drivers = &summary["drivers"];
+    let count = |robot: &str, key: &str| {
+        drivers[robot][key]
+            .as_u64()
+            .unwrap_or_else(|| panic!("drivers.{robot}.{key}: {drivers}"))
+    };
+    assert_eq!(
+        written["/scooter/laser/scan"],
+        count("scooter", "laser_scans_read"),
+        "every scan the runtime read is recorded once"
+    );
+    assert!(count("scooter", "laser_scans_read") <= count("scooter", "laser_scans"));
+    let images = msgs
+        .iter()
+        .filter(|m| m.topic.starts_with("/skeeter/camera/"))
+        .count() as u64;
+    assert_eq!(images, count("skeeter", "camera_frames"));
+    assert!(images > 0);
+    // Re-decoding each raw channel gives exactly what its driver decoded.
+    let kinds = |port: &str| {
+        let out = ima()
+            .args(["decode", "--port", port, "--mcap"])
+            .arg(&file)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{port}");
+        let mut k: BTreeMap<String, u64> = BTreeMap::new();
+        for l in json_lines(&out.stdout) {
+            *k.entry(l["kind"].as_str().unwrap().to_owned()).or_default() += 1;
+        }
+        k
+    };
+    let laser = kinds("scooter/laser");
+    assert_eq!(laser["scan"], count("scooter", "laser_scans"), "{laser:?}");
+    let base = kinds("scooter/base");
+    assert_eq!(drivers["scooter"]["base"], "rflex");
+    assert_eq!(
+        base.iter()
+            .filter(|(k, _)| *k != "error")
+            .map(|(_, n)| n)
+            .sum::<u64>(),
+        count("scooter", "base_frames"),
+        "{base:?}"
+    );
+    assert!(base["motion"] > 0);
+    let base = kinds("skeeter/base");
+    assert_eq!(base["sip"], count("skeeter", "base_sips"), "{base:?}");
+    assert_eq!(
+        base.iter()
+            .filter(|(k, _)| *k != "error")
+            .map(|(_, n)| n)
+            .sum::<u64>(),
+        count("skeeter", "base_frames"),
+        "{base:?}"
+    );
 
     // Channels and schemas.
     let ch = rec.channels();

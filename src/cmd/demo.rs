@@ -163,7 +163,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let w = world.with(|w| crate::web::world_json(w));
         c.update(|s| s.world = Some(w));
     }
-    let outcomes = crate::safety::block_on(async {
+    let (outcomes, counts) = crate::safety::block_on(async {
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
         let events = events.detailed(console.is_some());
         // Events stamped with world time as they arrive; printed live.
@@ -279,6 +279,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         );
         let sk_dev = sk_dev.context("opening Skeeter's devices")?;
         let sc_dev = sc_dev.context("opening Scooter's devices")?;
+        // The drivers' own counters, read once the robots have stopped.
+        let counters = [sk_dev.counters(), sc_dev.counters()];
         let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);
         let (stop_sc, stop_rx_sc) = tokio::sync::watch::channel(false);
         let skeeter = tokio::spawn({
@@ -322,9 +324,12 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             }
         }
         sampler.abort();
+        // Closed before the recording ends: the counts then cover exactly the bytes recorded.
+        let [sk_counters, sc_counters] = counters;
+        let (sk_counts, sc_counts) = tokio::join!(sk_counters.close(), sc_counters.close());
         drop(events);
         let _ = tokio::time::timeout(Duration::from_secs(1), printer).await;
-        outcomes
+        outcomes.map(|o| (o, [sk_counts, sc_counts]))
     })?;
     let log = log.lock().unwrap_or_else(PoisonError::into_inner).clone();
     let paths = paths.lock().unwrap_or_else(PoisonError::into_inner).clone();
@@ -337,6 +342,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         &outcomes,
         &log,
         &paths,
+        &counts,
         started.elapsed(),
         console.as_deref(),
     );
@@ -395,18 +401,44 @@ fn print_live(world_t: f64, e: &Event) {
     eprintln!("[{world_t:7.1}s] {text}");
 }
 
+/// The drivers' counters in words.
+fn describe_counts(c: &wiring::DriverCounts) -> String {
+    let mut parts = Vec::new();
+    if let (Some(kind), Some(n)) = (c.base, c.base_frames) {
+        parts.push(format!("{n} {kind} frames from the base"));
+    }
+    if let Some(n) = c.base_sips {
+        parts.push(format!("{n} SIPs"));
+    }
+    if let Some(n) = c.laser_scans {
+        parts.push(format!("{n} scans decoded"));
+    }
+    if let Some(n) = c.laser_scans_read {
+        parts.push(format!("{n} read by the runtime"));
+    }
+    if let Some(n) = c.laser_decode_errors.filter(|n| *n > 0) {
+        parts.push(format!("{n} scans undecodable"));
+    }
+    if let Some(n) = c.camera_frames {
+        parts.push(format!("{n} camera frames"));
+    }
+    parts.join(", ")
+}
+
 /// Scooter's reach distance (target centre to Scooter's centre), as configured.
 fn reach_m() -> f64 {
     crate::config::AgentConfig::default().reach_distance_m
 }
 
-/// The summary: per target, and the SVG.
+/// The summary: per target, the drivers' counters, the recording, and the SVG.
+#[allow(clippy::too_many_arguments)] // one call site; each argument is a different result
 fn summarise(
     args: &DemoArgs,
     served: &ServedWorld,
     outcomes: &[TargetOutcome],
     log: &[(f64, Event)],
     paths: &[Trajectory; 2],
+    counts: &[wiring::DriverCounts; 2],
     wall: Duration,
     console: Option<&crate::web::Console>,
 ) -> Result<()> {
@@ -474,6 +506,7 @@ fn summarise(
         args.targets.join(", ")
     );
     let picture = served.world().with(|w| svg(w, paths, &title));
+    let recording = crate::record::last_report();
     // The results are printed first: a failed write loses only the picture.
     let written = std::fs::write(&args.svg, picture)
         .with_context(|| format!("--svg {}: writing the picture", args.svg.display()));
@@ -488,8 +521,10 @@ fn summarise(
         "wall_time_s": wall.as_secs_f64(),
         "scooter_distance_m": scooter.length(),
         "svg": args.svg,
+        // What the drivers counted (not the recorder): a recording's counts check against it.
+        "drivers": {"skeeter": counts[0], "scooter": counts[1]},
         // record: what the recording wrote (null without --record/--foxglove).
-        "recording": crate::record::last_report().map(|r| json!({
+        "recording": recording.as_ref().map(|r| json!({
             "path": r.path, "written": r.written, "dropped": r.dropped,
             "bytes": r.bytes, "error": r.error,
         })),
@@ -539,6 +574,14 @@ fn summarise(
                 String::new()
             }
         )?;
+        for (robot, c) in ["skeeter", "scooter"].iter().zip(counts) {
+            outln!("{robot:<8} drivers: {}", describe_counts(c))?;
+        }
+        if let Some(r) = &recording {
+            outln!("recording: {}", r.summary())?;
+            let topics: Vec<String> = r.written.iter().map(|(t, n)| format!("{t} {n}")).collect();
+            outln!("  per topic: {}", topics.join(", "))?;
+        }
     }
     written?;
     anyhow::ensure!(failed == 0, "{failed} target(s) failed");
