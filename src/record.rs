@@ -21,6 +21,7 @@ use anyhow::Result;
 use clap::Args;
 use ima_record::raw::{PortInfo, RawPort};
 use ima_record::{Options, Recorder, Report};
+use serde_json::{Value, json};
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 /// The default address of the live view.
@@ -419,12 +420,189 @@ impl<T: ima_hal::base::Odometer + Send> ima_hal::base::Odometer for Recorded<T> 
     }
 }
 
-/// Record a runtime event: every event as a line on `/events`, broadcasts said on the
-/// broadcast log, Skeeter's published SES as the dome, Scooter's belief (dead-reckoned
-/// position and heading, from its control reports) as a pose in `map`.
+/// Whether a recorder runs (the runtimes then report their detail: see [`is_detail`]).
+pub fn active() -> bool {
+    current()
+        .read()
+        .unwrap_or_else(PoisonError::into_inner)
+        .is_some()
+}
+
+/// Whether `kind` is the periodic detail a live console or a recording asks for
+/// ([`ima_agents::runtime::Events::detailed`]): the commander's series, a SAN's state,
+/// Scooter's map, Peer Agent status. Commands that turn the detail on only for the recording
+/// leave these events out of their own output.
+pub fn is_detail(kind: &ima_agents::runtime::EventKind) -> bool {
+    use ima_agents::runtime::EventKind;
+    matches!(
+        kind,
+        EventKind::Queue { .. } | EventKind::San(_) | EventKind::Map(_) | EventKind::PeerStatus(_)
+    )
+}
+
+/// A module or condition name as a JSON key usable in a Foxglove message path
+/// (`/san/scooter.activation.move_to_target`): `-` becomes `_`.
+fn path_key(name: &str) -> String {
+    name.replace('-', "_")
+}
+
+/// The JSON Schema of `/san/<robot>` for a network with `modules`.
+fn san_schema(modules: &[String]) -> Value {
+    let per_module = |t: &str| -> serde_json::Map<String, Value> {
+        modules
+            .iter()
+            .map(|m| (path_key(m), json!({"type": t})))
+            .collect()
+    };
+    json!({
+        "title": "ima.SanState",
+        "description": "A robot's spreading activation network: each module's activation and \
+            executable flag (also by module name, '-' as '_'), the threshold, each \
+            condition's truth, and the selected behaviour.",
+        "type": "object",
+        "properties": {
+            "t_s": {"type": "number", "description": "mission seconds"},
+            "robot": {"type": "string"},
+            "network": {"type": "string"},
+            "selected": {"type": "string", "description": "the selected behaviour"},
+            "threshold": {"type": "number"},
+            "activation": {"type": "object", "properties": per_module("number")},
+            "executable": {"type": "object", "properties": per_module("boolean")},
+            "modules": {"type": "array", "items": {"type": "object", "properties": {
+                "name": {"type": "string"}, "activation": {"type": "number"},
+                "executable": {"type": "boolean"}}}},
+            "conditions": {"type": "array", "items": {"type": "object", "properties": {
+                "name": {"type": "string"}, "value": {"type": "boolean"}}}},
+        },
+    })
+}
+
+/// The JSON Schema of `/peer/<robot>/status`.
+fn peer_schema() -> Value {
+    let int = json!({"type": "integer"});
+    let rejects = json!({"type": "object", "properties": {
+        "truncated": int, "bad_magic": int, "bad_version": int, "oversize": int,
+        "bad_mac": int, "replay": int, "malformed": int}});
+    json!({
+        "title": "ima.PeerStatus",
+        "description": "Peer Agent status: the broadcast channel's counters and, for a \
+            manager, its sources, its clients with their requested and granted sources, its \
+            sessions and counters.",
+        "type": "object",
+        "properties": {
+            "t_s": {"type": "number", "description": "mission seconds"},
+            "robot": {"type": "string"},
+            "address": {"type": "string", "description": "where the manager listens"},
+            "broadcast": {"type": "object", "properties": {
+                "accepted": int, "duplicate": int, "stale": int, "sent": int,
+                "send_errors": int, "rejected": rejects}},
+            "sources": {"type": "array", "items": {"type": "object", "properties": {
+                "name": {"type": "string"}, "kind": {"type": "string"}, "rate_mhz": int}}},
+            "clients": {"type": "array", "items": {"type": "object", "properties": {
+                "client": int, "robot": {"type": "string"},
+                "requesting": {"type": "array", "items": {"type": "string"}},
+                "granted": {"type": "array", "items": {"type": "string"}}}}},
+            "sessions": int, "data_sessions": int, "task_priority": int, "lost": int,
+            "closed_bad": int, "slow_closed": int, "lagged_samples": int,
+            "data_bad_tickets": int, "rejected": rejects, "data_rejected": rejects,
+        },
+    })
+}
+
+/// The JSON Schema of `/commander/queue`.
+fn queue_schema() -> Value {
+    let num = json!({"type": "number"});
+    json!({
+        "title": "ima.TargetQueue",
+        "description": "The commander's series of targets, after each change.",
+        "type": "object",
+        "properties": {
+            "t_s": num, "robot": {"type": "string"},
+            "targets": {"type": "array", "items": {"type": "object", "properties": {
+                "index": {"type": "integer"}, "target": {"type": "string"},
+                "state": {"type": "string"}, "sent_s": num, "accepted_s": num, "ended_s": num,
+                "time_s": num, "cancelled": {"type": "boolean"},
+                "given_up": {"type": "boolean"}, "sends": {"type": "integer"}}}},
+        },
+    })
+}
+
+/// The JSON Schema of `/<robot>/map`.
+fn map_schema() -> Value {
+    let num = json!({"type": "number"});
+    json!({
+        "title": "ima.ScooterMap",
+        "description": "Scooter's belief: dead-reckoned position, heading, desired heading, \
+            plan, remembered laser obstacles (DR frame, metres) and target.",
+        "type": "object",
+        "properties": {
+            "t_s": num, "robot": {"type": "string"},
+            "dr": {"type": "array", "items": num},
+            "heading_rad": num, "desired_rad": num,
+            "plan": {"type": "object", "properties": {
+                "heading_rad": num, "point": {"type": "array", "items": num}}},
+            "obstacles": {"type": "array", "items": {"type": "array", "items": num}},
+            "target": {"type": "string"},
+        },
+    })
+}
+
+/// A SAN's state as the JSON of [`san_schema`].
+fn san_json(e: &ima_agents::runtime::Event, v: &ima_agents::runtime::events::SanView) -> Value {
+    let by_module = |f: &dyn Fn(&ima_agents::runtime::events::SanModuleView) -> Value| {
+        let m: serde_json::Map<String, Value> = v
+            .modules
+            .iter()
+            .map(|m| (path_key(&m.name), f(m)))
+            .collect();
+        Value::Object(m)
+    };
+    let mut out = serde_json::to_value(v).unwrap_or_else(|_| json!({}));
+    out["t_s"] = json!(e.t_s);
+    out["robot"] = json!(e.robot);
+    out["activation"] = by_module(&|m| json!(m.activation));
+    out["executable"] = by_module(&|m| json!(m.executable));
+    out
+}
+
+/// Record a runtime event: every event but the periodic detail as a line on `/events`,
+/// broadcasts said on the broadcast log, Skeeter's published SES as the dome, Scooter's
+/// belief (dead-reckoned position and heading, from its control reports) as a pose in `map`,
+/// and the detail ([`is_detail`]) as JSON state topics: `/san/<robot>`,
+/// `/peer/<robot>/status`, `/commander/queue`, `/<robot>/map`.
 pub fn log_event(e: &ima_agents::runtime::Event) {
     use ima_agents::runtime::EventKind;
     with(|r| {
+        let stamped = |mut v: Value| {
+            if !v.is_object() {
+                v = json!({});
+            }
+            v["t_s"] = json!(e.t_s);
+            v["robot"] = json!(e.robot);
+            v
+        };
+        match &e.kind {
+            EventKind::San(v) => {
+                let names: Vec<String> = v.modules.iter().map(|m| m.name.clone()).collect();
+                let topic = format!("/san/{}", e.robot);
+                return r.log_json(&topic, "ima.SanState", &san_schema(&names), &san_json(e, v));
+            }
+            EventKind::PeerStatus(p) => {
+                let v = stamped(crate::web::feed::peer_status_json(p));
+                let topic = format!("/peer/{}/status", e.robot);
+                return r.log_json(&topic, "ima.PeerStatus", &peer_schema(), &v);
+            }
+            EventKind::Queue { targets } => {
+                let v = stamped(json!({ "targets": targets }));
+                return r.log_json("/commander/queue", "ima.TargetQueue", &queue_schema(), &v);
+            }
+            EventKind::Map(m) => {
+                let v = stamped(serde_json::to_value(m).unwrap_or_default());
+                let topic = format!("/{}/map", e.robot);
+                return r.log_json(&topic, "ima.ScooterMap", &map_schema(), &v);
+            }
+            _ => {}
+        }
         let detail = serde_json::to_value(&e.kind).unwrap_or_default();
         r.log_text(
             "/events",

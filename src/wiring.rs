@@ -434,6 +434,49 @@ pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Scoo
     })
 }
 
+/// A task aborted when dropped (on every way out of a runtime's run).
+struct AbortOnDrop(Option<tokio::task::JoinHandle<()>>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        if let Some(t) = &self.0 {
+            t.abort();
+        }
+    }
+}
+
+/// record: a P2OS base's sonar as `/<robot>/sonar` (a point cloud in `<robot>/base_link`)
+/// after every SIP that brought new readings — while a recorder runs and until the returned
+/// guard drops (the task holds a handle on the base, which would keep its driver running).
+fn record_sonar(base: &Base, robot: &str) -> AbortOnDrop {
+    let Base::P2os(b) = base else {
+        return AbortOnDrop(None);
+    };
+    if !crate::record::active() {
+        return AbortOnDrop(None);
+    }
+    let mut b = b.clone();
+    let robot = robot.to_owned();
+    AbortOnDrop(Some(tokio::spawn(async move {
+        use ima_hal::sonar::SonarArray;
+        let transducers = b.transducers().to_vec();
+        let mut last = ima_hal::Instant::ZERO;
+        loop {
+            match b.next_state(last, Duration::from_secs(2)).await {
+                Ok(st) => {
+                    last = st.odometry.at;
+                    if st.new_sonar {
+                        crate::record::with(|r| {
+                            r.log_sonar(&robot, &transducers, &st.sonar.value);
+                        });
+                    }
+                }
+                Err(_) => tokio::time::sleep(Duration::from_millis(200)).await,
+            }
+        }
+    })))
+}
+
 /// Run Scooter's runtime ([`scooter::run`]) on its devices, linked to the other robots over
 /// the Peer Agent network of `cfg`, until `stop`.
 pub async fn run_scooter(
@@ -460,6 +503,7 @@ pub async fn run_scooter(
         scans_read,
     } = hw;
     let halt = Some(base.halt_signal());
+    let _sonar = record_sonar(&base, &cfg.robot); // record: sonar
     // record: scans, odometry and headings as the runtime reads them.
     let laser = crate::record::Recorded::new(laser, &cfg.robot).counting(scans_read);
     let compass = compass.map(|c| crate::record::Recorded::new(c, &cfg.robot));
@@ -508,6 +552,7 @@ pub async fn run_skeeter(
         frames,
         frames_received,
     } = hw;
+    let _sonar = record_sonar(&base, &cfg.robot); // record: sonar
     // record: camera frames (and the client's own count of them)
     let frames =
         crate::record::frames(frames, &cfg.robot).counting(frames_received, NetFrames::grabs);

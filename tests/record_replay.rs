@@ -111,6 +111,59 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         "{base:?}"
     );
 
+    // The SAN's and the Peer Agents' state as JSON topics with the expected fields.
+    let json_of = |topic: &str| -> Vec<serde_json::Value> {
+        msgs.iter()
+            .filter(|m| m.topic == topic)
+            .map(|m| serde_json::from_slice(&m.data).unwrap())
+            .collect()
+    };
+    for robot in ["skeeter", "scooter"] {
+        let san = json_of(&format!("/san/{robot}"));
+        assert!(!san.is_empty(), "/san/{robot}");
+        for v in &san {
+            assert_eq!(v["robot"], robot);
+            let modules = v["modules"].as_array().unwrap();
+            assert!(!modules.is_empty(), "{v}");
+            for m in modules {
+                let name = m["name"].as_str().unwrap();
+                let key = name.replace('-', "_");
+                assert_eq!(v["activation"][&key], m["activation"], "{v}");
+                assert_eq!(v["executable"][&key], m["executable"], "{v}");
+                assert!(m["executable"].is_boolean(), "{v}");
+            }
+            assert!(
+                v["selected"].is_string() && v["threshold"].is_number(),
+                "{v}"
+            );
+        }
+        let peer = json_of(&format!("/peer/{robot}/status"));
+        assert!(!peer.is_empty(), "/peer/{robot}/status");
+        assert!(
+            peer.iter()
+                .all(|v| v["robot"] == robot && v["broadcast"]["sent"].is_u64())
+        );
+    }
+    // Skeeter's manager lists its `ses` source and, once granted, Scooter's grant of it.
+    let skeeter = json_of("/peer/skeeter/status");
+    assert!(skeeter.iter().all(|v| {
+        v["sources"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|s| s["name"] == "ses")
+    }));
+    assert!(
+        skeeter.iter().any(|v| v["clients"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|c| c["robot"] == "scooter" && c["granted"][0] == "ses")),
+        "{:?}",
+        skeeter.last()
+    );
+    assert!(!json_of("/commander/queue").is_empty());
+
     // Channels and schemas.
     let ch = rec.channels();
     let schema = |t: &str| ch.get(t).map(|c| c.0.as_str()).unwrap_or("(none)");
@@ -119,6 +172,8 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     assert_eq!(schema("/skeeter/ses"), "foxglove.SceneUpdate");
     assert_eq!(schema("/broadcasts"), "foxglove.Log");
     assert_eq!(schema("/scooter/truth"), "foxglove.PoseInFrame");
+    assert_eq!(schema("/san/scooter"), "ima.SanState");
+    assert_eq!(schema("/peer/skeeter/status"), "ima.PeerStatus");
     assert!(
         ch.values().any(|c| c.0 == "foxglove.RawImage"),
         "camera frames: {ch:?}"
@@ -432,4 +487,74 @@ fn an_interrupted_recording_is_closed_properly() {
     let (msgs, cut) = rec.messages();
     assert_eq!(cut.0, None, "the file ends with its summary");
     assert!(msgs.iter().any(|m| m.topic == "/scooter/laser/scan"));
+}
+
+/// Scooter on a P2OS base: both robots' sonar is recorded as point clouds in their
+/// `base_link`, at ranges the transducers can measure, and Scooter's SIPs match its driver.
+#[test]
+fn a_p2os_demo_records_sonar_point_clouds() {
+    let file = tmp("p2os-demo.mcap");
+    let out = ima()
+        .args([
+            "demo",
+            "--json",
+            "--speed",
+            "10",
+            "--targets",
+            "red",
+            "--scooter-base",
+            "p2os",
+            "--svg",
+        ])
+        .arg(tmp("p2os-demo.svg"))
+        .arg("--record")
+        .arg(&file)
+        .output()
+        .unwrap();
+    let lines = json_lines(&out.stdout);
+    let summary = lines
+        .iter()
+        .find(|l| l["kind"] == "summary")
+        .unwrap_or_else(|| panic!("no summary: {}", String::from_utf8_lossy(&out.stderr)));
+    assert_eq!(summary["drivers"]["scooter"]["base"], "p2os", "{summary}");
+    let rec = Recording::open(&file).unwrap();
+    let ch = rec.channels();
+    let (msgs, _) = rec.messages();
+    for robot in ["scooter", "skeeter"] {
+        let topic = format!("/{robot}/sonar");
+        assert_eq!(ch[&topic].0, "foxglove.PointCloud");
+        let mut points = 0;
+        for m in msgs.iter().filter(|m| m.topic == topic) {
+            let c = ima_record::messages::PointCloud::decode(&m.data[..]).unwrap();
+            assert_eq!(c.frame_id, format!("{robot}/base_link"));
+            assert_eq!(c.point_stride, 16);
+            let f32_at = |p: &[u8], i: usize| f32::from_le_bytes(p[i..i + 4].try_into().unwrap());
+            for p in c.data.chunks(16) {
+                let (x, y, range) = (f32_at(p, 0), f32_at(p, 4), f32_at(p, 12));
+                // P2OS sonar: 0.1–5 m along the beam; the transducers sit within 0.3 m of
+                // the robot's centre.
+                assert!((0.1..5.0).contains(&range), "{range}");
+                let d = x.hypot(y);
+                assert!(
+                    d > range - 0.35 && d < range + 0.35,
+                    "({x}, {y}) at {range} m"
+                );
+                points += 1;
+            }
+        }
+        assert!(points > 0, "{topic}: no echoes");
+    }
+    let out = ima()
+        .args(["decode", "--port", "scooter/base", "--mcap"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let sips = json_lines(&out.stdout)
+        .iter()
+        .filter(|l| l["kind"] == "sip")
+        .count() as u64;
+    assert_eq!(
+        Some(sips),
+        summary["drivers"]["scooter"]["base_sips"].as_u64()
+    );
 }

@@ -3,11 +3,12 @@
 //! Frames: `map` → `<robot>/odom` → `<robot>/base_link` → `<robot>/laser` (one tree for
 //! every robot of a session). Topics: `/<robot>/laser/scan`, `/<robot>/odom` (pose in the
 //! odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>`, `/<robot>/ses`,
-//! `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
+//! `/<robot>/sonar`, `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
 
 use foxglove::messages::{
-    Color, FrameTransform, LaserScan, Log, Pose, PoseInFrame, Quaternion, RawImage, SceneEntity,
-    SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp, Vector3, log,
+    Color, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose, PoseInFrame,
+    Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
+    Vector3, log, packed_element_field::NumericType,
 };
 use ima_hal::camera::Frame;
 
@@ -116,6 +117,52 @@ pub fn laser_scan(frame_id: &str, at_ns: u64, s: &ima_hal::laser::LaserScan) -> 
         end_angle: s.angle_rad(n.saturating_sub(1)),
         ranges: s.ranges_m().iter().map(|&r| f64::from(r)).collect(),
         intensities: Vec::new(),
+    }
+}
+
+/// Bytes per point of [`sonar_cloud`]: `x`, `y`, `z`, `range` as little-endian `f32`.
+pub const SONAR_POINT_STRIDE: u32 = 16;
+
+/// A sonar scan as a point cloud in `frame_id` (the robot's `base_link`): one point per
+/// transducer that heard an echo (a reading below the transducer's maximum range, which
+/// means "no echo"), at its range along the transducer's beam axis. Fields `x`, `y`, `z`
+/// (metres, z = 0) and `range` (metres), [`SONAR_POINT_STRIDE`] bytes per point.
+pub fn sonar_cloud(
+    frame_id: &str,
+    at_ns: u64,
+    transducers: &[ima_hal::sonar::SonarTransducer],
+    scan: &ima_hal::sonar::SonarScan,
+) -> PointCloud {
+    let mut data = Vec::with_capacity(scan.readings.len() * SONAR_POINT_STRIDE as usize);
+    for r in &scan.readings {
+        let Some(t) = transducers.get(usize::from(r.index)) else {
+            continue;
+        };
+        if !r.range_m.is_finite() || r.range_m >= t.max_range_m {
+            continue;
+        }
+        let p = t.pose * ima_hal::Point2::new(r.range_m, 0.0);
+        for v in [p.x, p.y, 0.0, r.range_m] {
+            data.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+    }
+    let field = |name: &str, offset: u32| PackedElementField {
+        name: name.to_owned(),
+        offset,
+        r#type: NumericType::Float32 as i32,
+    };
+    PointCloud {
+        timestamp: Some(stamp(at_ns)),
+        frame_id: frame_id.to_owned(),
+        pose: Some(pose3(Pose2::default())),
+        point_stride: SONAR_POINT_STRIDE,
+        fields: vec![
+            field("x", 0),
+            field("y", 4),
+            field("z", 8),
+            field("range", 12),
+        ],
+        data: data.into(),
     }
 }
 
@@ -301,6 +348,21 @@ impl Recorder {
                 y_m: 0.0,
                 theta_rad: heading_rad,
             },
+        );
+    }
+
+    /// A sonar scan of `robot` on `/<robot>/sonar` (see [`sonar_cloud`]; frame
+    /// `<robot>/base_link`).
+    pub fn log_sonar(
+        &self,
+        robot: &str,
+        transducers: &[ima_hal::sonar::SonarTransducer],
+        scan: &ima_hal::sonar::SonarScan,
+    ) {
+        let at = self.now_ns();
+        self.log(
+            &format!("/{robot}/sonar"),
+            sonar_cloud(&format!("{robot}/base_link"), at, transducers, scan),
         );
     }
 

@@ -13,7 +13,8 @@
 //! * decoded readings through the sink API: [`Recorder::log_scan`],
 //!   [`Recorder::log_odometry`], [`Recorder::log_transform`], [`Recorder::log_pose`],
 //!   [`Recorder::log_compass`], [`Recorder::log_image`], [`Recorder::log_ses`],
-//!   [`Recorder::log_text`].
+//!   [`Recorder::log_text`], [`Recorder::log_sonar`];
+//! * structured state as JSON with a JSON Schema ([`Recorder::log_json`]).
 //!
 //! Stamps: every message's MCAP log time is the recorder's clock (Unix time at the start plus
 //! monotonic time since), taken when the message is logged.
@@ -167,13 +168,15 @@ enum Body {
     Typed(Box<dyn Payload>),
     Raw(Vec<u8>),
     DeclareRaw(RawDesc),
+    /// A JSON message and its channel's schema.
+    Json(Schema, Vec<u8>),
 }
 
 impl Body {
     fn size(&self) -> usize {
         match self {
             Self::Typed(p) => p.size(),
-            Self::Raw(b) => b.len(),
+            Self::Raw(b) | Self::Json(_, b) => b.len(),
             Self::DeclareRaw(_) => 0,
         }
     }
@@ -334,6 +337,26 @@ impl Recorder {
     /// Log any `foxglove` well-known message on `topic`.
     pub fn log<T: Encode + Send + 'static>(&self, topic: &str, msg: T) {
         self.send(Arc::from(topic), Body::Typed(Box::new(msg)));
+    }
+
+    /// Log a JSON object on `topic`: a channel with message encoding `json` and the JSON
+    /// Schema `schema` named `schema_name` (encoding `jsonschema`), which Foxglove's Raw
+    /// Messages, Plot and State Transitions panels read. The first message fixes the
+    /// channel's schema.
+    pub fn log_json(
+        &self,
+        topic: &str,
+        schema_name: &str,
+        schema: &serde_json::Value,
+        value: &serde_json::Value,
+    ) {
+        let data = serde_json::to_vec(value).unwrap_or_default();
+        let schema = Schema::new(
+            schema_name,
+            "jsonschema",
+            serde_json::to_vec(schema).unwrap_or_default(),
+        );
+        self.send(Arc::from(topic), Body::Json(schema, data));
     }
 
     /// Declare a raw serial port and get the handle that records its bytes.
@@ -499,6 +522,7 @@ impl Worker {
             Body::Raw(_) => builder
                 .message_encoding(raw::ENCODING)
                 .metadata(self.raw_meta.get(topic).cloned().unwrap_or_default()),
+            Body::Json(schema, _) => builder.schema(schema.clone()).message_encoding("json"),
             Body::DeclareRaw(_) => return None,
         };
         match builder.build_raw() {
@@ -530,7 +554,7 @@ impl Worker {
                 p.encode_into(&mut self.buf);
                 chan.log_with_meta(&self.buf, meta);
             }
-            Body::Raw(bytes) => chan.log_with_meta(bytes, meta),
+            Body::Raw(bytes) | Body::Json(_, bytes) => chan.log_with_meta(bytes, meta),
             Body::DeclareRaw(_) => return,
         }
         *self.written.entry(topic.to_string()).or_insert(0) += 1;

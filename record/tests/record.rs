@@ -249,3 +249,83 @@ fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_fo
     );
     assert_eq!(f.data.len(), 320 * 240 * 3);
 }
+
+/// Structured state (the SAN, the Peer Agents) goes on JSON channels with a JSON Schema.
+#[test]
+fn json_messages_get_a_json_channel_with_their_schema() {
+    let path = tmp("json.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        name: "test".into(),
+        ..Options::default()
+    })
+    .unwrap();
+    let schema = serde_json::json!({"type": "object", "properties": {"n": {"type": "integer"}}});
+    for n in 0..3 {
+        rec.log_json(
+            "/state",
+            "test.State",
+            &schema,
+            &serde_json::json!({"n": n}),
+        );
+    }
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.written["/state"], 3);
+    let bytes = std::fs::read(&path).unwrap();
+    let mut seen = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        assert_eq!(m.channel.message_encoding, "json");
+        let s = m.channel.schema.as_ref().unwrap();
+        assert_eq!(
+            (s.name.as_str(), s.encoding.as_str()),
+            ("test.State", "jsonschema")
+        );
+        let sv: serde_json::Value = serde_json::from_slice(&s.data).unwrap();
+        assert_eq!(sv, schema);
+        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        seen.push(v["n"].as_u64().unwrap());
+    }
+    assert_eq!(seen, [0, 1, 2]);
+}
+
+/// A sonar scan becomes a point cloud in `base_link`: one point per echo, on its beam.
+#[test]
+fn a_sonar_scan_is_a_point_cloud_of_its_echoes() {
+    use ima_hal::sonar::{SonarReading, SonarScan, SonarTransducer};
+    let t = |x: f64, angle: f64| SonarTransducer {
+        pose: ima_hal::Isometry2::new(ima_hal::nalgebra::Vector2::new(x, 0.0), angle),
+        min_range_m: 0.1,
+        max_range_m: 5.0,
+        beam_width_rad: 0.26,
+    };
+    let transducers = [
+        t(0.1, 0.0),
+        t(0.0, std::f64::consts::FRAC_PI_2),
+        t(0.0, 0.0),
+    ];
+    let mut scan = SonarScan::default();
+    for (index, range_m) in [(0, 1.5), (1, 2.0), (2, 5.0), (9, 1.0)] {
+        scan.upsert(SonarReading {
+            index,
+            range_m,
+            at: ima_hal::Instant::ZERO,
+        });
+    }
+    let c = ima_record::convert::sonar_cloud("scooter/base_link", 1, &transducers, &scan);
+    assert_eq!(c.frame_id, "scooter/base_link");
+    let names: Vec<_> = c.fields.iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["x", "y", "z", "range"]);
+    // Transducer 2 heard no echo (max range), 9 does not exist: two points.
+    let pts: Vec<[f32; 4]> = c
+        .data
+        .chunks(c.point_stride as usize)
+        .map(|p| {
+            std::array::from_fn(|i| f32::from_le_bytes(p[i * 4..i * 4 + 4].try_into().unwrap()))
+        })
+        .collect();
+    assert_eq!(pts.len(), 2);
+    let near = |a: [f32; 4], b: [f32; 4]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5);
+    assert!(near(pts[0], [1.6, 0.0, 0.0, 1.5]), "{pts:?}");
+    assert!(near(pts[1], [0.0, 2.0, 0.0, 2.0]), "{pts:?}");
+}

@@ -165,7 +165,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     }
     let (outcomes, counts) = crate::safety::block_on(async {
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
-        let events = events.detailed(console.is_some());
+        // record: the runtimes' detail (SAN, Peer Agents, map, queue) for the state topics.
+        let events = events.detailed(console.is_some() || crate::record::active());
         // Events stamped with world time as they arrive; printed live.
         let printer = {
             let log = Arc::clone(&log);
@@ -176,6 +177,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                     crate::record::log_event(&e); // record: events, broadcasts, SES, belief
                     if let Some(c) = &console {
                         c.apply(&e);
+                    } else if crate::record::is_detail(&e.kind) {
+                        // Asked for by the recording only: the output stays as without it.
+                        continue;
                     }
                     let (wt, truth) = world.with(|w| {
                         let p = w

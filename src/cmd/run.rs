@@ -62,6 +62,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
     crate::safety::block_on(async {
         let key = net::group_key(&cfg, None)?;
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
+        // record: the runtime's detail (SAN, Peer Agents, map) for the state topics.
+        let events = events.detailed(crate::record::active());
         let json = args.json;
         let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
         let stop_tx = std::sync::Arc::new(stop_tx);
@@ -71,6 +73,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
             tokio::spawn(async move {
                 while let Some(e) = rx.recv().await {
                     crate::record::log_event(&e); // record: events, broadcasts, SES, belief
+                    if crate::record::is_detail(&e.kind) {
+                        continue; // asked for by the recording only
+                    }
                     let written = if let EventKind::AuthFailure(text) = &e.kind {
                         // Frames under another group key: a warning, on stderr in either mode.
                         eprintln!("ima: warning: {text}");

@@ -148,7 +148,11 @@ async fn drive(args: &DriveArgs) -> Result<()> {
             crate::record::with(|r| {
                 let p = &st.odometry.value.pose;
                 r.log_odometry("robot", ima_record::convert::Pose2::from_isometry(p));
-            }); // record: odometry
+                if st.new_sonar {
+                    use ima_hal::sonar::SonarArray as _;
+                    r.log_sonar("robot", robot.transducers(), &st.sonar.value);
+                }
+            }); // record: odometry, sonar
             print_state(&st, start, args.json)?;
         }
         anyhow::Ok(())
