@@ -2,15 +2,19 @@
 """Summarise an `ima ... --record FILE.mcap` recording with the Python `mcap` package.
 
 Usage:  python3 -m pip install mcap   # once
-        scripts/mcap-summary.py FILE.mcap [--check]
+        scripts/mcap-summary.py FILE.mcap [--check [--summary DEMO.jsonl]]
 
 Prints, per topic: the schema, the message count and the bytes; for raw serial channels the
 port, baud and protocol from the channel metadata. With --check, exits 1 unless the file has
 what a recorded `ima demo` must have (a raw channel per serial port of both robots, laser
-scans, transforms, the SES scene, broadcasts as logs, camera images), and the summary's
-message counts agree with the messages actually read.
+scans, transforms, the SES scene, broadcasts as logs, camera images, sonar point clouds, the
+SAN's and the Peer Agents' state as JSON that parses and has its fields), and the summary's
+message counts agree with the messages actually read. With --summary, the file holding the
+`ima demo --json` output too: the recorded scans and camera frames must then match the
+counts the demo's drivers reported (`drivers` in its summary line).
 """
 
+import json
 import sys
 from collections import Counter
 
@@ -22,13 +26,20 @@ def main(argv):
         print(__doc__.strip())
         return 2
     path, check = argv[1], "--check" in argv[2:]
+    demo = argv[argv.index("--summary") + 1] if "--summary" in argv[2:-1] else None
     counts, sizes, chans = Counter(), Counter(), {}
+    json_problems, last_json = [], {}
     with open(path, "rb") as f:
         reader = make_reader(f)
         for schema, channel, message in reader.iter_messages():
             counts[channel.topic] += 1
             sizes[channel.topic] += len(message.data)
             chans[channel.topic] = (schema.name if schema else "", dict(channel.metadata))
+            if channel.message_encoding == "json":
+                try:
+                    last_json[channel.topic] = json.loads(message.data)
+                except ValueError as e:
+                    json_problems.append(f"{channel.topic}: not JSON ({e})")
         summary = reader.get_summary()
     for topic in sorted(counts):
         schema, meta = chans[topic]
@@ -50,9 +61,32 @@ def main(argv):
             problems.append(f"no raw channel {want}")
     schemas = {s for s, _ in chans.values()}
     for want in ("foxglove.LaserScan", "foxglove.FrameTransform", "foxglove.SceneUpdate",
-                 "foxglove.Log", "foxglove.RawImage"):
+                 "foxglove.Log", "foxglove.RawImage", "foxglove.PointCloud"):
         if want not in schemas:
             problems.append(f"no {want} channel")
+    problems += json_problems
+    for topic, fields in (("/san/scooter", ("modules", "activation", "selected", "threshold")),
+                          ("/san/skeeter", ("modules", "activation", "selected", "threshold")),
+                          ("/peer/skeeter/status", ("broadcast", "sources", "clients")),
+                          ("/peer/scooter/status", ("broadcast",))):
+        msg = last_json.get(topic)
+        if msg is None:
+            problems.append(f"no JSON state topic {topic}")
+        else:
+            problems += [f"{topic}: no field {k}" for k in fields if k not in msg]
+    if demo:
+        lines = [json.loads(l) for l in open(demo) if l.strip()]
+        drivers = next((l["drivers"] for l in lines if l.get("kind") == "summary"), None)
+        if drivers is None:
+            problems.append(f"{demo}: no summary line with the drivers' counters")
+        else:
+            images = sum(n for t, n in counts.items() if chans[t][0] == "foxglove.RawImage")
+            for what, recorded, counted in (
+                    ("camera frames", images, drivers["skeeter"].get("camera_frames")),
+                    ("scans read", counts["/scooter/laser/scan"],
+                     drivers["scooter"].get("laser_scans_read"))):
+                if recorded != counted:
+                    problems.append(f"{what}: {recorded} recorded, the drivers counted {counted}")
     if summary is None or summary.statistics is None:
         problems.append("no summary (the recording was not closed)")
     else:

@@ -544,6 +544,43 @@ fn a_p2os_demo_records_sonar_point_clouds() {
         }
         assert!(points > 0, "{topic}: no echoes");
     }
+    // Every topic the shipped layout opens is in the recording (`/robot/…`: drive and scan),
+    // and its SAN plot's fields are in the messages.
+    let layout: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/docs/foxglove-layout.json"
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    let mut paths: Vec<String> = Vec::new();
+    for (id, cfg) in layout["configById"].as_object().unwrap() {
+        if let Some(t) = cfg["topics"].as_object() {
+            paths.extend(t.keys().cloned());
+        }
+        for k in ["topicToRender", "topicPath"] {
+            paths.extend(cfg[k].as_str().map(str::to_owned));
+        }
+        paths.extend(cfg["imageMode"]["imageTopic"].as_str().map(str::to_owned));
+        for p in cfg["paths"].as_array().into_iter().flatten() {
+            let v = p["value"].as_str().unwrap();
+            if id.starts_with("Plot!ima-san") {
+                let (topic, field) = v.split_once(".activation.").unwrap();
+                let last = msgs.iter().rfind(|m| m.topic == topic).unwrap();
+                let last: serde_json::Value = serde_json::from_slice(&last.data).unwrap();
+                assert!(last["activation"][field].is_number(), "{v}: {last}");
+            }
+            paths.push(v.split('.').next().unwrap().to_owned());
+        }
+    }
+    assert!(paths.len() > 10, "{paths:?}");
+    for t in paths.iter().filter(|t| !t.starts_with("/robot/")) {
+        assert!(
+            ch.contains_key(t),
+            "the layout opens {t}, which is not recorded"
+        );
+    }
     let out = ima()
         .args(["decode", "--port", "scooter/base", "--mcap"])
         .arg(&file)
