@@ -20,6 +20,8 @@ from collections import Counter
 
 from mcap.reader import make_reader
 
+IMAGES = {"foxglove.RawImage", "foxglove.CompressedImage"}
+
 
 def main(argv):
     if len(argv) < 2 or argv[1] in ("-h", "--help"):
@@ -61,9 +63,11 @@ def main(argv):
             problems.append(f"no raw channel {want}")
     schemas = {s for s, _ in chans.values()}
     for want in ("foxglove.LaserScan", "foxglove.FrameTransform", "foxglove.SceneUpdate",
-                 "foxglove.Log", "foxglove.RawImage", "foxglove.PointCloud"):
+                 "foxglove.Log", "foxglove.PointCloud"):
         if want not in schemas:
             problems.append(f"no {want} channel")
+    if not schemas & IMAGES:
+        problems.append("no foxglove.RawImage or foxglove.CompressedImage channel")
     problems += json_problems
     for topic, fields in (("/san/scooter", ("modules", "activation", "selected", "threshold")),
                           ("/san/skeeter", ("modules", "activation", "selected", "threshold")),
@@ -80,7 +84,7 @@ def main(argv):
         if drivers is None:
             problems.append(f"{demo}: no summary line with the drivers' counters")
         else:
-            images = sum(n for t, n in counts.items() if chans[t][0] == "foxglove.RawImage")
+            images = sum(n for t, n in counts.items() if chans[t][0] in IMAGES)
             for what, recorded, counted in (
                     ("camera frames", images, drivers["skeeter"].get("camera_frames")),
                     ("scans read", counts["/scooter/laser/scan"],

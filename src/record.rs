@@ -38,6 +38,21 @@ pub struct RecordArgs {
     /// loopback only unless another address is given).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_FOXGLOVE)]
     pub foxglove: Option<SocketAddr>,
+    /// Camera frames raw (`foxglove.RawImage`, rgb8; the file's zstd compresses them as well
+    /// as PNG would) or as PNG (`foxglove.CompressedImage`, compressed on the recorder's
+    /// thread; lighter on a live link, more CPU).
+    #[arg(long, value_enum, value_name = "FORMAT", default_value_t = ImageFormat::Raw)]
+    pub record_images: ImageFormat,
+}
+
+/// `--record-images`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ImageFormat {
+    /// `foxglove.RawImage`, rgb8.
+    #[default]
+    Raw,
+    /// PNG in `foxglove.CompressedImage`.
+    Png,
 }
 
 impl RecordArgs {
@@ -76,6 +91,10 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
         foxglove: args.foxglove,
         queue: 0,
         name: name.to_owned(),
+        images: match args.record_images {
+            ImageFormat::Png => ima_record::Images::Png,
+            ImageFormat::Raw => ima_record::Images::Raw,
+        },
     })?;
     if let Some(port) = rec.server_port() {
         let host = args

@@ -5,10 +5,11 @@
 //! odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>`, `/<robot>/ses`,
 //! `/<robot>/sonar`, `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
 
+use foxglove::Encode;
 use foxglove::messages::{
-    Color, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose, PoseInFrame,
-    Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
-    Vector3, log, packed_element_field::NumericType,
+    Color, CompressedImage, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose,
+    PoseInFrame, Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive,
+    Timestamp, Vector3, log, packed_element_field::NumericType,
 };
 use ima_hal::camera::Frame;
 
@@ -200,6 +201,58 @@ pub fn raw_image(frame_id: &str, at_ns: u64, f: &Frame) -> RawImage {
     }
 }
 
+/// A frame to be sent as a PNG `foxglove.CompressedImage`: compressed when the recorder's
+/// thread encodes it, not when it is logged.
+pub(crate) struct PngFrame {
+    frame_id: String,
+    at_ns: u64,
+    width: u32,
+    height: u32,
+    pixels: Vec<u8>,
+}
+
+impl PngFrame {
+    /// The PNG of the frame (`None`: its size does not match its pixels).
+    fn png(&self) -> Option<Vec<u8>> {
+        let mut out = Vec::with_capacity(self.pixels.len() / 4);
+        let mut enc = png::Encoder::new(&mut out, self.width, self.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_compression(png::Compression::Fast);
+        enc.write_header()
+            .ok()?
+            .write_image_data(&self.pixels)
+            .ok()?;
+        Some(out)
+    }
+
+    fn message(&self) -> CompressedImage {
+        CompressedImage {
+            timestamp: Some(stamp(self.at_ns)),
+            frame_id: self.frame_id.clone(),
+            data: self.png().unwrap_or_default().into(),
+            format: "png".to_owned(),
+        }
+    }
+}
+
+impl crate::Payload for PngFrame {
+    fn size(&self) -> usize {
+        // The budget counts the pixels held in the queue.
+        self.pixels.len()
+    }
+    fn schema(&self) -> Option<foxglove::Schema> {
+        CompressedImage::get_schema()
+    }
+    fn encoding(&self) -> String {
+        CompressedImage::get_message_encoding()
+    }
+    fn encode_into(&self, buf: &mut Vec<u8>) {
+        // Encoding into a Vec cannot run out of room.
+        let _ = self.message().encode(buf);
+    }
+}
+
 /// A log line.
 pub fn log_line(at_ns: u64, level: log::Level, name: &str, message: &str) -> Log {
     Log {
@@ -366,14 +419,29 @@ impl Recorder {
         );
     }
 
-    /// A camera frame of `robot` on `/<robot>/camera/<channel>` (or `/<robot>/camera`).
+    /// A camera frame of `robot` on `/<robot>/camera/<channel>` (or `/<robot>/camera`), as
+    /// [`crate::Options::images`] says: `foxglove.CompressedImage` (PNG) or
+    /// `foxglove.RawImage`.
     pub fn log_image(&self, robot: &str, f: &Frame) {
         let at = self.now_ns();
         let topic = match f.channel {
             Some(c) => format!("/{robot}/camera/{c}"),
             None => format!("/{robot}/camera"),
         };
-        self.log(&topic, raw_image(&format!("{robot}/camera"), at, f));
+        let frame_id = format!("{robot}/camera");
+        match self.images() {
+            crate::Images::Raw => self.log(&topic, raw_image(&frame_id, at, f)),
+            crate::Images::Png => self.log_payload(
+                &topic,
+                Box::new(PngFrame {
+                    frame_id,
+                    at_ns: at,
+                    width: f.width,
+                    height: f.height,
+                    pixels: f.pixels.to_vec(),
+                }),
+            ),
+        }
     }
 
     /// The SES of `robot` on `/<robot>/ses` (around `<robot>/base_link`).

@@ -329,3 +329,38 @@ fn a_sonar_scan_is_a_point_cloud_of_its_echoes() {
     assert!(near(pts[0], [1.6, 0.0, 0.0, 1.5]), "{pts:?}");
     assert!(near(pts[1], [0.0, 2.0, 0.0, 2.0]), "{pts:?}");
 }
+
+/// `Images::Png`: frames go out as PNG `foxglove.CompressedImage` that decodes to the
+/// same pixels.
+#[test]
+fn png_frames_decode_to_the_same_pixels() {
+    let path = tmp("png.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        images: ima_record::Images::Png,
+        ..Options::default()
+    })
+    .unwrap();
+    let mut frame = ima_hal::camera::Frame::black(64, 48, Some(3)).unwrap();
+    for (i, p) in frame.pixels.iter_mut().enumerate() {
+        *p = (i * 7 % 251) as u8;
+    }
+    rec.log_image("skeeter", &frame);
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.written["/skeeter/camera/3"], 1);
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    assert_eq!(msgs[0].schema, "foxglove.CompressedImage");
+    let img = foxglove::messages::CompressedImage::decode(&msgs[0].data[..]).unwrap();
+    assert_eq!(
+        (img.format.as_str(), img.frame_id.as_str()),
+        ("png", "skeeter/camera")
+    );
+    let mut reader = png::Decoder::new(std::io::Cursor::new(&img.data[..]))
+        .read_info()
+        .unwrap();
+    let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut pixels).unwrap();
+    assert_eq!((info.width, info.height), (64, 48));
+    assert_eq!(info.color_type, png::ColorType::Rgb);
+    assert_eq!(&pixels[..info.buffer_size()], &frame.pixels[..]);
+}
