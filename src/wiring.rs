@@ -297,13 +297,23 @@ pub struct DriverCounts {
     /// checksum: status, motion, sonar, configuration, acknowledgements).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub base_frames: Option<u64>,
-    /// P2OS only: server information packets (SIPs) decoded, delivered or rejected as
-    /// implausible.
+    /// Frames the base's framer lost: bad checksums or lengths, and partial frames it
+    /// abandoned after a gap in the bytes (which a re-decoding of the recorded bytes, blind
+    /// to their timing, may still find whole).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub base_framer_drops: Option<u64>,
+    /// P2OS only: server information packets (SIPs) the open session decoded, delivered or
+    /// rejected as implausible (SIPs arriving while the driver closes the session are
+    /// ignored by it, though recorded).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub base_sips: Option<u64>,
     /// SICK LMS: scans the driver decoded and published.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub laser_scans: Option<u64>,
+    /// SICK LMS: telegrams the framer lost (bad checksums, headers or payloads, and partial
+    /// telegrams abandoned after a silence).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub laser_framer_drops: Option<u64>,
     /// SICK LMS: scan telegrams that did not decode.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub laser_decode_errors: Option<u64>,
@@ -336,11 +346,15 @@ impl DriverCounters {
                 Some(Base::P2os(b)) => {
                     let _ = b.close().await;
                     let s = b.stats();
-                    Some(("p2os", s.framer.frames, Some(s.sips + s.implausible_sips)))
+                    let f = s.framer;
+                    let drops = f.bad_checksums + f.bad_counts + f.abandoned;
+                    Some(("p2os", f.frames, drops, Some(s.sips + s.implausible_sips)))
                 }
                 Some(Base::Rflex(b)) => {
                     let _ = b.close().await;
-                    Some(("rflex", u64::from(b.stats().framer.frames), None))
+                    let f = b.stats().framer;
+                    let drops = f.errors().wrapping_add(f.restarts).wrapping_add(f.stale);
+                    Some(("rflex", u64::from(f.frames), u64::from(drops), None))
                 }
                 None => None,
             }
@@ -358,8 +372,13 @@ impl DriverCounters {
         DriverCounts {
             base: base.map(|b| b.0),
             base_frames: base.map(|b| b.1),
-            base_sips: base.and_then(|b| b.2),
+            base_framer_drops: base.map(|b| b.2),
+            base_sips: base.and_then(|b| b.3),
             laser_scans: laser.map(|s| s.delivered),
+            laser_framer_drops: laser.map(|s| {
+                let f = s.framer;
+                f.bad_checksums + f.bad_headers + f.bad_payloads + f.expired
+            }),
             laser_decode_errors: laser.map(|s| s.decode_errors),
             laser_scans_read: self.scans_read.map(|n| n.load(Ordering::Relaxed)),
             camera_frames: self.frames_received.map(|n| n.load(Ordering::Relaxed)),
