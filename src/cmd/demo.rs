@@ -423,6 +423,14 @@ fn describe_counts(c: &wiring::DriverCounts) -> String {
     if let Some(n) = c.laser_decode_errors.filter(|n| *n > 0) {
         parts.push(format!("{n} scans undecodable"));
     }
+    for (n, what) in [
+        (c.base_framer_drops, "base frames"),
+        (c.laser_framer_drops, "laser telegrams"),
+    ] {
+        if let Some(n) = n.filter(|n| *n > 0) {
+            parts.push(format!("{n} {what} lost by the framer"));
+        }
+    }
     if let Some(n) = c.camera_frames {
         parts.push(format!("{n} camera frames"));
     }
