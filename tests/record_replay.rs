@@ -372,7 +372,8 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     let (mut ws, _) = tungstenite::client(req, stream).unwrap();
     let mut schemas: BTreeMap<String, String> = BTreeMap::new();
     let mut laser = None;
-    while laser.is_none() {
+    let mut encodings: BTreeMap<String, String> = BTreeMap::new();
+    while laser.is_none() || !schemas.contains_key("/san/scooter") {
         assert!(
             std::time::Instant::now() < deadline,
             "advertised: {schemas:?}"
@@ -387,11 +388,16 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
                 if topic == "/scooter/laser/scan" {
                     laser = c["id"].as_u64();
                 }
+                let enc = c["schemaEncoding"].as_str().unwrap_or("").to_owned();
+                encodings.insert(topic.clone(), enc);
                 schemas.insert(topic, c["schemaName"].as_str().unwrap_or("").to_owned());
             }
         }
     }
     assert_eq!(schemas["/scooter/laser/scan"], "foxglove.LaserScan");
+    // The SAN's state is served as JSON with its JSON Schema.
+    assert_eq!(schemas["/san/scooter"], "ima.SanState");
+    assert_eq!(encodings["/san/scooter"], "jsonschema");
     assert!(
         !schemas.keys().any(|t| t.contains("/serial/")),
         "raw bytes stay off the live view: {schemas:?}"
@@ -447,6 +453,9 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     };
     let live = drive(&pty, Some(&file));
     assert!(live.len() >= 3, "{live:?}");
+    // `ima drive` records the P2OS sonar too.
+    let sonar = Recording::open(&file).unwrap().channels();
+    assert_eq!(sonar["/robot/sonar"].0, "foxglove.PointCloud", "{sonar:?}");
     let mut served = common::Child(
         ima()
             .args(["replay", "--as-mock", "robot/base"])
