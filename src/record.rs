@@ -1,6 +1,9 @@
 //! `--record FILE.mcap` and `--foxglove [ADDR]`: the process's one recorder (an
-//! [`ima_record::Recorder`]), the tap that records a serial port's bytes, and the frame source
-//! that records camera frames.
+//! [`ima_record::Recorder`]), the tap that records a serial port's bytes, the frame source
+//! that records camera frames, the HAL decorators that record readings as the runtime reads
+//! them, and [`log_event`], which turns the runtimes' events into log lines, the SES scene and
+//! — from their periodic detail ([`is_detail`]) — JSON state topics with a JSON Schema
+//! (`/san/<robot>`, `/peer/<robot>/status`, `/commander/queue`, `/<robot>/map`).
 //!
 //! A command starts the recorder with [`start`] from its [`RecordArgs`]; anything may then log
 //! through [`with`] (nothing happens when no recorder runs). [`finish`] closes the file and
