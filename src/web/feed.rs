@@ -30,14 +30,16 @@ pub fn event_json(e: &Event) -> JsonEvent {
     }
 }
 
-/// A published SES sample (page kind `ses-form`): per record the object and its bearing in
-/// the sender's frame (ranges are not part of a published sample's marks).
+/// A published SES sample (page kind `ses-form`): per record the object, its bearing in
+/// the sender's frame and its range in metres where Skeeter's vision estimated one (`null`
+/// where it did not: a bearing only).
 pub fn ses_json(source: &str, marks: &[SesMark]) -> Value {
     let records: Vec<Value> = marks
         .iter()
         .map(|m| {
             json!({"object": m.tag, "bearing_rad": m.azimuth_rad,
-                "elevation_rad": m.elevation_rad, "range_m": null})
+                "elevation_rad": m.elevation_rad,
+                "range_m": m.range_m.filter(|r| r.is_finite() && *r >= 0.0)})
         })
         .collect();
     json!({"source": source, "records": records})

@@ -372,11 +372,26 @@ fn typed_runtime_events_become_the_pages_json() {
     s.apply(&e(
         "skeeter",
         EventKind::SesPublished {
-            marks: vec![SesMark {
-                tag: "red".into(),
-                azimuth_rad: 0.5,
-                elevation_rad: 0.0,
-            }],
+            marks: vec![
+                SesMark {
+                    tag: "red".into(),
+                    azimuth_rad: 0.5,
+                    elevation_rad: 0.0,
+                    range_m: Some(2.25),
+                },
+                SesMark {
+                    tag: "scooter".into(),
+                    azimuth_rad: -1.0,
+                    elevation_rad: 0.0,
+                    range_m: None,
+                },
+                SesMark {
+                    tag: "blue".into(),
+                    azimuth_rad: 0.1,
+                    elevation_rad: 0.0,
+                    range_m: Some(f64::NAN),
+                },
+            ],
         },
     ));
     s.apply(&e(
@@ -410,6 +425,11 @@ fn typed_runtime_events_become_the_pages_json() {
     assert_eq!(v["san"]["skeeter"]["history"][0][1][0], 0.75);
     assert_eq!(v["ses"]["form"]["records"][0]["object"], "red");
     assert_eq!(v["ses"]["form"]["records"][0]["bearing_rad"], 0.5);
+    // Ranges where known; a bearing only (null) where not, or where it is not a number.
+    assert_eq!(v["ses"]["form"]["records"][0]["range_m"], 2.25);
+    assert_eq!(v["ses"]["form"]["records"][1]["object"], "scooter");
+    assert!(v["ses"]["form"]["records"][1]["range_m"].is_null());
+    assert!(v["ses"]["form"]["records"][2]["range_m"].is_null());
     assert_eq!(v["peer"]["commander"]["broadcast"]["sent"], 0);
     assert_eq!(v["robots"]["scooter"]["pose"][0], 1.0);
     assert_eq!(v["robots"]["scooter"]["pose"][2], 1.0);

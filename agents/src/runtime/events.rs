@@ -45,6 +45,9 @@ pub struct SesMark {
     pub azimuth_rad: f64,
     /// Elevation, radians.
     pub elevation_rad: f64,
+    /// Range, metres, where Skeeter's vision could estimate one (the object's apparent size).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range_m: Option<f64>,
 }
 
 /// What happened, with its details.

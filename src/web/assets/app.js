@@ -236,20 +236,36 @@ function renderMap(s) {
     const p = r.pose || r.truth;
     if (p) { robotAt(p, colour, 1, name); drawn.push(name); }
   }
-  // Skeeter's SES bearings, from where Skeeter is.
+  // Skeeter's SES: a ray per bearing from where Skeeter is; where a range is known, a solid
+  // segment to that range and a dot at the object's estimated place.
   const sk = s.robots.skeeter;
   const skp = sk && (sk.pose || sk.truth);
+  const sesDrawn = [];
   if (s.ses && skp) {
-    g.save(); g.setLineDash([6, 4]); g.lineWidth = 1.5;
+    g.save(); g.lineWidth = 1.5;
     for (const r of s.ses.form.records) {
-      const a = skp[2] + r.bearing_rad, len = r.range_m || 3;
-      g.strokeStyle = r.object === 'scooter' ? '#d62728' : '#2e7d32';
-      g.beginPath(); g.moveTo(px(skp[0]), py(skp[1])); g.lineTo(px(skp[0] + len * Math.cos(a)), py(skp[1] + len * Math.sin(a))); g.stroke();
+      const a = skp[2] + r.bearing_rad;
+      const ranged = typeof r.range_m === 'number' && isFinite(r.range_m) && r.range_m >= 0;
+      const len = ranged ? r.range_m : 3;
+      const colour = r.object === 'scooter' ? '#d62728' : '#2e7d32';
+      const ex = skp[0] + len * Math.cos(a), ey = skp[1] + len * Math.sin(a);
+      g.strokeStyle = colour; g.setLineDash(ranged ? [] : [6, 4]);
+      g.beginPath(); g.moveTo(px(skp[0]), py(skp[1])); g.lineTo(px(ex), py(ey)); g.stroke();
+      if (ranged) {
+        g.fillStyle = colour; g.beginPath(); g.arc(px(ex), py(ey), 5, 0, 7); g.fill();
+      }
       g.fillStyle = '#333'; g.font = '11px sans-serif';
-      g.fillText(`${r.object}${r.range_m ? ` ${fmt(r.range_m)} m` : ''}`, px(skp[0] + len * Math.cos(a)) + 3, py(skp[1] + len * Math.sin(a)));
+      g.fillText(`${r.object}${ranged ? ` ${fmt(r.range_m)} m` : ''}`, px(ex) + 6, py(ey));
+      sesDrawn.push({ object: r.object, bearing: r.bearing_rad, range: ranged ? r.range_m : null, at: ranged ? [ex, ey] : null });
     }
     g.restore();
   }
+  $('map-ses').replaceChildren(...(sesDrawn.length
+    ? sesDrawn.map((r) => el('li', {
+      class: 'ses-mark', 'data-object': r.object, 'data-ranged': r.range != null ? 'yes' : 'no',
+      text: `${r.object}: bearing ${fmt(r.bearing * 180 / Math.PI, 0)}°${r.range != null ? `, range ${fmt(r.range, 2)} m (at ${fmt(r.at[0], 2)}, ${fmt(r.at[1], 2)})` : ', no range (bearing only)'}`,
+    }))
+    : [el('li', { class: 'muted', text: s.ses ? 'Skeeter\'s place is not known yet: its SES cannot be drawn.' : 'No SES from Skeeter yet.' })]));
   // Scooter's computed heading, plan and laser obstacles (its DR frame, drawn from its start).
   const sc = s.robots.scooter, m = s.scooter_map;
   if (sc && m && sc.pose) {
@@ -269,7 +285,7 @@ function renderMap(s) {
     }
   }
   $('map-legend').textContent = 'Solid: each robot\'s belief and trail; faint dashed: ground truth (simulated world); '
-    + 'dashed rays: Skeeter\'s SES bearings; orange: Scooter\'s desired heading and plan; grey dots: laser obstacles; grid 1 m.';
+    + 'Skeeter\'s SES: dashed rays for bearings only, solid segments with a dot where a range is known; orange: Scooter\'s desired heading and plan; grey dots: laser obstacles; grid 1 m.';
   $('map-robots').replaceChildren(...drawn.map((n) => {
     const r = s.robots[n];
     const plan = n === 'scooter' && m ? `; heading ${fmt(m.heading_rad == null ? NaN : m.heading_rad * 180 / Math.PI, 0)}°, desired ${fmt(m.desired_rad == null ? NaN : m.desired_rad * 180 / Math.PI, 0)}°` : '';
