@@ -255,6 +255,16 @@ fn resolve(
             .any(|(t, s)| t == c && !matches!(s.as_str(), "done" | "failed"))
     };
     let check = |cmd: Command| to_operator(&cmd, known, n, open);
+    // Only waiting targets move, so a target can only go where a waiting one is.
+    let waiting_at = |p: usize| -> Result<(), String> {
+        match series.get(p - 1) {
+            Some((t, s)) if s != "waiting" => Err(format!(
+                "position {p} holds {t}, which is {s}: only places of waiting targets can be \
+                 taken"
+            )),
+            _ => Ok(()),
+        }
+    };
     match t {
         Typed::Stop(reason) => Ok(vec![check(Command::Stop { reason })?]),
         Typed::Resume => Ok(vec![Operator::Resume]),
@@ -270,7 +280,10 @@ fn resolve(
                 )),
                 // Appended at position n (from 0), then moved.
                 Some(p) if p == n + 1 => Ok(vec![add]),
-                Some(p) => Ok(vec![add, Operator::Move { from: n, to: p - 1 }]),
+                Some(p) => {
+                    waiting_at(p)?;
+                    Ok(vec![add, Operator::Move { from: n, to: p - 1 }])
+                }
             }
         }
         Typed::Move { colour, to } => {
@@ -294,6 +307,7 @@ fn resolve(
                     "cannot move to position {to}: the series has {n} target(s)"
                 ));
             }
+            waiting_at(to)?;
             Ok(vec![check(Command::Move { from, to: to - 1 })?])
         }
     }
@@ -795,6 +809,10 @@ mod tests {
                 .unwrap_err()
                 .contains("has 2 target(s)")
         );
+        let e = r("move blue 1", &series).unwrap_err();
+        assert!(e.contains("position 1 holds red, which is sent"), "{e}");
+        let e = r("add green at 1", &series).unwrap_err();
+        assert!(e.contains("position 1 holds red"), "{e}");
         assert!(
             r("move blue 1", &[])
                 .unwrap_err()
