@@ -507,9 +507,9 @@ fn peer_schema() -> Value {
         "bad_mac": int, "replay": int, "malformed": int}});
     json!({
         "title": "ima.PeerStatus",
-        "description": "Peer Agent status: the broadcast channel's counters and, for a \
-            manager, its sources, its clients with their requested and granted sources, its \
-            sessions and counters.",
+        "description": "Peer Agent status: the broadcast channel's counters; for a manager, \
+            its sources, its clients with their requested and granted sources, its links' \
+            health, sessions and counters; for a client, its link to the other manager.",
         "type": "object",
         "properties": {
             "t_s": {"type": "number", "description": "mission seconds"},
@@ -524,6 +524,19 @@ fn peer_schema() -> Value {
                 "client": int, "robot": {"type": "string"},
                 "requesting": {"type": "array", "items": {"type": "string"}},
                 "granted": {"type": "array", "items": {"type": "string"}}}}},
+            "links": {"type": "array", "items": {"type": "object", "properties": {
+                "session": int, "addr": {"type": "string"},
+                "robots": {"type": "array", "items": {"type": "string"}},
+                "frames_received": int, "heartbeats_received": int, "heartbeats_sent": int,
+                "last_seen_ms": int, "open_ms": int}}},
+            "client": {"type": "object", "description": "this robot's own client of another \
+                manager (Scooter's of Skeeter's ses source)", "properties": {
+                "manager": {"type": "string"}, "source": {"type": "string"},
+                "outcome": {"type": "string"}, "priority": int, "grants": int,
+                "retries": int, "samples": int, "link": {"type": "object", "properties": {
+                    "registration": {"type": "string"}, "frames_received": int,
+                    "heartbeats_received": int, "heartbeats_sent": int, "last_seen_ms": int,
+                    "open_ms": int}}}},
             "sessions": int, "data_sessions": int, "task_priority": int, "lost": int,
             "closed_bad": int, "slow_closed": int, "lagged_samples": int,
             "data_bad_tickets": int, "rejected": rejects, "data_rejected": rejects,

@@ -474,7 +474,7 @@ fn record_sonar(base: &Base, robot: &str) -> AbortOnDrop {
     if !crate::record::active() {
         return AbortOnDrop(None);
     }
-    let mut b = b.clone();
+    let b = b.clone();
     let robot = robot.to_owned();
     AbortOnDrop(Some(tokio::spawn(async move {
         use ima_hal::sonar::SonarArray;

@@ -650,3 +650,70 @@ fn a_target_is_cancelled_from_another_process_or_from_stdin() {
         assert_eq!(t["reason"], "cancelled by the operator", "{t}");
     }
 }
+
+/// Issue 17: `ima commander --web` against robots started with `ima run` (the README's
+/// three-process set-up). The robots are other processes, so the console learns of them from
+/// their broadcasts only: each one's liveness, behaviour, SAN summary and pose (Scooter's
+/// dead-reckoned pose, Skeeter's fixed place) reach the commander's web state, so the Map
+/// shows both robots and the SAN page each one's summary.
+#[cfg(unix)]
+#[test]
+fn the_commanders_console_gets_both_robots_poses_from_separate_processes() {
+    use std::io::{Read, Write};
+    let _one = one_at_a_time();
+    let fleet = Fleet::start("e2e-web", SPEED);
+    let port = common::mission::free_port(false);
+    let addr = format!("127.0.0.1:{port}");
+    let mut c = fleet.commander(
+        &["--targets", "red", "--web", &addr, "--stop-on-exit"],
+        Stdio::piped(),
+    );
+    let state = || -> Option<serde_json::Value> {
+        let mut s = std::net::TcpStream::connect(&addr).ok()?;
+        s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+        write!(
+            s,
+            "GET /api/state HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .ok()?;
+        let mut resp = String::new();
+        s.read_to_string(&mut resp).ok()?;
+        serde_json::from_str(resp.split_once("\r\n\r\n")?.1).ok()
+    };
+    let has_pose = |v: &serde_json::Value, r: &str| v["robots"][r]["pose"].is_array();
+    // Generous bound for a loaded machine: the robots connect to their devices first.
+    let deadline = Instant::now() + Duration::from_secs(180);
+    let v = loop {
+        if let Some(v) = state()
+            && has_pose(&v, "scooter")
+            && has_pose(&v, "skeeter")
+            && v["robots"]["skeeter"]["san_summary"].is_string()
+            && v["robots"]["scooter"]["behaviour"].is_string()
+        {
+            break v;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the console never had both robots' poses; last state: {:#?}; robots' logs in {}",
+            state().map(|v| v["robots"].clone()),
+            fleet.dir.display()
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    };
+    for r in ["skeeter", "scooter"] {
+        let p = v["robots"][r]["pose"].as_array().unwrap();
+        assert_eq!(p.len(), 3, "{r}: {p:?}");
+        assert!(
+            p.iter().all(|x| x.as_f64().is_some_and(f64::is_finite)),
+            "{r}: {p:?}"
+        );
+        assert_eq!(v["robots"][r]["life"], "alive", "{r}");
+    }
+    // Skeeter stands at the common frame's origin.
+    assert_eq!(
+        v["robots"]["skeeter"]["pose"],
+        serde_json::json!([0.0, 0.0, 0.0])
+    );
+    c.interrupt();
+    let _ = c.exit(Duration::from_secs(60));
+}

@@ -339,32 +339,41 @@ fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted()
     );
 }
 
-/// The blocking serialport shell over a real pty: connect, enable, drive, read sonar.
+/// The blocking runner over a real pty: connect, enable, drive, read sonar; dropping it
+/// writes STOP and CLOSE before it returns.
 #[test]
 fn blocking_shell_drives_the_mock() {
     use ima_hal::blocking::{DifferentialBase as _, Odometer as _, Power as _, SonarArray as _};
-    use ima_p2os::blocking::{BlockingP2os, open_port as open_blocking};
+    use ima_serial::blocking::Blocking;
 
     let (world, id) = world_with_skeeter(Some(2.0));
     let dev = serve(&world, id, P2osModelConfig::default(), "");
-    let port = open_blocking(dev.path().to_str().unwrap(), 9600).unwrap();
-    let mut robot = BlockingP2os::connect(
-        port,
-        ima_p2os::Config::default(),
-        Duration::from_secs(10),
-        ima_hal::time::MonotonicClock::shared(),
-    )
+    let path = dev.path().to_str().unwrap().to_owned();
+    let mut robot = Blocking::connect(async || {
+        let port = ima_p2os::shell::open_port(&path, 9600).unwrap();
+        let clock = ima_hal::time::TokioClock::shared();
+        P2os::connect(
+            port,
+            ima_p2os::Config::default(),
+            Duration::from_secs(10),
+            clock,
+        )
+        .await
+    })
     .unwrap();
-    assert_eq!(robot.identity().unwrap().subclass.as_str(), "p2at");
+    let ima_p2os::shell::LinkStatus::Connected(c) = robot.get().link() else {
+        panic!("not connected: {:?}", robot.get().link());
+    };
+    assert_eq!(c.identity.subclass.as_str(), "p2at");
     robot.enable_motors(true).unwrap();
     let start = robot.odometry().unwrap().value.x_m();
     let t = std::time::Instant::now();
     while t.elapsed() < Duration::from_millis(1500) {
         robot.set_velocity(VelocityCommand::new(0.2, 0.0)).unwrap();
-        robot.pump_for(Duration::from_millis(50)).unwrap();
+        robot.pump_for(Duration::from_millis(50));
     }
     robot.stop().unwrap();
-    robot.pump_for(Duration::from_millis(500)).unwrap();
+    robot.pump_for(Duration::from_millis(500));
     let moved = robot.odometry().unwrap().value.x_m() - start;
     let truth_x = truth(&world, id).0;
     assert!(moved > 0.2, "moved {moved} m");
@@ -377,5 +386,10 @@ fn blocking_shell_drives_the_mock() {
     // Wall at x = 2 m: front sonar 3 (0.245 m ahead, aimed 10° left) sees it.
     let r3 = robot.sonar().unwrap().value.get(3).unwrap().range_m;
     assert!(r3 < 2.0 - truth_x, "sonar 3 reads {r3}");
-    robot.close().unwrap();
+    drop(robot);
+    // The drop ran the close: the mock saw CLOSE, and the session ended.
+    let model = dev.stop().unwrap();
+    let robot = model.robot();
+    assert_eq!(robot.link(), ima_mock_devices::p2os::RobotLink::Idle);
+    assert!(!robot.motors_enabled());
 }

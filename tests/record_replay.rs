@@ -187,6 +187,14 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         "{:?}",
         skeeter.last()
     );
+    // Link health: Skeeter's manager's links, Scooter's own client of Skeeter's `ses`.
+    assert!(skeeter.last().unwrap()["links"].is_array());
+    let scooter = json_of("/peer/scooter/status");
+    assert!(
+        scooter.iter().any(|v| v["client"]["source"] == "ses"),
+        "{:?}",
+        scooter.last()
+    );
     assert!(!json_of("/commander/queue").is_empty());
 
     // Channels and schemas.

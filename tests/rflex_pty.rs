@@ -18,7 +18,6 @@ use ima_mock_devices::model::DeviceModel;
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, Wall, World};
-use ima_rflex::driver::DriverError;
 use ima_rflex::machine::CommandError;
 use ima_rflex::shell::{Rflex, open_port};
 
@@ -92,7 +91,7 @@ async fn init_accepted_and_brake_release_needed_before_motion() {
     // Motion is refused while the brake is on, and the robot does not move.
     for _ in 0..5 {
         let r = base.set_velocity(VelocityCommand::new(0.3, 0.2)).await;
-        assert_eq!(r, Err(DriverError::Command(CommandError::MotorsDisabled)));
+        assert_eq!(r, Err(CommandError::MotorsDisabled.into()));
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     assert_eq!(truth(&world, id), (0.0, 0.0, 0.0));
@@ -287,22 +286,22 @@ fn one_percent_corruption_loses_under_2_percent_and_delivers_nothing_corrupted()
 #[test]
 fn blocking_shell_drives_the_mock() {
     use ima_hal::blocking::{DifferentialBase as _, Odometer as _, Power as _};
-    use ima_rflex::blocking::{BlockingRflex, open_port as open_blocking};
+    use ima_serial::blocking::Blocking;
 
     let (world, id) = world_with_scooter(None);
     let dev = serve(&world, device(&world, id, RflexModelConfig::default()), "");
-    let port = open_blocking(dev.path().to_str().unwrap(), 115_200).unwrap();
-    let mut base = BlockingRflex::connect(
-        port,
-        ima_rflex::machine::Config::default(),
-        Duration::from_secs(10),
-        ima_hal::time::MonotonicClock::shared(),
-    )
+    let path = dev.path().to_str().unwrap().to_owned();
+    let mut base = Blocking::connect(async || {
+        let port = ima_rflex::shell::open_port(&path, 115_200).unwrap();
+        let cfg = ima_rflex::machine::Config::default();
+        let clock = ima_hal::time::TokioClock::shared();
+        Rflex::connect(port, cfg, Duration::from_secs(10), clock).await
+    })
     .unwrap();
     assert!((base.power().unwrap().value.battery_v - 27.5).abs() < 1e-9);
     assert_eq!(
         base.set_velocity(VelocityCommand::new(0.3, 0.0)),
-        Err(DriverError::Command(CommandError::MotorsDisabled))
+        Err(CommandError::MotorsDisabled.into())
     );
     base.enable_motors(true).unwrap();
     let start = std::time::Instant::now();
@@ -310,7 +309,7 @@ fn blocking_shell_drives_the_mock() {
         base.set_velocity(VelocityCommand::new(0.3, 0.0)).unwrap();
     }
     base.stop().unwrap();
-    base.pump_for(Duration::from_millis(800)).unwrap();
+    base.pump_for(Duration::from_millis(800));
     let o = base.odometry().unwrap().value;
     let t = truth(&world, id);
     assert!(t.0 > 0.2, "moved {}", t.0);
@@ -320,7 +319,7 @@ fn blocking_shell_drives_the_mock() {
         o.x_m(),
         t.0
     );
-    base.close().unwrap();
+    base.run(async |b| b.close().await).unwrap();
     std::thread::sleep(Duration::from_millis(300));
     let model = dev.stop().unwrap();
     assert_eq!(model.robot().stats().bad_frames, 0);

@@ -10,7 +10,7 @@ use ima_mock_devices::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, Wall, World};
 use ima_sick_lms::decode::Variant;
 use ima_sick_lms::machine::Config;
-use ima_sick_lms::shell::{SickLms, open_port};
+use ima_sick_lms::shell::{DriverError, SickLms, open_port};
 use ima_sick_lms::wire::BaudRate;
 
 /// Scooter at the origin facing +x; `walls` as (from, to).
@@ -399,34 +399,31 @@ async fn wall_at_two_metres_reads_two_metres() {
 
 #[test]
 fn blocking_shell_streams_over_a_pty() {
-    use ima_sick_lms::blocking::{BlockingSickLms, open_port};
+    use ima_hal::blocking::LaserScanner as _;
     let (w, id) = boxed();
     let dev = serve(&w, id, SickLmsModelConfig::default(), 0.05, "");
-    let port = open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    let mut l = BlockingSickLms::connect(
-        port,
-        fast(),
-        Duration::from_secs(60),
-        ima_hal::time::MonotonicClock::shared(),
-    )
+    let path = dev.path().to_str().unwrap().to_owned();
+    let mut l = ima_serial::blocking::Blocking::connect(async || {
+        let port = open_port(&path, 9600).unwrap();
+        let clock = ima_hal::time::TokioClock::shared();
+        let l = SickLms::connect(port, fast(), Duration::from_secs(60), clock).await?;
+        Ok::<_, DriverError>(l.with_scan_timeout(Duration::from_secs(10)))
+    })
     .unwrap();
-    assert_eq!(l.session().baud, BaudRate::B500000);
+    assert_eq!(l.get().session().unwrap().baud, BaudRate::B500000);
     let mut last = ima_hal::Instant::ZERO;
     for _ in 0..5 {
-        let s = l.next_scan(Duration::from_secs(10)).unwrap();
+        let s = l.next_scan(last).unwrap();
         assert_eq!(s.value.len(), 361);
         assert!(s.at > last);
         last = s.at;
     }
-    let info = l
-        .set_variant(Variant::W180_R100, Duration::from_secs(20))
-        .unwrap();
-    assert_eq!(info.variant, Some(Variant::W180_R100));
-    assert_eq!(
-        l.next_scan(Duration::from_secs(10)).unwrap().value.len(),
-        181
-    );
-    assert_eq!(l.stats().decode_errors, 0);
-    drop(l.close());
-    dev.stop().unwrap();
+    let info = l.run(async |l| l.set_variant(Variant::W180_R100).await);
+    assert_eq!(info.unwrap().variant, Some(Variant::W180_R100));
+    assert_eq!(l.next_scan(l.get().now()).unwrap().value.len(), 181);
+    assert_eq!(l.get().stats().decode_errors, 0);
+    // Dropping it closes the driver: the unit is back at its power-up rate.
+    drop(l);
+    let m = dev.stop().unwrap();
+    assert_eq!(m.model().baud(), BaudRate::B9600);
 }

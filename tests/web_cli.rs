@@ -92,3 +92,139 @@ fn beyond_loopback_the_console_asks_for_its_printed_token() {
     assert_eq!(status_of(&local, &format!("/?token={token}")), 200);
     assert_eq!(status_of(&local, &format!("/api/state?token={token}")), 200);
 }
+
+/// The text commander's stdin `add COLOUR [at N]` and `move COLOUR N` go through the same
+/// commander requests as the page: the series changes in the commander's `queue` events and
+/// in the console's state alike; bad requests get a clear message on stderr and change
+/// nothing. No robot answers (the commander waits for one), so every target stays waiting.
+#[cfg(unix)]
+#[test]
+fn stdin_add_and_move_reorder_the_series_as_the_page_sees_it() {
+    let dir = std::env::temp_dir().join(format!("ima-web-stdin-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let nobody = common::mission::free_port(true);
+    let bind = common::mission::free_port(true);
+    let cfg = dir.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\ninsecure = true\nbroadcast_group = \"\"\n\
+             broadcast_peers = [\"127.0.0.1:{nobody}\"]\nbroadcast_bind = \"127.0.0.1:{bind}\"\n"
+        ),
+    )
+    .unwrap();
+    let mut child = Child(
+        ima()
+            .args(["commander", "--json", "--insecure", "--targets", "red"])
+            .args(["--wait-for", "skeeter", "--wait-timeout", "600"])
+            .args(["--web", "127.0.0.1:0", "--config"])
+            .arg(&cfg)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    // stderr: the console's address, then the refusals.
+    let (err_tx, err_rx) = std::sync::mpsc::channel::<String>();
+    let err = child.0.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for l in BufReader::new(err).lines().map_while(Result::ok) {
+            let _ = err_tx.send(l);
+        }
+    });
+    let next_err = |want: &str| -> String {
+        loop {
+            let l = err_rx
+                .recv_timeout(Duration::from_secs(60))
+                .unwrap_or_else(|_| panic!("no stderr line with {want:?}"));
+            if l.contains(want) {
+                return l;
+            }
+        }
+    };
+    let url = next_err("web console at ");
+    let addr = url
+        .rsplit_once("http://")
+        .unwrap()
+        .1
+        .trim_end_matches('/')
+        .to_owned();
+    // stdout: the series after each change.
+    let (q_tx, q_rx) = std::sync::mpsc::channel::<Vec<String>>();
+    let out = child.0.stdout.take().unwrap();
+    std::thread::spawn(move || {
+        for l in BufReader::new(out).lines().map_while(Result::ok) {
+            let v: serde_json::Value = serde_json::from_str(&l).unwrap();
+            if v["kind"] == "queue" {
+                let order = v["detail"]["targets"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|t| t["target"].as_str().unwrap().to_owned())
+                    .collect();
+                let _ = q_tx.send(order);
+            }
+        }
+    });
+    let wait_series = |want: &[&str]| loop {
+        let got = q_rx
+            .recv_timeout(Duration::from_secs(60))
+            .unwrap_or_else(|_| panic!("no series {want:?}"));
+        if got == want {
+            return;
+        }
+    };
+    wait_series(&["red"]);
+    let mut stdin = child.0.stdin.take().unwrap();
+    let mut say = |line: &str| {
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+    };
+    say("add blue");
+    wait_series(&["red", "blue"]);
+    say("add green at 1");
+    wait_series(&["green", "red", "blue"]);
+    say("move blue 1");
+    wait_series(&["blue", "green", "red"]);
+    // Bad requests: a message each, and the series stays as it is.
+    say("add pink");
+    let e = next_err("unknown colour \"pink\"");
+    assert!(e.contains("red") && e.contains("blue"), "{e}");
+    say("move yellow 1");
+    next_err("no waiting target \"yellow\"");
+    say("add red at 9");
+    next_err("cannot add at position 9");
+    say("move red 0");
+    next_err("positions count from 1");
+    say("fly away");
+    next_err("add COLOUR [at N]");
+    // The page sees the same series.
+    let mut s = TcpStream::connect(&addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(
+        s,
+        "GET /api/state HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut resp = String::new();
+    s.read_to_string(&mut resp).unwrap();
+    let body = resp.split_once("\r\n\r\n").unwrap().1;
+    let state: serde_json::Value = serde_json::from_str(body).unwrap();
+    let order: Vec<&str> = state["targets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["target"].as_str().unwrap())
+        .collect();
+    assert_eq!(order, ["blue", "green", "red"], "{state}");
+    assert!(
+        state["targets"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|t| t["state"] == "waiting")
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

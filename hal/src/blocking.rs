@@ -73,3 +73,16 @@ pub trait CameraMux: ErrorType {
     /// See [`crate::camera::CameraMux::current_channel`].
     fn current_channel(&mut self) -> Result<Option<crate::camera::Channel>, Self::Error>;
 }
+
+/// Blocking [`crate::laser::LaserScanner`].
+pub trait LaserScanner: ErrorType {
+    /// See [`crate::laser::LaserScanner::description`].
+    fn description(&self) -> crate::laser::LaserDescription;
+    /// See [`crate::laser::LaserScanner::scan`].
+    fn scan(&mut self) -> Result<Stamped<crate::laser::LaserScan>, Self::Error>;
+    /// See [`crate::laser::LaserScanner::next_scan`].
+    fn next_scan(
+        &mut self,
+        after: crate::Instant,
+    ) -> Result<Stamped<crate::laser::LaserScan>, Self::Error>;
+}

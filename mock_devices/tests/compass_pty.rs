@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use ima_compass::machine::{Config, Dialect, Source};
-use ima_compass::shell::{Calibration, CalibrationOutcome, CompassDriver, DriverError, open_port};
+use ima_compass::shell::{Calibration, CalibrationOutcome, CompassDriver, open_port};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::compass::Compass;
 use ima_mock_devices::compass::{
@@ -122,9 +122,7 @@ async fn kvh_nmea_heading_follows_the_world_while_turning() {
     // The C100's calibration commands are unknown: refused, nothing sent.
     assert_eq!(
         drv.calibrate(Calibration::StartUser).await,
-        Err(DriverError::Request(
-            ima_compass::machine::RequestError::Unsupported
-        ))
+        Err(ima_compass::machine::RequestError::Unsupported.into())
     );
     let st = dev.stop().unwrap().stats();
     assert_eq!(st.commands, 2, "=t,0 and =r,600");
@@ -192,15 +190,15 @@ fn blocking_shell_reads_the_mock() {
         noise_deg: 0.0,
         ..CompassModelConfig::default()
     });
-    let port = ima_compass::blocking::open_port(dev.path().to_str().unwrap(), 4800).unwrap();
-    let mut c = ima_compass::blocking::BlockingCompass::connect(
-        port,
-        Config::for_dialect(Dialect::KvhC100 {
+    let path = dev.path().to_str().unwrap().to_owned();
+    let mut c = ima_serial::blocking::Blocking::connect(async || {
+        let port = ima_compass::shell::open_port(&path, 4800).unwrap();
+        let cfg = Config::for_dialect(Dialect::KvhC100 {
             rate_per_minute: 600,
-        }),
-        Duration::from_secs(10),
-        ima_hal::time::MonotonicClock::shared(),
-    )
+        });
+        let clock = ima_hal::time::TokioClock::shared();
+        CompassDriver::connect(port, cfg, Duration::from_secs(10), clock).await
+    })
     .unwrap();
     let h = c.heading().unwrap();
     let truth = world_heading_deg(&world, id).unwrap();

@@ -47,7 +47,9 @@ async fn select_query_and_refusals_over_a_pty() {
     let e = mux.select(6).await.unwrap_err();
     assert_eq!(
         e,
-        DriverError::Refused(Refusal::Extron(ExtronError::InvalidInput))
+        DriverError::Device(ima_video_mux::driver::Fault::Refused(Refusal::Extron(
+            ExtronError::InvalidInput
+        )))
     );
     assert_eq!(e.kind(), ErrorKind::Protocol);
     // Out of range for the driver: refused before sending.
@@ -75,8 +77,8 @@ async fn auto_switch_mode_refuses_with_e06() {
     let mut mux = driver(&dev);
     assert_eq!(
         mux.select(2).await,
-        Err(DriverError::Refused(Refusal::Extron(
-            ExtronError::ChangeNotAllowed
+        Err(DriverError::Device(ima_video_mux::driver::Fault::Refused(
+            Refusal::Extron(ExtronError::ChangeNotAllowed)
         )))
     );
     drop(dev);
@@ -150,12 +152,13 @@ fn blocking_shell_selects_and_queries() {
         PtyOptions::default(),
     )
     .unwrap();
-    let port = ima_video_mux::blocking::open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    let mut mux = ima_video_mux::blocking::BlockingVideoMux::new(
-        port,
-        Config::default(),
-        ima_hal::time::MonotonicClock::shared(),
-    );
+    let path = dev.path().to_str().unwrap().to_owned();
+    let mut mux = ima_serial::blocking::Blocking::connect(async || {
+        let port = ima_video_mux::shell::open_port(&path, 9600).unwrap();
+        let clock = ima_hal::time::TokioClock::shared();
+        Ok::<_, ima_video_mux::driver::DriverError>(VideoMux::spawn(port, Config::default(), clock))
+    })
+    .unwrap();
     let sel = mux.select(4).unwrap();
     assert_eq!(sel.channel, 4);
     assert_eq!(bus.current().0, Some(4));

@@ -1,6 +1,8 @@
 //! `ima commander --config FILE --targets red,blue,green`: send targets one at a time over the
 //! broadcast channel, show each target's state, the robots' broadcasts and whether each
-//! robot is alive, live; take `stop`, `resume` and `cancel COLOUR` requests on stdin.
+//! robot is alive, live; take `stop`, `resume`, `cancel COLOUR`, `add COLOUR [at N]` and
+//! `move COLOUR N` requests on stdin (checked as the web console checks its commands, and
+//! carried out through the same [`Operator`] requests).
 //! `ima commander stop|resume|cancel --config FILE`: one fleet command, sent several times.
 
 use std::io::{BufRead, IsTerminal, Write};
@@ -21,13 +23,15 @@ use crate::stack::{EVENT_QUEUE, Event, EventKind, Events, net};
 /// Arguments of `ima commander`.
 ///
 /// While it runs, lines typed on its stdin are requests: `stop [reason]` (fleet stop),
-/// `resume`, `cancel COLOUR`. On Ctrl-C it sends a fleet stop first with `--stop-on-exit`;
+/// `resume`, `cancel COLOUR`, `add COLOUR [at N]`, `move COLOUR N` (positions from 1, as the
+/// `series` lines show them). On Ctrl-C it sends a fleet stop first with `--stop-on-exit`;
 /// without it, it asks on a terminal and leaves the robots running when stdin is not one.
 #[derive(Debug, Args)]
 #[command(
     args_conflicts_with_subcommands = true,
     after_help = "While it runs, type a request and Enter: `stop [reason]` (fleet stop), `resume`, \
-                  `cancel COLOUR`.\nCtrl-C: with --stop-on-exit a fleet stop goes out first; \
+                  `cancel COLOUR`, `add COLOUR [at N]` (append, or insert at position N), \
+                  `move COLOUR N` (a waiting target to position N; positions from 1).\nCtrl-C: with --stop-on-exit a fleet stop goes out first; \
                   otherwise it asks on a terminal, and leaves the robots running when stdin is \
                   not one.\nEach robot is reported lost after --lost-after seconds of silence."
 )]
@@ -170,24 +174,142 @@ fn one_shot(action: &Action) -> Result<()> {
     }
 }
 
-/// A line typed on the commander's stdin as a request (`None` and a hint when unknown).
-fn parse_request(line: &str) -> Result<Option<Operator>, String> {
+/// A request typed on the commander's stdin, before it is checked against the series.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Typed {
+    /// `stop [reason]`.
+    Stop(Option<String>),
+    /// `resume`.
+    Resume,
+    /// `cancel COLOUR`.
+    Cancel(String),
+    /// `add COLOUR [at N]` (N from 1).
+    Add { colour: String, at: Option<usize> },
+    /// `move COLOUR N` (N from 1).
+    Move { colour: String, to: usize },
+}
+
+const GRAMMAR: &str = "type `stop [reason]`, `resume`, `cancel COLOUR`, `add COLOUR [at N]` or \
+                       `move COLOUR N` (positions from 1)";
+
+/// A position typed by a person (from 1).
+fn position(word: &str) -> Result<usize, String> {
+    match word.parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!(
+            "{word:?} is not a position: positions count from 1 (the `series` lines show them)"
+        )),
+    }
+}
+
+/// A line typed on the commander's stdin as a request (`None` for a blank line; a hint
+/// when it is not one).
+fn parse_request(line: &str) -> Result<Option<Typed>, String> {
     let mut words = line.split_whitespace();
     let Some(verb) = words.next() else {
         return Ok(None);
     };
     let rest: Vec<&str> = words.collect();
+    let c = |w: &str| w.to_owned();
     match (verb, rest.as_slice()) {
-        ("stop", r) => Ok(Some(Operator::Stop(if r.is_empty() {
-            "operator".to_owned()
-        } else {
-            r.join(" ")
-        }))),
-        ("resume", []) => Ok(Some(Operator::Resume)),
-        ("cancel", [colour]) => Ok(Some(Operator::Cancel((*colour).to_owned()))),
-        _ => Err(format!(
-            "unknown request {line:?}: type `stop [reason]`, `resume` or `cancel COLOUR`"
-        )),
+        ("stop", r) => Ok(Some(Typed::Stop((!r.is_empty()).then(|| r.join(" "))))),
+        ("resume", []) => Ok(Some(Typed::Resume)),
+        ("cancel", [colour]) => Ok(Some(Typed::Cancel(c(colour)))),
+        ("add", [colour]) => Ok(Some(Typed::Add {
+            colour: c(colour),
+            at: None,
+        })),
+        ("add", [colour, "at", n]) => Ok(Some(Typed::Add {
+            colour: c(colour),
+            at: Some(position(n)?),
+        })),
+        ("move", [colour, n]) => Ok(Some(Typed::Move {
+            colour: c(colour),
+            to: position(n)?,
+        })),
+        _ => Err(format!("unknown request {line:?}: {GRAMMAR}")),
+    }
+}
+
+/// The series as the stdin requests see it: each target's colour and state, in order (from
+/// the commander's `queue` events, plus the targets added since).
+type SeriesView = Arc<std::sync::Mutex<Vec<(String, String)>>>;
+
+fn view(v: &SeriesView) -> std::sync::MutexGuard<'_, Vec<(String, String)>> {
+    v.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Checks a typed request against the colours the robots know and the series, as the web
+/// console checks its commands ([`crate::web::msg::to_operator`]), and turns it into the
+/// commander's requests.
+fn resolve(
+    t: Typed,
+    known: &[String],
+    series: &[(String, String)],
+) -> Result<Vec<Operator>, String> {
+    use crate::web::msg::{Command, to_operator};
+    let n = series.len();
+    let open = |c: &str| {
+        series
+            .iter()
+            .any(|(t, s)| t == c && !matches!(s.as_str(), "done" | "failed"))
+    };
+    let check = |cmd: Command| to_operator(&cmd, known, n, open);
+    // Only waiting targets move, so a target can only go where a waiting one is.
+    let waiting_at = |p: usize| -> Result<(), String> {
+        match series.get(p - 1) {
+            Some((t, s)) if s != "waiting" => Err(format!(
+                "position {p} holds {t}, which is {s}: only places of waiting targets can be \
+                 taken"
+            )),
+            _ => Ok(()),
+        }
+    };
+    match t {
+        Typed::Stop(reason) => Ok(vec![check(Command::Stop { reason })?]),
+        Typed::Resume => Ok(vec![Operator::Resume]),
+        Typed::Cancel(target) => Ok(vec![check(Command::Cancel { target })?]),
+        Typed::Add { colour, at } => {
+            let add = check(Command::Add { target: colour })?;
+            match at {
+                None => Ok(vec![add]),
+                Some(p) if p > n + 1 => Err(format!(
+                    "cannot add at position {p}: the series has {n} target(s), so 1 to {} are \
+                     possible",
+                    n + 1
+                )),
+                // Appended at position n (from 0), then moved.
+                Some(p) if p == n + 1 => Ok(vec![add]),
+                Some(p) => {
+                    waiting_at(p)?;
+                    Ok(vec![add, Operator::Move { from: n, to: p - 1 }])
+                }
+            }
+        }
+        Typed::Move { colour, to } => {
+            if n == 0 {
+                return Err("the queue is empty: nothing to move".to_owned());
+            }
+            check(Command::Add {
+                target: colour.clone(),
+            })?;
+            let Some(from) = series
+                .iter()
+                .position(|(t, s)| *t == colour && s == "waiting")
+            else {
+                return Err(format!(
+                    "no waiting target {colour:?} to move (only waiting targets move; sent, \
+                     done and failed ones keep their place)"
+                ));
+            };
+            if to > n {
+                return Err(format!(
+                    "cannot move to position {to}: the series has {n} target(s)"
+                ));
+            }
+            waiting_at(to)?;
+            Ok(vec![check(Command::Move { from, to: to - 1 })?])
+        }
     }
 }
 
@@ -219,6 +341,7 @@ async fn next_line(
 /// Turns stdin lines and Ctrl-C into [`Operator`] requests until a quit is sent.
 async fn operator(
     ops: tokio::sync::mpsc::UnboundedSender<Operator>,
+    (known, series): (Vec<String>, SeriesView),
     stop_on_exit: bool,
     mut interrupt: impl AsyncInterrupt,
 ) {
@@ -231,15 +354,26 @@ async fn operator(
             () = crate::safety::cancelled() => break,
             l = next_line(&mut lines) => match l {
                 None => lines = None,
-                Some(l) => match parse_request(&l) {
-                    Ok(Some(op)) => {
-                        if ops.send(op).is_err() {
-                            return;
+                Some(l) => {
+                    let r = parse_request(&l)
+                        .and_then(|t| t.map(|t| resolve(t, &known, &view(&series))).transpose());
+                    match r {
+                        Ok(Some(list)) => {
+                            for op in list {
+                                if let Operator::Add(c) = &op {
+                                    // Seen by the next line before the commander's next
+                                    // `queue` event.
+                                    view(&series).push((c.clone(), "waiting".to_owned()));
+                                }
+                                if ops.send(op).is_err() {
+                                    return;
+                                }
+                            }
                         }
+                        Ok(None) => {}
+                        Err(hint) => eprintln!("ima commander: {hint}"),
                     }
-                    Ok(None) => {}
-                    Err(hint) => eprintln!("ima commander: {hint}"),
-                },
+                }
             },
         }
     }
@@ -337,6 +471,29 @@ pub fn print_event(e: &Event, json: bool) -> bool {
                     _ => format!("[{:7.1}s] robot {robot} alive", e.t_s),
                 }
             }
+            "operator" => format!(
+                "[{:7.1}s] request refused: {}",
+                e.t_s,
+                d["error"].as_str().unwrap_or("?")
+            ),
+            "queue" => format!(
+                "[{:7.1}s] series: {}",
+                e.t_s,
+                d["targets"]
+                    .as_array()
+                    .map(|l| l
+                        .iter()
+                        .enumerate()
+                        .map(|(i, t)| format!(
+                            "{} {} {}",
+                            i + 1,
+                            t["target"].as_str().unwrap_or("?"),
+                            t["state"].as_str().unwrap_or("?")
+                        ))
+                        .collect::<Vec<_>>()
+                        .join(", "))
+                    .unwrap_or_default()
+            ),
             "fleet" => format!(
                 "[{:7.1}s] fleet {} sent",
                 e.t_s,
@@ -411,18 +568,49 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
             .web
             .start("commander", known.clone(), Some(op_tx.clone()))?;
         let console = web.as_ref().map(|(c, _)| Arc::clone(c));
-        let op_task = tokio::spawn(operator(op_tx, args.stop_on_exit, interrupt));
+        let series = SeriesView::default();
+        let op_task = tokio::spawn(operator(
+            op_tx,
+            (known.clone(), Arc::clone(&series)),
+            args.stop_on_exit,
+            interrupt,
+        ));
         let (events, mut rx) = Events::channel(EVENT_QUEUE);
-        let events = events.detailed(web.is_some());
+        // The series (`queue` events) is wanted by the stdin requests too.
+        let events = events.detailed(true);
         let json = args.json;
+        let with_web = web.is_some();
         let printer = tokio::spawn(async move {
             // Text mode: a robot's status is shown when its behaviour changes, not every second.
             let mut last: std::collections::BTreeMap<String, String> = Default::default();
+            // Text mode: the series is shown when its order changes (adds and moves).
+            let mut order: Option<Vec<String>> = None;
             while let Some(e) = rx.recv().await {
                 if let Some(c) = &console {
                     c.apply(&e);
                 }
-                if !json && crate::web::DETAIL_KINDS.contains(&e.name()) {
+                if let EventKind::Queue { targets } = &e.kind {
+                    *view(&series) = targets
+                        .iter()
+                        .map(|t| (t.target.clone(), t.state.clone()))
+                        .collect();
+                    let now: Vec<String> = targets.iter().map(|t| t.target.clone()).collect();
+                    let first = order.is_none();
+                    if order.as_ref() != Some(&now) {
+                        order = Some(now);
+                        if !json && !first && !print_event(&e, false) {
+                            crate::safety::output_closed();
+                            break;
+                        }
+                    }
+                    if !json {
+                        continue;
+                    }
+                }
+                // JSON lines carry the series (`queue`); the other detail is the page's.
+                if crate::web::DETAIL_KINDS.contains(&e.name())
+                    && (!json || (!with_web && e.name() != "queue"))
+                {
                     continue;
                 }
                 if !json
@@ -513,25 +701,137 @@ mod tests {
 
     #[test]
     fn typed_requests_parse_and_others_get_a_hint() {
-        assert_eq!(
-            parse_request("stop"),
-            Ok(Some(Operator::Stop("operator".into())))
-        );
+        assert_eq!(parse_request("stop"), Ok(Some(Typed::Stop(None))));
         assert_eq!(
             parse_request(" stop  rock ahead "),
-            Ok(Some(Operator::Stop("rock ahead".into())))
+            Ok(Some(Typed::Stop(Some("rock ahead".into()))))
         );
-        assert_eq!(parse_request("resume"), Ok(Some(Operator::Resume)));
+        assert_eq!(parse_request("resume"), Ok(Some(Typed::Resume)));
         assert_eq!(
             parse_request("cancel red"),
-            Ok(Some(Operator::Cancel("red".into())))
+            Ok(Some(Typed::Cancel("red".into())))
+        );
+        assert_eq!(
+            parse_request("add red"),
+            Ok(Some(Typed::Add {
+                colour: "red".into(),
+                at: None
+            }))
+        );
+        assert_eq!(
+            parse_request("add red at 2"),
+            Ok(Some(Typed::Add {
+                colour: "red".into(),
+                at: Some(2)
+            }))
+        );
+        assert_eq!(
+            parse_request("move blue 1"),
+            Ok(Some(Typed::Move {
+                colour: "blue".into(),
+                to: 1
+            }))
         );
         assert_eq!(parse_request("   "), Ok(None));
-        for bad in ["cancel", "cancel dark red", "resume now", "go"] {
+        for bad in [
+            "cancel",
+            "cancel dark red",
+            "resume now",
+            "go",
+            "add",
+            "add red 2",
+            "move red",
+            "move red to 2",
+        ] {
             assert!(
-                parse_request(bad).unwrap_err().contains("cancel COLOUR"),
+                parse_request(bad)
+                    .unwrap_err()
+                    .contains("add COLOUR [at N]"),
                 "{bad}"
             );
         }
+        for bad in ["move red 0", "add red at -1", "move red x"] {
+            assert!(
+                parse_request(bad)
+                    .unwrap_err()
+                    .contains("positions count from 1"),
+                "{bad}"
+            );
+        }
+    }
+
+    #[test]
+    fn typed_requests_are_checked_against_the_series() {
+        let known: Vec<String> = ["red", "blue", "green"].map(String::from).to_vec();
+        let series: Vec<(String, String)> = [("red", "sent"), ("blue", "waiting")]
+            .map(|(a, b)| (a.to_owned(), b.to_owned()))
+            .to_vec();
+        let r = |line: &str, s: &[(String, String)]| {
+            resolve(parse_request(line).unwrap().unwrap(), &known, s)
+        };
+        assert_eq!(
+            r("add green", &series),
+            Ok(vec![Operator::Add("green".into())])
+        );
+        assert_eq!(
+            r("add green at 2", &series),
+            Ok(vec![
+                Operator::Add("green".into()),
+                Operator::Move { from: 2, to: 1 }
+            ])
+        );
+        assert_eq!(
+            r("add green at 3", &series),
+            Ok(vec![Operator::Add("green".into())])
+        );
+        assert!(r("add green at 4", &series).unwrap_err().contains("1 to 3"));
+        assert_eq!(
+            r("move blue 2", &series),
+            Ok(vec![Operator::Move { from: 1, to: 1 }])
+        );
+        let e = r("add pink", &series).unwrap_err();
+        assert!(
+            e.contains("unknown colour \"pink\"") && e.contains("red, blue, green"),
+            "{e}"
+        );
+        assert!(
+            r("move pink 1", &series)
+                .unwrap_err()
+                .contains("unknown colour")
+        );
+        assert!(
+            r("move red 2", &series)
+                .unwrap_err()
+                .contains("no waiting target \"red\"")
+        );
+        assert!(
+            r("move blue 3", &series)
+                .unwrap_err()
+                .contains("has 2 target(s)")
+        );
+        let e = r("move blue 1", &series).unwrap_err();
+        assert!(e.contains("position 1 holds red, which is sent"), "{e}");
+        let e = r("add green at 1", &series).unwrap_err();
+        assert!(e.contains("position 1 holds red"), "{e}");
+        assert!(
+            r("move blue 1", &[])
+                .unwrap_err()
+                .contains("queue is empty")
+        );
+        assert!(r("cancel red", &[]).unwrap_err().contains("queue is empty"));
+        assert!(
+            r("cancel green", &series)
+                .unwrap_err()
+                .contains("no open target")
+        );
+        assert_eq!(
+            r("cancel blue", &series),
+            Ok(vec![Operator::Cancel("blue".into())])
+        );
+        assert_eq!(
+            r("stop", &series),
+            Ok(vec![Operator::Stop("operator".into())])
+        );
+        assert_eq!(r("resume", &[]), Ok(vec![Operator::Resume]));
     }
 }

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use ima_compass::driver::DriverError;
+use ima_compass::driver::{DriverError, Fault};
 use ima_compass::machine::{Config, Dialect, ForeignLine};
 use ima_compass::shell::{CompassDriver, default_baud, open_port};
 use ima_compass::wire::Tcm2Format;
@@ -101,15 +101,15 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         Ok(d) => d,
         Err(e) => {
             let hint = match e {
-                DriverError::WrongDialect {
+                DriverError::Device(Fault::WrongDialect {
                     seen: ForeignLine::Nmea { .. },
                     ..
-                } => ": try --dialect nmea (or --dialect kvh for a KVH C100)",
-                DriverError::WrongDialect {
+                }) => ": try --dialect nmea (or --dialect kvh for a KVH C100)",
+                DriverError::Device(Fault::WrongDialect {
                     seen: ForeignLine::Tcm2,
                     ..
-                } => ": try --dialect tcm2",
-                DriverError::NoAnswer { lines, .. }
+                }) => ": try --dialect tcm2",
+                DriverError::Device(Fault::NoAnswer { lines, .. })
                     if lines > 0 && args.dialect == DriverDialect::Kvh =>
                 {
                     " (an NMEA source that takes no commands? try --dialect nmea)"

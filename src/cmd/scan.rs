@@ -12,7 +12,7 @@ use ima_hal::laser::{BeamFlags, LaserScan, LaserScanner};
 use ima_sick_lms::decode::Variant;
 use ima_sick_lms::driver::expected_scan_rate_hz;
 use ima_sick_lms::machine::Config;
-use ima_sick_lms::shell::{DriverError, SickLms, open_port};
+use ima_sick_lms::shell::{DriverError, Fault, SickLms, open_port};
 use ima_sick_lms::wire::{BaudRate, StatusByte};
 
 /// Arguments of `ima scan`.
@@ -293,7 +293,7 @@ pub fn run(args: &ScanArgs) -> Result<()> {
         );
         let lms = match crate::safety::until_cancelled(connect).await? {
             Ok(l) => l.with_scan_timeout(Duration::from_secs(5)),
-            Err(e @ DriverError::NotFound { rs422: false, .. }) => {
+            Err(e @ DriverError::Device(Fault::NotFound { rs422: false, .. })) => {
                 return Err(anyhow::Error::new(e)
                     .context("initialising the LMS (pass --rs422 if the line is RS-422)"));
             }

@@ -372,20 +372,33 @@ fn typed_runtime_events_become_the_pages_json() {
     s.apply(&e(
         "skeeter",
         EventKind::SesPublished {
-            marks: vec![SesMark {
-                tag: "red".into(),
-                azimuth_rad: 0.5,
-                elevation_rad: 0.0,
-            }],
+            marks: vec![
+                SesMark {
+                    tag: "red".into(),
+                    azimuth_rad: 0.5,
+                    elevation_rad: 0.0,
+                    range_m: Some(2.25),
+                },
+                SesMark {
+                    tag: "scooter".into(),
+                    azimuth_rad: -1.0,
+                    elevation_rad: 0.0,
+                    range_m: None,
+                },
+                SesMark {
+                    tag: "blue".into(),
+                    azimuth_rad: 0.1,
+                    elevation_rad: 0.0,
+                    range_m: Some(f64::NAN),
+                },
+            ],
         },
     ));
     s.apply(&e(
         "commander",
         EventKind::PeerStatus(Box::new(PeerStatus {
             broadcast: Some(Default::default()),
-            manager: None,
-            clients: Vec::new(),
-            address: None,
+            ..PeerStatus::default()
         })),
     ));
     s.apply(&e(
@@ -410,7 +423,150 @@ fn typed_runtime_events_become_the_pages_json() {
     assert_eq!(v["san"]["skeeter"]["history"][0][1][0], 0.75);
     assert_eq!(v["ses"]["form"]["records"][0]["object"], "red");
     assert_eq!(v["ses"]["form"]["records"][0]["bearing_rad"], 0.5);
+    // Ranges where known; a bearing only (null) where not, or where it is not a number.
+    assert_eq!(v["ses"]["form"]["records"][0]["range_m"], 2.25);
+    assert_eq!(v["ses"]["form"]["records"][1]["object"], "scooter");
+    assert!(v["ses"]["form"]["records"][1]["range_m"].is_null());
+    assert!(v["ses"]["form"]["records"][2]["range_m"].is_null());
     assert_eq!(v["peer"]["commander"]["broadcast"]["sent"], 0);
     assert_eq!(v["robots"]["scooter"]["pose"][0], 1.0);
     assert_eq!(v["robots"]["scooter"]["pose"][2], 1.0);
+}
+
+/// The Peer Agent pages' JSON: per manager its sources, clients with request priorities and
+/// outcomes, and per session its link health; per client its subscription and session.
+#[test]
+fn peer_status_carries_link_health_priorities_and_outcomes() {
+    use ima_agents::peer::client::{ClientLinkStatus, Registration};
+    use ima_agents::peer::manager::{
+        ClientStatus, DecisionNote, LinkStatus, Outcome, Priority, RequestStatus,
+    };
+    use ima_agents::peer::net::{ManagerNetStats, SessionLink};
+    use ima_agents::peer::wire::{DenyReason, RejectCounts};
+    use ima_agents::runtime::events::{PeerClientView, PeerStatus};
+    use ima_agents::runtime::{Event, EventKind};
+    let p = Priority {
+        robot: 1,
+        request: 4,
+    };
+    let rejects = RejectCounts {
+        bad_mac: 3,
+        replay: 2,
+        truncated: 1,
+        malformed: 1,
+        ..RejectCounts::default()
+    };
+    let mut stats = ManagerNetStats {
+        sessions: 1,
+        clients: 1,
+        links: vec![SessionLink {
+            addr: "127.0.0.1:5000".parse().unwrap(),
+            link: LinkStatus {
+                peer: 7,
+                frames_received: 40,
+                heartbeats_received: 31,
+                heartbeats_sent: 30,
+                silent_for: Duration::from_millis(80),
+                open_for: Duration::from_secs(3),
+            },
+        }],
+        ..ManagerNetStats::default()
+    };
+    stats.core.rejects = rejects;
+    let status = PeerStatus {
+        manager: Some(stats),
+        clients: vec![ClientStatus {
+            client: 99,
+            peer: 7,
+            robot: "scooter".into(),
+            requesting: Vec::new(),
+            granted: vec!["ses".into()],
+            requests: vec![RequestStatus {
+                source: "ses".into(),
+                priority: p,
+                granted: true,
+            }],
+            recent: vec![
+                DecisionNote {
+                    source: "ses".into(),
+                    priority: p,
+                    outcome: Outcome::Denied(DenyReason::UnknownSource),
+                    at: ima_hal::Instant::from_millis(500),
+                },
+                DecisionNote {
+                    source: "ses".into(),
+                    priority: p,
+                    outcome: Outcome::Granted,
+                    at: ima_hal::Instant::from_millis(900),
+                },
+            ],
+        }],
+        address: Some("127.0.0.1:7400".into()),
+        client: Some(PeerClientView {
+            manager: "127.0.0.1:7400".into(),
+            source: "ses".into(),
+            priority: 4,
+            outcome: "granted".into(),
+            grants: 2,
+            samples: 12,
+            retries: 1,
+            link: Some(ClientLinkStatus {
+                client: 99,
+                registration: Registration::Registered,
+                frames_received: 50,
+                heartbeats_received: 30,
+                heartbeats_sent: 31,
+                silent_for: Duration::from_millis(20),
+                open_for: Duration::from_secs(3),
+                rejects: RejectCounts::default(),
+                requests: vec![("ses".into(), true)],
+            }),
+        }),
+        ..PeerStatus::default()
+    };
+    let mut s = ConsoleState::new("demo", colours());
+    s.apply(&Event {
+        t_s: 3.0,
+        robot: "skeeter".into(),
+        kind: EventKind::PeerStatus(Box::new(status)),
+    });
+    let v = s.snapshot();
+    let m = &v["peer"]["skeeter"];
+    assert_eq!(m["address"], "127.0.0.1:7400");
+    let l = &m["links"][0];
+    assert_eq!(l["addr"], "127.0.0.1:5000");
+    assert_eq!(l["robots"], json!(["scooter"]));
+    assert_eq!(l["heartbeats_received"], 31);
+    assert_eq!(l["heartbeats_sent"], 30);
+    assert_eq!(l["frames_received"], 40);
+    assert_eq!(l["last_seen_ms"], 80);
+    assert_eq!(m["rejected"]["auth_failures"], 3);
+    assert_eq!(m["rejected"]["replayed"], 2);
+    assert_eq!(m["rejected"]["bad_frames"], 2);
+    let c = &m["clients"][0];
+    assert_eq!(c["robot"], "scooter");
+    assert_eq!(c["session"], "127.0.0.1:5000");
+    assert_eq!(c["requests"][0]["source"], "ses");
+    assert_eq!(c["requests"][0]["robot_priority"], 1);
+    assert_eq!(c["requests"][0]["request_priority"], 4);
+    assert_eq!(c["requests"][0]["granted"], true);
+    assert_eq!(c["recent"][0]["outcome"], "denied: UnknownSource");
+    assert_eq!(c["recent"][1]["outcome"], "granted");
+    assert_eq!(c["recent"][1]["at_ms"], 900);
+    let k = &m["client"];
+    assert_eq!(k["source"], "ses");
+    assert_eq!(k["priority"], 4);
+    assert_eq!(k["outcome"], "granted");
+    assert_eq!(
+        (k["grants"].clone(), k["samples"].clone()),
+        (json!(2), json!(12))
+    );
+    assert_eq!(k["link"]["registration"], "registered");
+    assert_eq!(k["link"]["heartbeats_received"], 30);
+    assert_eq!(k["link"]["heartbeats_sent"], 31);
+    assert_eq!(k["link"]["last_seen_ms"], 20);
+    assert_eq!(
+        k["link"]["requests"][0],
+        json!({"source": "ses", "granted": true})
+    );
 }

@@ -77,6 +77,10 @@ try {
   await page.waitForFunction(() => document.querySelectorAll('#map-robots li').length === 2, null, { timeout: 30000 });
   const names = await page.$$eval('#map-robots li', (l) => l.map((x) => x.dataset.robot).sort());
   check(JSON.stringify(names) === '["scooter","skeeter"]', `the map shows two robots (${names})`);
+  // Skeeter's SES: bearings with ranges where its vision has one (drawn as segments + dots).
+  await page.waitForSelector('#map-ses li.ses-mark[data-ranged="yes"]', { timeout: 60000 });
+  const marks = await page.$$eval('#map-ses li.ses-mark', (l) => l.map((x) => x.textContent));
+  check(marks.some((t) => /range \d+\.\d+ m/.test(t)), `the map draws SES bearings with ranges (${marks.length} marks, e.g. "${marks[0]}")`);
 
   // SAN: activations change over time.
   await page.click('nav [data-tab="san"]');
@@ -95,6 +99,18 @@ try {
   await page.click('nav [data-tab="peer"]');
   await page.waitForFunction(() => document.querySelectorAll('.card.peer').length >= 2);
   check((await page.textContent('#peer')).includes('broadcasts'), 'the Peer Agent page shows broadcast counters');
+  // Link health: Skeeter's manager counts Scooter's heartbeats; the count grows on screen.
+  const hb = '.card.peer[data-robot="skeeter"] li.link .hb-rx';
+  await page.waitForSelector(hb, { timeout: 30000 });
+  const hb0 = Number(await page.textContent(hb));
+  await page.waitForFunction(([sel, n]) => {
+    const e = document.querySelector(sel);
+    return e && Number(e.textContent) > n;
+  }, [hb, hb0], { timeout: 30000 });
+  check(true, `a heartbeat counter increases on the Peer page (from ${hb0} to ${await page.textContent(hb)})`);
+  const peerText = await page.textContent('#peer');
+  check(/request priority \d+/.test(peerText) && peerText.includes('auth failures'),
+    'the Peer page shows request priorities and refused-frame counters');
   await page.screenshot({ path: path.join(out, 'console-peer.png'), fullPage: true });
 
   // Mission: the three targets reach "done" on screen.

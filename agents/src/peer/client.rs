@@ -187,8 +187,35 @@ pub struct PeerClient {
     requests: BTreeMap<String, SourceState>,
     last_heard: Instant,
     next_heartbeat: Instant,
+    opened: Instant,
+    frames_in: u64,
+    heartbeats_in: u64,
+    heartbeats_out: u64,
     outbox: VecDeque<Msg>,
     events: VecDeque<ClientEvent>,
+}
+
+/// Health of a client's session to its manager (PEER.md, "Liveness"), for status displays.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ClientLinkStatus {
+    /// The current client ID.
+    pub client: u64,
+    /// Registration state.
+    pub registration: Registration,
+    /// Authenticated frames received from the manager.
+    pub frames_received: u64,
+    /// Heartbeats received from the manager.
+    pub heartbeats_received: u64,
+    /// Heartbeats sent to the manager.
+    pub heartbeats_sent: u64,
+    /// Time since the manager's last authenticated frame.
+    pub silent_for: Duration,
+    /// Time since the session opened.
+    pub open_for: Duration,
+    /// Frames from the manager refused, by class (a refused frame ends the session).
+    pub rejects: super::wire::RejectCounts,
+    /// Every requested source, and whether it is granted.
+    pub requests: Vec<(String, bool)>,
 }
 
 fn splitmix64(state: &mut u64) -> u64 {
@@ -216,6 +243,10 @@ impl PeerClient {
             requests: BTreeMap::new(),
             last_heard: now,
             next_heartbeat: now,
+            opened: now,
+            frames_in: 0,
+            heartbeats_in: 0,
+            heartbeats_out: 0,
             outbox: VecDeque::new(),
             events: VecDeque::new(),
             cfg,
@@ -250,6 +281,26 @@ impl PeerClient {
     #[must_use]
     pub fn rejects(&self) -> super::wire::RejectCounts {
         self.verifier.rejects
+    }
+
+    /// The session's health at `now`.
+    #[must_use]
+    pub fn link_status(&self, now: Instant) -> ClientLinkStatus {
+        ClientLinkStatus {
+            client: self.id,
+            registration: self.reg,
+            frames_received: self.frames_in,
+            heartbeats_received: self.heartbeats_in,
+            heartbeats_sent: self.heartbeats_out,
+            silent_for: now.saturating_duration_since(self.last_heard),
+            open_for: now.saturating_duration_since(self.opened),
+            rejects: self.verifier.rejects,
+            requests: self
+                .requests
+                .iter()
+                .map(|(k, v)| (k.clone(), matches!(v, SourceState::Granted { .. })))
+                .collect(),
+        }
     }
 
     fn send(&mut self, m: Msg) -> Result<(), ClientError> {
@@ -381,6 +432,10 @@ impl PeerClient {
         match self.verifier.open(frame) {
             Ok(o) => {
                 self.last_heard = now;
+                self.frames_in = self.frames_in.saturating_add(1);
+                if matches!(o.msg, Msg::Heartbeat) {
+                    self.heartbeats_in = self.heartbeats_in.saturating_add(1);
+                }
                 self.handle_msg(o.msg);
             }
             Err(e) => self.lose(Some(e)),
@@ -512,7 +567,9 @@ impl PeerClient {
         }
         if now >= self.next_heartbeat {
             self.next_heartbeat = now + self.cfg.heartbeat;
-            let _ = self.send(Msg::Heartbeat);
+            if self.send(Msg::Heartbeat).is_ok() {
+                self.heartbeats_out = self.heartbeats_out.saturating_add(1);
+            }
         }
     }
 

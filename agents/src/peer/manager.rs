@@ -295,6 +295,55 @@ pub struct ClientStatus {
     pub requesting: Vec<String>,
     /// Sources granted.
     pub granted: Vec<String>,
+    /// Every open request (pending or granted) with its priority.
+    pub requests: Vec<RequestStatus>,
+    /// The latest decisions about this client's requests, oldest first (at most
+    /// [`RECENT_DECISIONS`]).
+    pub recent: Vec<DecisionNote>,
+}
+
+/// One open request of a client ([`ClientStatus::requests`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RequestStatus {
+    /// Source name.
+    pub source: String,
+    /// Its priority (robot, request).
+    pub priority: Priority,
+    /// Granted (else pending).
+    pub granted: bool,
+}
+
+/// A decision about one of a client's requests ([`ClientStatus::recent`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DecisionNote {
+    /// Source name.
+    pub source: String,
+    /// The request's priority.
+    pub priority: Priority,
+    /// What was decided.
+    pub outcome: Outcome,
+    /// When.
+    pub at: Instant,
+}
+
+/// Decisions kept per client for its status ([`ClientStatus::recent`]).
+pub const RECENT_DECISIONS: usize = 8;
+
+/// Health of one request-channel session (PEER.md, "Liveness"), for status displays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkStatus {
+    /// The session.
+    pub peer: PeerId,
+    /// Authenticated frames received on it.
+    pub frames_received: u64,
+    /// Heartbeats received on it.
+    pub heartbeats_received: u64,
+    /// Heartbeats sent on it.
+    pub heartbeats_sent: u64,
+    /// Time since its last authenticated frame.
+    pub silent_for: Duration,
+    /// Time since it opened.
+    pub open_for: Duration,
 }
 
 /// Counters.
@@ -318,6 +367,10 @@ pub struct ManagerStats {
 struct Session {
     last_heard: Instant,
     next_heartbeat: Instant,
+    opened: Instant,
+    frames_in: u64,
+    heartbeats_in: u64,
+    heartbeats_out: u64,
     slow: bool,
     /// Data-server address for the grants of this session (`None`: the configured one).
     data_address: Option<String>,
@@ -328,6 +381,7 @@ struct ClientRec {
     peer: PeerId,
     robot: String,
     robot_priority: u8,
+    recent: VecDeque<DecisionNote>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -438,16 +492,41 @@ impl<A: SelfAgent> PeerManager<A> {
                     robot: c.robot.clone(),
                     requesting: Vec::new(),
                     granted: Vec::new(),
+                    requests: Vec::new(),
+                    recent: c.recent.iter().cloned().collect(),
                 };
                 for ((cl, src), r) in &self.requests {
                     if *cl == client {
-                        match r.state {
-                            ReqState::Pending => s.requesting.push(src.clone()),
-                            ReqState::Granted { .. } => s.granted.push(src.clone()),
+                        let granted = matches!(r.state, ReqState::Granted { .. });
+                        if granted {
+                            s.granted.push(src.clone());
+                        } else {
+                            s.requesting.push(src.clone());
                         }
+                        s.requests.push(RequestStatus {
+                            source: src.clone(),
+                            priority: r.priority,
+                            granted,
+                        });
                     }
                 }
                 s
+            })
+            .collect()
+    }
+
+    /// Health of every open session at `now`, by session.
+    #[must_use]
+    pub fn links(&self, now: Instant) -> Vec<LinkStatus> {
+        self.sessions
+            .iter()
+            .map(|(&peer, s)| LinkStatus {
+                peer,
+                frames_received: s.frames_in,
+                heartbeats_received: s.heartbeats_in,
+                heartbeats_sent: s.heartbeats_out,
+                silent_for: now.saturating_duration_since(s.last_heard),
+                open_for: now.saturating_duration_since(s.opened),
             })
             .collect()
     }
@@ -466,6 +545,10 @@ impl<A: SelfAgent> PeerManager<A> {
             Session {
                 last_heard: now,
                 next_heartbeat: now,
+                opened: now,
+                frames_in: 0,
+                heartbeats_in: 0,
+                heartbeats_out: 0,
                 slow: false,
                 data_address: None,
             },
@@ -503,6 +586,10 @@ impl<A: SelfAgent> PeerManager<A> {
             Ok(o) => {
                 if let Some(s) = self.sessions.get_mut(&peer) {
                     s.last_heard = now;
+                    s.frames_in = s.frames_in.saturating_add(1);
+                    if matches!(o.msg, Msg::Heartbeat) {
+                        s.heartbeats_in = s.heartbeats_in.saturating_add(1);
+                    }
                 }
                 self.handle_msg(peer, o.msg, now);
             }
@@ -575,6 +662,7 @@ impl<A: SelfAgent> PeerManager<A> {
                 peer,
                 robot,
                 robot_priority,
+                recent: VecDeque::new(),
             },
         );
         self.send(
@@ -837,6 +925,17 @@ impl<A: SelfAgent> PeerManager<A> {
             .get(&client)
             .map(|c| c.robot.clone())
             .unwrap_or_default();
+        if let Some(c) = self.clients.get_mut(&client) {
+            if c.recent.len() >= RECENT_DECISIONS {
+                c.recent.pop_front();
+            }
+            c.recent.push_back(DecisionNote {
+                source: source.to_owned(),
+                priority,
+                outcome: o,
+                at: now,
+            });
+        }
         let d = Decision {
             client,
             robot,
@@ -954,6 +1053,7 @@ impl<A: SelfAgent> PeerManager<A> {
             self.send(p, Msg::Heartbeat);
             if let Some(s) = self.sessions.get_mut(&p) {
                 s.next_heartbeat = now + self.cfg.heartbeat;
+                s.heartbeats_out = s.heartbeats_out.saturating_add(1);
             }
         }
         if now >= self.next_rescan {

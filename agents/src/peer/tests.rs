@@ -9,11 +9,12 @@ use super::client::{
     ClientConfig, ClientError, ClientEvent, PeerClient, Registration, SourceState,
 };
 use super::manager::{
-    CloseReason, FixedSelfAgent, ManagerConfig, ManagerEvent, Outcome, PeerManager, TicketError,
+    CloseReason, FixedSelfAgent, ManagerConfig, ManagerEvent, Outcome, PeerManager,
+    RECENT_DECISIONS, TicketError,
 };
 use super::wire::{
-    DeclineReason, DenyReason, GroupKey, HEADER_LEN, MAC_LEN, Msg, RevokeReason, Signer,
-    SourceInfo, Verifier, WireError,
+    DeclineReason, DenyReason, GroupKey, HEADER_LEN, MAC_LEN, Msg, RejectCounts, RevokeReason,
+    Signer, SourceInfo, Verifier, WireError,
 };
 
 const KEY: &[u8] = b"group key of the test fleet, 32b";
@@ -586,6 +587,67 @@ fn heartbeats_keep_both_ends_alive() {
     }
     assert_eq!(n.clients[a].registration(), Registration::Registered);
     assert_eq!(n.m.status().len(), 1);
+}
+
+/// Link health for the status pages: heartbeats counted both ways at both ends, last seen,
+/// and each client's requests with their priorities and the latest decisions.
+#[test]
+fn link_health_counts_heartbeats_both_ways_and_status_shows_priorities_and_outcomes() {
+    let mut n = Net::new(5, |_| {});
+    let a = n.add("scout", 1, ms(0));
+    n.register(a, ms(0));
+    n.clients[a].request("ses", 4).unwrap();
+    n.pump(ms(1));
+    // 100 ms heartbeats for one second: about ten each way.
+    for t in (0..=1000).step_by(50) {
+        n.clients[a].handle_timeout(ms(t));
+        n.m.handle_timeout(ms(t));
+        n.pump(ms(t));
+    }
+    let links = n.m.links(ms(1030));
+    assert_eq!(links.len(), 1);
+    let l = links[0];
+    assert_eq!(l.peer, a as u64);
+    assert!((9..=12).contains(&l.heartbeats_received), "{l:?}");
+    assert!((9..=12).contains(&l.heartbeats_sent), "{l:?}");
+    assert!(
+        l.frames_received > l.heartbeats_received,
+        "register and request: {l:?}"
+    );
+    assert_eq!(l.silent_for, Duration::from_millis(30));
+    assert_eq!(l.open_for, Duration::from_millis(1030));
+    let c = n.clients[a].link_status(ms(1030));
+    assert_eq!(c.registration, Registration::Registered);
+    assert_eq!(c.heartbeats_received, l.heartbeats_sent);
+    assert_eq!(c.heartbeats_sent, l.heartbeats_received);
+    assert_eq!(c.requests, vec![("ses".to_owned(), false)]);
+    assert_eq!(c.rejects, RejectCounts::default());
+    // The manager's view: the pending request with its priority, and the decision.
+    let st = &n.m.status()[0];
+    assert_eq!(st.requests.len(), 1);
+    assert_eq!(st.requests[0].source, "ses");
+    assert_eq!(
+        (
+            st.requests[0].priority.robot,
+            st.requests[0].priority.request
+        ),
+        (1, 4)
+    );
+    assert!(!st.requests[0].granted);
+    assert_eq!(st.recent.last().unwrap().outcome, Outcome::Pending);
+    // Granted once the task priority falls; the decisions stay bounded.
+    n.m.agent_mut().task_priority = 0;
+    n.m.handle_timeout(ms(1040));
+    n.pump(ms(1040));
+    let st = &n.m.status()[0];
+    assert!(st.requests[0].granted);
+    assert_eq!(st.recent.last().unwrap().outcome, Outcome::Granted);
+    assert!(n.clients[a].link_status(ms(1040)).requests[0].1);
+    for i in 0..20 {
+        n.clients[a].request("ses", 4).unwrap();
+        n.pump(ms(1050 + i));
+    }
+    assert_eq!(n.m.status()[0].recent.len(), RECENT_DECISIONS);
 }
 
 #[test]

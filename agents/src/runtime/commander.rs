@@ -308,9 +308,7 @@ pub async fn run(
                 if events.wants_detail() {
                     events.emit(&time, &me, EventKind::PeerStatus(Box::new(PeerStatus {
                         broadcast: Some(bus.channel().stats()),
-                        manager: None,
-                        clients: Vec::new(),
-                        address: None,
+                        ..PeerStatus::default()
                     })));
                 }
             }

@@ -45,6 +45,9 @@ pub struct SesMark {
     pub azimuth_rad: f64,
     /// Elevation, radians.
     pub elevation_rad: f64,
+    /// Range, metres, where Skeeter's vision could estimate one (the object's apparent size).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range_m: Option<f64>,
 }
 
 /// What happened, with its details.
@@ -522,7 +525,7 @@ impl MapView {
 /// counters and, for a manager, its sources, sessions and clients. The counters' types have
 /// no JSON form of their own: the JSON line carries the manager's address only, and the web
 /// console renders the rest.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
 pub struct PeerStatus {
     /// The broadcast channel's counters.
     #[serde(skip)]
@@ -536,6 +539,32 @@ pub struct PeerStatus {
     /// Where the manager listens.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub address: Option<String>,
+    /// The robot's own Peer Agent client (Scooter's subscription of Skeeter's `ses`).
+    #[serde(skip)]
+    pub client: Option<PeerClientView>,
+}
+
+/// A runtime's Peer Agent client as its status page shows it ([`PeerStatus::client`]): the
+/// manager it talks to, the source it subscribes with its request priority, what became of
+/// the request, and the session's health.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PeerClientView {
+    /// The manager's address.
+    pub manager: String,
+    /// The source subscribed.
+    pub source: String,
+    /// The request's priority.
+    pub priority: u8,
+    /// The latest outcome (`connecting`, `granted`, `lost: …`, `retrying: …`).
+    pub outcome: String,
+    /// Grants received so far (first grants and re-grants).
+    pub grants: u64,
+    /// Samples received so far.
+    pub samples: u64,
+    /// Connections that failed or ended (each is retried).
+    pub retries: u64,
+    /// The current session's health, when one is open.
+    pub link: Option<crate::peer::client::ClientLinkStatus>,
 }
 
 /// Where runtimes report their events: the log and, if made with [`Events::channel`], a

@@ -14,7 +14,7 @@ use ima_hal::time::SharedClock;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::events::{EventKind, Events, PeerNote, PeerStatus};
+use super::events::{EventKind, Events, PeerClientView, PeerNote, PeerStatus};
 use super::{MissionTime, RuntimeError};
 use crate::mission::msg::{Broadcast, SES_SOURCE};
 use crate::peer::manager::FixedSelfAgent;
@@ -205,6 +205,21 @@ pub struct ScooterLink {
     tasks: Vec<JoinHandle<()>>,
     manager: Option<ManagerHandle>,
     bus: Option<Bus>,
+    client: Option<ClientSlot>,
+}
+
+/// The `ses` client's view and its current session, shared between [`ses_loop`] and
+/// [`ScooterLink::peer_status`]. Weak: the status never keeps a session open.
+#[derive(Debug, Default)]
+struct ClientShared {
+    view: PeerClientView,
+    session: std::sync::Weak<PeerClientHandle>,
+}
+
+type ClientSlot = std::sync::Arc<std::sync::Mutex<ClientShared>>;
+
+fn slot(s: &ClientSlot) -> std::sync::MutexGuard<'_, ClientShared> {
+    s.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// The caller's ends of [`ScooterLink::channels`].
@@ -237,6 +252,7 @@ impl ScooterLink {
                 tasks: Vec::new(),
                 manager: None,
                 bus: None,
+                client: None,
             },
             ScooterLinkEnds {
                 ses: ses_tx,
@@ -286,9 +302,18 @@ impl ScooterLink {
             .push(bus.spawn_reader(heard_tx, auth_reporter(&events, &time, &net.robot)));
         link.tasks.push(bus.spawn_sayer(say));
         if let Some(req) = ses {
+            let shared = ClientSlot::default();
+            {
+                let mut s = slot(&shared);
+                s.view.manager.clone_from(&req.manager);
+                SES_SOURCE.clone_into(&mut s.view.source);
+                s.view.priority = req.priority;
+                "connecting".clone_into(&mut s.view.outcome);
+            }
+            link.client = Some(std::sync::Arc::clone(&shared));
             link.tasks.push(tokio::spawn(ses_loop(
                 req,
-                rerequest,
+                (rerequest, shared),
                 net.clone(),
                 key,
                 ses_tx,
@@ -301,9 +326,21 @@ impl ScooterLink {
         Ok(link)
     }
 
-    /// The link's Peer Agent counters and status (network links only).
+    /// The link's Peer Agent counters and status (network links only), with its `ses`
+    /// client's view.
     pub async fn peer_status(&self) -> Option<PeerStatus> {
-        peer_status(self.bus.as_ref(), self.manager.as_ref()).await
+        let mut p = peer_status(self.bus.as_ref(), self.manager.as_ref()).await?;
+        if let Some(c) = &self.client {
+            let (mut view, session) = {
+                let s = slot(c);
+                (s.view.clone(), s.session.upgrade())
+            };
+            if let Some(h) = session {
+                view.link = h.link_status().await.ok();
+            }
+            p.client = Some(view);
+        }
+        Some(p)
     }
 }
 
@@ -324,6 +361,7 @@ async fn peer_status(bus: Option<&Bus>, manager: Option<&ManagerHandle>) -> Opti
         manager: stats,
         clients,
         address,
+        client: None,
     })
 }
 
@@ -340,7 +378,7 @@ impl Drop for ScooterLink {
 /// with its latest SES); on any failure wait and start over.
 async fn ses_loop(
     req: SesRequest,
-    mut rerequest: mpsc::Receiver<()>,
+    (mut rerequest, shared): (mpsc::Receiver<()>, ClientSlot),
     net: PeerNetConfig,
     key: GroupKey,
     tx: mpsc::Sender<SharedForm>,
@@ -348,17 +386,37 @@ async fn ses_loop(
     time: MissionTime,
 ) {
     let me = net.robot.clone();
-    let note = |n: PeerNote| events.emit(&time, &me, EventKind::Peer(n));
+    let note = |n: PeerNote| {
+        {
+            let mut s = slot(&shared);
+            match &n {
+                PeerNote::Granted { .. } => {
+                    s.view.grants = s.view.grants.saturating_add(1);
+                    "granted".clone_into(&mut s.view.outcome);
+                }
+                PeerNote::Lost { lost } => s.view.outcome = format!("lost: {lost}"),
+                PeerNote::Retry { retry } => {
+                    s.view.retries = s.view.retries.saturating_add(1);
+                    s.view.outcome = format!("retrying: {retry}");
+                }
+            }
+        }
+        events.emit(&time, &me, EventKind::Peer(n));
+    };
     loop {
         let r: Result<(), String> = async {
-            let client = PeerClientHandle::connect_with_clock(
-                req.manager.as_str(),
-                &net,
-                key.clone(),
-                time.clock().clone(),
-            )
-            .await
-            .map_err(|e| e.to_string())?;
+            let client = std::sync::Arc::new(
+                PeerClientHandle::connect_with_clock(
+                    req.manager.as_str(),
+                    &net,
+                    key.clone(),
+                    time.clock().clone(),
+                )
+                .await
+                .map_err(|e| e.to_string())?,
+            );
+            slot(&shared).session = std::sync::Arc::downgrade(&client);
+            "requesting".clone_into(&mut slot(&shared).view.outcome);
             client.register().await.map_err(|e| e.to_string())?;
             let mut sub = client
                 .request(SES_SOURCE, req.priority)
@@ -392,15 +450,20 @@ async fn ses_loop(
                 };
                 let Some(ev) = ev else { break };
                 match ev {
-                    SubscriptionEvent::Sample { payload, .. } => match SharedForm::decode(&payload)
-                    {
-                        Ok(f) => {
-                            if tx.send(f).await.is_err() {
-                                return Ok(());
-                            }
+                    SubscriptionEvent::Sample { payload, .. } => {
+                        {
+                            let mut s = slot(&shared);
+                            s.view.samples = s.view.samples.saturating_add(1);
                         }
-                        Err(e) => tracing::warn!("bad SES sample: {e:?}"),
-                    },
+                        match SharedForm::decode(&payload) {
+                            Ok(f) => {
+                                if tx.send(f).await.is_err() {
+                                    return Ok(());
+                                }
+                            }
+                            Err(e) => tracing::warn!("bad SES sample: {e:?}"),
+                        }
+                    }
                     SubscriptionEvent::Lost { reason } => note(PeerNote::Lost {
                         lost: format!("{reason:?}"),
                     }),

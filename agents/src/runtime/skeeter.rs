@@ -153,6 +153,7 @@ where
                             tag: r.object.clone(),
                             azimuth_rad: r.bearing.azimuth_rad,
                             elevation_rad: r.bearing.elevation_rad,
+                            range_m: r.range_m.filter(|m| m.is_finite() && *m >= 0.0),
                         })
                         .collect();
                     events.emit(&time, &me, EventKind::SesPublished { marks });

@@ -1,19 +1,17 @@
-//! What both I/O shells share: the driver error (feature `std`).
-
-use std::io;
+//! The compass driver's faults (feature `std`); its errors are [`DriverError`] =
+//! [`ima_serial::DriverError`]`<`[`Fault`]`>`.
 
 use ima_hal::ErrorKind;
 
 use crate::machine::{Dialect, ForeignLine, Job, RequestError};
 
-/// Errors of the compass drivers (both shells).
+/// Errors of the compass driver: the link's, or a [`Fault`] of the device.
+pub type DriverError = ima_serial::DriverError<Fault>;
+
+/// What only a compass reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
-pub enum DriverError {
-    /// The driver task has ended (port closed, I/O error, or `close`).
-    Disconnected,
-    /// The compass did not answer or send data in time.
-    Timeout,
+pub enum Fault {
     /// The session refused the request (wrong dialect, busy…).
     Request(RequestError),
     /// A configuration or calibration job gave up after its retries.
@@ -23,8 +21,6 @@ pub enum DriverError {
         /// The step it was at.
         step: u8,
     },
-    /// An I/O error on the port.
-    Io(io::ErrorKind),
     /// The configuration got no usable answer: what the port received meanwhile.
     NoAnswer {
         /// The step of the configuration script it gave up at (`None`: the connect timeout
@@ -49,17 +45,17 @@ pub enum DriverError {
 }
 
 /// The error for a configuration job that gave up at `step`: the other dialect the device
-/// spoke if it sent any ([`DriverError::WrongDialect`]), else what the line carried
-/// ([`DriverError::NoAnswer`]).
+/// spoke if it sent any ([`Fault::WrongDialect`]), else what the line carried
+/// ([`Fault::NoAnswer`]).
 #[must_use]
 pub fn configuration_failed(machine: &crate::machine::Machine, step: u8) -> DriverError {
     let st = machine.stats();
     match machine.foreign_line() {
-        Some(seen) => DriverError::WrongDialect {
+        Some(seen) => DriverError::Device(Fault::WrongDialect {
             expected: machine.config().dialect,
             seen,
             lines: st.foreign_lines,
-        },
+        }),
         None => no_answer(&st, Some(step)),
     }
 }
@@ -67,7 +63,7 @@ pub fn configuration_failed(machine: &crate::machine::Machine, step: u8) -> Driv
 /// No heading (or no answer to configuration `step`): what the line carried.
 #[must_use]
 pub fn no_answer(st: &crate::machine::Stats, step: Option<u8>) -> DriverError {
-    DriverError::NoAnswer {
+    DriverError::Device(Fault::NoAnswer {
         step,
         bytes: st.bytes,
         lines: st.framer.lines,
@@ -77,7 +73,7 @@ pub fn no_answer(st: &crate::machine::Stats, step: Option<u8>) -> DriverError {
             .saturating_add(st.framer.overlong)
             .saturating_add(st.framer.bad_bytes)
             .saturating_add(st.parse_errors),
-    }
+    })
 }
 
 /// A dialect's name for messages (`TCM2`, `KVH C100`, `NMEA`).
@@ -90,16 +86,13 @@ pub fn dialect_name(d: Dialect) -> &'static str {
     }
 }
 
-impl std::fmt::Display for DriverError {
+impl std::fmt::Display for Fault {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Disconnected => f.write_str("compass driver disconnected"),
-            Self::Timeout => f.write_str("the compass did not answer in time"),
             Self::Request(e) => write!(f, "{e}"),
             Self::JobFailed { job, step } => {
                 write!(f, "compass job {job:?} failed at step {step} (no answer)")
             }
-            Self::Io(k) => write!(f, "serial I/O error: {k}"),
             Self::NoAnswer {
                 step,
                 bytes,
@@ -145,17 +138,26 @@ impl std::fmt::Display for DriverError {
     }
 }
 
-impl std::error::Error for DriverError {}
+impl ima_serial::Fault for Fault {
+    const DEVICE: &'static str = "compass";
 
-ima_serial::impl_from_link_error!(DriverError);
-
-impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {
-            Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
-            Self::Timeout | Self::JobFailed { .. } | Self::NoAnswer { .. } => ErrorKind::Timeout,
+            Self::JobFailed { .. } | Self::NoAnswer { .. } => ErrorKind::Timeout,
             Self::WrongDialect { .. } => ErrorKind::Protocol,
             Self::Request(e) => ima_hal::Error::kind(e),
         }
+    }
+}
+
+impl From<Fault> for DriverError {
+    fn from(f: Fault) -> Self {
+        Self::Device(f)
+    }
+}
+
+impl From<RequestError> for DriverError {
+    fn from(e: RequestError) -> Self {
+        Self::Device(Fault::Request(e))
     }
 }

@@ -27,7 +27,7 @@
 //!
 //! * `shell` (feature `tokio`): an async task owning the port, cloneable
 //!   `CompassDriver` handles implementing [`ima_hal::compass::Compass`].
-//! * `blocking` (feature `serial`): `BlockingCompass` over any `Read + Write`.
+//! * blocking code: `ima_serial::blocking::Blocking<CompassDriver>` (feature `serial`).
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![warn(missing_docs)]
 // No panics on input: outside tests, these are compile errors in the protocol cores.
@@ -42,8 +42,6 @@
     )
 )]
 
-#[cfg(feature = "serial")]
-pub mod blocking;
 #[cfg(feature = "std")]
 pub mod driver;
 pub mod framer;

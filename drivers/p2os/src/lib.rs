@@ -6,8 +6,9 @@
 //! * [`params`] — robot parameter tables selected by the SYNC2 subclass.
 //! * [`machine`] — the client session (handshake, baud probing, keep-alive, motors,
 //!   odometry), sans-IO: it never touches a port or reads a clock.
-//! * `shell` (feature `tokio`) and `blocking` (feature `serial`) — thin I/O loops that run the
-//!   machine over a byte stream and implement the `ima-hal` traits.
+//! * `shell` (feature `tokio`) — the machine's events as readings and the [`shell::P2os`]
+//!   handle implementing the `ima-hal` traits, run by `ima-serial`'s one runner (blocking
+//!   code: `ima_serial::blocking::Blocking<P2os>`, feature `serial`).
 //!
 //! The wire facts and their sources are in the project's protocol spec
 //! (`shared/protocols/p2os.md`); section numbers in these docs refer to it.
@@ -25,8 +26,6 @@
     )
 )]
 
-#[cfg(feature = "serial")]
-pub mod blocking;
 #[cfg(feature = "std")]
 pub mod driver;
 pub mod framer;

@@ -1,7 +1,7 @@
-//! The async I/O shell (feature `tokio`): the [`ima_serial::runner`] owns the byte stream and
-//! the [`Machine`]; cloneable [`P2os`] handles talk to it and implement the `ima-hal` traits.
-//! This module is only "machine events → HAL readings" ([`P2osShell`]), shared with the
-//! [blocking shell](crate::blocking).
+//! The I/O shell (feature `tokio`): [`P2osShell`] turns machine events into readings, and
+//! the [`P2os`] handle (an [`ima_serial::handle::Handle`] plus the readings) implements the
+//! `ima-hal` traits. The [`ima_serial::runner`] does the I/O; blocking code uses
+//! [`ima_serial::blocking::Blocking`]`<P2os>`.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -11,22 +11,19 @@ use ima_hal::base::{
 };
 use ima_hal::link::ProbeReport;
 use ima_hal::power::{Power, PowerState};
-use ima_hal::safety::{HaltSignal, StopRegistry};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
-use ima_serial::runner::{self, End, Flow, Shell};
+use ima_serial::handle::Handle;
+use ima_serial::runner::{Reply, Shell};
 use tokio::io::{AsyncRead, AsyncWrite};
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::watch;
 
-pub use crate::driver::{BaudControl, DriverError, FixedBaud};
+pub use crate::driver::{BaudControl, DriverError, Fault, FixedBaud};
 use crate::machine::{
-    Config, DisconnectReason, Event, Machine, RobotConfig, RobotIdentity, RobotState, SessionError,
-    SessionStats,
+    Config, DisconnectReason, Event, Machine, RobotConfig, RobotIdentity, RobotState, SessionStats,
 };
 use crate::params::RobotParams;
-/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
-/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
-/// stamp the driver produces is on that time line.
+/// The process's one clock, passed to `connect`: every stamp the driver produces is on it.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (probing changes it).
 pub use ima_serial::open_port;
@@ -45,49 +42,17 @@ pub struct Connection {
 /// Link status as seen by handles.
 pub type LinkStatus = ima_serial::LinkStatus<Connection, DriverError>;
 
-pub(crate) type Reply = oneshot::Sender<Result<(), DriverError>>;
-
-/// A request from a handle to the driver task.
-#[derive(Debug)]
-pub enum Request {
-    /// Drive.
-    Velocity(VelocityCommand, Reply),
-    /// Stop.
-    Stop(Reply),
-    /// Emergency stop.
-    EStop(Reply),
-    /// Enable or disable the motors (answered when FLAGS confirms).
-    Motors(bool, Reply),
-    /// Sonar on or off.
-    Sonar(bool, Reply),
-    /// Zero the odometry.
-    ResetOdometry(Reply),
-    /// Stop, close the session and end the task.
-    Close(Reply),
-}
-
-/// The receiving ends of what [`P2osShell`] publishes.
-#[derive(Debug, Clone)]
-pub(crate) struct Watches {
-    pub(crate) state: watch::Receiver<Option<RobotState>>,
-    pub(crate) link: watch::Receiver<LinkStatus>,
-    pub(crate) stats: watch::Receiver<SessionStats>,
-    pub(crate) config: watch::Receiver<Option<RobotConfig>>,
-    pub(crate) probe: watch::Receiver<ProbeReport>,
-}
-
-/// Machine events → readings and answers, for both shells.
+/// Machine events → readings and answers.
 #[derive(Debug)]
 pub struct P2osShell {
     machine: Machine,
-    state_tx: watch::Sender<Option<RobotState>>,
-    link_tx: watch::Sender<LinkStatus>,
-    stats_tx: watch::Sender<SessionStats>,
-    config_tx: watch::Sender<Option<RobotConfig>>,
-    probe_tx: watch::Sender<ProbeReport>,
+    link: watch::Sender<LinkStatus>,
+    state: watch::Sender<Option<RobotState>>,
+    stats: watch::Sender<SessionStats>,
+    config: watch::Sender<Option<RobotConfig>>,
+    /// What each rate tried received, until the first connection.
     probe: ProbeReport,
-    motors_waiters: Vec<(bool, Reply)>,
-    close_waiters: Vec<Reply>,
+    motors_waiters: Vec<(bool, Reply<(), Self>)>,
     /// The session was connected once (the probe report is final).
     connected: bool,
 }
@@ -96,49 +61,26 @@ pub struct P2osShell {
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
 
 impl P2osShell {
-    pub(crate) fn new(cfg: Config) -> (Self, Watches) {
-        let (state_tx, state) = watch::channel(None);
-        let (link_tx, link) = watch::channel(LinkStatus::Connecting);
-        let (stats_tx, stats) = watch::channel(SessionStats::default());
-        let (config_tx, config) = watch::channel(None);
-        let (probe_tx, probe) = watch::channel(ProbeReport::new());
-        let shell = Self {
-            machine: Machine::new(cfg),
-            state_tx,
-            link_tx,
-            stats_tx,
-            config_tx,
-            probe_tx,
-            probe: ProbeReport::new(),
-            motors_waiters: Vec::new(),
-            close_waiters: Vec::new(),
-            connected: false,
-        };
-        let w = Watches {
-            state,
-            link,
-            stats,
-            config,
-            probe,
-        };
-        (shell, w)
-    }
-
-    fn fail(&mut self, e: DriverError) {
+    fn fail(&mut self, f: Fault) {
         for (_, w) in self.motors_waiters.drain(..) {
-            let _ = w.send(Err(e.clone()));
+            let _ = w.send(Err(f.clone().into()));
         }
-        self.link_tx.send_replace(LinkStatus::Failed(e));
+        self.link.send_replace(LinkStatus::Failed(f.into()));
     }
 }
 
 impl Shell for P2osShell {
     type Machine = Machine;
-    type Request = Request;
+    type Fault = Fault;
+    type Up = Connection;
     const MAX_FRAME: usize = crate::wire::MAX_FRAME_LEN;
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine
+    }
+
+    fn link(&self) -> &watch::Sender<LinkStatus> {
+        &self.link
     }
 
     fn start(&mut self, now: Instant) {
@@ -157,7 +99,6 @@ impl Shell for P2osShell {
                 after.frames.saturating_sub(before.frames),
                 bad(after).saturating_sub(bad(before)),
             );
-            self.probe_tx.send_replace(self.probe.clone());
         }
     }
 
@@ -170,7 +111,6 @@ impl Shell for P2osShell {
                     self.probe.attempt(b);
                     let n = self.probe.current_tally().map_or(1, |t| t.attempts);
                     tracing::info!(target: "ima::connect", "P2OS: trying {b} baud (attempt {n})");
-                    self.probe_tx.send_replace(self.probe.clone());
                 }
             }
             Event::Connected {
@@ -185,21 +125,19 @@ impl Shell for P2osShell {
                     baud,
                     params,
                 };
-                self.link_tx.send_replace(LinkStatus::Connected(c));
+                self.link.send_replace(LinkStatus::Connected(c));
             }
             Event::UnsupportedRobot(id) => {
-                self.fail(DriverError::UnsupportedRobot(id.subclass.as_str().into()));
+                self.fail(Fault::UnsupportedRobot(id.subclass.as_str().into()));
             }
-            Event::HandshakeFailed if self.connected => self.fail(DriverError::HandshakeFailed),
-            Event::HandshakeFailed => {
-                self.fail(DriverError::NoAnswer(Box::new(self.probe.clone())));
-            }
+            Event::HandshakeFailed if self.connected => self.fail(Fault::HandshakeFailed),
+            Event::HandshakeFailed => self.fail(Fault::NoAnswer(Box::new(self.probe.clone()))),
             Event::Disconnected(DisconnectReason::LinkLost) => {
                 tracing::warn!("p2os: link lost, reconnecting");
-                self.link_tx.send_replace(LinkStatus::Lost);
+                self.link.send_replace(LinkStatus::Lost);
             }
             Event::State(s) => {
-                self.state_tx.send_replace(Some(s));
+                self.state.send_replace(Some(s));
             }
             Event::MotorsEnabled(on) => {
                 let (done, keep) = self.motors_waiters.drain(..).partition(|(w, _)| *w == on);
@@ -210,49 +148,22 @@ impl Shell for P2osShell {
             }
             Event::MotorsRefused => {
                 for (_, tx) in self.motors_waiters.drain(..) {
-                    let _ = tx.send(Err(DriverError::MotorsRefused));
+                    let _ = tx.send(Err(Fault::MotorsRefused.into()));
                 }
             }
             Event::CommandTimeout => {
                 tracing::warn!("p2os: no velocity command for the command timeout; robot stopped");
             }
             Event::Config(c) => {
-                self.config_tx.send_replace(Some(c));
+                self.config.send_replace(Some(c));
             }
             Event::FlushInput | Event::Disconnected(_) | Event::Encoder { .. } => {}
         }
         Ok(())
     }
 
-    fn on_request(&mut self, req: Request, now: Instant) -> Flow {
-        let m = &mut self.machine;
-        let (r, tx) = match req {
-            Request::Velocity(cmd, tx) => (m.set_velocity(cmd, now), tx),
-            Request::Stop(tx) => (m.stop(), tx),
-            Request::EStop(tx) => (m.emergency_stop(), tx),
-            Request::Sonar(on, tx) => (m.set_sonar(on), tx),
-            Request::ResetOdometry(tx) => {
-                m.reset_odometry();
-                (Ok(()), tx)
-            }
-            Request::Motors(on, tx) => match m.enable_motors(on, now) {
-                Ok(()) => {
-                    self.motors_waiters.push((on, tx));
-                    return Flow::Continue;
-                }
-                Err(e) => (Err(e), tx),
-            },
-            Request::Close(tx) => {
-                self.close_waiters.push(tx);
-                return Flow::Close;
-            }
-        };
-        let _ = tx.send(r.map_err(|e: SessionError| DriverError::Session(e)));
-        Flow::Continue
-    }
-
     fn after_round(&mut self) {
-        self.stats_tx.send_replace(self.machine.stats());
+        self.stats.send_replace(self.machine.stats());
     }
 
     /// Queue STOP and CLOSE (frames are paced, so they may need more than one round).
@@ -265,36 +176,21 @@ impl Shell for P2osShell {
         !self.machine.has_pending_transmit()
     }
 
-    fn end(&mut self, how: End) {
-        let r = match how {
-            End::Closed { drained: true } => Ok(()),
-            End::Closed { drained: false } => {
-                tracing::warn!("p2os: the last frames (STOP, CLOSE) could not all be written");
-                Err(DriverError::Timeout)
-            }
-            End::Failed(e) => Err(e.into()),
-        };
-        for tx in self.close_waiters.drain(..) {
-            let _ = tx.send(r.clone());
-        }
-        match r {
-            Err(e) if matches!(how, End::Failed(_)) => self.fail(e),
-            _ => {
-                self.link_tx.send_replace(LinkStatus::Closed);
-            }
-        }
+    /// Say what each rate tried received.
+    fn no_answer(&mut self) -> DriverError {
+        Fault::NoAnswer(Box::new(self.probe.clone())).into()
     }
 }
 
 /// A handle to a running P2OS driver. Cheap to clone; every clone talks to the same task.
 #[derive(Debug, Clone)]
 pub struct P2os {
-    tx: mpsc::Sender<Request>,
-    w: Watches,
+    h: Handle<P2osShell>,
+    state: watch::Receiver<Option<RobotState>>,
+    stats: watch::Receiver<SessionStats>,
+    config: watch::Receiver<Option<RobotConfig>>,
     params: RobotParams,
     transducers: Arc<[SonarTransducer]>,
-    clock: SharedClock,
-    halt: HaltSignal,
 }
 
 /// How long [`P2os::connect`] waits for the handshake by default.
@@ -306,7 +202,8 @@ impl P2os {
     /// Spawn the driver task on `stream` and wait until the robot is connected (or
     /// `connect_timeout` passes). Must be called inside a tokio runtime.
     ///
-    /// The task registers its [`HaltSignal`] in [`StopRegistry::global`] at once, so a
+    /// The task registers its [`HaltSignal`](ima_hal::safety::HaltSignal) in
+    /// [`StopRegistry::global`](ima_hal::safety::StopRegistry::global) at once, so a
     /// program's exit guard can stop this robot (STOP, then CLOSE) from any exit path.
     ///
     /// `clock` is the process's one time base: every reading's stamp is taken on it.
@@ -319,34 +216,37 @@ impl P2os {
     where
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
-        let (shell, mut w) = P2osShell::new(cfg);
-        let halt = HaltSignal::new();
-        StopRegistry::global().register("P2OS base", halt.clone());
-        let tx = runner::spawn(shell, stream, clock.clone(), Some(halt.clone()));
-        let c = match runner::wait_connected(&mut w.link, connect_timeout).await {
-            Ok(c) => c,
-            Err(Some(e)) => return Err(e),
-            Err(None) => {
-                let _ = tx.try_send(Request::Close(oneshot::channel().0));
-                // Say what each rate tried received.
-                return Err(DriverError::NoAnswer(Box::new(w.probe.borrow().clone())));
-            }
+        let (state_tx, state) = watch::channel(None);
+        let (stats_tx, stats) = watch::channel(SessionStats::default());
+        let (config_tx, config) = watch::channel(None);
+        let shell = P2osShell {
+            machine: Machine::new(cfg),
+            link: watch::channel(LinkStatus::Connecting).0,
+            state: state_tx,
+            stats: stats_tx,
+            config: config_tx,
+            probe: ProbeReport::new(),
+            motors_waiters: Vec::new(),
+            connected: false,
         };
+        let stop_as = Some("P2OS base");
+        let (h, c) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;
         Ok(P2os {
-            tx,
-            w,
-            transducers: crate::driver::transducers(&c.params).into(),
+            h,
+            state,
+            stats,
+            config,
+            transducers: transducers(&c.params).into(),
             params: c.params,
-            clock,
-            halt,
         })
     }
 
-    /// This driver's halt signal: [`HaltSignal::halt`] stops the robot and closes the session
-    /// from any thread without awaiting (the same as [`close`](Self::close), fire-and-forget).
+    /// This driver's halt signal: [`halt`](ima_hal::safety::HaltSignal::halt) stops the
+    /// robot and closes the session from any thread without awaiting (the same as
+    /// [`close`](Self::close), fire-and-forget).
     #[must_use]
-    pub fn halt_signal(&self) -> HaltSignal {
-        self.halt.clone()
+    pub fn halt_signal(&self) -> ima_hal::safety::HaltSignal {
+        self.h.halt_signal()
     }
 
     /// The parameter table in use.
@@ -358,68 +258,90 @@ impl P2os {
     /// Current link status.
     #[must_use]
     pub fn link(&self) -> LinkStatus {
-        self.w.link.borrow().clone()
+        self.h.link()
     }
 
     /// Session counters (frames, drops, bad checksums, implausible SIPs, reconnects…).
     #[must_use]
     pub fn stats(&self) -> SessionStats {
-        *self.w.stats.borrow()
+        *self.stats.borrow()
     }
 
     /// The robot's CONFIG packet, once received.
     #[must_use]
     pub fn robot_config(&self) -> Option<RobotConfig> {
-        self.w.config.borrow().clone()
+        self.config.borrow().clone()
     }
 
     /// The latest SIP state, if any.
     #[must_use]
     pub fn latest(&self) -> Option<RobotState> {
-        self.w.state.borrow().clone()
+        self.state.borrow().clone()
     }
 
     /// Wait for a SIP state newer than `after` (at most `timeout`).
     pub async fn next_state(
-        &mut self,
+        &self,
         after: Instant,
         timeout: Duration,
     ) -> Result<RobotState, DriverError> {
         let newer = |s: &Option<RobotState>| s.as_ref().filter(|s| s.odometry.at > after).cloned();
-        Ok(runner::wait_for(&self.w.state, timeout, newer).await?)
+        self.h.wait_for(&self.state, timeout, newer).await
     }
 
     /// The driver's clock (the time base of every stamp it produces).
     #[must_use]
     pub fn now(&self) -> Instant {
-        self.clock.now()
+        self.h.now()
     }
 
-    async fn request(&self, make: impl FnOnce(Reply) -> Request) -> Result<(), DriverError> {
-        runner::request(&self.tx, make, REQUEST_TIMEOUT).await
+    async fn call(
+        &self,
+        f: impl FnOnce(&mut Machine, Instant) -> Result<(), crate::SessionError> + Send + 'static,
+    ) -> Result<(), DriverError> {
+        let f = |s: &mut P2osShell, now| Ok(f(&mut s.machine, now)?);
+        self.h.call(REQUEST_TIMEOUT, f).await
     }
 
     /// Stop the robot, close the session and end the driver task. Returns once the last
     /// frames (STOP, then CLOSE) are written to the port, or with an error if they could not
     /// be. Dropping every handle does the same in the background.
     pub async fn close(&self) -> Result<(), DriverError> {
-        if self.halt.is_done() {
-            return Ok(());
-        }
-        let limit = CLOSE_DRAIN_LIMIT + Duration::from_secs(1);
-        match runner::request(&self.tx, Request::Close, limit).await {
-            // The task ended between the check and the request (a halt or the link).
-            Err(DriverError::Disconnected) if self.halt.is_done() => Ok(()),
-            r => r,
-        }
+        self.h
+            .close(CLOSE_DRAIN_LIMIT + Duration::from_secs(1))
+            .await
     }
 
-    async fn wait_state(&mut self) -> Result<RobotState, DriverError> {
+    async fn wait_state(&self) -> Result<RobotState, DriverError> {
         if let Some(s) = self.latest() {
             return Ok(s);
         }
         self.next_state(Instant::ZERO, Duration::from_secs(2)).await
     }
+}
+
+/// The speed limits of `params`.
+fn limits(params: &RobotParams) -> BaseLimits {
+    BaseLimits {
+        max_v_m_s: params.max_velocity_mm_s / 1000.0,
+        max_omega_rad_s: params.max_rot_velocity_deg_s.to_radians(),
+    }
+}
+
+/// The sonar ring of `params` as HAL transducers (P2OS sonar: 10 cm–5 m, ~30° beams).
+fn transducers(params: &RobotParams) -> Vec<SonarTransducer> {
+    let pose = |s: &crate::params::SonarPose| {
+        let at = ima_hal::Vector2::new(s.x_mm / 1000.0, s.y_mm / 1000.0);
+        ima_hal::Isometry2::new(at, s.heading_deg.to_radians())
+    };
+    (params.sonars.iter())
+        .map(|s| SonarTransducer {
+            pose: pose(s),
+            min_range_m: 0.1,
+            max_range_m: 5.0,
+            beam_width_rad: 30f64.to_radians(),
+        })
+        .collect()
 }
 
 impl ErrorType for P2os {
@@ -428,25 +350,32 @@ impl ErrorType for P2os {
 
 impl DifferentialBase for P2os {
     fn limits(&self) -> BaseLimits {
-        crate::driver::limits(&self.params)
+        limits(&self.params)
     }
 
     async fn enable_motors(&mut self, enable: bool) -> Result<(), DriverError> {
-        // ENABLE is retried by the session; allow for every attempt.
-        let make = |tx| Request::Motors(enable, tx);
-        runner::request(&self.tx, make, Duration::from_secs(3)).await
+        // Answered when FLAGS confirms; ENABLE is retried by the session: allow for every
+        // attempt.
+        let f = move |s: &mut P2osShell, now, reply: Reply<(), P2osShell>| match s
+            .machine
+            .enable_motors(enable, now)
+        {
+            Ok(()) => s.motors_waiters.push((enable, reply)),
+            Err(e) => drop(reply.send(Err(e.into()))),
+        };
+        self.h.defer(Duration::from_secs(3), f).await
     }
 
     async fn set_velocity(&mut self, cmd: VelocityCommand) -> Result<(), DriverError> {
-        self.request(|tx| Request::Velocity(cmd, tx)).await
+        self.call(move |m, now| m.set_velocity(cmd, now)).await
     }
 
     async fn stop(&mut self) -> Result<(), DriverError> {
-        self.request(Request::Stop).await
+        self.call(|m, _| m.stop()).await
     }
 
     async fn emergency_stop(&mut self) -> Result<(), DriverError> {
-        self.request(Request::EStop).await
+        self.call(|m, _| m.emergency_stop()).await
     }
 }
 
@@ -461,7 +390,11 @@ impl Odometer for P2os {
     }
 
     async fn reset_odometry(&mut self) -> Result<(), DriverError> {
-        self.request(Request::ResetOdometry).await
+        self.call(|m, _| {
+            m.reset_odometry();
+            Ok(())
+        })
+        .await
     }
 }
 
@@ -471,7 +404,7 @@ impl SonarArray for P2os {
     }
 
     async fn set_sonar_enabled(&mut self, on: bool) -> Result<(), DriverError> {
-        self.request(|tx| Request::Sonar(on, tx)).await
+        self.call(move |m, _| m.set_sonar(on)).await
     }
 
     async fn sonar(&mut self) -> Result<Stamped<SonarScan>, DriverError> {

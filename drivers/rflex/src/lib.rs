@@ -12,12 +12,12 @@
 //!   watchdog, ≥ 5 ms between frames, the shutdown sequence, odometry integration (§4) with a
 //!   plausibility rule, the velocity mapping (§5), sonar id → index/pose mapping (§7),
 //!   bumpers and battery. It never touches a port or a clock: time is passed in as `now`.
-//! * `driver` (feature `std`): [`DriverError`](driver::DriverError) shared by the shells.
+//! * `driver` (feature `std`): the base's [`Fault`](driver::Fault)s; its errors are
+//!   `ima_serial::DriverError<Fault>`.
 //! * `shell` (feature `tokio`): the async shell, a cloneable `Rflex` handle implementing the
 //!   `ima-hal` base, odometry, sonar, bumper and power traits; re-initialises after a lost
 //!   link; emergency stop = zero both axes and engage the brake (the spec has no e-stop).
-//! * `blocking` (feature `serial`): the same over any `Read + Write`, implementing the
-//!   blocking `ima-hal` traits.
+//!   Blocking code uses `ima_serial::blocking::Blocking<Rflex>` (feature `serial`).
 //!
 //! # Choices where the spec leaves room
 //!
@@ -57,8 +57,6 @@ pub mod fuzz_harness;
 pub mod machine;
 pub mod wire;
 
-#[cfg(feature = "serial")]
-pub mod blocking;
 #[cfg(feature = "std")]
 pub mod driver;
 #[cfg(feature = "tokio")]

@@ -1,8 +1,7 @@
-//! The async I/O shell (feature `tokio`): the [`ima_serial::runner`] owns the byte stream and
-//! the [`Machine`]; cloneable [`Rflex`] handles talk to it and implement the `ima-hal` traits
-//! ([`DifferentialBase`], [`Odometer`], [`SonarArray`], [`Bumpers`], [`Power`]). This module
-//! is only "machine events → HAL readings" ([`RflexShell`]), shared with the
-//! [blocking shell](crate::blocking).
+//! The I/O shell (feature `tokio`): [`RflexShell`] turns machine events into readings, and
+//! the [`Rflex`] handle implements the `ima-hal` traits ([`DifferentialBase`], [`Odometer`],
+//! [`SonarArray`], [`Bumpers`], [`Power`]). The [`ima_serial::runner`] does the I/O;
+//! blocking code uses [`ima_serial::blocking::Blocking`]`<Rflex>`.
 //!
 //! * **Recovery**: when the machine reports [`Event::LinkLost`] the shell re-sends the §6
 //!   initialisation ([`Machine::reinitialize`]) every [`Config::link_timeout`] until the base
@@ -23,19 +22,17 @@ use ima_hal::base::{
     BaseLimits, BumperState, Bumpers, DifferentialBase, Odometer, Odometry, VelocityCommand,
 };
 use ima_hal::power::{Power, PowerState};
-use ima_hal::safety::{HaltSignal, StopRegistry};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
-use ima_serial::runner::{self, End, Flow, Shell};
+use ima_serial::handle::{Handle, Slot, SlotRx as Rx, slot};
+use ima_serial::runner::{Reply, Shell};
 use ima_serial::{BaudControl, FixedBaud};
 use tokio::io::{AsyncRead, AsyncWrite};
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::watch;
 
-pub use crate::driver::{BAUD, DriverError};
-use crate::machine::{Config, Event, Machine, Phase, Stats, TX_BUF};
-/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
-/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
-/// stamp the driver produces is on that time line.
+pub use crate::driver::{BAUD, DriverError, Fault};
+use crate::machine::{CommandError, Config, Event, Machine, Phase, Stats, TX_BUF};
+/// The process's one clock, passed to `connect`: every stamp the driver produces is on it.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 /// Open a serial port for the shell: `baud` (115200, §1) 8N1, no flow control, raw.
 pub use ima_serial::open_port;
@@ -56,114 +53,39 @@ pub struct ShellStats {
     pub bytes: u64,
 }
 
-pub(crate) type Reply = oneshot::Sender<Result<(), DriverError>>;
-
-/// A request from a handle to the driver task.
-#[derive(Debug)]
-pub enum Request {
-    /// Drive (zero: stop).
-    Velocity(VelocityCommand, Reply),
-    /// Zero both axes and engage the brake.
-    EStop(Reply),
-    /// Release (`true`) or engage the brake (answered when SYS_STATUS confirms).
-    Motors(bool, Reply),
-    /// Sonar on or off.
-    Sonar(bool, Reply),
-    /// Zero the odometry.
-    ResetOdometry(Reply),
-    /// Shut the base down and end the task.
-    Close(Reply),
-}
-
-type Slot<T> = watch::Sender<Option<Stamped<T>>>;
-
-/// The receiving ends of what [`RflexShell`] publishes.
-#[derive(Debug, Clone)]
-pub(crate) struct Watches {
-    pub(crate) odometry: watch::Receiver<Option<Stamped<Odometry>>>,
-    pub(crate) sonar: watch::Receiver<Option<Stamped<SonarScan>>>,
-    pub(crate) bumpers: watch::Receiver<Option<Stamped<BumperState>>>,
-    pub(crate) power: watch::Receiver<Option<Stamped<PowerState>>>,
-    pub(crate) brake: watch::Receiver<Option<Stamped<bool>>>,
-    pub(crate) link: watch::Receiver<LinkStatus>,
-    pub(crate) stats: watch::Receiver<ShellStats>,
-    pub(crate) limits: BaseLimits,
-    pub(crate) transducers: Arc<[SonarTransducer]>,
-}
-
-/// Machine events → readings and answers, for both shells.
+/// Machine events → readings and answers.
 #[derive(Debug)]
 pub struct RflexShell {
     machine: Machine,
-    odo_tx: Slot<Odometry>,
-    sonar_tx: Slot<SonarScan>,
-    bump_tx: Slot<BumperState>,
-    power_tx: Slot<PowerState>,
-    brake_tx: Slot<bool>,
-    link_tx: watch::Sender<LinkStatus>,
-    stats_tx: watch::Sender<ShellStats>,
+    link: watch::Sender<LinkStatus>,
+    odometry: Slot<Odometry>,
+    sonar: Slot<SonarScan>,
+    bumpers: Slot<BumperState>,
+    power: Slot<PowerState>,
+    brake: Slot<bool>,
+    stats: watch::Sender<ShellStats>,
     scan: SonarScan,
-    motors_waiters: Vec<(bool, Reply)>,
-    close_waiters: Vec<Reply>,
+    motors_waiters: Vec<(bool, Reply<(), Self>)>,
+    /// Sonar as last asked for (re-sent by a re-initialisation).
     sonar_wanted: bool,
-    /// When to re-send the initialisation (`Instant::ZERO`: at once).
+    /// When to re-send the initialisation (the link is lost).
     reinit_at: Option<Instant>,
     reconnects: u32,
-    /// Bytes received (for the connect error: silence or garbage).
     bytes: u64,
-}
-
-impl RflexShell {
-    pub(crate) fn new(cfg: Config, now: Instant) -> (Self, Watches) {
-        let (odo_tx, odometry) = watch::channel(None);
-        let (sonar_tx, sonar) = watch::channel(None);
-        let (bump_tx, bumpers) = watch::channel(None);
-        let (power_tx, power) = watch::channel(None);
-        let (brake_tx, brake) = watch::channel(None);
-        let (link_tx, link) = watch::channel(LinkStatus::Connecting);
-        let (stats_tx, stats) = watch::channel(ShellStats::default());
-        let limits = cfg.limits;
-        let machine = Machine::new(cfg, now);
-        let transducers = machine.transducers().iter().copied().collect::<Vec<_>>();
-        let w = Watches {
-            odometry,
-            sonar,
-            bumpers,
-            power,
-            brake,
-            link,
-            stats,
-            limits,
-            transducers: transducers.into(),
-        };
-        let shell = Self {
-            machine,
-            odo_tx,
-            sonar_tx,
-            bump_tx,
-            power_tx,
-            brake_tx,
-            link_tx,
-            stats_tx,
-            scan: SonarScan::default(),
-            motors_waiters: Vec::new(),
-            close_waiters: Vec::new(),
-            sonar_wanted: false,
-            reinit_at: None,
-            reconnects: 0,
-            bytes: 0,
-        };
-        (shell, w)
-    }
 }
 
 impl Shell for RflexShell {
     type Machine = Machine;
-    type Request = Request;
+    type Fault = Fault;
+    type Up = ();
     const MAX_FRAME: usize = TX_BUF;
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine
+    }
+
+    fn link(&self) -> &watch::Sender<LinkStatus> {
+        &self.link
     }
 
     fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
@@ -194,14 +116,14 @@ impl Shell for RflexShell {
                 tracing::warn!("rflex: no report from the base; re-initialising");
                 self.reconnects = self.reconnects.wrapping_add(1);
                 self.reinit_at = Some(Instant::ZERO);
-                self.link_tx.send_replace(LinkStatus::Lost);
+                self.link.send_replace(LinkStatus::Lost);
             }
             // A frame alone (an ack, a status reply) does not prove the base is streaming
             // again (a power-cycled controller has reports off): only motion reports do.
             Event::Odometry(o) => {
-                self.odo_tx.send_replace(Some(o));
+                self.odometry.send_replace(Some(o));
                 self.reinit_at = None;
-                self.link_tx.send_if_modified(|l| {
+                self.link.send_if_modified(|l| {
                     let up = l.is_connected();
                     *l = LinkStatus::Connected(());
                     !up
@@ -213,10 +135,10 @@ impl Shell for RflexShell {
                 tracing::warn!(delta_m, delta_rad, "rflex: implausible odometry dropped");
             }
             Event::Power(p) => {
-                self.power_tx.send_replace(Some(p));
+                self.power.send_replace(Some(p));
             }
             Event::Brake(b) => {
-                self.brake_tx.send_replace(Some(b));
+                self.brake.send_replace(Some(b));
                 let released = !b.value;
                 let (done, keep) =
                     (self.motors_waiters.drain(..)).partition(|(w, _)| *w == released);
@@ -228,13 +150,13 @@ impl Shell for RflexShell {
             Event::Sonar(r) => {
                 self.scan.upsert(r);
                 let scan = Stamped::new(r.at, self.scan.clone());
-                self.sonar_tx.send_replace(Some(scan));
+                self.sonar.send_replace(Some(scan));
             }
             Event::UnmappedSonar { id, range_m, .. } => {
                 tracing::debug!(id, range_m, "rflex: sonar id not in the table");
             }
             Event::Bumpers(b) => {
-                self.bump_tx.send_replace(Some(b));
+                self.bumpers.send_replace(Some(b));
             }
             Event::Dio { address, data, .. } => {
                 tracing::debug!(address, data, "rflex: DIO report");
@@ -248,52 +170,15 @@ impl Shell for RflexShell {
         Ok(())
     }
 
-    fn on_request(&mut self, req: Request, now: Instant) -> Flow {
-        let m = &mut self.machine;
-        let (r, tx) = match req {
-            Request::Velocity(cmd, tx) => (m.set_velocity(cmd, now), tx),
-            Request::EStop(tx) => (m.stop(now).and_then(|()| m.enable_motors(false, now)), tx),
-            Request::Sonar(on, tx) => {
-                self.sonar_wanted = on;
-                (m.set_sonar(on, now), tx)
-            }
-            Request::ResetOdometry(tx) => {
-                m.reset_odometry();
-                self.odo_tx
-                    .send_replace(Some(Stamped::new(now, m.odometry())));
-                (Ok(()), tx)
-            }
-            Request::Motors(on, tx) => match m.enable_motors(on, now) {
-                Ok(()) => {
-                    self.motors_waiters.push((on, tx));
-                    return Flow::Continue;
-                }
-                Err(e) => (Err(e), tx),
-            },
-            Request::Close(tx) => {
-                self.close_waiters.push(tx);
-                return Flow::Close;
-            }
-        };
-        let _ = tx.send(r.map_err(Into::into));
-        Flow::Continue
-    }
-
     fn after_round(&mut self) {
-        let s = ShellStats {
-            session: *self.machine.stats(),
-            framer: *self.machine.framer_stats(),
-            reconnects: self.reconnects,
-            bytes: self.bytes,
-        };
-        self.stats_tx.send_if_modified(|old| {
+        let s = self.counters();
+        self.stats.send_if_modified(|old| {
             let changed = *old != s;
             *old = s;
             changed
         });
     }
 
-    /// The shutdown sequence (§6).
     fn begin_close(&mut self, now: Instant) -> Duration {
         self.machine.shutdown(now);
         Duration::from_secs(2)
@@ -303,45 +188,63 @@ impl Shell for RflexShell {
         self.machine.phase() == Phase::Closed
     }
 
-    fn end(&mut self, how: End) {
-        let (r, link) = match how {
-            End::Closed { drained: true } => (Ok(()), LinkStatus::Closed),
-            End::Closed { drained: false } => (Err(DriverError::Timeout), LinkStatus::Closed),
-            End::Failed(e) => (Err(e.into()), LinkStatus::Failed(e.into())),
-        };
-        for tx in self.close_waiters.drain(..) {
-            let _ = tx.send(r);
+    /// What the line carried instead of motion reports.
+    fn no_answer(&mut self) -> DriverError {
+        let st = self.counters();
+        DriverError::Device(Fault::NoReport {
+            bytes: st.bytes,
+            frames: st.framer.frames,
+            bad_frames: st.framer.errors(),
+        })
+    }
+}
+
+impl RflexShell {
+    fn counters(&self) -> ShellStats {
+        ShellStats {
+            session: *self.machine.stats(),
+            framer: *self.machine.framer_stats(),
+            reconnects: self.reconnects,
+            bytes: self.bytes,
         }
-        if let Err(e) = r {
-            for (_, w) in self.motors_waiters.drain(..) {
-                let _ = w.send(Err(e));
-            }
-        }
-        self.link_tx.send_replace(link);
     }
 }
 
 /// A handle to a running rFLEX driver. Cheap to clone; every clone talks to the same task.
 #[derive(Debug, Clone)]
 pub struct Rflex {
-    tx: mpsc::Sender<Request>,
-    w: Watches,
-    clock: SharedClock,
-    halt: HaltSignal,
+    h: Handle<RflexShell>,
+    odometry: Rx<Odometry>,
+    sonar: Rx<SonarScan>,
+    bumpers: Rx<BumperState>,
+    power: Rx<PowerState>,
+    brake: Rx<bool>,
+    stats: watch::Receiver<ShellStats>,
+    limits: BaseLimits,
+    transducers: Arc<[SonarTransducer]>,
 }
 
-/// How long [`Rflex::connect`] waits for the first motion report by default.
+/// How long [`Rflex::connect`] waits for motion reports by default.
 pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(1);
-pub(crate) const WAIT_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a reading is waited for.
+const WAIT_TIMEOUT: Duration = Duration::from_secs(2);
 
 impl Rflex {
-    /// Spawn the driver task on `stream` (a port opened with [`open_port`], or any byte
-    /// stream) and wait until the base streams motion reports (or `connect_timeout` passes).
-    /// Must be called inside a tokio runtime.
+    /// Spawn the driver task on `stream`, send the initialisation (§6) and wait until the
+    /// base streams motion reports (or `connect_timeout` passes). Must be called inside a
+    /// tokio runtime.
+    ///
+    /// The task registers its [`HaltSignal`](ima_hal::safety::HaltSignal) in
+    /// [`StopRegistry::global`](ima_hal::safety::StopRegistry::global) at once, so a
+    /// program's exit guard can stop this base (zero speeds, brake, shutdown) from any exit
+    /// path.
     ///
     /// `clock` is the process's one time base: every reading's stamp is taken on it.
+    ///
+    /// # Errors
+    /// [`Fault::NoReport`] (what the line carried instead) when no report came in time.
     pub async fn connect<S>(
         stream: S,
         cfg: Config,
@@ -351,85 +254,97 @@ impl Rflex {
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        let (shell, mut w) = RflexShell::new(cfg, clock.now());
-        let halt = HaltSignal::new();
-        StopRegistry::global().register("rFLEX base", halt.clone());
+        let (odometry_tx, odometry) = slot();
+        let (sonar_tx, sonar) = slot();
+        let (bumpers_tx, bumpers) = slot();
+        let (power_tx, power) = slot();
+        let (brake_tx, brake) = slot();
+        let (stats_tx, stats) = watch::channel(ShellStats::default());
+        let limits = cfg.limits;
+        let machine = Machine::new(cfg, clock.now());
+        let transducers = machine.transducers().iter().copied().collect();
+        let shell = RflexShell {
+            machine,
+            link: watch::channel(LinkStatus::Connecting).0,
+            odometry: odometry_tx,
+            sonar: sonar_tx,
+            bumpers: bumpers_tx,
+            power: power_tx,
+            brake: brake_tx,
+            stats: stats_tx,
+            scan: SonarScan::default(),
+            motors_waiters: Vec::new(),
+            sonar_wanted: false,
+            reinit_at: None,
+            reconnects: 0,
+            bytes: 0,
+        };
         tracing::info!(target: "ima::connect", "rFLEX: initialising, waiting for motion reports");
         // One fixed rate (§1): the stream needs no line-speed control.
-        let tx = runner::spawn(shell, FixedBaud(stream), clock.clone(), Some(halt.clone()));
-        match runner::wait_connected(&mut w.link, connect_timeout).await {
-            Ok(()) => Ok(Rflex { tx, w, clock, halt }),
-            Err(Some(e)) => Err(e),
-            Err(None) => {
-                let _ = tx.try_send(Request::Close(oneshot::channel().0));
-                Err(crate::driver::no_report(&w.stats.borrow()))
-            }
-        }
+        let stream = FixedBaud(stream);
+        let stop_as = Some("rFLEX base");
+        let (h, ()) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;
+        Ok(Rflex {
+            h,
+            odometry,
+            sonar,
+            bumpers,
+            power,
+            brake,
+            stats,
+            limits,
+            transducers,
+        })
     }
 
-    /// This driver's halt signal: [`HaltSignal::halt`] stops the base and shuts the session
-    /// down from any thread without awaiting (the same as [`close`](Self::close),
-    /// fire-and-forget).
+    /// This driver's halt signal: [`halt`](ima_hal::safety::HaltSignal::halt) stops the
+    /// base and shuts the session down from any thread without awaiting.
     #[must_use]
-    pub fn halt_signal(&self) -> HaltSignal {
-        self.halt.clone()
+    pub fn halt_signal(&self) -> ima_hal::safety::HaltSignal {
+        self.h.halt_signal()
     }
 
     /// Current link status.
     #[must_use]
     pub fn link(&self) -> LinkStatus {
-        *self.w.link.borrow()
+        self.h.link()
     }
 
-    /// Counters (session, framer, reconnects).
+    /// The task's counters.
     #[must_use]
     pub fn stats(&self) -> ShellStats {
-        *self.w.stats.borrow()
+        *self.stats.borrow()
     }
 
-    /// The brake as the base last reported it (`true` = engaged), if known.
+    /// The brake as last reported (`true`: engaged).
     #[must_use]
     pub fn brake(&self) -> Option<Stamped<bool>> {
-        *self.w.brake.borrow()
+        *self.brake.borrow()
     }
 
     /// The latest odometry, if any.
     #[must_use]
     pub fn latest_odometry(&self) -> Option<Stamped<Odometry>> {
-        *self.w.odometry.borrow()
+        *self.odometry.borrow()
     }
 
     /// The driver's clock (the time base of every stamp it produces).
     #[must_use]
     pub fn now(&self) -> Instant {
-        self.clock.now()
+        self.h.now()
     }
 
-    async fn request(&self, make: impl FnOnce(Reply) -> Request) -> Result<(), DriverError> {
-        runner::request(&self.tx, make, REQUEST_TIMEOUT).await
+    async fn call(
+        &self,
+        f: impl FnOnce(&mut RflexShell, Instant) -> Result<(), CommandError> + Send + 'static,
+    ) -> Result<(), DriverError> {
+        self.h.call(REQUEST_TIMEOUT, |s, now| Ok(f(s, now)?)).await
     }
 
-    /// Send the shutdown sequence (§6), wait for it to go out, and end the driver task.
+    /// Stop the base, run the shutdown sequence and end the driver task; returns once the
+    /// port is released. Dropping every handle does the same in the background.
     pub async fn close(&self) -> Result<(), DriverError> {
-        if self.halt.is_done() {
-            return Ok(());
-        }
-        match runner::request(&self.tx, Request::Close, Duration::from_secs(3)).await {
-            // The task ended between the check and the request (a halt or the link).
-            Err(DriverError::Disconnected) if self.halt.is_done() => Ok(()),
-            r => r,
-        }
-    }
-}
-
-/// The value of `rx` once it is stamped after `after` (any value when `None`).
-pub(crate) fn newer<T: Clone>(
-    after: Option<Instant>,
-) -> impl Fn(&Option<Stamped<T>>) -> Option<Stamped<T>> {
-    move |s| {
-        s.as_ref()
-            .filter(|s| after.is_none_or(|a| s.at > a))
-            .cloned()
+        self.h.close(Duration::from_secs(3)).await
     }
 }
 
@@ -439,69 +354,91 @@ impl ErrorType for Rflex {
 
 impl DifferentialBase for Rflex {
     fn limits(&self) -> BaseLimits {
-        self.w.limits
+        self.limits
     }
 
-    /// Release (`true`) or engage the brake; resolves when SYS_STATUS confirms it.
+    /// Release (`true`) or engage the brake; answered when SYS_STATUS confirms.
     async fn enable_motors(&mut self, enable: bool) -> Result<(), DriverError> {
-        let make = |tx| Request::Motors(enable, tx);
-        runner::request(&self.tx, make, Duration::from_secs(3)).await
+        let f = move |s: &mut RflexShell, now, reply: Reply<(), RflexShell>| match s
+            .machine
+            .enable_motors(enable, now)
+        {
+            Ok(()) => s.motors_waiters.push((enable, reply)),
+            Err(e) => drop(reply.send(Err(e.into()))),
+        };
+        self.h.defer(Duration::from_secs(3), f).await
     }
 
     async fn set_velocity(&mut self, cmd: VelocityCommand) -> Result<(), DriverError> {
-        self.request(|tx| Request::Velocity(cmd, tx)).await
-    }
-
-    async fn stop(&mut self) -> Result<(), DriverError> {
-        self.request(|tx| Request::Velocity(VelocityCommand::ZERO, tx))
+        self.call(move |s, now| s.machine.set_velocity(cmd, now))
             .await
     }
 
-    /// Zero both axes and engage the brake (see the [module docs](self)).
+    async fn stop(&mut self) -> Result<(), DriverError> {
+        self.set_velocity(VelocityCommand::ZERO).await
+    }
+
+    /// Zero both axes and engage the brake.
     async fn emergency_stop(&mut self) -> Result<(), DriverError> {
-        self.request(Request::EStop).await
+        let f = |s: &mut RflexShell, now| {
+            let m = &mut s.machine;
+            m.stop(now).and_then(|()| m.enable_motors(false, now))
+        };
+        self.call(f).await
     }
 }
 
 impl Odometer for Rflex {
     async fn odometry(&mut self) -> Result<Stamped<Odometry>, DriverError> {
-        Ok(runner::wait_for(&self.w.odometry, WAIT_TIMEOUT, newer(None)).await?)
+        self.h.reading(&self.odometry, None, WAIT_TIMEOUT).await
     }
 
     async fn next_odometry(&mut self, after: Instant) -> Result<Stamped<Odometry>, DriverError> {
-        Ok(runner::wait_for(&self.w.odometry, WAIT_TIMEOUT, newer(Some(after))).await?)
+        self.h
+            .reading(&self.odometry, Some(after), WAIT_TIMEOUT)
+            .await
     }
 
     async fn reset_odometry(&mut self) -> Result<(), DriverError> {
-        self.request(Request::ResetOdometry).await
+        self.call(|s, now| {
+            s.machine.reset_odometry();
+            let zero = Stamped::new(now, s.machine.odometry());
+            s.odometry.send_replace(Some(zero));
+            Ok(())
+        })
+        .await
     }
 }
 
 impl SonarArray for Rflex {
     fn transducers(&self) -> &[SonarTransducer] {
-        &self.w.transducers
+        &self.transducers
     }
 
     async fn set_sonar_enabled(&mut self, on: bool) -> Result<(), DriverError> {
-        self.request(|tx| Request::Sonar(on, tx)).await
+        self.call(move |s, now| {
+            s.sonar_wanted = on;
+            s.machine.set_sonar(on, now)
+        })
+        .await
     }
 
     async fn sonar(&mut self) -> Result<Stamped<SonarScan>, DriverError> {
-        Ok(runner::wait_for(&self.w.sonar, WAIT_TIMEOUT, newer(None)).await?)
+        self.h.reading(&self.sonar, None, WAIT_TIMEOUT).await
     }
 }
 
 impl Bumpers for Rflex {
-    /// The latest DIO bumper report; all clear until the base reports a change.
+    /// The latest bumper report (all clear until the base sends one).
     async fn bumpers(&mut self) -> Result<Stamped<BumperState>, DriverError> {
-        let now = self.clock.now();
-        let b = *self.w.bumpers.borrow();
+        let now = self.h.now();
+        let b = *self.bumpers.borrow();
         Ok(b.unwrap_or_else(|| Stamped::new(now, BumperState::default())))
     }
 }
 
 impl Power for Rflex {
     async fn power(&mut self) -> Result<Stamped<PowerState>, DriverError> {
-        Ok(runner::wait_for(&self.w.power, WAIT_TIMEOUT, newer(None)).await?)
+        self.h.reading(&self.power, None, WAIT_TIMEOUT).await
     }
 }

@@ -1,214 +1,173 @@
-//! The blocking runner (feature `serial`): the same rounds as the [async runner](crate::runner)
-//! over any `Read + Write` stream, for tools that do not want an async runtime.
+//! The blocking runner (feature `serial`): any driver handle, driven from plain blocking
+//! code, for tools and scripts that do not want an async runtime.
 //!
-//! The stream's `read` must return within a few milliseconds when nothing arrives (a port
-//! from [`open_blocking_port`](crate::open_blocking_port) has a 10 ms timeout): the machine's
-//! timers run between reads. Time advances only inside the runner's calls; a tool that stops
-//! calling for longer than a device's watchdog lets the device stop, the safe outcome.
+//! [`Blocking<T>`] owns a single-threaded tokio runtime and the async handle `T`; each call
+//! runs the handle's async method to completion on it, and it implements every
+//! [`ima_hal::blocking`] trait whose async twin `T` implements. So there is one blocking
+//! implementation for every driver, and it behaves exactly like the async one.
+//!
+//! The driver's task only runs inside a call: a tool that stops calling for longer than a
+//! device's watchdog lets the device stop, the safe outcome. Dropping a `Blocking` closes
+//! the driver (its last frames, e.g. STOP then CLOSE, are written) before it returns.
+//! Do not use it from inside an async runtime.
 
-use std::io::{self, Read, Write};
 use std::time::Duration;
 
-use ima_hal::Instant;
-use ima_hal::time::{Clock, SharedClock};
-use tokio::sync::oneshot;
+use ima_hal::base::{BaseLimits, BumperState, Odometry, VelocityCommand};
+use ima_hal::camera::{Channel, Selection};
+use ima_hal::compass::Heading;
+use ima_hal::laser::{LaserDescription, LaserScan};
+use ima_hal::power::PowerState;
+use ima_hal::sonar::{SonarScan, SonarTransducer};
+use ima_hal::{ErrorType, Instant, Stamped, blocking as b};
 
-use crate::runner::{End, Flow, Shell, drain};
-use crate::{BaudControl, LinkError, Machine};
+use crate::LinkError;
 
-/// A [`Shell`] run synchronously over `S`.
+/// An async driver handle `T`, run synchronously (see the [module docs](self)).
 #[derive(Debug)]
-pub struct Blocking<D, S> {
-    shell: D,
-    stream: S,
-    clock: SharedClock,
-    tbuf: Vec<u8>,
-    failed: Option<LinkError>,
+pub struct Blocking<T> {
+    // Dropped first: the handles go, the driver task starts closing …
+    inner: T,
+    // … and the runtime runs it to the end before it goes.
+    rt: Runtime,
 }
 
-impl<D: Shell, S: Read + Write + BaudControl> Blocking<D, S> {
-    /// Start `shell` over `stream`, with `clock` as its time (nothing is sent until the
-    /// first [`pump_once`](Self::pump_once)).
-    pub fn new(mut shell: D, stream: S, clock: SharedClock) -> Self {
-        shell.start(clock.now());
-        Self {
-            shell,
-            stream,
-            clock,
-            tbuf: vec![0u8; D::MAX_FRAME],
-            failed: None,
+/// The runtime; dropping it first lets the tasks still alive finish (bounded).
+#[derive(Debug)]
+struct Runtime(tokio::runtime::Runtime);
+
+/// The longest a dropped [`Blocking`] lets its driver task write its last frames.
+const CLOSE_LIMIT: Duration = Duration::from_secs(3);
+
+impl Drop for Runtime {
+    fn drop(&mut self) {
+        // Inside another runtime we must not block; the device's watchdog is the fallback.
+        if tokio::runtime::Handle::try_current().is_ok() {
+            return;
         }
+        let metrics = self.0.metrics();
+        self.0.block_on(async {
+            let _ = tokio::time::timeout(CLOSE_LIMIT, async {
+                while metrics.num_alive_tasks() > 0 {
+                    tokio::time::sleep(Duration::from_millis(2)).await;
+                }
+            })
+            .await;
+        });
     }
+}
 
-    /// The shell.
-    pub fn shell(&self) -> &D {
-        &self.shell
-    }
-
-    /// The shell, mutably.
-    pub fn shell_mut(&mut self) -> &mut D {
-        &mut self.shell
-    }
-
-    /// The runner's clock.
-    pub fn now(&self) -> Instant {
-        self.clock.now()
-    }
-
-    /// One round: events, frames due, one read (up to the stream's timeout), due timers.
+impl<T> Blocking<T> {
+    /// Make a runtime and run `connect` (which opens the port and connects the driver, e.g.
+    /// `async || P2os::connect(open_port(path, 9600)?, cfg, timeout, clock).await`) on it.
     ///
     /// # Errors
-    /// The link's failure (end of stream, I/O error); it is final.
-    pub fn pump_once(&mut self) -> Result<(), LinkError> {
-        if let Some(e) = self.failed {
-            return Err(e);
-        }
-        let r = self.round();
-        if let Err(e) = r {
-            self.failed = Some(e);
-            self.shell.end(End::Failed(e));
-        }
-        r
+    /// `connect`'s error, or the runtime's (as [`LinkError::Io`]).
+    pub fn connect<E: From<LinkError>>(
+        connect: impl AsyncFnOnce() -> Result<T, E>,
+    ) -> Result<Self, E> {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(LinkError::from)?;
+        let inner = rt.block_on(connect())?;
+        Ok(Self {
+            inner,
+            rt: Runtime(rt),
+        })
     }
 
-    fn round(&mut self) -> Result<(), LinkError> {
-        drain(&mut self.shell, &mut self.stream)?;
-        let now = self.clock.now();
-        while let Some(n) = self.shell.machine().poll_transmit(now, &mut self.tbuf) {
-            let Some(frame) = self.tbuf.get(..n) else {
-                break;
-            };
-            self.stream.write_all(frame)?;
-        }
-        let _ = self.stream.flush();
-        self.shell.after_round();
-        let mut rbuf = [0u8; 1024];
-        match self.stream.read(&mut rbuf) {
-            Ok(0) => return Err(LinkError::Disconnected),
-            Ok(n) => {
-                let now = self.clock.now();
-                self.shell.on_bytes(rbuf.get(..n).unwrap_or(&[]), now);
-            }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::TimedOut
-                        | io::ErrorKind::WouldBlock
-                        | io::ErrorKind::Interrupted
-                ) => {}
-            Err(e) => return Err(e.into()),
-        }
-        let now = self.clock.now();
-        if self.shell.next_wake().is_some_and(|t| t <= now) {
-            self.shell.on_timeout(now);
-        }
-        drain(&mut self.shell, &mut self.stream)?;
-        Ok(())
+    /// Run `f` on the handle to completion (any of its async methods, e.g. `close`).
+    pub fn run<R>(&mut self, f: impl AsyncFnOnce(&mut T) -> R) -> R {
+        self.rt.0.block_on(f(&mut self.inner))
     }
 
-    /// Run rounds for `d` (to wait while staying connected).
-    ///
-    /// # Errors
-    /// As [`pump_once`](Self::pump_once).
-    pub fn pump_for(&mut self, d: Duration) -> Result<(), LinkError> {
-        let end = self.clock.now() + d;
-        while self.clock.now() < end {
-            self.pump_once()?;
-        }
-        Ok(())
+    /// The async handle (for what needs no waiting: counters, the latest reading).
+    pub fn get(&self) -> &T {
+        &self.inner
     }
 
-    /// Run rounds until `pick` finds what it wants in the shell, at most `timeout`.
-    ///
-    /// # Errors
-    /// [`LinkError::Timeout`], or the link's failure.
-    pub fn wait_for<R>(
-        &mut self,
-        timeout: Duration,
-        mut pick: impl FnMut(&mut D) -> Option<R>,
-    ) -> Result<R, LinkError> {
-        let end = self.clock.now() + timeout;
-        loop {
-            if let Some(r) = pick(&mut self.shell) {
-                return Ok(r);
-            }
-            if self.clock.now() >= end {
-                return Err(LinkError::Timeout);
-            }
-            self.pump_once()?;
-        }
+    /// Let the driver run for `d` (to wait while staying connected).
+    pub fn pump_for(&mut self, d: Duration) {
+        self.rt
+            .0
+            .block_on(async move { tokio::time::sleep(d).await });
     }
+}
 
-    /// Run rounds until `link` is connected (its connection) or failed (the error), at most
-    /// `timeout`.
-    ///
-    /// # Errors
-    /// The link's failure, or [`LinkError::Timeout`] (converted).
-    pub fn wait_connected<U: Clone, E: Clone + From<LinkError>>(
-        &mut self,
-        link: &tokio::sync::watch::Receiver<crate::LinkStatus<U, E>>,
-        timeout: Duration,
-    ) -> Result<U, E> {
-        self.wait_for(timeout, |_| match &*link.borrow() {
-            crate::LinkStatus::Connected(u) => Some(Ok(u.clone())),
-            crate::LinkStatus::Failed(e) => Some(Err(e.clone())),
-            _ => None,
-        })?
-    }
+impl<T: ErrorType> ErrorType for Blocking<T> {
+    type Error = T::Error;
+}
 
-    /// Hand the shell a request made by `make` around a reply channel, then run rounds
-    /// until it answers, at most `timeout`.
-    ///
-    /// # Errors
-    /// The shell's answer; [`LinkError::Timeout`], or the link's failure.
-    pub fn request<T, E: From<LinkError>>(
-        &mut self,
-        make: impl FnOnce(oneshot::Sender<Result<T, E>>) -> D::Request,
-        timeout: Duration,
-    ) -> Result<T, E> {
-        let (reply, mut rx) = oneshot::channel();
-        let now = self.clock.now();
-        if self.shell.on_request(make(reply), now) == Flow::Close {
-            return Err(LinkError::Disconnected.into());
+/// `fn name(&mut self, args) -> Result<R, Self::Error>` as a blocking call of `T::name`.
+macro_rules! block {
+    ($($name:ident($($arg:ident: $ty:ty),*) -> $ret:ty;)*) => {$(
+        fn $name(&mut self, $($arg: $ty),*) -> Result<$ret, Self::Error> {
+            self.rt.0.block_on(self.inner.$name($($arg),*))
         }
-        // At least one round: what the request queued goes out now.
-        self.pump_once()?;
-        self.wait_for(timeout, |_| match rx.try_recv() {
-            Ok(r) => Some(Some(r)),
-            Err(oneshot::error::TryRecvError::Empty) => None,
-            Err(oneshot::error::TryRecvError::Closed) => Some(None),
-        })?
-        .unwrap_or(Err(LinkError::Disconnected.into()))
-    }
+    )*};
+}
 
-    /// Close: let the shell queue its last frames and write them (bounded by
-    /// [`Shell::begin_close`]); gives the stream back with the outcome:
-    /// [`LinkError::Timeout`] if they were not all written in time, or the link's failure.
-    pub fn close(mut self) -> (S, Result<(), LinkError>) {
-        let r = self.drain_close();
-        (self.stream, r)
+impl<T: ima_hal::base::DifferentialBase> b::DifferentialBase for Blocking<T> {
+    fn limits(&self) -> BaseLimits {
+        self.inner.limits()
     }
+    block! {
+        enable_motors(enable: bool) -> ();
+        set_velocity(cmd: VelocityCommand) -> ();
+        stop() -> ();
+        emergency_stop() -> ();
+    }
+}
 
-    fn drain_close(&mut self) -> Result<(), LinkError> {
-        if let Some(e) = self.failed {
-            return Err(e);
-        }
-        let now = self.clock.now();
-        let end = now + self.shell.begin_close(now);
-        let drained = loop {
-            if self.shell.is_closed() {
-                break true;
-            }
-            if self.clock.now() >= end {
-                break false;
-            }
-            self.pump_once()?;
-        };
-        self.shell.end(End::Closed { drained });
-        if drained {
-            Ok(())
-        } else {
-            Err(LinkError::Timeout)
-        }
+impl<T: ima_hal::base::Odometer> b::Odometer for Blocking<T> {
+    block! {
+        odometry() -> Stamped<Odometry>;
+        reset_odometry() -> ();
+    }
+}
+
+impl<T: ima_hal::sonar::SonarArray> b::SonarArray for Blocking<T> {
+    fn transducers(&self) -> &[SonarTransducer] {
+        self.inner.transducers()
+    }
+    block! { sonar() -> Stamped<SonarScan>; }
+}
+
+impl<T: ima_hal::base::Bumpers> b::Bumpers for Blocking<T> {
+    block! { bumpers() -> Stamped<BumperState>; }
+}
+
+impl<T: ima_hal::power::Power> b::Power for Blocking<T> {
+    block! { power() -> Stamped<PowerState>; }
+}
+
+impl<T: ima_hal::compass::Compass> b::Compass for Blocking<T> {
+    block! {
+        heading() -> Stamped<Heading>;
+        next_heading(after: Instant) -> Stamped<Heading>;
+    }
+}
+
+impl<T: ima_hal::camera::CameraMux> b::CameraMux for Blocking<T> {
+    fn channel_count(&self) -> Channel {
+        self.inner.channel_count()
+    }
+    fn settle_time(&self) -> Duration {
+        self.inner.settle_time()
+    }
+    block! {
+        select(channel: Channel) -> Selection;
+        current_channel() -> Option<Channel>;
+    }
+}
+
+impl<T: ima_hal::laser::LaserScanner> b::LaserScanner for Blocking<T> {
+    fn description(&self) -> LaserDescription {
+        self.inner.description()
+    }
+    block! {
+        scan() -> Stamped<LaserScan>;
+        next_scan(after: Instant) -> Stamped<LaserScan>;
     }
 }

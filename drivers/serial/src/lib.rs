@@ -2,13 +2,16 @@
 //!
 //! * [`Machine`] — the one shape of a sans-IO protocol machine: bytes in, timeouts, frames
 //!   out, events, next deadline. `no_std`, no heap.
-//! * [`LinkStatus`] and [`LinkError`] — the link as handles see it, and the ways a link
-//!   ends that no protocol explains (`std`).
+//! * [`LinkStatus`], [`LinkError`] and [`DriverError`] — the link as handles see it, the
+//!   ways a link ends that no protocol explains, and the one driver error: those plus the
+//!   device's own [`Fault`]s (`std`).
 //! * [`BaudControl`] / [`FixedBaud`] — streams whose line speed can (or cannot) change, and
 //!   the port opening (`open_port`, feature `tokio`; `open_blocking_port`, feature `serial`).
-//! * [`runner`] (feature `tokio`) — the one async loop that runs a machine over a byte
-//!   stream (drain events → transmit → flush → wait on read / deadline / request), with the
-//!   connect and request helpers; [`blocking`] (feature `serial`) the same loop, blocking.
+//! * [`runner`] (feature `tokio`) — the one async loop that runs a driver's [`runner::Shell`]
+//!   over a byte stream (drain events → transmit → flush → wait on read / deadline / call);
+//!   [`handle::Handle`] — spawn, connect, calls on the shell, readings, close, the halt
+//!   signal: everything a driver handle does the same way; [`blocking`] (feature `serial`)
+//!   — any driver handle driven from blocking code.
 //!
 //! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
 //! so every stamp a driver produces is on one time line.
@@ -31,6 +34,10 @@ pub use ima_hal::Instant;
 #[cfg(feature = "serial")]
 pub mod blocking;
 #[cfg(feature = "std")]
+mod error;
+#[cfg(feature = "tokio")]
+pub mod handle;
+#[cfg(feature = "std")]
 mod link;
 #[cfg(feature = "std")]
 mod port;
@@ -38,9 +45,9 @@ mod port;
 pub mod runner;
 
 #[cfg(feature = "std")]
+pub use error::{DriverError, Fault};
+#[cfg(feature = "std")]
 pub use link::{LinkError, LinkStatus};
-#[cfg(feature = "serial")]
-pub use port::open_blocking_port;
 #[cfg(feature = "tokio")]
 pub use port::open_port;
 #[cfg(feature = "std")]
@@ -78,24 +85,6 @@ macro_rules! impl_machine {
 
             fn poll_timeout(&self) -> Option<$crate::Instant> {
                 <$machine>::poll_timeout(self)
-            }
-        }
-    };
-}
-
-/// Implement `From<LinkError>` for a driver error with `Disconnected`, `Timeout` and
-/// `Io(io::ErrorKind)` variants.
-#[cfg(feature = "std")]
-#[macro_export]
-macro_rules! impl_from_link_error {
-    ($error:ty) => {
-        impl From<$crate::LinkError> for $error {
-            fn from(e: $crate::LinkError) -> Self {
-                match e {
-                    $crate::LinkError::Disconnected => Self::Disconnected,
-                    $crate::LinkError::Timeout => Self::Timeout,
-                    $crate::LinkError::Io(k) => Self::Io(k),
-                }
             }
         }
     };

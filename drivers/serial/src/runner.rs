@@ -1,12 +1,14 @@
 //! The async runner (feature `tokio`): one task owns the byte stream and a driver's
-//! [`Shell`] (its [`Machine`] and what turns events into readings); cloneable handles talk to
-//! it through an `mpsc` of requests and `watch` channels of readings.
+//! [`Shell`] (its [`Machine`] and what turns events into readings); cloneable
+//! [`Handle`](crate::handle::Handle)s talk to it by sending closures that run on the shell,
+//! and read what it publishes on `watch` channels.
 //!
 //! Each round: drain the machine's events (they may change the line speed before the next
 //! write) → write every frame due → flush → wait on one `select!` over the halt signal, the
-//! stream, the machine's next deadline and the handles' requests. A device that goes quiet
-//! never blocks the task. Closing (a `close` request, every handle dropped, or a halt) lets
-//! the shell queue its last frames and keeps writing them for a bounded time.
+//! stream, the machine's next deadline and the handles' calls. A device that goes quiet
+//! never blocks the task. Closing (a `close` call, every handle dropped, or a halt) lets the
+//! shell queue its last frames and keeps writing them for a bounded time; then the port is
+//! released, the link's last status published and every closer answered.
 
 use std::io;
 use std::time::Duration;
@@ -17,16 +19,14 @@ use ima_hal::time::SharedClock;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::{BaudControl, LinkError, LinkStatus, Machine};
+use crate::{BaudControl, DriverError, Fault, LinkError, LinkStatus, Machine};
 
-/// What a request does to the task.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Flow {
-    /// Keep running.
-    Continue,
-    /// Start closing ([`Shell::begin_close`]).
-    Close,
-}
+/// The error of shell `D`'s driver.
+pub type Error<D> = DriverError<<D as Shell>::Fault>;
+/// The link status handles of shell `D` see.
+pub type Status<D> = LinkStatus<<D as Shell>::Up, Error<D>>;
+/// Where a shell answers a call it finishes later (after a device's confirmation).
+pub type Reply<T, D> = oneshot::Sender<Result<T, Error<D>>>;
 
 /// How a task ends.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,30 +40,24 @@ pub enum End {
     Failed(LinkError),
 }
 
-impl End {
-    /// What a request still waiting when the task ends is answered with: the link's
-    /// failure, or [`LinkError::Disconnected`] after a close.
-    #[must_use]
-    pub fn error<E: From<LinkError>>(self) -> E {
-        match self {
-            Self::Closed { .. } => LinkError::Disconnected.into(),
-            Self::Failed(e) => e.into(),
-        }
-    }
-}
-
-/// The driver-specific half of a shell: it owns the machine, turns its events into readings
-/// for the handles, and handle requests into machine calls. The runners do the rest.
-pub trait Shell {
+/// The driver-specific half of a driver: it owns the machine, turns its events into
+/// readings (on `watch` channels) and the link status, and answers the calls handles make
+/// on it. The runner does the I/O, the timing and the closing.
+pub trait Shell: Sized + Send + 'static {
     /// The protocol machine.
     type Machine: Machine;
-    /// What handles ask.
-    type Request;
+    /// The device's own faults.
+    type Fault: Fault;
+    /// What a connected link reports (who answered, at what rate; `()` for nothing).
+    type Up: Clone + Send + Sync + 'static;
     /// The largest frame the machine writes.
     const MAX_FRAME: usize;
 
     /// The machine.
     fn machine(&mut self) -> &mut Self::Machine;
+
+    /// Where the shell publishes the link's status (the runner publishes the last one).
+    fn link(&self) -> &watch::Sender<Status<Self>>;
 
     /// Called once before the first round (start a handshake, at `now`).
     fn start(&mut self, _now: Instant) {}
@@ -95,9 +89,6 @@ pub trait Shell {
         self.machine().poll_timeout()
     }
 
-    /// A handle's request, at `now`.
-    fn on_request(&mut self, request: Self::Request, now: Instant) -> Flow;
-
     /// After each round's writes (publish counters).
     fn after_round(&mut self) {}
 
@@ -112,45 +103,46 @@ pub trait Shell {
         true
     }
 
-    /// The task ends (answer waiters, publish the final link status). The stream is
-    /// already released.
-    fn end(&mut self, how: End);
+    /// The task ends (the stream is already released). Replies the shell still holds are
+    /// answered [`Disconnected`](DriverError::Disconnected) when it is dropped; override to
+    /// say more.
+    fn end(&mut self, _how: End) {}
+
+    /// What a connect that timed out reports: what the line carried (by default
+    /// [`DriverError::Timeout`]).
+    fn no_answer(&mut self) -> Error<Self> {
+        DriverError::Timeout
+    }
 }
 
-/// Spawn the task running `shell` over `stream` on the current tokio runtime, with
-/// `clock` as its time; returns the request sender. With `halt`, the task closes when the
-/// signal is raised and marks it done on every way out.
-pub fn spawn<D, S>(
-    shell: D,
-    stream: S,
-    clock: SharedClock,
-    halt: Option<HaltSignal>,
-) -> mpsc::Sender<D::Request>
-where
-    D: Shell + Send + 'static,
-    D::Request: Send,
-    S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
-{
-    let (tx, rx) = mpsc::channel(32);
-    tokio::spawn(run(shell, stream, rx, clock, halt));
-    tx
+/// A closure a handle runs on the shell inside the task, at the task's `now`.
+pub(crate) type Call<D> = Box<dyn FnOnce(&mut D, Instant) + Send>;
+
+/// What handles send the task.
+pub(crate) enum Msg<D> {
+    /// Run this on the shell.
+    Call(Call<D>),
+    /// Close; answered once the port is released.
+    Close(oneshot::Sender<Result<(), LinkError>>),
 }
 
 /// Run `shell` over `stream` until it closes or the link fails (see the [module docs](self)).
-pub async fn run<D, S>(
+/// The task closes when `halt` is raised and marks it done on every way out.
+pub(crate) async fn run<D, S>(
     mut shell: D,
     mut stream: S,
-    mut requests: mpsc::Receiver<D::Request>,
+    mut requests: mpsc::Receiver<Msg<D>>,
     clock: SharedClock,
-    halt: Option<HaltSignal>,
+    halt: HaltSignal,
 ) where
     D: Shell,
     S: AsyncRead + AsyncWrite + BaudControl + Unpin,
 {
     // Every way out of this task (return, cancellation, panic) marks the halt done.
-    let _done = halt.as_ref().map(HaltSignal::done_on_drop);
+    let _done = halt.done_on_drop();
     let mut rbuf = [0u8; 1024];
     let mut tbuf = vec![0u8; D::MAX_FRAME];
+    let mut closers = Vec::new();
     shell.start(clock.now());
     // Closing: the instant after which writing the last frames gives up.
     let mut closing: Option<Instant> = None;
@@ -174,46 +166,102 @@ pub async fn run<D, S>(
             t.saturating_duration_since(now)
         });
         let halted = async {
-            match (&halt, closing) {
-                (Some(h), None) => h.requested().await,
-                _ => std::future::pending().await,
+            match closing {
+                None => halt.requested().await,
+                Some(_) => std::future::pending().await,
             }
         };
-        tokio::select! {
+        let mut slept = false;
+        let mut close = tokio::select! {
             biased;
             () = halted => {
                 tracing::info!("halt requested; stopping the device and closing");
-                closing = Some(clock.now() + shell.begin_close(clock.now()));
+                true
             }
             r = stream.read(&mut rbuf) => match r {
                 Ok(0) => break End::Failed(LinkError::Disconnected),
-                Ok(n) => shell.on_bytes(rbuf.get(..n).unwrap_or(&[]), clock.now()),
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Ok(n) => {
+                    shell.on_bytes(rbuf.get(..n).unwrap_or(&[]), clock.now());
+                    false
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => false,
                 Err(e) => break End::Failed(e.into()),
             },
-            () = tokio::time::sleep(sleep_for) => shell.on_timeout(clock.now()),
-            req = requests.recv(), if closing.is_none() => {
-                let flow = match req {
-                    None => Flow::Close,
-                    Some(req) => shell.on_request(req, clock.now()),
-                };
-                if flow == Flow::Close {
-                    closing = Some(clock.now() + shell.begin_close(clock.now()));
-                }
+            () = tokio::time::sleep(sleep_for) => {
+                slept = true;
+                false
             }
+            msg = requests.recv(), if closing.is_none() => on_msg(&mut shell, msg, &mut closers, &clock),
+        };
+        // Reading comes first (bytes that arrived before a deadline count), but a device
+        // that never stops sending must not starve the timers or the handles: every round
+        // also runs what is due and takes one waiting call.
+        let now = clock.now();
+        if slept || shell.next_wake().is_some_and(|t| t <= now) {
+            shell.on_timeout(now);
         }
+        if closing.is_none()
+            && !close
+            && let Ok(msg) = requests.try_recv()
+        {
+            close = on_msg(&mut shell, Some(msg), &mut closers, &clock);
+        }
+        if close {
+            closing = Some(clock.now() + shell.begin_close(clock.now()));
+        }
+        // Yield now and then, so handles on this thread get to run.
+        tokio::task::coop::consume_budget().await;
     };
     // Release the port before reporting: a caller may reopen it at once.
     drop(stream);
-    if let Some(h) = &halt {
-        h.set_done();
-    }
+    halt.set_done();
     requests.close();
     shell.end(end);
+    let closed = matches!(end, End::Closed { .. });
+    let (r, status) = match end {
+        End::Closed { drained: true } => (Ok(()), LinkStatus::Closed),
+        End::Closed { drained: false } => {
+            tracing::warn!("the device's last frames could not all be written in time");
+            (Err(LinkError::Timeout), LinkStatus::Closed)
+        }
+        End::Failed(e) => (Err(e), LinkStatus::Failed(e.into())),
+    };
+    // A failure the shell published (why the device was given up) stays the last word.
+    shell.link().send_if_modified(|s| {
+        let keep = closed && matches!(s, LinkStatus::Failed(_));
+        if !keep {
+            *s = status.clone();
+        }
+        !keep
+    });
+    for tx in closers {
+        let _ = tx.send(r);
+    }
+}
+
+/// Run a handle's message; whether it starts closing.
+fn on_msg<D: Shell>(
+    shell: &mut D,
+    msg: Option<Msg<D>>,
+    closers: &mut Vec<oneshot::Sender<Result<(), LinkError>>>,
+    clock: &SharedClock,
+) -> bool {
+    match msg {
+        Some(Msg::Call(f)) => {
+            f(shell, clock.now());
+            false
+        }
+        Some(Msg::Close(tx)) => {
+            closers.push(tx);
+            true
+        }
+        // Every handle is gone.
+        None => true,
+    }
 }
 
 /// Hand every pending event to the shell.
-pub(crate) fn drain<D: Shell>(shell: &mut D, line: &mut dyn BaudControl) -> io::Result<()> {
+fn drain<D: Shell>(shell: &mut D, line: &mut dyn BaudControl) -> io::Result<()> {
     while let Some(ev) = shell.machine().poll_event() {
         shell.on_event(ev, line)?;
     }
@@ -233,76 +281,112 @@ async fn transmit<D: Shell, S: AsyncWrite + Unpin>(
     stream.flush().await
 }
 
-/// Wait until `link` is connected (its connection), failed (`Err(Some(e))`) or closed
-/// (`Err(Some(Disconnected))`); `Err(None)` when `timeout` passes first.
-///
-/// # Errors
-/// As described.
-pub async fn wait_connected<U: Clone, E: Clone + From<LinkError>>(
-    link: &mut watch::Receiver<LinkStatus<U, E>>,
-    timeout: Duration,
-) -> Result<U, Option<E>> {
-    let waited = tokio::time::timeout(timeout, async {
-        loop {
-            match &*link.borrow_and_update() {
-                LinkStatus::Connected(u) => return Ok(u.clone()),
-                LinkStatus::Failed(e) => return Err(e.clone()),
-                LinkStatus::Closed => return Err(LinkError::Disconnected.into()),
-                LinkStatus::Connecting | LinkStatus::Lost => {}
-            }
-            if link.changed().await.is_err() {
-                return Err(LinkError::Disconnected.into());
-            }
-        }
-    })
-    .await;
-    match waited {
-        Ok(r) => r.map_err(Some),
-        Err(_) => Err(None),
-    }
-}
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::FixedBaud;
+    use crate::handle::Handle;
+    use std::pin::Pin;
+    use std::task::{Context, Poll};
 
-/// Send a request made by `make` around a reply channel and wait for the answer, at most
-/// `timeout`.
-///
-/// # Errors
-/// The task's answer; [`LinkError::Disconnected`] if the task is gone,
-/// [`LinkError::Timeout`] if it did not answer in time.
-pub async fn request<R, T, E: From<LinkError>>(
-    tx: &mpsc::Sender<R>,
-    make: impl FnOnce(oneshot::Sender<Result<T, E>>) -> R,
-    timeout: Duration,
-) -> Result<T, E> {
-    let (reply, rx) = oneshot::channel();
-    tx.send(make(reply))
-        .await
-        .map_err(|_| LinkError::Disconnected)?;
-    match tokio::time::timeout(timeout, rx).await {
-        Ok(Ok(r)) => r,
-        Ok(Err(_)) => Err(LinkError::Disconnected.into()),
-        Err(_) => Err(LinkError::Timeout.into()),
-    }
-}
+    /// Counts the bytes it is fed.
+    #[derive(Debug, Default)]
+    struct Counter(u64);
 
-/// Wait until `pick` finds what it wants in `rx`'s value (checked at once, then on every
-/// change), at most `timeout`.
-///
-/// # Errors
-/// [`LinkError::Timeout`]; [`LinkError::Disconnected`] if the task is gone.
-pub async fn wait_for<T, R>(
-    rx: &watch::Receiver<T>,
-    timeout: Duration,
-    mut pick: impl FnMut(&T) -> Option<R>,
-) -> Result<R, LinkError> {
-    let mut rx = rx.clone();
-    tokio::time::timeout(timeout, async move {
-        loop {
-            if let Some(r) = pick(&rx.borrow_and_update()) {
-                return Ok(r);
-            }
-            rx.changed().await.map_err(|_| LinkError::Disconnected)?;
+    impl Machine for Counter {
+        type Event = ();
+        fn handle_bytes(&mut self, bytes: &[u8], _: Instant) {
+            self.0 += bytes.len() as u64;
         }
-    })
-    .await
-    .map_err(|_| LinkError::Timeout)?
+        fn handle_timeout(&mut self, _: Instant) {}
+        fn poll_transmit(&mut self, _: Instant, _: &mut [u8]) -> Option<usize> {
+            None
+        }
+        fn poll_event(&mut self) -> Option<()> {
+            None
+        }
+        fn poll_timeout(&self) -> Option<Instant> {
+            None
+        }
+    }
+
+    #[derive(Debug, Clone, PartialEq)]
+    struct Never;
+    impl core::fmt::Display for Never {
+        fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+            f.write_str("never")
+        }
+    }
+    impl Fault for Never {
+        const DEVICE: &'static str = "flood";
+        fn kind(&self) -> ima_hal::ErrorKind {
+            ima_hal::ErrorKind::Other
+        }
+    }
+
+    struct Flood {
+        machine: Counter,
+        link: watch::Sender<Status<Self>>,
+    }
+
+    impl Shell for Flood {
+        type Machine = Counter;
+        type Fault = Never;
+        type Up = ();
+        const MAX_FRAME: usize = 8;
+        fn machine(&mut self) -> &mut Counter {
+            &mut self.machine
+        }
+        fn link(&self) -> &watch::Sender<Status<Self>> {
+            &self.link
+        }
+        fn on_event(&mut self, (): (), _: &mut dyn BaudControl) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// A device that never stops sending.
+    struct Firehose;
+    impl AsyncRead for Firehose {
+        fn poll_read(
+            self: Pin<&mut Self>,
+            _: &mut Context<'_>,
+            buf: &mut tokio::io::ReadBuf<'_>,
+        ) -> Poll<io::Result<()>> {
+            buf.put_slice(&[0x55; 64]);
+            Poll::Ready(Ok(()))
+        }
+    }
+    impl AsyncWrite for Firehose {
+        fn poll_write(
+            self: Pin<&mut Self>,
+            _: &mut Context<'_>,
+            b: &[u8],
+        ) -> Poll<io::Result<usize>> {
+            Poll::Ready(Ok(b.len()))
+        }
+        fn poll_flush(self: Pin<&mut Self>, _: &mut Context<'_>) -> Poll<io::Result<()>> {
+            Poll::Ready(Ok(()))
+        }
+        fn poll_shutdown(self: Pin<&mut Self>, _: &mut Context<'_>) -> Poll<io::Result<()>> {
+            Poll::Ready(Ok(()))
+        }
+    }
+
+    /// On one thread, a handle's call and close still get through a device that floods.
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_flooding_device_does_not_starve_the_handles() {
+        let shell = Flood {
+            machine: Counter::default(),
+            link: watch::channel(LinkStatus::Connecting).0,
+        };
+        let clock = ima_hal::time::TokioClock::shared();
+        let h = Handle::spawn(shell, FixedBaud(Firehose), clock, None);
+        let seen = h.call(Duration::from_secs(5), |s, _| Ok(s.machine.0)).await;
+        assert!(seen.is_ok(), "{seen:?}");
+        let later = h.call(Duration::from_secs(5), |s, _| Ok(s.machine.0)).await;
+        assert!(later.unwrap() >= seen.unwrap());
+        assert_eq!(h.close(Duration::from_secs(5)).await, Ok(()));
+        assert!(matches!(h.link(), LinkStatus::Closed));
+    }
 }

@@ -1,19 +1,25 @@
-//! The blocking shell's steady state: one `next_scan` (read, frame, decode, swap) per
-//! iteration over a fake unit that streams canned 361-value B0 telegrams from a preallocated
-//! buffer. `divan::AllocProfiler` shows the allocations per scan (expected: none):
+//! The driver's steady state through the blocking runner: one `next_scan` (read, frame,
+//! decode, swap in the task; wait and copy out in the handle) per iteration over a fake unit
+//! that streams canned 361-value B0 telegrams from a preallocated buffer.
+//! `divan::AllocProfiler` shows the allocations per scan:
 //! `cargo bench -p ima-sick-lms --features serial --bench shell`.
 
-use std::io::{self, Read, Write};
+use std::io;
+use std::pin::Pin;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use divan::counter::ItemsCount;
 use divan::{AllocProfiler, Bencher};
-use ima_sick_lms::blocking::{BaudControl, BlockingSickLms};
+use ima_hal::blocking::LaserScanner as _;
+use ima_serial::blocking::Blocking;
 use ima_sick_lms::machine::Config;
+use ima_sick_lms::shell::{BaudControl, SickLms};
 use ima_sick_lms::wire::{
     ACK, BaudRate, Command, LmsConfig, MAX_TELEGRAM, ModeRequest, Reply, Scan, StatusBlock,
     StatusBlockBuf, StatusByte, Units,
 };
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 #[global_allocator]
 static ALLOC: AllocProfiler = AllocProfiler::system();
@@ -27,6 +33,8 @@ struct FakeLms {
     pending: Vec<u8>,
     b0: Vec<u8>,
     streaming: bool,
+    /// A B0 was given on the last poll.
+    gave: bool,
 }
 
 impl FakeLms {
@@ -41,6 +49,7 @@ impl FakeLms {
             pending: Vec::with_capacity(4096),
             b0,
             streaming: false,
+            gave: false,
         }
     }
 
@@ -52,8 +61,8 @@ impl FakeLms {
     }
 }
 
-impl Write for FakeLms {
-    fn write(&mut self, b: &[u8]) -> io::Result<usize> {
+impl FakeLms {
+    fn write(&mut self, b: &[u8]) -> usize {
         let status = StatusByte::NORMAL;
         match Command::parse(b).unwrap() {
             Command::SetMode(m) => {
@@ -81,29 +90,55 @@ impl Write for FakeLms {
             }
             other => panic!("unexpected {other:?}"),
         }
-        Ok(b.len())
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        Ok(())
+        b.len()
     }
 }
 
-impl Read for FakeLms {
-    fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
-        if !self.pending.is_empty() {
-            let n = self.pending.len().min(out.len());
-            out[..n].copy_from_slice(&self.pending[..n]);
-            self.pending.drain(..n);
-            return Ok(n);
+impl AsyncWrite for FakeLms {
+    fn poll_write(self: Pin<&mut Self>, _: &mut Context<'_>, b: &[u8]) -> Poll<io::Result<usize>> {
+        Poll::Ready(Ok(self.get_mut().write(b)))
+    }
+    fn poll_flush(self: Pin<&mut Self>, _: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+    fn poll_shutdown(self: Pin<&mut Self>, _: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+}
+
+impl AsyncRead for FakeLms {
+    /// Replies first; once streaming, the same B0 again from the preallocated buffer, every
+    /// other poll (in between, the driver task yields, as it does between two scans of a
+    /// real unit); else nothing (the runner's timers run meanwhile).
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        out: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let me = self.get_mut();
+        if me.pending.is_empty() && me.streaming {
+            me.gave = !me.gave;
+            if !me.gave {
+                cx.waker().wake_by_ref();
+                return Poll::Pending;
+            }
         }
-        if self.streaming {
-            // Steady state: the same B0 again, from the preallocated buffer (two reads).
-            let n = self.b0.len().min(out.len());
-            out[..n].copy_from_slice(&self.b0[..n]);
-            self.pending.extend_from_slice(&self.b0[n..]);
-            return Ok(n);
+        let src = if me.pending.is_empty() && me.streaming {
+            &me.b0
+        } else {
+            &me.pending
+        };
+        if src.is_empty() {
+            return Poll::Pending;
         }
-        Err(io::ErrorKind::TimedOut.into())
+        let n = src.len().min(out.remaining());
+        out.put_slice(&src[..n]);
+        if me.pending.is_empty() {
+            me.pending.extend_from_slice(&me.b0[n..]);
+        } else {
+            me.pending.drain(..n);
+        }
+        Poll::Ready(Ok(()))
     }
 }
 
@@ -119,18 +154,18 @@ fn next_scan_361(b: Bencher) {
         baud: BaudRate::B9600,
         ..Config::default()
     };
-    let mut lms = BlockingSickLms::connect(
-        FakeLms::new(),
-        cfg,
-        Duration::from_secs(5),
-        ima_hal::time::MonotonicClock::shared(),
-    )
+    let mut lms = Blocking::connect(async || {
+        let clock = ima_hal::time::TokioClock::shared();
+        SickLms::connect(FakeLms::new(), cfg, Duration::from_secs(5), clock).await
+    })
     .unwrap();
+    let mut last = lms.next_scan(ima_hal::Instant::ZERO).unwrap().at;
     for _ in 0..5 {
-        lms.next_scan(Duration::from_secs(1)).unwrap();
+        last = lms.next_scan(last).unwrap().at;
     }
     b.counter(ItemsCount::new(1usize)).bench_local(|| {
-        let s = lms.next_scan(Duration::from_secs(1)).unwrap();
+        let s = lms.next_scan(last).unwrap();
+        last = s.at;
         divan::black_box(s.value.ranges_m().first().copied())
     });
 }

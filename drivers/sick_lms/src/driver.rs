@@ -1,7 +1,6 @@
-//! What both I/O shells share (feature `std`): the driver error, line-speed control, scan
-//! statistics and the line-rate arithmetic of spec §4.
-
-use std::io;
+//! The SICK LMS driver's faults (its errors are [`DriverError`] =
+//! [`ima_serial::DriverError`]`<`[`Fault`]`>`), scan statistics and the line-rate
+//! arithmetic of spec §4 (feature `std`).
 
 use ima_hal::ErrorKind;
 use ima_hal::laser::LaserDescription;
@@ -17,20 +16,17 @@ pub use ima_serial::{BaudControl, FixedBaud};
 /// ([`crate::machine::Machine::close`]) each need one acknowledged telegram.
 pub const CLOSE_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(1500);
 
-/// Errors of the SICK LMS drivers (both shells).
+/// Errors of the SICK LMS driver: the link's, or a [`Fault`] of the unit.
+pub type DriverError = ima_serial::DriverError<Fault>;
+
+/// What only a SICK LMS reports.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[non_exhaustive]
-pub enum DriverError {
-    /// The driver task has ended (port closed, I/O error, or `close`).
-    Disconnected,
-    /// The scanner did not answer (or scan) in time.
-    Timeout,
+pub enum Fault {
     /// The session failed or refused a request.
     Session(MachineError),
     /// A B0 could not be decoded (unknown measuring mode, reflectivity mode…).
     Decode(crate::decode::DecodeError),
-    /// An I/O error on the port.
-    Io(io::ErrorKind),
     /// No unit answered while connecting: what was seen at each rate tried.
     NotFound {
         /// Bytes and frames per rate.
@@ -40,11 +36,15 @@ pub enum DriverError {
     },
 }
 
-impl std::fmt::Display for DriverError {
+impl From<MachineError> for DriverError {
+    fn from(e: MachineError) -> Self {
+        Self::Device(Fault::Session(e))
+    }
+}
+
+impl std::fmt::Display for Fault {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Disconnected => f.write_str("SICK LMS driver disconnected"),
-            Self::Timeout => f.write_str("SICK LMS did not answer in time"),
             Self::NotFound { report, rs422 } => {
                 write!(
                     f,
@@ -60,21 +60,16 @@ impl std::fmt::Display for DriverError {
             ),
             Self::Session(e) => write!(f, "SICK LMS session: {e:?}"),
             Self::Decode(e) => write!(f, "SICK LMS scan decoding: {e:?}"),
-            Self::Io(k) => write!(f, "serial I/O error: {k}"),
         }
     }
 }
 
-impl std::error::Error for DriverError {}
+impl ima_serial::Fault for Fault {
+    const DEVICE: &'static str = "SICK LMS";
 
-ima_serial::impl_from_link_error!(DriverError);
-
-impl ima_hal::Error for DriverError {
     fn kind(&self) -> ErrorKind {
         match self {
-            Self::Disconnected | Self::Io(_) => ErrorKind::Disconnected,
-            Self::Timeout
-            | Self::NotFound { .. }
+            Self::NotFound { .. }
             | Self::Session(
                 MachineError::NoDevice | MachineError::Timeout { .. } | MachineError::StreamStalled,
             ) => ErrorKind::Timeout,
@@ -162,10 +157,10 @@ mod tests {
         for b in [9600, 38400, 19200] {
             report.attempt(b);
         }
-        let e = DriverError::NotFound {
+        let e = DriverError::Device(Fault::NotFound {
             report: Box::new(report.clone()),
             rs422: false,
-        };
+        });
         let text = e.to_string();
         assert!(
             text.ends_with(
@@ -176,10 +171,10 @@ mod tests {
         assert!(!text.contains("any rate"));
         assert_eq!(ima_hal::Error::kind(&e), ErrorKind::Timeout);
         report.attempt(500_000);
-        let e = DriverError::NotFound {
+        let e = DriverError::Device(Fault::NotFound {
             report: Box::new(report),
             rs422: true,
-        };
+        });
         assert!(e.to_string().ends_with("(9600, 38400, 19200, 500000)"));
     }
 
@@ -187,11 +182,11 @@ mod tests {
     fn error_kinds() {
         use ima_hal::Error as _;
         assert_eq!(
-            DriverError::Session(MachineError::NoDevice).kind(),
+            DriverError::from(MachineError::NoDevice).kind(),
             ErrorKind::Timeout
         );
         assert_eq!(
-            DriverError::Session(MachineError::Rejected { code: 0x3B }).kind(),
+            DriverError::from(MachineError::Rejected { code: 0x3B }).kind(),
             ErrorKind::Protocol
         );
         assert_eq!(DriverError::Disconnected.kind(), ErrorKind::Disconnected);

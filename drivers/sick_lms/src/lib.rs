@@ -11,11 +11,11 @@
 //!   bounded retries and the timeouts of §2. No I/O, no clock: `now` is an argument.
 //! * [`decode`]: B0 values to [`ima_hal::laser::LaserScan`] (masks per measuring mode, special
 //!   codes, geometry).
-//! * [`driver`] (feature `std`): what both shells share: [`driver::DriverError`],
-//!   [`driver::BaudControl`], [`driver::ScanStats`], the line-rate arithmetic of §4.
-//! * `shell` (feature `tokio`): the async shell, a cloneable `SickLms` handle implementing
-//!   [`ima_hal::laser::LaserScanner`].
-//! * `blocking` (feature `serial`): the same over any `Read + Write` (`serialport`).
+//! * [`driver`] (feature `std`): the unit's [`driver::Fault`]s ([`driver::DriverError`] =
+//!   `ima_serial::DriverError<Fault>`), [`driver::ScanStats`], the line-rate arithmetic of §4.
+//! * `shell` (feature `tokio`): a cloneable `SickLms` handle implementing
+//!   [`ima_hal::laser::LaserScanner`], run by `ima-serial`'s runner (blocking code:
+//!   `ima_serial::blocking::Blocking<SickLms>`, feature `serial`).
 //!
 //! # Driving the machine
 //!
@@ -78,8 +78,6 @@
     )
 )]
 
-#[cfg(feature = "serial")]
-pub mod blocking;
 pub mod decode;
 #[cfg(feature = "std")]
 pub mod driver;

@@ -12,7 +12,7 @@
 //!   [`ima_hal::Instant`].
 //!
 //! The HAL side is [`ima_hal::camera::CameraMux`] (implemented by the async I/O shell `shell::VideoMux`,
-//! feature `tokio`; a blocking mirror is `blocking::BlockingVideoMux`, feature `serial`) and [`ima_hal::camera::FrameSource`] (frame grabbers and the mock camera head).
+//! feature `tokio`; blocking code: `ima_serial::blocking::Blocking<VideoMux>`, feature `serial`) and [`ima_hal::camera::FrameSource`] (frame grabbers and the mock camera head).
 //!
 //! # Choices where the spec is silent
 //!
@@ -37,8 +37,6 @@
     )
 )]
 
-#[cfg(feature = "serial")]
-pub mod blocking;
 #[cfg(feature = "std")]
 pub mod driver;
 pub mod framer;

@@ -1,31 +1,29 @@
-//! The async I/O shell (feature `tokio`): one task owns the byte stream and the sans-IO
-//! [`Machine`]; cloneable [`VideoMux`] handles talk to it and implement
-//! [`ima_hal::camera::CameraMux`].
+//! The I/O shell (feature `tokio`): [`MuxShell`] turns the sans-IO [`Machine`]'s events into
+//! answers and notices, and cloneable [`VideoMux`] handles implement
+//! [`ima_hal::camera::CameraMux`]; [`ima_serial::runner`] does the I/O, and blocking code
+//! uses [`ima_serial::blocking::Blocking`]`<VideoMux>`.
 //!
-//! Generic over any `AsyncRead + AsyncWrite` stream (a `tokio_serial::SerialStream` from
-//! [`open_port`], or an in-memory duplex in tests). One `select!` over the stream, the
-//! machine's next timer and the handles' requests. Time is tokio time ([`TokioClock`]), so
-//! tests can run in paused virtual time. The machine serves one request at a time; a second
-//! handle asking while one is pending gets [`RequestError::Busy`](crate::machine::RequestError::Busy).
+//! The stream is any `AsyncRead + AsyncWrite` (a `tokio_serial::SerialStream` from
+//! [`open_port`], or an in-memory duplex in tests). The machine serves one request at a
+//! time; a second handle asking while one is pending gets
+//! [`RequestError::Busy`](crate::machine::RequestError::Busy).
 
 use std::time::Duration;
 
 use ima_hal::camera::{CameraMux, Channel, Selection};
 use ima_hal::{ErrorType, Instant};
-use ima_serial::runner::{self, End, Flow, Shell};
+use ima_serial::handle::Handle;
+use ima_serial::runner::{Reply, Shell};
 use ima_serial::{BaudControl, FixedBaud};
 use tokio::io::{AsyncRead, AsyncWrite};
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::watch;
 
-pub use crate::driver::DriverError;
+pub use crate::driver::{DriverError, Fault};
 use crate::machine::{Config, Event, Machine, RequestError, Stats};
+/// The process's one clock, passed to `spawn`: every stamp the driver produces is on it.
+pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 /// Open a serial port for the shell: `baud` (Extron default 9600) 8N1, no flow control.
 pub use ima_serial::open_port;
-
-/// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
-/// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
-/// stamp the driver produces is on that time line.
-pub use ima_hal::time::{Clock, SharedClock, TokioClock};
 
 /// Something the switcher said on its own (front panel, power-on, signal change).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,72 +40,38 @@ pub enum Notice {
     Mute(bool),
 }
 
-type Answer<T> = oneshot::Sender<Result<T, DriverError>>;
+/// The link as handles see it (a switcher is never handshaken: it stays `Connecting` until
+/// the task ends).
+pub type LinkStatus = ima_serial::LinkStatus<(), DriverError>;
 
-/// A request from a handle to the driver task.
-#[derive(Debug)]
-pub enum Request {
-    /// Select an input.
-    Select(Channel, Answer<Selection>),
-    /// Ask which input is selected.
-    Query(Answer<Option<Channel>>),
-    /// End the task.
-    Close(Answer<()>),
-}
-
+/// The request waiting for the switcher's answer.
 #[derive(Debug)]
 enum Waiter {
-    Select(Answer<Selection>),
-    Query(Answer<Option<Channel>>),
+    Select(Reply<Selection, MuxShell>),
+    Query(Reply<Option<Channel>, MuxShell>),
 }
 
-/// The receiving ends of what [`MuxShell`] publishes.
-#[derive(Debug, Clone)]
-pub(crate) struct Watches {
-    pub(crate) current: watch::Receiver<Option<Channel>>,
-    pub(crate) notices: watch::Receiver<Option<Notice>>,
-    pub(crate) stats: watch::Receiver<Stats>,
-}
-
-/// Machine events → readings and answers, for both shells.
+/// Machine events → answers and notices.
 #[derive(Debug)]
 pub struct MuxShell {
     machine: Machine,
-    current_tx: watch::Sender<Option<Channel>>,
-    notice_tx: watch::Sender<Option<Notice>>,
-    stats_tx: watch::Sender<Stats>,
+    link: watch::Sender<LinkStatus>,
+    current: watch::Sender<Option<Channel>>,
+    notices: watch::Sender<Option<Notice>>,
+    stats: watch::Sender<Stats>,
     waiter: Option<Waiter>,
 }
 
 impl MuxShell {
-    pub(crate) fn new(config: Config) -> (Self, Watches) {
-        let (current_tx, current) = watch::channel(None);
-        let (notice_tx, notices) = watch::channel(None);
-        let (stats_tx, stats) = watch::channel(Stats::default());
-        let shell = Self {
-            machine: Machine::new(config),
-            current_tx,
-            notice_tx,
-            stats_tx,
-            waiter: None,
-        };
-        let w = Watches {
-            current,
-            notices,
-            stats,
-        };
-        (shell, w)
-    }
-
-    /// Wait for the machine's answer with `tx`, or refuse at once.
+    /// Wait for the machine's answer with `waiter`, or refuse at once.
     fn wait(&mut self, r: Result<(), RequestError>, waiter: Waiter) {
         let e = match r {
             Ok(()) if self.waiter.is_none() => {
                 self.waiter = Some(waiter);
                 return;
             }
-            Ok(()) => DriverError::Request(RequestError::Busy),
-            Err(e) => DriverError::Request(e),
+            Ok(()) => RequestError::Busy.into(),
+            Err(e) => e.into(),
         };
         match waiter {
             Waiter::Select(tx) => drop(tx.send(Err(e))),
@@ -118,18 +82,23 @@ impl MuxShell {
 
 impl Shell for MuxShell {
     type Machine = Machine;
-    type Request = Request;
+    type Fault = Fault;
+    type Up = ();
     const MAX_FRAME: usize = 16;
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine
     }
 
+    fn link(&self) -> &watch::Sender<LinkStatus> {
+        &self.link
+    }
+
     fn on_event(&mut self, ev: Event, _line: &mut dyn BaudControl) -> std::io::Result<()> {
         let notice = |n| Some(Some(n));
         let n = match ev {
             Event::Selected(sel) => {
-                self.current_tx.send_replace(Some(sel.channel));
+                self.current.send_replace(Some(sel.channel));
                 if let Some(Waiter::Select(w)) = self.waiter.take() {
                     let _ = w.send(Ok(sel));
                 }
@@ -142,7 +111,7 @@ impl Shell for MuxShell {
                 None
             }
             Event::Current { channel } => {
-                self.current_tx.send_replace(channel);
+                self.current.send_replace(channel);
                 if let Some(Waiter::Query(w)) = self.waiter.take() {
                     let _ = w.send(Ok(channel));
                 }
@@ -156,7 +125,7 @@ impl Shell for MuxShell {
             }
             Event::Settled { .. } => None,
             Event::ExternalSelect { channel } => {
-                self.current_tx.send_replace(Some(channel));
+                self.current.send_replace(Some(channel));
                 notice(Notice::ExternalSelect(channel))
             }
             Event::UnsolicitedError(r) => notice(Notice::UnsolicitedError(r)),
@@ -165,50 +134,24 @@ impl Shell for MuxShell {
             Event::Banner => notice(Notice::Banner),
         };
         if let Some(n) = n {
-            self.notice_tx.send_replace(n);
+            self.notices.send_replace(n);
         }
         Ok(())
     }
 
-    fn on_request(&mut self, req: Request, now: Instant) -> Flow {
-        match req {
-            Request::Select(ch, tx) => {
-                let r = self.machine.select(ch, now);
-                self.wait(r, Waiter::Select(tx));
-            }
-            Request::Query(tx) => {
-                let r = self.machine.query(now);
-                self.wait(r, Waiter::Query(tx));
-            }
-            Request::Close(done) => {
-                let _ = done.send(Ok(()));
-                return Flow::Close;
-            }
-        }
-        Flow::Continue
-    }
-
     fn after_round(&mut self) {
-        self.stats_tx.send_replace(self.machine.stats());
-    }
-
-    fn end(&mut self, how: End) {
-        let e = how.error();
-        match self.waiter.take() {
-            Some(Waiter::Select(w)) => drop(w.send(Err(e))),
-            Some(Waiter::Query(w)) => drop(w.send(Err(e))),
-            None => {}
-        }
+        self.stats.send_replace(self.machine.stats());
     }
 }
 
 /// A handle to a running switcher driver. Cheap to clone.
 #[derive(Debug, Clone)]
 pub struct VideoMux {
-    tx: mpsc::Sender<Request>,
-    w: Watches,
+    h: Handle<MuxShell>,
+    current: watch::Receiver<Option<Channel>>,
+    notices: watch::Receiver<Option<Notice>>,
+    stats: watch::Receiver<Stats>,
     config: Config,
-    clock: SharedClock,
 }
 
 impl VideoMux {
@@ -221,13 +164,23 @@ impl VideoMux {
     where
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
-        let (shell, w) = MuxShell::new(config);
-        let tx = runner::spawn(shell, FixedBaud(stream), clock.clone(), None);
+        let (current_tx, current) = watch::channel(None);
+        let (notices_tx, notices) = watch::channel(None);
+        let (stats_tx, stats) = watch::channel(Stats::default());
+        let shell = MuxShell {
+            machine: Machine::new(config),
+            link: watch::channel(LinkStatus::Connecting).0,
+            current: current_tx,
+            notices: notices_tx,
+            stats: stats_tx,
+            waiter: None,
+        };
         Self {
-            tx,
-            w,
+            h: Handle::spawn(shell, FixedBaud(stream), clock, None),
+            current,
+            notices,
+            stats,
             config,
-            clock,
         }
     }
 
@@ -240,43 +193,39 @@ impl VideoMux {
     /// The channel last confirmed or reported by the switcher, without asking it.
     #[must_use]
     pub fn known_channel(&self) -> Option<Channel> {
-        *self.w.current.borrow()
+        *self.current.borrow()
     }
 
     /// The last unsolicited message, if any.
     #[must_use]
     pub fn last_notice(&self) -> Option<Notice> {
-        *self.w.notices.borrow()
+        *self.notices.borrow()
     }
 
     /// Session counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        *self.w.stats.borrow()
+        *self.stats.borrow()
     }
 
     /// The driver's clock (the time base of [`Selection`] stamps).
     #[must_use]
     pub fn now(&self) -> Instant {
-        self.clock.now()
-    }
-
-    async fn request<T>(&self, make: impl FnOnce(Answer<T>) -> Request) -> Result<T, DriverError> {
-        runner::request(&self.tx, make, request_timeout(&self.config)).await
+        self.h.now()
     }
 
     /// End the driver task.
     pub async fn close(&self) {
-        let _ = runner::request(&self.tx, Request::Close, Duration::from_secs(2)).await;
+        let _ = self.h.close(Duration::from_secs(2)).await;
     }
-}
 
-/// How long a request may take: every attempt, plus slack for a loaded machine.
-pub(crate) fn request_timeout(config: &Config) -> Duration {
-    config
-        .reply_timeout
-        .saturating_mul(u32::from(config.retries).saturating_add(1))
+    /// How long a request may take: every attempt, plus slack for a loaded machine.
+    fn request_timeout(&self) -> Duration {
+        let c = &self.config;
+        (c.reply_timeout
+            .saturating_mul(u32::from(c.retries).saturating_add(1)))
         .saturating_add(Duration::from_secs(2))
+    }
 }
 
 impl ErrorType for VideoMux {
@@ -293,10 +242,18 @@ impl CameraMux for VideoMux {
     }
 
     async fn select(&mut self, channel: Channel) -> Result<Selection, DriverError> {
-        self.request(|tx| Request::Select(channel, tx)).await
+        let f = move |s: &mut MuxShell, now, tx| {
+            let r = s.machine.select(channel, now);
+            s.wait(r, Waiter::Select(tx));
+        };
+        self.h.defer(self.request_timeout(), f).await
     }
 
     async fn current_channel(&mut self) -> Result<Option<Channel>, DriverError> {
-        self.request(Request::Query).await
+        let f = |s: &mut MuxShell, now, tx| {
+            let r = s.machine.query(now);
+            s.wait(r, Waiter::Query(tx));
+        };
+        self.h.defer(self.request_timeout(), f).await
     }
 }

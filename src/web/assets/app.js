@@ -236,20 +236,36 @@ function renderMap(s) {
     const p = r.pose || r.truth;
     if (p) { robotAt(p, colour, 1, name); drawn.push(name); }
   }
-  // Skeeter's SES bearings, from where Skeeter is.
+  // Skeeter's SES: a ray per bearing from where Skeeter is; where a range is known, a solid
+  // segment to that range and a dot at the object's estimated place.
   const sk = s.robots.skeeter;
   const skp = sk && (sk.pose || sk.truth);
+  const sesDrawn = [];
   if (s.ses && skp) {
-    g.save(); g.setLineDash([6, 4]); g.lineWidth = 1.5;
+    g.save(); g.lineWidth = 1.5;
     for (const r of s.ses.form.records) {
-      const a = skp[2] + r.bearing_rad, len = r.range_m || 3;
-      g.strokeStyle = r.object === 'scooter' ? '#d62728' : '#2e7d32';
-      g.beginPath(); g.moveTo(px(skp[0]), py(skp[1])); g.lineTo(px(skp[0] + len * Math.cos(a)), py(skp[1] + len * Math.sin(a))); g.stroke();
+      const a = skp[2] + r.bearing_rad;
+      const ranged = typeof r.range_m === 'number' && isFinite(r.range_m) && r.range_m >= 0;
+      const len = ranged ? r.range_m : 3;
+      const colour = r.object === 'scooter' ? '#d62728' : '#2e7d32';
+      const ex = skp[0] + len * Math.cos(a), ey = skp[1] + len * Math.sin(a);
+      g.strokeStyle = colour; g.setLineDash(ranged ? [] : [6, 4]);
+      g.beginPath(); g.moveTo(px(skp[0]), py(skp[1])); g.lineTo(px(ex), py(ey)); g.stroke();
+      if (ranged) {
+        g.fillStyle = colour; g.beginPath(); g.arc(px(ex), py(ey), 5, 0, 7); g.fill();
+      }
       g.fillStyle = '#333'; g.font = '11px sans-serif';
-      g.fillText(`${r.object}${r.range_m ? ` ${fmt(r.range_m)} m` : ''}`, px(skp[0] + len * Math.cos(a)) + 3, py(skp[1] + len * Math.sin(a)));
+      g.fillText(`${r.object}${ranged ? ` ${fmt(r.range_m)} m` : ''}`, px(ex) + 6, py(ey) + 16);
+      sesDrawn.push({ object: r.object, bearing: r.bearing_rad, range: ranged ? r.range_m : null, at: ranged ? [ex, ey] : null });
     }
     g.restore();
   }
+  $('map-ses').replaceChildren(...(sesDrawn.length
+    ? sesDrawn.map((r) => el('li', {
+      class: 'ses-mark', 'data-object': r.object, 'data-ranged': r.range != null ? 'yes' : 'no',
+      text: `${r.object}: bearing ${fmt(r.bearing * 180 / Math.PI, 0)}°${r.range != null ? `, range ${fmt(r.range, 2)} m (at ${fmt(r.at[0], 2)}, ${fmt(r.at[1], 2)})` : ', no range (bearing only)'}`,
+    }))
+    : [el('li', { class: 'muted', text: s.ses ? 'Skeeter\'s place is not known yet: its SES cannot be drawn.' : 'No SES from Skeeter yet.' })]));
   // Scooter's computed heading, plan and laser obstacles (its DR frame, drawn from its start).
   const sc = s.robots.scooter, m = s.scooter_map;
   if (sc && m && sc.pose) {
@@ -269,7 +285,9 @@ function renderMap(s) {
     }
   }
   $('map-legend').textContent = 'Solid: each robot\'s belief and trail; faint dashed: ground truth (simulated world); '
-    + 'dashed rays: Skeeter\'s SES bearings; orange: Scooter\'s desired heading and plan; grey dots: laser obstacles; grid 1 m.';
+    + 'Skeeter\'s SES: dashed rays for bearings only, solid segments with a dot where a range is known; orange: Scooter\'s desired heading and plan; grey dots: laser obstacles; grid 1 m.';
+  const missing = Object.keys(s.robots).filter((n) => !drawn.includes(n)).sort();
+  $('map-missing').textContent = missing.length ? `No pose from ${missing.join(', ')} yet: not drawn.` : '';
   $('map-robots').replaceChildren(...drawn.map((n) => {
     const r = s.robots[n];
     const plan = n === 'scooter' && m ? `; heading ${fmt(m.heading_rad == null ? NaN : m.heading_rad * 180 / Math.PI, 0)}°, desired ${fmt(m.desired_rad == null ? NaN : m.desired_rad * 180 / Math.PI, 0)}°` : '';
@@ -279,15 +297,28 @@ function renderMap(s) {
 }
 
 // ---------- Peer Agents ----------
-function counters(obj) {
-  if (!obj) return '—';
-  const nz = Object.entries(obj).filter(([, v]) => typeof v === 'number' && v !== 0).map(([k, v]) => `${k.replace(/_/g, ' ')} ${v}`);
-  return nz.length ? nz.join(', ') : 'none';
+function refused(r) {
+  if (!r) return '—';
+  return `auth failures ${r.auth_failures ?? r.bad_mac ?? 0}, bad frames ${r.bad_frames ?? 0}, replayed ${r.replayed ?? r.replay ?? 0}`;
+}
+// One link's health: heartbeats both ways, frames, last seen (numbers in their own spans).
+function health(l) {
+  const n = (cls, v) => el('span', { class: `num ${cls}`, text: String(v) });
+  return ['heartbeats in ', n('hb-rx', l.heartbeats_received), ', out ', n('hb-tx', l.heartbeats_sent),
+    '; frames in ', n('frames', l.frames_received), '; last seen ', n('last-seen', l.last_seen_ms), ' ms ago'];
 }
 function renderPeer(s) {
   const names = new Set([...Object.keys(s.peer), ...Object.keys(s.peer_events)]);
+  // Robots heard on the broadcast channel whose Peer Agent runs in another process.
+  for (const [n, r] of Object.entries(s.robots)) if (r.life || r.last_t_s != null) names.add(n);
   const cards = [...names].sort().map((name) => {
     const p = s.peer[name] || {};
+    if (!s.peer[name] && !s.peer_events[name]) {
+      const r = s.robots[name];
+      return el('div', { class: 'card peer remote', 'data-robot': name }, el('h3', { text: name }),
+        el('dl', {}, el('dt', { text: 'link' }), el('dd', {}, r.life ? badge(`life-${r.life}`, r.life) : '—', r.last_t_s != null ? ` last heard ${fmt(r.last_t_s)} s` : '')),
+        el('p', { class: 'muted no-data', text: 'No Peer Agent status from this robot here: it runs in a process of its own (ima run), and only its broadcasts (liveness, behaviour, pose) reach this console. Its manager\'s sources, clients and link health are on its own console.' }));
+    }
     const b = p.broadcast;
     const r = s.robots[name];
     const parts = [
@@ -296,17 +327,37 @@ function renderPeer(s) {
         el('dt', { text: 'link' }), el('dd', {}, r && r.life ? badge(`life-${r.life}`, r.life) : '—', r && r.last_t_s != null ? ` last heard ${fmt(r.last_t_s)} s` : ''),
         p.address ? [el('dt', { text: 'manager' }), el('dd', { text: p.address })] : null,
         b ? [el('dt', { text: 'broadcasts' }), el('dd', { text: `sent ${b.sent}, accepted ${b.accepted}, duplicate ${b.duplicate}, stale ${b.stale}, send errors ${b.send_errors}` }),
-          el('dt', { text: 'refused' }), el('dd', { text: counters(b.rejected) })] : null,
+          el('dt', { text: 'broadcasts refused' }), el('dd', { class: 'refused', text: refused(b.rejected) })] : null,
         p.sessions != null ? [el('dt', { text: 'sessions' }), el('dd', { text: `${p.sessions} request, ${p.data_sessions} data; lost ${p.lost}, closed bad ${p.closed_bad}, slow closed ${p.slow_closed}` }),
-          el('dt', { text: 'manager refused' }), el('dd', { text: counters(p.rejected) })] : null),
+          el('dt', { text: 'manager refused' }), el('dd', { class: 'refused', text: `${refused(p.rejected)}; data sessions: ${refused(p.data_rejected)}, bad tickets ${p.data_bad_tickets}` })] : null),
     ];
     if (p.sources && p.sources.length) {
       parts.push(el('h4', { text: 'sources' }), el('ul', {}, p.sources.map((x) => el('li', { text: `${x.name} (${x.kind}, ${x.rate_mhz / 1000} Hz)` }))));
     }
+    if (p.links) {
+      parts.push(el('h4', { text: 'link health (request-channel sessions)' }), p.links.length
+        ? el('ul', {}, p.links.map((l) => el('li', { class: 'link', 'data-addr': l.addr },
+          el('b', { text: `${l.robots.join(', ') || '(not registered)'} ` }), el('span', { class: 'muted', text: `from ${l.addr}: ` }), ...health(l))))
+        : el('p', { class: 'muted', text: 'no session open' }));
+    }
     if (p.clients) {
-      parts.push(el('h4', { text: 'clients and grants' }), p.clients.length
-        ? el('ul', {}, p.clients.map((c) => el('li', { text: `${c.robot} #${c.client}: granted [${c.granted.join(', ')}]${c.requesting.length ? `, requesting [${c.requesting.join(', ')}]` : ''}` })))
+      parts.push(el('h4', { text: 'clients, requests and grants' }), p.clients.length
+        ? el('ul', {}, p.clients.map((c) => {
+          const reqs = (c.requests || []).map((q) => `${q.source} (priority robot ${q.robot_priority}, request ${q.request_priority}) ${q.granted ? 'granted' : 'pending'}`);
+          const recent = (c.recent || []).slice(-4).map((d) => `${d.source}: ${d.outcome}`);
+          return el('li', { class: 'client' },
+            el('div', { text: `${c.robot} #${c.client}${c.session ? ` from ${c.session}` : ''}: ${reqs.length ? reqs.join('; ') : 'no request'}` }),
+            recent.length ? el('div', { class: 'muted', text: `latest decisions: ${recent.join(', ')}` }) : null);
+        }))
         : el('p', { class: 'muted', text: 'no client' }));
+    }
+    const c = p.client;
+    if (c) {
+      const l = c.link;
+      parts.push(el('h4', { text: 'as a client' }),
+        el('p', { class: 'client-sub', text: `subscribes ${c.source} at ${c.manager} with request priority ${c.priority}: ${c.outcome}; grants ${c.grants}, samples ${c.samples}, retries ${c.retries}` }),
+        l ? el('p', { class: 'link client-link' }, el('b', { text: `${l.registration} ` }), ...health(l), `; refused: ${refused(l.rejected)}`)
+          : el('p', { class: 'muted', text: 'no session open now' }));
     }
     const evs = s.peer_events[name] || [];
     if (evs.length) {
@@ -329,7 +380,7 @@ function renderSan(s) {
     if (!v) {
       return el('div', { class: 'card san', 'data-robot': name }, el('h3', { text: name }),
         el('p', {}, `behaviour ${r.behaviour || '—'}; true conditions: ${r.san_summary || '—'}`),
-        el('p', { class: 'muted', text: 'Activations are shown for robots run by this process (ima demo).' }));
+        el('p', { class: 'muted no-data', text: 'No activations from this robot here: it runs in a process of its own (ima run) and its broadcasts carry only its behaviour and true conditions. Activations are charted for robots run by this process (ima demo).' }));
     }
     const L = v.latest;
     const modules = L.modules || [];

@@ -14,7 +14,7 @@ use super::config::PeerNetConfig;
 use super::frames::{FrameReader, max_frame, write_batch, write_frames};
 use super::{AuthFailure, NetError};
 use super::{random_u64, unix_micros};
-use crate::peer::client::{ClientConfig, ClientEvent, PeerClient};
+use crate::peer::client::{ClientConfig, ClientEvent, ClientLinkStatus, PeerClient};
 use crate::peer::data::{DataClientSession, DataClose, DataConfig, DataEvent};
 use crate::peer::wire::{
     DenyReason, GroupKey, HEADER_LEN, MAC_LEN, RevokeReason, SourceInfo, Ticket,
@@ -242,6 +242,7 @@ enum Cmd {
         reply: Reply<()>,
     },
     Sources(oneshot::Sender<(u64, Vec<SourceInfo>)>),
+    Link(oneshot::Sender<ClientLinkStatus>),
     /// A subscription was dropped before its end: disconnect its source.
     Dropped {
         source: String,
@@ -435,6 +436,16 @@ impl PeerClientHandle {
         rx.await.map_err(|_| self.lost())
     }
 
+    /// The session's health: heartbeats both ways, last seen, refused frames, requests.
+    ///
+    /// # Errors
+    /// [`NetError::ManagerLost`] once the session is over.
+    pub async fn link_status(&self) -> Result<ClientLinkStatus, NetError> {
+        let (tx, rx) = oneshot::channel();
+        self.cmd.send(Cmd::Link(tx)).map_err(|_| self.lost())?;
+        rx.await.map_err(|_| self.lost())
+    }
+
     /// Whether the manager session is over (lost or closed).
     #[must_use]
     pub fn is_lost(&self) -> bool {
@@ -616,6 +627,9 @@ impl ClientTask {
             }
             Cmd::Sources(reply) => {
                 let _ = reply.send((self.core.id(), self.core.sources().to_vec()));
+            }
+            Cmd::Link(reply) => {
+                let _ = reply.send(self.core.link_status(self.clock.now()));
             }
             Cmd::Dropped { source, shared } => {
                 if self

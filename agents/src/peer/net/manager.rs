@@ -17,7 +17,7 @@ use super::frames::{FrameReader, max_frame, write_batch, write_frames};
 use super::{NetError, random_key32, random_u64, unix_micros};
 use crate::peer::data::{DataClose, DataConfig, DataEvent, DataServerSession, TicketAuthority};
 use crate::peer::manager::{
-    ClientStatus, Decision, ManagerConfig, ManagerEvent, ManagerStats, Outcome, PeerId,
+    ClientStatus, Decision, LinkStatus, ManagerConfig, ManagerEvent, ManagerStats, Outcome, PeerId,
     PeerManager, SelfAgent, TicketError,
 };
 use crate::peer::wire::{
@@ -101,6 +101,18 @@ pub struct ManagerNetStats {
     pub task_priority: u8,
     /// The competency list.
     pub sources: Vec<SourceInfo>,
+    /// Health of every open request-channel session (heartbeats, last seen), with the
+    /// remote address.
+    pub links: Vec<SessionLink>,
+}
+
+/// One request-channel session's health ([`ManagerNetStats::links`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SessionLink {
+    /// The remote address.
+    pub addr: SocketAddr,
+    /// Heartbeats, frames, last seen.
+    pub link: LinkStatus,
 }
 
 struct SourceEntry {
@@ -590,6 +602,7 @@ pub async fn spawn_manager_with_clock<A: SelfAgent + Send + 'static>(
 }
 
 struct SessionRec {
+    addr: SocketAddr,
     tx: mpsc::Sender<Vec<u8>>,
     reader: AbortHandle,
     writer: JoinHandle<()>,
@@ -716,6 +729,16 @@ impl<A: SelfAgent> ManagerTask<A> {
             lagged_samples: self.lagged_samples,
             task_priority: self.core.task_priority(),
             sources: self.core.sources().to_vec(),
+            links: self
+                .core
+                .links(self.clock.now())
+                .into_iter()
+                .filter_map(|link| {
+                    self.sessions
+                        .get(&link.peer)
+                        .map(|s| SessionLink { addr: s.addr, link })
+                })
+                .collect(),
         }
     }
 
@@ -730,8 +753,15 @@ impl<A: SelfAgent> ManagerTask<A> {
                 writer,
                 data_address,
             } => {
-                self.sessions
-                    .insert(peer, SessionRec { tx, reader, writer });
+                self.sessions.insert(
+                    peer,
+                    SessionRec {
+                        addr,
+                        tx,
+                        reader,
+                        writer,
+                    },
+                );
                 self.core.connect(peer, now);
                 if let Some(a) = data_address {
                     self.core.set_data_address(peer, a);

@@ -59,7 +59,7 @@ pub use config::{
 };
 pub use key::{INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, parse_key};
 pub use manager::{
-    ManagerHandle, ManagerNetEvent, ManagerNetStats, SourcePublisher, spawn_manager,
+    ManagerHandle, ManagerNetEvent, ManagerNetStats, SessionLink, SourcePublisher, spawn_manager,
     spawn_manager_with_clock,
 };
 

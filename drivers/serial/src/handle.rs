@@ -1,0 +1,262 @@
+//! What every driver handle does the same way (feature `tokio`): spawn the task, wait for
+//! the link, run calls on the shell with a timeout, wait for readings, close.
+//!
+//! A driver's public handle (`P2os`, `SickLms`, …) holds a [`Handle`] of its shell plus the
+//! receivers of the readings it publishes, and implements the `ima-hal` traits on top.
+
+use std::time::Duration;
+
+use ima_hal::safety::{HaltSignal, StopRegistry};
+use ima_hal::time::SharedClock;
+use ima_hal::{Instant, Stamped};
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::sync::{mpsc, oneshot, watch};
+
+use crate::runner::{self, Error, Msg, Reply, Shell, Status};
+use crate::{BaudControl, DriverError, LinkError, LinkStatus};
+
+/// A cloneable handle to the task running shell `D`. Dropping every handle closes the
+/// task (the shell's last frames are written, then the port is released).
+pub struct Handle<D: Shell> {
+    tx: mpsc::Sender<Msg<D>>,
+    link: watch::Receiver<Status<D>>,
+    clock: SharedClock,
+    halt: HaltSignal,
+}
+
+impl<D: Shell> Clone for Handle<D> {
+    fn clone(&self) -> Self {
+        Self {
+            tx: self.tx.clone(),
+            link: self.link.clone(),
+            clock: self.clock.clone(),
+            halt: self.halt.clone(),
+        }
+    }
+}
+
+impl<D: Shell> core::fmt::Debug for Handle<D> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Handle")
+            .field("device", &<D::Fault as crate::Fault>::DEVICE)
+            .field("closed", &self.tx.is_closed())
+            .finish_non_exhaustive()
+    }
+}
+
+impl<D: Shell> Handle<D> {
+    /// Spawn the task running `shell` over `stream` on the current tokio runtime, with
+    /// `clock` as its time. With `stop_as`, the task's [`HaltSignal`] is registered under
+    /// that name in [`StopRegistry::global`], so a program's exit guard can stop the device
+    /// from any exit path (every device that can move registers).
+    pub fn spawn<S>(shell: D, stream: S, clock: SharedClock, stop_as: Option<&str>) -> Self
+    where
+        S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
+    {
+        let halt = HaltSignal::new();
+        if let Some(name) = stop_as {
+            StopRegistry::global().register(name, halt.clone());
+        }
+        let link = shell.link().subscribe();
+        let (tx, rx) = mpsc::channel(32);
+        tokio::spawn(runner::run(shell, stream, rx, clock.clone(), halt.clone()));
+        Self {
+            tx,
+            link,
+            clock,
+            halt,
+        }
+    }
+
+    /// [`spawn`](Self::spawn), then wait until the link is connected (what it reports),
+    /// failed, or `timeout` passes: then the shell says what the line carried
+    /// ([`Shell::no_answer`]) and the task is closed.
+    ///
+    /// # Errors
+    /// The link's failure, or the shell's account of a silent or foreign line.
+    pub async fn connect<S>(
+        shell: D,
+        stream: S,
+        clock: SharedClock,
+        timeout: Duration,
+        stop_as: Option<&str>,
+    ) -> Result<(Self, D::Up), Error<D>>
+    where
+        S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
+    {
+        let h = Self::spawn(shell, stream, clock, stop_as);
+        match h.wait_connected(timeout).await {
+            Ok(up) => Ok((h, up)),
+            Err(DriverError::Timeout) => {
+                let e = h
+                    .call(Duration::from_secs(1), |d, _| Ok(d.no_answer()))
+                    .await;
+                let _ = h.tx.try_send(Msg::Close(oneshot::channel().0));
+                Err(e.unwrap_or_else(|e| e))
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Wait until the link is connected (what it reports) or failed, at most `timeout`.
+    ///
+    /// # Errors
+    /// The link's failure; [`DriverError::Disconnected`] once closed; `Timeout`.
+    pub async fn wait_connected(&self, timeout: Duration) -> Result<D::Up, Error<D>> {
+        let link = self.link.clone();
+        self.wait_for(&link, timeout, |s| match s {
+            LinkStatus::Connected(u) => Some(Ok(u.clone())),
+            LinkStatus::Closed => Some(Err(LinkError::Disconnected.into())),
+            _ => None,
+        })
+        .await?
+    }
+
+    /// The link's status now.
+    #[must_use]
+    pub fn link(&self) -> Status<D> {
+        self.link.borrow().clone()
+    }
+
+    /// The process's clock this driver stamps with.
+    #[must_use]
+    pub fn clock(&self) -> &SharedClock {
+        &self.clock
+    }
+
+    /// Now, on the driver's clock.
+    #[must_use]
+    pub fn now(&self) -> Instant {
+        self.clock.now()
+    }
+
+    /// The task's halt signal: [`HaltSignal::halt`] closes the device (its last frames,
+    /// e.g. STOP) from any thread without awaiting.
+    #[must_use]
+    pub fn halt_signal(&self) -> HaltSignal {
+        self.halt.clone()
+    }
+
+    /// Run `f` on the shell inside the task and wait for its answer, at most `timeout`.
+    ///
+    /// # Errors
+    /// `f`'s error; `Disconnected` if the task is gone, `Timeout` if it did not answer.
+    pub async fn call<T: Send + 'static>(
+        &self,
+        timeout: Duration,
+        f: impl FnOnce(&mut D, Instant) -> Result<T, Error<D>> + Send + 'static,
+    ) -> Result<T, Error<D>> {
+        self.defer(timeout, move |d, now, reply| {
+            let _ = reply.send(f(d, now));
+        })
+        .await
+    }
+
+    /// Run `f` on the shell inside the task; it answers through the [`Reply`] it is given,
+    /// at once or later (a shell keeps the reply until the device confirms). Waits at
+    /// most `timeout`.
+    ///
+    /// # Errors
+    /// The answer's error; `Disconnected` if the task is gone or dropped the reply,
+    /// `Timeout` if no answer came in time.
+    pub async fn defer<T: Send + 'static>(
+        &self,
+        timeout: Duration,
+        f: impl FnOnce(&mut D, Instant, Reply<T, D>) + Send + 'static,
+    ) -> Result<T, Error<D>> {
+        let (reply, rx) = oneshot::channel();
+        let call = Box::new(move |d: &mut D, now| f(d, now, reply));
+        self.tx
+            .send(Msg::Call(call))
+            .await
+            .map_err(|_| LinkError::Disconnected)?;
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(LinkError::Disconnected.into()),
+            Err(_) => Err(LinkError::Timeout.into()),
+        }
+    }
+
+    /// Close: the shell writes its last frames (bounded by [`Shell::begin_close`]), the
+    /// port is released, and this returns, waiting at most `limit`. Closing a task that
+    /// has already ended is `Ok`.
+    ///
+    /// # Errors
+    /// `Timeout` if the last frames were not all written in time (or `limit` passed), or
+    /// the link's failure.
+    pub async fn close(&self, limit: Duration) -> Result<(), Error<D>> {
+        let (tx, rx) = oneshot::channel();
+        if self.halt.is_done() || self.tx.send(Msg::Close(tx)).await.is_err() {
+            return Ok(());
+        }
+        match tokio::time::timeout(limit, rx).await {
+            Ok(Ok(r)) => Ok(r?),
+            // The task ended between the check and the request (a halt or the link).
+            Ok(Err(_)) => Ok(()),
+            Err(_) => Err(LinkError::Timeout.into()),
+        }
+    }
+
+    /// Wait until `pick` finds what it wants in `rx`'s value (checked at once, then on
+    /// every change), at most `timeout`; a link that fails meanwhile ends the wait with its
+    /// error.
+    ///
+    /// # Errors
+    /// `Timeout`; the link's failure; `Disconnected` if the task is gone.
+    pub async fn wait_for<T, R>(
+        &self,
+        rx: &watch::Receiver<T>,
+        timeout: Duration,
+        mut pick: impl FnMut(&T) -> Option<R>,
+    ) -> Result<R, Error<D>> {
+        let mut rx = rx.clone();
+        let mut link = self.link.clone();
+        let wait = async move {
+            loop {
+                if let Some(r) = pick(&rx.borrow_and_update()) {
+                    return Ok(r);
+                }
+                if let LinkStatus::Failed(e) = &*link.borrow_and_update() {
+                    return Err(e.clone());
+                }
+                tokio::select! {
+                    r = rx.changed() => r.map_err(|_| LinkError::Disconnected)?,
+                    r = link.changed() => r.map_err(|_| LinkError::Disconnected)?,
+                }
+            }
+        };
+        tokio::time::timeout(timeout, wait)
+            .await
+            .map_err(|_| DriverError::Timeout)?
+    }
+
+    /// The reading in `rx` stamped after `after` (any reading with `None`), waiting at
+    /// most `timeout` (see [`wait_for`](Self::wait_for)).
+    ///
+    /// # Errors
+    /// As [`wait_for`](Self::wait_for).
+    pub async fn reading<T: Clone>(
+        &self,
+        rx: &SlotRx<T>,
+        after: Option<Instant>,
+        timeout: Duration,
+    ) -> Result<Stamped<T>, Error<D>> {
+        let newer = |s: &Option<Stamped<T>>| {
+            s.as_ref()
+                .filter(|s| after.is_none_or(|a| s.at > a))
+                .cloned()
+        };
+        self.wait_for(rx, timeout, newer).await
+    }
+}
+
+/// Where a shell publishes the latest reading of one kind (empty until the first).
+pub type Slot<T> = watch::Sender<Option<Stamped<T>>>;
+/// Where handles read it.
+pub type SlotRx<T> = watch::Receiver<Option<Stamped<T>>>;
+
+/// A reading slot, empty until the first reading.
+#[must_use]
+pub fn slot<T>() -> (Slot<T>, SlotRx<T>) {
+    watch::channel(None)
+}
