@@ -13,8 +13,8 @@ use ima_hal::link::ProbeReport;
 use ima_hal::power::{Power, PowerState};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
-use ima_serial::handle::Handle;
-use ima_serial::runner::{Reply, Shell};
+use ima_serial::handle::{Confirmations, Handle};
+use ima_serial::runner::Shell;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::watch;
 
@@ -52,7 +52,8 @@ pub struct P2osShell {
     config: watch::Sender<Option<RobotConfig>>,
     /// What each rate tried received, until the first connection.
     probe: ProbeReport,
-    motors_waiters: Vec<(bool, Reply<(), Self>)>,
+    /// Motor switches waiting for FLAGS to confirm them.
+    motors: Confirmations<bool, (), Self>,
     /// The session was connected once (the probe report is final).
     connected: bool,
 }
@@ -62,9 +63,7 @@ const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
 
 impl P2osShell {
     fn fail(&mut self, f: Fault) {
-        for (_, w) in self.motors_waiters.drain(..) {
-            let _ = w.send(Err(f.clone().into()));
-        }
+        self.motors.fail_all(&f.clone().into());
         self.link.send_replace(LinkStatus::Failed(f.into()));
     }
 }
@@ -139,18 +138,8 @@ impl Shell for P2osShell {
             Event::State(s) => {
                 self.state.send_replace(Some(s));
             }
-            Event::MotorsEnabled(on) => {
-                let (done, keep) = self.motors_waiters.drain(..).partition(|(w, _)| *w == on);
-                self.motors_waiters = keep;
-                for (_, tx) in done {
-                    let _ = tx.send(Ok(()));
-                }
-            }
-            Event::MotorsRefused => {
-                for (_, tx) in self.motors_waiters.drain(..) {
-                    let _ = tx.send(Err(Fault::MotorsRefused.into()));
-                }
-            }
+            Event::MotorsEnabled(on) => self.motors.confirm(&on, &()),
+            Event::MotorsRefused => self.motors.fail_all(&Fault::MotorsRefused.into()),
             Event::CommandTimeout => {
                 tracing::warn!("p2os: no velocity command for the command timeout; robot stopped");
             }
@@ -226,7 +215,7 @@ impl P2os {
             stats: stats_tx,
             config: config_tx,
             probe: ProbeReport::new(),
-            motors_waiters: Vec::new(),
+            motors: Confirmations::default(),
             connected: false,
         };
         let stop_as = Some("P2OS base");
@@ -356,12 +345,9 @@ impl DifferentialBase for P2os {
     async fn enable_motors(&mut self, enable: bool) -> Result<(), DriverError> {
         // Answered when FLAGS confirms; ENABLE is retried by the session: allow for every
         // attempt.
-        let f = move |s: &mut P2osShell, now, reply: Reply<(), P2osShell>| match s
-            .machine
-            .enable_motors(enable, now)
-        {
-            Ok(()) => s.motors_waiters.push((enable, reply)),
-            Err(e) => drop(reply.send(Err(e.into()))),
+        let f = move |s: &mut P2osShell, now, reply| {
+            let asked = s.machine.enable_motors(enable, now).map_err(Into::into);
+            s.motors.wait(enable, asked, reply);
         };
         self.h.defer(Duration::from_secs(3), f).await
     }

@@ -24,8 +24,8 @@ use ima_hal::base::{
 use ima_hal::power::{Power, PowerState};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
-use ima_serial::handle::{Handle, Slot, SlotRx as Rx, slot};
-use ima_serial::runner::{Reply, Shell};
+use ima_serial::handle::{Confirmations, Handle, Slot, SlotRx as Rx, slot};
+use ima_serial::runner::Shell;
 use ima_serial::{BaudControl, FixedBaud};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::watch;
@@ -65,7 +65,8 @@ pub struct RflexShell {
     brake: Slot<bool>,
     stats: watch::Sender<ShellStats>,
     scan: SonarScan,
-    motors_waiters: Vec<(bool, Reply<(), Self>)>,
+    /// Brake changes waiting for SYS_STATUS to confirm them (keyed by "released").
+    motors: Confirmations<bool, (), Self>,
     /// Sonar as last asked for (re-sent by a re-initialisation).
     sonar_wanted: bool,
     /// When to re-send the initialisation (the link is lost).
@@ -139,13 +140,7 @@ impl Shell for RflexShell {
             }
             Event::Brake(b) => {
                 self.brake.send_replace(Some(b));
-                let released = !b.value;
-                let (done, keep) =
-                    (self.motors_waiters.drain(..)).partition(|(w, _)| *w == released);
-                self.motors_waiters = keep;
-                for (_, tx) in done {
-                    let _ = tx.send(Ok(()));
-                }
+                self.motors.confirm(&!b.value, &());
             }
             Event::Sonar(r) => {
                 self.scan.upsert(r);
@@ -273,7 +268,7 @@ impl Rflex {
             brake: brake_tx,
             stats: stats_tx,
             scan: SonarScan::default(),
-            motors_waiters: Vec::new(),
+            motors: Confirmations::default(),
             sonar_wanted: false,
             reinit_at: None,
             reconnects: 0,
@@ -359,12 +354,9 @@ impl DifferentialBase for Rflex {
 
     /// Release (`true`) or engage the brake; answered when SYS_STATUS confirms.
     async fn enable_motors(&mut self, enable: bool) -> Result<(), DriverError> {
-        let f = move |s: &mut RflexShell, now, reply: Reply<(), RflexShell>| match s
-            .machine
-            .enable_motors(enable, now)
-        {
-            Ok(()) => s.motors_waiters.push((enable, reply)),
-            Err(e) => drop(reply.send(Err(e.into()))),
+        let f = move |s: &mut RflexShell, now, reply| {
+            let asked = s.machine.enable_motors(enable, now).map_err(Into::into);
+            s.motors.wait(enable, asked, reply);
         };
         self.h.defer(Duration::from_secs(3), f).await
     }

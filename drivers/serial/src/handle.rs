@@ -260,3 +260,50 @@ pub type SlotRx<T> = watch::Receiver<Option<Stamped<T>>>;
 pub fn slot<T>() -> (Slot<T>, SlotRx<T>) {
     watch::channel(None)
 }
+
+/// Calls a shell answers once the device confirms a state (e.g. "motors enabled"), keyed by
+/// the state each waits for.
+pub struct Confirmations<K, T, D: Shell> {
+    waiting: Vec<(K, Reply<T, D>)>,
+}
+
+impl<K, T, D: Shell> Default for Confirmations<K, T, D> {
+    fn default() -> Self {
+        Self {
+            waiting: Vec::new(),
+        }
+    }
+}
+
+impl<K, T, D: Shell> core::fmt::Debug for Confirmations<K, T, D> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "Confirmations({} waiting)", self.waiting.len())
+    }
+}
+
+impl<K: PartialEq, T: Clone, D: Shell> Confirmations<K, T, D> {
+    /// After asking the machine for `want` (`asked`: its answer), wait for the device's
+    /// confirmation, or answer the refusal at once.
+    pub fn wait(&mut self, want: K, asked: Result<(), Error<D>>, reply: Reply<T, D>) {
+        match asked {
+            Ok(()) => self.waiting.push((want, reply)),
+            Err(e) => drop(reply.send(Err(e))),
+        }
+    }
+
+    /// The device reports `state`: answer every call waiting for it with `value`.
+    pub fn confirm(&mut self, state: &K, value: &T) {
+        let (done, keep) = self.waiting.drain(..).partition(|(k, _)| k == state);
+        self.waiting = keep;
+        for (_, reply) in done {
+            let _ = reply.send(Ok(value.clone()));
+        }
+    }
+
+    /// Answer every waiting call with `e`.
+    pub fn fail_all(&mut self, e: &Error<D>) {
+        for (_, reply) in self.waiting.drain(..) {
+            let _ = reply.send(Err(e.clone()));
+        }
+    }
+}
