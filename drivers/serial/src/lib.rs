@@ -10,6 +10,9 @@
 //!   stream (drain events → transmit → flush → wait on read / deadline / request), with the
 //!   connect and request helpers; [`blocking`] (feature `serial`) the same loop, blocking.
 //!
+//! * [`line`] — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
+//!   cursors of the binary ones. Both `no_std`, no heap, no panics.
+//!
 //! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
 //! so every stamp a driver produces is on one time line.
 #![cfg_attr(not(feature = "std"), no_std)]
@@ -30,6 +33,8 @@ pub use ima_hal::Instant;
 
 #[cfg(feature = "serial")]
 pub mod blocking;
+pub mod bytes;
+pub mod line;
 #[cfg(feature = "std")]
 mod link;
 #[cfg(feature = "std")]
