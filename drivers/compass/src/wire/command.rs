@@ -95,7 +95,7 @@ impl KvhCommand {
         match self {
             Self::OutputFormat(f) => {
                 w.bytes(b"=t,")?;
-                w.byte(match f {
+                w.u8(match f {
                     KvhFormat::Nmea => b'0',
                     KvhFormat::Kvh => b'1',
                     KvhFormat::CorrectedXy => b'2',
@@ -104,11 +104,12 @@ impl KvhCommand {
             }
             Self::Rate { per_minute } => {
                 w.bytes(b"=r,")?;
-                w.uint(u64::from(*per_minute), 1)
+                w.decimal(u64::from(*per_minute), 1)
             }
             Self::Baud(KvhBaud::B4800) => w.bytes(b"=b,48"),
             Self::Baud(KvhBaud::B9600) => w.bytes(b"=b,96"),
-        }
+        }?;
+        Ok(())
     }
 
     fn parse(s: &[u8]) -> Result<Self, WireError> {
@@ -136,7 +137,7 @@ impl Tcm2Command {
             Self::QueryCompass => w.bytes(b"c?"),
             Self::SampleRate(n) => {
                 w.bytes(b"sp=")?;
-                w.uint(u64::from(*n), 1)
+                w.decimal(u64::from(*n), 1)
             }
             Self::OutputFormat(Tcm2Format::Standard) => w.bytes(b"sdo=t"),
             Self::OutputFormat(Tcm2Format::Nmea) => w.bytes(b"sdo=n"),
@@ -146,7 +147,8 @@ impl Tcm2Command {
             Self::UserCalibrationOff => w.bytes(b"mpcal=d"),
             Self::AutoCalibration(true) => w.bytes(b"autocal=e"),
             Self::AutoCalibration(false) => w.bytes(b"autocal=d"),
-        }
+        }?;
+        Ok(())
     }
 
     fn parse(s: &[u8]) -> Result<Self, WireError> {
@@ -194,7 +196,7 @@ impl Command {
             Self::Kvh(c) => c.write(&mut w)?,
             Self::Tcm2(c) => c.write(&mut w)?,
         }
-        w.byte(b'\r')?;
+        w.u8(b'\r')?;
         Ok(w.pos())
     }
 
