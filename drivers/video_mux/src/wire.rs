@@ -53,50 +53,12 @@ impl core::fmt::Display for WireError {
 
 impl core::error::Error for WireError {}
 
-/// A bounds-checked cursor over an output buffer.
-pub(crate) struct Writer<'a> {
-    buf: &'a mut [u8],
-    pos: usize,
-}
+/// The shared byte cursor.
+pub(crate) use ima_serial::bytes::Writer;
 
-impl<'a> Writer<'a> {
-    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
-        Self { buf, pos: 0 }
-    }
-
-    pub(crate) fn pos(&self) -> usize {
-        self.pos
-    }
-
-    pub(crate) fn byte(&mut self, b: u8) -> Result<(), WireError> {
-        let slot = self
-            .buf
-            .get_mut(self.pos)
-            .ok_or(WireError::BufferTooSmall)?;
-        *slot = b;
-        self.pos = self.pos.saturating_add(1);
-        Ok(())
-    }
-
-    pub(crate) fn bytes(&mut self, s: &[u8]) -> Result<(), WireError> {
-        s.iter().try_for_each(|b| self.byte(*b))
-    }
-
-    /// Decimal, zero-padded to at least `min_digits`.
-    pub(crate) fn uint(&mut self, mut v: u32, min_digits: u8) -> Result<(), WireError> {
-        let mut tmp = [0u8; 10];
-        let mut n = 0usize;
-        loop {
-            if let Some(slot) = tmp.get_mut(n) {
-                *slot = b'0' + (v % 10) as u8;
-            }
-            n = n.saturating_add(1);
-            v /= 10;
-            if (v == 0 && n >= usize::from(min_digits)) || n >= tmp.len() {
-                break;
-            }
-        }
-        tmp.iter().take(n).rev().try_for_each(|b| self.byte(*b))
+impl From<ima_serial::bytes::Overflow> for WireError {
+    fn from(_: ima_serial::bytes::Overflow) -> Self {
+        Self::BufferTooSmall
     }
 }
 
