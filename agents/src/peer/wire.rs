@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 
 use hmac::{Hmac, Mac};
-use ima_serial::bytes::{Overflow, Reader, Truncated, Writer};
+use ima_serial::bytes::{Reader, Writer};
 use sha2::Sha256;
 
 type HmacSha256 = Hmac<Sha256>;
@@ -715,23 +715,13 @@ impl Msg {
     }
 }
 
-impl From<Overflow> for WireError {
-    fn from(_: Overflow) -> Self {
-        WireError::BufferTooSmall
-    }
-}
-
-impl From<Truncated> for BodyError {
-    fn from(_: Truncated) -> Self {
-        BodyError::Truncated
-    }
-}
-
-impl From<Truncated> for WireError {
-    fn from(_: Truncated) -> Self {
-        WireError::Body(BodyError::Truncated)
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Body(BodyError::Truncated),
+    overflow: |_| WireError::BufferTooSmall,
+});
+ima_serial::cursor_errors!(BodyError {
+    truncated: |_| BodyError::Truncated
+});
 
 /// The peer protocol's composite fields, written with the shared byte cursor.
 trait WriteFields {

@@ -42,7 +42,7 @@
 use core::f64::consts::{FRAC_PI_2, PI};
 
 use ima_hal::Instant;
-use ima_serial::bytes::{Reader, Truncated};
+use ima_serial::bytes::Reader;
 
 use super::{Direction, Entry, Payload, Ses};
 
@@ -205,11 +205,9 @@ pub fn crc16(data: &[u8]) -> u16 {
     crc
 }
 
-impl From<Truncated> for DecodeError {
-    fn from(_: Truncated) -> Self {
-        DecodeError::Truncated
-    }
-}
+ima_serial::cursor_errors!(DecodeError {
+    truncated: |_| DecodeError::Truncated
+});
 
 /// A UTF-8 string of `n` bytes.
 fn read_str(r: &mut Reader<'_>, n: usize) -> Result<String, DecodeError> {

@@ -62,62 +62,56 @@ mod tests {
     use super::*;
     use std::vec::Vec;
 
-    #[derive(Debug, PartialEq)]
-    enum F {
-        L(Vec<u8>),
-        P,
-        C(FrameError),
-    }
-
-    fn run(chunks: &[&[u8]]) -> (Vec<F>, FramerStats) {
+    /// Lines (a prompt as `>`) in order, the errors, and the counters.
+    fn run(chunks: &[&[u8]]) -> (Vec<Vec<u8>>, Vec<FrameError>, FramerStats) {
         let mut fr = framer::<96>();
-        let mut out = Vec::new();
+        let (mut lines, mut errors) = (Vec::new(), Vec::new());
         for c in chunks {
-            fr.push(c, |f| {
-                out.push(match f {
-                    Frame::Line(l) => F::L(l.to_vec()),
-                    Frame::Prompt => F::P,
-                    Frame::Corrupt(e) => F::C(e),
-                });
+            fr.push(c, |f| match f {
+                Frame::Line(l) => lines.push(l.to_vec()),
+                Frame::Prompt => lines.push(b">".to_vec()),
+                Frame::Corrupt(e) => errors.push(e),
             });
         }
-        (out, fr.stats())
+        (lines, errors, fr.stats())
     }
 
     const HDM: &[u8] = b"$HCHDM,238.5,M*25\r\n";
     const HDT: &[u8] = b"$HCHDT,238.5,T*25\r\n";
 
-    fn l(s: &[u8]) -> F {
-        F::L(wire::trim_eol(s).to_vec())
+    fn l(s: &[u8]) -> Vec<u8> {
+        wire::trim_eol(s).to_vec()
     }
 
     #[test]
     fn bad_checksum_then_good_frame() {
-        let (out, stats) = run(&[b"$HCHDM,238.5,M*26\r\n", HDM]);
+        let (lines, errors, stats) = run(&[b"$HCHDM,238.5,M*26\r\n", HDM]);
+        assert_eq!(lines, [l(HDM)]);
         assert_eq!(
-            out,
-            [
-                F::C(FrameError::BadChecksum {
-                    expected: 0x25,
-                    got: 0x26
-                }),
-                l(HDM)
-            ]
+            errors,
+            [FrameError::BadChecksum {
+                expected: 0x25,
+                got: 0x26
+            }]
         );
-        assert_eq!(stats.bad_checksums, 1);
-        assert_eq!(stats.lines, 1);
+        assert_eq!((stats.bad_checksums, stats.lines), (1, 1));
     }
 
     #[test]
     fn dollar_resyncs_a_truncated_frame() {
-        let (out, stats) = run(&[b"$HCHDM,23", HDT]);
-        assert_eq!(out, [l(HDT)]);
+        let (lines, errors, stats) = run(&[b"$HCHDM,23", HDT]);
+        assert_eq!(lines, [l(HDT)]);
+        assert!(errors.is_empty());
         assert_eq!(stats.dropped_bytes, 9);
     }
 
     #[test]
     fn prompt_at_line_start_only() {
-        let (out, _) = run(&[b">", HDM, b"\r\n>a>b\r\n"]);
-        assert_eq!(out, [F::P, l(HDM), F::P, F::L(b"a>b".to_vec())]);
+        let (lines, _, stats) = run(&[b">", HDM, b"\r\n>a>b\r\n"]);
+        assert_eq!(
+            lines,
+            [b">".to_vec(), l(HDM), b">".to_vec(), b"a>b".to_vec()]
+        );
+        assert_eq!(stats.prompts, 2);
     }
 }

@@ -19,8 +19,6 @@ pub use command::{Command, KvhBaud, KvhCommand, KvhFormat, Tcm2Command, Tcm2Form
 pub use nmea::{EastWest, Hdg, Hdm, Hdt, NmeaBody, NmeaSentence, Offset, Talker};
 pub use tcm2::{CalScore, Tcm2Data};
 
-use ima_serial::bytes::Overflow;
-
 /// Longest line a compass sends that this crate accepts (NMEA allows 82 characters including
 /// `$` and CR LF; a TCM2 line with every field is about 60).
 pub const MAX_LINE: usize = 96;
@@ -227,11 +225,9 @@ const HEX: &[u8; 16] = b"0123456789ABCDEF";
 /// The shared byte cursor; the ASCII sentences add [`AsciiWriter`].
 pub(crate) use ima_serial::bytes::Writer;
 
-impl From<Overflow> for WireError {
-    fn from(_: Overflow) -> Self {
-        Self::BufferTooSmall
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    overflow: |_| WireError::BufferTooSmall
+});
 
 /// What compass sentences write beyond bytes and decimals.
 pub(crate) trait AsciiWriter {

@@ -24,7 +24,7 @@
 
 use core::fmt;
 
-use ima_serial::bytes::{Overflow, Reader, Truncated, Writer};
+use ima_serial::bytes::{Overflow, Reader, Writer};
 
 /// First header byte.
 pub const HEADER0: u8 = 0xFA;
@@ -220,18 +220,11 @@ pub fn frame_payload(frame: &[u8]) -> Result<&[u8], WireError> {
     Ok(payload)
 }
 
-impl From<Truncated> for WireError {
-    fn from(_: Truncated) -> Self {
-        Self::Truncated
-    }
-}
-
-impl From<Overflow> for WireError {
-    /// A payload that does not fit the scratch buffer is too long for a frame.
-    fn from(o: Overflow) -> Self {
-        Self::PayloadTooLong(o.needed())
-    }
-}
+// A payload that does not fit the scratch buffer is too long for a frame.
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Truncated,
+    overflow: |o| WireError::PayloadTooLong(o.needed()),
+});
 
 /// Build a payload with `f` in a scratch buffer, then frame it into `out`.
 fn emit_with(

@@ -17,7 +17,7 @@
 
 use core::fmt;
 
-use ima_serial::bytes::{Overflow, Reader, Truncated, Writer};
+use ima_serial::bytes::{Overflow, Reader, Writer};
 
 /// Escape byte, first byte of both markers (§2.1).
 pub const ESC: u8 = 0x1B;
@@ -182,17 +182,10 @@ pub enum Stuffing {
     None,
 }
 
-impl From<Overflow> for WireError {
-    fn from(_: Overflow) -> Self {
-        Self::BufferTooSmall
-    }
-}
-
-impl From<Truncated> for WireError {
-    fn from(_: Truncated) -> Self {
-        Self::Truncated
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Truncated,
+    overflow: |_| WireError::BufferTooSmall,
+});
 
 /// Write one content byte, stuffed per `stuffing`.
 fn put_stuffed(o: &mut Writer<'_>, b: u8, stuffing: Stuffing) -> Result<(), Overflow> {

@@ -77,6 +77,40 @@ impl fmt::Display for Overflow {
 
 impl core::error::Error for Overflow {}
 
+/// Implement `From<Truncated>` and/or `From<Overflow>` for a wire error, so that `?` turns
+/// a cursor's error into the protocol's own:
+///
+/// ```
+/// # #[derive(Debug, PartialEq)]
+/// enum WireError { Truncated, TooLong(usize) }
+/// ima_serial::cursor_errors!(WireError {
+///     truncated: |_| WireError::Truncated,
+///     overflow: |o| WireError::TooLong(o.needed()),
+/// });
+/// let e: WireError = ima_serial::bytes::Reader::new(&[]).u8().unwrap_err().into();
+/// assert_eq!(e, WireError::Truncated);
+/// ```
+#[macro_export]
+macro_rules! cursor_errors {
+    ($error:ty { $($kind:ident: |$e:pat_param| $value:expr),+ $(,)? }) => {
+        $( $crate::cursor_errors!(@one $error, $kind, $e, $value); )+
+    };
+    (@one $error:ty, truncated, $e:pat_param, $value:expr) => {
+        impl From<$crate::bytes::Truncated> for $error {
+            fn from($e: $crate::bytes::Truncated) -> Self {
+                $value
+            }
+        }
+    };
+    (@one $error:ty, overflow, $e:pat_param, $value:expr) => {
+        impl From<$crate::bytes::Overflow> for $error {
+            fn from($e: $crate::bytes::Overflow) -> Self {
+                $value
+            }
+        }
+    };
+}
+
 mod sealed {
     pub trait Sealed {}
 }

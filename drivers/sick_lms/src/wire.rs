@@ -11,7 +11,7 @@
 
 use core::fmt;
 
-use ima_serial::bytes::{Overflow, Reader, Truncated, Writer};
+use ima_serial::bytes::{Reader, Writer};
 
 /// Start of every telegram.
 pub const STX: u8 = 0x02;
@@ -363,17 +363,10 @@ const fn fold8(w: u64) -> u16 {
 // ---------------------------------------------------------------------------------------------
 // The shared byte cursors' errors.
 
-impl From<Truncated> for WireError {
-    fn from(_: Truncated) -> Self {
-        Self::Truncated
-    }
-}
-
-impl From<Overflow> for WireError {
-    fn from(_: Overflow) -> Self {
-        Self::BufferTooSmall
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Truncated,
+    overflow: |_| WireError::BufferTooSmall,
+});
 
 /// Write the header and CRC around a body already written at `buf[4..4 + body_len]`
 /// (CMD + DATA). Returns the telegram length.

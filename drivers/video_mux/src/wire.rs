@@ -56,11 +56,9 @@ impl core::error::Error for WireError {}
 /// The shared byte cursor.
 pub(crate) use ima_serial::bytes::Writer;
 
-impl From<ima_serial::bytes::Overflow> for WireError {
-    fn from(_: ima_serial::bytes::Overflow) -> Self {
-        Self::BufferTooSmall
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    overflow: |_| WireError::BufferTooSmall
+});
 
 /// Parse an unsigned decimal of 1–5 digits.
 pub(crate) fn parse_u16(s: &[u8]) -> Result<u16, WireError> {
