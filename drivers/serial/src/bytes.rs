@@ -438,6 +438,55 @@ impl<'a> Writer<'a> {
     }
 }
 
+/// Why ASCII digits did not parse as a decimal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DecimalError {
+    /// No digits.
+    Empty,
+    /// More digits than allowed.
+    TooLong {
+        /// The most digits allowed.
+        max: u8,
+    },
+    /// A byte that is not an ASCII digit.
+    NotADigit(u8),
+}
+
+impl fmt::Display for DecimalError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Empty => f.write_str("no digits"),
+            Self::TooLong { max } => write!(f, "more than {max} digits"),
+            Self::NotADigit(b) => write!(f, "byte 0x{b:02x} is not a digit"),
+        }
+    }
+}
+
+impl core::error::Error for DecimalError {}
+
+/// Parse 1 to `max_digits` ASCII decimal digits (no sign, no spaces; leading zeros allowed),
+/// the inverse of [`Writer::decimal`]. `max_digits` is capped at 19, so the value always
+/// fits.
+///
+/// # Errors
+/// [`DecimalError`] naming what was wrong.
+pub fn parse_decimal(digits: &[u8], max_digits: u8) -> Result<u64, DecimalError> {
+    let max = max_digits.min(19);
+    if digits.is_empty() {
+        return Err(DecimalError::Empty);
+    }
+    if digits.len() > usize::from(max) {
+        return Err(DecimalError::TooLong { max });
+    }
+    digits.iter().try_fold(0u64, |v, &c| {
+        if c.is_ascii_digit() {
+            Ok(v.saturating_mul(10).saturating_add(u64::from(c - b'0')))
+        } else {
+            Err(DecimalError::NotADigit(c))
+        }
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -540,7 +589,42 @@ mod tests {
         assert_eq!(w.pos(), 0);
     }
 
+    #[test]
+    fn parse_decimal_reads_what_decimal_writes() {
+        assert_eq!(parse_decimal(b"0", 5), Ok(0));
+        assert_eq!(parse_decimal(b"007", 5), Ok(7));
+        assert_eq!(parse_decimal(b"65535", 5), Ok(65_535));
+        assert_eq!(parse_decimal(b"99999", 5), Ok(99_999));
+        assert_eq!(parse_decimal(b"", 5), Err(DecimalError::Empty));
+        assert_eq!(
+            parse_decimal(b"123456", 5),
+            Err(DecimalError::TooLong { max: 5 })
+        );
+        assert_eq!(parse_decimal(b"1-2", 5), Err(DecimalError::NotADigit(b'-')));
+        assert_eq!(
+            parse_decimal(b"18446744073709551615", 20),
+            Err(DecimalError::TooLong { max: 19 })
+        );
+        assert_eq!(
+            parse_decimal(b"9999999999999999999", 255),
+            Ok(9_999_999_999_999_999_999)
+        );
+    }
+
     proptest! {
+        /// Any value with any padding reads back as written.
+        #[test]
+        fn decimal_round_trip(v in any::<u64>(), pad in 0u8..25) {
+            let mut buf = [0u8; 32];
+            let mut w = Writer::new(&mut buf);
+            w.decimal(v, pad).unwrap();
+            let n = w.pos();
+            prop_assert!(n >= usize::from(pad).min(20));
+            if n <= 19 {
+                prop_assert_eq!(parse_decimal(&buf[..n], 19), Ok(v));
+            }
+        }
+
         /// Whatever is written in whatever order reads back, and no sequence of reads on any
         /// input panics.
         #[test]

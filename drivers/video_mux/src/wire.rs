@@ -62,15 +62,6 @@ ima_serial::cursor_errors!(WireError {
 
 /// Parse an unsigned decimal of 1–5 digits.
 pub(crate) fn parse_u16(s: &[u8]) -> Result<u16, WireError> {
-    if s.is_empty() || s.len() > 5 {
-        return Err(WireError::BadNumber);
-    }
-    let mut v: u32 = 0;
-    for c in s {
-        if !c.is_ascii_digit() {
-            return Err(WireError::BadNumber);
-        }
-        v = v * 10 + u32::from(c - b'0');
-    }
+    let v = ima_serial::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
     u16::try_from(v).map_err(|_| WireError::BadNumber)
 }

@@ -171,17 +171,8 @@ impl Tcm2Command {
     }
 }
 
-fn parse_uint<T: TryFrom<u32>>(s: &[u8]) -> Result<T, WireError> {
-    if s.is_empty() || s.len() > 5 {
-        return Err(WireError::BadNumber);
-    }
-    let mut v: u32 = 0;
-    for c in s {
-        if !c.is_ascii_digit() {
-            return Err(WireError::BadNumber);
-        }
-        v = v * 10 + u32::from(c - b'0');
-    }
+fn parse_uint<T: TryFrom<u64>>(s: &[u8]) -> Result<T, WireError> {
+    let v = ima_serial::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
     T::try_from(v).map_err(|_| WireError::OutOfRange)
 }
 
