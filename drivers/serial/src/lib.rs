@@ -15,7 +15,7 @@
 //!
 //! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
 //! so every stamp a driver produces is on one time line.
-#![cfg_attr(not(feature = "std"), no_std)]
+#![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![warn(missing_docs)]
 #![cfg_attr(
     not(test),
