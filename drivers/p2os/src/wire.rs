@@ -787,9 +787,12 @@ impl Sip {
         if usize::from(k) > MAX_SIP_SONARS || r.remaining() < usize::from(k) * 3 + 5 {
             return Err(WireError::BadSonarCount(k));
         }
-        for _ in 0..k {
-            let index = r.u8()?;
-            let range = r.le()?;
+        // The length was checked above: take the readings at once, three bytes each.
+        for reading in r.take(usize::from(k) * 3)?.chunks_exact(3) {
+            let &[index, lo, hi] = reading else {
+                return Err(WireError::Truncated);
+            };
+            let range = u16::from_le_bytes([lo, hi]);
             if usize::from(index) >= MAX_SIP_SONARS {
                 return Err(WireError::BadSonarIndex(index));
             }
@@ -908,6 +911,7 @@ pub struct Config<'a> {
 }
 
 impl<'a> Config<'a> {
+    #[inline(never)]
     fn parse(body: &'a [u8]) -> Self {
         let mut r = Reader::new(body);
         Config {

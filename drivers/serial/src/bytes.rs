@@ -121,10 +121,10 @@ pub trait Int: sealed::Sealed + Copy {
     const SIZE: usize;
     /// Its bytes.
     type Bytes: AsRef<[u8]>;
-    /// From little-endian bytes (`bytes.len() == SIZE`, else 0).
-    fn from_le(bytes: &[u8]) -> Self;
-    /// From big-endian bytes (`bytes.len() == SIZE`, else 0).
-    fn from_be(bytes: &[u8]) -> Self;
+    /// The little-endian value at the front of `bytes` and the rest, if there is room.
+    fn split_le(bytes: &[u8]) -> Option<(Self, &[u8])>;
+    /// The big-endian value at the front of `bytes` and the rest, if there is room.
+    fn split_be(bytes: &[u8]) -> Option<(Self, &[u8])>;
     /// Little-endian bytes.
     fn to_le(self) -> Self::Bytes;
     /// Big-endian bytes.
@@ -138,12 +138,14 @@ macro_rules! int {
             const SIZE: usize = core::mem::size_of::<$t>();
             type Bytes = [u8; core::mem::size_of::<$t>()];
             #[inline(always)]
-            fn from_le(bytes: &[u8]) -> Self {
-                bytes.try_into().map_or(0, <$t>::from_le_bytes)
+            fn split_le(bytes: &[u8]) -> Option<(Self, &[u8])> {
+                let (head, tail) = bytes.split_first_chunk::<{ core::mem::size_of::<$t>() }>()?;
+                Some((<$t>::from_le_bytes(*head), tail))
             }
             #[inline(always)]
-            fn from_be(bytes: &[u8]) -> Self {
-                bytes.try_into().map_or(0, <$t>::from_be_bytes)
+            fn split_be(bytes: &[u8]) -> Option<(Self, &[u8])> {
+                let (head, tail) = bytes.split_first_chunk::<{ core::mem::size_of::<$t>() }>()?;
+                Some((<$t>::from_be_bytes(*head), tail))
             }
             #[inline(always)]
             fn to_le(self) -> Self::Bytes {
@@ -206,10 +208,7 @@ impl<'a> Reader<'a> {
                 self.rest = tail;
                 Ok(head)
             }
-            None => Err(Truncated {
-                wanted: n,
-                left: self.rest.len(),
-            }),
+            None => Err(self.short(n)),
         }
     }
 
@@ -259,10 +258,7 @@ impl<'a> Reader<'a> {
                 self.rest = tail;
                 Ok(*head)
             }
-            None => Err(Truncated {
-                wanted: N,
-                left: self.rest.len(),
-            }),
+            None => Err(self.short(N)),
         }
     }
 
@@ -277,7 +273,7 @@ impl<'a> Reader<'a> {
                 self.rest = tail;
                 Ok(b)
             }
-            None => Err(Truncated { wanted: 1, left: 0 }),
+            None => Err(self.short(1)),
         }
     }
 
@@ -287,7 +283,13 @@ impl<'a> Reader<'a> {
     /// [`Truncated`] when fewer than its width are left.
     #[inline]
     pub fn le<T: Int>(&mut self) -> Result<T, Truncated> {
-        self.take(T::SIZE).map(T::from_le)
+        match T::split_le(self.rest) {
+            Some((v, tail)) => {
+                self.rest = tail;
+                Ok(v)
+            }
+            None => Err(self.short(T::SIZE)),
+        }
     }
 
     /// The next big-endian integer.
@@ -296,7 +298,22 @@ impl<'a> Reader<'a> {
     /// [`Truncated`] when fewer than its width are left.
     #[inline]
     pub fn be<T: Int>(&mut self) -> Result<T, Truncated> {
-        self.take(T::SIZE).map(T::from_be)
+        match T::split_be(self.rest) {
+            Some((v, tail)) => {
+                self.rest = tail;
+                Ok(v)
+            }
+            None => Err(self.short(T::SIZE)),
+        }
+    }
+
+    /// The error of a read of `wanted` bytes that did not fit.
+    #[inline(always)]
+    fn short(&self, wanted: usize) -> Truncated {
+        Truncated {
+            wanted,
+            left: self.rest.len(),
+        }
     }
 }
 
