@@ -10,7 +10,7 @@
 //!   stream (drain events → transmit → flush → wait on read / deadline / request), with the
 //!   connect and request helpers; [`blocking`] (feature `serial`) the same loop, blocking.
 //!
-//! * [`line`] — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
+//! * [`line`](mod@line) — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
 //!   cursors of the binary ones. Both `no_std`, no heap, no panics.
 //!
 //! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
