@@ -440,32 +440,32 @@ impl Msg {
         let mut w = Writer::new(out);
         match self {
             Msg::Register { client, robot } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(robot)?;
             }
             Msg::Unregister { client } | Msg::Unregistered { client } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
             }
             Msg::Request {
                 client,
                 source,
                 priority,
             } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.u8(*priority)?;
             }
             Msg::Disconnect { client, source } | Msg::Pending { client, source } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
             }
             Msg::Heartbeat => {}
             Msg::Registered { client, sources } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.sources(sources)?;
             }
             Msg::Declined { client, reason } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.u8(*reason as u8)?;
             }
             Msg::Granted {
@@ -474,7 +474,7 @@ impl Msg {
                 address,
                 ticket,
             } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.str(address)?;
                 w.bytes(ticket)?;
@@ -484,7 +484,7 @@ impl Msg {
                 source,
                 reason,
             } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.u8(*reason as u8)?;
             }
@@ -493,7 +493,7 @@ impl Msg {
                 source,
                 reason,
             } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.u8(*reason as u8)?;
             }
@@ -509,7 +509,7 @@ impl Msg {
                 source,
                 ticket,
             } => {
-                w.le::<u64>(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.bytes(ticket)?;
             }
@@ -525,10 +525,10 @@ impl Msg {
                 stamp_us,
                 payload,
             } => {
-                w.le::<u64>(*seq)?;
-                w.le::<u64>(*stamp_us)?;
+                w.le(*seq)?;
+                w.le(*stamp_us)?;
                 let n = u16::try_from(payload.len()).map_err(|_| WireError::FieldTooLong)?;
-                w.bytes(&n.to_le_bytes())?;
+                w.le(n)?;
                 w.bytes(payload)?;
             }
             Msg::Status {
@@ -539,7 +539,7 @@ impl Msg {
                 pose,
             } => {
                 w.str(robot)?;
-                w.le::<u64>(*seq)?;
+                w.le(*seq)?;
                 w.str(behaviour)?;
                 w.str(san)?;
                 match pose {
@@ -548,9 +548,9 @@ impl Msg {
                     }
                     Some(p) => {
                         w.u8(1)?;
-                        w.bytes(&p.x_mm.to_le_bytes())?;
-                        w.bytes(&p.y_mm.to_le_bytes())?;
-                        w.bytes(&p.theta_mrad.to_le_bytes())?;
+                        w.le(p.x_mm)?;
+                        w.le(p.y_mm)?;
+                        w.le(p.theta_mrad)?;
                     }
                 }
             }
@@ -561,7 +561,7 @@ impl Msg {
                 text,
             } => {
                 w.str(robot)?;
-                w.le::<u64>(*seq)?;
+                w.le(*seq)?;
                 w.str(kind)?;
                 w.str(text)?;
             }
@@ -572,7 +572,7 @@ impl Msg {
                 target,
             } => {
                 w.str(robot)?;
-                w.le::<u64>(*seq)?;
+                w.le(*seq)?;
                 w.u8(*event as u8)?;
                 w.str(target)?;
             }
@@ -588,49 +588,45 @@ impl Msg {
         let mut r = Reader::new(body);
         let msg = match code {
             0x01 => Msg::Register {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 robot: r.str()?,
             },
-            0x02 => Msg::Unregister {
-                client: r.le::<u64>()?,
-            },
+            0x02 => Msg::Unregister { client: r.le()? },
             0x03 => Msg::Request {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
                 priority: r.u8()?,
             },
             0x04 => Msg::Disconnect {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
             },
             0x05 => Msg::Heartbeat,
             0x10 => Msg::Registered {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 sources: r.sources()?,
             },
             0x11 => Msg::Declined {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 reason: match r.u8()? {
                     1 => DeclineReason::DuplicateId,
                     2 => DeclineReason::Full,
                     c => return Err(BodyError::BadCode(c).into()),
                 },
             },
-            0x12 => Msg::Unregistered {
-                client: r.le::<u64>()?,
-            },
+            0x12 => Msg::Unregistered { client: r.le()? },
             0x13 => Msg::Granted {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
                 address: r.str()?,
                 ticket: r.array()?,
             },
             0x14 => Msg::Pending {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
             },
             0x15 => Msg::Denied {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
                 reason: match r.u8()? {
                     1 => DenyReason::NotRegistered,
@@ -640,7 +636,7 @@ impl Msg {
                 },
             },
             0x16 => Msg::Revoked {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
                 reason: r.revoke()?,
             },
@@ -654,7 +650,7 @@ impl Msg {
                 Msg::SourcesChanged { added, removed }
             }
             0x20 => Msg::OpenData {
-                client: r.le::<u64>()?,
+                client: r.le()?,
                 source: r.str()?,
                 ticket: r.array()?,
             },
@@ -664,9 +660,9 @@ impl Msg {
                 reason: r.revoke()?,
             },
             0x23 => {
-                let seq = r.le::<u64>()?;
-                let stamp_us = r.le::<u64>()?;
-                let n = u16::from_le_bytes(r.array()?);
+                let seq = r.le()?;
+                let stamp_us = r.le()?;
+                let n = r.le::<u16>()?;
                 Msg::Sample {
                     seq,
                     stamp_us,
@@ -675,28 +671,28 @@ impl Msg {
             }
             0x30 => Msg::Status {
                 robot: r.str()?,
-                seq: r.le::<u64>()?,
+                seq: r.le()?,
                 behaviour: r.str()?,
                 san: r.str()?,
                 pose: match r.u8()? {
                     0 => None,
                     1 => Some(Pose {
-                        x_mm: i32::from_le_bytes(r.array()?),
-                        y_mm: i32::from_le_bytes(r.array()?),
-                        theta_mrad: i32::from_le_bytes(r.array()?),
+                        x_mm: r.le::<i32>()?,
+                        y_mm: r.le::<i32>()?,
+                        theta_mrad: r.le::<i32>()?,
                     }),
                     c => return Err(BodyError::BadCode(c).into()),
                 },
             },
             0x31 => Msg::Emergency {
                 robot: r.str()?,
-                seq: r.le::<u64>()?,
+                seq: r.le()?,
                 kind: r.str()?,
                 text: r.str()?,
             },
             0x32 => Msg::Mission {
                 robot: r.str()?,
-                seq: r.le::<u64>()?,
+                seq: r.le()?,
                 event: match r.u8()? {
                     1 => MissionEvent::Accepted,
                     2 => MissionEvent::Accomplished,
@@ -843,7 +839,7 @@ pub fn parse_header(bytes: &[u8], max_body: usize) -> Result<Header, WireError> 
         return Err(WireError::BadVersion(version));
     }
     let code = r.u8().map_err(trunc)?;
-    let body_len = usize::from(u16::from_le_bytes(r.array().map_err(trunc)?));
+    let body_len = usize::from(r.le::<u16>().map_err(trunc)?);
     if body_len > max_body {
         return Err(WireError::Oversize {
             len: body_len,
@@ -930,9 +926,9 @@ impl Signer {
         w.bytes(&MAGIC)?;
         w.u8(VERSION)?;
         w.u8(msg.code())?;
-        w.bytes(&body_len16.to_le_bytes())?;
-        w.le::<u64>(self.sender)?;
-        w.le::<u64>(self.counter)?;
+        w.le(body_len16)?;
+        w.le(self.sender)?;
+        w.le(self.counter)?;
         let signed = HEADER_LEN + body_len;
         let (data, tag) = frame.split_at_mut(signed);
         let mut mac = self.key.mac();
