@@ -283,13 +283,7 @@ impl<'a> Reader<'a> {
     /// [`Truncated`] when fewer than its width are left.
     #[inline]
     pub fn le<T: Int>(&mut self) -> Result<T, Truncated> {
-        match T::split_le(self.rest) {
-            Some((v, tail)) => {
-                self.rest = tail;
-                Ok(v)
-            }
-            None => Err(self.short(T::SIZE)),
-        }
+        self.int(T::split_le)
     }
 
     /// The next big-endian integer.
@@ -298,7 +292,15 @@ impl<'a> Reader<'a> {
     /// [`Truncated`] when fewer than its width are left.
     #[inline]
     pub fn be<T: Int>(&mut self) -> Result<T, Truncated> {
-        match T::split_be(self.rest) {
+        self.int(T::split_be)
+    }
+
+    #[inline(always)]
+    fn int<T: Int>(
+        &mut self,
+        split: impl FnOnce(&'a [u8]) -> Option<(T, &'a [u8])>,
+    ) -> Result<T, Truncated> {
+        match split(self.rest) {
             Some((v, tail)) => {
                 self.rest = tail;
                 Ok(v)
