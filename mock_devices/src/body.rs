@@ -1,5 +1,6 @@
-//! The differential-drive body both base models move: [`DiffDriveBody`], and [`WorldBody`],
-//! a robot of the simulated [`crate::world::World`].
+//! The differential-drive body both base models move: [`DiffDriveBody`]; [`WorldBody`],
+//! a robot of the simulated [`crate::world::World`]; and [`ScriptedBody`], whose readings a
+//! test sets directly.
 //!
 //! A Pioneer 2-AT (P2OS) and an ATRV-Jr (rFLEX, a skid steer modelled as a differential
 //! drive) are one kind of body to their firmware: it commands a forward speed and a turn rate
@@ -152,5 +153,100 @@ impl DiffDriveBody for WorldBody {
             };
             (hit(p.theta_rad), hit(p.theta_rad + std::f64::consts::PI))
         })
+    }
+}
+
+/// A body whose readings a test sets directly: no world, no physics. Drive commands are
+/// recorded; unless [`velocity`](Self::velocity) is set, the body moves at the last command
+/// (an ideal body that follows instantly). Travel is the wheels' unless
+/// [`travel`](Self::travel) is set (the rFLEX model reads axis travel, the P2OS model wheel
+/// travel).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScriptedBody {
+    /// The last drive command: forward speed (m/s), turn rate (rad/s).
+    pub drive: (f64, f64),
+    /// Drive commands received.
+    pub drives: u32,
+    /// Reported pose: x, y (m), θ (rad).
+    pub pose: (f64, f64, f64),
+    /// Distance between the wheel contact lines, m (0.5).
+    pub track_width_m: f64,
+    /// Wheel speeds (left, right), m/s.
+    pub wheel_speeds_m_s: (f64, f64),
+    /// Wheel travel since power-on (left, right), m.
+    pub wheel_travel_m: (f64, f64),
+    /// Travel (m) and turn (rad) since power-on; `None`: from the wheel travel.
+    pub travel: Option<(f64, f64)>,
+    /// Forward speed (m/s) and turn rate (rad/s); `None`: the last drive command.
+    pub velocity: Option<(f64, f64)>,
+    /// What every sonar sees, m; `None` = no echo.
+    pub sonar_m: Option<f64>,
+    /// Bumper contact: (front, rear).
+    pub bumpers: (bool, bool),
+    /// Battery voltage (12.5 V).
+    pub battery_v: f64,
+}
+
+impl Default for ScriptedBody {
+    fn default() -> Self {
+        Self {
+            drive: (0.0, 0.0),
+            drives: 0,
+            pose: (0.0, 0.0, 0.0),
+            track_width_m: 0.5,
+            wheel_speeds_m_s: (0.0, 0.0),
+            wheel_travel_m: (0.0, 0.0),
+            travel: None,
+            velocity: None,
+            sonar_m: None,
+            bumpers: (false, false),
+            battery_v: 12.5,
+        }
+    }
+}
+
+impl DiffDriveBody for ScriptedBody {
+    fn drive(&mut self, v_m_s: f64, omega_rad_s: f64) {
+        self.drive = (v_m_s, omega_rad_s);
+        self.drives = self.drives.saturating_add(1);
+    }
+
+    fn pose(&self) -> (f64, f64, f64) {
+        self.pose
+    }
+
+    fn track_width_m(&self) -> f64 {
+        self.track_width_m
+    }
+
+    fn wheel_speeds_m_s(&self) -> (f64, f64) {
+        self.wheel_speeds_m_s
+    }
+
+    fn wheel_travel_m(&self) -> (f64, f64) {
+        self.wheel_travel_m
+    }
+
+    fn sonar_range_m(&mut self, _mount: &Isometry2) -> Option<f64> {
+        self.sonar_m
+    }
+
+    fn battery_v(&self) -> f64 {
+        self.battery_v
+    }
+
+    fn bumpers(&self) -> (bool, bool) {
+        self.bumpers
+    }
+
+    fn travel(&self) -> (f64, f64) {
+        self.travel.unwrap_or_else(|| {
+            let (l, r) = self.wheel_travel_m;
+            ((l + r) / 2.0, (r - l) / self.track_width_m.max(1e-6))
+        })
+    }
+
+    fn velocity(&self) -> (f64, f64) {
+        self.velocity.unwrap_or(self.drive)
     }
 }

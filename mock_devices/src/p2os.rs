@@ -714,33 +714,16 @@ impl crate::model::DeviceModel for P2osDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::body::ScriptedBody;
 
-    /// A body that stands still, with every sonar reading 2 m.
-    #[derive(Default)]
-    struct Still {
-        drive: (f64, f64),
-        drives: u32,
-    }
-
-    impl DiffDriveBody for Still {
-        fn drive(&mut self, v: f64, w: f64) {
-            self.drive = (v, w);
-            self.drives += 1;
-        }
-        fn pose(&self) -> (f64, f64, f64) {
-            (0.0, 0.0, 0.0)
-        }
-        fn track_width_m(&self) -> f64 {
-            0.4
-        }
-        fn wheel_speeds_m_s(&self) -> (f64, f64) {
-            (0.0, 0.0)
-        }
-        fn wheel_travel_m(&self) -> (f64, f64) {
-            (1.0, -0.5)
-        }
-        fn sonar_range_m(&mut self, _m: &ima_hal::Isometry2) -> Option<f64> {
-            Some(2.0)
+    /// A body that stands still (wheel travel 1 m and −0.5 m), with every sonar reading
+    /// 2 m.
+    fn still() -> ScriptedBody {
+        ScriptedBody {
+            track_width_m: 0.4,
+            wheel_travel_m: (1.0, -0.5),
+            sonar_m: Some(2.0),
+            ..ScriptedBody::default()
         }
     }
 
@@ -767,7 +750,7 @@ mod tests {
         v
     }
 
-    fn opened(body: &mut Still) -> P2osRobot {
+    fn opened(body: &mut ScriptedBody) -> P2osRobot {
         let mut r = P2osRobot::new(P2osModelConfig::default(), body);
         for (i, c) in [
             Command::Sync0,
@@ -795,7 +778,7 @@ mod tests {
 
     #[test]
     fn idle_robot_is_silent_and_strict_about_sync_order() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = P2osRobot::new(P2osModelConfig::default(), &body);
         r.handle_rx(&frame(Command::Int(IntCommand::Vel, 100)), ms(0), &mut body);
         r.handle_timeout(ms(500), &mut body);
@@ -808,7 +791,7 @@ mod tests {
 
     #[test]
     fn sips_every_100_ms_with_sonar_and_flags() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = opened(&mut body);
         for t in (10..=1010).step_by(10) {
             r.handle_timeout(ms(t), &mut body);
@@ -831,7 +814,7 @@ mod tests {
 
     #[test]
     fn motors_stay_off_until_enable_and_watchdog_stops_then_resumes() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = opened(&mut body);
         r.handle_rx(
             &frame(Command::Int(IntCommand::Vel, 300)),
@@ -860,7 +843,7 @@ mod tests {
 
     #[test]
     fn sync_bytes_alias_pulse_open_close_on_an_open_session() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = opened(&mut body);
         r.handle_rx(&frame(Command::Sync0), ms(10), &mut body); // PULSE
         r.handle_rx(&frame(Command::Sync1), ms(11), &mut body); // OPEN again
@@ -878,7 +861,7 @@ mod tests {
 
     #[test]
     fn config_and_encoder_packets() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = opened(&mut body);
         r.handle_rx(
             &frame(Command::Int(IntCommand::Config, 1)),
@@ -921,7 +904,7 @@ mod tests {
 
     #[test]
     fn hostbaud_switches_the_port_until_close() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = opened(&mut body);
         r.set_host_baud(Some(9600));
         r.handle_rx(
@@ -988,7 +971,7 @@ mod tests {
 
     #[test]
     fn traffic_at_the_wrong_line_speed_is_noise() {
-        let mut body = Still::default();
+        let mut body = still();
         let mut r = P2osRobot::new(
             P2osModelConfig {
                 baud: 38400,

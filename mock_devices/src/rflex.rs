@@ -572,50 +572,14 @@ impl crate::model::DeviceModel for RflexDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::body::ScriptedBody;
     use ima_rflex::wire::SetDir;
 
-    struct Toy {
-        v: (f64, f64),
-        travel: (f64, f64),
-        bump: (bool, bool),
-    }
-
-    /// Travel and velocity are given directly (the wheel-level methods are not used).
-    impl DiffDriveBody for Toy {
-        fn drive(&mut self, v: f64, w: f64) {
-            self.v = (v, w);
-        }
-        fn pose(&self) -> (f64, f64, f64) {
-            (0.0, 0.0, 0.0)
-        }
-        fn track_width_m(&self) -> f64 {
-            0.5
-        }
-        fn wheel_speeds_m_s(&self) -> (f64, f64) {
-            (0.0, 0.0)
-        }
-        fn wheel_travel_m(&self) -> (f64, f64) {
-            (0.0, 0.0)
-        }
-        fn travel(&self) -> (f64, f64) {
-            self.travel
-        }
-        fn velocity(&self) -> (f64, f64) {
-            self.v
-        }
-        fn sonar_range_m(&mut self, _m: &ima_hal::Isometry2) -> Option<f64> {
-            Some(1.0)
-        }
-        fn bumpers(&self) -> (bool, bool) {
-            self.bump
-        }
-    }
-
-    fn toy() -> Toy {
-        Toy {
-            v: (0.0, 0.0),
-            travel: (0.0, 0.0),
-            bump: (false, false),
+    /// An ideal body (it moves at the command) whose sonars all see 1 m.
+    fn toy() -> ScriptedBody {
+        ScriptedBody {
+            sonar_m: Some(1.0),
+            ..ScriptedBody::default()
         }
     }
 
@@ -632,7 +596,7 @@ mod tests {
         v
     }
 
-    fn run(r: &mut RflexRobot, b: &mut Toy, from: u64, to: u64) {
+    fn run(r: &mut RflexRobot, b: &mut ScriptedBody, from: u64, to: u64) {
         let mut t = from;
         while t <= to {
             r.handle_timeout(Instant::from_millis(t), b);
@@ -657,7 +621,7 @@ mod tests {
         assert!(r.brake_engaged());
         r.handle_rx(&cmd(set_dir(0, 45_405, true)), Instant::ZERO, &mut b);
         run(&mut r, &mut b, 0, 300);
-        assert_eq!(b.v.0, 0.0, "braked robot moved");
+        assert_eq!(b.drive.0, 0.0, "braked robot moved");
         r.handle_rx(
             &cmd(Command::BrakeRelease),
             Instant::from_millis(300),
@@ -670,16 +634,16 @@ mod tests {
         );
         run(&mut r, &mut b, 301, 550);
         // 1 m/s² for 0.25 s → 0.25 m/s (target 0.5).
-        assert!((b.v.0 - 0.25).abs() < 0.02, "{}", b.v.0);
+        assert!((b.drive.0 - 0.25).abs() < 0.02, "{}", b.drive.0);
         run(&mut r, &mut b, 551, 900);
-        assert!((b.v.0 - 0.5).abs() < 1e-9);
+        assert!((b.drive.0 - 0.5).abs() < 1e-9);
         // Fail-safe 1 s after the last SET_DIR: target 0, ramp down.
         run(&mut r, &mut b, 901, 1900);
         assert_eq!(r.targets().0, 0.0);
         assert_eq!(r.stats().failsafe_trips, 1);
-        assert!(b.v.0 < 0.5);
+        assert!(b.drive.0 < 0.5);
         run(&mut r, &mut b, 1901, 2500);
-        assert_eq!(b.v.0, 0.0);
+        assert_eq!(b.drive.0, 0.0);
     }
 
     #[test]
@@ -706,9 +670,9 @@ mod tests {
             &mut b,
         );
         r.handle_rx(&cmd(Command::SysStatusRequest), t0, &mut b);
-        b.travel = (1.0, 0.5);
+        b.travel = Some((1.0, 0.5));
         run(&mut r, &mut b, 0, 250);
-        b.bump = (true, false);
+        b.bumpers = (true, false);
         run(&mut r, &mut b, 251, 300);
         let out = reports(&r.take_output());
         let motion: Vec<_> = out
@@ -767,7 +731,7 @@ mod tests {
             Instant::ZERO,
             &mut b,
         );
-        b.travel = (f64::from(0x7C7C_i32) / 90_810.0, 0.0);
+        b.travel = Some((f64::from(0x7C7C_i32) / 90_810.0, 0.0));
         run(&mut r, &mut b, 0, 100);
         let out = r.take_output();
         assert!(out.windows(3).any(|w| w == [0x7C, 0x1B, 0x01]));

@@ -9,6 +9,7 @@
 use std::collections::BTreeMap;
 
 use hmac::{Hmac, Mac};
+use ima_serial::bytes::{Reader, Writer};
 use sha2::Sha256;
 
 type HmacSha256 = Hmac<Sha256>;
@@ -436,33 +437,35 @@ impl Msg {
     /// # Errors
     /// [`WireError::BufferTooSmall`], [`WireError::FieldTooLong`].
     pub fn emit_body(&self, out: &mut [u8]) -> Result<usize, WireError> {
-        let mut w = Writer { buf: out, pos: 0 };
+        let mut w = Writer::new(out);
         match self {
             Msg::Register { client, robot } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(robot)?;
             }
-            Msg::Unregister { client } | Msg::Unregistered { client } => w.u64(*client)?,
+            Msg::Unregister { client } | Msg::Unregistered { client } => {
+                w.le(*client)?;
+            }
             Msg::Request {
                 client,
                 source,
                 priority,
             } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.u8(*priority)?;
             }
             Msg::Disconnect { client, source } | Msg::Pending { client, source } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
             }
             Msg::Heartbeat => {}
             Msg::Registered { client, sources } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.sources(sources)?;
             }
             Msg::Declined { client, reason } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.u8(*reason as u8)?;
             }
             Msg::Granted {
@@ -471,7 +474,7 @@ impl Msg {
                 address,
                 ticket,
             } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.str(address)?;
                 w.bytes(ticket)?;
@@ -481,7 +484,7 @@ impl Msg {
                 source,
                 reason,
             } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.u8(*reason as u8)?;
             }
@@ -490,7 +493,7 @@ impl Msg {
                 source,
                 reason,
             } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.u8(*reason as u8)?;
             }
@@ -506,11 +509,13 @@ impl Msg {
                 source,
                 ticket,
             } => {
-                w.u64(*client)?;
+                w.le(*client)?;
                 w.str(source)?;
                 w.bytes(ticket)?;
             }
-            Msg::DataAccepted { source } => w.str(source)?,
+            Msg::DataAccepted { source } => {
+                w.str(source)?;
+            }
             Msg::DataClosed { source, reason } => {
                 w.str(source)?;
                 w.u8(*reason as u8)?;
@@ -520,10 +525,10 @@ impl Msg {
                 stamp_us,
                 payload,
             } => {
-                w.u64(*seq)?;
-                w.u64(*stamp_us)?;
+                w.le(*seq)?;
+                w.le(*stamp_us)?;
                 let n = u16::try_from(payload.len()).map_err(|_| WireError::FieldTooLong)?;
-                w.bytes(&n.to_le_bytes())?;
+                w.le(n)?;
                 w.bytes(payload)?;
             }
             Msg::Status {
@@ -534,16 +539,18 @@ impl Msg {
                 pose,
             } => {
                 w.str(robot)?;
-                w.u64(*seq)?;
+                w.le(*seq)?;
                 w.str(behaviour)?;
                 w.str(san)?;
                 match pose {
-                    None => w.u8(0)?,
+                    None => {
+                        w.u8(0)?;
+                    }
                     Some(p) => {
                         w.u8(1)?;
-                        w.bytes(&p.x_mm.to_le_bytes())?;
-                        w.bytes(&p.y_mm.to_le_bytes())?;
-                        w.bytes(&p.theta_mrad.to_le_bytes())?;
+                        w.le(p.x_mm)?;
+                        w.le(p.y_mm)?;
+                        w.le(p.theta_mrad)?;
                     }
                 }
             }
@@ -554,7 +561,7 @@ impl Msg {
                 text,
             } => {
                 w.str(robot)?;
-                w.u64(*seq)?;
+                w.le(*seq)?;
                 w.str(kind)?;
                 w.str(text)?;
             }
@@ -565,12 +572,12 @@ impl Msg {
                 target,
             } => {
                 w.str(robot)?;
-                w.u64(*seq)?;
+                w.le(*seq)?;
                 w.u8(*event as u8)?;
                 w.str(target)?;
             }
         }
-        Ok(w.pos)
+        Ok(w.pos())
     }
 
     /// Decodes a body of type `code`. Never panics.
@@ -578,48 +585,48 @@ impl Msg {
     /// # Errors
     /// [`WireError::UnknownType`] or [`WireError::Body`].
     pub fn parse_body(code: u8, body: &[u8]) -> Result<Msg, WireError> {
-        let mut r = Reader { buf: body };
+        let mut r = Reader::new(body);
         let msg = match code {
             0x01 => Msg::Register {
-                client: r.u64()?,
+                client: r.le()?,
                 robot: r.str()?,
             },
-            0x02 => Msg::Unregister { client: r.u64()? },
+            0x02 => Msg::Unregister { client: r.le()? },
             0x03 => Msg::Request {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
                 priority: r.u8()?,
             },
             0x04 => Msg::Disconnect {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
             },
             0x05 => Msg::Heartbeat,
             0x10 => Msg::Registered {
-                client: r.u64()?,
+                client: r.le()?,
                 sources: r.sources()?,
             },
             0x11 => Msg::Declined {
-                client: r.u64()?,
+                client: r.le()?,
                 reason: match r.u8()? {
                     1 => DeclineReason::DuplicateId,
                     2 => DeclineReason::Full,
                     c => return Err(BodyError::BadCode(c).into()),
                 },
             },
-            0x12 => Msg::Unregistered { client: r.u64()? },
+            0x12 => Msg::Unregistered { client: r.le()? },
             0x13 => Msg::Granted {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
                 address: r.str()?,
                 ticket: r.array()?,
             },
             0x14 => Msg::Pending {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
             },
             0x15 => Msg::Denied {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
                 reason: match r.u8()? {
                     1 => DenyReason::NotRegistered,
@@ -629,7 +636,7 @@ impl Msg {
                 },
             },
             0x16 => Msg::Revoked {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
                 reason: r.revoke()?,
             },
@@ -643,7 +650,7 @@ impl Msg {
                 Msg::SourcesChanged { added, removed }
             }
             0x20 => Msg::OpenData {
-                client: r.u64()?,
+                client: r.le()?,
                 source: r.str()?,
                 ticket: r.array()?,
             },
@@ -653,9 +660,9 @@ impl Msg {
                 reason: r.revoke()?,
             },
             0x23 => {
-                let seq = r.u64()?;
-                let stamp_us = r.u64()?;
-                let n = u16::from_le_bytes(r.array()?);
+                let seq = r.le()?;
+                let stamp_us = r.le()?;
+                let n = r.le::<u16>()?;
                 Msg::Sample {
                     seq,
                     stamp_us,
@@ -664,28 +671,28 @@ impl Msg {
             }
             0x30 => Msg::Status {
                 robot: r.str()?,
-                seq: r.u64()?,
+                seq: r.le()?,
                 behaviour: r.str()?,
                 san: r.str()?,
                 pose: match r.u8()? {
                     0 => None,
                     1 => Some(Pose {
-                        x_mm: i32::from_le_bytes(r.array()?),
-                        y_mm: i32::from_le_bytes(r.array()?),
-                        theta_mrad: i32::from_le_bytes(r.array()?),
+                        x_mm: r.le::<i32>()?,
+                        y_mm: r.le::<i32>()?,
+                        theta_mrad: r.le::<i32>()?,
                     }),
                     c => return Err(BodyError::BadCode(c).into()),
                 },
             },
             0x31 => Msg::Emergency {
                 robot: r.str()?,
-                seq: r.u64()?,
+                seq: r.le()?,
                 kind: r.str()?,
                 text: r.str()?,
             },
             0x32 => Msg::Mission {
                 robot: r.str()?,
-                seq: r.u64()?,
+                seq: r.le()?,
                 event: match r.u8()? {
                     1 => MissionEvent::Accepted,
                     2 => MissionEvent::Accomplished,
@@ -696,82 +703,64 @@ impl Msg {
             },
             c => return Err(WireError::UnknownType(c)),
         };
-        if r.buf.is_empty() {
+        if r.is_empty() {
             Ok(msg)
         } else {
-            Err(BodyError::TrailingBytes(r.buf.len()).into())
+            Err(BodyError::TrailingBytes(r.remaining()).into())
         }
     }
 }
 
-struct Writer<'a> {
-    buf: &'a mut [u8],
-    pos: usize,
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Body(BodyError::Truncated),
+    overflow: |_| WireError::BufferTooSmall,
+});
+ima_serial::cursor_errors!(BodyError {
+    truncated: |_| BodyError::Truncated
+});
+
+/// The peer protocol's composite fields, written with the shared byte cursor.
+trait WriteFields {
+    /// A count that must fit in one byte.
+    fn count(&mut self, n: usize) -> Result<(), WireError>;
+    /// A string with a one-byte length.
+    fn str(&mut self, s: &str) -> Result<(), WireError>;
+    /// A source list.
+    fn sources(&mut self, list: &[SourceInfo]) -> Result<(), WireError>;
 }
 
-impl Writer<'_> {
-    fn bytes(&mut self, b: &[u8]) -> Result<(), WireError> {
-        let end = self
-            .pos
-            .checked_add(b.len())
-            .ok_or(WireError::BufferTooSmall)?;
-        let dst = self
-            .buf
-            .get_mut(self.pos..end)
-            .ok_or(WireError::BufferTooSmall)?;
-        dst.copy_from_slice(b);
-        self.pos = end;
-        Ok(())
-    }
-    fn u8(&mut self, v: u8) -> Result<(), WireError> {
-        self.bytes(&[v])
-    }
-    fn u64(&mut self, v: u64) -> Result<(), WireError> {
-        self.bytes(&v.to_le_bytes())
-    }
+impl WriteFields for Writer<'_> {
     fn count(&mut self, n: usize) -> Result<(), WireError> {
-        self.u8(u8::try_from(n).map_err(|_| WireError::FieldTooLong)?)
+        self.u8(u8::try_from(n).map_err(|_| WireError::FieldTooLong)?)?;
+        Ok(())
     }
     fn str(&mut self, s: &str) -> Result<(), WireError> {
         self.count(s.len())?;
-        self.bytes(s.as_bytes())
+        self.bytes(s.as_bytes())?;
+        Ok(())
     }
     fn sources(&mut self, list: &[SourceInfo]) -> Result<(), WireError> {
         self.count(list.len())?;
         for s in list {
             self.str(&s.name)?;
             self.str(&s.kind)?;
-            self.bytes(&s.schema.to_le_bytes())?;
-            self.bytes(&s.rate_mhz.to_le_bytes())?;
+            self.le(s.schema)?.le(s.rate_mhz)?;
         }
         Ok(())
     }
 }
 
-struct Reader<'a> {
-    buf: &'a [u8],
+/// The peer protocol's composite fields, read with the shared byte cursor.
+trait ReadFields {
+    /// A string with a one-byte length.
+    fn str(&mut self) -> Result<String, BodyError>;
+    /// A revocation reason.
+    fn revoke(&mut self) -> Result<RevokeReason, BodyError>;
+    /// A source list.
+    fn sources(&mut self) -> Result<Vec<SourceInfo>, BodyError>;
 }
 
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Result<&'a [u8], BodyError> {
-        if self.buf.len() < n {
-            return Err(BodyError::Truncated);
-        }
-        let (head, tail) = self.buf.split_at(n);
-        self.buf = tail;
-        Ok(head)
-    }
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], BodyError> {
-        let mut a = [0u8; N];
-        a.copy_from_slice(self.take(N)?);
-        Ok(a)
-    }
-    fn u8(&mut self) -> Result<u8, BodyError> {
-        Ok(u8::from_le_bytes(self.array()?))
-    }
-    fn u64(&mut self) -> Result<u64, BodyError> {
-        Ok(u64::from_le_bytes(self.array()?))
-    }
+impl ReadFields for Reader<'_> {
     fn str(&mut self) -> Result<String, BodyError> {
         let n = self.u8()?;
         let b = self.take(usize::from(n))?;
@@ -795,8 +784,8 @@ impl<'a> Reader<'a> {
             v.push(SourceInfo {
                 name: self.str()?,
                 kind: self.str()?,
-                schema: u16::from_le_bytes(self.array()?),
-                rate_mhz: u32::from_le_bytes(self.array()?),
+                schema: self.le()?,
+                rate_mhz: self.le()?,
             });
         }
         Ok(v)
@@ -836,7 +825,7 @@ pub fn parse_header(bytes: &[u8], max_body: usize) -> Result<Header, WireError> 
             need: HEADER_LEN,
             got: bytes.len(),
         })?;
-    let mut r = Reader { buf: head };
+    let mut r = Reader::new(head);
     let trunc = |_| WireError::Truncated {
         need: HEADER_LEN,
         got: bytes.len(),
@@ -850,15 +839,15 @@ pub fn parse_header(bytes: &[u8], max_body: usize) -> Result<Header, WireError> 
         return Err(WireError::BadVersion(version));
     }
     let code = r.u8().map_err(trunc)?;
-    let body_len = usize::from(u16::from_le_bytes(r.array().map_err(trunc)?));
+    let body_len = usize::from(r.le::<u16>().map_err(trunc)?);
     if body_len > max_body {
         return Err(WireError::Oversize {
             len: body_len,
             max: max_body,
         });
     }
-    let sender = r.u64().map_err(trunc)?;
-    let counter = r.u64().map_err(trunc)?;
+    let sender = r.le::<u64>().map_err(trunc)?;
+    let counter = r.le::<u64>().map_err(trunc)?;
     Ok(Header {
         code,
         body_len,
@@ -933,13 +922,13 @@ impl Signer {
         let body_len16 = u16::try_from(body_len).map_err(|_| WireError::FieldTooLong)?;
         let total = HEADER_LEN + body_len + MAC_LEN;
         let frame = out.get_mut(..total).ok_or(WireError::BufferTooSmall)?;
-        let mut w = Writer { buf: frame, pos: 0 };
+        let mut w = Writer::new(frame);
         w.bytes(&MAGIC)?;
         w.u8(VERSION)?;
         w.u8(msg.code())?;
-        w.bytes(&body_len16.to_le_bytes())?;
-        w.u64(self.sender)?;
-        w.u64(self.counter)?;
+        w.le(body_len16)?;
+        w.le(self.sender)?;
+        w.le(self.counter)?;
         let signed = HEADER_LEN + body_len;
         let (data, tag) = frame.split_at_mut(signed);
         let mut mac = self.key.mac();

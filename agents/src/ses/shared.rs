@@ -42,6 +42,7 @@
 use core::f64::consts::{FRAC_PI_2, PI};
 
 use ima_hal::Instant;
+use ima_serial::bytes::Reader;
 
 use super::{Direction, Entry, Payload, Ses};
 
@@ -204,32 +205,15 @@ pub fn crc16(data: &[u8]) -> u16 {
     crc
 }
 
-struct Reader<'a> {
-    rest: &'a [u8],
-}
+ima_serial::cursor_errors!(DecodeError {
+    truncated: |_| DecodeError::Truncated
+});
 
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Result<&'a [u8], DecodeError> {
-        if self.rest.len() < n {
-            return Err(DecodeError::Truncated);
-        }
-        let (head, tail) = self.rest.split_at(n);
-        self.rest = tail;
-        Ok(head)
-    }
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], DecodeError> {
-        let mut out = [0; N];
-        out.copy_from_slice(self.take(N)?);
-        Ok(out)
-    }
-    fn u8(&mut self) -> Result<u8, DecodeError> {
-        Ok(self.array::<1>()?[0])
-    }
-    fn str(&mut self, n: usize) -> Result<String, DecodeError> {
-        core::str::from_utf8(self.take(n)?)
-            .map(str::to_owned)
-            .map_err(|_| DecodeError::BadUtf8)
-    }
+/// A UTF-8 string of `n` bytes.
+fn read_str(r: &mut Reader<'_>, n: usize) -> Result<String, DecodeError> {
+    core::str::from_utf8(r.take(n)?)
+        .map(str::to_owned)
+        .map_err(|_| DecodeError::BadUtf8)
 }
 
 impl SharedForm {
@@ -240,7 +224,7 @@ impl SharedForm {
     pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
         let body_len = bytes.len().checked_sub(2).ok_or(DecodeError::Truncated)?;
         let (body, crc_bytes) = bytes.split_at(body_len);
-        let mut r = Reader { rest: body };
+        let mut r = Reader::new(body);
         let magic = r.array::<2>()?;
         if magic != MAGIC {
             return Err(DecodeError::BadMagic(magic));
@@ -253,9 +237,9 @@ impl SharedForm {
         if name_len == 0 || usize::from(name_len) > MAX_NAME_LEN {
             return Err(DecodeError::BadNameLength(name_len));
         }
-        let source_robot = r.str(usize::from(name_len))?;
-        let sent_at = Instant::from_micros(u64::from_be_bytes(r.array()?));
-        let count = u16::from_be_bytes(r.array()?);
+        let source_robot = read_str(&mut r, usize::from(name_len))?;
+        let sent_at = Instant::from_micros(r.be()?);
+        let count: u16 = r.be()?;
         if usize::from(count) > MAX_RECORDS {
             return Err(DecodeError::TooManyRecords(count));
         }
@@ -265,15 +249,15 @@ impl SharedForm {
             if flags & !FLAG_RANGE != 0 {
                 return Err(DecodeError::ReservedFlags(flags));
             }
-            let age = u64::from(u32::from_be_bytes(r.array()?));
-            let az = u16::from_be_bytes(r.array()?);
-            let el = i16::from_be_bytes(r.array()?);
+            let age = u64::from(r.be::<u32>()?);
+            let az: u16 = r.be()?;
+            let el: i16 = r.be()?;
             if !(-16384..=16384).contains(&el) {
                 return Err(DecodeError::BadElevation(el));
             }
             let conf = r.u8()?;
             let range_m = if flags & FLAG_RANGE != 0 {
-                Some(f64::from(u16::from_be_bytes(r.array()?)) / 100.0)
+                Some(f64::from(r.be::<u16>()?) / 100.0)
             } else {
                 None
             };
@@ -281,7 +265,7 @@ impl SharedForm {
             if obj_len == 0 || usize::from(obj_len) > MAX_OBJECT_LEN {
                 return Err(DecodeError::BadObjectLength(obj_len));
             }
-            let object = r.str(usize::from(obj_len))?;
+            let object = read_str(&mut r, usize::from(obj_len))?;
             let time = sent_at
                 .as_micros()
                 .checked_sub(age)
@@ -295,8 +279,8 @@ impl SharedForm {
                 time,
             });
         }
-        if !r.rest.is_empty() {
-            return Err(DecodeError::TrailingBytes(r.rest.len()));
+        if !r.is_empty() {
+            return Err(DecodeError::TrailingBytes(r.remaining()));
         }
         let got = match crc_bytes {
             [a, b] => u16::from_be_bytes([*a, *b]),

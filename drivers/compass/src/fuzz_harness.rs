@@ -7,7 +7,7 @@ use core::time::Duration;
 
 use ima_hal::Instant;
 
-use crate::framer::{Frame, LineFramer};
+use crate::framer::Frame;
 use crate::machine::{Config, Dialect, Machine};
 use crate::wire::{
     CalScore, Command, Decimal, EastWest, Hdg, Hdm, Hdt, Line, NmeaBody, NmeaSentence, Offset,
@@ -25,7 +25,7 @@ pub fn compass_lines(data: &[u8]) {
     let lax = ParseOptions {
         allow_missing_checksum: true,
     };
-    let mut framer = LineFramer::<{ crate::wire::MAX_LINE }>::new();
+    let mut framer = crate::framer::framer::<{ crate::wire::MAX_LINE }>();
     framer.push(stream, |f| {
         if let Frame::Line(l) = f {
             let _ = Line::parse(l, &ParseOptions::default());

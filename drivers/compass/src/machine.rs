@@ -333,7 +333,7 @@ impl Machine {
     pub fn new(config: Config) -> Self {
         Self {
             config,
-            framer: LineFramer::new(),
+            framer: crate::framer::framer(),
             script: None,
             started: false,
             user_calibrating: false,

@@ -162,7 +162,7 @@ impl Line {
             Self::CalScore(c) => c.emit(buf),
             Self::Prompt => {
                 let mut w = Writer::new(buf);
-                w.byte(b'>')?;
+                w.u8(b'>')?;
                 Ok(w.pos())
             }
         }
@@ -222,82 +222,49 @@ fn hex_pair(hi: u8, lo: u8) -> Option<u8> {
 
 const HEX: &[u8; 16] = b"0123456789ABCDEF";
 
-/// A bounds-checked cursor over an output buffer.
-pub(crate) struct Writer<'a> {
-    buf: &'a mut [u8],
-    pos: usize,
+/// The shared byte cursor; the ASCII sentences add [`AsciiWriter`].
+pub(crate) use ima_serial::bytes::Writer;
+
+ima_serial::cursor_errors!(WireError {
+    overflow: |_| WireError::BufferTooSmall
+});
+
+/// What compass sentences write beyond bytes and decimals.
+pub(crate) trait AsciiWriter {
+    /// Upper-case hex with at least `min_digits` digits.
+    fn hex(&mut self, v: u16, min_digits: u8) -> Result<(), WireError>;
+    /// `*hh` over the bytes written after the leading `$`, then CR LF; the length written.
+    fn nmea_tail(&mut self) -> Result<usize, WireError>;
 }
 
-impl<'a> Writer<'a> {
-    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
-        Self { buf, pos: 0 }
-    }
-
-    pub(crate) fn pos(&self) -> usize {
-        self.pos
-    }
-
-    pub(crate) fn byte(&mut self, b: u8) -> Result<(), WireError> {
-        let slot = self
-            .buf
-            .get_mut(self.pos)
-            .ok_or(WireError::BufferTooSmall)?;
-        *slot = b;
-        self.pos = self.pos.saturating_add(1);
-        Ok(())
-    }
-
-    pub(crate) fn bytes(&mut self, s: &[u8]) -> Result<(), WireError> {
-        s.iter().try_for_each(|b| self.byte(*b))
-    }
-
-    /// Unsigned decimal with at least `min_digits` digits (zero padded).
-    pub(crate) fn uint(&mut self, mut v: u64, min_digits: u8) -> Result<(), WireError> {
-        let mut tmp = [0u8; 20];
-        let mut n = 0usize;
-        loop {
-            if let Some(slot) = tmp.get_mut(n) {
-                *slot = b'0' + (v % 10) as u8;
-            }
-            n = n.saturating_add(1);
-            v /= 10;
-            if v == 0 && n >= usize::from(min_digits) || n >= tmp.len() {
-                break;
-            }
-        }
-        tmp.iter().take(n).rev().try_for_each(|b| self.byte(*b))
-    }
-
-    /// Upper-case hex with at least `min_digits` digits.
-    pub(crate) fn hex(&mut self, v: u16, min_digits: u8) -> Result<(), WireError> {
+impl AsciiWriter for Writer<'_> {
+    fn hex(&mut self, v: u16, min_digits: u8) -> Result<(), WireError> {
         let mut started = false;
         for i in (0..4u8).rev() {
             let nib = usize::from((v >> (i * 4)) & 0xf);
             if nib != 0 || i < min_digits || started {
                 started = true;
-                self.byte(*HEX.get(nib).ok_or(WireError::OutOfRange)?)?;
+                self.u8(*HEX.get(nib).ok_or(WireError::OutOfRange)?)?;
             }
         }
         if !started {
-            self.byte(b'0')?;
+            self.u8(b'0')?;
         }
         Ok(())
     }
 
-    /// `*hh` over the bytes written after the leading `$`, then CR LF.
-    pub(crate) fn nmea_tail(&mut self) -> Result<usize, WireError> {
-        let sum = checksum(self.buf.get(1..self.pos).unwrap_or(&[]));
-        self.byte(b'*')?;
-        self.byte(
-            *HEX.get(usize::from(sum >> 4))
-                .ok_or(WireError::OutOfRange)?,
-        )?;
-        self.byte(
-            *HEX.get(usize::from(sum & 0xf))
-                .ok_or(WireError::OutOfRange)?,
-        )?;
-        self.bytes(b"\r\n")?;
-        Ok(self.pos)
+    fn nmea_tail(&mut self) -> Result<usize, WireError> {
+        let sum = checksum(self.written().get(1..).unwrap_or_default());
+        let hex = |n: u8| {
+            HEX.get(usize::from(n))
+                .copied()
+                .ok_or(WireError::OutOfRange)
+        };
+        self.u8(b'*')?
+            .u8(hex(sum >> 4)?)?
+            .u8(hex(sum & 0xf)?)?
+            .bytes(b"\r\n")?;
+        Ok(self.pos())
     }
 }
 
@@ -455,17 +422,17 @@ impl Decimal {
 
     pub(crate) fn write(self, w: &mut Writer<'_>) -> Result<(), WireError> {
         if self.units < 0 {
-            w.byte(b'-')?;
+            w.u8(b'-')?;
         }
         let abs = self.units.unsigned_abs();
         let scale = pow10(self.decimals).unsigned_abs();
         let int_part = abs / scale;
         if self.int_digits > 0 {
-            w.uint(int_part, self.int_digits)?;
+            w.decimal(int_part, self.int_digits)?;
         }
         if self.decimals > 0 {
-            w.byte(b'.')?;
-            w.uint(abs % scale, self.decimals)?;
+            w.u8(b'.')?;
+            w.decimal(abs % scale, self.decimals)?;
         }
         Ok(())
     }

@@ -1,7 +1,7 @@
 //! Property tests: emit → parse round trips for every message, and the framer never loses a
 //! good line behind noise.
 
-use ima_compass::framer::{Frame, LineFramer};
+use ima_compass::framer::{self, Frame};
 use ima_compass::wire::{
     CalScore, Command, Decimal, EastWest, Hdg, Hdm, Hdt, KvhBaud, KvhCommand, KvhFormat, Line,
     NmeaBody, NmeaSentence, Offset, ParseOptions, Talker, Tcm2Command, Tcm2Data, Tcm2Format,
@@ -160,7 +160,7 @@ proptest! {
             stream.extend_from_slice(&buf[..n]);
             want.push(buf[..n - 2].to_vec());
         }
-        let mut fr = LineFramer::<96>::new();
+        let mut fr = framer::framer::<96>();
         let mut got = Vec::new();
         for c in stream.chunks(chunk) {
             fr.push(c, |f| if let Frame::Line(l) = f { got.push(l.to_vec()) });

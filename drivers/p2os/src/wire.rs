@@ -24,6 +24,8 @@
 
 use core::fmt;
 
+use ima_serial::bytes::{Overflow, Reader, Writer};
+
 /// First header byte.
 pub const HEADER0: u8 = 0xFA;
 /// Second header byte.
@@ -218,114 +220,21 @@ pub fn frame_payload(frame: &[u8]) -> Result<&[u8], WireError> {
     Ok(payload)
 }
 
-/// A little-endian reader over a payload that never panics: reads past the end give `None`.
-#[derive(Debug, Clone)]
-pub(crate) struct Reader<'a> {
-    buf: &'a [u8],
-}
-
-impl<'a> Reader<'a> {
-    pub(crate) fn new(buf: &'a [u8]) -> Self {
-        Self { buf }
-    }
-    pub(crate) fn remaining(&self) -> &'a [u8] {
-        self.buf
-    }
-    pub(crate) fn u8(&mut self) -> Option<u8> {
-        let (&b, rest) = self.buf.split_first()?;
-        self.buf = rest;
-        Some(b)
-    }
-    pub(crate) fn u16(&mut self) -> Option<u16> {
-        let (pair, rest) = self.buf.split_first_chunk::<2>()?;
-        self.buf = rest;
-        Some(u16::from_le_bytes(*pair))
-    }
-    pub(crate) fn i16(&mut self) -> Option<i16> {
-        self.u16().map(|v| v as i16)
-    }
-    pub(crate) fn i32(&mut self) -> Option<i32> {
-        let (quad, rest) = self.buf.split_first_chunk::<4>()?;
-        self.buf = rest;
-        Some(i32::from_le_bytes(*quad))
-    }
-    /// A NUL-terminated string; an unterminated tail is taken whole.
-    pub(crate) fn cstr(&mut self) -> Option<&'a [u8]> {
-        if self.buf.is_empty() {
-            return None;
-        }
-        match self.buf.iter().position(|&b| b == 0) {
-            Some(nul) => {
-                let (s, rest) = self.buf.split_at(nul);
-                self.buf = rest.get(1..).unwrap_or(&[]);
-                Some(s)
-            }
-            None => {
-                let s = self.buf;
-                self.buf = &[];
-                Some(s)
-            }
-        }
-    }
-}
-
-/// A payload writer over a fixed buffer that never panics: overflow is remembered and
-/// reported once at the end.
-#[derive(Debug)]
-pub(crate) struct Writer<'a> {
-    buf: &'a mut [u8],
-    len: usize,
-    overflow: bool,
-}
-
-impl<'a> Writer<'a> {
-    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
-        Self {
-            buf,
-            len: 0,
-            overflow: false,
-        }
-    }
-    pub(crate) fn bytes(&mut self, data: &[u8]) -> &mut Self {
-        let end = self.len.saturating_add(data.len());
-        match self.buf.get_mut(self.len..end) {
-            Some(dst) => {
-                dst.copy_from_slice(data);
-                self.len = end;
-            }
-            None => self.overflow = true,
-        }
-        self
-    }
-    pub(crate) fn u8(&mut self, v: u8) -> &mut Self {
-        self.bytes(&[v])
-    }
-    pub(crate) fn u16(&mut self, v: u16) -> &mut Self {
-        self.bytes(&v.to_le_bytes())
-    }
-    pub(crate) fn i16(&mut self, v: i16) -> &mut Self {
-        self.bytes(&v.to_le_bytes())
-    }
-    pub(crate) fn i32(&mut self, v: i32) -> &mut Self {
-        self.bytes(&v.to_le_bytes())
-    }
-    pub(crate) fn cstr(&mut self, s: &[u8]) -> &mut Self {
-        self.bytes(s).u8(0)
-    }
-    pub(crate) fn finish(&self) -> Result<&[u8], WireError> {
-        if self.overflow {
-            return Err(WireError::PayloadTooLong(self.len.saturating_add(1)));
-        }
-        self.buf.get(..self.len).ok_or(WireError::ValueOutOfRange)
-    }
-}
+// A payload that does not fit the scratch buffer is too long for a frame.
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Truncated,
+    overflow: |o| WireError::PayloadTooLong(o.needed()),
+});
 
 /// Build a payload with `f` in a scratch buffer, then frame it into `out`.
-fn emit_with(out: &mut [u8], f: impl FnOnce(&mut Writer<'_>)) -> Result<usize, WireError> {
+fn emit_with(
+    out: &mut [u8],
+    f: impl FnOnce(&mut Writer<'_>) -> Result<(), WireError>,
+) -> Result<usize, WireError> {
     let mut scratch = [0u8; MAX_PAYLOAD_LEN];
     let mut w = Writer::new(&mut scratch);
-    f(&mut w);
-    encode_frame(w.finish()?, out)
+    f(&mut w)?;
+    encode_frame(w.written(), out)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -399,11 +308,11 @@ impl<'a> Arg<'a> {
         match *self {
             Arg::None => {}
             Arg::Int(i) => {
-                w.u8(if i.negative { ARGNINT } else { ARGINT }).u16(i.raw);
+                w.u8(if i.negative { ARGNINT } else { ARGINT })?.le(i.raw)?;
             }
             Arg::Str(s) => {
                 let len = u8::try_from(s.len()).map_err(|_| WireError::ValueOutOfRange)?;
-                w.u8(ARGSTR).u8(len).bytes(s);
+                w.u8(ARGSTR)?.u8(len)?.bytes(s)?;
             }
         }
         Ok(())
@@ -753,12 +662,10 @@ impl<'a> Command<'a> {
             Command::Other { arg, .. } => arg,
         };
         let number = self.number();
-        let mut result = Ok(());
         let n = emit_with(out, |w| {
-            w.u8(number);
-            result = arg.write(w);
+            w.u8(number)?;
+            arg.write(w)
         })?;
-        result?;
         // P2OS ignores commands with a count over 200 (spec §2): refuse to emit one.
         let count = n.saturating_sub(3);
         if count > usize::from(MAX_COMMAND_COUNT) {
@@ -861,29 +768,31 @@ impl Sip {
 
     fn parse(moving: bool, body: &[u8]) -> Result<Self, WireError> {
         let mut r = Reader::new(body);
-        let t = WireError::Truncated;
         let mut sip = Sip {
             moving,
-            xpos: r.u16().ok_or(t)? & 0x7FFF,
-            ypos: r.u16().ok_or(t)? & 0x7FFF,
-            thpos: r.i16().ok_or(t)?,
-            left_vel: r.i16().ok_or(t)?,
-            right_vel: r.i16().ok_or(t)?,
-            battery: r.u8().ok_or(t)?,
-            stall_bumpers: r.u16().ok_or(t)?,
-            control: r.i16().ok_or(t)?,
-            flags: r.u16().ok_or(t)?,
-            compass: r.u8().ok_or(t)?,
+            xpos: r.le::<u16>()? & 0x7FFF,
+            ypos: r.le::<u16>()? & 0x7FFF,
+            thpos: r.le()?,
+            left_vel: r.le()?,
+            right_vel: r.le()?,
+            battery: r.u8()?,
+            stall_bumpers: r.le()?,
+            control: r.le()?,
+            flags: r.le()?,
+            compass: r.u8()?,
             ..Sip::default()
         };
-        let k = r.u8().ok_or(t)?;
+        let k = r.u8()?;
         // The count must be consistent with the packet's length (spec §10 item 13).
-        if usize::from(k) > MAX_SIP_SONARS || r.remaining().len() < usize::from(k) * 3 + 5 {
+        if usize::from(k) > MAX_SIP_SONARS || r.remaining() < usize::from(k) * 3 + 5 {
             return Err(WireError::BadSonarCount(k));
         }
-        for _ in 0..k {
-            let index = r.u8().ok_or(t)?;
-            let range = r.u16().ok_or(t)?;
+        // The length was checked above: take the readings at once, three bytes each.
+        for reading in r.take(usize::from(k) * 3)?.chunks_exact(3) {
+            let &[index, lo, hi] = reading else {
+                return Err(WireError::Truncated);
+            };
+            let range = u16::from_le_bytes([lo, hi]);
             if usize::from(index) >= MAX_SIP_SONARS {
                 return Err(WireError::BadSonarIndex(index));
             }
@@ -891,40 +800,41 @@ impl Sip {
                 .push(SonarRaw { index, range })
                 .map_err(|_| WireError::BadSonarCount(k))?;
         }
-        sip.grip_state = r.u8().ok_or(t)?;
-        sip.anport = r.u8().ok_or(t)?;
-        sip.analog = r.u8().ok_or(t)?;
-        sip.digin = r.u8().ok_or(t)?;
-        sip.digout = r.u8().ok_or(t)?;
-        sip.extra_len = u8::try_from(r.remaining().len()).unwrap_or(u8::MAX);
+        sip.grip_state = r.u8()?;
+        sip.anport = r.u8()?;
+        sip.analog = r.u8()?;
+        sip.digin = r.u8()?;
+        sip.digout = r.u8()?;
+        sip.extra_len = u8::try_from(r.remaining()).unwrap_or(u8::MAX);
         Ok(sip)
     }
 
-    fn write(&self, w: &mut Writer<'_>) {
+    fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
         w.u8(if self.moving {
             ptype::SIP_MOVING
         } else {
             ptype::SIP_STOPPED
-        })
-        .u16(self.xpos & 0x7FFF)
-        .u16(self.ypos & 0x7FFF)
-        .i16(self.thpos)
-        .i16(self.left_vel)
-        .i16(self.right_vel)
-        .u8(self.battery)
-        .u16(self.stall_bumpers)
-        .i16(self.control)
-        .u16(self.flags)
-        .u8(self.compass)
-        .u8(self.sonars.len() as u8);
+        })?
+        .le(self.xpos & 0x7FFF)?
+        .le(self.ypos & 0x7FFF)?
+        .le(self.thpos)?
+        .le(self.left_vel)?
+        .le(self.right_vel)?
+        .u8(self.battery)?
+        .le(self.stall_bumpers)?
+        .le(self.control)?
+        .le(self.flags)?
+        .u8(self.compass)?
+        .u8(self.sonars.len() as u8)?;
         for s in &self.sonars {
-            w.u8(s.index).u16(s.range);
+            w.u8(s.index)?.le(s.range)?;
         }
-        w.u8(self.grip_state)
-            .u8(self.anport)
-            .u8(self.analog)
-            .u8(self.digin)
-            .u8(self.digout);
+        w.u8(self.grip_state)?
+            .u8(self.anport)?
+            .u8(self.analog)?
+            .u8(self.digin)?
+            .u8(self.digout)?;
+        Ok(())
     }
 }
 
@@ -940,10 +850,11 @@ macro_rules! config_fields {
 
         impl ConfigNumbers {
             fn read(r: &mut Reader<'_>) -> Self {
-                Self { $( $field: r.$ty().unwrap_or_default(), )* }
+                Self { $( $field: r.le::<$ty>().unwrap_or_default(), )* }
             }
-            fn write(&self, w: &mut Writer<'_>) {
-                $( w.$ty(self.$field); )*
+            fn write(&self, w: &mut Writer<'_>) -> Result<(), Overflow> {
+                $( w.le::<$ty>(self.$field)?; )*
+                Ok(())
             }
             /// Visit every field as (name, value) — for printing and JSON.
             pub fn for_each(&self, mut f: impl FnMut(&'static str, i64)) {
@@ -1000,38 +911,41 @@ pub struct Config<'a> {
 }
 
 impl<'a> Config<'a> {
+    #[inline(never)]
     fn parse(body: &'a [u8]) -> Self {
         let mut r = Reader::new(body);
         Config {
-            robot_type: r.cstr().unwrap_or_default(),
-            subtype: r.cstr().unwrap_or_default(),
-            serial: r.cstr().unwrap_or_default(),
+            robot_type: r.take_until(0).unwrap_or_default(),
+            subtype: r.take_until(0).unwrap_or_default(),
+            serial: r.take_until(0).unwrap_or_default(),
             four_motors: r.u8().unwrap_or_default(),
-            rot_vel_top: r.u16().unwrap_or_default(),
-            trans_vel_top: r.u16().unwrap_or_default(),
-            rot_acc_top: r.u16().unwrap_or_default(),
-            trans_acc_top: r.u16().unwrap_or_default(),
-            pwm_max: r.u16().unwrap_or_default(),
-            name: r.cstr().unwrap_or_default(),
+            rot_vel_top: r.le().unwrap_or_default(),
+            trans_vel_top: r.le().unwrap_or_default(),
+            rot_acc_top: r.le().unwrap_or_default(),
+            trans_acc_top: r.le().unwrap_or_default(),
+            pwm_max: r.le().unwrap_or_default(),
+            name: r.take_until(0).unwrap_or_default(),
             numbers: ConfigNumbers::read(&mut r),
-            firmware: r.cstr().unwrap_or_default(),
+            firmware: r.take_until(0).unwrap_or_default(),
         }
     }
 
-    fn write(&self, w: &mut Writer<'_>) {
-        w.u8(ptype::CONFIG)
-            .cstr(self.robot_type)
-            .cstr(self.subtype)
-            .cstr(self.serial)
-            .u8(self.four_motors)
-            .u16(self.rot_vel_top)
-            .u16(self.trans_vel_top)
-            .u16(self.rot_acc_top)
-            .u16(self.trans_acc_top)
-            .u16(self.pwm_max)
-            .cstr(self.name);
-        self.numbers.write(w);
-        w.cstr(self.firmware);
+    fn write(&self, w: &mut Writer<'_>) -> Result<(), Overflow> {
+        w.u8(ptype::CONFIG)?;
+        for s in [self.robot_type, self.subtype, self.serial] {
+            w.bytes(s)?.u8(0)?;
+        }
+        w.u8(self.four_motors)?
+            .le(self.rot_vel_top)?
+            .le(self.trans_vel_top)?
+            .le(self.rot_acc_top)?
+            .le(self.trans_acc_top)?
+            .le(self.pwm_max)?
+            .bytes(self.name)?
+            .u8(0)?;
+        self.numbers.write(w)?;
+        w.bytes(self.firmware)?.u8(0)?;
+        Ok(())
     }
 }
 
@@ -1112,9 +1026,9 @@ impl<'a> Packet<'a> {
             2 => {
                 let mut r = Reader::new(body);
                 Packet::SyncReply {
-                    name: r.cstr().unwrap_or_default(),
-                    class: r.cstr().unwrap_or_default(),
-                    subclass: r.cstr().unwrap_or_default(),
+                    name: r.take_until(0).unwrap_or_default(),
+                    class: r.take_until(0).unwrap_or_default(),
+                    subclass: r.take_until(0).unwrap_or_default(),
                 }
             }
             ptype::SIP_STOPPED | ptype::SIP_MOVING => {
@@ -1127,8 +1041,8 @@ impl<'a> Packet<'a> {
             ptype::ENCODER => {
                 let mut r = Reader::new(body);
                 Packet::Encoder {
-                    left: r.i32().ok_or(WireError::Truncated)?,
-                    right: r.i32().ok_or(WireError::Truncated)?,
+                    left: r.le()?,
+                    right: r.le()?,
                 }
             }
             ptype::SERAUX => Packet::SerAux {
@@ -1145,33 +1059,39 @@ impl<'a> Packet<'a> {
 
     /// Emit the whole frame; returns its length.
     pub fn emit(&self, out: &mut [u8]) -> Result<usize, WireError> {
-        emit_with(out, |w| match self {
-            Packet::SyncEcho(b) => {
-                w.u8(*b);
+        emit_with(out, |w| {
+            match self {
+                Packet::SyncEcho(b) => {
+                    w.u8(*b)?;
+                }
+                Packet::SyncReply {
+                    name,
+                    class,
+                    subclass,
+                } => {
+                    w.u8(2)?;
+                    for s in [name, class, subclass] {
+                        w.bytes(s)?.u8(0)?;
+                    }
+                }
+                Packet::Sip(sip) => sip.write(w)?,
+                Packet::Config(c) => c.write(w)?,
+                Packet::Encoder { left, right } => {
+                    w.u8(ptype::ENCODER)?.le(*left)?.le(*right)?;
+                }
+                Packet::SerAux { port, data } => {
+                    w.u8(if *port == 2 {
+                        ptype::SERAUX2
+                    } else {
+                        ptype::SERAUX
+                    })?
+                    .bytes(data)?;
+                }
+                Packet::Unknown { ptype, body } => {
+                    w.u8(*ptype)?.bytes(body)?;
+                }
             }
-            Packet::SyncReply {
-                name,
-                class,
-                subclass,
-            } => {
-                w.u8(2).cstr(name).cstr(class).cstr(subclass);
-            }
-            Packet::Sip(sip) => sip.write(w),
-            Packet::Config(c) => c.write(w),
-            Packet::Encoder { left, right } => {
-                w.u8(ptype::ENCODER).i32(*left).i32(*right);
-            }
-            Packet::SerAux { port, data } => {
-                w.u8(if *port == 2 {
-                    ptype::SERAUX2
-                } else {
-                    ptype::SERAUX
-                })
-                .bytes(data);
-            }
-            Packet::Unknown { ptype, body } => {
-                w.u8(*ptype).bytes(body);
-            }
+            Ok(())
         })
     }
 }

@@ -17,6 +17,8 @@
 
 use core::fmt;
 
+use ima_serial::bytes::{Overflow, Reader, Writer};
+
 /// Escape byte, first byte of both markers (§2.1).
 pub const ESC: u8 = 0x1B;
 /// Start-of-frame marker, second byte.
@@ -180,30 +182,18 @@ pub enum Stuffing {
     None,
 }
 
-/// Writes bytes into a slice, failing with [`WireError::BufferTooSmall`].
-struct Out<'a> {
-    buf: &'a mut [u8],
-    at: usize,
-}
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Truncated,
+    overflow: |_| WireError::BufferTooSmall,
+});
 
-impl Out<'_> {
-    fn put(&mut self, b: u8) -> Result<(), WireError> {
-        let slot = self.buf.get_mut(self.at).ok_or(WireError::BufferTooSmall)?;
-        *slot = b;
-        self.at += 1;
-        Ok(())
-    }
-
-    fn put_stuffed(&mut self, b: u8, stuffing: Stuffing) -> Result<(), WireError> {
-        self.put(b)?;
-        match (b, stuffing) {
-            (ESC, Stuffing::Full | Stuffing::EscOnly) => self.put(ESC_NUL),
-            (PIPE, Stuffing::Full) => {
-                self.put(ESC)?;
-                self.put(ESC_DEL)
-            }
-            _ => Ok(()),
-        }
+/// Write one content byte, stuffed per `stuffing`.
+fn put_stuffed(o: &mut Writer<'_>, b: u8, stuffing: Stuffing) -> Result<(), Overflow> {
+    o.u8(b)?;
+    match (b, stuffing) {
+        (ESC, Stuffing::Full | Stuffing::EscOnly) => o.u8(ESC_NUL).map(drop),
+        (PIPE, Stuffing::Full) => o.u8(ESC)?.u8(ESC_DEL).map(drop),
+        _ => Ok(()),
     }
 }
 
@@ -218,17 +208,15 @@ pub fn encode_frame(
     out: &mut [u8],
 ) -> Result<usize, WireError> {
     let n = u8::try_from(data.len()).map_err(|_| WireError::Oversize)?;
-    let mut o = Out { buf: out, at: 0 };
-    o.put(ESC)?;
-    o.put(STX)?;
+    let mut o = Writer::new(out);
+    o.u8(ESC)?.u8(STX)?;
     let header = [port, id, opcode, n];
     for &b in header.iter().chain(data) {
-        o.put_stuffed(b, stuffing)?;
+        put_stuffed(&mut o, b, stuffing)?;
     }
-    o.put_stuffed(checksum(&header) ^ checksum(data), stuffing)?;
-    o.put(ESC)?;
-    o.put(ETX)?;
-    Ok(o.at)
+    put_stuffed(&mut o, checksum(&header) ^ checksum(data), stuffing)?;
+    o.u8(ESC)?.u8(ETX)?;
+    Ok(o.pos())
 }
 
 /// Undo stuffing of one whole wire frame (`ESC STX … ESC ETX`, strict §2.5 rules) into
@@ -328,55 +316,16 @@ impl<'a> RawFrame<'a> {
     }
 }
 
-/// Reads big-endian fields from a payload whose length was checked beforehand. A short read
-/// yields zeros, never a panic (the length checks make that unreachable in practice).
-struct Rd<'a>(&'a [u8]);
-
-impl Rd<'_> {
-    fn u8(&mut self) -> u8 {
-        match self.0.split_first() {
-            Some((&b, rest)) => {
-                self.0 = rest;
-                b
-            }
-            None => 0,
-        }
-    }
-    fn u16(&mut self) -> u16 {
-        u16::from_be_bytes([self.u8(), self.u8()])
-    }
-    fn u32(&mut self) -> u32 {
-        u32::from_be_bytes([self.u8(), self.u8(), self.u8(), self.u8()])
-    }
-    fn i32(&mut self) -> i32 {
-        i32::from_be_bytes(self.u32().to_be_bytes())
-    }
-}
-
-/// Collects a payload before framing.
-#[derive(Default)]
-struct Wr {
-    buf: heapless::Vec<u8, MAX_DATA>,
-}
-
-impl Wr {
-    fn u8(&mut self, b: u8) -> &mut Self {
-        // Payloads built here are at most 21 bytes (+ sonar/unknown, which check first).
-        let _ = self.buf.push(b);
-        self
-    }
-    fn u16(&mut self, v: u16) -> &mut Self {
-        let _ = self.buf.extend_from_slice(&v.to_be_bytes());
-        self
-    }
-    fn u32(&mut self, v: u32) -> &mut Self {
-        let _ = self.buf.extend_from_slice(&v.to_be_bytes());
-        self
-    }
-    fn i32(&mut self, v: i32) -> &mut Self {
-        let _ = self.buf.extend_from_slice(&v.to_be_bytes());
-        self
-    }
+/// Build a payload with `write` in a scratch buffer of [`MAX_DATA`] bytes, then hand it to
+/// `then`.
+fn with_payload<R>(
+    write: impl FnOnce(&mut Writer<'_>) -> Result<(), WireError>,
+    then: impl FnOnce(&[u8]) -> R,
+) -> Result<R, WireError> {
+    let mut data = [0u8; MAX_DATA];
+    let mut w = Writer::new(&mut data);
+    write(&mut w)?;
+    Ok(then(w.written()))
 }
 
 fn need(raw: &RawFrame<'_>, len: usize) -> Result<(), WireError> {
@@ -542,7 +491,7 @@ impl Command {
 
     /// Interpret a checked frame as a host command.
     pub fn from_raw(raw: &RawFrame<'_>) -> Result<Self, WireError> {
-        let mut r = Rd(raw.data);
+        let mut r = Reader::new(raw.data);
         Ok(match (raw.port, raw.opcode) {
             (port::SYS, op::SYS_STATUS) => {
                 need(raw, 0)?;
@@ -551,11 +500,11 @@ impl Command {
             (port::MOT, op::MOT_AXIS_SET_DIR) => {
                 need(raw, 14)?;
                 Self::SetDir(SetDir {
-                    axis: r.u8(),
-                    velocity: r.u32(),
-                    acceleration: r.u32(),
-                    torque: r.u32(),
-                    forward: r.u8() != 0,
+                    axis: r.u8()?,
+                    velocity: r.be::<u32>()?,
+                    acceleration: r.be::<u32>()?,
+                    torque: r.be::<u32>()?,
+                    forward: r.u8()? != 0,
                 })
             }
             (port::MOT, op::MOT_SET_DEFAULTS) => {
@@ -573,22 +522,24 @@ impl Command {
             (port::MOT, op::MOT_SYSTEM_REPORT_REQ) => {
                 need(raw, 8)?;
                 Self::SystemReportReq {
-                    period_us: r.u32(),
-                    mask: r.u32(),
+                    period_us: r.be::<u32>()?,
+                    mask: r.be::<u32>()?,
                 }
             }
             (port::SONAR, op::SONAR_RUN) => {
                 need(raw, 13)?;
                 Self::SonarRun(SonarRun {
-                    echo_delay_us: r.u32(),
-                    ping_delay_us: r.u32(),
-                    set_delay_us: r.u32(),
-                    mode: r.u8(),
+                    echo_delay_us: r.be::<u32>()?,
+                    ping_delay_us: r.be::<u32>()?,
+                    set_delay_us: r.be::<u32>()?,
+                    mode: r.u8()?,
                 })
             }
             (port::DIO, op::DIO_REPORTS_REQ) => {
                 need(raw, 4)?;
-                Self::DioReportsReq { period_us: r.u32() }
+                Self::DioReportsReq {
+                    period_us: r.be::<u32>()?,
+                }
             }
             (port::JSTK, op::JSTK_GET_STATE) => {
                 need(raw, 0)?;
@@ -597,8 +548,14 @@ impl Command {
             (port::IR, op::IR_RUN) => {
                 need(raw, 21)?;
                 Self::IrRun {
-                    params: [r.u32(), r.u32(), r.u32(), r.u32(), r.u32()],
-                    mode: r.u8(),
+                    params: [
+                        r.be::<u32>()?,
+                        r.be::<u32>()?,
+                        r.be::<u32>()?,
+                        r.be::<u32>()?,
+                        r.be::<u32>()?,
+                    ],
+                    mode: r.u8()?,
                 }
             }
             _ => Self::Unknown(UnknownFrame::of(raw)),
@@ -611,8 +568,7 @@ impl Command {
         Self::from_raw(&RawFrame::parse_wire(wire, &mut scratch)?)
     }
 
-    fn payload(&self) -> Result<Wr, WireError> {
-        let mut w = Wr::default();
+    fn write_payload(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
         match *self {
             Self::SysStatusRequest
             | Self::SetDefaults
@@ -620,33 +576,33 @@ impl Command {
             | Self::BrakeRelease
             | Self::JoystickRequest => {}
             Self::SetDir(s) => {
-                w.u8(s.axis)
-                    .u32(s.velocity)
-                    .u32(s.acceleration)
-                    .u32(s.torque)
-                    .u8(u8::from(s.forward));
+                w.u8(s.axis)?
+                    .be(s.velocity)?
+                    .be(s.acceleration)?
+                    .be(s.torque)?
+                    .u8(u8::from(s.forward))?;
             }
             Self::SystemReportReq { period_us, mask } => {
-                w.u32(period_us).u32(mask);
+                w.be(period_us)?.be(mask)?;
             }
             Self::SonarRun(s) => {
-                w.u32(s.echo_delay_us)
-                    .u32(s.ping_delay_us)
-                    .u32(s.set_delay_us)
-                    .u8(s.mode);
+                w.be(s.echo_delay_us)?
+                    .be(s.ping_delay_us)?
+                    .be(s.set_delay_us)?
+                    .u8(s.mode)?;
             }
             Self::DioReportsReq { period_us } => {
-                w.u32(period_us);
+                w.be(period_us)?;
             }
             Self::IrRun { params, mode } => {
                 for p in params {
-                    w.u32(p);
+                    w.be(p)?;
                 }
-                w.u8(mode);
+                w.u8(mode)?;
             }
             Self::Unknown(_) => return Err(WireError::NotEmittable),
         }
-        Ok(w)
+        Ok(())
     }
 
     /// Emit with the default id and full stuffing (the normative host behaviour, §2.4).
@@ -662,8 +618,10 @@ impl Command {
         out: &mut [u8],
     ) -> Result<usize, WireError> {
         let (p, o) = self.port_opcode();
-        let w = self.payload()?;
-        encode_frame(p, id, o, &w.buf, stuffing, out)
+        with_payload(
+            |w| self.write_payload(w),
+            |data| encode_frame(p, id, o, data, stuffing, out),
+        )?
     }
 
     /// The legacy Player/ROS/DTU workaround applied to every u32 field (§2.4, `legacy_no_stuff`):
@@ -717,9 +675,14 @@ impl Command {
     /// The frame checksum this command would have with its default id.
     fn content_checksum(&self) -> Option<u8> {
         let (p, o) = self.port_opcode();
-        let w = self.payload().ok()?;
-        let n = u8::try_from(w.buf.len()).ok()?;
-        Some(checksum(&[p, self.default_id(), o, n]) ^ checksum(&w.buf))
+        with_payload(
+            |w| self.write_payload(w),
+            |data| {
+                let n = u8::try_from(data.len()).ok()?;
+                Some(checksum(&[p, self.default_id(), o, n]) ^ checksum(data))
+            },
+        )
+        .ok()?
     }
 }
 
@@ -881,26 +844,26 @@ impl Report {
 
     /// Interpret a checked frame as a base report.
     pub fn from_raw(raw: &RawFrame<'_>) -> Result<Self, WireError> {
-        let mut r = Rd(raw.data);
+        let mut r = Reader::new(raw.data);
         Ok(match (raw.port, raw.opcode) {
             (port::SYS, op::SYS_STATUS) => {
                 need(raw, 9)?;
                 Self::SysStatus {
-                    ts: r.u32(),
-                    voltage_raw: r.u32(),
-                    brake_engaged: r.u8() != 0,
+                    ts: r.be::<u32>()?,
+                    voltage_raw: r.be::<u32>()?,
+                    brake_engaged: r.u8()? != 0,
                 }
             }
             (port::MOT, op::MOT_SYSTEM_REPORT) => {
                 need(raw, 25)?;
                 Self::Motion(MotionReport {
-                    rv: r.u32(),
-                    ts: r.u32(),
-                    axis: r.u8(),
-                    position: r.i32(),
-                    velocity: r.i32(),
-                    acceleration: r.i32(),
-                    torque: r.i32(),
+                    rv: r.be::<u32>()?,
+                    ts: r.be::<u32>()?,
+                    axis: r.u8()?,
+                    position: r.be::<i32>()?,
+                    velocity: r.be::<i32>()?,
+                    acceleration: r.be::<i32>()?,
+                    torque: r.be::<i32>()?,
                 })
             }
             (port::SONAR, op::SONAR_REPORT) => {
@@ -909,11 +872,11 @@ impl Report {
                     need(raw, 8)?;
                 }
                 let mut s = SonarReport {
-                    rv: r.u32(),
-                    ts: r.u32(),
+                    rv: r.be::<u32>()?,
+                    ts: r.be::<u32>()?,
                     echoes: heapless::Vec::new(),
                 };
-                for c in r.0.chunks_exact(3) {
+                for c in r.rest().chunks_exact(3) {
                     if let [id, hi, lo] = *c {
                         let _ = s.echoes.push(SonarEcho {
                             id,
@@ -926,9 +889,9 @@ impl Report {
             (port::DIO, op::DIO_REPORT | op::DIO_UPDATE) => {
                 need(raw, 7)?;
                 let d = DioReport {
-                    ts: r.u32(),
-                    address: r.u8(),
-                    data: r.u16(),
+                    ts: r.be::<u32>()?,
+                    address: r.u8()?,
+                    data: r.be::<u16>()?,
                 };
                 if raw.opcode == op::DIO_REPORT {
                     Self::Dio(d)
@@ -939,17 +902,17 @@ impl Report {
             (port::JSTK, op::JSTK_GET_STATE) => {
                 need(raw, 13)?;
                 Self::Joystick {
-                    ts: r.u32(),
-                    x: r.i32(),
-                    y: r.i32(),
-                    buttons: r.u8(),
+                    ts: r.be::<u32>()?,
+                    x: r.be::<i32>()?,
+                    y: r.be::<i32>()?,
+                    buttons: r.u8()?,
                 }
             }
             (p, o) if is_ack(p, o) && raw.data.len() == 8 => Self::Ack {
                 port: p,
                 opcode: o,
-                rv: r.u32(),
-                ts: r.u32(),
+                rv: r.be::<u32>()?,
+                ts: r.be::<u32>()?,
             },
             _ => Self::Unknown(UnknownFrame::of(raw)),
         })
@@ -961,36 +924,35 @@ impl Report {
         Self::from_raw(&RawFrame::parse_wire(wire, &mut scratch)?)
     }
 
-    fn payload(&self) -> Result<Wr, WireError> {
-        let mut w = Wr::default();
+    fn write_payload(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
         match self {
             Self::SysStatus {
                 ts,
                 voltage_raw,
                 brake_engaged,
             } => {
-                w.u32(*ts).u32(*voltage_raw).u8(u8::from(*brake_engaged));
+                w.be(*ts)?.be(*voltage_raw)?.u8(u8::from(*brake_engaged))?;
             }
             Self::Motion(m) => {
-                w.u32(m.rv)
-                    .u32(m.ts)
-                    .u8(m.axis)
-                    .i32(m.position)
-                    .i32(m.velocity)
-                    .i32(m.acceleration)
-                    .i32(m.torque);
+                w.be(m.rv)?
+                    .be(m.ts)?
+                    .u8(m.axis)?
+                    .be(m.position)?
+                    .be(m.velocity)?
+                    .be(m.acceleration)?
+                    .be(m.torque)?;
             }
             Self::Sonar(s) => {
-                w.u32(s.rv).u32(s.ts);
+                w.be(s.rv)?.be(s.ts)?;
                 for e in &s.echoes {
-                    w.u8(e.id).u16(e.range);
+                    w.u8(e.id)?.be(e.range)?;
                 }
             }
             Self::Dio(d) | Self::DioUpdate(d) => {
-                w.u32(d.ts).u8(d.address).u16(d.data);
+                w.be(d.ts)?.u8(d.address)?.be(d.data)?;
             }
             Self::Joystick { ts, x, y, buttons } => {
-                w.u32(*ts).i32(*x).i32(*y).u8(*buttons);
+                w.be(*ts)?.be(*x)?.be(*y)?.u8(*buttons)?;
             }
             Self::Ack {
                 port,
@@ -1001,11 +963,11 @@ impl Report {
                 if !is_ack(*port, *opcode) {
                     return Err(WireError::NotEmittable);
                 }
-                w.u32(*rv).u32(*ts);
+                w.be(*rv)?.be(*ts)?;
             }
             Self::Unknown(_) => return Err(WireError::NotEmittable),
         }
-        Ok(w)
+        Ok(())
     }
 
     /// Emit with packet id 0 and full stuffing.
@@ -1021,7 +983,9 @@ impl Report {
         out: &mut [u8],
     ) -> Result<usize, WireError> {
         let (p, o) = self.port_opcode();
-        let w = self.payload()?;
-        encode_frame(p, id, o, &w.buf, stuffing, out)
+        with_payload(
+            |w| self.write_payload(w),
+            |data| encode_frame(p, id, o, data, stuffing, out),
+        )?
     }
 }

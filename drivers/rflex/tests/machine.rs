@@ -6,7 +6,7 @@ use core::time::Duration;
 
 use ima_hal::Instant;
 use ima_hal::base::VelocityCommand;
-use ima_mock_devices::body::DiffDriveBody;
+use ima_mock_devices::body::ScriptedBody;
 use ima_mock_devices::rflex::{RflexModelConfig, RflexRobot};
 use ima_rflex::machine::{CommandError, Config, Event, Machine, Phase, TX_BUF};
 use ima_rflex::wire::{
@@ -465,53 +465,13 @@ fn legacy_mode_sends_unstuffed_nudged_frames() {
 
 // ---- reports -------------------------------------------------------------------------------
 
-/// A base body whose axis counters the test sets, in controller units (the mock's model turns
-/// them into motion reports).
-#[derive(Default)]
-struct Counters {
-    /// (translation, rotation) positions and velocities, controller units.
-    position: (i32, i32),
-    velocity: (i32, i32),
-}
-
-impl DiffDriveBody for Counters {
-    fn drive(&mut self, _: f64, _: f64) {}
-    fn pose(&self) -> (f64, f64, f64) {
-        (0.0, 0.0, 0.0)
-    }
-    fn track_width_m(&self) -> f64 {
-        0.5
-    }
-    fn wheel_speeds_m_s(&self) -> (f64, f64) {
-        (0.0, 0.0)
-    }
-    fn wheel_travel_m(&self) -> (f64, f64) {
-        (0.0, 0.0)
-    }
-    fn travel(&self) -> (f64, f64) {
-        let c = RflexModelConfig::default();
-        (
-            f64::from(self.position.0) / c.kd,
-            f64::from(self.position.1) / c.ka,
-        )
-    }
-    fn velocity(&self) -> (f64, f64) {
-        let c = RflexModelConfig::default();
-        (
-            f64::from(self.velocity.0) / c.kd,
-            f64::from(self.velocity.1) / c.ka,
-        )
-    }
-    fn sonar_range_m(&mut self, _: &ima_hal::Isometry2) -> Option<f64> {
-        None
-    }
-}
-
 /// The mock's rFLEX base reporting both axes every 100 ms, the counters of `pairs`
 /// (`(p0, v0, p1, v1)`, one pair per report) starting at `t0`, into the machine; returns the
 /// machine's events.
 fn feed_pairs(m: &mut Machine, t0: u64, pairs: &[(i32, i32, i32, i32)]) -> Vec<Event> {
-    let mut body = Counters::default();
+    // The mock's scripted body: its travel and velocity are the counters, in SI units.
+    let c = RflexModelConfig::default();
+    let mut body = ScriptedBody::default();
     let mut base = RflexRobot::new(RflexModelConfig::default(), &body);
     let mut buf = [0u8; MAX_WIRE_FRAME];
     let n = Command::SystemReportReq {
@@ -527,8 +487,8 @@ fn feed_pairs(m: &mut Machine, t0: u64, pairs: &[(i32, i32, i32, i32)]) -> Vec<E
     let mut ev = Vec::new();
     for (k, &(p0, v0, p1, v1)) in pairs.iter().enumerate() {
         let t = ms(t0 + 100 * k as u64);
-        body.position = (p0, p1);
-        body.velocity = (v0, v1);
+        body.travel = Some((f64::from(p0) / c.kd, f64::from(p1) / c.ka));
+        body.velocity = Some((f64::from(v0) / c.kd, f64::from(v1) / c.ka));
         let model_t = ms(100 + 100 * k as u64);
         while let Some(due) = base.poll_timeout().filter(|due| *due <= model_t) {
             base.handle_timeout(due, &mut body);

@@ -13,9 +13,12 @@
 //!   signal: everything a driver handle does the same way; [`blocking`] (feature `serial`)
 //!   — any driver handle driven from blocking code.
 //!
+//! * [`line`](mod@line) — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
+//!   cursors of the binary ones. Both `no_std`, no heap, no panics.
+//!
 //! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
 //! so every stamp a driver produces is on one time line.
-#![cfg_attr(not(feature = "std"), no_std)]
+#![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![warn(missing_docs)]
 #![cfg_attr(
     not(test),
@@ -33,6 +36,8 @@ pub use ima_hal::Instant;
 
 #[cfg(feature = "serial")]
 pub mod blocking;
+pub mod bytes;
+pub mod line;
 #[cfg(feature = "std")]
 mod error;
 #[cfg(feature = "tokio")]

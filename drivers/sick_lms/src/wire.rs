@@ -11,6 +11,8 @@
 
 use core::fmt;
 
+use ima_serial::bytes::{Reader, Writer};
+
 /// Start of every telegram.
 pub const STX: u8 = 0x02;
 /// Standalone acknowledge byte: the LMS accepted a host telegram (spec §2).
@@ -359,80 +361,12 @@ const fn fold8(w: u64) -> u16 {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Small cursor helpers (no indexing, no panics).
+// The shared byte cursors' errors.
 
-struct Reader<'a> {
-    rest: &'a [u8],
-}
-
-impl<'a> Reader<'a> {
-    fn new(rest: &'a [u8]) -> Self {
-        Self { rest }
-    }
-    fn u8(&mut self) -> Result<u8, WireError> {
-        let (&b, rest) = self.rest.split_first().ok_or(WireError::Truncated)?;
-        self.rest = rest;
-        Ok(b)
-    }
-    fn u16(&mut self) -> Result<u16, WireError> {
-        let lo = self.u8()?;
-        let hi = self.u8()?;
-        Ok(u16::from_le_bytes([lo, hi]))
-    }
-    fn take(&mut self, n: usize) -> Result<&'a [u8], WireError> {
-        if n > self.rest.len() {
-            return Err(WireError::Truncated);
-        }
-        let (head, rest) = self.rest.split_at(n);
-        self.rest = rest;
-        Ok(head)
-    }
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], WireError> {
-        let s = self.take(N)?;
-        let mut a = [0u8; N];
-        a.copy_from_slice(s);
-        Ok(a)
-    }
-    fn remaining(&self) -> usize {
-        self.rest.len()
-    }
-}
-
-struct Writer<'a> {
-    buf: &'a mut [u8],
-    pos: usize,
-}
-
-impl<'a> Writer<'a> {
-    fn new(buf: &'a mut [u8], pos: usize) -> Self {
-        Self { buf, pos }
-    }
-    fn u8(&mut self, b: u8) -> Result<(), WireError> {
-        let slot = self
-            .buf
-            .get_mut(self.pos)
-            .ok_or(WireError::BufferTooSmall)?;
-        *slot = b;
-        self.pos += 1;
-        Ok(())
-    }
-    fn u16(&mut self, v: u16) -> Result<(), WireError> {
-        self.slice(&v.to_le_bytes())
-    }
-    fn slice(&mut self, s: &[u8]) -> Result<(), WireError> {
-        let end = self
-            .pos
-            .checked_add(s.len())
-            .ok_or(WireError::BufferTooSmall)?;
-        let dst = self
-            .buf
-            .get_mut(self.pos..end)
-            .ok_or(WireError::BufferTooSmall)?;
-        dst.copy_from_slice(s);
-        self.pos = end;
-        Ok(())
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    truncated: |_| WireError::Truncated,
+    overflow: |_| WireError::BufferTooSmall,
+});
 
 /// Write the header and CRC around a body already written at `buf[4..4 + body_len]`
 /// (CMD + DATA). Returns the telegram length.
@@ -474,12 +408,12 @@ impl<'a> Frame<'a> {
             return Err(WireError::BadStx(stx));
         }
         let _address = r.u8()?;
-        let len = r.u16()?;
+        let len = r.le::<u16>()?;
         if len == 0 || len > MAX_LEN {
             return Err(WireError::BadLength(len));
         }
         let body = r.take(usize::from(len))?;
-        let got = r.u16()?;
+        let got = r.le::<u16>()?;
         if r.remaining() != 0 {
             return Err(WireError::BadLength(len));
         }
@@ -777,19 +711,19 @@ impl ModeRequest {
                 samples: r.u8().map_err(|_| bad())?,
             },
             0x27 => Self::StreamSubrange {
-                start: r.u16().map_err(|_| bad())?,
-                end: r.u16().map_err(|_| bad())?,
+                start: r.le::<u16>().map_err(|_| bad())?,
+                end: r.le::<u16>().map_err(|_| bad())?,
             },
             0x28 => Self::MeanSubrange {
                 samples: r.u8().map_err(|_| bad())?,
-                start: r.u16().map_err(|_| bad())?,
-                end: r.u16().map_err(|_| bad())?,
+                start: r.le::<u16>().map_err(|_| bad())?,
+                end: r.le::<u16>().map_err(|_| bad())?,
             },
             0x2A => Self::StreamPartial,
             c => match BaudRate::from_mode_code(c) {
                 Some(b) => Self::Baud(b),
                 None => {
-                    let params = Params::from_slice(r.take(r.remaining())?).map_err(|_| bad())?;
+                    let params = Params::from_slice(r.take_rest()).map_err(|_| bad())?;
                     Self::Other { code: c, params }
                 }
             },
@@ -808,28 +742,32 @@ impl ModeRequest {
         }
         w.u8(self.code())?;
         match self {
-            Self::Installation { password } => w.slice(password),
-            Self::StreamMean { samples } => w.u8(*samples),
+            Self::Installation { password } => {
+                w.bytes(password)?;
+            }
+            Self::StreamMean { samples } => {
+                w.u8(*samples)?;
+            }
             Self::StreamSubrange { start, end } => {
-                w.u16(*start)?;
-                w.u16(*end)
+                w.le(*start)?.le(*end)?;
             }
             Self::MeanSubrange {
                 samples,
                 start,
                 end,
             } => {
-                w.u8(*samples)?;
-                w.u16(*start)?;
-                w.u16(*end)
+                w.u8(*samples)?.le(*start)?.le(*end)?;
             }
-            Self::Other { params, .. } => w.slice(params),
+            Self::Other { params, .. } => {
+                w.bytes(params)?;
+            }
             Self::Diagnostic
             | Self::StreamAll
             | Self::RequestOnly
             | Self::StreamPartial
-            | Self::Baud(_) => Ok(()),
+            | Self::Baud(_) => {}
         }
+        Ok(())
     }
 }
 
@@ -1165,7 +1103,7 @@ impl<'a> Scan<'a> {
     fn parse(data: &'a [u8]) -> Result<Self, WireError> {
         let len = u16::try_from(data.len().saturating_add(1)).unwrap_or(u16::MAX);
         let mut r = Reader::new(data);
-        let count_word = CountWord(r.u16().map_err(|_| WireError::BadPayload {
+        let count_word = CountWord(r.le::<u16>().map_err(|_| WireError::BadPayload {
             code: reply::SCAN,
             len: len.saturating_sub(1),
         })?);
@@ -1196,12 +1134,14 @@ impl<'a> Scan<'a> {
         if usize::from(self.count_word.count()) != self.values.len() || self.values.len() > 0x3FF {
             return Err(WireError::InvalidField);
         }
-        w.u16(self.count_word.0)?;
+        w.le::<u16>(self.count_word.0)?;
         match self.values {
-            Values::Wire(b) => w.slice(b)?,
+            Values::Wire(b) => {
+                w.bytes(b)?;
+            }
             Values::Words(ws) => {
                 for &v in ws {
-                    w.u16(v)?;
+                    w.le::<u16>(v)?;
                 }
             }
         }
@@ -1209,7 +1149,8 @@ impl<'a> Scan<'a> {
             w.u8(s)?;
             w.u8(t)?;
         }
-        w.u8(self.status.0)
+        w.u8(self.status.0)?;
+        Ok(())
     }
 }
 
@@ -1522,19 +1463,19 @@ impl Command {
             cmd::SET_MODE => return ModeRequest::parse(data).map(Self::SetMode),
             cmd::REQUEST_VALUES => {
                 let sub = r.u8().map_err(|_| bad)?;
-                let params = Params::from_slice(r.take(r.remaining())?).map_err(|_| bad)?;
+                let params = Params::from_slice(r.take_rest()).map_err(|_| bad)?;
                 Self::RequestValues { sub, params }
             }
             cmd::STATUS => Self::Status,
             cmd::ERRORS => Self::Errors,
             cmd::TYPE => Self::Type,
             cmd::VARIANT => Self::Variant {
-                angle_deg: r.u16().map_err(|_| bad)?,
-                res_centideg: r.u16().map_err(|_| bad)?,
+                angle_deg: r.le::<u16>().map_err(|_| bad)?,
+                res_centideg: r.le::<u16>().map_err(|_| bad)?,
             },
             cmd::READ_CONFIG => Self::ReadConfig,
             cmd::WRITE_CONFIG => {
-                Self::WriteConfig(LmsConfig::from_bytes(r.take(r.remaining())?).map_err(|_| bad)?)
+                Self::WriteConfig(LmsConfig::from_bytes(r.take_rest()).map_err(|_| bad)?)
             }
             other => return Err(WireError::UnknownCommand(other)),
         };
@@ -1554,25 +1495,28 @@ impl Command {
         if address >= 0x80 {
             return Err(WireError::BadAddress(address));
         }
-        let mut w = Writer::new(buf, 4);
+        let mut w = Writer::new(buf);
+        w.skip(4)?;
         w.u8(self.code())?;
         match self {
             Self::SetMode(m) => m.emit(&mut w)?,
             Self::RequestValues { sub, params } => {
                 w.u8(*sub)?;
-                w.slice(params)?;
+                w.bytes(params)?;
             }
             Self::Variant {
                 angle_deg,
                 res_centideg,
             } => {
-                w.u16(*angle_deg)?;
-                w.u16(*res_centideg)?;
+                w.le::<u16>(*angle_deg)?;
+                w.le::<u16>(*res_centideg)?;
             }
-            Self::WriteConfig(c) => w.slice(c.as_bytes())?,
+            Self::WriteConfig(c) => {
+                w.bytes(c.as_bytes())?;
+            }
             Self::Reset | Self::Status | Self::Errors | Self::Type | Self::ReadConfig => {}
         }
-        let body = w.pos - 4;
+        let body = w.pos() - 4;
         finish_telegram(buf, address, body)
     }
 
@@ -1751,40 +1695,40 @@ impl<'a> Reply<'a> {
             },
             reply::SCAN => return Scan::parse(data).map(Self::Scan),
             reply::STATUS => Self::Status {
-                block: StatusBlock(r.take(r.remaining())?),
+                block: StatusBlock(r.take_rest()),
                 status,
             },
             reply::ERRORS => Self::Errors {
-                pairs: ErrorPairs::new(r.take(r.remaining())?).map_err(|_| bad)?,
+                pairs: ErrorPairs::new(r.take_rest()).map_err(|_| bad)?,
                 status,
             },
             reply::TYPE => Self::Type {
-                text: r.take(r.remaining())?,
+                text: r.take_rest(),
                 status,
             },
             reply::VARIANT => Self::Variant {
                 accepted: r.u8().map_err(|_| bad)?,
-                angle_deg: r.u16().map_err(|_| bad)?,
-                res_centideg: r.u16().map_err(|_| bad)?,
+                angle_deg: r.le::<u16>().map_err(|_| bad)?,
+                res_centideg: r.le::<u16>().map_err(|_| bad)?,
                 status,
             },
             reply::CONFIG => Self::Config {
-                config: LmsConfig::from_bytes(r.take(r.remaining())?).map_err(|_| bad)?,
+                config: LmsConfig::from_bytes(r.take_rest()).map_err(|_| bad)?,
                 status,
             },
             reply::CONFIG_WRITTEN => Self::ConfigWritten {
                 result: r.u8().map_err(|_| bad)?,
-                config: LmsConfig::from_bytes(r.take(r.remaining())?).map_err(|_| bad)?,
+                config: LmsConfig::from_bytes(r.take_rest()).map_err(|_| bad)?,
                 status,
             },
             reply::POWER_ON => Self::PowerOn {
-                text: r.take(r.remaining())?,
+                text: r.take_rest(),
                 status,
             },
             reply::RESET_ACK => Self::ResetAck { status },
             // is_known_reply leaves only REJECTED here.
             _ => Self::Rejected {
-                data: r.take(r.remaining())?,
+                data: r.take_rest(),
                 status,
             },
         };
@@ -1804,18 +1748,27 @@ impl<'a> Reply<'a> {
         if address < 0x80 {
             return Err(WireError::BadAddress(address));
         }
-        let mut w = Writer::new(buf, 4);
+        let mut w = Writer::new(buf);
+        w.skip(4)?;
         w.u8(self.code())?;
         match self {
-            Self::ModeChanged { result, .. } => w.u8(*result)?,
+            Self::ModeChanged { result, .. } => {
+                w.u8(*result)?;
+            }
             Self::Scan(s) => {
                 s.emit(&mut w)?;
-                let body = w.pos - 4;
+                let body = w.pos() - 4;
                 return finish_telegram(buf, address, body);
             }
-            Self::Status { block, .. } => w.slice(block.0)?,
-            Self::Errors { pairs, .. } => w.slice(pairs.as_bytes())?,
-            Self::Type { text, .. } | Self::PowerOn { text, .. } => w.slice(text)?,
+            Self::Status { block, .. } => {
+                w.bytes(block.0)?;
+            }
+            Self::Errors { pairs, .. } => {
+                w.bytes(pairs.as_bytes())?;
+            }
+            Self::Type { text, .. } | Self::PowerOn { text, .. } => {
+                w.bytes(text)?;
+            }
             Self::Variant {
                 accepted,
                 angle_deg,
@@ -1823,19 +1776,23 @@ impl<'a> Reply<'a> {
                 ..
             } => {
                 w.u8(*accepted)?;
-                w.u16(*angle_deg)?;
-                w.u16(*res_centideg)?;
+                w.le::<u16>(*angle_deg)?;
+                w.le::<u16>(*res_centideg)?;
             }
-            Self::Config { config, .. } => w.slice(config.as_bytes())?,
+            Self::Config { config, .. } => {
+                w.bytes(config.as_bytes())?;
+            }
             Self::ConfigWritten { result, config, .. } => {
                 w.u8(*result)?;
-                w.slice(config.as_bytes())?;
+                w.bytes(config.as_bytes())?;
             }
             Self::ResetAck { .. } => {}
-            Self::Rejected { data, .. } => w.slice(data)?,
+            Self::Rejected { data, .. } => {
+                w.bytes(data)?;
+            }
         }
         w.u8(self.status().0)?;
-        let body = w.pos - 4;
+        let body = w.pos() - 4;
         finish_telegram(buf, address, body)
     }
 }

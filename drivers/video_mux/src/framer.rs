@@ -1,12 +1,15 @@
 //! Byte-stream framers for switcher replies.
 //!
-//! * [`LineFramer`] (Extron SIS): lines end with CR LF (CR or LF alone are accepted too);
-//!   empty lines are skipped; a line longer than `N` bytes or containing a non-printable byte
-//!   is dropped whole (counted) and the framer resyncs at the next terminator.
+//! * [`LineFramer`] (Extron SIS): the shared [`ima_serial::line`] framer with the plain
+//!   rules: lines end with CR LF (CR or LF alone are accepted too); empty lines are skipped;
+//!   a line longer than `N` bytes or containing a non-printable byte is dropped whole
+//!   (counted) and the framer resyncs at the next terminator.
 //! * [`KramerFramer`] (Protocol 2000): 4-byte messages whose first byte has bit 7 clear and
 //!   whose other bytes have it set. A byte that breaks that pattern ends the partial message
 //!   (counted as dropped) and, if it can start a message, starts the next one; so the framer
 //!   resyncs one byte at a time and never skips a possible message start.
+
+pub use ima_serial::line::{Frame, LineStats};
 
 use crate::wire::kramer::LEN;
 
@@ -31,100 +34,17 @@ fn add(c: &mut u32, n: usize) {
     *c = c.saturating_add(u32::try_from(n).unwrap_or(u32::MAX));
 }
 
-/// The Extron reply line framer; `N` bounds a line (without terminator).
-#[derive(Debug, Clone)]
-pub struct LineFramer<const N: usize = MAX_LINE> {
-    buf: heapless::Vec<u8, N>,
-    discarding: bool,
-    clear_next: bool,
-    stats: FramerStats,
-}
+/// The Extron reply line framer: the shared plain framer; `N` bounds a line (without
+/// terminator).
+pub type LineFramer<const N: usize = MAX_LINE> = ima_serial::line::LineFramer<N>;
 
-impl<const N: usize> Default for LineFramer<N> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl<const N: usize> LineFramer<N> {
-    /// An empty framer.
-    #[must_use]
-    pub const fn new() -> Self {
+impl From<LineStats> for FramerStats {
+    fn from(s: LineStats) -> Self {
         Self {
-            buf: heapless::Vec::new(),
-            discarding: false,
-            clear_next: false,
-            stats: FramerStats {
-                frames: 0,
-                dropped_bytes: 0,
-                overlong: 0,
-                bad_frames: 0,
-            },
-        }
-    }
-
-    /// Counters.
-    #[must_use]
-    pub fn stats(&self) -> FramerStats {
-        self.stats
-    }
-
-    /// Feed one byte; returns a complete line (without terminator).
-    pub fn push_byte(&mut self, b: u8) -> Option<&[u8]> {
-        if self.clear_next {
-            self.buf.clear();
-            self.clear_next = false;
-        }
-        match b {
-            b'\r' | b'\n' => {
-                if self.discarding {
-                    self.discarding = false;
-                    return None;
-                }
-                if self.buf.is_empty() {
-                    return None;
-                }
-                self.clear_next = true;
-                add(&mut self.stats.frames, 1);
-                Some(&self.buf)
-            }
-            _ if self.discarding => {
-                add(&mut self.stats.dropped_bytes, 1);
-                None
-            }
-            0x20..=0x7e => {
-                if self.buf.push(b).is_err() {
-                    add(
-                        &mut self.stats.dropped_bytes,
-                        self.buf.len().saturating_add(1),
-                    );
-                    add(&mut self.stats.overlong, 1);
-                    self.buf.clear();
-                    self.discarding = true;
-                }
-                None
-            }
-            _ => {
-                add(
-                    &mut self.stats.dropped_bytes,
-                    self.buf.len().saturating_add(1),
-                );
-                if !self.buf.is_empty() {
-                    add(&mut self.stats.bad_frames, 1);
-                    self.discarding = true;
-                }
-                self.buf.clear();
-                None
-            }
-        }
-    }
-
-    /// Feed a chunk; `on_line` gets every complete line in order.
-    pub fn push(&mut self, bytes: &[u8], mut on_line: impl FnMut(&[u8])) {
-        for &b in bytes {
-            if let Some(l) = self.push_byte(b) {
-                on_line(l);
-            }
+            frames: s.lines,
+            dropped_bytes: s.dropped_bytes,
+            overlong: s.overlong,
+            bad_frames: s.bad_bytes,
         }
     }
 }
@@ -199,14 +119,6 @@ mod tests {
     use super::*;
     use std::vec::Vec;
 
-    fn lines<const N: usize>(f: &mut LineFramer<N>, chunks: &[&[u8]]) -> Vec<Vec<u8>> {
-        let mut out = Vec::new();
-        for c in chunks {
-            f.push(c, |l| out.push(l.to_vec()));
-        }
-        out
-    }
-
     fn msgs(f: &mut KramerFramer, chunks: &[&[u8]]) -> Vec<[u8; 4]> {
         let mut out = Vec::new();
         for c in chunks {
@@ -216,34 +128,28 @@ mod tests {
     }
 
     #[test]
-    fn extron_many_per_read_and_split_reads() {
-        let mut f = LineFramer::<96>::new();
-        assert_eq!(
-            lines(&mut f, &[b"In3 All\r\nE01\r\nVmt1\r\n"]),
-            [b"In3 All".to_vec(), b"E01".to_vec(), b"Vmt1".to_vec()]
-        );
-        let bytes = b"In12 Vid\r\n";
-        let chunks: Vec<&[u8]> = bytes.chunks(1).collect();
-        assert_eq!(lines(&mut f, &chunks), [b"In12 Vid".to_vec()]);
-        assert_eq!(f.stats().frames, 4);
-    }
-
-    #[test]
-    fn extron_garbage_overlong_then_good() {
-        let mut f = LineFramer::<8>::new();
-        let out = lines(
-            &mut f,
-            &[
-                b"\x00\xffIn3\x01 All\r\n",
-                b"0123456789ABC\r\n",
-                b"In4 All\r\n",
-            ],
+    fn extron_stats_count_what_the_line_framer_dropped() {
+        let mut f = LineFramer::<8>::default();
+        let mut out = Vec::new();
+        f.push(
+            b"\x00\xffIn3\x01 All\r\n0123456789ABC\r\nIn4 All\r\n",
+            |fr| {
+                if let Frame::Line(l) = fr {
+                    out.push(l.to_vec());
+                }
+            },
         );
         assert_eq!(out, [b"In4 All".to_vec()]);
-        let s = f.stats();
-        assert_eq!(s.overlong, 1);
-        assert_eq!(s.bad_frames, 1);
-        assert_eq!(s.dropped_bytes, 2 + 8 + 13);
+        let s = FramerStats::from(f.stats());
+        assert_eq!(
+            s,
+            FramerStats {
+                frames: 1,
+                dropped_bytes: 2 + 8 + 13,
+                overlong: 1,
+                bad_frames: 1
+            }
+        );
     }
 
     #[test]

@@ -7,7 +7,7 @@ use core::time::Duration;
 
 use ima_hal::Instant;
 
-use crate::framer::LineFramer;
+use crate::framer::{Frame, LineFramer};
 use crate::machine::{Config, Dialect, Machine};
 use crate::wire::{ExtronCommand, ExtronReply, KramerMessage, TieKind};
 
@@ -21,10 +21,10 @@ pub fn video_mux_replies(data: &[u8]) {
     };
     let chunk = usize::from(sel % 16).saturating_add(1);
 
-    let mut lines = LineFramer::<{ crate::framer::MAX_LINE }>::new();
+    let mut lines = LineFramer::<{ crate::framer::MAX_LINE }>::default();
     let mut buf = [0u8; 128];
     for &b in stream {
-        if let Some(l) = lines.push_byte(b)
+        if let Some(Frame::Line(l)) = lines.push_byte(b)
             && let Ok(r) = ExtronReply::parse(l)
         {
             let n = r.emit(&mut buf).unwrap_or(0);

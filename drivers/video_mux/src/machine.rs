@@ -33,7 +33,7 @@ use heapless::Deque;
 use ima_hal::Instant;
 use ima_hal::camera::{Channel, Selection};
 
-use crate::framer::{FramerStats, KramerFramer, LineFramer};
+use crate::framer::{Frame, FramerStats, KramerFramer, LineFramer};
 use crate::wire::{
     ExtronCommand, ExtronError, ExtronReply, Instruction, KramerMessage, Signals, TieKind,
 };
@@ -258,7 +258,7 @@ impl Machine {
     pub fn new(config: Config) -> Self {
         Self {
             config,
-            lines: LineFramer::new(),
+            lines: LineFramer::default(),
             kramer: KramerFramer::new(),
             pending: None,
             tx: None,
@@ -291,7 +291,7 @@ impl Machine {
     #[must_use]
     pub fn stats(&self) -> Stats {
         let framer = match self.config.dialect {
-            Dialect::Extron { .. } => self.lines.stats(),
+            Dialect::Extron { .. } => self.lines.stats().into(),
             Dialect::Kramer { .. } => self.kramer.stats(),
         };
         Stats {
@@ -401,10 +401,10 @@ impl Machine {
     pub fn handle_bytes(&mut self, bytes: &[u8], now: Instant) {
         for &b in bytes {
             let reply = match self.config.dialect {
-                Dialect::Extron { .. } => self
-                    .lines
-                    .push_byte(b)
-                    .map(|l| ExtronReply::parse(l).map(Reply::Extron)),
+                Dialect::Extron { .. } => match self.lines.push_byte(b) {
+                    Some(Frame::Line(l)) => Some(ExtronReply::parse(l).map(Reply::Extron)),
+                    Some(Frame::Prompt | Frame::Corrupt(_)) | None => None,
+                },
                 Dialect::Kramer { .. } => self
                     .kramer
                     .push_byte(b)

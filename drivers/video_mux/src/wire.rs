@@ -53,64 +53,15 @@ impl core::fmt::Display for WireError {
 
 impl core::error::Error for WireError {}
 
-/// A bounds-checked cursor over an output buffer.
-pub(crate) struct Writer<'a> {
-    buf: &'a mut [u8],
-    pos: usize,
-}
+/// The shared byte cursor.
+pub(crate) use ima_serial::bytes::Writer;
 
-impl<'a> Writer<'a> {
-    pub(crate) fn new(buf: &'a mut [u8]) -> Self {
-        Self { buf, pos: 0 }
-    }
-
-    pub(crate) fn pos(&self) -> usize {
-        self.pos
-    }
-
-    pub(crate) fn byte(&mut self, b: u8) -> Result<(), WireError> {
-        let slot = self
-            .buf
-            .get_mut(self.pos)
-            .ok_or(WireError::BufferTooSmall)?;
-        *slot = b;
-        self.pos = self.pos.saturating_add(1);
-        Ok(())
-    }
-
-    pub(crate) fn bytes(&mut self, s: &[u8]) -> Result<(), WireError> {
-        s.iter().try_for_each(|b| self.byte(*b))
-    }
-
-    /// Decimal, zero-padded to at least `min_digits`.
-    pub(crate) fn uint(&mut self, mut v: u32, min_digits: u8) -> Result<(), WireError> {
-        let mut tmp = [0u8; 10];
-        let mut n = 0usize;
-        loop {
-            if let Some(slot) = tmp.get_mut(n) {
-                *slot = b'0' + (v % 10) as u8;
-            }
-            n = n.saturating_add(1);
-            v /= 10;
-            if (v == 0 && n >= usize::from(min_digits)) || n >= tmp.len() {
-                break;
-            }
-        }
-        tmp.iter().take(n).rev().try_for_each(|b| self.byte(*b))
-    }
-}
+ima_serial::cursor_errors!(WireError {
+    overflow: |_| WireError::BufferTooSmall
+});
 
 /// Parse an unsigned decimal of 1–5 digits.
 pub(crate) fn parse_u16(s: &[u8]) -> Result<u16, WireError> {
-    if s.is_empty() || s.len() > 5 {
-        return Err(WireError::BadNumber);
-    }
-    let mut v: u32 = 0;
-    for c in s {
-        if !c.is_ascii_digit() {
-            return Err(WireError::BadNumber);
-        }
-        v = v * 10 + u32::from(c - b'0');
-    }
+    let v = ima_serial::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
     u16::try_from(v).map_err(|_| WireError::BadNumber)
 }

@@ -3,7 +3,7 @@
 //! `ima decode`).
 
 use anyhow::Result;
-use ima_compass::framer::{Frame, FrameError, LineFramer};
+use ima_compass::framer::{self, Frame, FrameError, LineFramer};
 use ima_compass::wire::{
     Command, Decimal, KvhCommand, Line, NmeaBody, Offset, ParseOptions, Tcm2Command, Tcm2Data,
 };
@@ -115,7 +115,7 @@ pub fn decode(
         return decode_commands(bytes, emit);
     }
     let opts = ParseOptions::default();
-    let mut framer: LineFramer = LineFramer::new();
+    let mut framer: LineFramer = framer::framer();
     for (i, &b) in bytes.iter().enumerate() {
         let v = match framer.push_byte(b) {
             None => continue,

@@ -3,7 +3,7 @@
 //! `ima decode`).
 
 use anyhow::Result;
-use ima_video_mux::framer::{KramerFramer, LineFramer};
+use ima_video_mux::framer::{Frame, KramerFramer, LineFramer};
 use ima_video_mux::wire::{ExtronCommand, ExtronReply, Instruction, KramerMessage, TieKind};
 use serde_json::{Value, json};
 
@@ -103,9 +103,9 @@ pub fn decode_extron(
         }
         return Ok(());
     }
-    let mut framer: LineFramer = LineFramer::new();
+    let mut framer: LineFramer = LineFramer::default();
     for (i, &b) in bytes.iter().enumerate() {
-        if let Some(l) = framer.push_byte(b) {
+        if let Some(Frame::Line(l)) = framer.push_byte(b) {
             let offset = i.saturating_sub(l.len());
             emit(match ExtronReply::parse(l) {
                 Ok(r) => with_offset(reply_json(&r), offset),

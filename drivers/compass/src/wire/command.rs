@@ -95,7 +95,7 @@ impl KvhCommand {
         match self {
             Self::OutputFormat(f) => {
                 w.bytes(b"=t,")?;
-                w.byte(match f {
+                w.u8(match f {
                     KvhFormat::Nmea => b'0',
                     KvhFormat::Kvh => b'1',
                     KvhFormat::CorrectedXy => b'2',
@@ -104,11 +104,12 @@ impl KvhCommand {
             }
             Self::Rate { per_minute } => {
                 w.bytes(b"=r,")?;
-                w.uint(u64::from(*per_minute), 1)
+                w.decimal(u64::from(*per_minute), 1)
             }
             Self::Baud(KvhBaud::B4800) => w.bytes(b"=b,48"),
             Self::Baud(KvhBaud::B9600) => w.bytes(b"=b,96"),
-        }
+        }?;
+        Ok(())
     }
 
     fn parse(s: &[u8]) -> Result<Self, WireError> {
@@ -136,7 +137,7 @@ impl Tcm2Command {
             Self::QueryCompass => w.bytes(b"c?"),
             Self::SampleRate(n) => {
                 w.bytes(b"sp=")?;
-                w.uint(u64::from(*n), 1)
+                w.decimal(u64::from(*n), 1)
             }
             Self::OutputFormat(Tcm2Format::Standard) => w.bytes(b"sdo=t"),
             Self::OutputFormat(Tcm2Format::Nmea) => w.bytes(b"sdo=n"),
@@ -146,7 +147,8 @@ impl Tcm2Command {
             Self::UserCalibrationOff => w.bytes(b"mpcal=d"),
             Self::AutoCalibration(true) => w.bytes(b"autocal=e"),
             Self::AutoCalibration(false) => w.bytes(b"autocal=d"),
-        }
+        }?;
+        Ok(())
     }
 
     fn parse(s: &[u8]) -> Result<Self, WireError> {
@@ -169,17 +171,8 @@ impl Tcm2Command {
     }
 }
 
-fn parse_uint<T: TryFrom<u32>>(s: &[u8]) -> Result<T, WireError> {
-    if s.is_empty() || s.len() > 5 {
-        return Err(WireError::BadNumber);
-    }
-    let mut v: u32 = 0;
-    for c in s {
-        if !c.is_ascii_digit() {
-            return Err(WireError::BadNumber);
-        }
-        v = v * 10 + u32::from(c - b'0');
-    }
+fn parse_uint<T: TryFrom<u64>>(s: &[u8]) -> Result<T, WireError> {
+    let v = ima_serial::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
     T::try_from(v).map_err(|_| WireError::OutOfRange)
 }
 
@@ -194,7 +187,7 @@ impl Command {
             Self::Kvh(c) => c.write(&mut w)?,
             Self::Tcm2(c) => c.write(&mut w)?,
         }
-        w.byte(b'\r')?;
+        w.u8(b'\r')?;
         Ok(w.pos())
     }
 

@@ -11,7 +11,7 @@
 //! prints a stray comma before `*`. The checksum is required unless
 //! [`ParseOptions::allow_missing_checksum`] is set.
 
-use super::{Decimal, ParseOptions, WireError, Writer, split_checked};
+use super::{AsciiWriter, Decimal, ParseOptions, WireError, Writer, split_checked};
 
 /// The two-letter talker id (`HC` for a magnetic compass, `HE` gyro, `II` integrated…);
 /// upper-case letters only, which is also what tells an NMEA line from a TCM2 one.
@@ -210,7 +210,7 @@ impl NmeaSentence {
             return Err(WireError::BadAddress);
         }
         let mut w = Writer::new(buf);
-        w.byte(b'$')?;
+        w.u8(b'$')?;
         w.bytes(&self.talker.0)?;
         let opt = |w: &mut Writer<'_>, d: Option<Decimal>| match d {
             Some(d) => d.write(w),
@@ -221,16 +221,16 @@ impl NmeaSentence {
                 w.bytes(b"HDG,")?;
                 opt(&mut w, h.heading)?;
                 for off in [h.deviation, h.variation] {
-                    w.byte(b',')?;
+                    w.u8(b',')?;
                     if let Some(o) = off {
                         o.degrees.write(&mut w)?;
-                        w.byte(b',')?;
-                        w.byte(match o.dir {
+                        w.u8(b',')?;
+                        w.u8(match o.dir {
                             EastWest::East => b'E',
                             EastWest::West => b'W',
                         })?;
                     } else {
-                        w.byte(b',')?;
+                        w.u8(b',')?;
                     }
                 }
             }

@@ -12,7 +12,7 @@
 //! The calibration score `HnVnMn.n` (H and V 0–9, higher better; M distortion, lower better)
 //! is [`CalScore`].
 
-use super::{Decimal, ParseOptions, WireError, Writer, hex_val, split_checked};
+use super::{AsciiWriter, Decimal, ParseOptions, WireError, Writer, hex_val, split_checked};
 
 /// One TCM2 standard output line. Every field is optional.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -126,15 +126,15 @@ impl Tcm2Data {
             return Err(WireError::Empty);
         }
         let mut w = Writer::new(buf);
-        w.byte(b'$')?;
+        w.u8(b'$')?;
         for letter in ORDER {
             if let Some(v) = self.get(letter) {
-                w.byte(letter)?;
+                w.u8(letter)?;
                 v.write(&mut w)?;
             }
         }
         if let Some(code) = self.error {
-            w.byte(b'E')?;
+            w.u8(b'E')?;
             w.hex(code, 3)?;
         }
         w.nmea_tail()
@@ -178,11 +178,11 @@ impl CalScore {
             return Err(WireError::OutOfRange);
         }
         let mut w = Writer::new(buf);
-        w.byte(b'H')?;
-        w.byte(b'0' + self.h)?;
-        w.byte(b'V')?;
-        w.byte(b'0' + self.v)?;
-        w.byte(b'M')?;
+        w.u8(b'H')?;
+        w.u8(b'0' + self.h)?;
+        w.u8(b'V')?;
+        w.u8(b'0' + self.v)?;
+        w.u8(b'M')?;
         self.m.write(&mut w)?;
         w.bytes(b"\r\n")?;
         Ok(w.pos())

@@ -89,8 +89,8 @@ impl ExtronCommand {
         let mut w = Writer::new(buf);
         match *self {
             Self::Select { input, kind } => {
-                w.uint(u32::from(input), 1)?;
-                w.byte(match kind {
+                w.decimal(u64::from(input), 1)?;
+                w.u8(match kind {
                     TieKind::All => b'!',
                     TieKind::Video => b'&',
                     TieKind::Audio => b'$',
@@ -101,18 +101,24 @@ impl ExtronCommand {
                 output,
                 kind,
             } => {
-                w.uint(u32::from(input), 1)?;
-                w.byte(b'*')?;
-                w.uint(u32::from(output), 1)?;
-                w.byte(match kind {
+                w.decimal(u64::from(input), 1)?;
+                w.u8(b'*')?;
+                w.decimal(u64::from(output), 1)?;
+                w.u8(match kind {
                     TieKind::All => b'!',
                     TieKind::Video => b'%',
                     TieKind::Audio => b'$',
                 })?;
             }
-            Self::QueryInput => w.byte(b'!')?,
-            Self::SignalStatus => w.bytes(b"0S")?,
-            Self::VideoMute(on) => w.bytes(if on { b"1B" } else { b"0B" })?,
+            Self::QueryInput => {
+                w.u8(b'!')?;
+            }
+            Self::SignalStatus => {
+                w.bytes(b"0S")?;
+            }
+            Self::VideoMute(on) => {
+                w.bytes(if on { b"1B" } else { b"0B" })?;
+            }
         }
         Ok(w.pos())
     }
@@ -374,8 +380,8 @@ impl ExtronReply {
                     return Err(WireError::OutOfRange);
                 }
                 w.bytes(b"In")?;
-                w.uint(u32::from(input), digits)?;
-                w.byte(b' ')?;
+                w.decimal(u64::from(input), digits)?;
+                w.u8(b' ')?;
                 w.bytes(kind.word())?;
             }
             Self::Tie {
@@ -384,33 +390,39 @@ impl ExtronReply {
                 kind,
             } => {
                 w.bytes(b"Out")?;
-                w.uint(u32::from(output), 1)?;
+                w.decimal(u64::from(output), 1)?;
                 w.bytes(b" In")?;
-                w.uint(u32::from(input), 1)?;
-                w.byte(b' ')?;
+                w.decimal(u64::from(input), 1)?;
+                w.u8(b' ')?;
                 w.bytes(kind.word())?;
             }
-            Self::Current(n) => w.uint(u32::from(n), 1)?,
+            Self::Current(n) => {
+                w.decimal(u64::from(n), 1)?;
+            }
             Self::Signals(s) => {
                 if s.count == 0 || s.count > MAX_SIGNALS {
                     return Err(WireError::OutOfRange);
                 }
                 w.bytes(b"Sig")?;
                 for i in 0..s.count {
-                    w.byte(b' ')?;
-                    w.byte(if s.mask & (1 << i) != 0 { b'1' } else { b'0' })?;
+                    w.u8(b' ')?;
+                    w.u8(if s.mask & (1 << i) != 0 { b'1' } else { b'0' })?;
                 }
             }
-            Self::Mute(on) => w.bytes(if on { b"Vmt1" } else { b"Vmt0" })?,
+            Self::Mute(on) => {
+                w.bytes(if on { b"Vmt1" } else { b"Vmt0" })?;
+            }
             Self::Error(e) => {
                 let c = e.code();
                 if c > 99 {
                     return Err(WireError::OutOfRange);
                 }
-                w.byte(b'E')?;
-                w.uint(u32::from(c), 2)?;
+                w.u8(b'E')?;
+                w.decimal(u64::from(c), 2)?;
             }
-            Self::Banner => w.bytes(BANNER)?,
+            Self::Banner => {
+                w.bytes(BANNER)?;
+            }
         }
         w.bytes(b"\r\n")?;
         Ok(w.pos())
