@@ -22,6 +22,13 @@ pub(super) struct SesFix {
     pub(super) scout_bearing: f64,
     /// DR position when Skeeter saw Scooter.
     pub(super) p_rec: Vector2,
+    /// When Skeeter saw Scooter, on Skeeter's clock (the record's own time): the same
+    /// sighting handled again (the runtime replays the latest sample to a new target) is
+    /// recognised by it.
+    pub(super) sensed: Instant,
+    /// Scooter's range from Skeeter at that sighting, if one was known (laser, SES or
+    /// triangulated), metres.
+    pub(super) scout_range_m: Option<f64>,
 }
 
 /// The plan, the samples averaged into it, and the lost timer (see the [module docs](self)).
@@ -146,11 +153,14 @@ impl HeadingCalculator {
         );
         let theta1 = me.bearing.azimuth_rad;
         let theta2 = tg.bearing.azimuth_rad;
-        let p_rec = position.dr_at(seen_at);
-        let previous = self.last_fix.replace(SesFix {
-            scout_bearing: theta1,
-            p_rec,
-        });
+        // The same sighting again (a replayed sample, or a copy): Scooter was where it was
+        // the first time, with the range found then. Placing it by this handling's `now`
+        // would put an old bearing at Scooter's current position, and the two fixes of one
+        // sighting triangulate nothing.
+        let previous = self.last_fix;
+        let same = previous.filter(|f| f.sensed == me.time && f.scout_bearing == theta1);
+        let p_rec = same.map_or_else(|| position.dr_at(seen_at), |f| f.p_rec);
+        let mut scout_range_m = None;
         self.last_ses_at = Some(now);
         let plan = match cfg.heading_rule {
             _ if !(theta1.is_finite() && theta2.is_finite()) => None,
@@ -172,7 +182,13 @@ impl HeadingCalculator {
                     })
                 });
                 let scout = scout.or_else(|| {
-                    let prev = previous?;
+                    same?.scout_range_m.map(|metres| Range {
+                        metres,
+                        source: RangeSource::Triangulated,
+                    })
+                });
+                let scout = scout.or_else(|| {
+                    let prev = previous.filter(|_| same.is_none())?;
                     heading::triangulate_scout_range(prev.scout_bearing, theta1, p_rec - prev.p_rec)
                         .ok()
                         .filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m))
@@ -181,6 +197,7 @@ impl HeadingCalculator {
                             source: RangeSource::Triangulated,
                         })
                 });
+                scout_range_m = scout.map(|r| r.metres);
                 let target = valid(tg.range_m).map(|metres| Range {
                     metres,
                     source: RangeSource::Ses,
@@ -215,6 +232,12 @@ impl HeadingCalculator {
                 }
             }
         };
+        self.last_fix = Some(SesFix {
+            scout_bearing: theta1,
+            p_rec,
+            sensed: me.time,
+            scout_range_m: scout_range_m.or(same.and_then(|f| f.scout_range_m)),
+        });
         if let Some(p) = plan.filter(|p| plan_is_finite(*p)) {
             self.plan = Some(p);
             out.planned = true;
