@@ -37,6 +37,8 @@ pub(super) struct HeadingCalculator {
     plan: Option<Plan>,
     target_samples: VecDeque<Vector2>,
     last_fix: Option<SesFix>,
+    /// Skeeter's DR position from the last ranged sample (Skeeter never moves).
+    skeeter_dr: Option<Vector2>,
     last_ses_at: Option<Instant>,
     last_request_at: Option<Instant>,
 }
@@ -197,6 +199,19 @@ impl HeadingCalculator {
                             source: RangeSource::Triangulated,
                         })
                 });
+                // No parallax (Scooter moved along the bearing line, or across Skeeter):
+                // Skeeter is where an earlier ranged sample put it. Without this, the
+                // fallback heading would be one from where Scooter was when seen, not
+                // from where it is.
+                let scout = scout.or_else(|| {
+                    self.skeeter_dr
+                        .map(|s| (s - p_rec).norm())
+                        .filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m))
+                        .map(|metres| Range {
+                            metres,
+                            source: RangeSource::Triangulated,
+                        })
+                });
                 scout_range_m = scout.map(|r| r.metres);
                 let target = valid(tg.range_m).map(|metres| Range {
                     metres,
@@ -210,6 +225,7 @@ impl HeadingCalculator {
                     {
                         let rel = unit(theta2) * t.metres - unit(theta1) * s.metres;
                         out.skeeter_dr = Some(p_rec - unit(theta1) * s.metres);
+                        self.skeeter_dr = out.skeeter_dr;
                         if self.target_samples.len() >= cfg.max_target_samples.max(1) {
                             self.target_samples.pop_front();
                         }
@@ -351,6 +367,50 @@ mod tests {
         calc.new_target();
         let out = calc.handle_sample(&s1, "red", &c, &pos, Some(Vector2::new(-2.0, 0.0)), now);
         assert!((out.skeeter_dr.unwrap() - Vector2::new(-2.0, 0.0)).norm() < 1e-9);
+    }
+
+    /// Under load: a sample whose Scooter record has no range, taken after Scooter moved
+    /// along Skeeter's line of sight (no parallax to triangulate), must not fall back to a
+    /// bearing heading from where Scooter was: Skeeter is where the last ranged sample put it.
+    #[test]
+    fn without_range_or_parallax_skeeter_is_where_a_ranged_sample_put_it() {
+        let c = cfg(HeadingRule::RangeAware);
+        let mut pos = at_origin(&c);
+        let mut calc = HeadingCalculator::default();
+        // Skeeter 4 m west of Scooter (θ1 = 0°, ranged); target 3 m north of Skeeter.
+        let t0 = Instant::from_millis(0);
+        let s0 = form(
+            vec![
+                rec("scooter", 0.0, Some(4.0), t0),
+                rec("red", 90.0, Some(3.0), t0),
+            ],
+            t0,
+        );
+        assert!(calc.handle_sample(&s0, "red", &c, &pos, None, t0).planned);
+        // Scooter drives 2 m toward Skeeter (west): still at 0°, now unranged.
+        pos.handle_compass(PI_F);
+        pos.handle_odometry(&Odometry::origin(), Instant::from_millis(100));
+        pos.handle_odometry(
+            &Odometry {
+                pose: ima_hal::Isometry2::new(Vector2::new(2.0, 0.0), 0.0),
+                ..Odometry::origin()
+            },
+            Instant::from_millis(5_000),
+        );
+        let t1 = Instant::from_millis(5_000);
+        let s1 = form(
+            vec![
+                rec("scooter", 0.0, None, t1),
+                rec("red", 90.0, Some(3.0), t1),
+            ],
+            t1,
+        );
+        calc.new_target();
+        assert!(calc.handle_sample(&s1, "red", &c, &pos, None, t1).planned);
+        match calc.plan() {
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(-4.0, 3.0)).norm() < 1e-6, "{p}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]
