@@ -16,7 +16,7 @@
 //!   until `FleetResume` or a new target; statuses then show [`FLEET_STOPPED`];
 //! * **target notices** — repeats of the current target (several copies are sent) change
 //!   nothing; a new target replays Skeeter's latest SES if it is younger than
-//!   `brain.lost_after`;
+//!   `brain.lost_after`, stamped with the time it arrived (the lost timer runs from then);
 //! * **heading requests** — the brain's `RequestHeading` becomes a re-request on the link.
 
 use core::time::Duration;
@@ -494,7 +494,8 @@ impl LoopState {
                 if let Some((at, form)) = &self.last_ses
                     && now.saturating_duration_since(*at) < lost_after
                 {
-                    let planned = brain.handle_ses(form, now);
+                    // At the time it arrived: it is no fresher for being replayed.
+                    let planned = brain.handle_ses(form, *at);
                     events.emit(
                         time,
                         me,

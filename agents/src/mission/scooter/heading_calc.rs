@@ -22,6 +22,13 @@ pub(super) struct SesFix {
     pub(super) scout_bearing: f64,
     /// DR position when Skeeter saw Scooter.
     pub(super) p_rec: Vector2,
+    /// When Skeeter saw Scooter, on Skeeter's clock (the record's own time): the same
+    /// sighting handled again (the runtime replays the latest sample to a new target) is
+    /// recognised by it.
+    pub(super) sensed: Instant,
+    /// Scooter's range from Skeeter at that sighting, if one was known (laser, SES or
+    /// triangulated), metres.
+    pub(super) scout_range_m: Option<f64>,
 }
 
 /// The plan, the samples averaged into it, and the lost timer (see the [module docs](self)).
@@ -30,6 +37,8 @@ pub(super) struct HeadingCalculator {
     plan: Option<Plan>,
     target_samples: VecDeque<Vector2>,
     last_fix: Option<SesFix>,
+    /// Skeeter's DR position from the last ranged sample (Skeeter never moves).
+    skeeter_dr: Option<Vector2>,
     last_ses_at: Option<Instant>,
     last_request_at: Option<Instant>,
 }
@@ -146,11 +155,14 @@ impl HeadingCalculator {
         );
         let theta1 = me.bearing.azimuth_rad;
         let theta2 = tg.bearing.azimuth_rad;
-        let p_rec = position.dr_at(seen_at);
-        let previous = self.last_fix.replace(SesFix {
-            scout_bearing: theta1,
-            p_rec,
-        });
+        // The same sighting again (a replayed sample, or a copy): Scooter was where it was
+        // the first time, with the range found then. Placing it by this handling's `now`
+        // would put an old bearing at Scooter's current position, and the two fixes of one
+        // sighting triangulate nothing.
+        let previous = self.last_fix;
+        let same = previous.filter(|f| f.sensed == me.time && f.scout_bearing == theta1);
+        let p_rec = same.map_or_else(|| position.dr_at(seen_at), |f| f.p_rec);
+        let mut scout_range_m = None;
         self.last_ses_at = Some(now);
         let plan = match cfg.heading_rule {
             _ if !(theta1.is_finite() && theta2.is_finite()) => None,
@@ -172,7 +184,13 @@ impl HeadingCalculator {
                     })
                 });
                 let scout = scout.or_else(|| {
-                    let prev = previous?;
+                    same?.scout_range_m.map(|metres| Range {
+                        metres,
+                        source: RangeSource::Triangulated,
+                    })
+                });
+                let scout = scout.or_else(|| {
+                    let prev = previous.filter(|_| same.is_none())?;
                     heading::triangulate_scout_range(prev.scout_bearing, theta1, p_rec - prev.p_rec)
                         .ok()
                         .filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m))
@@ -181,6 +199,20 @@ impl HeadingCalculator {
                             source: RangeSource::Triangulated,
                         })
                 });
+                // No parallax (Scooter moved along the bearing line, or across Skeeter):
+                // Skeeter is where an earlier ranged sample put it. Without this, the
+                // fallback heading would be one from where Scooter was when seen, not
+                // from where it is.
+                let scout = scout.or_else(|| {
+                    self.skeeter_dr
+                        .map(|s| (s - p_rec).norm())
+                        .filter(|m| m.is_finite() && (0.0..=MAX_RANGE_M).contains(m))
+                        .map(|metres| Range {
+                            metres,
+                            source: RangeSource::Triangulated,
+                        })
+                });
+                scout_range_m = scout.map(|r| r.metres);
                 let target = valid(tg.range_m).map(|metres| Range {
                     metres,
                     source: RangeSource::Ses,
@@ -193,6 +225,7 @@ impl HeadingCalculator {
                     {
                         let rel = unit(theta2) * t.metres - unit(theta1) * s.metres;
                         out.skeeter_dr = Some(p_rec - unit(theta1) * s.metres);
+                        self.skeeter_dr = out.skeeter_dr;
                         if self.target_samples.len() >= cfg.max_target_samples.max(1) {
                             self.target_samples.pop_front();
                         }
@@ -215,6 +248,12 @@ impl HeadingCalculator {
                 }
             }
         };
+        self.last_fix = Some(SesFix {
+            scout_bearing: theta1,
+            p_rec,
+            sensed: me.time,
+            scout_range_m: scout_range_m.or(same.and_then(|f| f.scout_range_m)),
+        });
         if let Some(p) = plan.filter(|p| plan_is_finite(*p)) {
             self.plan = Some(p);
             out.planned = true;
@@ -328,6 +367,50 @@ mod tests {
         calc.new_target();
         let out = calc.handle_sample(&s1, "red", &c, &pos, Some(Vector2::new(-2.0, 0.0)), now);
         assert!((out.skeeter_dr.unwrap() - Vector2::new(-2.0, 0.0)).norm() < 1e-9);
+    }
+
+    /// Under load: a sample whose Scooter record has no range, taken after Scooter moved
+    /// along Skeeter's line of sight (no parallax to triangulate), must not fall back to a
+    /// bearing heading from where Scooter was: Skeeter is where the last ranged sample put it.
+    #[test]
+    fn without_range_or_parallax_skeeter_is_where_a_ranged_sample_put_it() {
+        let c = cfg(HeadingRule::RangeAware);
+        let mut pos = at_origin(&c);
+        let mut calc = HeadingCalculator::default();
+        // Skeeter 4 m west of Scooter (θ1 = 0°, ranged); target 3 m north of Skeeter.
+        let t0 = Instant::from_millis(0);
+        let s0 = form(
+            vec![
+                rec("scooter", 0.0, Some(4.0), t0),
+                rec("red", 90.0, Some(3.0), t0),
+            ],
+            t0,
+        );
+        assert!(calc.handle_sample(&s0, "red", &c, &pos, None, t0).planned);
+        // Scooter drives 2 m toward Skeeter (west): still at 0°, now unranged.
+        pos.handle_compass(PI_F);
+        pos.handle_odometry(&Odometry::origin(), Instant::from_millis(100));
+        pos.handle_odometry(
+            &Odometry {
+                pose: ima_hal::Isometry2::new(Vector2::new(2.0, 0.0), 0.0),
+                ..Odometry::origin()
+            },
+            Instant::from_millis(5_000),
+        );
+        let t1 = Instant::from_millis(5_000);
+        let s1 = form(
+            vec![
+                rec("scooter", 0.0, None, t1),
+                rec("red", 90.0, Some(3.0), t1),
+            ],
+            t1,
+        );
+        calc.new_target();
+        assert!(calc.handle_sample(&s1, "red", &c, &pos, None, t1).planned);
+        match calc.plan() {
+            Some(Plan::Point(p)) => assert!((p - Vector2::new(-4.0, 3.0)).norm() < 1e-6, "{p}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

@@ -1156,3 +1156,113 @@ fn mission_end_of_another_colour_is_ignored_and_repeated_acceptance_does_not_res
     assert_eq!(b.target(), None);
     assert_eq!(b.step(t(40)).behaviour, Behaviour::Idle);
 }
+
+/// Under load (`tests/demo_seeds.rs`, seed 1): Skeeter's scans came every 15–18 s, so the
+/// sample the runtime replayed to a new target was 5 s old, and its Scooter record had no
+/// range (the range of that sighting had been triangulated from the sample before). Handled
+/// as if Scooter had been seen at the replay's `now`, the sighting was placed at Scooter's
+/// current position and its two fixes triangulated nothing: the plan fell back to a bearing
+/// heading from where Scooter had been, 20° off blue, and the laser took the green post
+/// beside that heading for blue — "done" 3 m from blue. The same sighting handled again
+/// keeps its position and range: the plan is blue's point, and Scooter stops at blue.
+#[test]
+fn a_replayed_sample_keeps_its_sighting_and_scooter_stops_at_the_right_post() {
+    const BLUE: &str = "blue";
+    let mut b = brain(HeadingRule::RangeAware);
+    // Common frame: Skeeter at (0, 0); red (3, 0), green (1.5, 2.6), blue (−1.5, 2.6).
+    // Scooter starts at (−4, 0) facing 0: DR = common − (−4, 0).
+    let start = (-4.0, 0.0, 0.0);
+    let dr_of = |x: f64, y: f64| Vector2::new(x - start.0, y - start.1);
+    let posts = [
+        ([3.0, 0.0], 0.15),
+        ([1.5, 2.598], 0.15),
+        ([-1.5, 2.598], 0.15),
+        ([0.0, 0.0], 0.33),
+    ];
+    let sample = |scooter: (f64, Option<f64>), colour: &str, bearing: f64, ms: u64| {
+        form(
+            vec![
+                rec("scooter", scooter.0, scooter.1, t(ms)),
+                rec(colour, bearing, Some(3.0), t(ms)),
+            ],
+            t(ms),
+        )
+    };
+    b.set_target(RED, t(0));
+    assert!(b.handle_ses(&sample((180.0, Some(4.0)), RED, 0.0, 0), t(0)));
+    // Scooter drives (odometry only) to (1, −1), where Skeeter sees it at −45°, no range.
+    let mut w = Mini {
+        x: start.0,
+        y: start.1,
+        th: start.2,
+        circles: Vec::new(),
+    };
+    for k in 1..=100u32 {
+        let f = f64::from(k) / 100.0;
+        w.x = -4.0 + 5.0 * f;
+        w.y = -f;
+        w.th = (-1f64).atan2(5.0);
+        b.handle_compass(w.th, t(u64::from(k) * 100));
+        b.handle_odometry(&w.odo(start), t(u64::from(k) * 100));
+    }
+    let red = sample((-45.0, None), RED, 0.0, 10_000);
+    assert!(b.handle_ses(&red, t(10_000)));
+    match b.plan() {
+        Some(Plan::Point(p)) => assert!((p - dr_of(3.0, 0.0)).norm() < 0.05, "{p}"),
+        other => panic!("red: {other:?}"),
+    }
+    // On to (2.2, −0.3), next to red; red is done, blue is next, and the runtime replays
+    // the latest sample (5 s old; it holds blue too) at the new target's time.
+    for k in 1..=50u32 {
+        let f = f64::from(k) / 50.0;
+        w.x = 1.0 + 1.2 * f;
+        w.y = -1.0 + 0.7 * f;
+        w.th = 0.7f64.atan2(1.2);
+        b.handle_compass(w.th, t(10_000 + u64::from(k) * 100));
+        b.handle_odometry(&w.odo(start), t(10_000 + u64::from(k) * 100));
+    }
+    let mut replay = red.clone();
+    replay.records.push(rec(BLUE, 120.0, Some(3.0), t(10_000)));
+    b.handle_heard(
+        &ScooterHeard::MissionEnded {
+            colour: RED.to_owned(),
+        },
+        t(15_000),
+    );
+    b.handle_heard(
+        &ScooterHeard::TargetAccepted {
+            colour: BLUE.to_owned(),
+        },
+        t(15_000),
+    );
+    assert!(b.handle_ses(&replay, t(15_000)));
+    match b.plan() {
+        Some(Plan::Point(p)) => assert!((p - dr_of(-1.5, 2.598)).norm() < 0.1, "{p}"),
+        other => panic!("blue from the replayed sample: {other:?}"),
+    }
+    // Closed loop among the posts: Scooter reaches blue, not green.
+    w.circles = posts.to_vec();
+    let mount = b.config().laser_mount;
+    let mut now = 15_000;
+    while !b.reached() && now < 75_000 {
+        now += 50;
+        b.handle_compass(w.th, t(now));
+        b.handle_odometry(&w.odo(start), t(now));
+        b.handle_laser(&w.scan(&mount), t(now));
+        let out = b.step(t(now));
+        w.advance(out.command, 0.05);
+    }
+    assert!(
+        b.reached(),
+        "blue not reached; Scooter at ({}, {})",
+        w.x,
+        w.y
+    );
+    let gap = (w.x + 1.5).hypot(w.y - 2.598);
+    assert!(
+        gap < 1.2,
+        "reached 'blue' {gap:.2} m from it, at ({}, {})",
+        w.x,
+        w.y
+    );
+}
