@@ -37,11 +37,11 @@ pub use ima_hal::Instant;
 #[cfg(feature = "serial")]
 pub mod blocking;
 pub mod bytes;
-pub mod line;
 #[cfg(feature = "std")]
 mod error;
 #[cfg(feature = "tokio")]
 pub mod handle;
+pub mod line;
 #[cfg(feature = "std")]
 mod link;
 #[cfg(feature = "std")]
