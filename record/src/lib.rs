@@ -244,8 +244,12 @@ impl Recorder {
         let ctx = Context::new();
         let writer = match &opts.mcap {
             Some(path) => {
+                // zstd's fastest level on this thread: the robot's cores are for the robot
+                // (level 1 and no helper threads: measured in the README's recording rows).
                 let options = foxglove::McapWriteOptions::new()
                     .compression(Some(foxglove::McapCompression::Zstd))
+                    .compression_level(1)
+                    .compression_threads(0)
                     .chunk_size(Some(CHUNK_SIZE))
                     .profile("");
                 let w = ctx
