@@ -6,13 +6,12 @@
 //!   ways a link ends that no protocol explains, and the one driver error: those plus the
 //!   device's own [`Fault`]s (`std`).
 //! * [`BaudControl`] / [`FixedBaud`] — streams whose line speed can (or cannot) change, and
-//!   the port opening (`open_port`, feature `tokio`; `open_blocking_port`, feature `serial`).
+//!   the port opening (`open_port`, feature `tokio`).
 //! * [`runner`] (feature `tokio`) — the one async loop that runs a driver's [`runner::Shell`]
 //!   over a byte stream (drain events → transmit → flush → wait on read / deadline / call);
 //!   [`handle::Handle`] — spawn, connect, calls on the shell, readings, close, the halt
 //!   signal: everything a driver handle does the same way; [`blocking`] (feature `serial`)
 //!   — any driver handle driven from blocking code.
-//!
 //! * [`line`](mod@line) — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
 //!   cursors of the binary ones. Both `no_std`, no heap, no panics.
 //!
