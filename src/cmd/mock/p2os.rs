@@ -5,7 +5,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
-use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::pty::PtyDevice;
 use ima_mock_devices::world::SharedWorld;
 
 /// Serve a P2OS robot of `world` on a new pty.
@@ -28,15 +28,7 @@ pub fn serve_p2os(
         ..P2osModelConfig::default()
     };
     let dev = P2osDevice::new(cfg, WorldBody::new(world.clone(), id, seed));
-    PtyDevice::spawn(
-        dev,
-        PtyOptions {
-            faults: plan,
-            step_world: step_world.then(|| world.clone()),
-            ..PtyOptions::default()
-        },
-    )
-    .context("starting the pty")
+    super::shared::spawn_on_pty(dev, plan, world, step_world)
 }
 
 /// Serve robot `robot` of `world` until SIGINT/SIGTERM, printing the pty path on stdout's

@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use ima_mock_devices::body::WorldBody;
-use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::pty::PtyDevice;
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::SharedWorld;
 
@@ -24,15 +24,7 @@ pub fn serve_rflex(
         RflexModelConfig::default(),
         WorldBody::new(world.clone(), id, seed),
     );
-    PtyDevice::spawn(
-        dev,
-        PtyOptions {
-            faults: plan,
-            step_world: step_world.then(|| world.clone()),
-            ..PtyOptions::default()
-        },
-    )
-    .context("starting the pty")
+    super::shared::spawn_on_pty(dev, plan, world, step_world)
 }
 
 /// Serve until SIGINT/SIGTERM, printing the pty path on stdout's first line.

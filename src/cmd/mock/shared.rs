@@ -72,3 +72,19 @@ pub fn fault_plan(faults: &str, seed: Option<u64>) -> Result<FaultPlan> {
     }
     Ok(p)
 }
+
+/// Serve `dev` on a new pty with the faults of `plan`; with `step_world`, the pty also steps
+/// `world` in real time (a mock on its own; in a served world the world has one stepper).
+pub fn spawn_on_pty<M: ima_mock_devices::model::DeviceModel + 'static>(
+    dev: M,
+    plan: FaultPlan,
+    world: &SharedWorld,
+    step_world: bool,
+) -> Result<ima_mock_devices::pty::PtyDevice<M>> {
+    let opts = ima_mock_devices::pty::PtyOptions {
+        faults: plan,
+        step_world: step_world.then(|| world.clone()),
+        ..ima_mock_devices::pty::PtyOptions::default()
+    };
+    ima_mock_devices::pty::PtyDevice::spawn(dev, opts).context("starting the pty")
+}

@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ima_mock_devices::pty::{PtyDevice, PtyOptions};
+use ima_mock_devices::pty::PtyDevice;
 use ima_mock_devices::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use ima_mock_devices::world::SharedWorld;
 use ima_sick_lms::wire::BaudRate;
@@ -29,15 +29,7 @@ pub fn serve_sick_lms(
     };
     let laser = WorldLaser::new(world.clone(), id, seed);
     let dev = SickLmsDevice::new(cfg, Box::new(laser), ima_hal::Instant::ZERO);
-    PtyDevice::spawn(
-        dev,
-        PtyOptions {
-            faults: plan,
-            step_world: step_world.then(|| world.clone()),
-            ..PtyOptions::default()
-        },
-    )
-    .context("starting the pty")
+    super::shared::spawn_on_pty(dev, plan, world, step_world)
 }
 
 /// Serve until SIGINT/SIGTERM, then print the unit's counters on stderr.
