@@ -172,27 +172,10 @@ where
             Ok(Err(e)) => tracing::warn!("compass: no first heading: {e:?}"),
             Err(_) => tracing::warn!("compass: no first heading in {wait:?}"),
         }
-        tasks.0.push(tokio::spawn(async move {
-            let mut after = Instant::ZERO;
-            loop {
-                let failed = match c.next_heading(after).await {
-                    Ok(h) => {
-                        after = h.at;
-                        if compass_tx.send(Some(h)).is_err() {
-                            return;
-                        }
-                        false
-                    }
-                    Err(e) => {
-                        tracing::warn!("compass: {e:?}");
-                        true
-                    }
-                };
-                if failed {
-                    tokio::time::sleep(Duration::from_millis(200)).await;
-                }
-            }
-        }));
+        let next = async move |after| c.next_heading(after).await;
+        tasks
+            .0
+            .push(tokio::spawn(pump("compass", compass_tx, next)));
     }
     let start_heading = start_heading
         .or(cfg.initial_heading_deg.map(f64::to_radians))
@@ -224,30 +207,9 @@ where
 
     // The laser: the latest scan in a watch channel.
     let (scan_tx, mut scan_rx) = watch::channel::<Option<Stamped<LaserScan>>>(None);
-    tasks.0.push(tokio::spawn({
-        let mut laser = laser;
-        async move {
-            let mut after = Instant::ZERO;
-            loop {
-                let failed = match laser.next_scan(after).await {
-                    Ok(s) => {
-                        after = s.at;
-                        if scan_tx.send(Some(s)).is_err() {
-                            return;
-                        }
-                        false
-                    }
-                    Err(e) => {
-                        tracing::warn!("laser: {e:?}");
-                        true
-                    }
-                };
-                if failed {
-                    tokio::time::sleep(Duration::from_millis(200)).await;
-                }
-            }
-        }
-    }));
+    let mut laser = laser;
+    let next = async move |after| laser.next_scan(after).await;
+    tasks.0.push(tokio::spawn(pump("laser", scan_tx, next)));
 
     // The brain steps at control_hz of mission time (at most 50 Hz real).
     let hz = if cfg.control_hz.is_finite() && cfg.control_hz > 0.0 {
@@ -512,6 +474,35 @@ impl LoopState {
                 self.reached = None;
             }
             _ => brain.handle_heard(&h, now),
+        }
+    }
+}
+
+/// Keep `tx` holding the latest reading `next(after)` gives (each newer than the last); on
+/// an error, say so and try again 200 ms later. Ends when nobody listens any more.
+async fn pump<T, E: core::fmt::Debug>(
+    what: &'static str,
+    tx: watch::Sender<Option<Stamped<T>>>,
+    mut next: impl AsyncFnMut(Instant) -> Result<Stamped<T>, E>,
+) {
+    let mut after = Instant::ZERO;
+    loop {
+        // The error is dropped before the pause (a device's error need not be `Send`).
+        let failed = match next(after).await {
+            Ok(r) => {
+                after = r.at;
+                if tx.send(Some(r)).is_err() {
+                    return;
+                }
+                false
+            }
+            Err(e) => {
+                tracing::warn!("{what}: {e:?}");
+                true
+            }
+        };
+        if failed {
+            tokio::time::sleep(Duration::from_millis(200)).await;
         }
     }
 }
