@@ -618,23 +618,28 @@ pub fn log_event(e: &ima_agents::runtime::Event) {
         };
         match &e.kind {
             EventKind::San(v) => {
-                let names: Vec<String> = v.modules.iter().map(|m| m.name.clone()).collect();
+                let names = || v.modules.iter().map(|m| m.name.clone()).collect::<Vec<_>>();
                 let topic = format!("/san/{}", e.robot);
-                return r.log_json(&topic, "ima.SanState", &san_schema(&names), &san_json(e, v));
+                return r.log_json(
+                    &topic,
+                    "ima.SanState",
+                    || san_schema(&names()),
+                    &san_json(e, v),
+                );
             }
             EventKind::PeerStatus(p) => {
                 let v = stamped(crate::web::feed::peer_status_json(p));
                 let topic = format!("/peer/{}/status", e.robot);
-                return r.log_json(&topic, "ima.PeerStatus", &peer_schema(), &v);
+                return r.log_json(&topic, "ima.PeerStatus", peer_schema, &v);
             }
             EventKind::Queue { targets } => {
                 let v = stamped(json!({ "targets": targets }));
-                return r.log_json("/commander/queue", "ima.TargetQueue", &queue_schema(), &v);
+                return r.log_json("/commander/queue", "ima.TargetQueue", queue_schema, &v);
             }
             EventKind::Map(m) => {
                 let v = stamped(serde_json::to_value(m).unwrap_or_default());
                 let topic = format!("/{}/map", e.robot);
-                return r.log_json(&topic, "ima.ScooterMap", &map_schema(), &v);
+                return r.log_json(&topic, "ima.ScooterMap", map_schema, &v);
             }
             _ => {}
         }

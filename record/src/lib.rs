@@ -30,7 +30,7 @@ use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError, TrySendError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -46,6 +46,9 @@ pub const DEFAULT_QUEUE: usize = 8192;
 /// Bytes the queue may hold (encoded sizes, estimated) before new messages are dropped:
 /// memory stays bounded even when every queued message is a camera frame.
 pub const MAX_QUEUED_BYTES: usize = 64 << 20;
+
+/// How often the recorder's thread drains the queue (the live view's added latency at most).
+const TICK: Duration = Duration::from_millis(20);
 
 /// MCAP chunk size, bytes (uncompressed): small enough that a crash loses little.
 const CHUNK_SIZE: u64 = 256 * 1024;
@@ -182,8 +185,8 @@ enum Body {
     Typed(Box<dyn Payload>),
     Raw(Vec<u8>),
     DeclareRaw(RawDesc),
-    /// A JSON message and its channel's schema.
-    Json(Schema, Vec<u8>),
+    /// A JSON message and, with a channel's first message, its schema.
+    Json(Option<Schema>, Vec<u8>),
 }
 
 impl Body {
@@ -214,6 +217,8 @@ struct Shared {
     wall0_ns: u64,
     mono0: std::time::Instant,
     finished: Mutex<Option<Report>>,
+    /// JSON topics whose first message (with the schema) is queued.
+    json_topics: Mutex<std::collections::BTreeSet<Box<str>>>,
     server_port: Option<u16>,
     images: Images,
 }
@@ -284,6 +289,7 @@ impl Recorder {
                 .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)),
             mono0: std::time::Instant::now(),
             finished: Mutex::new(None),
+            json_topics: Mutex::new(std::collections::BTreeSet::new()),
             server_port,
             images: opts.images,
         });
@@ -340,13 +346,14 @@ impl Recorder {
         self.shared.dropped.load(Ordering::Relaxed)
     }
 
-    fn send(&self, topic: Arc<str>, body: Body) {
+    /// Queue a message; `false` when it was dropped (and counted).
+    fn send(&self, topic: Arc<str>, body: Body) -> bool {
         let size = body.size();
         let q = &self.shared.queued_bytes;
         if q.fetch_add(size, Ordering::Relaxed).saturating_add(size) > MAX_QUEUED_BYTES {
             q.fetch_sub(size, Ordering::Relaxed);
             self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-            return;
+            return false;
         }
         let msg = Msg::Log {
             topic,
@@ -356,37 +363,45 @@ impl Recorder {
         if self.shared.tx.try_send(msg).is_err() {
             q.fetch_sub(size, Ordering::Relaxed);
             self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+            return false;
         }
+        true
     }
 
     /// Log a payload encoded on the background thread.
     fn log_payload(&self, topic: &str, msg: Box<dyn Payload>) {
-        self.send(Arc::from(topic), Body::Typed(msg));
+        let _ = self.send(Arc::from(topic), Body::Typed(msg));
     }
 
     /// Log any `foxglove` well-known message on `topic`.
     pub fn log<T: Encode + Send + 'static>(&self, topic: &str, msg: T) {
-        self.send(Arc::from(topic), Body::Typed(Box::new(msg)));
+        let _ = self.send(Arc::from(topic), Body::Typed(Box::new(msg)));
     }
 
     /// Log a JSON object on `topic`: a channel with message encoding `json` and the JSON
-    /// Schema `schema` named `schema_name` (encoding `jsonschema`), which Foxglove's Raw
+    /// Schema `schema()` named `schema_name` (encoding `jsonschema`), which Foxglove's Raw
     /// Messages, Plot and State Transitions panels read. The first message fixes the
-    /// channel's schema.
-    pub fn log_json(
+    /// channel's schema; `schema` is called only for it (later messages cost only their own
+    /// serialisation).
+    pub fn log_json<T: serde::Serialize + ?Sized>(
         &self,
         topic: &str,
         schema_name: &str,
-        schema: &serde_json::Value,
-        value: &serde_json::Value,
+        schema: impl FnOnce() -> serde_json::Value,
+        value: &T,
     ) {
         let data = serde_json::to_vec(value).unwrap_or_default();
-        let schema = Schema::new(
-            schema_name,
-            "jsonschema",
-            serde_json::to_vec(schema).unwrap_or_default(),
-        );
-        self.send(Arc::from(topic), Body::Json(schema, data));
+        let mut known = (self.shared.json_topics)
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let first = !known.contains(topic);
+        let schema = first.then(|| {
+            let text = serde_json::to_vec(&schema()).unwrap_or_default();
+            Schema::new(schema_name, "jsonschema", text)
+        });
+        if self.send(Arc::from(topic), Body::Json(schema, data)) && first {
+            known.insert(topic.into());
+        }
     }
 
     /// Declare a raw serial port and get the handle that records its bytes.
@@ -403,7 +418,7 @@ impl Recorder {
     }
 
     pub(crate) fn send_raw(&self, topic: &Arc<str>, bytes: Vec<u8>) {
-        self.send(Arc::clone(topic), Body::Raw(bytes));
+        let _ = self.send(Arc::clone(topic), Body::Raw(bytes));
     }
 
     /// Finish: write what is queued, close the file (summary, indexes) and stop the server.
@@ -498,37 +513,42 @@ struct Worker {
 }
 
 impl Worker {
+    /// Drain the queue every [`TICK`] instead of waking for each message: a sender never
+    /// has a sleeping receiver to wake (no futex call per message on the robot's threads),
+    /// and the thread wakes ~50 times a second however busy the robot is.
     fn run(mut self, rx: Receiver<Msg>) {
         let mut last_flush = std::time::Instant::now();
         loop {
-            match rx.recv_timeout(Duration::from_secs(1)) {
-                Ok(Msg::Log {
-                    topic,
-                    log_time,
-                    body,
-                }) => self.log(topic, log_time, body),
-                Ok(Msg::Finish(reply)) => {
-                    // Whatever is still queued goes in first.
-                    while let Ok(m) = rx.try_recv() {
-                        match m {
-                            Msg::Log {
-                                topic,
-                                log_time,
-                                body,
-                            } => self.log(topic, log_time, body),
-                            Msg::Finish(other) => {
-                                let _ = other.send(Report::default());
+            loop {
+                match rx.try_recv() {
+                    Ok(Msg::Log {
+                        topic,
+                        log_time,
+                        body,
+                    }) => self.log(topic, log_time, body),
+                    Ok(Msg::Finish(reply)) => {
+                        // Whatever is still queued goes in first.
+                        while let Ok(m) = rx.try_recv() {
+                            match m {
+                                Msg::Log {
+                                    topic,
+                                    log_time,
+                                    body,
+                                } => self.log(topic, log_time, body),
+                                Msg::Finish(other) => {
+                                    let _ = other.send(Report::default());
+                                }
                             }
                         }
+                        let report = self.close();
+                        let _ = reply.send(report);
+                        return;
                     }
-                    let report = self.close();
-                    let _ = reply.send(report);
-                    return;
-                }
-                Err(RecvTimeoutError::Timeout) => {}
-                Err(RecvTimeoutError::Disconnected) => {
-                    let _ = self.close();
-                    return;
+                    Err(TryRecvError::Empty) => break,
+                    Err(TryRecvError::Disconnected) => {
+                        let _ = self.close();
+                        return;
+                    }
                 }
             }
             if last_flush.elapsed() >= Duration::from_secs(1) {
@@ -539,6 +559,7 @@ impl Worker {
                     self.error.get_or_insert(e.to_string());
                 }
             }
+            std::thread::sleep(TICK);
         }
     }
 

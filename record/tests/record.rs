@@ -265,7 +265,7 @@ fn json_messages_get_a_json_channel_with_their_schema() {
         rec.log_json(
             "/state",
             "test.State",
-            &schema,
+            || schema.clone(),
             &serde_json::json!({"n": n}),
         );
     }
