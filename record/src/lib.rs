@@ -218,6 +218,8 @@ struct Shared {
     wall0_ns: u64,
     mono0: std::time::Instant,
     finished: Mutex<Option<Report>>,
+    /// The recorder's thread (woken by `finish`).
+    worker: std::sync::OnceLock<std::thread::Thread>,
     /// JSON topics whose first message (with the schema) is queued.
     json_topics: Mutex<std::collections::BTreeSet<Box<str>>>,
     server_port: Option<u16>,
@@ -291,6 +293,7 @@ impl Recorder {
             mono0: std::time::Instant::now(),
             finished: Mutex::new(None),
             json_topics: Mutex::new(std::collections::BTreeSet::new()),
+            worker: std::sync::OnceLock::new(),
             server_port,
             images: opts.images,
         });
@@ -307,10 +310,11 @@ impl Recorder {
             error: None,
             buf: Vec::new(),
         };
-        std::thread::Builder::new()
+        let thread = std::thread::Builder::new()
             .name("ima-record".into())
             .spawn(move || worker.run(rx))
             .map_err(Error::Thread)?;
+        let _ = shared.worker.set(thread.thread().clone());
         Ok(Self { shared })
     }
 
@@ -439,7 +443,12 @@ impl Recorder {
         let mut req = Msg::Finish(tx);
         loop {
             match self.shared.tx.try_send(req) {
-                Ok(()) => break,
+                Ok(()) => {
+                    if let Some(t) = self.shared.worker.get() {
+                        t.unpark();
+                    }
+                    break;
+                }
                 Err(TrySendError::Full(m)) if std::time::Instant::now() < deadline => {
                     req = m;
                     std::thread::sleep(Duration::from_millis(2));
@@ -560,7 +569,8 @@ impl Worker {
                     self.error.get_or_insert(e.to_string());
                 }
             }
-            std::thread::sleep(TICK);
+            // `finish` unparks the thread so that it need not wait for the tick.
+            std::thread::park_timeout(TICK);
         }
     }
 
