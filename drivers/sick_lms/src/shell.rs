@@ -245,7 +245,7 @@ impl ErrorType for SickLms {
 
 impl LaserScanner for SickLms {
     fn description(&self) -> LaserDescription {
-        crate::driver::description(self.session().as_ref(), self.pose)
+        crate::decode::describe_session(self.session().as_ref(), self.pose)
     }
 
     async fn scan(&mut self) -> Result<Stamped<LaserScan>, DriverError> {
