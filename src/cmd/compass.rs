@@ -87,7 +87,7 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     tracing::info!(
         target: "ima::connect",
         "compass: configuring a {} at {baud} baud on {}",
-        ima_compass::driver::dialect_name(cfg.dialect),
+        cfg.dialect.name(),
         args.port
     );
     let drv = match CompassDriver::connect(

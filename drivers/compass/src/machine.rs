@@ -201,6 +201,18 @@ pub enum ForeignLine {
     Tcm2,
 }
 
+impl Dialect {
+    /// The dialect's name for messages (`NMEA`, `KVH C100 (NMEA)`, `TCM2`).
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Nmea => "NMEA",
+            Self::KvhC100 { .. } => "KVH C100 (NMEA)",
+            Self::Tcm2 { .. } => "TCM2",
+        }
+    }
+}
+
 impl core::fmt::Display for ForeignLine {
     /// `NMEA ($HCHDG…)` or `TCM2 ($C…P…R…)`.
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {

@@ -3,10 +3,10 @@
 
 use ima_hal::ErrorKind;
 
-use crate::framer::Counters;
-use crate::machine::{MachineError, SessionInfo, Stats};
 /// The line-rate arithmetic of spec §4 (in [`crate::decode`]).
 pub use crate::decode::{expected_scan_rate_hz, line_scan_rate_hz};
+use crate::framer::Counters;
+use crate::machine::{MachineError, SessionInfo, Stats};
 
 pub use ima_serial::{BaudControl, FixedBaud};
 
@@ -18,14 +18,23 @@ pub const CLOSE_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(
 pub type DriverError = ima_serial::DriverError<Fault>;
 
 /// What only a SICK LMS reports.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Fault {
     /// The session failed or refused a request.
+    #[error("{}", match .0 {
+        MachineError::NoDevice => "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)".into(),
+        e => format!("SICK LMS session: {e:?}"),
+    })]
     Session(MachineError),
     /// A B0 could not be decoded (unknown measuring mode, reflectivity mode…).
+    #[error("SICK LMS scan decoding: {0:?}")]
     Decode(crate::decode::DecodeError),
     /// No unit answered while connecting: what was seen at each rate tried.
+    #[error(
+        "no SICK LMS answered (powered? still booting? right port?): {report}{}",
+        if *rs422 { "" } else { "; 500000 baud not tried (RS-422 lines only)" }
+    )]
     NotFound {
         /// Bytes and frames per rate.
         report: Box<ima_hal::link::ProbeReport>,
@@ -37,28 +46,6 @@ pub enum Fault {
 impl From<MachineError> for DriverError {
     fn from(e: MachineError) -> Self {
         Self::Device(Fault::Session(e))
-    }
-}
-
-impl std::fmt::Display for Fault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::NotFound { report, rs422 } => {
-                write!(
-                    f,
-                    "no SICK LMS answered (powered? still booting? right port?): {report}"
-                )?;
-                if !rs422 {
-                    f.write_str("; 500000 baud not tried (RS-422 lines only)")?;
-                }
-                Ok(())
-            }
-            Self::Session(MachineError::NoDevice) => f.write_str(
-                "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)",
-            ),
-            Self::Session(e) => write!(f, "SICK LMS session: {e:?}"),
-            Self::Decode(e) => write!(f, "SICK LMS scan decoding: {e:?}"),
-        }
     }
 }
 
