@@ -22,6 +22,7 @@ use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
 use ima_hal::link::ProbeReport;
 use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
 use ima_serial::handle::Handle;
+use ima_serial::probe::Probe;
 use ima_serial::runner::{End, Reply, Shell};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::watch;
@@ -85,7 +86,7 @@ impl SickLms {
         let (stats_tx, stats) = watch::channel(ScanStats::default());
         let (type_tx, device_type) = watch::channel(String::new());
         let (status_tx, status) = watch::channel(None);
-        let (probe_tx, probe) = watch::channel(ProbeReport::new());
+        let probe = Probe::new("SICK LMS");
         let shell = SickShell {
             machine: Machine::new(cfg, clock.now()),
             link: watch::channel(LinkStatus::Connecting).0,
@@ -98,9 +99,9 @@ impl SickLms {
             device_type: type_tx,
             status: status_tx,
             waiter: None,
-            probe: probe_tx,
-            connected: false,
+            probe,
         };
+        let probe = shell.probe.subscribe();
         let (h, _) = Handle::connect(shell, stream, clock, connect_timeout, None).await?;
         Ok(SickLms {
             h,
@@ -268,8 +269,7 @@ pub struct SickShell {
     /// The reconfiguration being waited for.
     waiter: Option<Reply<SessionInfo, Self>>,
     /// What each rate tried received, until the first connection.
-    probe: watch::Sender<ProbeReport>,
-    connected: bool,
+    probe: Probe,
 }
 
 /// Where decoded scans and their counters go.
@@ -327,22 +327,11 @@ impl Shell for SickShell {
     }
 
     fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
-        let before = (!self.connected).then(|| self.machine.counters());
+        let before = self.machine.counters().tally();
         let mode = self.machine.measuring_mode();
         (self.machine).handle_bytes_with(bytes, now, |b0, at| self.out.publish(b0, at, mode));
-        if let Some(b) = before {
-            let a = self.machine.counters();
-            let bad = |c: crate::framer::Counters| {
-                c.bad_checksums + c.bad_headers + c.bad_payloads + c.expired
-            };
-            self.probe.send_modify(|p| {
-                p.received(bytes.len());
-                p.framed(
-                    (a.frames + a.acks + a.naks).saturating_sub(b.frames + b.acks + b.naks),
-                    bad(a).saturating_sub(bad(b)),
-                );
-            });
-        }
+        let after = self.machine.counters().tally();
+        self.probe.received(bytes.len(), before, after);
     }
 
     fn on_timeout(&mut self, now: Instant) {
@@ -356,21 +345,7 @@ impl Shell for SickShell {
                 tracing::debug!(baud = b, "sick_lms: line speed");
                 line.set_baud(b)?;
                 line.clear_input()?;
-                let probing = self.machine.is_probing();
-                self.probe.send_if_modified(|p| match () {
-                    _ if self.connected => false,
-                    _ if probing => {
-                        p.attempt(b);
-                        let n = p.current_tally().map_or(1, |t| t.attempts);
-                        tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
-                        true
-                    }
-                    _ => {
-                        p.set_rate(b);
-                        tracing::info!(target: "ima::connect", "SICK LMS: switching to {b} baud");
-                        true
-                    }
-                });
+                self.probe.rate(b, self.machine.is_probing());
             }
             Event::Identified => {
                 if let Some(t) = self.machine.device_type() {
@@ -382,7 +357,7 @@ impl Shell for SickShell {
                 let baud = info.baud.bps();
                 tracing::info!(baud, streaming = info.streaming, "sick_lms: ready");
                 self.out.stats.readies = self.out.stats.readies.saturating_add(1);
-                self.connected = true;
+                self.probe.connected();
                 self.answer(Ok(info));
                 self.link.send_replace(LinkStatus::Connected(info));
             }
@@ -424,7 +399,7 @@ impl Shell for SickShell {
                 }
                 self.status.send_replace(Some(s));
             }
-            Event::BaudDetected(b) if !self.connected => {
+            Event::BaudDetected(b) if !self.probe.is_done() => {
                 tracing::info!(target: "ima::connect", "SICK LMS: answered at {} baud", b.bps());
             }
             Event::StreamStarted
@@ -468,7 +443,7 @@ impl Shell for SickShell {
 
     /// Nothing valid came back: say what was seen at each rate.
     fn no_answer(&mut self) -> DriverError {
-        let report = Box::new(self.probe.borrow().clone());
+        let report = Box::new(self.probe.report());
         if report.total_frames() > 0 {
             return DriverError::Timeout;
         }
