@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use ima_hal::compass::{Compass, Heading};
 use ima_hal::{ErrorType, Instant, Stamped};
-use ima_serial::handle::{Handle, Slot, SlotRx, slot};
+use ima_serial::handle::{Handle, Pending, Slot, SlotRx, slot};
 use ima_serial::runner::{Reply, Shell};
 use ima_serial::{BaudControl, FixedBaud};
 use tokio::io::{AsyncRead, AsyncWrite};
@@ -77,15 +77,7 @@ pub struct CompassShell {
     reading: Slot<Reading>,
     stats: watch::Sender<Stats>,
     /// The calibration request being run.
-    job: Option<Reply<CalibrationOutcome, Self>>,
-}
-
-impl CompassShell {
-    fn finish_job(&mut self, r: Result<CalibrationOutcome, DriverError>) {
-        if let Some(j) = self.job.take() {
-            let _ = j.send(r);
-        }
-    }
+    job: Pending<CalibrationOutcome, Self>,
 }
 
 impl Shell for CompassShell {
@@ -122,18 +114,18 @@ impl Shell for CompassShell {
                 tracing::warn!(?job, step, "compass: job failed");
                 if job == crate::machine::Job::Configure {
                     let e = crate::driver::configuration_failed(&self.machine, step);
-                    self.finish_job(Err(e));
+                    self.job.answer(Err(e));
                     self.link.send_replace(LinkStatus::Failed(e));
                 } else {
-                    self.finish_job(Err(Fault::JobFailed { job, step }.into()));
+                    self.job.answer(Err(Fault::JobFailed { job, step }.into()));
                 }
             }
-            Event::CalibrationStarted => self.finish_job(Ok(CalibrationOutcome::Started)),
+            Event::CalibrationStarted => self.job.answer(Ok(CalibrationOutcome::Started)),
             Event::CalibrationFinished { score } => {
-                self.finish_job(Ok(CalibrationOutcome::Finished(score)));
+                self.job.answer(Ok(CalibrationOutcome::Finished(score)));
             }
-            Event::AutoCalibration(on) => self.finish_job(Ok(CalibrationOutcome::Auto(on))),
-            Event::CalibrationCleared => self.finish_job(Ok(CalibrationOutcome::Cleared)),
+            Event::AutoCalibration(on) => self.job.answer(Ok(CalibrationOutcome::Auto(on))),
+            Event::CalibrationCleared => self.job.answer(Ok(CalibrationOutcome::Cleared)),
             Event::DeviceError { code } => {
                 tracing::warn!(code, "compass: device reports an error code");
             }
@@ -203,7 +195,7 @@ impl CompassDriver {
             link: watch::channel(LinkStatus::Connecting).0,
             reading: reading_tx,
             stats: stats_tx,
-            job: None,
+            job: Pending::default(),
         };
         let stream = FixedBaud(stream);
         let (h, ()) = Handle::connect(shell, stream, clock, connect_timeout, None).await?;
@@ -266,16 +258,14 @@ impl CompassDriver {
         let f = move |s: &mut CompassShell, now, reply: Reply<_, CompassShell>| {
             let m = &mut s.machine;
             let r = match what {
-                _ if s.job.is_some() => Err(RequestError::Busy),
+                _ if s.job.is_waiting() => Err(RequestError::Busy),
                 Calibration::StartUser => m.start_user_calibration(now),
                 Calibration::StopUser => m.stop_user_calibration(now),
                 Calibration::Auto(on) => m.set_auto_calibration(on, now),
                 Calibration::Clear => m.clear_calibration(now),
             };
-            match r {
-                Ok(()) => s.job = Some(reply),
-                Err(e) => drop(reply.send(Err(e.into()))),
-            }
+            s.job
+                .wait(r.map_err(Into::into), reply, RequestError::Busy.into());
         };
         self.h.defer(Duration::from_secs(10), f).await
     }

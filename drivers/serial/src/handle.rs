@@ -307,3 +307,45 @@ impl<K: PartialEq, T: Clone, D: Shell> Confirmations<K, T, D> {
         }
     }
 }
+
+/// The one call a shell answers later (a reconfiguration, a calibration, a request the
+/// device must answer); while it waits, another is refused.
+pub struct Pending<T, D: Shell>(Option<Reply<T, D>>);
+
+impl<T, D: Shell> Default for Pending<T, D> {
+    fn default() -> Self {
+        Self(None)
+    }
+}
+
+impl<T, D: Shell> core::fmt::Debug for Pending<T, D> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "Pending(waiting: {})", self.0.is_some())
+    }
+}
+
+impl<T, D: Shell> Pending<T, D> {
+    /// Whether a call is waiting.
+    #[must_use]
+    pub fn is_waiting(&self) -> bool {
+        self.0.is_some()
+    }
+
+    /// After asking the machine (`asked`: its answer), keep `reply` for
+    /// [`answer`](Self::answer); answer at once with the refusal, or with `busy` if a call
+    /// is already waiting.
+    pub fn wait(&mut self, asked: Result<(), Error<D>>, reply: Reply<T, D>, busy: Error<D>) {
+        match asked {
+            Ok(()) if self.0.is_none() => self.0 = Some(reply),
+            Ok(()) => drop(reply.send(Err(busy))),
+            Err(e) => drop(reply.send(Err(e))),
+        }
+    }
+
+    /// Answer the waiting call, if any.
+    pub fn answer(&mut self, r: Result<T, Error<D>>) {
+        if let Some(reply) = self.0.take() {
+            let _ = reply.send(r);
+        }
+    }
+}

@@ -21,7 +21,7 @@ use std::time::Duration;
 use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
 use ima_hal::link::ProbeReport;
 use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
-use ima_serial::handle::Handle;
+use ima_serial::handle::{Handle, Pending};
 use ima_serial::probe::Probe;
 use ima_serial::runner::{End, Reply, Shell};
 use tokio::io::{AsyncRead, AsyncWrite};
@@ -98,7 +98,7 @@ impl SickLms {
             },
             device_type: type_tx,
             status: status_tx,
-            waiter: None,
+            waiter: Pending::default(),
             probe,
         };
         let probe = shell.probe.subscribe();
@@ -193,11 +193,12 @@ impl SickLms {
             now,
         ) {
             Ok(Some(info)) => drop(reply.send(Ok(info))),
-            Ok(None) if s.waiter.is_none() => {
-                s.link.send_replace(LinkStatus::Connecting);
-                s.waiter = Some(reply);
+            Ok(None) => {
+                if !s.waiter.is_waiting() {
+                    s.link.send_replace(LinkStatus::Connecting);
+                }
+                s.waiter.wait(Ok(()), reply, MachineError::Busy.into());
             }
-            Ok(None) => drop(reply.send(Err(MachineError::Busy.into()))),
             Err(e) => drop(reply.send(Err(e.into()))),
         };
         self.h.defer(timeout, f).await
@@ -267,7 +268,7 @@ pub struct SickShell {
     device_type: watch::Sender<String>,
     status: watch::Sender<Option<StatusByte>>,
     /// The reconfiguration being waited for.
-    waiter: Option<Reply<SessionInfo, Self>>,
+    waiter: Pending<SessionInfo, Self>,
     /// What each rate tried received, until the first connection.
     probe: Probe,
 }
@@ -280,14 +281,6 @@ struct Scans {
     /// Where the next scan is decoded (swapped into the slot: no copy, no heap).
     work: LaserScan,
     stats: ScanStats,
-}
-
-impl SickShell {
-    fn answer(&mut self, r: Result<SessionInfo, DriverError>) {
-        if let Some(w) = self.waiter.take() {
-            let _ = w.send(r);
-        }
-    }
 }
 
 impl Scans {
@@ -358,14 +351,14 @@ impl Shell for SickShell {
                 tracing::info!(baud, streaming = info.streaming, "sick_lms: ready");
                 self.out.stats.readies = self.out.stats.readies.saturating_add(1);
                 self.probe.connected();
-                self.answer(Ok(info));
+                self.waiter.answer(Ok(info));
                 self.link.send_replace(LinkStatus::Connected(info));
             }
             // A stream start/stop request ends with `Ready` only during initialisation;
             // answer the waiter here too.
             Event::StreamStarted | Event::StreamStopped if self.machine.is_ready() => {
                 let info = self.machine.session();
-                self.answer(Ok(info));
+                self.waiter.answer(Ok(info));
                 self.link.send_replace(LinkStatus::Connected(info));
             }
             Event::Restarted => {
@@ -374,7 +367,7 @@ impl Shell for SickShell {
                 self.link.send_replace(LinkStatus::Lost);
             }
             Event::Error(e) => {
-                self.answer(Err(e.into()));
+                self.waiter.answer(Err(e.into()));
                 if self.machine.is_failed() {
                     let err = if e == MachineError::NoDevice {
                         self.no_answer()
@@ -426,7 +419,7 @@ impl Shell for SickShell {
 
     /// Stop the stream and put the unit back at 9600, within [`CLOSE_TIMEOUT`].
     fn begin_close(&mut self, now: Instant) -> Duration {
-        self.answer(Err(DriverError::Disconnected));
+        self.waiter.answer(Err(DriverError::Disconnected));
         self.machine.close(now);
         CLOSE_TIMEOUT
     }
@@ -437,7 +430,7 @@ impl Shell for SickShell {
 
     fn end(&mut self, how: End) {
         if let End::Failed(e) = how {
-            self.answer(Err(e.into()));
+            self.waiter.answer(Err(e.into()));
         }
     }
 
