@@ -75,7 +75,6 @@ pub struct CompassShell {
     machine: Machine,
     link: watch::Sender<LinkStatus>,
     reading: Slot<Reading>,
-    stats: watch::Sender<Stats>,
     /// The calibration request being run.
     job: Pending<CalibrationOutcome, Self>,
 }
@@ -84,6 +83,7 @@ impl Shell for CompassShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = ();
+    type Stats = Stats;
     const MAX_FRAME: usize = crate::wire::command::MAX_COMMAND;
 
     fn machine(&mut self) -> &mut Machine {
@@ -139,8 +139,8 @@ impl Shell for CompassShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        self.stats.send_replace(self.machine.stats());
+    fn stats(&self) -> Stats {
+        self.machine.stats()
     }
 
     /// Say what the line carried rather than just "in time".
@@ -164,7 +164,6 @@ pub const HEADING_TIMEOUT: Duration = Duration::from_secs(3);
 pub struct CompassDriver {
     h: Handle<CompassShell>,
     reading: SlotRx<Reading>,
-    stats: watch::Receiver<Stats>,
     dialect: Dialect,
 }
 
@@ -189,12 +188,10 @@ impl CompassDriver {
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
         let (reading_tx, reading) = slot();
-        let (stats_tx, stats) = watch::channel(Stats::default());
         let shell = CompassShell {
             machine: Machine::new(cfg),
             link: watch::channel(LinkStatus::Connecting).0,
             reading: reading_tx,
-            stats: stats_tx,
             job: Pending::default(),
         };
         let stream = FixedBaud(stream);
@@ -202,7 +199,6 @@ impl CompassDriver {
         Ok(Self {
             h,
             reading,
-            stats,
             dialect: cfg.dialect,
         })
     }
@@ -222,7 +218,7 @@ impl CompassDriver {
     /// Session counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The driver's clock (the time base of every stamp it produces).

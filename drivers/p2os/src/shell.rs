@@ -48,7 +48,6 @@ pub struct P2osShell {
     machine: Machine,
     link: watch::Sender<LinkStatus>,
     state: watch::Sender<Option<RobotState>>,
-    stats: watch::Sender<SessionStats>,
     config: watch::Sender<Option<RobotConfig>>,
     /// What each rate tried received, until the first connection.
     probe: Probe,
@@ -70,6 +69,7 @@ impl Shell for P2osShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = Connection;
+    type Stats = SessionStats;
     const MAX_FRAME: usize = crate::wire::MAX_FRAME_LEN;
 
     fn machine(&mut self) -> &mut Machine {
@@ -138,8 +138,8 @@ impl Shell for P2osShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        self.stats.send_replace(self.machine.stats());
+    fn stats(&self) -> SessionStats {
+        self.machine.stats()
     }
 
     /// Queue STOP and CLOSE (frames are paced, so they may need more than one round).
@@ -163,7 +163,6 @@ impl Shell for P2osShell {
 pub struct P2os {
     h: Handle<P2osShell>,
     state: watch::Receiver<Option<RobotState>>,
-    stats: watch::Receiver<SessionStats>,
     config: watch::Receiver<Option<RobotConfig>>,
     params: RobotParams,
     transducers: Arc<[SonarTransducer]>,
@@ -193,13 +192,11 @@ impl P2os {
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
         let (state_tx, state) = watch::channel(None);
-        let (stats_tx, stats) = watch::channel(SessionStats::default());
         let (config_tx, config) = watch::channel(None);
         let shell = P2osShell {
             machine: Machine::new(cfg),
             link: watch::channel(LinkStatus::Connecting).0,
             state: state_tx,
-            stats: stats_tx,
             config: config_tx,
             probe: Probe::new("P2OS"),
             motors: Confirmations::default(),
@@ -209,7 +206,6 @@ impl P2os {
         Ok(P2os {
             h,
             state,
-            stats,
             config,
             transducers: c.params.transducers().collect(),
             params: c.params,
@@ -239,7 +235,7 @@ impl P2os {
     /// Session counters (frames, drops, bad checksums, implausible SIPs, reconnects…).
     #[must_use]
     pub fn stats(&self) -> SessionStats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The robot's CONFIG packet, once received.

@@ -63,7 +63,6 @@ pub struct RflexShell {
     bumpers: Slot<BumperState>,
     power: Slot<PowerState>,
     brake: Slot<bool>,
-    stats: watch::Sender<ShellStats>,
     scan: SonarScan,
     /// Brake changes waiting for SYS_STATUS to confirm them (keyed by "released").
     motors: Confirmations<bool, (), Self>,
@@ -79,6 +78,7 @@ impl Shell for RflexShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = ();
+    type Stats = ShellStats;
     const MAX_FRAME: usize = TX_BUF;
 
     fn machine(&mut self) -> &mut Machine {
@@ -165,13 +165,13 @@ impl Shell for RflexShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        let s = self.counters();
-        self.stats.send_if_modified(|old| {
-            let changed = *old != s;
-            *old = s;
-            changed
-        });
+    fn stats(&self) -> ShellStats {
+        ShellStats {
+            session: *self.machine.stats(),
+            framer: *self.machine.framer_stats(),
+            reconnects: self.reconnects,
+            bytes: self.bytes,
+        }
     }
 
     fn begin_close(&mut self, now: Instant) -> Duration {
@@ -185,23 +185,12 @@ impl Shell for RflexShell {
 
     /// What the line carried instead of motion reports.
     fn no_answer(&mut self) -> DriverError {
-        let st = self.counters();
+        let st = self.stats();
         DriverError::Device(Fault::NoReport {
             bytes: st.bytes,
             frames: st.framer.frames,
             bad_frames: st.framer.errors(),
         })
-    }
-}
-
-impl RflexShell {
-    fn counters(&self) -> ShellStats {
-        ShellStats {
-            session: *self.machine.stats(),
-            framer: *self.machine.framer_stats(),
-            reconnects: self.reconnects,
-            bytes: self.bytes,
-        }
     }
 }
 
@@ -214,7 +203,6 @@ pub struct Rflex {
     bumpers: Rx<BumperState>,
     power: Rx<PowerState>,
     brake: Rx<bool>,
-    stats: watch::Receiver<ShellStats>,
     limits: BaseLimits,
     transducers: Arc<[SonarTransducer]>,
 }
@@ -254,7 +242,6 @@ impl Rflex {
         let (bumpers_tx, bumpers) = slot();
         let (power_tx, power) = slot();
         let (brake_tx, brake) = slot();
-        let (stats_tx, stats) = watch::channel(ShellStats::default());
         let limits = cfg.limits;
         let machine = Machine::new(cfg, clock.now());
         let transducers = machine.transducers().iter().copied().collect();
@@ -266,7 +253,6 @@ impl Rflex {
             bumpers: bumpers_tx,
             power: power_tx,
             brake: brake_tx,
-            stats: stats_tx,
             scan: SonarScan::default(),
             motors: Confirmations::default(),
             sonar_wanted: false,
@@ -286,7 +272,6 @@ impl Rflex {
             bumpers,
             power,
             brake,
-            stats,
             limits,
             transducers,
         })
@@ -308,7 +293,7 @@ impl Rflex {
     /// The task's counters.
     #[must_use]
     pub fn stats(&self) -> ShellStats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The brake as last reported (`true`: engaged).

@@ -20,6 +20,7 @@ use crate::{BaudControl, DriverError, LinkError, LinkStatus};
 pub struct Handle<D: Shell> {
     tx: mpsc::Sender<Msg<D>>,
     link: watch::Receiver<Status<D>>,
+    stats: watch::Receiver<D::Stats>,
     clock: SharedClock,
     halt: HaltSignal,
 }
@@ -29,6 +30,7 @@ impl<D: Shell> Clone for Handle<D> {
         Self {
             tx: self.tx.clone(),
             link: self.link.clone(),
+            stats: self.stats.clone(),
             clock: self.clock.clone(),
             halt: self.halt.clone(),
         }
@@ -58,11 +60,14 @@ impl<D: Shell> Handle<D> {
             StopRegistry::global().register(name, halt.clone());
         }
         let link = shell.link().subscribe();
+        let (stats_tx, stats) = watch::channel(shell.stats());
         let (tx, rx) = mpsc::channel(32);
-        tokio::spawn(runner::run(shell, stream, rx, clock.clone(), halt.clone()));
+        let task = runner::run(shell, stream, rx, stats_tx, clock.clone(), halt.clone());
+        tokio::spawn(task);
         Self {
             tx,
             link,
+            stats,
             clock,
             halt,
         }
@@ -116,6 +121,12 @@ impl<D: Shell> Handle<D> {
     #[must_use]
     pub fn link(&self) -> Status<D> {
         self.link.borrow().clone()
+    }
+
+    /// The shell's counters as last published (after the task's latest round).
+    #[must_use]
+    pub fn stats(&self) -> D::Stats {
+        self.stats.borrow().clone()
     }
 
     /// The process's clock this driver stamps with.

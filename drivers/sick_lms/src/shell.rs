@@ -53,7 +53,6 @@ pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
 pub struct SickLms {
     h: Handle<SickShell>,
     scan: watch::Receiver<Slot>,
-    stats: watch::Receiver<ScanStats>,
     device_type: watch::Receiver<String>,
     status: watch::Receiver<Option<StatusByte>>,
     probe: watch::Receiver<ProbeReport>,
@@ -83,7 +82,6 @@ impl SickLms {
             seq: 0,
             scan: empty,
         });
-        let (stats_tx, stats) = watch::channel(ScanStats::default());
         let (type_tx, device_type) = watch::channel(String::new());
         let (status_tx, status) = watch::channel(None);
         let probe = Probe::new("SICK LMS");
@@ -92,7 +90,6 @@ impl SickLms {
             link: watch::channel(LinkStatus::Connecting).0,
             out: Scans {
                 slot: scan_tx,
-                stats_tx,
                 work: LaserScan::default(),
                 stats: ScanStats::default(),
             },
@@ -106,7 +103,6 @@ impl SickLms {
         Ok(SickLms {
             h,
             scan,
-            stats,
             device_type,
             status,
             probe,
@@ -141,10 +137,14 @@ impl SickLms {
         self.h.link().connection().copied()
     }
 
-    /// The driver's counters.
+    /// The driver's counters (scans delivered: up to the latest scan a handle can see).
     #[must_use]
     pub fn stats(&self) -> ScanStats {
-        *self.stats.borrow()
+        let delivered = self.scan.borrow().seq;
+        ScanStats {
+            delivered,
+            ..self.h.stats()
+        }
     }
 
     /// The unit's type string (e.g. `LMS200;30106`), once identified.
@@ -277,16 +277,15 @@ pub struct SickShell {
 #[derive(Debug)]
 struct Scans {
     slot: watch::Sender<Slot>,
-    stats_tx: watch::Sender<ScanStats>,
     /// Where the next scan is decoded (swapped into the slot: no copy, no heap).
     work: LaserScan,
     stats: ScanStats,
 }
 
 impl Scans {
-    /// Decode one B0 into the work buffer and swap it into the slot (counters are published
-    /// first, so a handle woken by the scan sees it counted). A bad B0 never clobbers the
-    /// latest good scan.
+    /// Decode one B0 into the work buffer and swap it into the slot (with its number, so a
+    /// handle woken by the scan sees it counted). A bad B0 never clobbers the latest good
+    /// scan.
     fn publish(&mut self, b0: &crate::wire::Scan<'_>, at: Instant, mode: MeasuringMode) {
         let st = &mut self.stats;
         if decode_scan(b0, mode, None, &mut self.work).is_err() {
@@ -295,7 +294,6 @@ impl Scans {
         }
         st.delivered = st.delivered.saturating_add(1);
         let delivered = st.delivered;
-        self.stats_tx.send_modify(|s| s.delivered = delivered);
         let work = &mut self.work;
         self.slot.send_modify(|slot| {
             core::mem::swap(&mut slot.scan.value, work);
@@ -309,6 +307,7 @@ impl Shell for SickShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = SessionInfo;
+    type Stats = ScanStats;
     const MAX_FRAME: usize = MAX_COMMAND;
 
     fn machine(&mut self) -> &mut Machine {
@@ -405,16 +404,12 @@ impl Shell for SickShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        let out = &mut self.out;
-        out.stats.framer = self.machine.counters();
-        out.stats.session = self.machine.stats();
-        let s = out.stats;
-        out.stats_tx.send_if_modified(|old| {
-            let changed = *old != s;
-            *old = s;
-            changed
-        });
+    fn stats(&self) -> ScanStats {
+        ScanStats {
+            framer: self.machine.counters(),
+            session: self.machine.stats(),
+            ..self.out.stats
+        }
     }
 
     /// Stop the stream and put the unit back at 9600, within [`CLOSE_TIMEOUT`].

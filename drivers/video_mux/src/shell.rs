@@ -51,7 +51,6 @@ pub struct MuxShell {
     link: watch::Sender<LinkStatus>,
     current: watch::Sender<Option<Channel>>,
     notices: watch::Sender<Option<Notice>>,
-    stats: watch::Sender<Stats>,
     /// The selection waiting for the switcher's answer (the machine runs one request at a
     /// time: a selection or a query).
     select: Pending<Selection, Self>,
@@ -63,6 +62,7 @@ impl Shell for MuxShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = ();
+    type Stats = Stats;
     const MAX_FRAME: usize = 16;
 
     fn machine(&mut self) -> &mut Machine {
@@ -110,8 +110,8 @@ impl Shell for MuxShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        self.stats.send_replace(self.machine.stats());
+    fn stats(&self) -> Stats {
+        self.machine.stats()
     }
 }
 
@@ -121,7 +121,6 @@ pub struct VideoMux {
     h: Handle<MuxShell>,
     current: watch::Receiver<Option<Channel>>,
     notices: watch::Receiver<Option<Notice>>,
-    stats: watch::Receiver<Stats>,
     config: Config,
 }
 
@@ -137,13 +136,11 @@ impl VideoMux {
     {
         let (current_tx, current) = watch::channel(None);
         let (notices_tx, notices) = watch::channel(None);
-        let (stats_tx, stats) = watch::channel(Stats::default());
         let shell = MuxShell {
             machine: Machine::new(config),
             link: watch::channel(LinkStatus::Connecting).0,
             current: current_tx,
             notices: notices_tx,
-            stats: stats_tx,
             select: Pending::default(),
             query: Pending::default(),
         };
@@ -151,7 +148,6 @@ impl VideoMux {
             h: Handle::spawn(shell, FixedBaud(stream), clock, None),
             current,
             notices,
-            stats,
             config,
         }
     }
@@ -177,7 +173,7 @@ impl VideoMux {
     /// Session counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The driver's clock (the time base of [`Selection`] stamps).
