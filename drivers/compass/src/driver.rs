@@ -104,12 +104,6 @@ impl ima_serial::Fault for Fault {
     }
 }
 
-impl From<Fault> for DriverError {
-    fn from(f: Fault) -> Self {
-        Self::Device(f)
-    }
-}
-
 impl From<RequestError> for DriverError {
     fn from(e: RequestError) -> Self {
         Self::Device(Fault::Request(e))

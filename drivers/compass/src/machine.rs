@@ -211,6 +211,15 @@ impl Dialect {
             Self::Tcm2 { .. } => "TCM2",
         }
     }
+
+    /// The dialect's default line speed (spec §7a: NMEA 4800, TCM2 9600).
+    #[must_use]
+    pub const fn default_baud(self) -> u32 {
+        match self {
+            Self::Nmea | Self::KvhC100 { .. } => 4800,
+            Self::Tcm2 { .. } => 9600,
+        }
+    }
 }
 
 impl core::fmt::Display for ForeignLine {

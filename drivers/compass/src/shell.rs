@@ -25,15 +25,6 @@ use crate::wire::CalScore;
 /// TCM2: 9600).
 pub use ima_serial::open_port;
 
-/// The default line speed of a dialect (spec §7a: NMEA 4800, TCM2 9600).
-#[must_use]
-pub fn default_baud(dialect: Dialect) -> u32 {
-    match dialect {
-        Dialect::Nmea | Dialect::KvhC100 { .. } => 4800,
-        Dialect::Tcm2 { .. } => 9600,
-    }
-}
-
 /// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
 /// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
 /// stamp the driver produces is on that time line.

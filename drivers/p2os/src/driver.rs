@@ -32,12 +32,6 @@ pub enum Fault {
     NoAnswer(Box<ProbeReport>),
 }
 
-impl From<Fault> for DriverError {
-    fn from(f: Fault) -> Self {
-        Self::Device(f)
-    }
-}
-
 impl From<SessionError> for DriverError {
     fn from(e: SessionError) -> Self {
         Self::Device(Fault::Session(e))
