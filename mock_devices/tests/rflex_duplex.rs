@@ -1,130 +1,42 @@
 //! The rFLEX driver's async shell against the controller model over an in-memory duplex, in
-//! tokio's paused (virtual) time.
+//! tokio's paused (virtual) time: the mock's own device ([`RflexDevice`]) on a robot of a
+//! simulated world, served by [`DuplexDevice`], the world stepped on tokio's clock.
 
 use std::time::Duration;
 
-use ima_hal::Instant;
 use ima_hal::base::{Bumpers, DifferentialBase, Odometer, VelocityCommand};
 use ima_hal::sonar::SonarArray;
-use ima_mock_devices::body::DiffDriveBody;
-use ima_mock_devices::rflex::{RflexModelConfig, RflexRobot};
+use ima_mock_devices::body::WorldBody;
+use ima_mock_devices::duplex::{DuplexDevice, DuplexOptions};
+use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
+use ima_mock_devices::stepper::TokioWorldStepper;
+use ima_mock_devices::world::{RobotSpec, SharedWorld, SonarModel, Wall, World};
 use ima_rflex::machine::Config;
 use ima_rflex::shell::Rflex;
-use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
-/// A unicycle with acceleration limits, a wall at x = `wall_x`, and a front bumper that
-/// closes when the centre passes `bump_x`.
-struct Body {
-    x: f64,
-    y: f64,
-    th: f64,
-    v: f64,
-    w: f64,
-    cmd: (f64, f64),
-    dist: f64,
-    turn: f64,
-    wall_x: f64,
-    bump_x: f64,
-}
-
-impl Body {
-    fn step(&mut self, dt: f64) {
-        let (a, alpha) = (2.0, 5.0);
-        self.v += (self.cmd.0 - self.v).clamp(-a * dt, a * dt);
-        self.w += (self.cmd.1 - self.w).clamp(-alpha * dt, alpha * dt);
-        self.x += self.v * self.th.cos() * dt;
-        self.y += self.v * self.th.sin() * dt;
-        self.th += self.w * dt;
-        self.dist += self.v * dt;
-        self.turn += self.w * dt;
-    }
-}
-
-impl DiffDriveBody for Body {
-    fn drive(&mut self, v: f64, w: f64) {
-        self.cmd = (v, w);
-    }
-    fn pose(&self) -> (f64, f64, f64) {
-        (self.x, self.y, self.th)
-    }
-    fn track_width_m(&self) -> f64 {
-        0.5
-    }
-    fn wheel_speeds_m_s(&self) -> (f64, f64) {
-        (self.v - self.w * 0.25, self.v + self.w * 0.25)
-    }
-    fn wheel_travel_m(&self) -> (f64, f64) {
-        (self.dist - self.turn * 0.25, self.dist + self.turn * 0.25)
-    }
-    fn travel(&self) -> (f64, f64) {
-        (self.dist, self.turn)
-    }
-    fn velocity(&self) -> (f64, f64) {
-        (self.v, self.w)
-    }
-    fn sonar_range_m(&mut self, m: &ima_hal::Isometry2) -> Option<f64> {
-        let (s, c) = self.th.sin_cos();
-        let t = m.translation.vector;
-        let sx = self.x + c * t.x - s * t.y;
-        let dir = self.th + m.rotation.angle();
-        let dx = dir.cos();
-        if dx <= 1e-6 {
-            return None;
-        }
-        let r = (self.wall_x - sx) / dx;
-        (r > 0.0 && r < 5.0).then_some(r)
-    }
-    fn bumpers(&self) -> (bool, bool) {
-        (self.x >= self.bump_x, false)
-    }
-}
-
-/// Serve the model on `io`, stepping the body every 10 ms.
-async fn serve(mut io: DuplexStream, mut robot: RflexRobot, mut body: Body) {
-    let epoch = tokio::time::Instant::now();
-    let now = || Instant::from_micros(epoch.elapsed().as_micros() as u64);
-    let mut buf = [0u8; 512];
-    let mut tick = tokio::time::interval(Duration::from_millis(10));
-    loop {
-        tokio::select! {
-            r = io.read(&mut buf) => match r {
-                Ok(0) | Err(_) => return,
-                Ok(n) => robot.handle_rx(&buf[..n], now(), &mut body),
-            },
-            _ = tick.tick() => {
-                body.step(0.01);
-                robot.handle_timeout(now(), &mut body);
-            }
-        }
-        let out = robot.take_output();
-        if !out.is_empty() && io.write_all(&out).await.is_err() {
-            return;
-        }
-    }
-}
-
-fn body() -> Body {
-    Body {
-        x: 0.0,
-        y: 0.0,
-        th: 0.0,
-        v: 0.0,
-        w: 0.0,
-        cmd: (0.0, 0.0),
-        dist: 0.0,
-        turn: 0.0,
-        wall_x: 3.0,
-        bump_x: 0.9,
-    }
-}
-
-#[tokio::test(start_paused = true)]
-async fn driver_drives_sees_the_wall_and_feels_the_bumper_in_virtual_time() {
-    let (host, dev) = tokio::io::duplex(8192);
-    let b = body();
-    let robot = RflexRobot::new(RflexModelConfig::default(), &b);
-    tokio::spawn(serve(dev, robot, b));
-    let mut base = Rflex::connect(
+/// The driver connected to an ATRV-Jr at the origin facing a wall at x = 3 m (exact
+/// single-ray sonar, no noise); keep the device and the stepper alive.
+async fn connect() -> (Rflex, DuplexDevice<RflexDevice>, TokioWorldStepper) {
+    let mut w = World::new();
+    let id = w
+        .add_robot(RobotSpec::new("scooter", 0.0, 0.0, 0.0))
+        .unwrap();
+    let wall = Wall {
+        from: [3.0, -5.0],
+        to: [3.0, 5.0],
+    };
+    w.add_wall(wall).unwrap();
+    let world = SharedWorld::new(w);
+    let sonar = SonarModel {
+        rays: 1,
+        noise_std_m: 0.0,
+        ..SonarModel::default()
+    };
+    let body = WorldBody::new(world.clone(), id, 7).with_sonar(sonar);
+    let dev = RflexDevice::new(RflexModelConfig::default(), body);
+    let (host, dev) = DuplexDevice::spawn(dev, DuplexOptions::default());
+    let stepper = TokioWorldStepper::spawn(world, Duration::from_millis(10));
+    let base = Rflex::connect(
         host,
         Config::default(),
         Duration::from_secs(5),
@@ -132,6 +44,12 @@ async fn driver_drives_sees_the_wall_and_feels_the_bumper_in_virtual_time() {
     )
     .await
     .unwrap();
+    (base, dev, stepper)
+}
+
+#[tokio::test(start_paused = true)]
+async fn driver_drives_sees_the_wall_and_feels_the_bumper_in_virtual_time() {
+    let (mut base, _dev, _stepper) = connect().await;
     // Brake first.
     assert!(
         base.set_velocity(VelocityCommand::new(0.2, 0.0))
@@ -158,10 +76,22 @@ async fn driver_drives_sees_the_wall_and_feels_the_bumper_in_virtual_time() {
     let r0 = scan.value.get(0).unwrap().range_m;
     let expect = 3.0 - end.value.x_m() - 0.40;
     assert!((r0 - expect).abs() < 0.01, "r0 {r0} expect {expect}");
-    // The front bumper closed at x = 0.9.
+    assert_eq!(base.bumpers().await.unwrap().value.front, 0);
+    // On to the wall: the front bumper closes before the robot reaches it.
+    for _ in 0..100 {
+        if base.bumpers().await.unwrap().value.front == 1 {
+            break;
+        }
+        base.set_velocity(VelocityCommand::new(0.2, 0.0))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    base.stop().await.unwrap();
     let bump = base.bumpers().await.unwrap().value;
-    assert_eq!(bump.front, 1);
-    assert_eq!(bump.rear, 0);
+    assert_eq!((bump.front, bump.rear), (1, 0));
+    let x = base.odometry().await.unwrap().value.x_m();
+    assert!(x > 2.0 && x < 3.0, "bumped at x = {x}");
     let st = base.stats();
     assert_eq!(st.framer.bad_checksums, 0);
     assert_eq!(st.session.odometry_rejected, 0);
@@ -170,18 +100,7 @@ async fn driver_drives_sees_the_wall_and_feels_the_bumper_in_virtual_time() {
 
 #[tokio::test(start_paused = true)]
 async fn emergency_stop_engages_the_brake_and_the_watchdog_stops_a_quiet_client() {
-    let (host, dev) = tokio::io::duplex(8192);
-    let b = body();
-    let robot = RflexRobot::new(RflexModelConfig::default(), &b);
-    tokio::spawn(serve(dev, robot, b));
-    let mut base = Rflex::connect(
-        host,
-        Config::default(),
-        Duration::from_secs(5),
-        ima_hal::time::TokioClock::shared(),
-    )
-    .await
-    .unwrap();
+    let (mut base, _dev, _stepper) = connect().await;
     base.enable_motors(true).await.unwrap();
     // One command, then silence: the driver's 0.5 s watchdog zeroes it.
     base.set_velocity(VelocityCommand::new(0.3, 0.0))
