@@ -3,10 +3,11 @@
 //! [`SonarArray`], [`Bumpers`], [`Power`]). The [`ima_serial::runner`] does the I/O;
 //! blocking code uses [`ima_serial::blocking::Blocking`]`<Rflex>`.
 //!
-//! * **Recovery**: when the machine reports [`Event::LinkLost`] the shell re-sends the §6
-//!   initialisation ([`Machine::reinitialize`]) every [`Config::link_timeout`] until the base
-//!   streams motion reports again, so a power-cycled controller (reports off, brake on) comes
-//!   back with reports, sonar and — if the motors had been enabled — the brake released.
+//! * **Recovery**: the shell turns on the machine's [`Config::recover`]: from
+//!   [`Event::LinkLost`] the §6 initialisation ([`Machine::reinitialize`]) is re-sent every
+//!   [`Config::link_timeout`] until the base streams motion reports again, so a power-cycled
+//!   controller (reports off, brake on) comes back with reports, sonar and — if the motors
+//!   had been enabled — the brake released.
 //! * **Emergency stop**: the spec (§3, §6) names no emergency command, so
 //!   [`DifferentialBase::emergency_stop`] zeroes both axes at once (the same SET_DIR pair as
 //!   `stop`) and then engages the brake (MOT_BRAKE_SET), so the motors stay disabled until
@@ -66,10 +67,6 @@ pub struct RflexShell {
     scan: SonarScan,
     /// Brake changes waiting for SYS_STATUS to confirm them (keyed by "released").
     motors: Confirmations<bool, (), Self>,
-    /// Sonar as last asked for (re-sent by a re-initialisation).
-    sonar_wanted: bool,
-    /// When to re-send the initialisation (the link is lost).
-    reinit_at: Option<Instant>,
     reconnects: u32,
     bytes: u64,
 }
@@ -94,36 +91,18 @@ impl Shell for RflexShell {
         self.machine.handle_bytes(bytes, now);
     }
 
-    fn on_timeout(&mut self, now: Instant) {
-        self.machine.handle_timeout(now);
-        if self.reinit_at.is_some_and(|t| now >= t) {
-            tracing::debug!("rflex: re-sending the initialisation");
-            self.machine.reinitialize(self.sonar_wanted, now);
-            self.reinit_at = Some(now + self.machine.config().link_timeout);
-        }
-    }
-
-    fn next_wake(&mut self) -> Option<Instant> {
-        [self.machine.poll_timeout(), self.reinit_at]
-            .into_iter()
-            .flatten()
-            .min()
-    }
-
     fn on_event(&mut self, ev: Event, _line: &mut dyn BaudControl) -> std::io::Result<()> {
         match ev {
             Event::Initialized => tracing::debug!("rflex: initialisation sent"),
             Event::LinkLost => {
                 tracing::warn!("rflex: no report from the base; re-initialising");
                 self.reconnects = self.reconnects.wrapping_add(1);
-                self.reinit_at = Some(Instant::ZERO);
                 self.link.send_replace(LinkStatus::Lost);
             }
             // A frame alone (an ack, a status reply) does not prove the base is streaming
             // again (a power-cycled controller has reports off): only motion reports do.
             Event::Odometry(o) => {
                 self.odometry.send_replace(Some(o));
-                self.reinit_at = None;
                 self.link.send_if_modified(|l| {
                     let up = l.is_connected();
                     *l = LinkStatus::Connected(());
@@ -243,7 +222,13 @@ impl Rflex {
         let (power_tx, power) = slot();
         let (brake_tx, brake) = slot();
         let limits = cfg.limits;
-        let machine = Machine::new(cfg, clock.now());
+        let machine = Machine::new(
+            Config {
+                recover: true,
+                ..cfg
+            },
+            clock.now(),
+        );
         let transducers = machine.transducers().iter().copied().collect();
         let shell = RflexShell {
             machine,
@@ -255,8 +240,6 @@ impl Rflex {
             brake: brake_tx,
             scan: SonarScan::default(),
             motors: Confirmations::default(),
-            sonar_wanted: false,
-            reinit_at: None,
             reconnects: 0,
             bytes: 0,
         };
@@ -393,11 +376,7 @@ impl SonarArray for Rflex {
     }
 
     async fn set_sonar_enabled(&mut self, on: bool) -> Result<(), DriverError> {
-        self.call(move |s, now| {
-            s.sonar_wanted = on;
-            s.machine.set_sonar(on, now)
-        })
-        .await
+        self.call(move |s, now| s.machine.set_sonar(on, now)).await
     }
 
     async fn sonar(&mut self) -> Result<Stamped<SonarScan>, DriverError> {
