@@ -149,6 +149,51 @@ impl fmt::Display for Thousands {
     }
 }
 
+/// What a line carried while a driver listened at one rate, for messages: `silence on the
+/// line (base on? right port?)`, or `received 1,204 bytes, no valid frame (3 bad) (wrong
+/// rate or wrong device?)`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Heard {
+    /// Bytes received.
+    pub bytes: u64,
+    /// Valid units (frames, lines) among them.
+    pub valid: u64,
+    /// Units dropped as bad.
+    pub bad: u64,
+    /// What a unit is called (`frame`, `line`).
+    pub unit: &'static str,
+    /// What to check when the line was silent (`base on? right port?`).
+    pub silence_hint: &'static str,
+}
+
+impl fmt::Display for Heard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let Self {
+            bytes,
+            valid,
+            bad,
+            unit,
+            silence_hint,
+        } = *self;
+        if bytes == 0 {
+            return write!(f, "silence on the line ({silence_hint})");
+        }
+        write!(f, "received {} bytes, ", Thousands(bytes))?;
+        match valid {
+            0 => write!(f, "no valid {unit}")?,
+            1 => write!(f, "1 valid {unit}")?,
+            n => write!(f, "{n} valid {unit}s")?,
+        }
+        if bad > 0 {
+            write!(f, " ({bad} bad)")?;
+        }
+        if valid == 0 {
+            f.write_str(" (wrong rate or wrong device?)")?;
+        }
+        Ok(())
+    }
+}
+
 fn list_rates<'a>(
     f: &mut fmt::Formatter<'_>,
     rates: impl Iterator<Item = &'a RateTally>,
@@ -217,6 +262,27 @@ mod tests {
     extern crate std;
     use super::*;
     use std::string::ToString;
+
+    #[test]
+    fn heard_says_what_one_rate_carried() {
+        let h = |bytes, valid, bad| Heard {
+            bytes,
+            valid,
+            bad,
+            unit: "line",
+            silence_hint: "powered?",
+        };
+        assert_eq!(h(0, 0, 0).to_string(), "silence on the line (powered?)");
+        assert_eq!(
+            h(1204, 0, 3).to_string(),
+            "received 1,204 bytes, no valid line (3 bad) (wrong rate or wrong device?)"
+        );
+        assert_eq!(h(40, 1, 0).to_string(), "received 40 bytes, 1 valid line");
+        assert_eq!(
+            h(90, 2, 1).to_string(),
+            "received 90 bytes, 2 valid lines (1 bad)"
+        );
+    }
 
     #[test]
     fn silence_names_every_rate_tried() {

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use ima_compass::driver::{DriverError, Fault};
 use ima_compass::machine::{Config, Dialect, ForeignLine};
-use ima_compass::shell::{CompassDriver, default_baud, open_port};
+use ima_compass::shell::{CompassDriver, open_port};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::compass::HeadingReference;
 
@@ -76,7 +76,7 @@ pub fn run(args: &CompassArgs) -> Result<()> {
 
 async fn run_async(args: &CompassArgs) -> Result<()> {
     let cfg = config(args);
-    let baud = args.baud.unwrap_or_else(|| default_baud(cfg.dialect));
+    let baud = args.baud.unwrap_or_else(|| cfg.dialect.default_baud());
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
     let protocol = match args.dialect {
         DriverDialect::Kvh => "compass-kvh",
@@ -87,7 +87,7 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     tracing::info!(
         target: "ima::connect",
         "compass: configuring a {} at {baud} baud on {}",
-        ima_compass::driver::dialect_name(cfg.dialect),
+        cfg.dialect.name(),
         args.port
     );
     let drv = match CompassDriver::connect(

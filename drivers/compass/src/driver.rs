@@ -2,6 +2,7 @@
 //! [`ima_serial::DriverError`]`<`[`Fault`]`>`.
 
 use ima_hal::ErrorKind;
+use ima_hal::link::Heard;
 
 use crate::machine::{Dialect, ForeignLine, Job, RequestError};
 
@@ -9,12 +10,14 @@ use crate::machine::{Dialect, ForeignLine, Job, RequestError};
 pub type DriverError = ima_serial::DriverError<Fault>;
 
 /// What only a compass reports.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Fault {
     /// The session refused the request (wrong dialect, busy…).
+    #[error("{0}")]
     Request(RequestError),
     /// A configuration or calibration job gave up after its retries.
+    #[error("compass job {job:?} failed at step {step} (no answer)")]
     JobFailed {
         /// The job.
         job: Job,
@@ -22,6 +25,15 @@ pub enum Fault {
         step: u8,
     },
     /// The configuration got no usable answer: what the port received meanwhile.
+    #[error("the compass did not answer its configuration{}: {}",
+        step.map(|s| format!(" (step {s})")).unwrap_or_default(),
+        Heard {
+            bytes: (*bytes).into(),
+            valid: (*lines).into(),
+            bad: (*bad_lines).into(),
+            unit: "line",
+            silence_hint: "powered? right port? right rate?",
+        })]
     NoAnswer {
         /// The step of the configuration script it gave up at (`None`: the connect timeout
         /// passed first).
@@ -34,6 +46,10 @@ pub enum Fault {
         bad_lines: u32,
     },
     /// The device speaks another dialect than the one configured.
+    #[error(
+        "the compass answered in {seen}, not {} ({lines} such lines; its configuration got no answer)",
+        expected.name()
+    )]
     WrongDialect {
         /// The dialect configured.
         expected: Dialect,
@@ -76,68 +92,6 @@ pub fn no_answer(st: &crate::machine::Stats, step: Option<u8>) -> DriverError {
     })
 }
 
-/// A dialect's name for messages (`TCM2`, `KVH C100`, `NMEA`).
-#[must_use]
-pub fn dialect_name(d: Dialect) -> &'static str {
-    match d {
-        Dialect::Nmea => "NMEA",
-        Dialect::KvhC100 { .. } => "KVH C100 (NMEA)",
-        Dialect::Tcm2 { .. } => "TCM2",
-    }
-}
-
-impl std::fmt::Display for Fault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Request(e) => write!(f, "{e}"),
-            Self::JobFailed { job, step } => {
-                write!(f, "compass job {job:?} failed at step {step} (no answer)")
-            }
-            Self::NoAnswer {
-                step,
-                bytes,
-                lines,
-                bad_lines,
-            } => {
-                f.write_str("the compass did not answer its configuration")?;
-                if let Some(step) = step {
-                    write!(f, " (step {step})")?;
-                }
-                f.write_str(": ")?;
-                if *bytes == 0 {
-                    return f.write_str("silence on the line (powered? right port? right rate?)");
-                }
-                write!(
-                    f,
-                    "received {} bytes, ",
-                    ima_hal::link::Thousands(u64::from(*bytes))
-                )?;
-                match lines {
-                    0 => f.write_str("no valid line")?,
-                    1 => f.write_str("1 valid line")?,
-                    n => write!(f, "{n} valid lines")?,
-                }
-                if *bad_lines > 0 {
-                    write!(f, " ({bad_lines} bad)")?;
-                }
-                if *lines == 0 {
-                    f.write_str(" (wrong rate or wrong device?)")?;
-                }
-                Ok(())
-            }
-            Self::WrongDialect {
-                expected,
-                seen,
-                lines,
-            } => write!(
-                f,
-                "the compass answered in {seen}, not {} ({lines} such lines; its configuration got no answer)",
-                dialect_name(*expected)
-            ),
-        }
-    }
-}
-
 impl ima_serial::Fault for Fault {
     const DEVICE: &'static str = "compass";
 
@@ -147,12 +101,6 @@ impl ima_serial::Fault for Fault {
             Self::WrongDialect { .. } => ErrorKind::Protocol,
             Self::Request(e) => ima_hal::Error::kind(e),
         }
-    }
-}
-
-impl From<Fault> for DriverError {
-    fn from(f: Fault) -> Self {
-        Self::Device(f)
     }
 }
 

@@ -201,6 +201,27 @@ pub enum ForeignLine {
     Tcm2,
 }
 
+impl Dialect {
+    /// The dialect's name for messages (`NMEA`, `KVH C100 (NMEA)`, `TCM2`).
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Nmea => "NMEA",
+            Self::KvhC100 { .. } => "KVH C100 (NMEA)",
+            Self::Tcm2 { .. } => "TCM2",
+        }
+    }
+
+    /// The dialect's default line speed (spec §7a: NMEA 4800, TCM2 9600).
+    #[must_use]
+    pub const fn default_baud(self) -> u32 {
+        match self {
+            Self::Nmea | Self::KvhC100 { .. } => 4800,
+            Self::Tcm2 { .. } => 9600,
+        }
+    }
+}
+
 impl core::fmt::Display for ForeignLine {
     /// `NMEA ($HCHDG…)` or `TCM2 ($C…P…R…)`.
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {

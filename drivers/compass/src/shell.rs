@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use ima_hal::compass::{Compass, Heading};
 use ima_hal::{ErrorType, Instant, Stamped};
-use ima_serial::handle::{Handle, Slot, SlotRx, slot};
+use ima_serial::handle::{Handle, Pending, Slot, SlotRx, slot};
 use ima_serial::runner::{Reply, Shell};
 use ima_serial::{BaudControl, FixedBaud};
 use tokio::io::{AsyncRead, AsyncWrite};
@@ -24,15 +24,6 @@ use crate::wire::CalScore;
 /// Open a serial port for the shell: `baud` 8N1, no flow control (NMEA compasses: 4800;
 /// TCM2: 9600).
 pub use ima_serial::open_port;
-
-/// The default line speed of a dialect (spec §7a: NMEA 4800, TCM2 9600).
-#[must_use]
-pub fn default_baud(dialect: Dialect) -> u32 {
-    match dialect {
-        Dialect::Nmea | Dialect::KvhC100 { .. } => 4800,
-        Dialect::Tcm2 { .. } => 9600,
-    }
-}
 
 /// The clock types a shell takes: the caller passes the process's one [`SharedClock`]
 /// (usually a [`TokioClock`], so paused tests run in virtual time) to `connect`, and every
@@ -75,23 +66,15 @@ pub struct CompassShell {
     machine: Machine,
     link: watch::Sender<LinkStatus>,
     reading: Slot<Reading>,
-    stats: watch::Sender<Stats>,
     /// The calibration request being run.
-    job: Option<Reply<CalibrationOutcome, Self>>,
-}
-
-impl CompassShell {
-    fn finish_job(&mut self, r: Result<CalibrationOutcome, DriverError>) {
-        if let Some(j) = self.job.take() {
-            let _ = j.send(r);
-        }
-    }
+    job: Pending<CalibrationOutcome, Self>,
 }
 
 impl Shell for CompassShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = ();
+    type Stats = Stats;
     const MAX_FRAME: usize = crate::wire::command::MAX_COMMAND;
 
     fn machine(&mut self) -> &mut Machine {
@@ -122,18 +105,18 @@ impl Shell for CompassShell {
                 tracing::warn!(?job, step, "compass: job failed");
                 if job == crate::machine::Job::Configure {
                     let e = crate::driver::configuration_failed(&self.machine, step);
-                    self.finish_job(Err(e));
+                    self.job.answer(Err(e));
                     self.link.send_replace(LinkStatus::Failed(e));
                 } else {
-                    self.finish_job(Err(Fault::JobFailed { job, step }.into()));
+                    self.job.answer(Err(Fault::JobFailed { job, step }.into()));
                 }
             }
-            Event::CalibrationStarted => self.finish_job(Ok(CalibrationOutcome::Started)),
+            Event::CalibrationStarted => self.job.answer(Ok(CalibrationOutcome::Started)),
             Event::CalibrationFinished { score } => {
-                self.finish_job(Ok(CalibrationOutcome::Finished(score)));
+                self.job.answer(Ok(CalibrationOutcome::Finished(score)));
             }
-            Event::AutoCalibration(on) => self.finish_job(Ok(CalibrationOutcome::Auto(on))),
-            Event::CalibrationCleared => self.finish_job(Ok(CalibrationOutcome::Cleared)),
+            Event::AutoCalibration(on) => self.job.answer(Ok(CalibrationOutcome::Auto(on))),
+            Event::CalibrationCleared => self.job.answer(Ok(CalibrationOutcome::Cleared)),
             Event::DeviceError { code } => {
                 tracing::warn!(code, "compass: device reports an error code");
             }
@@ -147,8 +130,8 @@ impl Shell for CompassShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        self.stats.send_replace(self.machine.stats());
+    fn stats(&self) -> Stats {
+        self.machine.stats()
     }
 
     /// Say what the line carried rather than just "in time".
@@ -172,7 +155,6 @@ pub const HEADING_TIMEOUT: Duration = Duration::from_secs(3);
 pub struct CompassDriver {
     h: Handle<CompassShell>,
     reading: SlotRx<Reading>,
-    stats: watch::Receiver<Stats>,
     dialect: Dialect,
 }
 
@@ -197,20 +179,17 @@ impl CompassDriver {
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
         let (reading_tx, reading) = slot();
-        let (stats_tx, stats) = watch::channel(Stats::default());
         let shell = CompassShell {
             machine: Machine::new(cfg),
             link: watch::channel(LinkStatus::Connecting).0,
             reading: reading_tx,
-            stats: stats_tx,
-            job: None,
+            job: Pending::default(),
         };
         let stream = FixedBaud(stream);
         let (h, ()) = Handle::connect(shell, stream, clock, connect_timeout, None).await?;
         Ok(Self {
             h,
             reading,
-            stats,
             dialect: cfg.dialect,
         })
     }
@@ -230,7 +209,7 @@ impl CompassDriver {
     /// Session counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The driver's clock (the time base of every stamp it produces).
@@ -266,16 +245,14 @@ impl CompassDriver {
         let f = move |s: &mut CompassShell, now, reply: Reply<_, CompassShell>| {
             let m = &mut s.machine;
             let r = match what {
-                _ if s.job.is_some() => Err(RequestError::Busy),
+                _ if s.job.is_waiting() => Err(RequestError::Busy),
                 Calibration::StartUser => m.start_user_calibration(now),
                 Calibration::StopUser => m.stop_user_calibration(now),
                 Calibration::Auto(on) => m.set_auto_calibration(on, now),
                 Calibration::Clear => m.clear_calibration(now),
             };
-            match r {
-                Ok(()) => s.job = Some(reply),
-                Err(e) => drop(reply.send(Err(e.into()))),
-            }
+            s.job
+                .wait(r.map_err(Into::into), reply, RequestError::Busy.into());
         };
         self.h.defer(Duration::from_secs(10), f).await
     }

@@ -12,52 +12,29 @@ pub use ima_serial::{BaudControl, FixedBaud};
 pub type DriverError = ima_serial::DriverError<Fault>;
 
 /// What only a P2OS robot reports.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Fault {
     /// The session refused the request.
+    #[error("{0}")]
     Session(SessionError),
     /// The robot never confirmed ENABLE (motors switch or E-stop).
+    #[error("robot did not enable its motors (motor switch off or E-stop engaged?)")]
     MotorsRefused,
     /// The robot's subclass has no parameter table (set `Config::params_override`).
+    #[error("robot subclass {0:?} has no parameter table; set a params override")]
     UnsupportedRobot(String),
     /// No rate answered the handshake.
+    #[error("no answer to the P2OS handshake at the rates probed")]
     HandshakeFailed,
     /// The handshake did not complete while connecting: what was seen at each rate tried.
+    #[error("no P2OS robot completed the handshake (robot on? right port?): {0}")]
     NoAnswer(Box<ProbeReport>),
-}
-
-impl From<Fault> for DriverError {
-    fn from(f: Fault) -> Self {
-        Self::Device(f)
-    }
 }
 
 impl From<SessionError> for DriverError {
     fn from(e: SessionError) -> Self {
         Self::Device(Fault::Session(e))
-    }
-}
-
-impl std::fmt::Display for Fault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Session(e) => write!(f, "{e}"),
-            Self::MotorsRefused => {
-                f.write_str("robot did not enable its motors (motor switch off or E-stop engaged?)")
-            }
-            Self::UnsupportedRobot(s) => write!(
-                f,
-                "robot subclass {s:?} has no parameter table; set a params override"
-            ),
-            Self::HandshakeFailed => {
-                f.write_str("no answer to the P2OS handshake at the rates probed")
-            }
-            Self::NoAnswer(report) => write!(
-                f,
-                "no P2OS robot completed the handshake (robot on? right port?): {report}"
-            ),
-        }
     }
 }
 

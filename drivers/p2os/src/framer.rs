@@ -31,6 +31,15 @@ pub struct FramerStats {
     pub abandoned: u64,
 }
 
+impl FramerStats {
+    /// Frames delivered and frames rejected (checksum, count, abandoned), for a probe report.
+    #[must_use]
+    pub fn tally(&self) -> (u64, u64) {
+        let bad = self.bad_checksums + self.bad_counts + self.abandoned;
+        (self.frames, bad)
+    }
+}
+
 /// Why the framer rejected a candidate frame (reported to [`Framer::push`]'s callback).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Rejected {

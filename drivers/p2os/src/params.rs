@@ -5,6 +5,10 @@
 //! by subclass matters (spec §10 item 11); an unknown subclass is an error unless the caller
 //! overrides it ([`crate::machine::Config::params_override`]).
 
+use ima_hal::base::BaseLimits;
+use ima_hal::sonar::SonarTransducer;
+use ima_hal::{Isometry2, Vector2};
+
 /// Default encoder resolution of the thesis's robots: 9,850 ticks per wheel turn.
 pub const DEFAULT_TICKS_PER_MM: f64 = 19.0;
 
@@ -65,6 +69,28 @@ impl RobotParams {
     #[must_use]
     pub fn track_mm(&self) -> f64 {
         2.0 / self.diff_conv
+    }
+
+    /// The speed limits of this robot (`max_velocity`, `max_rot_velocity`).
+    #[must_use]
+    pub fn limits(&self) -> BaseLimits {
+        BaseLimits {
+            max_v_m_s: self.max_velocity_mm_s / 1000.0,
+            max_omega_rad_s: self.max_rot_velocity_deg_s.to_radians(),
+        }
+    }
+
+    /// The sonar ring as HAL transducers (P2OS sonar: 10 cm–5 m, ~30° beams).
+    pub fn transducers(&self) -> impl Iterator<Item = SonarTransducer> + '_ {
+        self.sonars.iter().map(|s| SonarTransducer {
+            pose: Isometry2::new(
+                Vector2::new(s.x_mm / 1000.0, s.y_mm / 1000.0),
+                s.heading_deg.to_radians(),
+            ),
+            min_range_m: 0.1,
+            max_range_m: 5.0,
+            beam_width_rad: 30f64.to_radians(),
+        })
     }
 
     /// The table for `subclass` (case-insensitive), if known.

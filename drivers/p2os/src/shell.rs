@@ -9,11 +9,11 @@ use std::time::Duration;
 use ima_hal::base::{
     BaseLimits, BumperState, Bumpers, DifferentialBase, Odometer, Odometry, VelocityCommand,
 };
-use ima_hal::link::ProbeReport;
 use ima_hal::power::{Power, PowerState};
 use ima_hal::sonar::{SonarArray, SonarScan, SonarTransducer};
 use ima_hal::{ErrorType, Instant, Stamped};
 use ima_serial::handle::{Confirmations, Handle};
+use ima_serial::probe::Probe;
 use ima_serial::runner::Shell;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::watch;
@@ -48,14 +48,11 @@ pub struct P2osShell {
     machine: Machine,
     link: watch::Sender<LinkStatus>,
     state: watch::Sender<Option<RobotState>>,
-    stats: watch::Sender<SessionStats>,
     config: watch::Sender<Option<RobotConfig>>,
     /// What each rate tried received, until the first connection.
-    probe: ProbeReport,
+    probe: Probe,
     /// Motor switches waiting for FLAGS to confirm them.
     motors: Confirmations<bool, (), Self>,
-    /// The session was connected once (the probe report is final).
-    connected: bool,
 }
 
 /// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up.
@@ -72,6 +69,7 @@ impl Shell for P2osShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = Connection;
+    type Stats = SessionStats;
     const MAX_FRAME: usize = crate::wire::MAX_FRAME_LEN;
 
     fn machine(&mut self) -> &mut Machine {
@@ -88,17 +86,10 @@ impl Shell for P2osShell {
 
     /// Counts the bytes (and the frames they made) per rate until the first connection.
     fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
-        let before = self.machine.stats().framer;
+        let before = self.machine.stats().framer.tally();
         self.machine.handle_bytes(bytes, now);
-        if !self.connected {
-            let after = self.machine.stats().framer;
-            let bad = |f: crate::framer::FramerStats| f.bad_checksums + f.bad_counts + f.abandoned;
-            self.probe.received(bytes.len());
-            self.probe.framed(
-                after.frames.saturating_sub(before.frames),
-                bad(after).saturating_sub(bad(before)),
-            );
-        }
+        let after = self.machine.stats().framer.tally();
+        self.probe.received(bytes.len(), before, after);
     }
 
     fn on_event(&mut self, ev: Event, line: &mut dyn BaudControl) -> std::io::Result<()> {
@@ -106,11 +97,7 @@ impl Shell for P2osShell {
             Event::SetBaud(b) => {
                 tracing::debug!(baud = b, "p2os: line speed");
                 line.set_baud(b)?;
-                if !self.connected {
-                    self.probe.attempt(b);
-                    let n = self.probe.current_tally().map_or(1, |t| t.attempts);
-                    tracing::info!(target: "ima::connect", "P2OS: trying {b} baud (attempt {n})");
-                }
+                self.probe.rate(b, true);
             }
             Event::Connected {
                 identity,
@@ -118,7 +105,7 @@ impl Shell for P2osShell {
                 baud,
             } => {
                 tracing::info!(name = %identity.name, subclass = %identity.subclass, baud, "p2os: connected");
-                self.connected = true;
+                self.probe.connected();
                 let c = Connection {
                     identity,
                     baud,
@@ -129,8 +116,8 @@ impl Shell for P2osShell {
             Event::UnsupportedRobot(id) => {
                 self.fail(Fault::UnsupportedRobot(id.subclass.as_str().into()));
             }
-            Event::HandshakeFailed if self.connected => self.fail(Fault::HandshakeFailed),
-            Event::HandshakeFailed => self.fail(Fault::NoAnswer(Box::new(self.probe.clone()))),
+            Event::HandshakeFailed if self.probe.is_done() => self.fail(Fault::HandshakeFailed),
+            Event::HandshakeFailed => self.fail(Fault::NoAnswer(Box::new(self.probe.report()))),
             Event::Disconnected(DisconnectReason::LinkLost) => {
                 tracing::warn!("p2os: link lost, reconnecting");
                 self.link.send_replace(LinkStatus::Lost);
@@ -151,8 +138,8 @@ impl Shell for P2osShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        self.stats.send_replace(self.machine.stats());
+    fn stats(&self) -> SessionStats {
+        self.machine.stats()
     }
 
     /// Queue STOP and CLOSE (frames are paced, so they may need more than one round).
@@ -167,7 +154,7 @@ impl Shell for P2osShell {
 
     /// Say what each rate tried received.
     fn no_answer(&mut self) -> DriverError {
-        Fault::NoAnswer(Box::new(self.probe.clone())).into()
+        Fault::NoAnswer(Box::new(self.probe.report())).into()
     }
 }
 
@@ -176,7 +163,6 @@ impl Shell for P2osShell {
 pub struct P2os {
     h: Handle<P2osShell>,
     state: watch::Receiver<Option<RobotState>>,
-    stats: watch::Receiver<SessionStats>,
     config: watch::Receiver<Option<RobotConfig>>,
     params: RobotParams,
     transducers: Arc<[SonarTransducer]>,
@@ -206,26 +192,22 @@ impl P2os {
         S: AsyncRead + AsyncWrite + BaudControl + Unpin + Send + 'static,
     {
         let (state_tx, state) = watch::channel(None);
-        let (stats_tx, stats) = watch::channel(SessionStats::default());
         let (config_tx, config) = watch::channel(None);
         let shell = P2osShell {
             machine: Machine::new(cfg),
             link: watch::channel(LinkStatus::Connecting).0,
             state: state_tx,
-            stats: stats_tx,
             config: config_tx,
-            probe: ProbeReport::new(),
+            probe: Probe::new("P2OS"),
             motors: Confirmations::default(),
-            connected: false,
         };
         let stop_as = Some("P2OS base");
         let (h, c) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;
         Ok(P2os {
             h,
             state,
-            stats,
             config,
-            transducers: transducers(&c.params).into(),
+            transducers: c.params.transducers().collect(),
             params: c.params,
         })
     }
@@ -253,7 +235,7 @@ impl P2os {
     /// Session counters (frames, drops, bad checksums, implausible SIPs, reconnects…).
     #[must_use]
     pub fn stats(&self) -> SessionStats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The robot's CONFIG packet, once received.
@@ -309,37 +291,13 @@ impl P2os {
     }
 }
 
-/// The speed limits of `params`.
-fn limits(params: &RobotParams) -> BaseLimits {
-    BaseLimits {
-        max_v_m_s: params.max_velocity_mm_s / 1000.0,
-        max_omega_rad_s: params.max_rot_velocity_deg_s.to_radians(),
-    }
-}
-
-/// The sonar ring of `params` as HAL transducers (P2OS sonar: 10 cm–5 m, ~30° beams).
-fn transducers(params: &RobotParams) -> Vec<SonarTransducer> {
-    let pose = |s: &crate::params::SonarPose| {
-        let at = ima_hal::Vector2::new(s.x_mm / 1000.0, s.y_mm / 1000.0);
-        ima_hal::Isometry2::new(at, s.heading_deg.to_radians())
-    };
-    (params.sonars.iter())
-        .map(|s| SonarTransducer {
-            pose: pose(s),
-            min_range_m: 0.1,
-            max_range_m: 5.0,
-            beam_width_rad: 30f64.to_radians(),
-        })
-        .collect()
-}
-
 impl ErrorType for P2os {
     type Error = DriverError;
 }
 
 impl DifferentialBase for P2os {
     fn limits(&self) -> BaseLimits {
-        limits(&self.params)
+        self.params.limits()
     }
 
     async fn enable_motors(&mut self, enable: bool) -> Result<(), DriverError> {

@@ -5,6 +5,7 @@
 //! no line-speed control and takes any byte stream.
 
 use ima_hal::ErrorKind;
+use ima_hal::link::Heard;
 
 use crate::machine::CommandError;
 
@@ -15,12 +16,20 @@ pub const BAUD: u32 = 115_200;
 pub type DriverError = ima_serial::DriverError<Fault>;
 
 /// What only an rFLEX base reports.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Fault {
     /// The machine refused the command.
+    #[error("{0}")]
     Command(CommandError),
     /// No motion report arrived while connecting: what the line carried instead.
+    #[error("no motion report from the rFLEX base: {}", Heard {
+        bytes: *bytes,
+        valid: (*frames).into(),
+        bad: (*bad_frames).into(),
+        unit: "frame",
+        silence_hint: "base on? right port?",
+    })]
     NoReport {
         /// Bytes received.
         bytes: u64,
@@ -29,36 +38,6 @@ pub enum Fault {
         /// Frames dropped as bad.
         bad_frames: u32,
     },
-}
-
-impl std::fmt::Display for Fault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let (bytes, frames, bad_frames) = match *self {
-            Self::Command(e) => return write!(f, "{e}"),
-            Self::NoReport {
-                bytes,
-                frames,
-                bad_frames,
-            } => (bytes, frames, bad_frames),
-        };
-        f.write_str("no motion report from the rFLEX base: ")?;
-        if bytes == 0 {
-            return f.write_str("silence on the line (base on? right port?)");
-        }
-        write!(f, "received {} bytes, ", ima_hal::link::Thousands(bytes))?;
-        match frames {
-            0 => f.write_str("no valid frame")?,
-            1 => f.write_str("1 valid frame")?,
-            n => write!(f, "{n} valid frames")?,
-        }
-        if bad_frames > 0 {
-            write!(f, " ({bad_frames} bad)")?;
-        }
-        if frames == 0 {
-            f.write_str(" (wrong rate or wrong device?)")?;
-        }
-        Ok(())
-    }
 }
 
 impl ima_serial::Fault for Fault {

@@ -170,6 +170,11 @@ pub struct Config {
     /// No good frame for this long (reports come at 10 Hz) raises [`Event::LinkLost`];
     /// the next good frame raises [`Event::LinkUp`]. Default 1 s.
     pub link_timeout: Duration,
+    /// Recover a lost link: re-send the §6 initialisation ([`Machine::reinitialize`], sonar
+    /// as last asked for) at [`Event::LinkLost`] and every `link_timeout` after, until a
+    /// motion report arrives (a power-cycled controller has reports off and the brake on).
+    /// Off by default; the driver's shell turns it on.
+    pub recover: bool,
     /// The receiver's options (strict by default).
     pub framer: FramerConfig,
 }
@@ -206,6 +211,7 @@ impl Default for Config {
             odometry_slack: 0.05,
             odometry_max_rejects: 3,
             link_timeout: Duration::from_secs(1),
+            recover: false,
             framer: FramerConfig::default(),
         }
     }
@@ -436,6 +442,10 @@ pub struct Machine {
     last_cmd_at: Instant,
     last_rx: Instant,
     link_up: Option<bool>,
+    /// When to re-send the initialisation ([`Config::recover`]).
+    reinit_at: Option<Instant>,
+    /// The sonar as last asked for (a re-initialisation restarts it).
+    sonar_wanted: bool,
     hold_until: Option<Instant>,
     next_keepalive: Instant,
     next_status: Instant,
@@ -461,6 +471,8 @@ impl Machine {
             last_cmd_at: now,
             last_rx: now,
             link_up: None,
+            reinit_at: None,
+            sonar_wanted: false,
             hold_until: None,
             next_keepalive: now,
             next_status: now + cfg.status_period,
@@ -645,6 +657,13 @@ impl Machine {
         {
             self.link_up = Some(false);
             self.push_event(Event::LinkLost);
+            if self.cfg.recover {
+                self.reinit_at = Some(now);
+            }
+        }
+        if self.reinit_at.is_some_and(|t| now >= t) {
+            self.reinitialize(self.sonar_wanted, now);
+            self.reinit_at = Some(now + self.cfg.link_timeout);
         }
         if self.target != VelocityCommand::ZERO
             && now.saturating_duration_since(self.last_cmd_at) >= self.cfg.command_timeout
@@ -840,6 +859,7 @@ impl Machine {
         o.v = self.cfg.translation_si(f64::from(v0));
         o.omega = self.cfg.rotation_si(f64::from(v1));
         let odo = self.odometry();
+        self.reinit_at = None;
         self.push_event(Event::Odometry(Stamped::new(now, odo)));
     }
 
@@ -913,6 +933,7 @@ impl Machine {
 
     /// Start or stop the sonar (SONAR_RUN mode 2 / 0).
     pub fn set_sonar(&mut self, on: bool, now: Instant) -> Result<(), CommandError> {
+        self.sonar_wanted = on;
         self.advance(now);
         self.tick();
         if self.phase != Phase::Running {
@@ -1085,6 +1106,9 @@ impl Machine {
             }
             if self.link_up != Some(false) {
                 consider(self.last_rx + self.cfg.link_timeout);
+            }
+            if let Some(t) = self.reinit_at {
+                consider(t);
             }
             if self.target != VelocityCommand::ZERO {
                 consider(self.last_cmd_at + self.cfg.command_timeout);

@@ -3,10 +3,11 @@
 //! [`SonarArray`], [`Bumpers`], [`Power`]). The [`ima_serial::runner`] does the I/O;
 //! blocking code uses [`ima_serial::blocking::Blocking`]`<Rflex>`.
 //!
-//! * **Recovery**: when the machine reports [`Event::LinkLost`] the shell re-sends the §6
-//!   initialisation ([`Machine::reinitialize`]) every [`Config::link_timeout`] until the base
-//!   streams motion reports again, so a power-cycled controller (reports off, brake on) comes
-//!   back with reports, sonar and — if the motors had been enabled — the brake released.
+//! * **Recovery**: the shell turns on the machine's [`Config::recover`]: from
+//!   [`Event::LinkLost`] the §6 initialisation ([`Machine::reinitialize`]) is re-sent every
+//!   [`Config::link_timeout`] until the base streams motion reports again, so a power-cycled
+//!   controller (reports off, brake on) comes back with reports, sonar and — if the motors
+//!   had been enabled — the brake released.
 //! * **Emergency stop**: the spec (§3, §6) names no emergency command, so
 //!   [`DifferentialBase::emergency_stop`] zeroes both axes at once (the same SET_DIR pair as
 //!   `stop`) and then engages the brake (MOT_BRAKE_SET), so the motors stay disabled until
@@ -63,14 +64,9 @@ pub struct RflexShell {
     bumpers: Slot<BumperState>,
     power: Slot<PowerState>,
     brake: Slot<bool>,
-    stats: watch::Sender<ShellStats>,
     scan: SonarScan,
     /// Brake changes waiting for SYS_STATUS to confirm them (keyed by "released").
     motors: Confirmations<bool, (), Self>,
-    /// Sonar as last asked for (re-sent by a re-initialisation).
-    sonar_wanted: bool,
-    /// When to re-send the initialisation (the link is lost).
-    reinit_at: Option<Instant>,
     reconnects: u32,
     bytes: u64,
 }
@@ -79,6 +75,7 @@ impl Shell for RflexShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = ();
+    type Stats = ShellStats;
     const MAX_FRAME: usize = TX_BUF;
 
     fn machine(&mut self) -> &mut Machine {
@@ -94,36 +91,18 @@ impl Shell for RflexShell {
         self.machine.handle_bytes(bytes, now);
     }
 
-    fn on_timeout(&mut self, now: Instant) {
-        self.machine.handle_timeout(now);
-        if self.reinit_at.is_some_and(|t| now >= t) {
-            tracing::debug!("rflex: re-sending the initialisation");
-            self.machine.reinitialize(self.sonar_wanted, now);
-            self.reinit_at = Some(now + self.machine.config().link_timeout);
-        }
-    }
-
-    fn next_wake(&mut self) -> Option<Instant> {
-        [self.machine.poll_timeout(), self.reinit_at]
-            .into_iter()
-            .flatten()
-            .min()
-    }
-
     fn on_event(&mut self, ev: Event, _line: &mut dyn BaudControl) -> std::io::Result<()> {
         match ev {
             Event::Initialized => tracing::debug!("rflex: initialisation sent"),
             Event::LinkLost => {
                 tracing::warn!("rflex: no report from the base; re-initialising");
                 self.reconnects = self.reconnects.wrapping_add(1);
-                self.reinit_at = Some(Instant::ZERO);
                 self.link.send_replace(LinkStatus::Lost);
             }
             // A frame alone (an ack, a status reply) does not prove the base is streaming
             // again (a power-cycled controller has reports off): only motion reports do.
             Event::Odometry(o) => {
                 self.odometry.send_replace(Some(o));
-                self.reinit_at = None;
                 self.link.send_if_modified(|l| {
                     let up = l.is_connected();
                     *l = LinkStatus::Connected(());
@@ -165,13 +144,13 @@ impl Shell for RflexShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        let s = self.counters();
-        self.stats.send_if_modified(|old| {
-            let changed = *old != s;
-            *old = s;
-            changed
-        });
+    fn stats(&self) -> ShellStats {
+        ShellStats {
+            session: *self.machine.stats(),
+            framer: *self.machine.framer_stats(),
+            reconnects: self.reconnects,
+            bytes: self.bytes,
+        }
     }
 
     fn begin_close(&mut self, now: Instant) -> Duration {
@@ -185,23 +164,12 @@ impl Shell for RflexShell {
 
     /// What the line carried instead of motion reports.
     fn no_answer(&mut self) -> DriverError {
-        let st = self.counters();
+        let st = self.stats();
         DriverError::Device(Fault::NoReport {
             bytes: st.bytes,
             frames: st.framer.frames,
             bad_frames: st.framer.errors(),
         })
-    }
-}
-
-impl RflexShell {
-    fn counters(&self) -> ShellStats {
-        ShellStats {
-            session: *self.machine.stats(),
-            framer: *self.machine.framer_stats(),
-            reconnects: self.reconnects,
-            bytes: self.bytes,
-        }
     }
 }
 
@@ -214,7 +182,6 @@ pub struct Rflex {
     bumpers: Rx<BumperState>,
     power: Rx<PowerState>,
     brake: Rx<bool>,
-    stats: watch::Receiver<ShellStats>,
     limits: BaseLimits,
     transducers: Arc<[SonarTransducer]>,
 }
@@ -254,9 +221,14 @@ impl Rflex {
         let (bumpers_tx, bumpers) = slot();
         let (power_tx, power) = slot();
         let (brake_tx, brake) = slot();
-        let (stats_tx, stats) = watch::channel(ShellStats::default());
         let limits = cfg.limits;
-        let machine = Machine::new(cfg, clock.now());
+        let machine = Machine::new(
+            Config {
+                recover: true,
+                ..cfg
+            },
+            clock.now(),
+        );
         let transducers = machine.transducers().iter().copied().collect();
         let shell = RflexShell {
             machine,
@@ -266,11 +238,8 @@ impl Rflex {
             bumpers: bumpers_tx,
             power: power_tx,
             brake: brake_tx,
-            stats: stats_tx,
             scan: SonarScan::default(),
             motors: Confirmations::default(),
-            sonar_wanted: false,
-            reinit_at: None,
             reconnects: 0,
             bytes: 0,
         };
@@ -286,7 +255,6 @@ impl Rflex {
             bumpers,
             power,
             brake,
-            stats,
             limits,
             transducers,
         })
@@ -308,7 +276,7 @@ impl Rflex {
     /// The task's counters.
     #[must_use]
     pub fn stats(&self) -> ShellStats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The brake as last reported (`true`: engaged).
@@ -408,11 +376,7 @@ impl SonarArray for Rflex {
     }
 
     async fn set_sonar_enabled(&mut self, on: bool) -> Result<(), DriverError> {
-        self.call(move |s, now| {
-            s.sonar_wanted = on;
-            s.machine.set_sonar(on, now)
-        })
-        .await
+        self.call(move |s, now| s.machine.set_sonar(on, now)).await
     }
 
     async fn sonar(&mut self) -> Result<Stamped<SonarScan>, DriverError> {

@@ -786,6 +786,47 @@ fn link_lost_and_regained() {
 }
 
 #[test]
+fn recovery_resends_the_init_every_link_timeout_until_a_motion_report() {
+    // Sonar off at start, then asked for: the re-initialisation restarts it.
+    let cfg = Config {
+        recover: true,
+        sonar_at_start: false,
+        ..Config::default()
+    };
+    let mut s = Sim::new(cfg.clone());
+    s.run_until(ms(200));
+    s.m.set_sonar(true, ms(200)).unwrap();
+    s.run_until(ms(999));
+    assert!(
+        s.frames_since(ms(300))
+            .iter()
+            .all(|c| *c != Command::SetDefaults)
+    );
+    // Lost at 1 s: the init goes out at once, then again a link timeout later.
+    s.run_until(ms(1100));
+    let again = s.frames_since(ms(1000));
+    assert_eq!(again.len(), init_frames(&cfg).len(), "{again:?}");
+    assert!(again.contains(&Command::SonarRun(SonarRun::ON)));
+    s.run_until(ms(2100));
+    assert_eq!(
+        s.frames_since(ms(1100))
+            .iter()
+            .filter(|c| **c == Command::SetDefaults)
+            .count(),
+        1
+    );
+    // Motion reports again: no more re-initialisation (until the next loss, 1 s after the
+    // last report).
+    feed_pairs(&mut s.m, 2150, &[(0, 0, 0, 0), (9_081, 0, 0, 0)]);
+    s.run_until(ms(3200));
+    assert!(
+        s.frames_since(ms(2200))
+            .iter()
+            .all(|c| *c != Command::SetDefaults)
+    );
+}
+
+#[test]
 fn reinitialize_resends_init_keeps_the_pose_and_rebaselines() {
     let mut s = Sim::new(Config::default());
     s.run_until(ms(200));

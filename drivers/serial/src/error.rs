@@ -53,6 +53,12 @@ impl<F> From<LinkError> for DriverError<F> {
     }
 }
 
+impl<F: Fault> From<F> for DriverError<F> {
+    fn from(f: F) -> Self {
+        Self::Device(f)
+    }
+}
+
 impl<F: Fault> core::fmt::Display for DriverError<F> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
@@ -113,7 +119,7 @@ mod tests {
         );
         assert_eq!(io.kind(), ErrorKind::Disconnected);
         assert_eq!(e(LinkError::Timeout).kind(), ErrorKind::Timeout);
-        let d = DriverError::Device(Jam);
+        let d = DriverError::from(Jam);
         assert_eq!(
             (d.to_string().as_str(), d.kind()),
             ("paper jam", ErrorKind::Protocol)

@@ -20,6 +20,7 @@ use crate::{BaudControl, DriverError, LinkError, LinkStatus};
 pub struct Handle<D: Shell> {
     tx: mpsc::Sender<Msg<D>>,
     link: watch::Receiver<Status<D>>,
+    stats: watch::Receiver<D::Stats>,
     clock: SharedClock,
     halt: HaltSignal,
 }
@@ -29,6 +30,7 @@ impl<D: Shell> Clone for Handle<D> {
         Self {
             tx: self.tx.clone(),
             link: self.link.clone(),
+            stats: self.stats.clone(),
             clock: self.clock.clone(),
             halt: self.halt.clone(),
         }
@@ -58,11 +60,14 @@ impl<D: Shell> Handle<D> {
             StopRegistry::global().register(name, halt.clone());
         }
         let link = shell.link().subscribe();
+        let (stats_tx, stats) = watch::channel(shell.stats());
         let (tx, rx) = mpsc::channel(32);
-        tokio::spawn(runner::run(shell, stream, rx, clock.clone(), halt.clone()));
+        let task = runner::run(shell, stream, rx, stats_tx, clock.clone(), halt.clone());
+        tokio::spawn(task);
         Self {
             tx,
             link,
+            stats,
             clock,
             halt,
         }
@@ -116,6 +121,12 @@ impl<D: Shell> Handle<D> {
     #[must_use]
     pub fn link(&self) -> Status<D> {
         self.link.borrow().clone()
+    }
+
+    /// The shell's counters as last published (after the task's latest round).
+    #[must_use]
+    pub fn stats(&self) -> D::Stats {
+        self.stats.borrow().clone()
     }
 
     /// The process's clock this driver stamps with.
@@ -304,6 +315,48 @@ impl<K: PartialEq, T: Clone, D: Shell> Confirmations<K, T, D> {
     pub fn fail_all(&mut self, e: &Error<D>) {
         for (_, reply) in self.waiting.drain(..) {
             let _ = reply.send(Err(e.clone()));
+        }
+    }
+}
+
+/// The one call a shell answers later (a reconfiguration, a calibration, a request the
+/// device must answer); while it waits, another is refused.
+pub struct Pending<T, D: Shell>(Option<Reply<T, D>>);
+
+impl<T, D: Shell> Default for Pending<T, D> {
+    fn default() -> Self {
+        Self(None)
+    }
+}
+
+impl<T, D: Shell> core::fmt::Debug for Pending<T, D> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "Pending(waiting: {})", self.0.is_some())
+    }
+}
+
+impl<T, D: Shell> Pending<T, D> {
+    /// Whether a call is waiting.
+    #[must_use]
+    pub fn is_waiting(&self) -> bool {
+        self.0.is_some()
+    }
+
+    /// After asking the machine (`asked`: its answer), keep `reply` for
+    /// [`answer`](Self::answer); answer at once with the refusal, or with `busy` if a call
+    /// is already waiting.
+    pub fn wait(&mut self, asked: Result<(), Error<D>>, reply: Reply<T, D>, busy: Error<D>) {
+        match asked {
+            Ok(()) if self.0.is_none() => self.0 = Some(reply),
+            Ok(()) => drop(reply.send(Err(busy))),
+            Err(e) => drop(reply.send(Err(e))),
+        }
+    }
+
+    /// Answer the waiting call, if any.
+    pub fn answer(&mut self, r: Result<T, Error<D>>) {
+        if let Some(reply) = self.0.take() {
+            let _ = reply.send(r);
         }
     }
 }

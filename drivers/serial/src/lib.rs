@@ -11,7 +11,8 @@
 //!   over a byte stream (drain events → transmit → flush → wait on read / deadline / call);
 //!   [`handle::Handle`] — spawn, connect, calls on the shell, readings, close, the halt
 //!   signal: everything a driver handle does the same way; [`blocking`] (feature `serial`)
-//!   — any driver handle driven from blocking code.
+//!   — any driver handle driven from blocking code; [`probe::Probe`] — what each line rate
+//!   tried received while a driver connects.
 //! * [`line`](mod@line) — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
 //!   cursors of the binary ones. Both `no_std`, no heap, no panics.
 //!
@@ -45,6 +46,8 @@ pub mod line;
 mod link;
 #[cfg(feature = "std")]
 mod port;
+#[cfg(feature = "tokio")]
+pub mod probe;
 #[cfg(feature = "tokio")]
 pub mod runner;
 

@@ -50,6 +50,8 @@ pub trait Shell: Sized + Send + 'static {
     type Fault: Fault;
     /// What a connected link reports (who answered, at what rate; `()` for nothing).
     type Up: Clone + Send + Sync + 'static;
+    /// The counters handles read ([`Handle::stats`](crate::handle::Handle::stats)).
+    type Stats: Clone + PartialEq + Send + Sync + 'static;
     /// The largest frame the machine writes.
     const MAX_FRAME: usize;
 
@@ -89,8 +91,9 @@ pub trait Shell: Sized + Send + 'static {
         self.machine().poll_timeout()
     }
 
-    /// After each round's writes (publish counters).
-    fn after_round(&mut self) {}
+    /// The counters now (the runner publishes them after each round's writes, when they
+    /// changed).
+    fn stats(&self) -> Self::Stats;
 
     /// Start closing at `now` (queue the last frames); returns the longest the runner keeps
     /// writing them (by default: nothing to send, close at once).
@@ -132,6 +135,7 @@ pub(crate) async fn run<D, S>(
     mut shell: D,
     mut stream: S,
     mut requests: mpsc::Receiver<Msg<D>>,
+    stats: watch::Sender<D::Stats>,
     clock: SharedClock,
     halt: HaltSignal,
 ) where
@@ -153,7 +157,12 @@ pub(crate) async fn run<D, S>(
         if let Err(e) = transmit(&mut shell, &mut stream, &mut tbuf, clock.now()).await {
             break End::Failed(e.into());
         }
-        shell.after_round();
+        stats.send_if_modified(|old| {
+            let s = shell.stats();
+            let changed = *old != s;
+            *old = s;
+            changed
+        });
         let now = clock.now();
         if let Some(limit) = closing {
             let drained = shell.is_closed();
@@ -333,7 +342,9 @@ mod tests {
         type Machine = Counter;
         type Fault = Never;
         type Up = ();
+        type Stats = ();
         const MAX_FRAME: usize = 8;
+        fn stats(&self) {}
         fn machine(&mut self) -> &mut Counter {
             &mut self.machine
         }

@@ -5,7 +5,8 @@ use core::f64::consts::PI;
 use ima_hal::Isometry2;
 use ima_hal::laser::{BeamFlags, LaserDescription, LaserScan};
 
-use crate::wire::{MeasuringMode, Scan, Units, Values};
+use crate::machine::SessionInfo;
+use crate::wire::{BaudRate, MeasuringMode, Scan, Units, Values};
 
 /// A scan variant: field width and angular resolution (command `3B`, spec §3.6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -433,10 +434,53 @@ pub fn describe(
     }
 }
 
+/// The [`LaserDescription`] of a session (defaults: 180°/0.5°, mode 00, mm), for a scanner
+/// mounted at `pose`. The scan-rate limit is the lower of the mirror's and the line's (§4).
+#[must_use]
+pub fn describe_session(info: Option<&SessionInfo>, pose: Isometry2) -> LaserDescription {
+    let variant = info.and_then(|i| i.variant).unwrap_or(Variant::W180_R50);
+    let (mode, units) = info
+        .and_then(|i| i.config)
+        .map_or((MeasuringMode::DEFAULT, Units::Mm), |c| {
+            (c.measuring_mode(), Units::from_code(u16::from(c.units())))
+        });
+    let mut d = describe(variant, mode, units, pose);
+    if let Some(i) = info {
+        d.max_scan_rate_hz = d.max_scan_rate_hz.min(line_scan_rate_hz(i.baud, variant));
+    }
+    d
+}
+
+/// Scans per second the line allows for full scans of `variant` at `baud` (10 bits per byte,
+/// frame = 2N + 10 bytes, spec §4's table).
+#[must_use]
+pub fn line_scan_rate_hz(baud: BaudRate, variant: Variant) -> f64 {
+    let bytes = 2.0 * f64::from(variant.values()) + 10.0;
+    f64::from(baud.bps()) / (10.0 * bytes)
+}
+
+/// Scans per second a unit can deliver: the lower of the mirror's limit and the line's.
+#[must_use]
+pub fn expected_scan_rate_hz(baud: BaudRate, variant: Variant) -> f64 {
+    variant
+        .max_scan_rate_hz()
+        .min(line_scan_rate_hz(baud, variant))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::wire::{CountWord, StatusByte, Values};
+
+    #[test]
+    fn rates_match_the_spec_table() {
+        let r = |b, v| (expected_scan_rate_hz(b, v) * 10.0).round() / 10.0;
+        assert_eq!(r(BaudRate::B38400, Variant::W180_R50), 5.2);
+        assert_eq!(r(BaudRate::B38400, Variant::W180_R100), 10.3);
+        assert_eq!(r(BaudRate::B9600, Variant::W180_R50), 1.3);
+        assert_eq!(r(BaudRate::B500000, Variant::W180_R50), 37.5);
+        assert_eq!(r(BaudRate::B500000, Variant::W180_R100), 75.0);
+    }
 
     #[test]
     fn variants_and_counts() {

@@ -1,14 +1,12 @@
 //! The SICK LMS driver's faults (its errors are [`DriverError`] =
-//! [`ima_serial::DriverError`]`<`[`Fault`]`>`), scan statistics and the line-rate
-//! arithmetic of spec §4 (feature `std`).
+//! [`ima_serial::DriverError`]`<`[`Fault`]`>`) and scan statistics (feature `std`).
 
 use ima_hal::ErrorKind;
-use ima_hal::laser::LaserDescription;
 
-use crate::decode::{Variant, describe};
+/// The line-rate arithmetic of spec §4 (in [`crate::decode`]).
+pub use crate::decode::{expected_scan_rate_hz, line_scan_rate_hz};
 use crate::framer::Counters;
 use crate::machine::{MachineError, SessionInfo, Stats};
-use crate::wire::{BaudRate, MeasuringMode, Units};
 
 pub use ima_serial::{BaudControl, FixedBaud};
 
@@ -20,14 +18,23 @@ pub const CLOSE_TIMEOUT: std::time::Duration = std::time::Duration::from_millis(
 pub type DriverError = ima_serial::DriverError<Fault>;
 
 /// What only a SICK LMS reports.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Fault {
     /// The session failed or refused a request.
+    #[error("{}", match .0 {
+        MachineError::NoDevice => "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)".into(),
+        e => format!("SICK LMS session: {e:?}"),
+    })]
     Session(MachineError),
     /// A B0 could not be decoded (unknown measuring mode, reflectivity mode…).
+    #[error("SICK LMS scan decoding: {0:?}")]
     Decode(crate::decode::DecodeError),
     /// No unit answered while connecting: what was seen at each rate tried.
+    #[error(
+        "no SICK LMS answered (powered? still booting? right port?): {report}{}",
+        if *rs422 { "" } else { "; 500000 baud not tried (RS-422 lines only)" }
+    )]
     NotFound {
         /// Bytes and frames per rate.
         report: Box<ima_hal::link::ProbeReport>,
@@ -39,28 +46,6 @@ pub enum Fault {
 impl From<MachineError> for DriverError {
     fn from(e: MachineError) -> Self {
         Self::Device(Fault::Session(e))
-    }
-}
-
-impl std::fmt::Display for Fault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::NotFound { report, rs422 } => {
-                write!(
-                    f,
-                    "no SICK LMS answered (powered? still booting? right port?): {report}"
-                )?;
-                if !rs422 {
-                    f.write_str("; 500000 baud not tried (RS-422 lines only)")?;
-                }
-                Ok(())
-            }
-            Self::Session(MachineError::NoDevice) => f.write_str(
-                "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)",
-            ),
-            Self::Session(e) => write!(f, "SICK LMS session: {e:?}"),
-            Self::Decode(e) => write!(f, "SICK LMS scan decoding: {e:?}"),
-        }
     }
 }
 
@@ -100,56 +85,9 @@ pub struct ScanStats {
 /// asked for), with what the session runs with.
 pub type LinkStatus = ima_serial::LinkStatus<SessionInfo, DriverError>;
 
-/// The [`LaserDescription`] of a session (defaults: 180°/0.5°, mode 00, mm), for a scanner
-/// mounted at `pose`. The scan-rate limit is the lower of the mirror's and the line's (§4).
-#[must_use]
-pub fn description(info: Option<&SessionInfo>, pose: ima_hal::Isometry2) -> LaserDescription {
-    let variant = info.and_then(|i| i.variant).unwrap_or(Variant::W180_R50);
-    let (mode, units) = info
-        .and_then(|i| i.config)
-        .map_or((MeasuringMode::DEFAULT, Units::Mm), |c| {
-            (c.measuring_mode(), units_of(c.units()))
-        });
-    let mut d = describe(variant, mode, units, pose);
-    if let Some(i) = info {
-        d.max_scan_rate_hz = d.max_scan_rate_hz.min(line_scan_rate_hz(i.baud, variant));
-    }
-    d
-}
-
-fn units_of(code: u8) -> Units {
-    Units::from_code(u16::from(code))
-}
-
-/// Scans per second the line allows for full scans of `variant` at `baud` (10 bits per byte,
-/// frame = 2N + 10 bytes, spec §4's table).
-#[must_use]
-pub fn line_scan_rate_hz(baud: BaudRate, variant: Variant) -> f64 {
-    let bytes = 2.0 * f64::from(variant.values()) + 10.0;
-    f64::from(baud.bps()) / (10.0 * bytes)
-}
-
-/// Scans per second a unit can deliver: the lower of the mirror's limit and the line's.
-#[must_use]
-pub fn expected_scan_rate_hz(baud: BaudRate, variant: Variant) -> f64 {
-    variant
-        .max_scan_rate_hz()
-        .min(line_scan_rate_hz(baud, variant))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rates_match_the_spec_table() {
-        let r = |b, v| (expected_scan_rate_hz(b, v) * 10.0).round() / 10.0;
-        assert_eq!(r(BaudRate::B38400, Variant::W180_R50), 5.2);
-        assert_eq!(r(BaudRate::B38400, Variant::W180_R100), 10.3);
-        assert_eq!(r(BaudRate::B9600, Variant::W180_R50), 1.3);
-        assert_eq!(r(BaudRate::B500000, Variant::W180_R50), 37.5);
-        assert_eq!(r(BaudRate::B500000, Variant::W180_R100), 75.0);
-    }
 
     #[test]
     fn not_found_names_the_rates_and_the_one_not_tried() {

@@ -81,6 +81,15 @@ pub struct Counters {
     pub naks: u64,
 }
 
+impl Counters {
+    /// Items delivered (telegrams, ACKs, NAKs) and candidates rejected, for a probe report.
+    #[must_use]
+    pub fn tally(&self) -> (u64, u64) {
+        let bad = self.bad_checksums + self.bad_headers + self.bad_payloads + self.expired;
+        (self.frames + self.acks + self.naks, bad)
+    }
+}
+
 /// Outcome of examining the buffered candidate.
 enum Check {
     /// A whole good telegram of this many bytes starts the window.

@@ -21,7 +21,8 @@ use std::time::Duration;
 use ima_hal::laser::{LaserDescription, LaserScan, LaserScanner};
 use ima_hal::link::ProbeReport;
 use ima_hal::{ErrorType, Instant, Isometry2, Stamped};
-use ima_serial::handle::Handle;
+use ima_serial::handle::{Handle, Pending};
+use ima_serial::probe::Probe;
 use ima_serial::runner::{End, Reply, Shell};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::watch;
@@ -52,7 +53,6 @@ pub const DEFAULT_CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
 pub struct SickLms {
     h: Handle<SickShell>,
     scan: watch::Receiver<Slot>,
-    stats: watch::Receiver<ScanStats>,
     device_type: watch::Receiver<String>,
     status: watch::Receiver<Option<StatusByte>>,
     probe: watch::Receiver<ProbeReport>,
@@ -82,30 +82,27 @@ impl SickLms {
             seq: 0,
             scan: empty,
         });
-        let (stats_tx, stats) = watch::channel(ScanStats::default());
         let (type_tx, device_type) = watch::channel(String::new());
         let (status_tx, status) = watch::channel(None);
-        let (probe_tx, probe) = watch::channel(ProbeReport::new());
+        let probe = Probe::new("SICK LMS");
         let shell = SickShell {
             machine: Machine::new(cfg, clock.now()),
             link: watch::channel(LinkStatus::Connecting).0,
             out: Scans {
                 slot: scan_tx,
-                stats_tx,
                 work: LaserScan::default(),
                 stats: ScanStats::default(),
             },
             device_type: type_tx,
             status: status_tx,
-            waiter: None,
-            probe: probe_tx,
-            connected: false,
+            waiter: Pending::default(),
+            probe,
         };
+        let probe = shell.probe.subscribe();
         let (h, _) = Handle::connect(shell, stream, clock, connect_timeout, None).await?;
         Ok(SickLms {
             h,
             scan,
-            stats,
             device_type,
             status,
             probe,
@@ -140,10 +137,14 @@ impl SickLms {
         self.h.link().connection().copied()
     }
 
-    /// The driver's counters.
+    /// The driver's counters (scans delivered: up to the latest scan a handle can see).
     #[must_use]
     pub fn stats(&self) -> ScanStats {
-        *self.stats.borrow()
+        let delivered = self.scan.borrow().seq;
+        ScanStats {
+            delivered,
+            ..self.h.stats()
+        }
     }
 
     /// The unit's type string (e.g. `LMS200;30106`), once identified.
@@ -192,11 +193,12 @@ impl SickLms {
             now,
         ) {
             Ok(Some(info)) => drop(reply.send(Ok(info))),
-            Ok(None) if s.waiter.is_none() => {
-                s.link.send_replace(LinkStatus::Connecting);
-                s.waiter = Some(reply);
+            Ok(None) => {
+                if !s.waiter.is_waiting() {
+                    s.link.send_replace(LinkStatus::Connecting);
+                }
+                s.waiter.wait(Ok(()), reply, MachineError::Busy.into());
             }
-            Ok(None) => drop(reply.send(Err(MachineError::Busy.into()))),
             Err(e) => drop(reply.send(Err(e.into()))),
         };
         self.h.defer(timeout, f).await
@@ -245,7 +247,7 @@ impl ErrorType for SickLms {
 
 impl LaserScanner for SickLms {
     fn description(&self) -> LaserDescription {
-        crate::driver::description(self.session().as_ref(), self.pose)
+        crate::decode::describe_session(self.session().as_ref(), self.pose)
     }
 
     async fn scan(&mut self) -> Result<Stamped<LaserScan>, DriverError> {
@@ -266,34 +268,24 @@ pub struct SickShell {
     device_type: watch::Sender<String>,
     status: watch::Sender<Option<StatusByte>>,
     /// The reconfiguration being waited for.
-    waiter: Option<Reply<SessionInfo, Self>>,
+    waiter: Pending<SessionInfo, Self>,
     /// What each rate tried received, until the first connection.
-    probe: watch::Sender<ProbeReport>,
-    connected: bool,
+    probe: Probe,
 }
 
 /// Where decoded scans and their counters go.
 #[derive(Debug)]
 struct Scans {
     slot: watch::Sender<Slot>,
-    stats_tx: watch::Sender<ScanStats>,
     /// Where the next scan is decoded (swapped into the slot: no copy, no heap).
     work: LaserScan,
     stats: ScanStats,
 }
 
-impl SickShell {
-    fn answer(&mut self, r: Result<SessionInfo, DriverError>) {
-        if let Some(w) = self.waiter.take() {
-            let _ = w.send(r);
-        }
-    }
-}
-
 impl Scans {
-    /// Decode one B0 into the work buffer and swap it into the slot (counters are published
-    /// first, so a handle woken by the scan sees it counted). A bad B0 never clobbers the
-    /// latest good scan.
+    /// Decode one B0 into the work buffer and swap it into the slot (with its number, so a
+    /// handle woken by the scan sees it counted). A bad B0 never clobbers the latest good
+    /// scan.
     fn publish(&mut self, b0: &crate::wire::Scan<'_>, at: Instant, mode: MeasuringMode) {
         let st = &mut self.stats;
         if decode_scan(b0, mode, None, &mut self.work).is_err() {
@@ -302,7 +294,6 @@ impl Scans {
         }
         st.delivered = st.delivered.saturating_add(1);
         let delivered = st.delivered;
-        self.stats_tx.send_modify(|s| s.delivered = delivered);
         let work = &mut self.work;
         self.slot.send_modify(|slot| {
             core::mem::swap(&mut slot.scan.value, work);
@@ -316,6 +307,7 @@ impl Shell for SickShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = SessionInfo;
+    type Stats = ScanStats;
     const MAX_FRAME: usize = MAX_COMMAND;
 
     fn machine(&mut self) -> &mut Machine {
@@ -327,22 +319,11 @@ impl Shell for SickShell {
     }
 
     fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
-        let before = (!self.connected).then(|| self.machine.counters());
+        let before = self.machine.counters().tally();
         let mode = self.machine.measuring_mode();
         (self.machine).handle_bytes_with(bytes, now, |b0, at| self.out.publish(b0, at, mode));
-        if let Some(b) = before {
-            let a = self.machine.counters();
-            let bad = |c: crate::framer::Counters| {
-                c.bad_checksums + c.bad_headers + c.bad_payloads + c.expired
-            };
-            self.probe.send_modify(|p| {
-                p.received(bytes.len());
-                p.framed(
-                    (a.frames + a.acks + a.naks).saturating_sub(b.frames + b.acks + b.naks),
-                    bad(a).saturating_sub(bad(b)),
-                );
-            });
-        }
+        let after = self.machine.counters().tally();
+        self.probe.received(bytes.len(), before, after);
     }
 
     fn on_timeout(&mut self, now: Instant) {
@@ -356,21 +337,7 @@ impl Shell for SickShell {
                 tracing::debug!(baud = b, "sick_lms: line speed");
                 line.set_baud(b)?;
                 line.clear_input()?;
-                let probing = self.machine.is_probing();
-                self.probe.send_if_modified(|p| match () {
-                    _ if self.connected => false,
-                    _ if probing => {
-                        p.attempt(b);
-                        let n = p.current_tally().map_or(1, |t| t.attempts);
-                        tracing::info!(target: "ima::connect", "SICK LMS: trying {b} baud (attempt {n})");
-                        true
-                    }
-                    _ => {
-                        p.set_rate(b);
-                        tracing::info!(target: "ima::connect", "SICK LMS: switching to {b} baud");
-                        true
-                    }
-                });
+                self.probe.rate(b, self.machine.is_probing());
             }
             Event::Identified => {
                 if let Some(t) = self.machine.device_type() {
@@ -382,15 +349,15 @@ impl Shell for SickShell {
                 let baud = info.baud.bps();
                 tracing::info!(baud, streaming = info.streaming, "sick_lms: ready");
                 self.out.stats.readies = self.out.stats.readies.saturating_add(1);
-                self.connected = true;
-                self.answer(Ok(info));
+                self.probe.connected();
+                self.waiter.answer(Ok(info));
                 self.link.send_replace(LinkStatus::Connected(info));
             }
             // A stream start/stop request ends with `Ready` only during initialisation;
             // answer the waiter here too.
             Event::StreamStarted | Event::StreamStopped if self.machine.is_ready() => {
                 let info = self.machine.session();
-                self.answer(Ok(info));
+                self.waiter.answer(Ok(info));
                 self.link.send_replace(LinkStatus::Connected(info));
             }
             Event::Restarted => {
@@ -399,7 +366,7 @@ impl Shell for SickShell {
                 self.link.send_replace(LinkStatus::Lost);
             }
             Event::Error(e) => {
-                self.answer(Err(e.into()));
+                self.waiter.answer(Err(e.into()));
                 if self.machine.is_failed() {
                     let err = if e == MachineError::NoDevice {
                         self.no_answer()
@@ -424,7 +391,7 @@ impl Shell for SickShell {
                 }
                 self.status.send_replace(Some(s));
             }
-            Event::BaudDetected(b) if !self.connected => {
+            Event::BaudDetected(b) if !self.probe.is_done() => {
                 tracing::info!(target: "ima::connect", "SICK LMS: answered at {} baud", b.bps());
             }
             Event::StreamStarted
@@ -437,21 +404,17 @@ impl Shell for SickShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        let out = &mut self.out;
-        out.stats.framer = self.machine.counters();
-        out.stats.session = self.machine.stats();
-        let s = out.stats;
-        out.stats_tx.send_if_modified(|old| {
-            let changed = *old != s;
-            *old = s;
-            changed
-        });
+    fn stats(&self) -> ScanStats {
+        ScanStats {
+            framer: self.machine.counters(),
+            session: self.machine.stats(),
+            ..self.out.stats
+        }
     }
 
     /// Stop the stream and put the unit back at 9600, within [`CLOSE_TIMEOUT`].
     fn begin_close(&mut self, now: Instant) -> Duration {
-        self.answer(Err(DriverError::Disconnected));
+        self.waiter.answer(Err(DriverError::Disconnected));
         self.machine.close(now);
         CLOSE_TIMEOUT
     }
@@ -462,13 +425,13 @@ impl Shell for SickShell {
 
     fn end(&mut self, how: End) {
         if let End::Failed(e) = how {
-            self.answer(Err(e.into()));
+            self.waiter.answer(Err(e.into()));
         }
     }
 
     /// Nothing valid came back: say what was seen at each rate.
     fn no_answer(&mut self) -> DriverError {
-        let report = Box::new(self.probe.borrow().clone());
+        let report = Box::new(self.probe.report());
         if report.total_frames() > 0 {
             return DriverError::Timeout;
         }

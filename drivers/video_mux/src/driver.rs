@@ -9,12 +9,17 @@ use crate::machine::{Failure, Refusal, RequestError};
 pub type DriverError = ima_serial::DriverError<Fault>;
 
 /// What only a video switcher reports.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum Fault {
     /// The session refused the request before sending (bad channel, busy).
+    #[error("{0}")]
     Request(RequestError),
     /// The switcher refused (Extron `Enn`, Kramer error).
+    #[error("the switcher refused: {}", match .0 {
+        Refusal::Extron(e) => format!("E{:02} ({e:?})", e.code()),
+        Refusal::Kramer(c) => format!("code {c}"),
+    })]
     Refused(Refusal),
 }
 
@@ -30,18 +35,6 @@ impl From<Failure> for DriverError {
         match f {
             Failure::Timeout => Self::Timeout,
             Failure::Refused(r) => Self::Device(Fault::Refused(r)),
-        }
-    }
-}
-
-impl std::fmt::Display for Fault {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Request(e) => write!(f, "{e}"),
-            Self::Refused(Refusal::Extron(e)) => {
-                write!(f, "the switcher refused: E{:02} ({e:?})", e.code())
-            }
-            Self::Refused(Refusal::Kramer(c)) => write!(f, "the switcher refused: code {c}"),
         }
     }
 }

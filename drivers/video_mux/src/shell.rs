@@ -12,8 +12,8 @@ use std::time::Duration;
 
 use ima_hal::camera::{CameraMux, Channel, Selection};
 use ima_hal::{ErrorType, Instant};
-use ima_serial::handle::Handle;
-use ima_serial::runner::{Reply, Shell};
+use ima_serial::handle::{Handle, Pending};
+use ima_serial::runner::Shell;
 use ima_serial::{BaudControl, FixedBaud};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::watch;
@@ -44,13 +44,6 @@ pub enum Notice {
 /// the task ends).
 pub type LinkStatus = ima_serial::LinkStatus<(), DriverError>;
 
-/// The request waiting for the switcher's answer.
-#[derive(Debug)]
-enum Waiter {
-    Select(Reply<Selection, MuxShell>),
-    Query(Reply<Option<Channel>, MuxShell>),
-}
-
 /// Machine events → answers and notices.
 #[derive(Debug)]
 pub struct MuxShell {
@@ -58,32 +51,18 @@ pub struct MuxShell {
     link: watch::Sender<LinkStatus>,
     current: watch::Sender<Option<Channel>>,
     notices: watch::Sender<Option<Notice>>,
-    stats: watch::Sender<Stats>,
-    waiter: Option<Waiter>,
-}
-
-impl MuxShell {
-    /// Wait for the machine's answer with `waiter`, or refuse at once.
-    fn wait(&mut self, r: Result<(), RequestError>, waiter: Waiter) {
-        let e = match r {
-            Ok(()) if self.waiter.is_none() => {
-                self.waiter = Some(waiter);
-                return;
-            }
-            Ok(()) => RequestError::Busy.into(),
-            Err(e) => e.into(),
-        };
-        match waiter {
-            Waiter::Select(tx) => drop(tx.send(Err(e))),
-            Waiter::Query(tx) => drop(tx.send(Err(e))),
-        }
-    }
+    /// The selection waiting for the switcher's answer (the machine runs one request at a
+    /// time: a selection or a query).
+    select: Pending<Selection, Self>,
+    /// The query waiting for the switcher's answer.
+    query: Pending<Option<Channel>, Self>,
 }
 
 impl Shell for MuxShell {
     type Machine = Machine;
     type Fault = Fault;
     type Up = ();
+    type Stats = Stats;
     const MAX_FRAME: usize = 16;
 
     fn machine(&mut self) -> &mut Machine {
@@ -99,28 +78,20 @@ impl Shell for MuxShell {
         let n = match ev {
             Event::Selected(sel) => {
                 self.current.send_replace(Some(sel.channel));
-                if let Some(Waiter::Select(w)) = self.waiter.take() {
-                    let _ = w.send(Ok(sel));
-                }
+                self.select.answer(Ok(sel));
                 None
             }
             Event::SelectFailed { failure, .. } => {
-                if let Some(Waiter::Select(w)) = self.waiter.take() {
-                    let _ = w.send(Err(failure.into()));
-                }
+                self.select.answer(Err(failure.into()));
                 None
             }
             Event::Current { channel } => {
                 self.current.send_replace(channel);
-                if let Some(Waiter::Query(w)) = self.waiter.take() {
-                    let _ = w.send(Ok(channel));
-                }
+                self.query.answer(Ok(channel));
                 None
             }
             Event::QueryFailed { failure } => {
-                if let Some(Waiter::Query(w)) = self.waiter.take() {
-                    let _ = w.send(Err(failure.into()));
-                }
+                self.query.answer(Err(failure.into()));
                 None
             }
             Event::Settled { .. } => None,
@@ -139,8 +110,8 @@ impl Shell for MuxShell {
         Ok(())
     }
 
-    fn after_round(&mut self) {
-        self.stats.send_replace(self.machine.stats());
+    fn stats(&self) -> Stats {
+        self.machine.stats()
     }
 }
 
@@ -150,7 +121,6 @@ pub struct VideoMux {
     h: Handle<MuxShell>,
     current: watch::Receiver<Option<Channel>>,
     notices: watch::Receiver<Option<Notice>>,
-    stats: watch::Receiver<Stats>,
     config: Config,
 }
 
@@ -166,20 +136,18 @@ impl VideoMux {
     {
         let (current_tx, current) = watch::channel(None);
         let (notices_tx, notices) = watch::channel(None);
-        let (stats_tx, stats) = watch::channel(Stats::default());
         let shell = MuxShell {
             machine: Machine::new(config),
             link: watch::channel(LinkStatus::Connecting).0,
             current: current_tx,
             notices: notices_tx,
-            stats: stats_tx,
-            waiter: None,
+            select: Pending::default(),
+            query: Pending::default(),
         };
         Self {
             h: Handle::spawn(shell, FixedBaud(stream), clock, None),
             current,
             notices,
-            stats,
             config,
         }
     }
@@ -205,7 +173,7 @@ impl VideoMux {
     /// Session counters.
     #[must_use]
     pub fn stats(&self) -> Stats {
-        *self.stats.borrow()
+        self.h.stats()
     }
 
     /// The driver's clock (the time base of [`Selection`] stamps).
@@ -243,16 +211,16 @@ impl CameraMux for VideoMux {
 
     async fn select(&mut self, channel: Channel) -> Result<Selection, DriverError> {
         let f = move |s: &mut MuxShell, now, tx| {
-            let r = s.machine.select(channel, now);
-            s.wait(r, Waiter::Select(tx));
+            let r = s.machine.select(channel, now).map_err(Into::into);
+            s.select.wait(r, tx, RequestError::Busy.into());
         };
         self.h.defer(self.request_timeout(), f).await
     }
 
     async fn current_channel(&mut self) -> Result<Option<Channel>, DriverError> {
         let f = |s: &mut MuxShell, now, tx| {
-            let r = s.machine.query(now);
-            s.wait(r, Waiter::Query(tx));
+            let r = s.machine.query(now).map_err(Into::into);
+            s.query.wait(r, tx, RequestError::Busy.into());
         };
         self.h.defer(self.request_timeout(), f).await
     }
