@@ -4,8 +4,11 @@
 //! A [`Recorder`] is a cheap, cloneable handle. Logging never blocks the caller: every message
 //! goes into a bounded queue read by one background thread, which encodes it (protobuf, the
 //! `foxglove.*` well-known schemas), writes it to the MCAP file (zstd-compressed chunks,
-//! message and chunk indexes, a summary) and hands it to the WebSocket server. When the queue
-//! is full the message is dropped and counted; [`Recorder::finish`] reports the counts.
+//! message and chunk indexes, a summary) and hands it to the WebSocket server. The thread
+//! drains the queue on a tick — every 20 ms with a live view, every 500 ms when it only writes
+//! a file — and earlier when the queue fills to a quarter or [`Recorder::finish`] is called, so
+//! no message wakes it on its own. When the queue is full the message is dropped and counted;
+//! [`Recorder::finish`] reports the counts.
 //!
 //! What is recorded:
 //!
@@ -481,6 +484,9 @@ impl Recorder {
                 }
                 Err(TrySendError::Full(m)) if std::time::Instant::now() < deadline => {
                     req = m;
+                    if let Some(t) = self.shared.worker.get() {
+                        t.unpark();
+                    }
                     std::thread::sleep(Duration::from_millis(2));
                 }
                 Err(_) => {

@@ -128,6 +128,27 @@ fn a_full_queue_drops_and_counts_instead_of_blocking() {
 }
 
 #[test]
+fn a_burst_wakes_the_recorder_before_its_tick() {
+    // A file-only recorder drains its queue every 500 ms; 64 places fill after 64 messages.
+    // Sent over ~300 ms, 150 messages would lose at least 86 if nothing woke the thread
+    // early; a quarter-full queue does.
+    let path = tmp("burst.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        queue: 64,
+        ..Options::default()
+    })
+    .unwrap();
+    for _ in 0..150 {
+        rec.log_scan("scooter", &scan(181));
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let report = rec.finish(Duration::from_secs(30));
+    assert_eq!(report.written["/scooter/laser/scan"] + report.dropped, 150);
+    assert!(report.dropped < 86, "{report:?}");
+}
+
+#[test]
 fn an_existing_file_is_refused_and_named() {
     let path = tmp("c.mcap");
     std::fs::write(&path, b"x").unwrap();
