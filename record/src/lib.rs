@@ -221,12 +221,20 @@ enum Msg {
     Finish(mpsc::Sender<Report>),
 }
 
+/// What the queue holds (the recorder's thread keeps its own handle on it: holding
+/// [`Shared`] would keep the queue's sender alive).
+#[derive(Default)]
+struct Queued {
+    /// Encoded sizes, estimated.
+    bytes: AtomicUsize,
+    /// Messages (the thread is woken early at `Shared::wake_msgs`).
+    msgs: AtomicUsize,
+}
+
 struct Shared {
     tx: SyncSender<Msg>,
     dropped: AtomicU64,
-    queued_bytes: Arc<AtomicUsize>,
-    /// Messages queued (the thread is woken early at `wake_msgs`).
-    queued_msgs: Arc<AtomicUsize>,
+    queued: Arc<Queued>,
     /// A quarter of the queue's length.
     wake_msgs: usize,
     /// Stamp of everything logged while non-zero (a replay's recorded time).
@@ -297,13 +305,11 @@ impl Recorder {
         };
         let server_port = server.as_ref().map(|(h, _)| h.port());
         let path = opts.mcap.clone();
-        let queued_bytes = Arc::new(AtomicUsize::new(0));
-        let queued_msgs = Arc::new(AtomicUsize::new(0));
+        let queued = Arc::new(Queued::default());
         let shared = Arc::new(Shared {
             tx,
             dropped: AtomicU64::new(0),
-            queued_bytes: Arc::clone(&queued_bytes),
-            queued_msgs: Arc::clone(&queued_msgs),
+            queued: Arc::clone(&queued),
             wake_msgs: (cap / 4).max(1),
             stamp_override: AtomicU64::new(0),
             wall0_ns: std::time::SystemTime::now()
@@ -317,8 +323,7 @@ impl Recorder {
             images: opts.images,
         });
         let worker = Worker {
-            queued_bytes,
-            queued_msgs,
+            queued,
             ctx,
             writer,
             server,
@@ -374,32 +379,36 @@ impl Recorder {
     /// Queue a message; `false` when it was dropped (and counted).
     fn send(&self, topic: Arc<str>, body: Body) -> bool {
         let size = body.size();
-        let q = &self.shared.queued_bytes;
-        if q.fetch_add(size, Ordering::Relaxed).saturating_add(size) > MAX_QUEUED_BYTES {
-            q.fetch_sub(size, Ordering::Relaxed);
-            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-            return false;
-        }
+        let q = &self.shared.queued;
+        let bytes = q
+            .bytes
+            .fetch_add(size, Ordering::Relaxed)
+            .saturating_add(size);
+        let msgs = q.msgs.fetch_add(1, Ordering::Relaxed).saturating_add(1);
         let msg = Msg::Log {
             topic,
             log_time: self.now_ns(),
             body,
         };
-        let msgs = self.shared.queued_msgs.fetch_add(1, Ordering::Relaxed) + 1;
-        if self.shared.tx.try_send(msg).is_err() {
-            self.shared.queued_msgs.fetch_sub(1, Ordering::Relaxed);
-            q.fetch_sub(size, Ordering::Relaxed);
+        if bytes > MAX_QUEUED_BYTES || self.shared.tx.try_send(msg).is_err() {
+            q.bytes.fetch_sub(size, Ordering::Relaxed);
+            q.msgs.fetch_sub(1, Ordering::Relaxed);
             self.shared.dropped.fetch_add(1, Ordering::Relaxed);
             return false;
         }
         // A burst (a fast replay, a flood of frames) wakes the thread before its tick, long
         // before the queue is full.
-        if (msgs >= self.shared.wake_msgs || q.load(Ordering::Relaxed) >= WAKE_BYTES)
-            && let Some(t) = self.shared.worker.get()
-        {
-            t.unpark();
+        if msgs >= self.shared.wake_msgs || bytes >= WAKE_BYTES {
+            self.wake();
         }
         true
+    }
+
+    /// Wake the recorder's thread before its tick.
+    fn wake(&self) {
+        if let Some(t) = self.shared.worker.get() {
+            t.unpark();
+        }
     }
 
     /// Log a payload encoded on the background thread.
@@ -441,17 +450,10 @@ impl Recorder {
     /// Declare a raw serial port and get the handle that records its bytes.
     pub fn raw_port(&self, port: raw::PortInfo) -> raw::RawPort {
         let topic: Arc<str> = Arc::from(port.topic().as_str());
-        self.shared.queued_msgs.fetch_add(1, Ordering::Relaxed);
-        let declared = self.shared.tx.try_send(Msg::Log {
-            topic: Arc::clone(&topic),
-            log_time: self.now_ns(),
-            body: Body::DeclareRaw(RawDesc {
-                metadata: port.metadata(),
-            }),
+        let desc = Body::DeclareRaw(RawDesc {
+            metadata: port.metadata(),
         });
-        if declared.is_err() {
-            self.shared.queued_msgs.fetch_sub(1, Ordering::Relaxed);
-        }
+        let _ = self.send(Arc::clone(&topic), desc);
         raw::RawPort::new(self.clone(), topic)
     }
 
@@ -477,16 +479,12 @@ impl Recorder {
         loop {
             match self.shared.tx.try_send(req) {
                 Ok(()) => {
-                    if let Some(t) = self.shared.worker.get() {
-                        t.unpark();
-                    }
+                    self.wake();
                     break;
                 }
                 Err(TrySendError::Full(m)) if std::time::Instant::now() < deadline => {
                     req = m;
-                    if let Some(t) = self.shared.worker.get() {
-                        t.unpark();
-                    }
+                    self.wake();
                     std::thread::sleep(Duration::from_millis(2));
                 }
                 Err(_) => {
@@ -545,8 +543,7 @@ enum Chan {
 }
 
 struct Worker {
-    queued_bytes: Arc<AtomicUsize>,
-    queued_msgs: Arc<AtomicUsize>,
+    queued: Arc<Queued>,
     ctx: Arc<Context>,
     writer: Option<foxglove::McapWriterHandle<std::io::BufWriter<std::fs::File>>>,
     server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
@@ -643,8 +640,8 @@ impl Worker {
     }
 
     fn log(&mut self, topic: Arc<str>, log_time: u64, body: Body) {
-        self.queued_bytes.fetch_sub(body.size(), Ordering::Relaxed);
-        self.queued_msgs.fetch_sub(1, Ordering::Relaxed);
+        self.queued.bytes.fetch_sub(body.size(), Ordering::Relaxed);
+        self.queued.msgs.fetch_sub(1, Ordering::Relaxed);
         if let Body::DeclareRaw(d) = body {
             self.raw_meta.insert(topic, d.metadata);
             return;
