@@ -17,29 +17,32 @@ fn tmp(name: &str) -> std::path::PathBuf {
     p
 }
 
-#[test]
-fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
-    let file = tmp("demo.mcap");
+/// `ima demo --json` at ×10 for the red target with `extra` arguments, recorded to
+/// `NAME.mcap` (the trajectory to `NAME.svg`): its output, its summary line and the file.
+fn recorded_demo(
+    name: &str,
+    extra: &[&str],
+) -> (std::process::Output, serde_json::Value, std::path::PathBuf) {
+    let file = tmp(&format!("{name}.mcap"));
     let out = ima()
-        .args([
-            "demo",
-            "--json",
-            "--speed",
-            "10",
-            "--targets",
-            "red",
-            "--svg",
-        ])
-        .arg(tmp("demo.svg"))
+        .args(["demo", "--json", "--speed", "10", "--targets", "red"])
+        .args(extra)
+        .arg("--svg")
+        .arg(tmp(&format!("{name}.svg")))
         .arg("--record")
         .arg(&file)
         .output()
         .unwrap();
-    let lines = json_lines(&out.stdout);
-    let summary = lines
-        .iter()
+    let summary = json_lines(&out.stdout)
+        .into_iter()
         .find(|l| l["kind"] == "summary")
         .unwrap_or_else(|| panic!("no summary: {}", String::from_utf8_lossy(&out.stderr)));
+    (out, summary, file)
+}
+
+#[test]
+fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
+    let (out, summary, file) = recorded_demo("demo", &[]);
     assert!(out.status.success(), "{summary}");
     let written: BTreeMap<String, u64> =
         serde_json::from_value(summary["recording"]["written"].clone()).unwrap();
@@ -535,29 +538,7 @@ fn an_interrupted_recording_is_closed_properly() {
 /// `base_link`, at ranges the transducers can measure, and Scooter's SIPs match its driver.
 #[test]
 fn a_p2os_demo_records_sonar_point_clouds() {
-    let file = tmp("p2os-demo.mcap");
-    let out = ima()
-        .args([
-            "demo",
-            "--json",
-            "--speed",
-            "10",
-            "--targets",
-            "red",
-            "--scooter-base",
-            "p2os",
-            "--svg",
-        ])
-        .arg(tmp("p2os-demo.svg"))
-        .arg("--record")
-        .arg(&file)
-        .output()
-        .unwrap();
-    let lines = json_lines(&out.stdout);
-    let summary = lines
-        .iter()
-        .find(|l| l["kind"] == "summary")
-        .unwrap_or_else(|| panic!("no summary: {}", String::from_utf8_lossy(&out.stderr)));
+    let (_, summary, file) = recorded_demo("p2os-demo", &["--scooter-base", "p2os"]);
     assert_eq!(summary["drivers"]["scooter"]["base"], "p2os", "{summary}");
     let rec = Recording::open(&file).unwrap();
     let ch = rec.channels();

@@ -73,19 +73,24 @@ async fn rflex() -> (Rflex, Served<RflexDevice>) {
     (base.await.unwrap(), served)
 }
 
+/// Command `v` m/s straight ahead `times` times, every 200 ms (a live client: no
+/// watchdog stop).
+async fn drive<B: DifferentialBase>(base: &mut B, v: f64, times: u32) {
+    for _ in 0..times {
+        base.set_velocity(VelocityCommand::new(v, 0.0))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
 #[tokio::test(start_paused = true)]
 async fn p2os_connects_enables_drives_and_sees_the_wall() {
     let (mut p2os, _served) = p2os(2.0).await;
     assert_eq!(p2os.params().subclass, "p2at");
     p2os.enable_motors(true).await.unwrap();
     let start = p2os.odometry().await.unwrap();
-    // 0.2 m/s for 5 s, refreshing the command every 200 ms.
-    for _ in 0..25 {
-        p2os.set_velocity(VelocityCommand::new(0.2, 0.0))
-            .await
-            .unwrap();
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
+    drive(&mut p2os, 0.2, 25).await;
     p2os.stop().await.unwrap();
     tokio::time::sleep(Duration::from_secs(2)).await;
     let end = p2os.odometry().await.unwrap();
@@ -107,12 +112,7 @@ async fn p2os_connects_enables_drives_and_sees_the_wall() {
 async fn p2os_motors_refuse_to_move_before_enable() {
     let (mut p2os, _served) = p2os(10.0).await;
     let start = p2os.odometry().await.unwrap();
-    for _ in 0..10 {
-        p2os.set_velocity(VelocityCommand::new(0.3, 0.0))
-            .await
-            .unwrap();
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
+    drive(&mut p2os, 0.3, 10).await;
     let end = p2os.odometry().await.unwrap();
     assert!((end.value.x_m() - start.value.x_m()).abs() < 1e-9);
     assert!(!p2os.latest().unwrap().motors_enabled);
@@ -129,13 +129,7 @@ async fn rflex_drives_sees_the_wall_and_feels_the_bumper() {
     );
     base.enable_motors(true).await.unwrap();
     let start = base.odometry().await.unwrap();
-    // 0.2 m/s for 5 s, refreshing the command every 200 ms.
-    for _ in 0..25 {
-        base.set_velocity(VelocityCommand::new(0.2, 0.0))
-            .await
-            .unwrap();
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
+    drive(&mut base, 0.2, 25).await;
     base.stop().await.unwrap();
     tokio::time::sleep(Duration::from_secs(2)).await;
     let end = base.odometry().await.unwrap();

@@ -28,15 +28,21 @@ fn tmp(name: &str) -> std::path::PathBuf {
     p
 }
 
+/// A recorder that writes `path`, with a queue of `queue` messages (0: the default).
+fn record_to(path: &std::path::Path, queue: usize) -> Recorder {
+    Recorder::start(&Options {
+        mcap: Some(path.to_owned()),
+        name: "test".into(),
+        queue,
+        ..Options::default()
+    })
+    .unwrap()
+}
+
 #[test]
 fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
     let path = tmp("a.mcap");
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        name: "test".into(),
-        ..Options::default()
-    })
-    .unwrap();
+    let rec = record_to(&path, 0);
     let port = rec.raw_port(PortInfo {
         robot: "scooter".into(),
         device: "laser".into(),
@@ -107,12 +113,7 @@ fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
 #[test]
 fn a_full_queue_drops_and_counts_instead_of_blocking() {
     let path = tmp("b.mcap");
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        queue: 4,
-        ..Options::default()
-    })
-    .unwrap();
+    let rec = record_to(&path, 4);
     for _ in 0..20_000 {
         rec.log_scan("scooter", &scan(361));
     }
@@ -133,12 +134,7 @@ fn a_burst_wakes_the_recorder_before_its_tick() {
     // Sent over ~300 ms, 150 messages would lose at least 86 if nothing woke the thread
     // early; a quarter-full queue does.
     let path = tmp("burst.mcap");
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        queue: 64,
-        ..Options::default()
-    })
-    .unwrap();
+    let rec = record_to(&path, 64);
     for _ in 0..150 {
         rec.log_scan("scooter", &scan(181));
         std::thread::sleep(Duration::from_millis(2));
@@ -238,11 +234,7 @@ async fn a_websocket_client_sees_the_channels_and_receives_a_scan() {
 #[test]
 fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_for() {
     let path = tmp("d.mcap");
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        ..Options::default()
-    })
-    .unwrap();
+    let rec = record_to(&path, 0);
     let frame = ima_hal::camera::Frame::black(320, 240, Some(2)).unwrap();
     for _ in 0..400 {
         rec.log_image("skeeter", &frame);
@@ -275,12 +267,7 @@ fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_fo
 #[test]
 fn json_messages_get_a_json_channel_with_their_schema() {
     let path = tmp("json.mcap");
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        name: "test".into(),
-        ..Options::default()
-    })
-    .unwrap();
+    let rec = record_to(&path, 0);
     let schema = serde_json::json!({"type": "object", "properties": {"n": {"type": "integer"}}});
     for n in 0..3 {
         rec.log_json(
