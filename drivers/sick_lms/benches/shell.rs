@@ -1,12 +1,14 @@
 //! The driver's steady state through the blocking runner: one `next_scan` (read, frame,
-//! decode, swap in the task; wait and copy out in the handle) per iteration over a fake unit
-//! that streams canned 361-value B0 telegrams from a preallocated buffer.
-//! `divan::AllocProfiler` shows the allocations per scan:
+//! decode, swap in the task; wake, wait and copy out in the handle) per iteration, over a
+//! fake unit that sends one canned 361-value B0 telegram (from a preallocated buffer) each
+//! time the iteration asks for one, as a real unit sends one scan per 13 ms: the figure is
+//! the cost of one scan, end to end. `divan::AllocProfiler` shows the allocations per scan:
 //! `cargo bench -p ima-sick-lms --features serial --bench shell`.
 
 use std::io;
 use std::pin::Pin;
-use std::task::{Context, Poll};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 
 use divan::counter::ItemsCount;
@@ -28,17 +30,33 @@ fn main() {
     divan::main();
 }
 
-/// Answers the init sequence; once streaming, every read returns one whole B0.
+/// The bench's side of the fake: B0s the unit may send, and the driver task's waker.
+#[derive(Default)]
+struct Tap {
+    scans: usize,
+    waker: Option<Waker>,
+}
+
+/// Let the fake send one more B0 (and wake the driver task if it waits for bytes).
+fn send_one(tap: &Mutex<Tap>) {
+    let mut t = tap.lock().unwrap();
+    t.scans += 1;
+    if let Some(w) = t.waker.take() {
+        w.wake();
+    }
+}
+
+/// Answers the init sequence; once streaming, a read returns one whole B0 for every
+/// [`send_one`].
 struct FakeLms {
     pending: Vec<u8>,
     b0: Vec<u8>,
     streaming: bool,
-    /// A B0 was given on the last poll.
-    gave: bool,
+    tap: Arc<Mutex<Tap>>,
 }
 
 impl FakeLms {
-    fn new() -> Self {
+    fn new(tap: Arc<Mutex<Tap>>) -> Self {
         let words: Vec<u16> = (0..361u16).map(|i| 1000 + i).collect();
         let mut b0 = vec![0u8; MAX_TELEGRAM];
         let n = Reply::Scan(Scan::full(&words, Units::Mm, StatusByte::NORMAL))
@@ -49,7 +67,7 @@ impl FakeLms {
             pending: Vec::with_capacity(4096),
             b0,
             streaming: false,
-            gave: false,
+            tap,
         }
     }
 
@@ -107,9 +125,8 @@ impl AsyncWrite for FakeLms {
 }
 
 impl AsyncRead for FakeLms {
-    /// Replies first; once streaming, the same B0 again from the preallocated buffer, every
-    /// other poll (in between, the driver task yields, as it does between two scans of a
-    /// real unit); else nothing (the runner's timers run meanwhile).
+    /// Replies first; once streaming, the same B0 again from the preallocated buffer, once
+    /// per [`send_one`]; else nothing (the runner's timers run meanwhile).
     fn poll_read(
         self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -117,11 +134,16 @@ impl AsyncRead for FakeLms {
     ) -> Poll<io::Result<()>> {
         let me = self.get_mut();
         if me.pending.is_empty() && me.streaming {
-            me.gave = !me.gave;
-            if !me.gave {
-                cx.waker().wake_by_ref();
+            let mut t = me.tap.lock().unwrap();
+            if t.scans == 0 {
+                // Store the waker only when it changed: no allocation per scan.
+                match &mut t.waker {
+                    Some(w) if w.will_wake(cx.waker()) => {}
+                    w => *w = Some(cx.waker().clone()),
+                }
                 return Poll::Pending;
             }
+            t.scans -= 1;
         }
         let src = if me.pending.is_empty() && me.streaming {
             &me.b0
@@ -154,18 +176,28 @@ fn next_scan_361(b: Bencher) {
         baud: BaudRate::B9600,
         ..Config::default()
     };
+    let tap = Arc::new(Mutex::new(Tap::default()));
+    let fake = FakeLms::new(Arc::clone(&tap));
     let mut lms = Blocking::connect(async || {
         let clock = ima_hal::time::TokioClock::shared();
-        SickLms::connect(FakeLms::new(), cfg, Duration::from_secs(5), clock).await
+        SickLms::connect(fake, cfg, Duration::from_secs(5), clock).await
     })
     .unwrap();
+    send_one(&tap);
     let mut last = lms.next_scan(ima_hal::Instant::ZERO).unwrap().at;
     for _ in 0..5 {
+        send_one(&tap);
         last = lms.next_scan(last).unwrap().at;
     }
+    let before = lms.get().stats().delivered;
+    let mut calls = 0u64;
     b.counter(ItemsCount::new(1usize)).bench_local(|| {
+        calls += 1;
+        send_one(&tap);
         let s = lms.next_scan(last).unwrap();
         last = s.at;
         divan::black_box(s.value.ranges_m().first().copied())
     });
+    // One scan decoded per call: the figure is per scan.
+    assert_eq!(lms.get().stats().delivered - before, calls);
 }
