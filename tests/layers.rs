@@ -180,6 +180,19 @@ fn the_agents_crate_depends_on_no_driver() {
             "agents/Cargo.toml names the driver crate {dashed}"
         );
     }
+    // DESIGN.md: `agents` depends on `hal` only. Of the workspace's crates, its manifest
+    // names `ima-hal` and itself (the dev-dependency with the fuzz harness), nothing else:
+    // not `ima-serial`, whose byte cursors now live in `ima_hal::bytes`.
+    let named: Vec<&str> = manifest
+        .lines()
+        .filter_map(|l| l.trim_start().split([' ', '.', '=']).next())
+        .filter(|k| k.starts_with("ima-"))
+        .collect();
+    assert!(
+        named.iter().all(|k| ["ima-hal", "ima-agents"].contains(k)),
+        "agents/Cargo.toml depends on {named:?}; only ima-hal is allowed"
+    );
+    assert!(named.contains(&"ima-hal"), "{named:?}");
 }
 
 #[test]

@@ -17,6 +17,9 @@
 //!   onto the small [`ErrorKind`] enum; drivers keep their rich errors behind it.
 //! * **Async.** The traits are async; their futures are `Send` so that a tokio task can own a
 //!   driver handle. A blocking mirror for simple tools lives in [`blocking`].
+//! * **Wire formats.** The byte cursors ([`bytes::Reader`], [`bytes::Writer`]) serve every
+//!   binary wire format, the drivers' and the Peer Agent's alike, so agents need no driver
+//!   crate to encode a message.
 //!
 //! The crate is `#![no_std]` unless the `std` feature (on by default) is enabled, so the
 //! protocol cores that depend on it stay `no_std` as well.
@@ -25,6 +28,7 @@
 
 pub mod base;
 pub mod blocking;
+pub mod bytes;
 pub mod camera;
 pub mod compass;
 pub mod error;

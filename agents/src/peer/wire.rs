@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 
 use hmac::{Hmac, Mac};
-use ima_serial::bytes::{Reader, Writer};
+use ima_hal::bytes::{Reader, Writer};
 use sha2::Sha256;
 
 type HmacSha256 = Hmac<Sha256>;
@@ -711,11 +711,11 @@ impl Msg {
     }
 }
 
-ima_serial::cursor_errors!(WireError {
+ima_hal::cursor_errors!(WireError {
     truncated: |_| WireError::Body(BodyError::Truncated),
     overflow: |_| WireError::BufferTooSmall,
 });
-ima_serial::cursor_errors!(BodyError {
+ima_hal::cursor_errors!(BodyError {
     truncated: |_| BodyError::Truncated
 });
 

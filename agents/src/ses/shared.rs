@@ -42,7 +42,7 @@
 use core::f64::consts::{FRAC_PI_2, PI};
 
 use ima_hal::Instant;
-use ima_serial::bytes::Reader;
+use ima_hal::bytes::Reader;
 
 use super::{Direction, Entry, Payload, Ses};
 
@@ -205,7 +205,7 @@ pub fn crc16(data: &[u8]) -> u16 {
     crc
 }
 
-ima_serial::cursor_errors!(DecodeError {
+ima_hal::cursor_errors!(DecodeError {
     truncated: |_| DecodeError::Truncated
 });
 

@@ -223,9 +223,9 @@ fn hex_pair(hi: u8, lo: u8) -> Option<u8> {
 const HEX: &[u8; 16] = b"0123456789ABCDEF";
 
 /// The shared byte cursor; the ASCII sentences add [`AsciiWriter`].
-pub(crate) use ima_serial::bytes::Writer;
+pub(crate) use ima_hal::bytes::Writer;
 
-ima_serial::cursor_errors!(WireError {
+ima_hal::cursor_errors!(WireError {
     overflow: |_| WireError::BufferTooSmall
 });
 

@@ -24,7 +24,7 @@
 
 use core::fmt;
 
-use ima_serial::bytes::{Overflow, Reader, Writer};
+use ima_hal::bytes::{Overflow, Reader, Writer};
 
 /// First header byte.
 pub const HEADER0: u8 = 0xFA;
@@ -221,7 +221,7 @@ pub fn frame_payload(frame: &[u8]) -> Result<&[u8], WireError> {
 }
 
 // A payload that does not fit the scratch buffer is too long for a frame.
-ima_serial::cursor_errors!(WireError {
+ima_hal::cursor_errors!(WireError {
     truncated: |_| WireError::Truncated,
     overflow: |o| WireError::PayloadTooLong(o.needed()),
 });

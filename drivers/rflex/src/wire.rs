@@ -17,7 +17,7 @@
 
 use core::fmt;
 
-use ima_serial::bytes::{Overflow, Reader, Writer};
+use ima_hal::bytes::{Overflow, Reader, Writer};
 
 /// Escape byte, first byte of both markers (§2.1).
 pub const ESC: u8 = 0x1B;
@@ -182,7 +182,7 @@ pub enum Stuffing {
     None,
 }
 
-ima_serial::cursor_errors!(WireError {
+ima_hal::cursor_errors!(WireError {
     truncated: |_| WireError::Truncated,
     overflow: |_| WireError::BufferTooSmall,
 });

@@ -13,8 +13,9 @@
 //!   signal: everything a driver handle does the same way; [`blocking`] (feature `serial`)
 //!   — any driver handle driven from blocking code; [`probe::Probe`] — what each line rate
 //!   tried received while a driver connects.
-//! * [`line`](mod@line) — the bounded line framer of the ASCII protocols; [`bytes`] — the byte
-//!   cursors of the binary ones. Both `no_std`, no heap, no panics.
+//! * [`line`](mod@line) — the bounded line framer of the ASCII protocols (`no_std`, no heap,
+//!   no panics); the byte cursors of the binary ones are [`ima_hal::bytes`], shared with the
+//!   Peer Agent's wire format.
 //!
 //! The runners never create a clock: they take the process's [`SharedClock`](ima_hal::time::SharedClock),
 //! so every stamp a driver produces is on one time line.
@@ -36,7 +37,6 @@ pub use ima_hal::Instant;
 
 #[cfg(feature = "serial")]
 pub mod blocking;
-pub mod bytes;
 #[cfg(feature = "std")]
 mod error;
 #[cfg(feature = "tokio")]

@@ -11,7 +11,7 @@
 
 use core::fmt;
 
-use ima_serial::bytes::{Reader, Writer};
+use ima_hal::bytes::{Reader, Writer};
 
 /// Start of every telegram.
 pub const STX: u8 = 0x02;
@@ -363,7 +363,7 @@ const fn fold8(w: u64) -> u16 {
 // ---------------------------------------------------------------------------------------------
 // The shared byte cursors' errors.
 
-ima_serial::cursor_errors!(WireError {
+ima_hal::cursor_errors!(WireError {
     truncated: |_| WireError::Truncated,
     overflow: |_| WireError::BufferTooSmall,
 });

@@ -54,14 +54,14 @@ impl core::fmt::Display for WireError {
 impl core::error::Error for WireError {}
 
 /// The shared byte cursor.
-pub(crate) use ima_serial::bytes::Writer;
+pub(crate) use ima_hal::bytes::Writer;
 
-ima_serial::cursor_errors!(WireError {
+ima_hal::cursor_errors!(WireError {
     overflow: |_| WireError::BufferTooSmall
 });
 
 /// Parse an unsigned decimal of 1–5 digits.
 pub(crate) fn parse_u16(s: &[u8]) -> Result<u16, WireError> {
-    let v = ima_serial::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
+    let v = ima_hal::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
     u16::try_from(v).map_err(|_| WireError::BadNumber)
 }

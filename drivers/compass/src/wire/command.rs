@@ -172,7 +172,7 @@ impl Tcm2Command {
 }
 
 fn parse_uint<T: TryFrom<u64>>(s: &[u8]) -> Result<T, WireError> {
-    let v = ima_serial::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
+    let v = ima_hal::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
     T::try_from(v).map_err(|_| WireError::OutOfRange)
 }
 

@@ -8,7 +8,7 @@
 //! little-endian, rFLEX big-endian).
 //!
 //! ```
-//! use ima_serial::bytes::{Reader, Writer};
+//! use ima_hal::bytes::{Reader, Writer};
 //!
 //! let mut buf = [0u8; 8];
 //! let mut w = Writer::new(&mut buf);
@@ -22,6 +22,16 @@
 //! assert!(r.u8().is_err());
 //! # Ok::<(), Box<dyn core::error::Error>>(())
 //! ```
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::unreachable
+    )
+)]
 
 use core::fmt;
 
@@ -83,11 +93,11 @@ impl core::error::Error for Overflow {}
 /// ```
 /// # #[derive(Debug, PartialEq)]
 /// enum WireError { Truncated, TooLong(usize) }
-/// ima_serial::cursor_errors!(WireError {
+/// ima_hal::cursor_errors!(WireError {
 ///     truncated: |_| WireError::Truncated,
 ///     overflow: |o| WireError::TooLong(o.needed()),
 /// });
-/// let e: WireError = ima_serial::bytes::Reader::new(&[]).u8().unwrap_err().into();
+/// let e: WireError = ima_hal::bytes::Reader::new(&[]).u8().unwrap_err().into();
 /// assert_eq!(e, WireError::Truncated);
 /// ```
 #[macro_export]
