@@ -263,6 +263,61 @@ fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_fo
     assert_eq!(f.data.len(), 320 * 240 * 3);
 }
 
+/// Frames are encoded on the caller's thread into reused buffers: every recorded frame is
+/// exactly the frame logged (the `RawImage` that `convert::raw_image` builds), whatever the
+/// frame before it left in the buffer — a smaller frame after a larger one, an empty one.
+#[test]
+fn frames_in_reused_buffers_are_recorded_exactly() {
+    use ima_hal::camera::Frame;
+    let path = tmp("frames.mcap");
+    let rec = record_to(&path, 0);
+    let frame = |w: u32, h: u32, seed: u8| {
+        let mut f = Frame::black(w, h, Some(3)).unwrap();
+        for (i, p) in f.pixels.iter_mut().enumerate() {
+            *p = (i as u8).wrapping_mul(31).wrapping_add(seed);
+        }
+        f
+    };
+    let frames: Vec<Frame> = (0..24u8)
+        .map(|k| match k % 3 {
+            0 => frame(320, 240, k),
+            1 => frame(16, 8, k),
+            _ => frame(0, 0, k),
+        })
+        .collect();
+    for (k, f) in frames.iter().enumerate() {
+        rec.log_image("skeeter", f);
+        if k % 5 == 4 {
+            // Let the recorder write (and give buffers back) between bursts.
+            std::thread::sleep(Duration::from_millis(600));
+        }
+    }
+    let report = rec.finish(Duration::from_secs(30));
+    assert_eq!(report.dropped, 0);
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    let got: Vec<foxglove::messages::RawImage> = msgs
+        .iter()
+        .filter(|m| m.topic == "/skeeter/camera/3")
+        .map(|m| foxglove::messages::RawImage::decode(&m.data[..]).unwrap())
+        .collect();
+    assert_eq!(got.len(), frames.len());
+    for (g, f) in got.iter().zip(&frames) {
+        let want = ima_record::convert::raw_image("skeeter/camera", 0, f);
+        assert_eq!(
+            (&g.frame_id, g.width, g.height, &g.encoding, g.step),
+            (
+                &want.frame_id,
+                want.width,
+                want.height,
+                &want.encoding,
+                want.step
+            )
+        );
+        assert_eq!(g.data, want.data, "{}×{} frame", f.width, f.height);
+        assert!(g.timestamp.is_some());
+    }
+}
+
 /// Structured state (the SAN, the Peer Agents) goes on JSON channels with a JSON Schema.
 #[test]
 fn json_messages_get_a_json_channel_with_their_schema() {
