@@ -191,72 +191,13 @@ pub fn pose_in_frame(frame_id: &str, at_ns: u64, p: Pose2) -> PoseInFrame {
 /// An RGB frame.
 pub fn raw_image(frame_id: &str, at_ns: u64, f: &Frame) -> RawImage {
     RawImage {
-        data: f.pixels.clone().into(),
-        ..raw_image_header(frame_id, at_ns, f)
-    }
-}
-
-/// A frame's `foxglove.RawImage` without its pixels.
-fn raw_image_header(frame_id: &str, at_ns: u64, f: &Frame) -> RawImage {
-    RawImage {
         timestamp: Some(stamp(at_ns)),
         frame_id: frame_id.to_owned(),
         width: f.width,
         height: f.height,
         encoding: "rgb8".to_owned(),
         step: f.width.saturating_mul(3),
-        data: Default::default(),
-    }
-}
-
-/// The protobuf key of `RawImage.data`: field 6, length-delimited.
-const RAW_IMAGE_DATA_KEY: u8 = (6 << 3) | 2;
-
-/// A camera frame as an encoded `foxglove.RawImage`, built on the caller's thread in a
-/// buffer from the recorder's pool: the SDK encodes the header, and the pixels follow as
-/// the `data` field (protobuf fields may come in any order). The pixels are copied once,
-/// into a reused buffer, and the recorder's thread writes the bytes as they are.
-pub(crate) struct RawFrame {
-    encoded: Vec<u8>,
-}
-
-impl RawFrame {
-    pub(crate) fn new(frame_id: &str, at_ns: u64, f: &Frame, mut buf: Vec<u8>) -> Self {
-        buf.clear();
-        // Encoding into a Vec cannot run out of room.
-        let _ = raw_image_header(frame_id, at_ns, f).encode(&mut buf);
-        if !f.pixels.is_empty() {
-            buf.push(RAW_IMAGE_DATA_KEY);
-            let mut n = f.pixels.len() as u64;
-            while n >= 0x80 {
-                buf.push((n as u8 & 0x7f) | 0x80);
-                n >>= 7;
-            }
-            buf.push(n as u8);
-            buf.extend_from_slice(&f.pixels);
-        }
-        Self { encoded: buf }
-    }
-}
-
-impl crate::Payload for RawFrame {
-    fn size(&self) -> usize {
-        self.encoded.len()
-    }
-    fn schema(&self) -> Option<foxglove::Schema> {
-        RawImage::get_schema()
-    }
-    fn encoding(&self) -> String {
-        RawImage::get_message_encoding()
-    }
-    fn encode_into(&self, buf: &mut Vec<u8>) {
-        buf.extend_from_slice(&self.encoded);
-    }
-    fn encoded(&self) -> Option<&[u8]> {
-        Some(&self.encoded)
-    }
-    fn into_buffer(self: Box<Self>) -> Option<Vec<u8>> {
-        Some(self.encoded)
+        data: f.pixels.clone().into(),
     }
 }
 
@@ -309,9 +250,6 @@ impl crate::Payload for PngFrame {
     fn encode_into(&self, buf: &mut Vec<u8>) {
         // Encoding into a Vec cannot run out of room.
         let _ = self.message().encode(buf);
-    }
-    fn into_buffer(self: Box<Self>) -> Option<Vec<u8>> {
-        Some(self.pixels)
     }
 }
 
@@ -491,24 +429,18 @@ impl Recorder {
             None => format!("/{robot}/camera"),
         };
         let frame_id = format!("{robot}/camera");
-        let buf = self.frame_buffer();
         match self.images() {
-            crate::Images::Raw => {
-                let frame = RawFrame::new(&frame_id, at, f, buf);
-                self.log_payload(&topic, Box::new(frame));
-            }
-            crate::Images::Png => {
-                let mut pixels = buf;
-                pixels.extend_from_slice(&f.pixels);
-                let frame = PngFrame {
+            crate::Images::Raw => self.log(&topic, raw_image(&frame_id, at, f)),
+            crate::Images::Png => self.log_payload(
+                &topic,
+                Box::new(PngFrame {
                     frame_id,
                     at_ns: at,
                     width: f.width,
                     height: f.height,
-                    pixels,
-                };
-                self.log_payload(&topic, Box::new(frame));
-            }
+                    pixels: f.pixels.to_vec(),
+                }),
+            ),
         }
     }
 

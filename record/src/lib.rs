@@ -171,43 +171,6 @@ trait Payload: Send {
     fn schema(&self) -> Option<Schema>;
     fn encoding(&self) -> String;
     fn encode_into(&self, buf: &mut Vec<u8>);
-    /// The message already encoded, if it was (then [`Payload::encode_into`] is not called).
-    fn encoded(&self) -> Option<&[u8]> {
-        None
-    }
-    /// A frame buffer to give back to the [`Pool`] once the message is logged.
-    fn into_buffer(self: Box<Self>) -> Option<Vec<u8>> {
-        None
-    }
-}
-
-/// Camera-frame buffers, reused: a frame is copied once, on the caller's thread, into a
-/// buffer that the recorder's thread gives back after writing it. Without it every frame
-/// (~230 KB) was a fresh allocation on a robot thread — fresh pages to fault in and zero,
-/// and the allocator's consolidation — then freed on the recorder's thread (measured with
-/// `perf` in the demo: ≈ 14 ms of the robot threads' CPU per 16 s run).
-#[derive(Default)]
-struct Pool(Mutex<Vec<Vec<u8>>>);
-
-/// Frame buffers the pool keeps at most (≈ 1.8 MB of 320×240 frames).
-const POOL_BUFFERS: usize = 8;
-
-impl Pool {
-    /// An empty buffer, with room from an earlier frame when one was given back.
-    fn take(&self) -> Vec<u8> {
-        let mut pool = self.0.lock().unwrap_or_else(PoisonError::into_inner);
-        let mut v = pool.pop().unwrap_or_default();
-        v.clear();
-        v
-    }
-
-    /// Keep `v` for a later frame (up to [`POOL_BUFFERS`]).
-    fn give(&self, v: Vec<u8>) {
-        let mut pool = self.0.lock().unwrap_or_else(PoisonError::into_inner);
-        if pool.len() < POOL_BUFFERS && v.capacity() > 0 {
-            pool.push(v);
-        }
-    }
 }
 
 impl<T: Encode + Send> Payload for T {
@@ -285,8 +248,6 @@ struct Shared {
     json_topics: Mutex<std::collections::BTreeSet<Box<str>>>,
     server_port: Option<u16>,
     images: Images,
-    /// Camera-frame buffers (shared with the recorder's thread).
-    pool: Arc<Pool>,
 }
 
 /// A recorder: a handle on the background writer (clone it freely).
@@ -345,7 +306,6 @@ impl Recorder {
         let server_port = server.as_ref().map(|(h, _)| h.port());
         let path = opts.mcap.clone();
         let queued = Arc::new(Queued::default());
-        let pool = Arc::new(Pool::default());
         let shared = Arc::new(Shared {
             tx,
             dropped: AtomicU64::new(0),
@@ -361,11 +321,9 @@ impl Recorder {
             worker: std::sync::OnceLock::new(),
             server_port,
             images: opts.images,
-            pool: Arc::clone(&pool),
         });
         let worker = Worker {
             queued,
-            pool,
             ctx,
             writer,
             server,
@@ -451,11 +409,6 @@ impl Recorder {
         if let Some(t) = self.shared.worker.get() {
             t.unpark();
         }
-    }
-
-    /// A buffer for a camera frame, from the pool (see [`Pool`]).
-    pub(crate) fn frame_buffer(&self) -> Vec<u8> {
-        self.shared.pool.take()
     }
 
     /// Log a payload encoded on the background thread.
@@ -591,7 +544,6 @@ enum Chan {
 
 struct Worker {
     queued: Arc<Queued>,
-    pool: Arc<Pool>,
     ctx: Arc<Context>,
     writer: Option<foxglove::McapWriterHandle<std::io::BufWriter<std::fs::File>>>,
     server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
@@ -698,20 +650,13 @@ impl Worker {
             return;
         };
         let meta = PartialMetadata::with_log_time(log_time);
-        match body {
+        match &body {
             Body::Typed(p) => {
-                if let Some(bytes) = p.encoded() {
-                    chan.log_with_meta(bytes, meta);
-                } else {
-                    self.buf.clear();
-                    p.encode_into(&mut self.buf);
-                    chan.log_with_meta(&self.buf, meta);
-                }
-                if let Some(v) = p.into_buffer() {
-                    self.pool.give(v);
-                }
+                self.buf.clear();
+                p.encode_into(&mut self.buf);
+                chan.log_with_meta(&self.buf, meta);
             }
-            Body::Raw(bytes) | Body::Json(_, bytes) => chan.log_with_meta(&bytes, meta),
+            Body::Raw(bytes) | Body::Json(_, bytes) => chan.log_with_meta(bytes, meta),
             Body::DeclareRaw(_) => return,
         }
         *self.written.entry(topic).or_insert(0) += 1;

@@ -263,9 +263,9 @@ fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_fo
     assert_eq!(f.data.len(), 320 * 240 * 3);
 }
 
-/// Frames are encoded on the caller's thread into reused buffers: every recorded frame is
-/// exactly the frame logged (the `RawImage` that `convert::raw_image` builds), whatever the
-/// frame before it left in the buffer — a smaller frame after a larger one, an empty one.
+/// Every recorded frame is exactly the frame logged (the `RawImage` that
+/// `convert::raw_image` builds), whatever the frames before it were: a smaller frame after a
+/// larger one, an empty one (guards any reuse of frame buffers).
 #[test]
 fn frames_in_reused_buffers_are_recorded_exactly() {
     use ima_hal::camera::Frame;
@@ -288,7 +288,7 @@ fn frames_in_reused_buffers_are_recorded_exactly() {
     for (k, f) in frames.iter().enumerate() {
         rec.log_image("skeeter", f);
         if k % 5 == 4 {
-            // Let the recorder write (and give buffers back) between bursts.
+            // Let the recorder write between bursts.
             std::thread::sleep(Duration::from_millis(600));
         }
     }
