@@ -3,7 +3,7 @@
 //! [`ima_hal::compass::Compass`]; [`ima_serial::runner`] does the I/O (one `select!` over
 //! the stream, the machine's next timer and the handles' calls, so a compass that goes
 //! quiet never blocks it), and blocking code uses
-//! [`ima_serial::blocking::Blocking`]`<CompassDriver>`.
+//! `ima_serial::blocking::Blocking<CompassDriver>`.
 //!
 //! The stream is any `AsyncRead + AsyncWrite`: a `tokio_serial::SerialStream` from
 //! [`open_port`] on a real port or a pty, or an in-memory duplex in tests.

@@ -1,7 +1,7 @@
 //! The I/O shell (feature `tokio`): [`P2osShell`] turns machine events into readings, and
 //! the [`P2os`] handle (an [`ima_serial::handle::Handle`] plus the readings) implements the
 //! `ima-hal` traits. The [`ima_serial::runner`] does the I/O; blocking code uses
-//! [`ima_serial::blocking::Blocking`]`<P2os>`.
+//! `ima_serial::blocking::Blocking<P2os>`.
 
 use std::sync::Arc;
 use std::time::Duration;

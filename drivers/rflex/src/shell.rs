@@ -1,7 +1,7 @@
 //! The I/O shell (feature `tokio`): [`RflexShell`] turns machine events into readings, and
 //! the [`Rflex`] handle implements the `ima-hal` traits ([`DifferentialBase`], [`Odometer`],
 //! [`SonarArray`], [`Bumpers`], [`Power`]). The [`ima_serial::runner`] does the I/O;
-//! blocking code uses [`ima_serial::blocking::Blocking`]`<Rflex>`.
+//! blocking code uses `ima_serial::blocking::Blocking<Rflex>`.
 //!
 //! * **Recovery**: the shell turns on the machine's [`Config::recover`]: from
 //!   [`Event::LinkLost`] the §6 initialisation ([`Machine::reinitialize`]) is re-sent every

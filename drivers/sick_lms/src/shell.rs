@@ -1,7 +1,7 @@
 //! The I/O shell (feature `tokio`): [`SickShell`] turns the sans-IO
 //! [`Machine`]'s events into scans, and cloneable [`SickLms`] handles implement
 //! [`ima_hal::laser::LaserScanner`]; [`ima_serial::runner`] does the I/O, and blocking code
-//! uses [`ima_serial::blocking::Blocking`]`<SickLms>`.
+//! uses `ima_serial::blocking::Blocking<SickLms>`.
 //!
 //! The shell is generic over any `AsyncRead + AsyncWrite` stream that can change its line
 //! speed ([`BaudControl`]): a `tokio_serial::SerialStream` on a real port or a pty, or an

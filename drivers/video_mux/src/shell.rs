@@ -1,12 +1,12 @@
 //! The I/O shell (feature `tokio`): [`MuxShell`] turns the sans-IO [`Machine`]'s events into
 //! answers and notices, and cloneable [`VideoMux`] handles implement
 //! [`ima_hal::camera::CameraMux`]; [`ima_serial::runner`] does the I/O, and blocking code
-//! uses [`ima_serial::blocking::Blocking`]`<VideoMux>`.
+//! uses `ima_serial::blocking::Blocking<VideoMux>`.
 //!
 //! The stream is any `AsyncRead + AsyncWrite` (a `tokio_serial::SerialStream` from
 //! [`open_port`], or an in-memory duplex in tests). The machine serves one request at a
 //! time; a second handle asking while one is pending gets
-//! [`RequestError::Busy`](crate::machine::RequestError::Busy).
+//! [`RequestError::Busy`].
 
 use std::time::Duration;
 

@@ -106,7 +106,7 @@ impl PeerNetConfig {
     }
 
     /// Checks the limits: `max_body` in 256..=65 535 (the wire's body length is a u16),
-    /// `heartbeat_ms` in 1..=[`MAX_PERIOD_MS`], `missed_heartbeats` in 1..=1000,
+    /// `heartbeat_ms` in 1..=60 000 (`MAX_PERIOD_MS`), `missed_heartbeats` in 1..=1000,
     /// `max_clock_skew_ms` at most a day, `call_timeout_ms`, `manager.rescan_ms` and
     /// `manager.ticket_lifetime_ms` at most an hour (the last two at least 1),
     /// `broadcast.ttl` in 1..=255, `manager.data_queue` and
