@@ -687,7 +687,13 @@ impl Core {
 
     /// A reply telegram arrived (use this when the shell runs its own framer).
     pub fn handle_frame(&mut self, reply: &Reply<'_>, now: Instant) {
-        self.note_status(reply.status());
+        // The power-on telegram's status byte describes the boot, not the running unit: a
+        // real LMS 200 sends `0x13` (severity 3, "error") in it (spec §1, the QM example), so
+        // taking it as the device status would report an error at every power-up. The next
+        // reply carries the running status.
+        if !matches!(reply, Reply::PowerOn { .. }) {
+            self.note_status(reply.status());
+        }
         if let Reply::Scan(_) = reply {
             self.stats.scans = self.stats.scans.saturating_add(1);
             if self.phase == Phase::Ready && self.streaming {
