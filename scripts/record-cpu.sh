@@ -8,7 +8,8 @@
 # precise per-task CPU clock (`task-clock`): on a kernel with tick-based accounting
 # (CONFIG_TICK_CPU_ACCOUNTING, 4 ms ticks) user+sys is sampled, and for this demo's ~1,800
 # short wake-ups a second it can read far above the task clock. PIN=CPU runs every demo on
-# that one CPU (`taskset`), which halves the run-to-run scatter on a VM.
+# that one CPU (`taskset`), which halves the run-to-run scatter on a VM. REC_ARGS adds
+# options to the recording runs, e.g. REC_ARGS='--record-exclude /*/camera'.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 n="${1:-10}"
@@ -18,6 +19,8 @@ out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 cd "$out"
 pre=()
+# Split on blanks, never globbed (`/*/camera` stays as written).
+read -r -a rec_args <<< "${REC_ARGS:-}"
 if [ -n "${PIN:-}" ]; then pre=(taskset -c "$PIN"); fi
 perf_ok=0
 if perf stat -x, -e task-clock -o probe.p true > /dev/null 2>&1; then perf_ok=1; fi
@@ -31,7 +34,7 @@ run() { # run KIND I ARGS...: one demo, timed
 }
 for i in $(seq "$n"); do
     run base "$i" --svg base.svg
-    run rec "$i" --svg rec.svg --record "rec-$i.mcap"
+    run rec "$i" --svg rec.svg --record "rec-$i.mcap" "${rec_args[@]}"
     stat -c %s "rec-$i.mcap" > "rec-$i.size"
     rm -f "rec-$i.mcap"
 done

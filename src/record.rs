@@ -46,6 +46,12 @@ pub struct RecordArgs {
     /// thread; lighter on a live link, more CPU).
     #[arg(long, value_enum, value_name = "FORMAT", default_value_t = ImageFormat::Raw)]
     pub record_images: ImageFormat,
+    /// Leave topics out of the file (repeatable): a topic path whose segments may be `*`,
+    /// matching every topic below it, e.g. `/*/camera` (every camera: four fifths of the
+    /// demo's recorded bytes) or `/scooter/serial/laser` (one raw port, which then cannot be
+    /// replayed). A live view still shows them.
+    #[arg(long, value_name = "TOPIC", requires = "record")]
+    pub record_exclude: Vec<ima_record::filter::TopicPattern>,
 }
 
 /// `--record-images`.
@@ -98,6 +104,7 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
             ImageFormat::Png => ima_record::Images::Png,
             ImageFormat::Raw => ima_record::Images::Raw,
         },
+        exclude: ima_record::filter::TopicFilter::new(args.record_exclude.clone()),
     })?;
     if let Some(port) = rec.server_port() {
         let host = args

@@ -622,3 +622,58 @@ fn a_p2os_demo_records_sonar_point_clouds() {
         "{sips} SIPs: {d}"
     );
 }
+
+/// `--record-exclude`: `ima drive` recorded without its sonar and its raw port. The file has the
+/// rest, the end line and the file's metadata name what was left out, and a malformed pattern is
+/// refused before anything starts.
+#[test]
+fn record_exclude_leaves_topics_out_of_the_file() {
+    let file = tmp("exclude.mcap");
+    let (_mock, pty) = common::spawn_mock(&["p2os"]);
+    let out = ima()
+        .args([
+            "drive", "--vel", "0.1", "--for", "1", "--json", "--port", &pty, "--record",
+        ])
+        .arg(&file)
+        .args(["--record-exclude", "/*/sonar"])
+        .args(["--record-exclude", "/robot/serial"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("(left out: /*/sonar, /robot/serial)"), "{err}");
+    let ch = Recording::open(&file).unwrap().channels();
+    assert!(ch.contains_key("/robot/odom"), "{ch:?}");
+    assert!(
+        !ch.keys()
+            .any(|t| t.contains("sonar") || t.contains("serial")),
+        "{ch:?}"
+    );
+    let meta = Recording::open(&file).unwrap().ima_metadata().unwrap();
+    assert_eq!(meta["exclude"], "/*/sonar, /robot/serial");
+    // Asked for the port it left out, a replay says why it is missing.
+    let out = ima()
+        .args(["replay", "--as-mock", "robot/base"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("it has: none (the recording left out: /*/sonar, /robot/serial)"),
+        "{err}"
+    );
+
+    let out = ima()
+        .args(["drive", "--port", &pty, "--record"])
+        .arg(tmp("never.mcap"))
+        .args(["--record-exclude", "sonar"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("does not start with '/'"),
+        "{err}"
+    );
+    assert!(!tmp("never.mcap").exists());
+}

@@ -428,6 +428,9 @@ impl Recorder {
             Some(c) => format!("/{robot}/camera/{c}"),
             None => format!("/{robot}/camera"),
         };
+        if !self.wants(&topic) {
+            return;
+        }
         let frame_id = format!("{robot}/camera");
         match self.images() {
             crate::Images::Raw => self.log(&topic, raw_image(&frame_id, at, f)),

@@ -19,6 +19,9 @@
 //!   [`Recorder::log_text`], [`Recorder::log_sonar`];
 //! * structured state as JSON with a JSON Schema ([`Recorder::log_json`]).
 //!
+//! [`Options::exclude`] leaves topics out of the file ([`filter`]); without a live view, what
+//! is left out is not even built or queued ([`Recorder::wants`]).
+//!
 //! Stamps: every message's MCAP log time is the recorder's clock (Unix time at the start plus
 //! monotonic time since), taken when the message is logged.
 //!
@@ -26,6 +29,7 @@
 //! the data section is flushed every second); [`read`] reads such files too.
 
 pub mod convert;
+pub mod filter;
 pub mod raw;
 pub mod read;
 
@@ -79,6 +83,8 @@ pub struct Options {
     pub name: String,
     /// How camera frames are recorded.
     pub images: Images,
+    /// Topics left out of the file (a live view still shows them).
+    pub exclude: filter::TopicFilter,
 }
 
 /// How camera frames are recorded and served ([`Recorder::log_image`]).
@@ -132,6 +138,8 @@ pub struct Report {
     pub bytes: u64,
     /// The WebSocket server's port, if one ran.
     pub server_port: Option<u16>,
+    /// The topics left out of the file, as the patterns were given (empty: none).
+    pub excluded: String,
 }
 
 impl Report {
@@ -152,6 +160,9 @@ impl Report {
             ),
             None => format!("published {} messages", self.total()),
         };
+        if !self.excluded.is_empty() && self.path.is_some() {
+            s.push_str(&format!(" (left out: {})", self.excluded));
+        }
         if self.dropped > 0 {
             s.push_str(&format!(
                 "; {} dropped (the recorder could not keep up)",
@@ -248,6 +259,7 @@ struct Shared {
     json_topics: Mutex<std::collections::BTreeSet<Box<str>>>,
     server_port: Option<u16>,
     images: Images,
+    exclude: filter::TopicFilter,
 }
 
 /// A recorder: a handle on the background writer (clone it freely).
@@ -284,8 +296,12 @@ impl Recorder {
                     .compression_threads(0)
                     .chunk_size(Some(CHUNK_SIZE))
                     .profile("");
-                let w = ctx
-                    .mcap_writer_with_options(options)
+                let mut w = ctx.mcap_writer_with_options(options);
+                if !opts.exclude.is_empty() {
+                    let f = opts.exclude.clone();
+                    w = w.channel_filter_fn(move |c| !f.excludes(c.topic()));
+                }
+                let w = w
                     .create_new_buffered_file(path)
                     .map_err(|source| Error::Create {
                         path: path.clone(),
@@ -294,6 +310,9 @@ impl Recorder {
                 let mut meta = BTreeMap::new();
                 meta.insert("name".to_owned(), opts.name.clone());
                 meta.insert("version".to_owned(), env!("CARGO_PKG_VERSION").to_owned());
+                if !opts.exclude.is_empty() {
+                    meta.insert("exclude".to_owned(), opts.exclude.describe());
+                }
                 let _ = w.write_metadata("ima", meta);
                 Some(w)
             }
@@ -321,6 +340,7 @@ impl Recorder {
             worker: std::sync::OnceLock::new(),
             server_port,
             images: opts.images,
+            exclude: opts.exclude.clone(),
         });
         let worker = Worker {
             queued,
@@ -334,6 +354,7 @@ impl Recorder {
             written: BTreeMap::new(),
             error: None,
             buf: Vec::new(),
+            exclude: opts.exclude.clone(),
         };
         let thread = std::thread::Builder::new()
             .name("ima-record".into())
@@ -376,8 +397,20 @@ impl Recorder {
         self.shared.dropped.load(Ordering::Relaxed)
     }
 
-    /// Queue a message; `false` when it was dropped (and counted).
+    /// Whether anything would take a message on `topic`: a live view takes every topic, the
+    /// file what [`Options::exclude`] does not leave out. Callers skip building messages
+    /// nobody takes.
+    #[must_use]
+    pub fn wants(&self, topic: &str) -> bool {
+        self.shared.server_port.is_some() || !self.shared.exclude.excludes(topic)
+    }
+
+    /// Queue a message; `false` when it was dropped (and counted). A message nobody takes
+    /// ([`Self::wants`]) is let go here, before the queue.
     fn send(&self, topic: Arc<str>, body: Body) -> bool {
+        if !self.wants(&topic) {
+            return true;
+        }
         let size = body.size();
         let q = &self.shared.queued;
         let bytes = q
@@ -554,6 +587,8 @@ struct Worker {
     written: BTreeMap<Arc<str>, u64>,
     error: Option<String>,
     buf: Vec<u8>,
+    /// Topics kept out of the file (and of its counts).
+    exclude: filter::TopicFilter,
 }
 
 impl Worker {
@@ -659,7 +694,10 @@ impl Worker {
             Body::Raw(bytes) | Body::Json(_, bytes) => chan.log_with_meta(bytes, meta),
             Body::DeclareRaw(_) => return,
         }
-        *self.written.entry(topic).or_insert(0) += 1;
+        // Counted where it ends up: the file (when there is one) or the live view.
+        if self.path.is_none() || !self.exclude.excludes(&topic) {
+            *self.written.entry(topic).or_insert(0) += 1;
+        }
     }
 
     fn close(&mut self) -> Report {
@@ -689,6 +727,7 @@ impl Worker {
             error: self.error.clone(),
             bytes,
             server_port: self.server_port,
+            excluded: self.exclude.describe(),
         }
     }
 }

@@ -26,12 +26,15 @@ pub enum ReadError {
     #[error("{0}: not an MCAP file ({1})")]
     NotMcap(String, String),
     /// No such raw channel.
-    #[error("no raw serial channel {wanted} in the recording; it has: {have}")]
+    #[error("no raw serial channel {wanted} in the recording; it has: {have}{left_out}")]
     NoPort {
         /// What was asked for.
         wanted: String,
         /// What there is.
         have: String,
+        /// `" (the recording left out: PATTERNS)"` when it was made with `--record-exclude`,
+        /// else empty.
+        left_out: String,
     },
 }
 
@@ -172,6 +175,19 @@ impl Recording {
         by_topic.into_values().collect()
     }
 
+    /// The `ima` metadata record the recorder writes first (the session's `name`, the
+    /// `version`, and under `exclude` the patterns of topics left out of the file), if the file
+    /// has one. Found in files cut short by a crash too.
+    pub fn ima_metadata(&self) -> Option<BTreeMap<String, String>> {
+        mcap::read::LinearReader::new(&self.bytes)
+            .ok()?
+            .map_while(Result::ok)
+            .find_map(|r| match r {
+                mcap::records::Record::Metadata(m) if m.name == "ima" => Some(m.metadata),
+                _ => None,
+            })
+    }
+
     /// The raw stream whose topic, device or port is `name`.
     pub fn raw_stream(&self, name: &str) -> Result<RawStream, ReadError> {
         let all = self.raw_streams();
@@ -187,9 +203,14 @@ impl Recording {
                     || s.port.port == name
                     || format!("{}/{}", s.port.robot, s.port.device) == name
             })
-            .ok_or(ReadError::NoPort {
+            .ok_or_else(|| ReadError::NoPort {
                 wanted: name.to_owned(),
                 have: if have.is_empty() { "none".into() } else { have },
+                left_out: self
+                    .ima_metadata()
+                    .and_then(|mut m| m.remove("exclude"))
+                    .map(|p| format!(" (the recording left out: {p})"))
+                    .unwrap_or_default(),
             })
     }
 }

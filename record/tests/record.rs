@@ -427,3 +427,97 @@ fn png_frames_decode_to_the_same_pixels() {
     assert_eq!(info.color_type, png::ColorType::Rgb);
     assert_eq!(&pixels[..info.buffer_size()], &frame.pixels[..]);
 }
+
+fn test_frame() -> ima_hal::camera::Frame {
+    ima_hal::camera::Frame::black(32, 24, Some(3)).unwrap()
+}
+
+fn exclude(patterns: &[&str]) -> ima_record::filter::TopicFilter {
+    ima_record::filter::TopicFilter::new(patterns.iter().map(|p| p.parse().unwrap()).collect())
+}
+
+/// `Options::exclude`: left-out topics (here the cameras and one raw port) are not in the file,
+/// not counted as written or dropped, and named in the report and the file's metadata; the
+/// rest is recorded as usual.
+#[test]
+fn excluded_topics_stay_out_of_the_file() {
+    let path = tmp("exclude.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        exclude: exclude(&["/*/camera", "/scooter/serial/laser"]),
+        ..Options::default()
+    })
+    .unwrap();
+    assert!(!rec.wants("/skeeter/camera/3"));
+    assert!(rec.wants("/scooter/laser/scan"));
+    let port = |device: &str| PortInfo {
+        robot: "scooter".into(),
+        device: device.into(),
+        port: format!("/dev/pts/{device}"),
+        baud: 9600,
+        protocol: "test".into(),
+    };
+    let laser = rec.raw_port(port("laser"));
+    let base = rec.raw_port(port("base"));
+    for _ in 0..5 {
+        rec.log_image("skeeter", &test_frame());
+        rec.log_scan("scooter", &scan(181));
+        laser.rx(b"\x06");
+        base.rx(b"\xfa\xfb");
+    }
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.dropped, 0);
+    assert_eq!(report.written["/scooter/laser/scan"], 5);
+    assert_eq!(report.written["/scooter/serial/base"], 5);
+    assert!(
+        !report.written.keys().any(|t| t.contains("camera")),
+        "{report:?}"
+    );
+    assert!(!report.written.contains_key("/scooter/serial/laser"));
+    assert!(
+        report
+            .summary()
+            .contains("(left out: /*/camera, /scooter/serial/laser)"),
+        "{}",
+        report.summary()
+    );
+
+    let r = Recording::open(&path).unwrap();
+    let ch = r.channels();
+    assert!(ch.contains_key("/scooter/laser/scan"));
+    assert!(ch.contains_key("/scooter/serial/base"));
+    assert!(
+        !ch.keys()
+            .any(|t| t.contains("camera") || t.ends_with("laser"))
+    );
+    assert_eq!(r.messages().0.len(), 10);
+    let meta = r.ima_metadata().unwrap();
+    assert_eq!(meta["exclude"], "/*/camera, /scooter/serial/laser");
+    let e = r.raw_stream("scooter/laser").unwrap_err().to_string();
+    assert!(
+        e.ends_with("(the recording left out: /*/camera, /scooter/serial/laser)"),
+        "{e}"
+    );
+}
+
+/// With a live view, a topic left out of the file is still built and served: only the file
+/// goes without it.
+#[test]
+fn a_live_view_still_gets_what_the_file_leaves_out() {
+    let path = tmp("exclude-live.mcap");
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        foxglove: Some("127.0.0.1:0".parse().unwrap()),
+        exclude: exclude(&["/*/camera"]),
+        ..Options::default()
+    })
+    .unwrap();
+    assert!(rec.wants("/skeeter/camera/3"));
+    rec.log_image("skeeter", &test_frame());
+    rec.log_scan("scooter", &scan(181));
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.dropped, 0);
+    assert_eq!(report.written.len(), 1, "{report:?}");
+    let ch = Recording::open(&path).unwrap().channels();
+    assert_eq!(ch.keys().collect::<Vec<_>>(), ["/scooter/laser/scan"]);
+}
