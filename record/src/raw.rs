@@ -120,31 +120,36 @@ impl PortInfo {
 pub struct RawPort {
     rec: Recorder,
     topic: Arc<str>,
+    /// Something takes this channel ([`Recorder::wants`]); if not, bytes are not even copied.
+    wanted: bool,
 }
 
 impl RawPort {
     pub(crate) fn new(rec: Recorder, topic: Arc<str>) -> Self {
-        Self { rec, topic }
+        let wanted = rec.wants(&topic);
+        Self { rec, topic, wanted }
     }
 
     /// Bytes read from the device.
     pub fn rx(&self, bytes: &[u8]) {
-        if !bytes.is_empty() {
+        if self.wanted && !bytes.is_empty() {
             self.rec.send_raw(&self.topic, encode(Dir::Rx, bytes));
         }
     }
 
     /// Bytes written to the device.
     pub fn tx(&self, bytes: &[u8]) {
-        if !bytes.is_empty() {
+        if self.wanted && !bytes.is_empty() {
             self.rec.send_raw(&self.topic, encode(Dir::Tx, bytes));
         }
     }
 
     /// The line speed changed.
     pub fn baud(&self, baud: u32) {
-        self.rec
-            .send_raw(&self.topic, encode(Dir::Baud, &baud.to_le_bytes()));
+        if self.wanted {
+            self.rec
+                .send_raw(&self.topic, encode(Dir::Baud, &baud.to_le_bytes()));
+        }
     }
 
     /// The channel's topic.
