@@ -663,6 +663,20 @@ fn record_exclude_leaves_topics_out_of_the_file() {
             && err.contains("it has: none (the recording left out: /*/sonar, /robot/serial)"),
         "{err}"
     );
+    let out = ima()
+        .args(["replay", "--speed", "0"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success()
+            && err.contains(
+                "no raw serial channel to re-decode in the recording \
+                 (the recording left out: /*/sonar, /robot/serial)"
+            ),
+        "{err}"
+    );
 
     let out = ima()
         .args(["drive", "--port", &pty, "--record"])

@@ -94,8 +94,17 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     }
     drop(msgs);
     let mut readings = Vec::new();
-    for s in rec.raw_streams() {
-        readings.extend(decode_stream(&s)?);
+    let streams = rec.raw_streams();
+    if streams.is_empty() {
+        // Nothing to re-decode: say why when the recorder was told to leave the ports out.
+        let why = rec
+            .ima_metadata()
+            .and_then(|mut m| m.remove("exclude"))
+            .map_or_else(String::new, |p| format!(" (the recording left out: {p})"));
+        eprintln!("ima replay: no raw serial channel to re-decode in the recording{why}");
+    }
+    for s in &streams {
+        readings.extend(decode_stream(s)?);
     }
     readings.sort_by_key(|r| r.t_ns);
     crate::record::start(&args.rec, "ima replay")?;
