@@ -22,17 +22,6 @@
 //! assert!(r.u8().is_err());
 //! # Ok::<(), Box<dyn core::error::Error>>(())
 //! ```
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic,
-        clippy::indexing_slicing,
-        clippy::unreachable
-    )
-)]
-
 use core::fmt;
 
 /// A read wanted more bytes than were left.

@@ -25,6 +25,17 @@
 //! protocol cores that depend on it stay `no_std` as well.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![warn(missing_docs)]
+// No panics on input: outside tests, these are compile errors, as in the protocol cores.
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::unreachable
+    )
+)]
 
 pub mod base;
 pub mod blocking;
