@@ -19,9 +19,9 @@ out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 cd "$out"
 pre=()
+if [ -n "${PIN:-}" ]; then pre=(taskset -c "$PIN"); fi
 # Split on blanks, never globbed (`/*/camera` stays as written).
 read -r -a rec_args <<< "${REC_ARGS:-}"
-if [ -n "${PIN:-}" ]; then pre=(taskset -c "$PIN"); fi
 perf_ok=0
 if perf stat -x, -e task-clock -o probe.p true > /dev/null 2>&1; then perf_ok=1; fi
 run() { # run KIND I ARGS...: one demo, timed

@@ -188,6 +188,12 @@ impl Recording {
             })
     }
 
+    /// The topic patterns the recorder was told to leave out (`--record-exclude`), as given,
+    /// comma-separated; `None` when it left nothing out.
+    pub fn left_out(&self) -> Option<String> {
+        self.ima_metadata()?.remove("exclude")
+    }
+
     /// The raw stream whose topic, device or port is `name`.
     pub fn raw_stream(&self, name: &str) -> Result<RawStream, ReadError> {
         let all = self.raw_streams();
@@ -207,8 +213,7 @@ impl Recording {
                 wanted: name.to_owned(),
                 have: if have.is_empty() { "none".into() } else { have },
                 left_out: self
-                    .ima_metadata()
-                    .and_then(|mut m| m.remove("exclude"))
+                    .left_out()
                     .map(|p| format!(" (the recording left out: {p})"))
                     .unwrap_or_default(),
             })

@@ -98,8 +98,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     if streams.is_empty() {
         // Nothing to re-decode: say why when the recorder was told to leave the ports out.
         let why = rec
-            .ima_metadata()
-            .and_then(|mut m| m.remove("exclude"))
+            .left_out()
             .map_or_else(String::new, |p| format!(" (the recording left out: {p})"));
         eprintln!("ima replay: no raw serial channel to re-decode in the recording{why}");
     }
