@@ -589,78 +589,170 @@ fn map_schema() -> Value {
     })
 }
 
-/// A SAN's state as the JSON of [`san_schema`].
-fn san_json(e: &ima_agents::runtime::Event, v: &ima_agents::runtime::events::SanView) -> Value {
-    let by_module = |f: &dyn Fn(&ima_agents::runtime::events::SanModuleView) -> Value| {
-        let m: serde_json::Map<String, Value> = v
-            .modules
-            .iter()
-            .map(|m| (path_key(&m.name), f(m)))
-            .collect();
-        Value::Object(m)
-    };
-    let mut out = serde_json::to_value(v).unwrap_or_else(|_| json!({}));
-    out["t_s"] = json!(e.t_s);
-    out["robot"] = json!(e.robot);
-    out["activation"] = by_module(&|m| json!(m.activation));
-    out["executable"] = by_module(&|m| json!(m.executable));
-    out
+/// A module name as a JSON key of [`san_schema`] (`-` as `_`), written without a `String`.
+struct PathKey<'a>(&'a str);
+
+impl serde::Serialize for PathKey<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        struct Key<'a>(&'a str);
+        impl std::fmt::Display for Key<'_> {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                for part in self.0.split('-').enumerate() {
+                    if part.0 > 0 {
+                        f.write_str("_")?;
+                    }
+                    f.write_str(part.1)?;
+                }
+                Ok(())
+            }
+        }
+        s.collect_str(&Key(self.0))
+    }
+}
+
+/// A SAN's state as the JSON of [`san_schema`]: the view, the event's time and robot, and
+/// each module's activation and executable flag by name. Serialised straight into the
+/// recorder's queue (no JSON tree is built).
+struct SanJson<'a> {
+    e: &'a ima_agents::runtime::Event,
+    v: &'a ima_agents::runtime::events::SanView,
+}
+
+impl serde::Serialize for SanJson<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let v = self.v;
+        let mut m = s.serialize_map(None)?;
+        m.serialize_entry("network", &v.network)?;
+        m.serialize_entry("modules", &v.modules)?;
+        m.serialize_entry("threshold", &v.threshold)?;
+        m.serialize_entry("conditions", &v.conditions)?;
+        m.serialize_entry("selected", &v.selected)?;
+        m.serialize_entry("t_s", &self.e.t_s)?;
+        m.serialize_entry("robot", &self.e.robot)?;
+        m.serialize_entry("activation", &ByModule(&v.modules, |m| m.activation))?;
+        m.serialize_entry("executable", &ExecByModule(&v.modules))?;
+        m.end()
+    }
+}
+
+/// `{module: activation}` of [`SanJson`].
+struct ByModule<'a>(
+    &'a [ima_agents::runtime::events::SanModuleView],
+    fn(&ima_agents::runtime::events::SanModuleView) -> f64,
+);
+
+impl serde::Serialize for ByModule<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_map(self.0.iter().map(|m| (PathKey(&m.name), (self.1)(m))))
+    }
+}
+
+/// `{module: executable}` of [`SanJson`].
+struct ExecByModule<'a>(&'a [ima_agents::runtime::events::SanModuleView]);
+
+impl serde::Serialize for ExecByModule<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_map(self.0.iter().map(|m| (PathKey(&m.name), m.executable)))
+    }
+}
+
+/// A detail value with the event's time and robot beside its own fields.
+#[derive(serde::Serialize)]
+struct WithStamp<'a, T: serde::Serialize> {
+    t_s: f64,
+    robot: &'a str,
+    #[serde(flatten)]
+    v: T,
+}
+
+/// The `/events` line of an event: its kind's name, then its detail as JSON (`null` when it
+/// has none), written into `out`.
+fn event_line(kind: &ima_agents::runtime::EventKind, out: &mut String) {
+    // The kind serialises as `{"kind":"<name>","detail":<detail>}` (adjacently tagged): keep
+    // the detail's text as it is written, instead of building a JSON tree to pick it out.
+    let json = serde_json::to_string(kind).unwrap_or_default();
+    let name = kind.name();
+    let head = format!("{{\"kind\":\"{name}\"");
+    out.clear();
+    out.push_str(name);
+    out.push(' ');
+    match json.strip_prefix(&head) {
+        Some("}") => out.push_str("null"),
+        Some(rest) => match rest
+            .strip_prefix(",\"detail\":")
+            .and_then(|d| d.strip_suffix('}'))
+        {
+            Some(detail) => out.push_str(detail),
+            None => out.push_str(&json),
+        },
+        None => out.push_str(&json),
+    }
 }
 
 /// Record a runtime event: every event but the periodic detail as a line on `/events`,
 /// broadcasts said on the broadcast log, Skeeter's published SES as the dome, Scooter's
 /// belief (dead-reckoned position and heading, from its control reports) as a pose in `map`,
 /// and the detail ([`is_detail`]) as JSON state topics: `/san/<robot>`,
-/// `/peer/<robot>/status`, `/commander/queue`, `/<robot>/map`.
+/// `/peer/<robot>/status`, `/commander/queue`, `/<robot>/map`. The state is serialised
+/// straight into the recorder's queue.
 pub fn log_event(e: &ima_agents::runtime::Event) {
     use ima_agents::runtime::EventKind;
     with(|r| {
-        let stamped = |mut v: Value| {
-            if !v.is_object() {
-                v = json!({});
-            }
-            v["t_s"] = json!(e.t_s);
-            v["robot"] = json!(e.robot);
-            v
-        };
         match &e.kind {
             EventKind::San(v) => {
                 let names = || v.modules.iter().map(|m| m.name.clone()).collect::<Vec<_>>();
                 let topic = format!("/san/{}", e.robot);
-                return r.log_json(
-                    &topic,
-                    "ima.SanState",
-                    || san_schema(&names()),
-                    &san_json(e, v),
-                );
+                let json = SanJson { e, v };
+                return r.log_json(&topic, "ima.SanState", || san_schema(&names()), &json);
             }
             EventKind::PeerStatus(p) => {
-                let v = stamped(crate::web::feed::peer_status_json(p));
+                let v = WithStamp {
+                    t_s: e.t_s,
+                    robot: &e.robot,
+                    v: crate::web::feed::PeerStatusJson(p),
+                };
                 let topic = format!("/peer/{}/status", e.robot);
                 return r.log_json(&topic, "ima.PeerStatus", peer_schema, &v);
             }
             EventKind::Queue { targets } => {
-                let v = stamped(json!({ "targets": targets }));
+                #[derive(serde::Serialize)]
+                struct Targets<'a> {
+                    targets: &'a [ima_agents::runtime::events::QueueEntry],
+                }
+                let v = WithStamp {
+                    t_s: e.t_s,
+                    robot: &e.robot,
+                    v: Targets { targets },
+                };
                 return r.log_json("/commander/queue", "ima.TargetQueue", queue_schema, &v);
             }
             EventKind::Map(m) => {
-                let v = stamped(serde_json::to_value(m).unwrap_or_default());
                 let topic = format!("/{}/map", e.robot);
+                let v = WithStamp {
+                    t_s: e.t_s,
+                    robot: &e.robot,
+                    v: m,
+                };
                 return r.log_json(&topic, "ima.ScooterMap", map_schema, &v);
             }
             _ => {}
         }
-        let detail = serde_json::to_value(&e.kind).unwrap_or_default();
-        r.log_text(
-            "/events",
-            ima_record::messages::log::Level::Info,
-            &e.robot,
-            &format!(
-                "{} {}",
-                e.kind.name(),
-                detail.get("detail").cloned().unwrap_or_default()
-            ),
-        );
+        thread_local! {
+            static LINE: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
+        }
+        let log_line = |line: &mut String| {
+            event_line(&e.kind, line);
+            let level = ima_record::messages::log::Level::Info;
+            r.log_text("/events", level, &e.robot, line);
+        };
+        // The thread's line buffer, or a fresh one if it is in use or gone (thread exit).
+        let _ = LINE
+            .try_with(|cell| match cell.try_borrow_mut() {
+                Ok(mut line) => log_line(&mut line),
+                Err(_) => log_line(&mut String::new()),
+            })
+            .map_err(|_| log_line(&mut String::new()));
         match &e.kind {
             EventKind::Say(text) => r.log_broadcast(&e.robot, text),
             EventKind::SesPublished { marks } => {
@@ -692,6 +784,127 @@ pub fn log_event(e: &ima_agents::runtime::Event) {
 mod tests {
     use super::*;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    fn event(kind: ima_agents::runtime::EventKind) -> ima_agents::runtime::Event {
+        ima_agents::runtime::Event {
+            t_s: 12.5,
+            robot: "scooter".into(),
+            kind,
+        }
+    }
+
+    /// What the state topics held when they were built as JSON trees: the typed
+    /// serialisation must write the same objects.
+    fn stamped_tree(e: &ima_agents::runtime::Event, mut v: Value) -> Value {
+        v["t_s"] = json!(e.t_s);
+        v["robot"] = json!(e.robot);
+        v
+    }
+
+    #[test]
+    fn the_san_state_is_the_json_it_was() {
+        use ima_agents::runtime::events::{SanConditionView, SanModuleView, SanView};
+        let v = SanView {
+            network: "scooter".into(),
+            modules: vec![
+                SanModuleView {
+                    name: "move-to-target".into(),
+                    activation: 0.75,
+                    executable: true,
+                },
+                SanModuleView {
+                    name: "go-home".into(),
+                    activation: 0.25,
+                    executable: false,
+                },
+            ],
+            threshold: 0.5,
+            conditions: vec![SanConditionView {
+                name: "target-known".into(),
+                value: true,
+            }],
+            selected: "move-to-target".into(),
+        };
+        let e = event(ima_agents::runtime::EventKind::San(v.clone()));
+        let mut want = stamped_tree(&e, serde_json::to_value(&v).unwrap());
+        want["activation"] = json!({"move_to_target": 0.75, "go_home": 0.25});
+        want["executable"] = json!({"move_to_target": true, "go_home": false});
+        let got = serde_json::to_value(SanJson { e: &e, v: &v }).unwrap();
+        assert_eq!(got, want);
+    }
+
+    #[test]
+    fn the_map_and_the_queue_carry_their_stamp_beside_their_fields() {
+        use ima_agents::runtime::events::MapView;
+        let m = MapView {
+            dr: [1.0, 2.0],
+            heading_rad: Some(0.5),
+            desired_rad: None,
+            plan: None,
+            obstacles: vec![[3.0, 4.0]],
+            target: Some("red".into()),
+        };
+        let e = event(ima_agents::runtime::EventKind::Map(m.clone()));
+        let want = stamped_tree(&e, serde_json::to_value(&m).unwrap());
+        let got = serde_json::to_value(WithStamp {
+            t_s: e.t_s,
+            robot: &e.robot,
+            v: &m,
+        })
+        .unwrap();
+        assert_eq!(got, want);
+    }
+
+    #[test]
+    fn the_peer_status_topic_is_the_page_json_with_its_stamp() {
+        let p = ima_agents::runtime::events::PeerStatus {
+            address: Some("127.0.0.1:7400".into()),
+            ..Default::default()
+        };
+        let e = event(ima_agents::runtime::EventKind::PeerStatus(Box::new(
+            p.clone(),
+        )));
+        let want = stamped_tree(&e, crate::web::feed::peer_status_json(&p));
+        let got = serde_json::to_value(WithStamp {
+            t_s: e.t_s,
+            robot: &e.robot,
+            v: crate::web::feed::PeerStatusJson(&p),
+        })
+        .unwrap();
+        assert_eq!(got, want);
+    }
+
+    #[test]
+    fn an_event_line_is_its_name_and_its_detail() {
+        use ima_agents::runtime::EventKind;
+        for kind in [
+            EventKind::RequestHeading,
+            EventKind::Behaviour("move-to-target".into()),
+            EventKind::FleetStop {
+                by: "commander".into(),
+                reason: "operator \"stop\" }".into(),
+            },
+            EventKind::Ses {
+                records: 3,
+                planned: true,
+                target: None,
+            },
+        ] {
+            let tree = serde_json::to_value(&kind).unwrap();
+            let mut got = String::new();
+            event_line(&kind, &mut got);
+            // The same name and the same detail (its fields in declaration order now, where
+            // the JSON tree sorted them).
+            let (name, detail) = got.split_once(' ').unwrap();
+            assert_eq!(name, kind.name());
+            let detail: Value = serde_json::from_str(detail).unwrap();
+            assert_eq!(
+                detail,
+                tree.get("detail").cloned().unwrap_or_default(),
+                "{got}"
+            );
+        }
+    }
 
     #[tokio::test]
     async fn a_tap_without_a_recorder_passes_bytes_through() {

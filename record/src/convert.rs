@@ -5,15 +5,16 @@
 //! odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>`, `/<robot>/ses`,
 //! `/<robot>/sonar`, `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
 
-use foxglove::Encode;
 use foxglove::messages::{
-    Color, CompressedImage, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose,
-    PoseInFrame, Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive,
-    Timestamp, Vector3, log, packed_element_field::NumericType,
+    Color, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose, PoseInFrame,
+    Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
+    Vector3, log, packed_element_field::NumericType,
 };
 use ima_hal::camera::Frame;
 
 use crate::Recorder;
+use crate::queue::Kind;
+use crate::stream::Proto;
 
 /// A planar pose: metres and radians (counter-clockwise).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -79,7 +80,7 @@ fn quat_z(theta: f64) -> Quaternion {
     }
 }
 
-fn pose3(p: Pose2) -> Pose {
+pub(crate) fn pose3(p: Pose2) -> Pose {
     Pose {
         position: Some(Vector3 {
             x: p.x_m,
@@ -135,18 +136,7 @@ pub fn sonar_cloud(
     scan: &ima_hal::sonar::SonarScan,
 ) -> PointCloud {
     let mut data = Vec::with_capacity(scan.readings.len() * SONAR_POINT_STRIDE as usize);
-    for r in &scan.readings {
-        let Some(t) = transducers.get(usize::from(r.index)) else {
-            continue;
-        };
-        if !r.range_m.is_finite() || r.range_m >= t.max_range_m {
-            continue;
-        }
-        let p = t.pose * ima_hal::Point2::new(r.range_m, 0.0);
-        for v in [p.x, p.y, 0.0, r.range_m] {
-            data.extend_from_slice(&(v as f32).to_le_bytes());
-        }
-    }
+    sonar_points(transducers, scan, &mut data);
     let field = |name: &str, offset: u32| PackedElementField {
         name: name.to_owned(),
         offset,
@@ -164,6 +154,26 @@ pub fn sonar_cloud(
             field("range", 12),
         ],
         data: data.into(),
+    }
+}
+
+/// The points of [`sonar_cloud`], appended to `out`.
+fn sonar_points(
+    transducers: &[ima_hal::sonar::SonarTransducer],
+    scan: &ima_hal::sonar::SonarScan,
+    out: &mut Vec<u8>,
+) {
+    for r in &scan.readings {
+        let Some(t) = transducers.get(usize::from(r.index)) else {
+            continue;
+        };
+        if !r.range_m.is_finite() || r.range_m >= t.max_range_m {
+            continue;
+        }
+        let p = t.pose * ima_hal::Point2::new(r.range_m, 0.0);
+        for v in [p.x, p.y, 0.0, r.range_m] {
+            out.extend_from_slice(&(v as f32).to_le_bytes());
+        }
     }
 }
 
@@ -201,56 +211,16 @@ pub fn raw_image(frame_id: &str, at_ns: u64, f: &Frame) -> RawImage {
     }
 }
 
-/// A frame to be sent as a PNG `foxglove.CompressedImage`: compressed when the recorder's
-/// thread encodes it, not when it is logged.
-pub(crate) struct PngFrame {
-    frame_id: String,
-    at_ns: u64,
-    width: u32,
-    height: u32,
-    pixels: Vec<u8>,
-}
-
-impl PngFrame {
-    /// The PNG of the frame (`None`: its size does not match its pixels).
-    fn png(&self) -> Option<Vec<u8>> {
-        let mut out = Vec::with_capacity(self.pixels.len() / 4);
-        let mut enc = png::Encoder::new(&mut out, self.width, self.height);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        enc.set_compression(png::Compression::Fast);
-        enc.write_header()
-            .ok()?
-            .write_image_data(&self.pixels)
-            .ok()?;
-        Some(out)
-    }
-
-    fn message(&self) -> CompressedImage {
-        CompressedImage {
-            timestamp: Some(stamp(self.at_ns)),
-            frame_id: self.frame_id.clone(),
-            data: self.png().unwrap_or_default().into(),
-            format: "png".to_owned(),
-        }
-    }
-}
-
-impl crate::Payload for PngFrame {
-    fn size(&self) -> usize {
-        // The budget counts the pixels held in the queue.
-        self.pixels.len()
-    }
-    fn schema(&self) -> Option<foxglove::Schema> {
-        CompressedImage::get_schema()
-    }
-    fn encoding(&self) -> String {
-        CompressedImage::get_message_encoding()
-    }
-    fn encode_into(&self, buf: &mut Vec<u8>) {
-        // Encoding into a Vec cannot run out of room.
-        let _ = self.message().encode(buf);
-    }
+/// An `rgb8` frame as PNG (fast compression); `None` if the pixels do not make a
+/// `width` × `height` frame.
+pub fn png(width: u32, height: u32, pixels: &[u8]) -> Option<Vec<u8>> {
+    let mut out = Vec::with_capacity(pixels.len() / 4);
+    let mut enc = png::Encoder::new(&mut out, width, height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    enc.write_header().ok()?.write_image_data(pixels).ok()?;
+    Some(out)
 }
 
 /// A log line.
@@ -352,56 +322,112 @@ pub fn map_markers(at_ns: u64, markers: &[MapMarker]) -> SceneUpdate {
 
 /// The sink API: readings by robot, on the topics and frames of this module.
 impl Recorder {
-    /// A laser scan of `robot` (frame `<robot>/laser`).
+    /// A planar pose on stream `s`.
+    fn log_pose2(&self, s: crate::StreamId, p: Pose2) {
+        self.push(s, Kind::Pose, 24, |b| {
+            for v in [p.x_m, p.y_m, p.theta_rad] {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+            true
+        });
+    }
+
+    /// A laser scan of `robot` on `/<robot>/laser/scan` (frame `<robot>/laser`).
     pub fn log_scan(&self, robot: &str, s: &ima_hal::laser::LaserScan) {
-        let at = self.now_ns();
-        self.log(
-            &format!("/{robot}/laser/scan"),
-            laser_scan(&format!("{robot}/laser"), at, s),
-        );
+        let stream = self.stream(format_args!("scan\x1f{robot}"), || {
+            let proto = Proto::Scan(LaserScan {
+                frame_id: format!("{robot}/laser"),
+                pose: Some(pose3(Pose2::default())),
+                ..LaserScan::default()
+            });
+            (format!("/{robot}/laser/scan"), proto)
+        });
+        let ranges = s.ranges_m();
+        self.push(stream, Kind::Scan, 16 + 4 * ranges.len(), |b| {
+            b.extend_from_slice(&s.start_angle_rad.to_le_bytes());
+            b.extend_from_slice(&s.step_rad.to_le_bytes());
+            for r in ranges {
+                b.extend_from_slice(&r.to_le_bytes());
+            }
+            true
+        });
     }
 
-    /// Odometry of `robot`: the transform `<robot>/odom` → `<robot>/base_link` on `/tf` and
-    /// the pose on `/<robot>/odom`.
+    /// Odometry of `robot`: the `<robot>/odom` → `<robot>/base_link` transform on `/tf`
+    /// and the pose on `/<robot>/odom`.
     pub fn log_odometry(&self, robot: &str, p: Pose2) {
-        let at = self.now_ns();
-        let odom = format!("{robot}/odom");
-        self.log(
-            "/tf",
-            transform(&odom, &format!("{robot}/base_link"), at, p),
-        );
-        self.log(&format!("/{robot}/odom"), pose_in_frame(&odom, at, p));
+        let tf = self.stream(format_args!("tf-odom\x1f{robot}"), || {
+            let proto = Proto::Transform(FrameTransform {
+                parent_frame_id: format!("{robot}/odom"),
+                child_frame_id: format!("{robot}/base_link"),
+                ..FrameTransform::default()
+            });
+            ("/tf".to_owned(), proto)
+        });
+        self.log_pose2(tf, p);
+        let pose = self.stream(format_args!("odom\x1f{robot}"), || {
+            let proto = Proto::Pose(PoseInFrame {
+                frame_id: format!("{robot}/odom"),
+                ..PoseInFrame::default()
+            });
+            (format!("/{robot}/odom"), proto)
+        });
+        self.log_pose2(pose, p);
     }
 
-    /// A static or slow transform `parent` → `child` on `/tf`.
+    /// A static or moving transform `parent` → `child` on `/tf`.
     pub fn log_transform(&self, parent: &str, child: &str, p: Pose2) {
-        let at = self.now_ns();
-        self.log("/tf", transform(parent, child, at, p));
+        let s = self.stream(format_args!("tf\x1f{parent}\x1f{child}"), || {
+            let proto = Proto::Transform(FrameTransform {
+                parent_frame_id: parent.to_owned(),
+                child_frame_id: child.to_owned(),
+                ..FrameTransform::default()
+            });
+            ("/tf".to_owned(), proto)
+        });
+        self.log_pose2(s, p);
     }
 
     /// A pose in `frame` on `topic` (a belief, a goal).
     pub fn log_pose(&self, topic: &str, frame: &str, p: Pose2) {
-        let at = self.now_ns();
-        self.log(topic, pose_in_frame(frame, at, p));
+        let s = self.stream(format_args!("pose\x1f{topic}\x1f{frame}"), || {
+            let proto = Proto::Pose(PoseInFrame {
+                frame_id: frame.to_owned(),
+                ..PoseInFrame::default()
+            });
+            (topic.to_owned(), proto)
+        });
+        self.log_pose2(s, p);
     }
 
     /// The world's ground truth for `robot`: its pose in `map` on `/<robot>/truth`.
     pub fn log_ground_truth(&self, robot: &str, p: Pose2) {
-        self.log_pose(&format!("/{robot}/truth"), "map", p);
+        let s = self.stream(format_args!("truth\x1f{robot}"), || {
+            let proto = Proto::Pose(PoseInFrame {
+                frame_id: "map".to_owned(),
+                ..PoseInFrame::default()
+            });
+            (format!("/{robot}/truth"), proto)
+        });
+        self.log_pose2(s, p);
     }
 
     /// A compass heading of `robot` (radians, counter-clockwise in the robot's common frame)
     /// as a pose at the robot's origin on `/<robot>/compass`.
     pub fn log_compass(&self, robot: &str, heading_rad: f64) {
-        self.log_pose(
-            &format!("/{robot}/compass"),
-            &format!("{robot}/base_link"),
-            Pose2 {
-                x_m: 0.0,
-                y_m: 0.0,
-                theta_rad: heading_rad,
-            },
-        );
+        let s = self.stream(format_args!("compass\x1f{robot}"), || {
+            let proto = Proto::Pose(PoseInFrame {
+                frame_id: format!("{robot}/base_link"),
+                ..PoseInFrame::default()
+            });
+            (format!("/{robot}/compass"), proto)
+        });
+        let p = Pose2 {
+            x_m: 0.0,
+            y_m: 0.0,
+            theta_rad: heading_rad,
+        };
+        self.log_pose2(s, p);
     }
 
     /// A sonar scan of `robot` on `/<robot>/sonar` (see [`sonar_cloud`]; frame
@@ -412,39 +438,50 @@ impl Recorder {
         transducers: &[ima_hal::sonar::SonarTransducer],
         scan: &ima_hal::sonar::SonarScan,
     ) {
-        let at = self.now_ns();
-        self.log(
-            &format!("/{robot}/sonar"),
-            sonar_cloud(&format!("{robot}/base_link"), at, transducers, scan),
-        );
+        let s = self.stream(format_args!("sonar\x1f{robot}"), || {
+            let mut proto = sonar_cloud(
+                &format!("{robot}/base_link"),
+                0,
+                &[],
+                &ima_hal::sonar::SonarScan::default(),
+            );
+            proto.data = Default::default();
+            (format!("/{robot}/sonar"), Proto::Cloud(proto))
+        });
+        let size = scan.readings.len() * SONAR_POINT_STRIDE as usize;
+        self.push(s, Kind::Cloud, size, |b| {
+            sonar_points(transducers, scan, b);
+            true
+        });
     }
 
     /// A camera frame of `robot` on `/<robot>/camera/<channel>` (or `/<robot>/camera`), as
-    /// [`crate::Options::images`] says: `foxglove.CompressedImage` (PNG) or
-    /// `foxglove.RawImage`.
+    /// [`crate::Options::images`] says: `foxglove.CompressedImage` (PNG, compressed on the
+    /// recorder's thread) or `foxglove.RawImage`.
     pub fn log_image(&self, robot: &str, f: &Frame) {
-        let at = self.now_ns();
-        let topic = match f.channel {
-            Some(c) => format!("/{robot}/camera/{c}"),
-            None => format!("/{robot}/camera"),
+        let png = self.images() == crate::Images::Png;
+        let make = || {
+            let topic = match f.channel {
+                Some(c) => format!("/{robot}/camera/{c}"),
+                None => format!("/{robot}/camera"),
+            };
+            let raw = RawImage {
+                frame_id: format!("{robot}/camera"),
+                encoding: "rgb8".to_owned(),
+                ..RawImage::default()
+            };
+            (topic, Proto::Image { raw, png })
         };
-        if !self.wants(&topic) {
-            return;
-        }
-        let frame_id = format!("{robot}/camera");
-        match self.images() {
-            crate::Images::Raw => self.log(&topic, raw_image(&frame_id, at, f)),
-            crate::Images::Png => self.log_payload(
-                &topic,
-                Box::new(PngFrame {
-                    frame_id,
-                    at_ns: at,
-                    width: f.width,
-                    height: f.height,
-                    pixels: f.pixels.to_vec(),
-                }),
-            ),
-        }
+        let s = match f.channel {
+            Some(c) => self.stream(format_args!("image\x1f{robot}\x1f{c}"), make),
+            None => self.stream(format_args!("image\x1f{robot}"), make),
+        };
+        self.push(s, Kind::Image, 8 + f.pixels.len(), |b| {
+            b.extend_from_slice(&f.width.to_le_bytes());
+            b.extend_from_slice(&f.height.to_le_bytes());
+            b.extend_from_slice(&f.pixels);
+            true
+        });
     }
 
     /// The SES of `robot` on `/<robot>/ses` (around `<robot>/base_link`).
@@ -465,8 +502,18 @@ impl Recorder {
     /// A line of text on `topic` (`/broadcasts`, `/events`) as `foxglove.Log`, `name` being
     /// who said it.
     pub fn log_text(&self, topic: &str, level: log::Level, name: &str, message: &str) {
-        let at = self.now_ns();
-        self.log(topic, log_line(at, level, name, message));
+        let s = self.stream(format_args!("text\x1f{topic}\x1f{name}"), || {
+            let proto = Proto::Text(Log {
+                name: name.to_owned(),
+                ..Log::default()
+            });
+            (topic.to_owned(), proto)
+        });
+        self.push(s, Kind::Text, 1 + message.len(), |b| {
+            b.push(level as u8);
+            b.extend_from_slice(message.as_bytes());
+            true
+        });
     }
 
     /// A broadcast heard or said by `robot`, on `/broadcasts`.

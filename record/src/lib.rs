@@ -1,14 +1,18 @@
 //! Recording (MCAP) and live view (Foxglove WebSocket) of ima's devices and readings, on the
 //! Foxglove SDK.
 //!
-//! A [`Recorder`] is a cheap, cloneable handle. Logging never blocks the caller: every message
-//! goes into a bounded queue read by one background thread, which encodes it (protobuf, the
+//! A [`Recorder`] is a cheap, cloneable handle. Logging never blocks the caller and never
+//! allocates: a message is appended, as a compact record of what changes from one message to
+//! the next (a scan's ranges, a pose's numbers, a frame's pixels, raw bytes), to a bounded byte
+//! queue. One background thread takes the queue whole, fills each stream's message in place
+//! (frame ids, topics and schemas are kept once per stream), encodes it (protobuf, the
 //! `foxglove.*` well-known schemas), writes it to the MCAP file (zstd-compressed chunks,
 //! message and chunk indexes, a summary) and hands it to the WebSocket server. The thread
 //! drains the queue on a tick — every 20 ms with a live view, every 500 ms when it only writes
 //! a file — and earlier when the queue fills to a quarter or [`Recorder::finish`] is called, so
 //! no message wakes it on its own. When the queue is full the message is dropped and counted;
-//! [`Recorder::finish`] reports the counts.
+//! [`Recorder::finish`] reports the counts and the CPU time the thread used
+//! ([`Report::thread_cpu`]).
 //!
 //! What is recorded:
 //!
@@ -30,14 +34,17 @@
 
 pub mod convert;
 pub mod filter;
+mod queue;
 pub mod raw;
 pub mod read;
+mod stream;
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
+use std::io::BufWriter;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError, TrySendError};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -50,9 +57,18 @@ pub use foxglove::messages;
 /// Messages the queue holds before new ones are dropped.
 pub const DEFAULT_QUEUE: usize = 8192;
 
-/// Bytes the queue may hold (encoded sizes, estimated) before new messages are dropped:
-/// memory stays bounded even when every queued message is a camera frame.
+/// Bytes the queue may hold before new messages are dropped: memory stays bounded even when
+/// every queued message is a camera frame.
 pub const MAX_QUEUED_BYTES: usize = 64 << 20;
+
+/// The queue's buffers start this large (about 1.5 s of the demo) …
+const INITIAL_BATCH: usize = 2 << 20;
+
+/// … and one grown by a burst beyond this is given back once drained.
+const KEEP_BATCH: usize = 8 << 20;
+
+/// The MCAP file's write buffer: at least one compressed chunk per `write` call.
+const WRITE_BUFFER: usize = 1 << 20;
 
 /// Bytes queued that wake the recorder's thread before its tick.
 const WAKE_BYTES: usize = MAX_QUEUED_BYTES / 4;
@@ -140,6 +156,9 @@ pub struct Report {
     pub server_port: Option<u16>,
     /// The topics left out of the file, as the patterns were given (empty: none).
     pub excluded: String,
+    /// CPU time the recorder's own thread used, from the kernel's per-thread account
+    /// (`None` where it cannot be read: not Linux).
+    pub thread_cpu: Option<Duration>,
 }
 
 impl Report {
@@ -172,91 +191,49 @@ impl Report {
         if let Some(e) = &self.error {
             s.push_str(&format!("; writing stopped: {e}"));
         }
+        if let Some(cpu) = self.thread_cpu {
+            s.push_str(&format!(
+                "; the recorder's thread used {:.0} ms of CPU",
+                cpu.as_secs_f64() * 1e3
+            ));
+        }
         s
     }
 }
 
-/// A message that the background thread encodes and logs.
-trait Payload: Send {
-    fn size(&self) -> usize;
-    fn schema(&self) -> Option<Schema>;
-    fn encoding(&self) -> String;
-    fn encode_into(&self, buf: &mut Vec<u8>);
+/// The part of the recorder that callers and the recorder's thread share.
+struct Inner {
+    /// The records logged since the thread last took them.
+    batch: queue::Batch,
+    /// Every stream registered, by id.
+    streams: Vec<Arc<stream::Stream>>,
+    /// Stream ids by key (kind, topic and what else fixes the stream's messages).
+    by_key: HashMap<Box<str>, u32>,
+    /// The recorder's thread took its last batch: what is logged now is dropped (and
+    /// counted), not left in a queue nobody reads.
+    closed: bool,
 }
 
-impl<T: Encode + Send> Payload for T {
-    fn size(&self) -> usize {
-        self.encoded_len().unwrap_or(1024)
-    }
-    fn schema(&self) -> Option<Schema> {
-        T::get_schema()
-    }
-    fn encoding(&self) -> String {
-        T::get_message_encoding()
-    }
-    fn encode_into(&self, buf: &mut Vec<u8>) {
-        // Encoding into a Vec cannot run out of room.
-        let _ = self.encode(buf);
-    }
-}
-
-/// A raw channel's description (sent once, before its first bytes).
-struct RawDesc {
-    metadata: BTreeMap<String, String>,
-}
-
-enum Body {
-    Typed(Box<dyn Payload>),
-    Raw(Vec<u8>),
-    DeclareRaw(RawDesc),
-    /// A JSON message and, with a channel's first message, its schema.
-    Json(Option<Schema>, Vec<u8>),
-}
-
-impl Body {
-    fn size(&self) -> usize {
-        match self {
-            Self::Typed(p) => p.size(),
-            Self::Raw(b) | Self::Json(_, b) => b.len(),
-            Self::DeclareRaw(_) => 0,
-        }
-    }
-}
-
-enum Msg {
-    Log {
-        topic: Arc<str>,
-        log_time: u64,
-        body: Body,
-    },
+/// What the recorder's thread is asked besides draining the queue.
+enum Control {
     Finish(mpsc::Sender<Report>),
 }
 
-/// What the queue holds (the recorder's thread keeps its own handle on it: holding
-/// [`Shared`] would keep the queue's sender alive).
-#[derive(Default)]
-struct Queued {
-    /// Encoded sizes, estimated.
-    bytes: AtomicUsize,
-    /// Messages (the thread is woken early at `Shared::wake_msgs`).
-    msgs: AtomicUsize,
-}
-
 struct Shared {
-    tx: SyncSender<Msg>,
-    dropped: AtomicU64,
-    queued: Arc<Queued>,
-    /// A quarter of the queue's length.
+    inner: Arc<Mutex<Inner>>,
+    control: mpsc::Sender<Control>,
+    /// Messages the queue holds before new ones are dropped.
+    cap: usize,
+    /// A quarter of `cap`: wakes the thread before its tick.
     wake_msgs: usize,
+    dropped: AtomicU64,
     /// Stamp of everything logged while non-zero (a replay's recorded time).
     stamp_override: AtomicU64,
     wall0_ns: u64,
     mono0: std::time::Instant,
     finished: Mutex<Option<Report>>,
-    /// The recorder's thread (woken by `finish`).
+    /// The recorder's thread (woken by `finish` and by bursts).
     worker: std::sync::OnceLock<std::thread::Thread>,
-    /// JSON topics whose first message (with the schema) is queued.
-    json_topics: Mutex<std::collections::BTreeSet<Box<str>>>,
     server_port: Option<u16>,
     images: Images,
     exclude: filter::TopicFilter,
@@ -276,6 +253,18 @@ impl std::fmt::Debug for Recorder {
     }
 }
 
+/// A stream's id and whether anything takes its messages.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct StreamId {
+    id: u32,
+    wanted: bool,
+}
+
+thread_local! {
+    /// Where a stream's key is written to be looked up (reused: no allocation per message).
+    static KEY: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
+}
+
 impl Recorder {
     /// Start recording to a file and/or serving a live view, as `opts` say.
     pub fn start(opts: &Options) -> Result<Self, Error> {
@@ -284,38 +273,9 @@ impl Recorder {
         } else {
             opts.queue
         };
-        let (tx, rx) = mpsc::sync_channel(cap);
         let ctx = Context::new();
         let writer = match &opts.mcap {
-            Some(path) => {
-                // zstd's fastest level on this thread: the robot's cores are for the robot
-                // (level 1 and no helper threads: measured in the README's recording rows).
-                let options = foxglove::McapWriteOptions::new()
-                    .compression(Some(foxglove::McapCompression::Zstd))
-                    .compression_level(1)
-                    .compression_threads(0)
-                    .chunk_size(Some(CHUNK_SIZE))
-                    .profile("");
-                let mut w = ctx.mcap_writer_with_options(options);
-                if !opts.exclude.is_empty() {
-                    let f = opts.exclude.clone();
-                    w = w.channel_filter_fn(move |c| !f.excludes(c.topic()));
-                }
-                let w = w
-                    .create_new_buffered_file(path)
-                    .map_err(|source| Error::Create {
-                        path: path.clone(),
-                        source,
-                    })?;
-                let mut meta = BTreeMap::new();
-                meta.insert("name".to_owned(), opts.name.clone());
-                meta.insert("version".to_owned(), env!("CARGO_PKG_VERSION").to_owned());
-                if !opts.exclude.is_empty() {
-                    meta.insert("exclude".to_owned(), opts.exclude.describe());
-                }
-                let _ = w.write_metadata("ima", meta);
-                Some(w)
-            }
+            Some(path) => Some(create_file(&ctx, path, opts)?),
             None => None,
         };
         let server = match opts.foxglove {
@@ -323,42 +283,50 @@ impl Recorder {
             None => None,
         };
         let server_port = server.as_ref().map(|(h, _)| h.port());
-        let path = opts.mcap.clone();
-        let queued = Arc::new(Queued::default());
+        let inner = Arc::new(Mutex::new(Inner {
+            batch: queue::Batch {
+                bytes: Vec::with_capacity(INITIAL_BATCH),
+                msgs: 0,
+            },
+            streams: Vec::new(),
+            by_key: HashMap::new(),
+            closed: false,
+        }));
+        let (control, control_rx) = mpsc::channel();
         let shared = Arc::new(Shared {
-            tx,
-            dropped: AtomicU64::new(0),
-            queued: Arc::clone(&queued),
+            inner: Arc::clone(&inner),
+            control,
+            cap,
             wake_msgs: (cap / 4).max(1),
+            dropped: AtomicU64::new(0),
             stamp_override: AtomicU64::new(0),
             wall0_ns: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)),
             mono0: std::time::Instant::now(),
             finished: Mutex::new(None),
-            json_topics: Mutex::new(std::collections::BTreeSet::new()),
             worker: std::sync::OnceLock::new(),
             server_port,
             images: opts.images,
             exclude: opts.exclude.clone(),
         });
         let worker = Worker {
-            queued,
+            inner,
+            drained: Vec::with_capacity(INITIAL_BATCH),
             ctx,
             writer,
             server,
             server_port,
-            path,
+            path: opts.mcap.clone(),
+            streams: Vec::new(),
             channels: BTreeMap::new(),
-            raw_meta: BTreeMap::new(),
-            written: BTreeMap::new(),
             error: None,
             buf: Vec::new(),
             exclude: opts.exclude.clone(),
         };
         let thread = std::thread::Builder::new()
             .name("ima-record".into())
-            .spawn(move || worker.run(rx))
+            .spawn(move || worker.run(&control_rx))
             .map_err(Error::Thread)?;
         let _ = shared.worker.set(thread.thread().clone());
         Ok(Self { shared })
@@ -405,36 +373,96 @@ impl Recorder {
         self.shared.server_port.is_some() || !self.shared.exclude.excludes(topic)
     }
 
-    /// Queue a message; `false` when it was dropped (and counted). A message nobody takes
-    /// ([`Self::wants`]) is let go here, before the queue.
-    fn send(&self, topic: Arc<str>, body: Body) -> bool {
-        if !self.wants(&topic) {
-            return true;
-        }
-        let size = body.size();
-        let q = &self.shared.queued;
-        let bytes = q
-            .bytes
-            .fetch_add(size, Ordering::Relaxed)
-            .saturating_add(size);
-        let msgs = q.msgs.fetch_add(1, Ordering::Relaxed).saturating_add(1);
-        let msg = Msg::Log {
-            topic,
-            log_time: self.now_ns(),
-            body,
+    fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
+        self.shared
+            .inner
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The stream whose key `key` writes (registered by `make` the first time: its topic and
+    /// what its messages share; `make` runs outside the lock). Looking it up allocates
+    /// nothing once the stream exists.
+    pub(crate) fn stream(
+        &self,
+        key: std::fmt::Arguments<'_>,
+        make: impl FnOnce() -> (String, stream::Proto),
+    ) -> StreamId {
+        let known = |inner: &Inner, k: &str| {
+            let id = *inner.by_key.get(k)?;
+            let wanted = inner.streams.get(id as usize).is_some_and(|s| s.wanted);
+            Some(StreamId { id, wanted })
         };
-        if bytes > MAX_QUEUED_BYTES || self.shared.tx.try_send(msg).is_err() {
-            q.bytes.fetch_sub(size, Ordering::Relaxed);
-            q.msgs.fetch_sub(1, Ordering::Relaxed);
-            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+        let look_up = |k: &mut String| {
+            k.clear();
+            let _ = std::fmt::Write::write_fmt(k, key);
+            known(&self.lock(), k).ok_or_else(|| Box::<str>::from(k.as_str()))
+        };
+        // The thread's key buffer, or a fresh one if it is in use or gone (thread exit).
+        let key = KEY
+            .try_with(|cell| match cell.try_borrow_mut() {
+                Ok(mut k) => look_up(&mut k),
+                Err(_) => look_up(&mut String::new()),
+            })
+            .unwrap_or_else(|_| look_up(&mut String::new()));
+        let key = match key {
+            Ok(s) => return s,
+            Err(key) => key,
+        };
+        // A new stream: `make` may take long or log itself.
+        let (topic, proto) = make();
+        let wanted = self.wants(&topic);
+        let mut inner = self.lock();
+        // Another thread may have registered it meanwhile.
+        if let Some(s) = known(&inner, &key) {
+            return s;
+        }
+        let id = u32::try_from(inner.streams.len()).unwrap_or(u32::MAX);
+        inner.streams.push(Arc::new(stream::Stream {
+            topic: topic.into(),
+            wanted,
+            proto,
+        }));
+        inner.by_key.insert(key, id);
+        StreamId { id, wanted }
+    }
+
+    /// Queue a record of stream `s` (`size`: its payload's length, for the byte budget;
+    /// `write` appends the payload and says whether it could). `false` when it was dropped
+    /// (queue full: counted) or nothing takes it.
+    pub(crate) fn push(
+        &self,
+        s: StreamId,
+        kind: queue::Kind,
+        size: usize,
+        write: impl FnOnce(&mut Vec<u8>) -> bool,
+    ) -> bool {
+        if !s.wanted {
             return false;
+        }
+        let log_time = self.now_ns();
+        let (kept, wake) = {
+            let mut inner = self.lock();
+            let closed = inner.closed;
+            let b = &mut inner.batch;
+            let full = closed
+                || b.msgs >= self.shared.cap
+                || b.bytes.len().saturating_add(queue::HEADER + size) > MAX_QUEUED_BYTES;
+            let kept = !full && b.push(s.id, kind, log_time, write);
+            (
+                kept,
+                b.msgs >= self.shared.wake_msgs || b.bytes.len() >= WAKE_BYTES,
+            )
+        };
+        if !kept {
+            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
         }
         // A burst (a fast replay, a flood of frames) wakes the thread before its tick, long
         // before the queue is full.
-        if msgs >= self.shared.wake_msgs || bytes >= WAKE_BYTES {
+        if wake {
             self.wake();
         }
-        true
+        kept
     }
 
     /// Wake the recorder's thread before its tick.
@@ -444,21 +472,25 @@ impl Recorder {
         }
     }
 
-    /// Log a payload encoded on the background thread.
-    fn log_payload(&self, topic: &str, msg: Box<dyn Payload>) {
-        let _ = self.send(Arc::from(topic), Body::Typed(msg));
-    }
-
-    /// Log any `foxglove` well-known message on `topic`.
-    pub fn log<T: Encode + Send + 'static>(&self, topic: &str, msg: T) {
-        let _ = self.send(Arc::from(topic), Body::Typed(Box::new(msg)));
+    /// Log any `foxglove` well-known message on `topic` (encoded on the caller's thread).
+    pub fn log<T: Encode>(&self, topic: &str, msg: T) {
+        let s = self.stream(format_args!("enc\x1f{topic}"), || {
+            let proto = stream::Proto::Encoded {
+                schema: T::get_schema(),
+                encoding: T::get_message_encoding(),
+                metadata: BTreeMap::new(),
+            };
+            (topic.to_owned(), proto)
+        });
+        let size = msg.encoded_len().unwrap_or(1024);
+        self.push(s, queue::Kind::Encoded, size, |b| msg.encode(b).is_ok());
     }
 
     /// Log a JSON object on `topic`: a channel with message encoding `json` and the JSON
     /// Schema `schema()` named `schema_name` (encoding `jsonschema`), which Foxglove's Raw
     /// Messages, Plot and State Transitions panels read. The first message fixes the
-    /// channel's schema; `schema` is called only for it (later messages cost only their own
-    /// serialisation).
+    /// channel's schema; `schema` is called only for it. The value is serialised straight
+    /// into the queue.
     pub fn log_json<T: serde::Serialize + ?Sized>(
         &self,
         topic: &str,
@@ -466,32 +498,32 @@ impl Recorder {
         schema: impl FnOnce() -> serde_json::Value,
         value: &T,
     ) {
-        let data = serde_json::to_vec(value).unwrap_or_default();
-        let mut known = (self.shared.json_topics)
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        let first = !known.contains(topic);
-        let schema = first.then(|| {
+        let s = self.stream(format_args!("json\x1f{topic}"), || {
             let text = serde_json::to_vec(&schema()).unwrap_or_default();
-            Schema::new(schema_name, "jsonschema", text)
+            let proto = stream::Proto::Encoded {
+                schema: Some(Schema::new(schema_name, "jsonschema", text)),
+                encoding: "json".to_owned(),
+                metadata: BTreeMap::new(),
+            };
+            (topic.to_owned(), proto)
         });
-        if self.send(Arc::from(topic), Body::Json(schema, data)) && first {
-            known.insert(topic.into());
-        }
+        self.push(s, queue::Kind::Encoded, 0, |b| {
+            serde_json::to_writer(&mut *b, value).is_ok()
+        });
     }
 
     /// Declare a raw serial port and get the handle that records its bytes.
     pub fn raw_port(&self, port: raw::PortInfo) -> raw::RawPort {
-        let topic: Arc<str> = Arc::from(port.topic().as_str());
-        let desc = Body::DeclareRaw(RawDesc {
-            metadata: port.metadata(),
+        let topic = port.topic();
+        let s = self.stream(format_args!("raw\x1f{topic}"), || {
+            let proto = stream::Proto::Encoded {
+                schema: None,
+                encoding: raw::ENCODING.to_owned(),
+                metadata: port.metadata(),
+            };
+            (topic.clone(), proto)
         });
-        let _ = self.send(Arc::clone(&topic), desc);
-        raw::RawPort::new(self.clone(), topic)
-    }
-
-    pub(crate) fn send_raw(&self, topic: &Arc<str>, bytes: Vec<u8>) {
-        let _ = self.send(Arc::clone(topic), Body::Raw(bytes));
+        raw::RawPort::new(self.clone(), s, topic.into())
     }
 
     /// Finish: write what is queued, close the file (summary, indexes) and stop the server.
@@ -506,40 +538,68 @@ impl Recorder {
             return r.clone();
         }
         let (tx, rx) = mpsc::channel();
-        // The finish request must get in even when the queue is full: retry until it does.
-        let deadline = std::time::Instant::now() + wait;
-        let mut req = Msg::Finish(tx);
-        loop {
-            match self.shared.tx.try_send(req) {
-                Ok(()) => {
-                    self.wake();
-                    break;
-                }
-                Err(TrySendError::Full(m)) if std::time::Instant::now() < deadline => {
-                    req = m;
-                    self.wake();
-                    std::thread::sleep(Duration::from_millis(2));
-                }
-                Err(_) => {
-                    let r = Report {
-                        dropped: self.dropped(),
-                        error: Some("the recorder did not answer".into()),
-                        ..Report::default()
-                    };
-                    *done = Some(r.clone());
-                    return r;
-                }
-            }
-        }
-        let left = deadline.saturating_duration_since(std::time::Instant::now());
-        let mut r = rx.recv_timeout(left).unwrap_or_else(|_| Report {
-            error: Some("the recorder did not finish in time".into()),
-            ..Report::default()
-        });
+        let sent = self.shared.control.send(Control::Finish(tx)).is_ok();
+        self.wake();
+        let mut r = match sent.then(|| rx.recv_timeout(wait)) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Report {
+                error: Some("the recorder did not finish in time".into()),
+                ..Report::default()
+            },
+            None => Report {
+                error: Some("the recorder did not answer".into()),
+                ..Report::default()
+            },
+        };
         r.dropped += self.dropped();
         *done = Some(r.clone());
         r
     }
+}
+
+/// Create the MCAP file `path` (it must not exist) with its `ima` metadata: zstd's fastest
+/// level, no helper threads (the robot's cores are for the robot), [`CHUNK_SIZE`] chunks,
+/// and a large write buffer (one `write` per chunk rather than per 8 KiB).
+fn create_file(
+    ctx: &Arc<Context>,
+    path: &Path,
+    opts: &Options,
+) -> Result<foxglove::McapWriterHandle<BufWriter<std::fs::File>>, Error> {
+    let fail = |source| Error::Create {
+        path: path.to_owned(),
+        source,
+    };
+    let file = std::fs::File::create_new(path).map_err(|e| fail(e.into()))?;
+    let options = foxglove::McapWriteOptions::new()
+        .compression(Some(foxglove::McapCompression::Zstd))
+        .compression_level(1)
+        .compression_threads(0)
+        .chunk_size(Some(CHUNK_SIZE))
+        .profile("");
+    let mut w = ctx.mcap_writer_with_options(options);
+    if !opts.exclude.is_empty() {
+        let f = opts.exclude.clone();
+        w = w.channel_filter_fn(move |c| !f.excludes(c.topic()));
+    }
+    let w = w
+        .create(BufWriter::with_capacity(WRITE_BUFFER, file))
+        .map_err(fail)?;
+    let mut meta = BTreeMap::new();
+    meta.insert("name".to_owned(), opts.name.clone());
+    meta.insert("version".to_owned(), env!("CARGO_PKG_VERSION").to_owned());
+    if !opts.exclude.is_empty() {
+        meta.insert("exclude".to_owned(), opts.exclude.describe());
+    }
+    let _ = w.write_metadata("ima", meta);
+    Ok(w)
+}
+
+/// CPU time of the calling thread so far, from the kernel (`/proc/thread-self/schedstat`:
+/// nanoseconds on a CPU, exact); `None` where it cannot be read.
+pub fn thread_cpu() -> Option<Duration> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: u64 = s.split_whitespace().next()?.parse().ok()?;
+    Some(Duration::from_nanos(ns))
 }
 
 fn start_server(
@@ -571,20 +631,28 @@ fn start_server(
     Ok((handle, rt))
 }
 
-enum Chan {
-    Raw(Arc<foxglove::RawChannel>),
+/// What the recorder's thread keeps of a stream.
+struct WorkerStream {
+    proto: stream::Proto,
+    chan: Option<Arc<foxglove::RawChannel>>,
+    topic: Arc<str>,
+    /// Counted where it ends up: the file (when there is one) or the live view.
+    counted: bool,
+    written: u64,
 }
 
 struct Worker {
-    queued: Arc<Queued>,
+    inner: Arc<Mutex<Inner>>,
+    /// The batch being written (swapped with the callers' one; both keep their capacity).
+    drained: Vec<u8>,
     ctx: Arc<Context>,
-    writer: Option<foxglove::McapWriterHandle<std::io::BufWriter<std::fs::File>>>,
+    writer: Option<foxglove::McapWriterHandle<BufWriter<std::fs::File>>>,
     server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
     server_port: Option<u16>,
     path: Option<PathBuf>,
-    channels: BTreeMap<Arc<str>, Chan>,
-    raw_meta: BTreeMap<Arc<str>, BTreeMap<String, String>>,
-    written: BTreeMap<Arc<str>, u64>,
+    streams: Vec<Option<WorkerStream>>,
+    /// One channel per topic (several streams share `/tf`, `/events`).
+    channels: BTreeMap<Arc<str>, Arc<foxglove::RawChannel>>,
     error: Option<String>,
     buf: Vec<u8>,
     /// Topics kept out of the file (and of its counts).
@@ -593,9 +661,9 @@ struct Worker {
 
 impl Worker {
     /// Drain the queue every [`LIVE_TICK`] or [`FILE_TICK`] instead of waking for each
-    /// message: a sender never has a sleeping receiver to wake (no futex call per message on
+    /// message: a caller never has a sleeping thread to wake (no futex call per message on
     /// the robot's threads), and the thread wakes at a fixed rate however busy the robot is.
-    fn run(mut self, rx: Receiver<Msg>) {
+    fn run(mut self, control: &mpsc::Receiver<Control>) {
         let tick = if self.server.is_some() {
             LIVE_TICK
         } else {
@@ -603,37 +671,23 @@ impl Worker {
         };
         let mut last_flush = std::time::Instant::now();
         loop {
-            loop {
-                match rx.try_recv() {
-                    Ok(Msg::Log {
-                        topic,
-                        log_time,
-                        body,
-                    }) => self.log(topic, log_time, body),
-                    Ok(Msg::Finish(reply)) => {
-                        // Whatever is still queued goes in first.
-                        while let Ok(m) = rx.try_recv() {
-                            match m {
-                                Msg::Log {
-                                    topic,
-                                    log_time,
-                                    body,
-                                } => self.log(topic, log_time, body),
-                                Msg::Finish(other) => {
-                                    let _ = other.send(Report::default());
-                                }
-                            }
-                        }
-                        let report = self.close();
-                        let _ = reply.send(report);
-                        return;
-                    }
-                    Err(TryRecvError::Empty) => break,
-                    Err(TryRecvError::Disconnected) => {
-                        let _ = self.close();
-                        return;
-                    }
+            let finish = match control.try_recv() {
+                Ok(Control::Finish(reply)) => Some(Some(reply)),
+                Err(mpsc::TryRecvError::Empty) => None,
+                // Every recorder handle is gone: write what is queued and close.
+                Err(mpsc::TryRecvError::Disconnected) => Some(None),
+            };
+            self.drain(finish.is_some());
+            if let Some(reply) = finish {
+                let report = self.close();
+                if let Some(reply) = reply {
+                    let _ = reply.send(report);
                 }
+                // Later finish requests (from clones) get an empty report.
+                while let Ok(Control::Finish(other)) = control.try_recv() {
+                    let _ = other.send(Report::default());
+                }
+                return;
             }
             if last_flush.elapsed() >= Duration::from_secs(1) {
                 last_flush = std::time::Instant::now();
@@ -643,61 +697,89 @@ impl Worker {
                     self.error.get_or_insert(e.to_string());
                 }
             }
-            // `finish` unparks the thread so that it need not wait for the tick.
+            // `finish` and bursts unpark the thread so that it need not wait for the tick.
             std::thread::park_timeout(tick);
         }
     }
 
-    fn channel(&mut self, topic: &Arc<str>, body: &Body) -> Option<Arc<foxglove::RawChannel>> {
-        if let Some(Chan::Raw(c)) = self.channels.get(topic) {
-            return Some(Arc::clone(c));
+    /// Take the callers' batch (swapping buffers under the lock) and write its records;
+    /// `last`: the queue closes as it is taken.
+    fn drain(&mut self, last: bool) {
+        {
+            let mut inner = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
+            std::mem::swap(&mut inner.batch.bytes, &mut self.drained);
+            inner.batch.msgs = 0;
+            inner.closed |= last;
         }
-        let builder = self.ctx.channel_builder(&**topic);
-        let builder = match body {
-            Body::Typed(p) => builder.schema(p.schema()).message_encoding(p.encoding()),
-            Body::Raw(_) => builder
-                .message_encoding(raw::ENCODING)
-                .metadata(self.raw_meta.get(topic).cloned().unwrap_or_default()),
-            Body::Json(schema, _) => builder.schema(schema.clone()).message_encoding("json"),
-            Body::DeclareRaw(_) => return None,
-        };
-        match builder.build_raw() {
-            Ok(c) => {
-                self.channels
-                    .insert(Arc::clone(topic), Chan::Raw(Arc::clone(&c)));
-                Some(c)
-            }
-            Err(e) => {
-                tracing::warn!("recorder: channel {topic}: {e}");
-                None
-            }
+        let drained = std::mem::take(&mut self.drained);
+        for r in queue::records(&drained) {
+            self.write(r);
+        }
+        self.drained = drained;
+        self.drained.clear();
+        // After a burst, give back what a quiet robot never needs.
+        if self.drained.capacity() > KEEP_BATCH {
+            self.drained = Vec::with_capacity(INITIAL_BATCH);
         }
     }
 
-    fn log(&mut self, topic: Arc<str>, log_time: u64, body: Body) {
-        self.queued.bytes.fetch_sub(body.size(), Ordering::Relaxed);
-        self.queued.msgs.fetch_sub(1, Ordering::Relaxed);
-        if let Body::DeclareRaw(d) = body {
-            self.raw_meta.insert(topic, d.metadata);
-            return;
-        }
-        let Some(chan) = self.channel(&topic, &body) else {
-            return;
-        };
-        let meta = PartialMetadata::with_log_time(log_time);
-        match &body {
-            Body::Typed(p) => {
-                self.buf.clear();
-                p.encode_into(&mut self.buf);
-                chan.log_with_meta(&self.buf, meta);
+    /// The stream `id`, fetched from the registry the first time.
+    fn stream(&mut self, id: u32) -> Option<&mut WorkerStream> {
+        let i = id as usize;
+        if self.streams.get(i).is_none_or(Option::is_none) {
+            let s = {
+                let inner = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
+                Arc::clone(inner.streams.get(i)?)
+            };
+            let chan = match self.channels.get(&s.topic) {
+                Some(c) => Some(Arc::clone(c)),
+                None => {
+                    let (schema, encoding, metadata) = s.proto.channel();
+                    let built = (self.ctx.channel_builder(&*s.topic))
+                        .schema(schema)
+                        .message_encoding(encoding)
+                        .metadata(metadata)
+                        .build_raw();
+                    match built {
+                        Ok(c) => {
+                            self.channels.insert(Arc::clone(&s.topic), Arc::clone(&c));
+                            Some(c)
+                        }
+                        Err(e) => {
+                            tracing::warn!("recorder: channel {}: {e}", s.topic);
+                            None
+                        }
+                    }
+                }
+            };
+            if self.streams.len() <= i {
+                self.streams.resize_with(i + 1, || None);
             }
-            Body::Raw(bytes) | Body::Json(_, bytes) => chan.log_with_meta(bytes, meta),
-            Body::DeclareRaw(_) => return,
+            *self.streams.get_mut(i)? = Some(WorkerStream {
+                proto: s.proto.clone(),
+                chan,
+                counted: self.path.is_none() || !self.exclude.excludes(&s.topic),
+                topic: Arc::clone(&s.topic),
+                written: 0,
+            });
         }
-        // Counted where it ends up: the file (when there is one) or the live view.
-        if self.path.is_none() || !self.exclude.excludes(&topic) {
-            *self.written.entry(topic).or_insert(0) += 1;
+        self.streams.get_mut(i)?.as_mut()
+    }
+
+    fn write(&mut self, r: queue::Record<'_>) {
+        let mut buf = std::mem::take(&mut self.buf);
+        if let Some(s) = self.stream(r.id)
+            && let Some(chan) = &s.chan
+            && s.proto
+                .encode(r.kind, r.log_time, r.payload, &mut buf)
+                .is_some()
+        {
+            chan.log_with_meta(&buf, PartialMetadata::with_log_time(r.log_time));
+            if s.counted {
+                s.written += 1;
+            }
         }
+        self.buf = buf;
     }
 
     fn close(&mut self) -> Report {
@@ -718,16 +800,19 @@ impl Worker {
             .as_deref()
             .and_then(|p: &Path| std::fs::metadata(p).ok())
             .map_or(0, |m| m.len());
+        let mut written = BTreeMap::new();
+        for s in self.streams.iter().flatten().filter(|s| s.written > 0) {
+            *written.entry(s.topic.to_string()).or_insert(0) += s.written;
+        }
         Report {
             path: self.path.clone(),
-            written: (std::mem::take(&mut self.written).into_iter())
-                .map(|(t, n)| (t.to_string(), n))
-                .collect(),
+            written,
             dropped: 0,
             error: self.error.clone(),
             bytes,
             server_port: self.server_port,
             excluded: self.exclude.describe(),
+            thread_cpu: thread_cpu(),
         }
     }
 }

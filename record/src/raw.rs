@@ -119,37 +119,43 @@ impl PortInfo {
 #[derive(Debug, Clone)]
 pub struct RawPort {
     rec: Recorder,
+    stream: crate::StreamId,
     topic: Arc<str>,
-    /// Something takes this channel ([`Recorder::wants`]); if not, bytes are not even copied.
-    wanted: bool,
 }
 
 impl RawPort {
-    pub(crate) fn new(rec: Recorder, topic: Arc<str>) -> Self {
-        let wanted = rec.wants(&topic);
-        Self { rec, topic, wanted }
+    pub(crate) fn new(rec: Recorder, stream: crate::StreamId, topic: Arc<str>) -> Self {
+        Self { rec, stream, topic }
+    }
+
+    fn chunk(&self, dir: Dir, bytes: &[u8]) {
+        // Something takes this channel ([`Recorder::wants`]); if not, bytes are not even
+        // copied.
+        let kind = crate::queue::Kind::Encoded;
+        self.rec.push(self.stream, kind, bytes.len() + 1, |b| {
+            b.push(dir as u8);
+            b.extend_from_slice(bytes);
+            true
+        });
     }
 
     /// Bytes read from the device.
     pub fn rx(&self, bytes: &[u8]) {
-        if self.wanted && !bytes.is_empty() {
-            self.rec.send_raw(&self.topic, encode(Dir::Rx, bytes));
+        if !bytes.is_empty() {
+            self.chunk(Dir::Rx, bytes);
         }
     }
 
     /// Bytes written to the device.
     pub fn tx(&self, bytes: &[u8]) {
-        if self.wanted && !bytes.is_empty() {
-            self.rec.send_raw(&self.topic, encode(Dir::Tx, bytes));
+        if !bytes.is_empty() {
+            self.chunk(Dir::Tx, bytes);
         }
     }
 
     /// The line speed changed.
     pub fn baud(&self, baud: u32) {
-        if self.wanted {
-            self.rec
-                .send_raw(&self.topic, encode(Dir::Baud, &baud.to_le_bytes()));
-        }
+        self.chunk(Dir::Baud, &baud.to_le_bytes());
     }
 
     /// The channel's topic.

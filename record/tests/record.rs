@@ -521,3 +521,160 @@ fn a_live_view_still_gets_what_the_file_leaves_out() {
     let ch = Recording::open(&path).unwrap().channels();
     assert_eq!(ch.keys().collect::<Vec<_>>(), ["/scooter/laser/scan"]);
 }
+
+/// Each message the recorder's thread fills in from a compact record is exactly the message
+/// the `convert` builders make from the same reading, stamped with its log time.
+#[test]
+fn every_reading_is_recorded_as_its_convert_message() {
+    use foxglove::messages::{FrameTransform, LaserScan as FxScan, Log, PointCloud, PoseInFrame};
+    use ima_hal::sonar::{SonarReading, SonarScan, SonarTransducer};
+    use ima_record::convert;
+    let path = tmp("kinds.mcap");
+    let rec = record_to(&path, 0);
+    let s = scan(181);
+    let p = Pose2 {
+        x_m: 1.5,
+        y_m: -0.25,
+        theta_rad: 2.0,
+    };
+    let transducers: Vec<SonarTransducer> = (0..3)
+        .map(|i| SonarTransducer {
+            pose: ima_hal::Isometry2::new(ima_hal::Vector2::new(0.1, 0.0), f64::from(i)),
+            min_range_m: 0.1,
+            max_range_m: 5.0,
+            beam_width_rad: 0.4,
+        })
+        .collect();
+    let mut sonar = SonarScan::default();
+    for (i, r) in [1.0, 5.0, 2.5].into_iter().enumerate() {
+        sonar
+            .readings
+            .push(SonarReading {
+                index: i as u8,
+                range_m: r,
+                at: ima_hal::Instant::ZERO,
+            })
+            .unwrap();
+    }
+    rec.log_scan("scooter", &s);
+    rec.log_odometry("scooter", p);
+    rec.log_transform("map", "scooter/odom", p);
+    rec.log_ground_truth("skeeter", p);
+    rec.log_compass("scooter", 0.75);
+    rec.log_sonar("skeeter", &transducers, &sonar);
+    rec.log_pose("/scooter/belief", "map", p);
+    rec.log_text(
+        "/events",
+        ima_record::messages::log::Level::Warning,
+        "skeeter",
+        "scan {\"seen\":[\"red\"]}",
+    );
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!((report.dropped, report.total()), (0, 9));
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    let on = |topic: &str| {
+        let m: Vec<_> = msgs.iter().filter(|m| m.topic == topic).collect();
+        m
+    };
+    let one = |topic: &str| {
+        let m = on(topic);
+        assert_eq!(m.len(), 1, "{topic}");
+        (m[0].log_time, m[0].data.clone())
+    };
+    let (t, d) = one("/scooter/laser/scan");
+    assert_eq!(
+        FxScan::decode(&d[..]).unwrap(),
+        convert::laser_scan("scooter/laser", t, &s)
+    );
+    let tf: Vec<FrameTransform> = on("/tf")
+        .iter()
+        .map(|m| FrameTransform::decode(&m.data[..]).unwrap())
+        .collect();
+    let tf_t: Vec<u64> = on("/tf").iter().map(|m| m.log_time).collect();
+    assert_eq!(
+        tf,
+        [
+            convert::transform("scooter/odom", "scooter/base_link", tf_t[0], p),
+            convert::transform("map", "scooter/odom", tf_t[1], p)
+        ]
+    );
+    for (topic, frame, pose) in [
+        ("/scooter/odom", "scooter/odom", p),
+        ("/skeeter/truth", "map", p),
+        ("/scooter/belief", "map", p),
+        (
+            "/scooter/compass",
+            "scooter/base_link",
+            Pose2 {
+                theta_rad: 0.75,
+                ..Pose2::default()
+            },
+        ),
+    ] {
+        let (t, d) = one(topic);
+        assert_eq!(
+            PoseInFrame::decode(&d[..]).unwrap(),
+            convert::pose_in_frame(frame, t, pose),
+            "{topic}"
+        );
+    }
+    let (t, d) = one("/skeeter/sonar");
+    let cloud = PointCloud::decode(&d[..]).unwrap();
+    assert_eq!(
+        cloud,
+        convert::sonar_cloud("skeeter/base_link", t, &transducers, &sonar)
+    );
+    assert_eq!(cloud.data.len(), 2 * 16, "the 5 m reading is no echo");
+    let (t, d) = one("/events");
+    assert_eq!(
+        Log::decode(&d[..]).unwrap(),
+        convert::log_line(
+            t,
+            ima_record::messages::log::Level::Warning,
+            "skeeter",
+            "scan {\"seen\":[\"red\"]}"
+        )
+    );
+}
+
+/// What is logged once the recording has finished is not left in a queue nobody reads: it
+/// is counted as dropped.
+#[test]
+fn what_is_logged_after_the_end_is_counted_as_dropped() {
+    let path = tmp("late.mcap");
+    let rec = record_to(&path, 0);
+    rec.log_scan("scooter", &scan(10));
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!((report.total(), report.dropped), (1, 0));
+    rec.log_scan("scooter", &scan(10));
+    rec.log_broadcast("skeeter", "late");
+    assert_eq!(rec.dropped(), 2);
+    assert_eq!(rec.finish(Duration::from_secs(1)), report);
+}
+
+/// A stream's first message runs its schema closure outside the recorder's lock: a closure
+/// that logs (or takes long) holds up no other thread.
+#[test]
+fn a_schema_closure_may_log_itself() {
+    let path = tmp("nested.mcap");
+    let rec = record_to(&path, 0);
+    let (tx, rx) = std::sync::mpsc::channel();
+    let r = rec.clone();
+    std::thread::spawn(move || {
+        r.log_json(
+            "/state",
+            "test.State",
+            || {
+                r.log_broadcast("skeeter", "from inside the schema");
+                serde_json::json!({"type": "object"})
+            },
+            &serde_json::json!({"n": 1}),
+        );
+        let _ = tx.send(());
+    });
+    rx.recv_timeout(Duration::from_secs(10))
+        .expect("log_json returned");
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.written["/state"], 1);
+    assert_eq!(report.written["/broadcasts"], 1);
+}

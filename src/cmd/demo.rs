@@ -539,6 +539,7 @@ fn summarise(
         "recording": recording.as_ref().map(|r| json!({
             "path": r.path, "written": r.written, "dropped": r.dropped,
             "bytes": r.bytes, "error": r.error,
+            "thread_cpu_s": r.thread_cpu.map(|d| d.as_secs_f64()),
         })),
     });
     if let Some(c) = console {

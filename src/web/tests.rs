@@ -433,10 +433,8 @@ fn typed_runtime_events_become_the_pages_json() {
     assert_eq!(v["robots"]["scooter"]["pose"][2], 1.0);
 }
 
-/// The Peer Agent pages' JSON: per manager its sources, clients with request priorities and
-/// outcomes, and per session its link health; per client its subscription and session.
-#[test]
-fn peer_status_carries_link_health_priorities_and_outcomes() {
+/// A manager's and a client's Peer Agent status with every part filled in.
+fn sample_peer_status() -> ima_agents::runtime::events::PeerStatus {
     use ima_agents::peer::client::{ClientLinkStatus, Registration};
     use ima_agents::peer::manager::{
         ClientStatus, DecisionNote, LinkStatus, Outcome, Priority, RequestStatus,
@@ -444,7 +442,6 @@ fn peer_status_carries_link_health_priorities_and_outcomes() {
     use ima_agents::peer::net::{ManagerNetStats, SessionLink};
     use ima_agents::peer::wire::{DenyReason, RejectCounts};
     use ima_agents::runtime::events::{PeerClientView, PeerStatus};
-    use ima_agents::runtime::{Event, EventKind};
     let p = Priority {
         robot: 1,
         request: 4,
@@ -473,7 +470,7 @@ fn peer_status_carries_link_health_priorities_and_outcomes() {
         ..ManagerNetStats::default()
     };
     stats.core.rejects = rejects;
-    let status = PeerStatus {
+    PeerStatus {
         manager: Some(stats),
         clients: vec![ClientStatus {
             client: 99,
@@ -523,7 +520,15 @@ fn peer_status_carries_link_health_priorities_and_outcomes() {
             }),
         }),
         ..PeerStatus::default()
-    };
+    }
+}
+
+/// The Peer Agent pages' JSON: per manager its sources, clients with request priorities and
+/// outcomes, and per session its link health; per client its subscription and session.
+#[test]
+fn peer_status_carries_link_health_priorities_and_outcomes() {
+    use ima_agents::runtime::{Event, EventKind};
+    let status = sample_peer_status();
     let mut s = ConsoleState::new("demo", colours());
     s.apply(&Event {
         t_s: 3.0,
@@ -569,4 +574,44 @@ fn peer_status_carries_link_health_priorities_and_outcomes() {
         k["link"]["requests"][0],
         json!({"source": "ses", "granted": true})
     );
+}
+
+/// The Peer Agent status JSON, field for field, as the page and the recording got it when
+/// it was built as a JSON tree (now serialised straight from the status); with a broadcast
+/// channel and a source beside.
+#[test]
+fn peer_status_json_is_unchanged() {
+    use ima_agents::peer::net::BroadcastStats;
+    let golden = r#"{"address":"127.0.0.1:7400","client":{"grants":2,"link":{"client":99,"frames_received":50,"heartbeats_received":30,"heartbeats_sent":31,"last_seen_ms":20,"open_ms":3000,"registration":"registered","rejected":{"auth_failures":0,"bad_frames":0,"bad_mac":0,"bad_magic":0,"bad_version":0,"malformed":0,"oversize":0,"replay":0,"replayed":0,"truncated":0},"requests":[{"granted":true,"source":"ses"}]},"manager":"127.0.0.1:7400","outcome":"granted","priority":4,"retries":1,"samples":12,"source":"ses"},"clients":[{"client":99,"granted":["ses"],"recent":[{"at_ms":500,"outcome":"denied: UnknownSource","request_priority":4,"robot_priority":1,"source":"ses"},{"at_ms":900,"outcome":"granted","request_priority":4,"robot_priority":1,"source":"ses"}],"requesting":[],"requests":[{"granted":true,"request_priority":4,"robot_priority":1,"source":"ses"}],"robot":"scooter","session":"127.0.0.1:5000"}],"closed_bad":0,"data_bad_tickets":0,"data_rejected":{"auth_failures":0,"bad_frames":0,"bad_mac":0,"bad_magic":0,"bad_version":0,"malformed":0,"oversize":0,"replay":0,"replayed":0,"truncated":0},"data_sessions":0,"lagged_samples":0,"links":[{"addr":"127.0.0.1:5000","frames_received":40,"heartbeats_received":31,"heartbeats_sent":30,"last_seen_ms":80,"open_ms":3000,"robots":["scooter"],"session":7}],"lost":0,"rejected":{"auth_failures":3,"bad_frames":2,"bad_mac":3,"bad_magic":0,"bad_version":0,"malformed":1,"oversize":0,"replay":2,"replayed":2,"truncated":1},"sessions":1,"slow_closed":0,"sources":[],"task_priority":0}"#;
+    let mut want: Value = serde_json::from_str(golden).unwrap();
+    let mut status = sample_peer_status();
+    assert_eq!(super::feed::peer_status_json(&status), want);
+    let mut bus = BroadcastStats {
+        sent: 5,
+        send_errors: 1,
+        ..BroadcastStats::default()
+    };
+    bus.receiver.accepted = 9;
+    bus.receiver.stale = 2;
+    bus.wire.oversize = 4;
+    status.broadcast = Some(bus);
+    if let Some(m) = &mut status.manager {
+        m.sources.push(ima_agents::peer::wire::SourceInfo {
+            name: "ses".into(),
+            kind: "ses".into(),
+            schema: 1,
+            rate_mhz: 2000,
+        });
+    }
+    want["broadcast"] = json!({"accepted": 9, "duplicate": 0, "stale": 2, "sent": 5,
+        "send_errors": 1, "rejected": {"truncated": 0, "bad_magic": 0, "bad_version": 0,
+        "oversize": 4, "bad_mac": 0, "replay": 0, "malformed": 0, "auth_failures": 0,
+        "bad_frames": 4, "replayed": 0}});
+    want["sources"] = json!([{"name": "ses", "kind": "ses", "rate_mhz": 2000}]);
+    assert_eq!(super::feed::peer_status_json(&status), want);
+    // Without a manager: only what the robot has.
+    status.manager = None;
+    let v = super::feed::peer_status_json(&status);
+    let keys: Vec<&str> = v.as_object().unwrap().keys().map(String::as_str).collect();
+    assert_eq!(keys, ["address", "broadcast", "client"]);
 }
