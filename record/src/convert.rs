@@ -321,6 +321,22 @@ pub fn map_markers(at_ns: u64, markers: &[MapMarker]) -> SceneUpdate {
 }
 
 /// The sink API: readings by robot, on the topics and frames of this module.
+/// `n` in decimal, written into `buf` (no allocation).
+fn decimal(mut n: u8, buf: &mut [u8; 3]) -> &str {
+    let mut start = buf.len();
+    for slot in buf.iter_mut().rev() {
+        *slot = b'0' + n % 10;
+        start -= 1;
+        n /= 10;
+        if n == 0 {
+            break;
+        }
+    }
+    buf.get(start..)
+        .and_then(|d| std::str::from_utf8(d).ok())
+        .unwrap_or("")
+}
+
 impl Recorder {
     /// A planar pose on stream `s`.
     fn log_pose2(&self, s: crate::StreamId, p: Pose2) {
@@ -334,7 +350,7 @@ impl Recorder {
 
     /// A laser scan of `robot` on `/<robot>/laser/scan` (frame `<robot>/laser`).
     pub fn log_scan(&self, robot: &str, s: &ima_hal::laser::LaserScan) {
-        let stream = self.stream(format_args!("scan\x1f{robot}"), || {
+        let stream = self.stream(&["scan", robot], || {
             let proto = Proto::Scan(LaserScan {
                 frame_id: format!("{robot}/laser"),
                 pose: Some(pose3(Pose2::default())),
@@ -356,7 +372,7 @@ impl Recorder {
     /// Odometry of `robot`: the `<robot>/odom` → `<robot>/base_link` transform on `/tf`
     /// and the pose on `/<robot>/odom`.
     pub fn log_odometry(&self, robot: &str, p: Pose2) {
-        let tf = self.stream(format_args!("tf-odom\x1f{robot}"), || {
+        let tf = self.stream(&["tf-odom", robot], || {
             let proto = Proto::Transform(FrameTransform {
                 parent_frame_id: format!("{robot}/odom"),
                 child_frame_id: format!("{robot}/base_link"),
@@ -365,7 +381,7 @@ impl Recorder {
             ("/tf".to_owned(), proto)
         });
         self.log_pose2(tf, p);
-        let pose = self.stream(format_args!("odom\x1f{robot}"), || {
+        let pose = self.stream(&["odom", robot], || {
             let proto = Proto::Pose(PoseInFrame {
                 frame_id: format!("{robot}/odom"),
                 ..PoseInFrame::default()
@@ -377,7 +393,7 @@ impl Recorder {
 
     /// A static or moving transform `parent` → `child` on `/tf`.
     pub fn log_transform(&self, parent: &str, child: &str, p: Pose2) {
-        let s = self.stream(format_args!("tf\x1f{parent}\x1f{child}"), || {
+        let s = self.stream(&["tf", parent, child], || {
             let proto = Proto::Transform(FrameTransform {
                 parent_frame_id: parent.to_owned(),
                 child_frame_id: child.to_owned(),
@@ -390,7 +406,7 @@ impl Recorder {
 
     /// A pose in `frame` on `topic` (a belief, a goal).
     pub fn log_pose(&self, topic: &str, frame: &str, p: Pose2) {
-        let s = self.stream(format_args!("pose\x1f{topic}\x1f{frame}"), || {
+        let s = self.stream(&["pose", topic, frame], || {
             let proto = Proto::Pose(PoseInFrame {
                 frame_id: frame.to_owned(),
                 ..PoseInFrame::default()
@@ -402,7 +418,7 @@ impl Recorder {
 
     /// The world's ground truth for `robot`: its pose in `map` on `/<robot>/truth`.
     pub fn log_ground_truth(&self, robot: &str, p: Pose2) {
-        let s = self.stream(format_args!("truth\x1f{robot}"), || {
+        let s = self.stream(&["truth", robot], || {
             let proto = Proto::Pose(PoseInFrame {
                 frame_id: "map".to_owned(),
                 ..PoseInFrame::default()
@@ -415,7 +431,7 @@ impl Recorder {
     /// A compass heading of `robot` (radians, counter-clockwise in the robot's common frame)
     /// as a pose at the robot's origin on `/<robot>/compass`.
     pub fn log_compass(&self, robot: &str, heading_rad: f64) {
-        let s = self.stream(format_args!("compass\x1f{robot}"), || {
+        let s = self.stream(&["compass", robot], || {
             let proto = Proto::Pose(PoseInFrame {
                 frame_id: format!("{robot}/base_link"),
                 ..PoseInFrame::default()
@@ -438,7 +454,7 @@ impl Recorder {
         transducers: &[ima_hal::sonar::SonarTransducer],
         scan: &ima_hal::sonar::SonarScan,
     ) {
-        let s = self.stream(format_args!("sonar\x1f{robot}"), || {
+        let s = self.stream(&["sonar", robot], || {
             let mut proto = sonar_cloud(
                 &format!("{robot}/base_link"),
                 0,
@@ -472,9 +488,10 @@ impl Recorder {
             };
             (topic, Proto::Image { raw, png })
         };
+        let mut digits = [0; 3];
         let s = match f.channel {
-            Some(c) => self.stream(format_args!("image\x1f{robot}\x1f{c}"), make),
-            None => self.stream(format_args!("image\x1f{robot}"), make),
+            Some(c) => self.stream(&["image", robot, decimal(c, &mut digits)], make),
+            None => self.stream(&["image", robot], make),
         };
         self.push(s, Kind::Image, 8 + f.pixels.len(), |b| {
             b.extend_from_slice(&f.width.to_le_bytes());
@@ -502,7 +519,7 @@ impl Recorder {
     /// A line of text on `topic` (`/broadcasts`, `/events`) as `foxglove.Log`, `name` being
     /// who said it.
     pub fn log_text(&self, topic: &str, level: log::Level, name: &str, message: &str) {
-        let s = self.stream(format_args!("text\x1f{topic}\x1f{name}"), || {
+        let s = self.stream(&["text", topic, name], || {
             let proto = Proto::Text(Log {
                 name: name.to_owned(),
                 ..Log::default()

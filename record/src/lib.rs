@@ -208,7 +208,7 @@ struct Inner {
     /// Every stream registered, by id.
     streams: Vec<Arc<stream::Stream>>,
     /// Stream ids by key (kind, topic and what else fixes the stream's messages).
-    by_key: HashMap<Box<str>, u32>,
+    by_key: HashMap<Box<str>, u32, std::hash::BuildHasherDefault<KeyHasher>>,
     /// The recorder's thread took its last batch: what is logged now is dropped (and
     /// counted), not left in a queue nobody reads.
     closed: bool,
@@ -260,6 +260,29 @@ pub(crate) struct StreamId {
     wanted: bool,
 }
 
+/// A fast hash for stream keys (short strings the process itself makes, looked up on every
+/// message): FNV-1a over the bytes. Not for keys an adversary chooses.
+#[derive(Debug, Clone, Copy)]
+struct KeyHasher(u64);
+
+impl Default for KeyHasher {
+    fn default() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl std::hash::Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
+
 thread_local! {
     /// Where a stream's key is written to be looked up (reused: no allocation per message).
     static KEY: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
@@ -289,7 +312,7 @@ impl Recorder {
                 msgs: 0,
             },
             streams: Vec::new(),
-            by_key: HashMap::new(),
+            by_key: HashMap::default(),
             closed: false,
         }));
         let (control, control_rx) = mpsc::channel();
@@ -380,12 +403,12 @@ impl Recorder {
             .unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// The stream whose key `key` writes (registered by `make` the first time: its topic and
-    /// what its messages share; `make` runs outside the lock). Looking it up allocates
-    /// nothing once the stream exists.
+    /// The stream whose key is `key`'s parts (its kind, topic and what else fixes its
+    /// messages), registered by `make` the first time (its topic and what its messages share;
+    /// `make` runs outside the lock). Looking it up allocates nothing once the stream exists.
     pub(crate) fn stream(
         &self,
-        key: std::fmt::Arguments<'_>,
+        key: &[&str],
         make: impl FnOnce() -> (String, stream::Proto),
     ) -> StreamId {
         let known = |inner: &Inner, k: &str| {
@@ -395,7 +418,12 @@ impl Recorder {
         };
         let look_up = |k: &mut String| {
             k.clear();
-            let _ = std::fmt::Write::write_fmt(k, key);
+            for (i, part) in key.iter().enumerate() {
+                if i > 0 {
+                    k.push('\x1f');
+                }
+                k.push_str(part);
+            }
             known(&self.lock(), k).ok_or_else(|| Box::<str>::from(k.as_str()))
         };
         // The thread's key buffer, or a fresh one if it is in use or gone (thread exit).
@@ -474,7 +502,7 @@ impl Recorder {
 
     /// Log any `foxglove` well-known message on `topic` (encoded on the caller's thread).
     pub fn log<T: Encode>(&self, topic: &str, msg: T) {
-        let s = self.stream(format_args!("enc\x1f{topic}"), || {
+        let s = self.stream(&["enc", topic], || {
             let proto = stream::Proto::Encoded {
                 schema: T::get_schema(),
                 encoding: T::get_message_encoding(),
@@ -498,7 +526,7 @@ impl Recorder {
         schema: impl FnOnce() -> serde_json::Value,
         value: &T,
     ) {
-        let s = self.stream(format_args!("json\x1f{topic}"), || {
+        let s = self.stream(&["json", topic], || {
             let text = serde_json::to_vec(&schema()).unwrap_or_default();
             let proto = stream::Proto::Encoded {
                 schema: Some(Schema::new(schema_name, "jsonschema", text)),
@@ -515,7 +543,7 @@ impl Recorder {
     /// Declare a raw serial port and get the handle that records its bytes.
     pub fn raw_port(&self, port: raw::PortInfo) -> raw::RawPort {
         let topic = port.topic();
-        let s = self.stream(format_args!("raw\x1f{topic}"), || {
+        let s = self.stream(&["raw", &topic], || {
             let proto = stream::Proto::Encoded {
                 schema: None,
                 encoding: raw::ENCODING.to_owned(),
