@@ -769,6 +769,10 @@ async fn connections_beyond_the_cap_wait_until_one_closes() {
         .unwrap();
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert_eq!(within("stats", m.stats()).await.unwrap().sessions, 2);
+    // The one-round-trip snapshot says the same as the two queries.
+    let (stats, clients) = within("snapshot", m.snapshot()).await.unwrap();
+    assert_eq!((stats.sessions, stats.links.len()), (2, 2));
+    assert_eq!(clients, within("status", m.status()).await.unwrap());
     // ...and is served once one of them closes.
     drop(idle1);
     let mut buf = [0u8; 512];

@@ -418,10 +418,27 @@ impl Recorder {
         };
         let look_up = |k: &mut String| {
             k.clear();
-            for (i, part) in key.iter().enumerate() {
-                if i > 0 {
-                    k.push('\x1f');
+            // Each part as `<length>:<part>`: unambiguous whatever the parts hold.
+            for part in key {
+                let mut digits = [0u8; 20];
+                let mut n = part.len();
+                let mut at = digits.len();
+                for d in digits.iter_mut().rev() {
+                    *d = b'0' + (n % 10) as u8;
+                    at -= 1;
+                    n /= 10;
+                    if n == 0 {
+                        break;
+                    }
                 }
+                k.extend(
+                    digits
+                        .get(at..)
+                        .unwrap_or_default()
+                        .iter()
+                        .map(|&d| char::from(d)),
+                );
+                k.push(':');
                 k.push_str(part);
             }
             known(&self.lock(), k).ok_or_else(|| Box::<str>::from(k.as_str()))

@@ -678,3 +678,39 @@ fn a_schema_closure_may_log_itself() {
     assert_eq!(report.written["/state"], 1);
     assert_eq!(report.written["/broadcasts"], 1);
 }
+
+/// Streams are told apart by every part of their key, whatever characters the parts hold.
+#[test]
+fn streams_with_look_alike_keys_stay_apart() {
+    let path = tmp("keys.mcap");
+    let rec = record_to(&path, 0);
+    let p = Pose2::default();
+    rec.log_pose("/x\u{1f}y", "f", p);
+    rec.log_pose("/x", "y\u{1f}f", p);
+    rec.log_transform("a:1", "b", p);
+    rec.log_transform("a", "1:b", p);
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.written["/x\u{1f}y"], 1);
+    assert_eq!(report.written["/x"], 1);
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    let frames: Vec<String> = msgs
+        .iter()
+        .filter(|m| m.topic == "/x" || m.topic == "/x\u{1f}y")
+        .map(|m| {
+            foxglove::messages::PoseInFrame::decode(&m.data[..])
+                .unwrap()
+                .frame_id
+        })
+        .collect();
+    assert_eq!(frames.len(), 2);
+    assert!(frames.contains(&"f".to_owned()) && frames.contains(&"y\u{1f}f".to_owned()));
+    let parents: Vec<String> = msgs
+        .iter()
+        .filter(|m| m.topic == "/tf")
+        .map(|m| {
+            let t = foxglove::messages::FrameTransform::decode(&m.data[..]).unwrap();
+            format!("{}>{}", t.parent_frame_id, t.child_frame_id)
+        })
+        .collect();
+    assert_eq!(parents, ["a:1>b", "a>1:b"]);
+}

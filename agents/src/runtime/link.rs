@@ -350,9 +350,9 @@ async fn peer_status(bus: Option<&Bus>, manager: Option<&ManagerHandle>) -> Opti
         return None;
     }
     let (stats, clients, address) = match manager {
-        Some(m) => match (m.stats().await, m.status().await) {
-            (Ok(s), Ok(c)) => (Some(s), c, Some(m.local_addr().to_string())),
-            _ => (None, Vec::new(), Some(m.local_addr().to_string())),
+        Some(m) => match m.snapshot().await {
+            Ok((s, c)) => (Some(s), c, Some(m.local_addr().to_string())),
+            Err(_) => (None, Vec::new(), Some(m.local_addr().to_string())),
         },
         None => (None, Vec::new(), None),
     };

@@ -177,6 +177,7 @@ enum Ctl {
     SetTaskPriority(Option<u8>),
     Stats(oneshot::Sender<ManagerNetStats>),
     Status(oneshot::Sender<Vec<ClientStatus>>),
+    Snapshot(oneshot::Sender<(ManagerNetStats, Vec<ClientStatus>)>),
     /// Answered with the writer tasks of the closed sessions, to be awaited.
     Shutdown(oneshot::Sender<Vec<JoinHandle<()>>>),
 }
@@ -400,6 +401,20 @@ impl ManagerHandle {
         let (tx, rx) = oneshot::channel();
         self.ctl
             .send(Ctl::Status(tx))
+            .map_err(|_| NetError::Closed)?;
+        rx.await.map_err(|_| NetError::Closed)
+    }
+
+    /// [`stats`](Self::stats) and [`status`](Self::status) taken together, in one round
+    /// trip to the manager's task (a live console or a recording asks several times a
+    /// second).
+    ///
+    /// # Errors
+    /// [`NetError::Closed`] when the manager has stopped.
+    pub async fn snapshot(&self) -> Result<(ManagerNetStats, Vec<ClientStatus>), NetError> {
+        let (tx, rx) = oneshot::channel();
+        self.ctl
+            .send(Ctl::Snapshot(tx))
             .map_err(|_| NetError::Closed)?;
         rx.await.map_err(|_| NetError::Closed)
     }
@@ -712,6 +727,9 @@ impl<A: SelfAgent> ManagerTask<A> {
             }
             Ctl::Status(reply) => {
                 let _ = reply.send(self.core.status());
+            }
+            Ctl::Snapshot(reply) => {
+                let _ = reply.send((self.stats(), self.core.status()));
             }
             Ctl::Shutdown(_) => {}
         }
