@@ -2,7 +2,8 @@
 # What recording costs: run the release `ima demo` N times without and N times with
 # `--record` (alternating, so a busy machine weighs on both alike) and print the CPU time
 # (user + sys) of each, the mean and its standard error, the extra CPU relative to the demo's
-# own and in points of one core, max RSS, and the file size per wall minute.
+# own and in points of one core, the recorder thread's own CPU (exact, as the demo reports it),
+# max RSS, and the file size per wall minute.
 # Usage: scripts/record-cpu.sh [N] (default 10; each run lasts ~16 s).
 # Needs GNU time (/usr/bin/time) and python3. Where `perf` works it also reads the kernel's
 # precise per-task CPU clock (`task-clock`): on a kernel with tick-based accounting
@@ -30,7 +31,7 @@ run() { # run KIND I ARGS...: one demo, timed
     local p=()
     if [ "$perf_ok" = 1 ]; then p=(perf stat -x, -e task-clock -o "$kind-$i.p"); fi
     "${p[@]}" /usr/bin/time -f '%U %S %e %M' -o "$kind-$i.t" "${pre[@]}" "$bin" demo --json \
-        "$@" > /dev/null 2>&1
+        "$@" 2> /dev/null | tail -1 > "$kind-$i.json"
 }
 for i in $(seq "$n"); do
     run base "$i" --svg base.svg
@@ -72,6 +73,13 @@ if perf_ok:
           f"{(st.mean(tr) / st.mean(tb) - 1) * 100:+.1f} % (paired difference "
           f"{st.mean(d) * 1000:+.0f} ± {se(d) * 1000:.0f} ms); "
           f"{st.mean(tb) / wall * 100:.1f} % → {st.mean(tr) / wall * 100:.1f} % of one core")
+import json
+own = [json.load(open(f"rec-{i}.json"))["recording"].get("thread_cpu_s") for i in range(1, n + 1)]
+own = [x for x in own if x is not None]
+if own:
+    se = st.stdev(own) / len(own) ** 0.5 if len(own) > 1 else 0.0
+    print(f"the recorder's own thread: {st.mean(own) * 1000:.0f} ± {se * 1000:.0f} ms CPU per run "
+          f"(exact, from the kernel; the rest of the extra is on the robot's threads)")
 mb = st.mean(size) / 1e6
 print(f"file: {mb:.2f} MB per run, {mb / wall * 60:.1f} MB per wall minute")
 PY

@@ -3,8 +3,10 @@
 //! logged and written to a fresh MCAP file, `finish` included — so the figure covers the
 //! callers' conversions and the recorder thread's encoding, compression and writing.
 //!
-//! Divided by 1 s, the median is the share of one core that recording the demo takes; the
-//! demo itself uses ~40 ms of CPU per wall second (`scripts/record-cpu.sh`).
+//! Divided by 1 s, the median approximates the share of one core that recording the demo
+//! takes (the recorder's thread mostly waits for `finish` here, so the two run one after the
+//! other); the demo itself uses 23–70 ms of CPU per wall second, depending on the machine
+//! (`scripts/record-cpu.sh`). `--example cost` measures the two sides' CPU separately.
 //!
 //! `cargo bench -p ima-record --bench mix`
 
