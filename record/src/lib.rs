@@ -310,6 +310,7 @@ impl Recorder {
             batch: queue::Batch {
                 bytes: Vec::with_capacity(INITIAL_BATCH),
                 msgs: 0,
+                whole: 0,
             },
             streams: Vec::new(),
             by_key: HashMap::default(),
@@ -517,7 +518,8 @@ impl Recorder {
         }
     }
 
-    /// Log any `foxglove` well-known message on `topic` (encoded on the caller's thread).
+    /// Log any `foxglove` well-known message on `topic` (encoded on the caller's thread, into
+    /// the queue: its `Encode` must not log to this recorder).
     pub fn log<T: Encode>(&self, topic: &str, msg: T) {
         let s = self.stream(&["enc", topic], || {
             let proto = stream::Proto::Encoded {
@@ -534,8 +536,9 @@ impl Recorder {
     /// Log a JSON object on `topic`: a channel with message encoding `json` and the JSON
     /// Schema `schema()` named `schema_name` (encoding `jsonschema`), which Foxglove's Raw
     /// Messages, Plot and State Transitions panels read. The first message fixes the
-    /// channel's schema; `schema` is called only for it. The value is serialised straight
-    /// into the queue.
+    /// channel's schema; `schema` is called only for it (outside the queue's lock: it may
+    /// log). The value is serialised straight into the queue, under its lock: its `Serialize`
+    /// must not log to this recorder.
     pub fn log_json<T: serde::Serialize + ?Sized>(
         &self,
         topic: &str,
@@ -750,14 +753,15 @@ impl Worker {
     /// Take the callers' batch (swapping buffers under the lock) and write its records;
     /// `last`: the queue closes as it is taken.
     fn drain(&mut self, last: bool) {
-        {
+        let whole = {
             let mut inner = self.inner.lock().unwrap_or_else(PoisonError::into_inner);
             std::mem::swap(&mut inner.batch.bytes, &mut self.drained);
             inner.batch.msgs = 0;
             inner.closed |= last;
-        }
+            std::mem::take(&mut inner.batch.whole)
+        };
         let drained = std::mem::take(&mut self.drained);
-        for r in queue::records(&drained) {
+        for r in queue::records(drained.get(..whole).unwrap_or_default()) {
             self.write(r);
         }
         self.drained = drained;

@@ -46,6 +46,9 @@ impl Kind {
 pub(crate) struct Batch {
     pub(crate) bytes: Vec<u8>,
     pub(crate) msgs: usize,
+    /// Where the last whole record ends: a payload whose writer panicked (the lock is then
+    /// poisoned, and taken over) leaves no half record behind.
+    pub(crate) whole: usize,
 }
 
 impl Batch {
@@ -58,6 +61,7 @@ impl Batch {
         log_time: u64,
         write: impl FnOnce(&mut Vec<u8>) -> bool,
     ) -> bool {
+        self.bytes.truncate(self.whole);
         let start = self.bytes.len();
         self.bytes.extend_from_slice(&id.to_le_bytes());
         self.bytes.push(kind as u8);
@@ -70,6 +74,7 @@ impl Batch {
             (Some(len), Some(slot)) => {
                 slot.copy_from_slice(&len.to_le_bytes());
                 self.msgs += 1;
+                self.whole = self.bytes.len();
                 true
             }
             _ => {
@@ -152,6 +157,30 @@ mod tests {
         assert_eq!(f64s::<3>(got[0].payload), Some(([1.0, 2.0, 3.0], &[][..])));
         assert_eq!((got[1].id, got[1].payload), (9, &b"\x01abc"[..]));
         assert_eq!((got[2].id, got[2].payload), (10, &[][..]));
+    }
+
+    #[test]
+    fn a_payload_writer_that_panics_leaves_no_half_record() {
+        let mut b = Batch::default();
+        b.push(1, Kind::Encoded, 1, |v| {
+            v.extend_from_slice(b"kept");
+            true
+        });
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            b.push(2, Kind::Encoded, 2, |v| {
+                v.extend_from_slice(b"half");
+                panic!("a Serialize impl failed")
+            })
+        }));
+        assert!(r.is_err());
+        b.push(3, Kind::Encoded, 3, |v| {
+            v.extend_from_slice(b"next");
+            true
+        });
+        let got: Vec<(u32, &[u8])> = records(&b.bytes[..b.whole])
+            .map(|r| (r.id, r.payload))
+            .collect();
+        assert_eq!(got, [(1, &b"kept"[..]), (3, &b"next"[..])]);
     }
 
     #[test]
