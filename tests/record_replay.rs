@@ -47,6 +47,7 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     let written: BTreeMap<String, u64> =
         serde_json::from_value(summary["recording"]["written"].clone()).unwrap();
     assert_eq!(summary["recording"]["dropped"], 0, "{summary}");
+    assert_eq!(summary["recording"]["unwritten"], 0, "{summary}");
 
     let rec = Recording::open(&file).unwrap();
     let (msgs, cut) = rec.messages();

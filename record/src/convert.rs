@@ -214,6 +214,10 @@ pub fn raw_image(frame_id: &str, at_ns: u64, f: &Frame) -> RawImage {
 /// An `rgb8` frame as PNG (fast compression); `None` if the pixels do not make a
 /// `width` × `height` frame.
 pub fn png(width: u32, height: u32, pixels: &[u8]) -> Option<Vec<u8>> {
+    let wanted = u128::from(width) * u128::from(height) * 3;
+    if width == 0 || height == 0 || u128::try_from(pixels.len()).ok()? != wanted {
+        return None;
+    }
     let mut out = Vec::with_capacity(pixels.len() / 4);
     let mut enc = png::Encoder::new(&mut out, width, height);
     enc.set_color(png::ColorType::Rgb);
@@ -340,7 +344,12 @@ fn decimal(mut n: u8, buf: &mut [u8; 3]) -> &str {
 impl Recorder {
     /// A planar pose on stream `s`.
     fn log_pose2(&self, s: crate::StreamId, p: Pose2) {
-        self.push(s, Kind::Pose, 24, |b| {
+        self.log_pose2_at(s, self.now_ns(), p);
+    }
+
+    /// A planar pose of stream `s` stamped `at_ns` (Unix nanoseconds).
+    fn log_pose2_at(&self, s: crate::StreamId, at_ns: u64, p: Pose2) {
+        self.push_at(s, Kind::Pose, at_ns, 24, |b| {
             for v in [p.x_m, p.y_m, p.theta_rad] {
                 b.extend_from_slice(&v.to_le_bytes());
             }
@@ -370,8 +379,9 @@ impl Recorder {
     }
 
     /// Odometry of `robot`: the `<robot>/odom` → `<robot>/base_link` transform on `/tf`
-    /// and the pose on `/<robot>/odom`.
+    /// and the pose on `/<robot>/odom`, both with one stamp.
     pub fn log_odometry(&self, robot: &str, p: Pose2) {
+        let at = self.now_ns();
         let tf = self.stream(&["tf-odom", robot], || {
             let proto = Proto::Transform(FrameTransform {
                 parent_frame_id: format!("{robot}/odom"),
@@ -380,7 +390,7 @@ impl Recorder {
             });
             ("/tf".to_owned(), proto)
         });
-        self.log_pose2(tf, p);
+        self.log_pose2_at(tf, at, p);
         let pose = self.stream(&["odom", robot], || {
             let proto = Proto::Pose(PoseInFrame {
                 frame_id: format!("{robot}/odom"),
@@ -388,7 +398,7 @@ impl Recorder {
             });
             (format!("/{robot}/odom"), proto)
         });
-        self.log_pose2(pose, p);
+        self.log_pose2_at(pose, at, p);
     }
 
     /// A static or moving transform `parent` → `child` on `/tf`.

@@ -57,8 +57,11 @@ pub use foxglove::messages;
 /// Messages the queue holds before new ones are dropped.
 pub const DEFAULT_QUEUE: usize = 8192;
 
-/// Bytes the queue may hold before new messages are dropped: memory stays bounded even when
-/// every queued message is a camera frame.
+/// Bytes the callers' side of the queue may hold before new messages are dropped: memory
+/// stays bounded even when every queued message is a camera frame. The check takes each
+/// message's declared size before it is written (a JSON state declares none), so one message
+/// may take the queue past this by its own size; with the batch the recorder's thread is
+/// writing, the queue holds at most about twice this.
 pub const MAX_QUEUED_BYTES: usize = 64 << 20;
 
 /// The queue's buffers start this large (about 1.5 s of the demo) …
@@ -148,6 +151,10 @@ pub struct Report {
     pub written: BTreeMap<String, u64>,
     /// Messages dropped because the queue was full.
     pub dropped: u64,
+    /// Messages logged but not written: their payload could not be encoded (a `Serialize`
+    /// or `Encode` error, a payload over 4 GiB, a frame whose pixels do not match its size)
+    /// or their channel could not be made.
+    pub unwritten: u64,
     /// The first error writing the file (the recording stopped there), if any.
     pub error: Option<String>,
     /// Size of the file at the end, bytes.
@@ -186,6 +193,12 @@ impl Report {
             s.push_str(&format!(
                 "; {} dropped (the recorder could not keep up)",
                 self.dropped
+            ));
+        }
+        if self.unwritten > 0 {
+            s.push_str(&format!(
+                "; {} could not be encoded or had no channel",
+                self.unwritten
             ));
         }
         if let Some(e) = &self.error {
@@ -227,6 +240,8 @@ struct Shared {
     /// A quarter of `cap`: wakes the thread before its tick.
     wake_msgs: usize,
     dropped: AtomicU64,
+    /// Messages whose payload could not be written into the queue.
+    unwritten: AtomicU64,
     /// Stamp of everything logged while non-zero (a replay's recorded time).
     stamp_override: AtomicU64,
     wall0_ns: u64,
@@ -323,6 +338,7 @@ impl Recorder {
             cap,
             wake_msgs: (cap / 4).max(1),
             dropped: AtomicU64::new(0),
+            unwritten: AtomicU64::new(0),
             stamp_override: AtomicU64::new(0),
             wall0_ns: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
@@ -346,6 +362,7 @@ impl Recorder {
             channels: BTreeMap::new(),
             error: None,
             buf: Vec::new(),
+            unwritten: 0,
             exclude: opts.exclude.clone(),
         };
         let thread = std::thread::Builder::new()
@@ -473,9 +490,9 @@ impl Recorder {
         StreamId { id, wanted }
     }
 
-    /// Queue a record of stream `s` (`size`: its payload's length, for the byte budget;
-    /// `write` appends the payload and says whether it could). `false` when it was dropped
-    /// (queue full: counted) or nothing takes it.
+    /// Queue a record of stream `s` stamped now (`size`: its payload's length, for the byte
+    /// budget; `write` appends the payload and says whether it could). `false` when it was
+    /// dropped (queue full), could not be written (both counted) or nothing takes it.
     pub(crate) fn push(
         &self,
         s: StreamId,
@@ -486,7 +503,22 @@ impl Recorder {
         if !s.wanted {
             return false;
         }
-        let log_time = self.now_ns();
+        self.push_at(s, kind, self.now_ns(), size, write)
+    }
+
+    /// [`push`](Self::push) with the stamp `log_time` (Unix nanoseconds): messages that
+    /// belong together (a transform and its pose) share one.
+    pub(crate) fn push_at(
+        &self,
+        s: StreamId,
+        kind: queue::Kind,
+        log_time: u64,
+        size: usize,
+        write: impl FnOnce(&mut Vec<u8>) -> bool,
+    ) -> bool {
+        if !s.wanted {
+            return false;
+        }
         let (kept, wake) = {
             let mut inner = self.lock();
             let closed = inner.closed;
@@ -495,14 +527,18 @@ impl Recorder {
                 || b.msgs >= self.shared.cap
                 || b.bytes.len().saturating_add(queue::HEADER + size) > MAX_QUEUED_BYTES;
             let kept = !full && b.push(s.id, kind, log_time, write);
+            // Counted under the lock: `finish`, which drains under it too, sees every count
+            // of a message logged before the end.
+            if full {
+                self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+            } else if !kept {
+                self.shared.unwritten.fetch_add(1, Ordering::Relaxed);
+            }
             (
                 kept,
                 b.msgs >= self.shared.wake_msgs || b.bytes.len() >= WAKE_BYTES,
             )
         };
-        if !kept {
-            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-        }
         // A burst (a fast replay, a flood of frames) wakes the thread before its tick, long
         // before the queue is full.
         if wake {
@@ -600,6 +636,7 @@ impl Recorder {
             },
         };
         r.dropped += self.dropped();
+        r.unwritten += self.shared.unwritten.load(Ordering::Relaxed);
         *done = Some(r.clone());
         r
     }
@@ -703,6 +740,8 @@ struct Worker {
     channels: BTreeMap<Arc<str>, Arc<foxglove::RawChannel>>,
     error: Option<String>,
     buf: Vec<u8>,
+    /// Messages taken from the queue but not written (no channel, or not encodable).
+    unwritten: u64,
     /// Topics kept out of the file (and of its counts).
     exclude: filter::TopicFilter,
 }
@@ -827,6 +866,8 @@ impl Worker {
             if s.counted {
                 s.written += 1;
             }
+        } else {
+            self.unwritten += 1;
         }
         self.buf = buf;
     }
@@ -857,6 +898,7 @@ impl Worker {
             path: self.path.clone(),
             written,
             dropped: 0,
+            unwritten: self.unwritten,
             error: self.error.clone(),
             bytes,
             server_port: self.server_port,

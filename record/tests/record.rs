@@ -426,6 +426,12 @@ fn png_frames_decode_to_the_same_pixels() {
     assert_eq!((info.width, info.height), (64, 48));
     assert_eq!(info.color_type, png::ColorType::Rgb);
     assert_eq!(&pixels[..info.buffer_size()], &frame.pixels[..]);
+    // Pixels that do not make the frame's size are refused, however large the size.
+    use ima_record::convert::png;
+    assert!(png(2, 2, &[0; 12]).is_some());
+    assert_eq!(png(2, 2, &[0; 11]), None);
+    assert_eq!(png(u32::MAX, u32::MAX, &[0; 3]), None);
+    assert_eq!(png(0, 0, &[]), None);
 }
 
 fn test_frame() -> ima_hal::camera::Frame {
@@ -592,6 +598,11 @@ fn every_reading_is_recorded_as_its_convert_message() {
         .collect();
     let tf_t: Vec<u64> = on("/tf").iter().map(|m| m.log_time).collect();
     assert_eq!(
+        tf_t[0],
+        one("/scooter/odom").0,
+        "odometry's transform and pose share one stamp"
+    );
+    assert_eq!(
         tf,
         [
             convert::transform("scooter/odom", "scooter/base_link", tf_t[0], p),
@@ -634,6 +645,45 @@ fn every_reading_is_recorded_as_its_convert_message() {
             "skeeter",
             "scan {\"seen\":[\"red\"]}"
         )
+    );
+}
+
+/// A value whose `Serialize` fails is counted as not written (not as dropped for a full
+/// queue), leaves nothing half-written in the queue, and the messages around it go on.
+#[test]
+fn a_value_that_cannot_be_serialised_is_counted_and_the_rest_goes_on() {
+    struct Broken;
+    impl serde::Serialize for Broken {
+        fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+            use serde::ser::{Error, SerializeMap};
+            let mut m = s.serialize_map(None)?;
+            m.serialize_entry("half", &1)?;
+            Err(S::Error::custom("cannot"))
+        }
+    }
+    let path = tmp("broken.mcap");
+    let rec = record_to(&path, 0);
+    let schema = || serde_json::json!({"type": "object"});
+    rec.log_json("/state", "test.State", schema, &serde_json::json!({"n": 1}));
+    rec.log_json("/state", "test.State", schema, &Broken);
+    rec.log_json("/state", "test.State", schema, &serde_json::json!({"n": 2}));
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!((report.dropped, report.unwritten), (0, 1));
+    assert_eq!(report.written["/state"], 2);
+    assert!(
+        report.summary().contains("1 could not be encoded"),
+        "{}",
+        report.summary()
+    );
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    let got: Vec<serde_json::Value> = msgs
+        .iter()
+        .filter(|m| m.topic == "/state")
+        .map(|m| serde_json::from_slice(&m.data).unwrap())
+        .collect();
+    assert_eq!(
+        got,
+        [serde_json::json!({"n": 1}), serde_json::json!({"n": 2})]
     );
 }
 

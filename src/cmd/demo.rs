@@ -537,7 +537,7 @@ fn summarise(
         "drivers": {"skeeter": counts[0], "scooter": counts[1]},
         // record: what the recording wrote (null without --record/--foxglove).
         "recording": recording.as_ref().map(|r| json!({
-            "path": r.path, "written": r.written, "dropped": r.dropped,
+            "path": r.path, "written": r.written, "dropped": r.dropped, "unwritten": r.unwritten,
             "bytes": r.bytes, "error": r.error,
             "thread_cpu_s": r.thread_cpu.map(|d| d.as_secs_f64()),
         })),
