@@ -114,7 +114,7 @@ impl Proto {
                     let img = CompressedImage {
                         timestamp: stamp,
                         frame_id: raw.frame_id.clone(),
-                        data: convert::png(w, h, pixels).unwrap_or_default().into(),
+                        data: convert::png(w, h, pixels)?.into(),
                         format: "png".to_owned(),
                     };
                     encode(&img, out);
@@ -127,15 +127,14 @@ impl Proto {
                     // length-delimited) straight from the record: protobuf fields may come
                     // in any order, and no copy of the frame is made for the encoder.
                     encode(&*raw, out);
-                    out.push(6 << 3 | 2);
-                    varint(pixels.len() as u64, out);
-                    out.extend_from_slice(pixels);
+                    bytes_field(6, pixels, out);
                 }
             }
             (Self::Cloud(c), Kind::Cloud) => {
+                // As for frames: the points (field 6, `data`) straight from the record.
                 c.timestamp = stamp;
-                c.data = bytes_of(payload);
                 encode(&*c, out);
+                bytes_field(6, payload, out);
             }
             (Self::Text(l), Kind::Text) => {
                 let (level, text) = payload.split_first()?;
@@ -156,8 +155,15 @@ fn encode<T: Encode>(msg: &T, out: &mut Vec<u8>) {
     let _ = msg.encode(out);
 }
 
-fn bytes_of(b: &[u8]) -> foxglove::bytes::Bytes {
-    foxglove::bytes::Bytes::copy_from_slice(b)
+/// Append a length-delimited protobuf field `tag` holding `b` (nothing when `b` is empty, as
+/// an encoder leaves out an empty `bytes` field).
+fn bytes_field(tag: u32, b: &[u8], out: &mut Vec<u8>) {
+    if b.is_empty() {
+        return;
+    }
+    varint(u64::from(tag) << 3 | 2, out);
+    varint(b.len() as u64, out);
+    out.extend_from_slice(b);
 }
 
 fn pose(payload: &[u8]) -> Option<foxglove::messages::Pose> {

@@ -409,8 +409,13 @@ fn png_frames_decode_to_the_same_pixels() {
         *p = (i * 7 % 251) as u8;
     }
     rec.log_image("skeeter", &frame);
+    // Pixels that do not make the frame: not an empty image, a count.
+    let mut short = frame.clone();
+    short.pixels.truncate(100);
+    rec.log_image("skeeter", &short);
     let report = rec.finish(Duration::from_secs(10));
     assert_eq!(report.written["/skeeter/camera/3"], 1);
+    assert_eq!((report.dropped, report.unwritten), (0, 1));
     let (msgs, _) = Recording::open(&path).unwrap().messages();
     assert_eq!(msgs[0].schema, "foxglove.CompressedImage");
     let img = foxglove::messages::CompressedImage::decode(&msgs[0].data[..]).unwrap();
