@@ -15,26 +15,13 @@ use std::time::Duration;
 use ima_hal::camera::Frame;
 use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_record::convert::Pose2;
-use ima_record::raw::PortInfo;
 use ima_record::{Options, Recorder};
+
+mod common;
+use common::{frame, port};
 
 fn main() {
     divan::main();
-}
-
-/// A 320×240 camera frame that compresses like the simulated cameras' (noisy: ~50 % at
-/// zstd level 1).
-fn frame(seed: u32, channel: u8) -> Frame {
-    let mut x = seed.wrapping_mul(2_654_435_761).max(1);
-    let mut f = Frame::black(320, 240, Some(channel)).expect("frame size");
-    for (i, p) in f.pixels.iter_mut().enumerate() {
-        x ^= x << 13;
-        x ^= x >> 17;
-        x ^= x << 5;
-        let base = if (i / 3) % 320 < 160 { 90 } else { 170 };
-        *p = base + (x & 0x0f) as u8;
-    }
-    f
 }
 
 fn scan(k: u32) -> LaserScan {
@@ -44,16 +31,6 @@ fn scan(k: u32) -> LaserScan {
         let _ = s.push(r, BeamFlags::default());
     }
     s
-}
-
-fn port(robot: &str, device: &str, baud: u32) -> PortInfo {
-    PortInfo {
-        robot: robot.into(),
-        device: device.into(),
-        port: format!("/dev/pts/{device}"),
-        baud,
-        protocol: device.into(),
-    }
 }
 
 /// One wall second of the demo: 4 camera frames, 34 laser scans, ~270 raw serial chunks,

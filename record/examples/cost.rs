@@ -16,27 +16,16 @@ use ima_hal::camera::Frame;
 use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_hal::sonar::{SonarReading, SonarScan, SonarTransducer};
 use ima_record::convert::Pose2;
-use ima_record::raw::PortInfo;
 use ima_record::{Options, Recorder};
+
+#[path = "../benches/common/mod.rs"]
+mod common;
+use common::{frame, port};
 
 /// The demo's wall time, seconds.
 const WALL_S: f64 = 16.0;
 /// Slices the wall time is cut into (the messages of one slice are logged together).
 const SLICES: u32 = 800;
-
-/// A 320×240 camera frame that compresses like the simulated cameras' (≈50 % at zstd 1).
-fn frame(seed: u32, channel: u8) -> Frame {
-    let mut x = seed.wrapping_mul(2_654_435_761).max(1);
-    let mut f = Frame::black(320, 240, Some(channel)).expect("frame size");
-    for (i, p) in f.pixels.iter_mut().enumerate() {
-        x ^= x << 13;
-        x ^= x >> 17;
-        x ^= x << 5;
-        let base = if (i / 3) % 320 < 160 { 90 } else { 170 };
-        *p = base + (x & 0x0f) as u8;
-    }
-    f
-}
 
 fn scan(k: u32) -> LaserScan {
     let mut s = LaserScan::new(-core::f64::consts::FRAC_PI_2, 0.5f64.to_radians());
@@ -48,16 +37,6 @@ fn scan(k: u32) -> LaserScan {
         let _ = s.push(2.0 + (x % 4000) as f32 * 0.001, BeamFlags::default());
     }
     s
-}
-
-fn port(robot: &str, device: &str, baud: u32) -> PortInfo {
-    PortInfo {
-        robot: robot.into(),
-        device: device.into(),
-        port: format!("/dev/pts/{device}"),
-        baud,
-        protocol: device.into(),
-    }
 }
 
 /// Messages per demo run and topic kind (a release `ima demo --json --record`: its
