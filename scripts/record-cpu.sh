@@ -5,11 +5,13 @@
 # own and in points of one core, the recorder thread's own CPU (exact, as the demo reports it),
 # max RSS, and the file size per wall minute.
 # Usage: scripts/record-cpu.sh [N] (default 10; each run lasts ~16 s).
-# Needs GNU time (/usr/bin/time) and python3. Where `perf` works it also reads the kernel's
-# precise per-task CPU clock (`task-clock`): on a kernel with tick-based accounting
-# (CONFIG_TICK_CPU_ACCOUNTING, 4 ms ticks) user+sys is sampled, and for this demo's ~1,800
-# short wake-ups a second it can read far above the task clock. PIN=CPU runs every demo on
-# that one CPU (`taskset`), which halves the run-to-run scatter on a VM. REC_ARGS adds
+# Needs GNU time (/usr/bin/time) and python3. user+sys is the process's CPU time as the
+# kernel's scheduler charged it (its total is the exact run time; only the split between user
+# and sys is sampled at ticks). Where `perf` works the script also reads perf's `task-clock`,
+# a second clock: on a VM the two disagree by tens of per cent, in either direction (for this
+# demo task-clock has read 30 % above user+sys on one day and 20 % below on another), so both
+# are printed. PIN=CPU runs every demo on that one CPU (`taskset`), which halves the
+# run-to-run scatter on a VM. REC_ARGS adds
 # options to the recording runs, e.g. REC_ARGS='--record-exclude /*/camera'.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -59,7 +61,11 @@ show("without --record", base)
 show("with --record   ", rec)
 b, r = st.mean(cpu(base)), st.mean(cpu(rec))
 wall = st.mean(e for _, e, _ in base + rec)
-print(f"extra CPU (user+sys): {(r / b - 1) * 100:+.1f} % of the demo's own CPU time; "
+pd = [y - x for x, y in zip(cpu(base), cpu(rec))]
+pse = st.stdev(pd) / len(pd) ** 0.5 if len(pd) > 1 else 0.0
+print(f"extra CPU (user+sys): {(r / b - 1) * 100:+.1f} % of the demo's own CPU time "
+      f"(paired difference {st.mean(pd) * 1000:+.0f} ± {pse * 1000:.0f} ms, "
+      f"{st.mean(pd) / b * 100:+.1f} ± {pse / b * 100:.1f} %); "
       f"{b / wall * 100:.1f} % → {r / wall * 100:.1f} % of one core "
       f"({(r - b) / wall * 100:+.2f} points)")
 if perf_ok:
