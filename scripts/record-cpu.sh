@@ -10,8 +10,8 @@
 # and sys is sampled at ticks). Where `perf` works the script also reads perf's `task-clock`,
 # a second clock: on a VM it reads well below user+sys for work that sleeps and wakes a lot
 # (this demo, 30 runs: 0.82 s by task-clock, 1.04 s by user+sys; a 0.5 ms sleep loop: 0.16 s
-# and 0.27 s; a busy loop: 1.09 s by both), so both are printed. PIN=CPU runs every demo on that one CPU (`taskset`), which halves the
-# run-to-run scatter on a VM. REC_ARGS adds
+# and 0.27 s; a busy loop: 1.09 s by both), so both are printed. PIN=CPU runs every demo on
+# that one CPU (`taskset`), which halves the run-to-run scatter on a VM. REC_ARGS adds
 # options to the recording runs, e.g. REC_ARGS='--record-exclude /*/camera'.
 set -euo pipefail
 cd "$(dirname "$0")/.."
