@@ -51,21 +51,20 @@ def runs(kind):
 base, rec = runs("base"), runs("rec")
 size = [int(open(f"rec-{i}.size").read()) for i in range(1, n + 1)]
 def cpu(r): return [c for c, _, _ in r]
+def se(x): return st.stdev(x) / len(x) ** 0.5 if len(x) > 1 else 0.0  # standard error
 def show(name, r):
     c = cpu(r)
-    se = st.stdev(c) / len(c) ** 0.5 if len(c) > 1 else 0.0
-    print(f"{name}: CPU {st.mean(c):.3f} ± {se:.3f} s (median {st.median(c):.3f}, "
+    print(f"{name}: CPU {st.mean(c):.3f} ± {se(c):.3f} s (median {st.median(c):.3f}, "
           f"{min(c):.2f}–{max(c):.2f}), wall {st.mean(e for _, e, _ in r):.1f} s, "
           f"max RSS {max(m for _, _, m in r) / 1024:.1f} MB")
 show("without --record", base)
 show("with --record   ", rec)
 b, r = st.mean(cpu(base)), st.mean(cpu(rec))
 wall = st.mean(e for _, e, _ in base + rec)
-pd = [y - x for x, y in zip(cpu(base), cpu(rec))]
-pse = st.stdev(pd) / len(pd) ** 0.5 if len(pd) > 1 else 0.0
-print(f"extra CPU (user+sys): {(r / b - 1) * 100:+.1f} % of the demo's own CPU time "
-      f"(paired difference {st.mean(pd) * 1000:+.0f} ± {pse * 1000:.0f} ms, "
-      f"{st.mean(pd) / b * 100:+.1f} ± {pse / b * 100:.1f} %); "
+# The paired differences' mean is r - b; they are kept for its standard error.
+pse = se([y - x for x, y in zip(cpu(base), cpu(rec))])
+print(f"extra CPU (user+sys): {(r / b - 1) * 100:+.1f} ± {pse / b * 100:.1f} % of the demo's "
+      f"own CPU time (paired difference {(r - b) * 1000:+.0f} ± {pse * 1000:.0f} ms); "
       f"{b / wall * 100:.1f} % → {r / wall * 100:.1f} % of one core "
       f"({(r - b) / wall * 100:+.2f} points)")
 if perf_ok:
@@ -73,7 +72,6 @@ if perf_ok:
         return [float(next(l for l in open(f"{kind}-{i}.p") if "task-clock" in l).split(",")[0])
                 / 1000 for i in range(1, n + 1)]
     tb, tr = tc("base"), tc("rec")
-    se = lambda x: st.stdev(x) / len(x) ** 0.5 if len(x) > 1 else 0.0
     d = [r - b for b, r in zip(tb, tr)]
     print(f"task-clock: {st.mean(tb):.3f} ± {se(tb):.3f} s → {st.mean(tr):.3f} ± {se(tr):.3f} s: "
           f"{(st.mean(tr) / st.mean(tb) - 1) * 100:+.1f} % (paired difference "
@@ -83,8 +81,7 @@ import json
 own = [json.load(open(f"rec-{i}.json"))["recording"].get("thread_cpu_s") for i in range(1, n + 1)]
 own = [x for x in own if x is not None]
 if own:
-    se = st.stdev(own) / len(own) ** 0.5 if len(own) > 1 else 0.0
-    print(f"the recorder's own thread: {st.mean(own) * 1000:.0f} ± {se * 1000:.0f} ms CPU per run "
+    print(f"the recorder's own thread: {st.mean(own) * 1000:.0f} ± {se(own) * 1000:.0f} ms CPU per run "
           f"(exact, from the kernel; the rest of the extra is on the robot's threads)")
 mb = st.mean(size) / 1e6
 print(f"file: {mb:.2f} MB per run, {mb / wall * 60:.1f} MB per wall minute")

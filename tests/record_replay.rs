@@ -339,19 +339,28 @@ fn a_killed_recording_is_still_readable() {
     let rec = Recording::open(&file).unwrap();
     let (msgs, cut) = rec.messages();
     assert!(cut.0.is_some(), "a killed recording has no summary");
-    // What its complete chunks must hold (see `an_interrupted_recording_is_closed_properly`
-    // for why not a scan): the bases' bytes and camera frames.
-    for topic in [
-        "/scooter/serial/base",
-        "/skeeter/serial/base",
-        "/skeeter/camera/",
-    ] {
+    assert_early_topics(&msgs);
+}
+
+/// What a demo's recording cut short once its file has a written chunk must hold: both bases'
+/// raw bytes (they stream from their connection on) and camera frames (which fill the chunk).
+/// Not a scan: Scooter's runtime reads its first one only after its Peer link and first
+/// odometry, and on a loaded machine Skeeter's frames can fill that chunk first (one
+/// `.ci/run` found no scan in the file; beside two busy loops the first scan came ~1.45 s into
+/// the recording, the first frame ~1.8 s).
+fn assert_early_topics(msgs: &[ima_record::read::Message]) {
+    for topic in ["/scooter/serial/base", "/skeeter/serial/base"] {
         assert!(
-            msgs.iter().any(|m| m.topic.starts_with(topic)),
-            "no {topic} in the {} messages recovered",
+            msgs.iter().any(|m| m.topic == topic),
+            "no {topic} in the {} messages",
             msgs.len()
         );
     }
+    assert!(
+        msgs.iter().any(|m| m.topic.starts_with("/skeeter/camera/")),
+        "no camera frame in the {} messages",
+        msgs.len()
+    );
 }
 
 #[test]
@@ -540,16 +549,7 @@ fn an_interrupted_recording_is_closed_properly() {
     let rec = Recording::open(&file).unwrap();
     let (msgs, cut) = rec.messages();
     assert_eq!(cut.0, None, "the file ends with its summary");
-    // What the wait above guarantees: both bases stream from their connection on, and a file
-    // of 200 kB holds a written chunk, which camera frames fill. Not a scan: Scooter's runtime
-    // reads its first one only after its Peer link and first odometry, and on a loaded machine
-    // Skeeter's frames can fill that chunk first (one `.ci/run` found no scan in the file;
-    // beside two busy loops the first scan came ~1.45 s into the recording, the first frame
-    // ~1.8 s).
-    for topic in ["/scooter/serial/base", "/skeeter/serial/base"] {
-        assert!(msgs.iter().any(|m| m.topic == topic), "no {topic}");
-    }
-    assert!(msgs.iter().any(|m| m.topic.starts_with("/skeeter/camera/")));
+    assert_early_topics(&msgs);
 }
 
 /// Scooter on a P2OS base: both robots' sonar is recorded as point clouds in their
