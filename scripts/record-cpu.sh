@@ -59,24 +59,21 @@ def show(name, r):
           f"max RSS {max(m for _, _, m in r) / 1024:.1f} MB")
 show("without --record", base)
 show("with --record   ", rec)
-b, r = st.mean(cpu(base)), st.mean(cpu(rec))
 wall = st.mean(e for _, e, _ in base + rec)
-# The paired differences' mean is r - b; they are kept for its standard error.
-pse = se([y - x for x, y in zip(cpu(base), cpu(rec))])
-print(f"extra CPU (user+sys): {(r / b - 1) * 100:+.1f} ± {pse / b * 100:.1f} % of the demo's "
-      f"own CPU time (paired difference {(r - b) * 1000:+.0f} ± {pse * 1000:.0f} ms); "
-      f"{b / wall * 100:.1f} % → {r / wall * 100:.1f} % of one core "
-      f"({(r - b) / wall * 100:+.2f} points)")
+def extra(clock, xb, xr):  # one clock's runs without and with --record, paired by index
+    b, r = st.mean(xb), st.mean(xr)
+    d = se([y - x for x, y in zip(xb, xr)])  # the paired differences' mean is r - b
+    print(f"extra CPU ({clock}): {b:.3f} ± {se(xb):.3f} s → {r:.3f} ± {se(xr):.3f} s: "
+          f"{(r / b - 1) * 100:+.1f} ± {d / b * 100:.1f} % of the demo's own CPU time "
+          f"(paired difference {(r - b) * 1000:+.0f} ± {d * 1000:.0f} ms); "
+          f"{b / wall * 100:.1f} % → {r / wall * 100:.1f} % of one core "
+          f"({(r - b) / wall * 100:+.2f} points)")
+extra("user+sys", cpu(base), cpu(rec))
 if perf_ok:
     def tc(kind):
         return [float(next(l for l in open(f"{kind}-{i}.p") if "task-clock" in l).split(",")[0])
                 / 1000 for i in range(1, n + 1)]
-    tb, tr = tc("base"), tc("rec")
-    d = [r - b for b, r in zip(tb, tr)]
-    print(f"task-clock: {st.mean(tb):.3f} ± {se(tb):.3f} s → {st.mean(tr):.3f} ± {se(tr):.3f} s: "
-          f"{(st.mean(tr) / st.mean(tb) - 1) * 100:+.1f} % (paired difference "
-          f"{st.mean(d) * 1000:+.0f} ± {se(d) * 1000:.0f} ms); "
-          f"{st.mean(tb) / wall * 100:.1f} % → {st.mean(tr) / wall * 100:.1f} % of one core")
+    extra("task-clock", tc("base"), tc("rec"))
 import json
 own = [json.load(open(f"rec-{i}.json"))["recording"].get("thread_cpu_s") for i in range(1, n + 1)]
 own = [x for x in own if x is not None]
