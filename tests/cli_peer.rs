@@ -814,7 +814,12 @@ fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
     loop {
         let l = heard
             .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-            .expect("a fleet stop on the wire");
+            .unwrap_or_else(|e| {
+                panic!(
+                    "a fleet stop on the wire: {e:?}; the commander said: {}",
+                    err.lock().unwrap()
+                )
+            });
         let v: Value = serde_json::from_str(&l).unwrap();
         if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
             assert_eq!(v["robot"], "commander");

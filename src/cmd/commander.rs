@@ -349,6 +349,11 @@ async fn operator(
     let mut lines = Some(stdin_lines());
     loop {
         tokio::select! {
+            // Interrupt first: the safety thread hears the same SIGINT and cancels only after
+            // every listener of it was woken, so when `cancelled()` is ready the interrupt is
+            // too. Taken here, it cannot linger and answer the prompt below as if a second
+            // Ctrl-C had come (that skipped the operator's "y" in 33 of 300 runs under load).
+            biased;
             () = interrupt.next() => break,
             // SIGTERM, SIGHUP, or a closed stdout (see `crate::safety`).
             () = crate::safety::cancelled() => break,
