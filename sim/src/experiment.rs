@@ -81,9 +81,10 @@
 //!   another object for the target: the SICK measures to ±50 mm, and noise of that size
 //!   splits Skeeter's 0.66 m outline into target-sized clusters. A candidate counts only when
 //!   it stays target-sized with range jumps up to
-//!   [`ScooterConfig::in_view_join_gap_m`](ima_agents::mission::scooter::ScooterConfig)
-//!   joined. With that the thesis robot keeps every run at laser σ = 5 cm (the ablation
-//!   table's row). Every run is also checked against the truth: a `target-reached` farther
+//!   [`ScooterConfig::join_gap_m`](ima_agents::mission::scooter::ScooterConfig)
+//!   joined (in every recognition mode: the demonstration's near-estimate Scooter once took
+//!   a piece of a wall for its target). With that the thesis robot keeps every run at laser
+//!   σ = 5 cm (the ablation table's row). Every run is also checked against the truth: a `target-reached` farther
 //!   than the reach distance + [`WRONG_TARGET_MARGIN_M`] from the target's centre is a
 //!   `wrong-target` run with f = 0 (none in the default sweep).
 //! * Everything else is unchanged: the SES is refreshed by a full scan every 5 s, one camera

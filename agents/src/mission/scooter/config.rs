@@ -97,10 +97,13 @@ pub struct ScooterConfig {
     pub see_distance_m: f64,
     /// How a target-sized laser cluster is recognised as the target.
     pub target_recognition: TargetRecognition,
-    /// [`TargetRecognition::InView`] only: a target-sized cluster counts only when it is
-    /// still target-sized with range jumps of up to this joined (laser noise splits a wider
-    /// object — Skeeter — into target-sized pieces; joined, they are Skeeter again), metres.
-    pub in_view_join_gap_m: f64,
+    /// In every [`TargetRecognition`]: a target-sized cluster counts only when it is still
+    /// target-sized with range jumps of up to this joined, metres. Laser noise (±50 mm on
+    /// the SICK) splits a wider object into target-sized pieces: Skeeter's outline, or a
+    /// wall seen at a slant; joined, they are Skeeter or the wall again. A post stands
+    /// clear of what is behind it, so joining leaves it whole; a post less than this in front
+    /// of something else is not recognised.
+    pub join_gap_m: f64,
     /// Target objects' diameter, metres.
     pub target_diameter_m: f64,
     /// Accepted difference between a cluster's width and the target diameter, metres.
@@ -182,7 +185,7 @@ impl Default for ScooterConfig {
             reach_distance_m: 0.8,
             see_distance_m: 1.6,
             target_recognition: TargetRecognition::NearEstimate,
-            in_view_join_gap_m: 0.3,
+            join_gap_m: 0.3,
             target_diameter_m: 0.30,
             diameter_tolerance_m: 0.15,
             bearing_tolerance_rad: 40f64.to_radians(),
