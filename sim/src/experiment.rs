@@ -84,9 +84,9 @@
 //!   [`ScooterConfig::join_gap_m`](ima_agents::mission::scooter::ScooterConfig)
 //!   joined (in every recognition mode: the demonstration's near-estimate Scooter once took
 //!   a piece of a wall for its target). With that the thesis robot keeps every run at laser
-//!   σ = 5 cm (the ablation table's row). Every run is also checked against the truth: a `target-reached` farther
-//!   than the reach distance + [`WRONG_TARGET_MARGIN_M`] from the target's centre is a
-//!   `wrong-target` run with f = 0 (none in the default sweep).
+//!   σ = 5 cm (the ablation table's row). Every run is also checked against the truth: a
+//!   `target-reached` farther than the reach distance + [`WRONG_TARGET_MARGIN_M`] from the
+//!   target's centre is a `wrong-target` run with f = 0 (none in the default sweep).
 //! * Everything else is unchanged: the SES is refreshed by a full scan every 5 s, one camera
 //!   at a time ("one full scan takes about 5 s"; 7 cameras behind one multiplexer), the
 //!   compass has 0.5° of noise ("0.5° accuracy"), Skeeter's bearings 0.5°, and the brain's

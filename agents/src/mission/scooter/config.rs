@@ -169,6 +169,16 @@ pub struct ScooterConfig {
     pub found_record_max_age: Duration,
 }
 
+impl ScooterConfig {
+    /// Whether a laser cluster `width_m` wide has the target's size
+    /// ([`target_diameter_m`](Self::target_diameter_m) ±
+    /// [`diameter_tolerance_m`](Self::diameter_tolerance_m)).
+    #[must_use]
+    pub fn is_target_width(&self, width_m: f64) -> bool {
+        (width_m - self.target_diameter_m).abs() <= self.diameter_tolerance_m
+    }
+}
+
 impl Default for ScooterConfig {
     fn default() -> Self {
         Self {

@@ -184,8 +184,7 @@ impl TargetFinder {
             cfg.cluster_gap_m,
             r,
         );
-        let target_sized =
-            |c: &Cluster| (c.width_m - cfg.target_diameter_m).abs() <= cfg.diameter_tolerance_m;
+        let target_sized = |c: &Cluster| cfg.is_target_width(c.width_m);
         // The same clusters with bigger range jumps joined: a piece of a wider object (Skeeter
         // split by noise, a wall seen at a slant) is no target, whatever the estimate says.
         let joined = laser_clusters(
@@ -346,11 +345,12 @@ mod tests {
         let cfg = ScooterConfig::default();
         assert_eq!(cfg.target_recognition, TargetRecognition::NearEstimate);
         let s = noisy_wall_in_pieces();
-        let sized = laser_clusters(&s, &cfg.laser_mount, 8.0, cfg.cluster_gap_m, 0.15)
+        let r = cfg.target_diameter_m / 2.0;
+        let max = cfg.laser_max_range_m;
+        let sized = laser_clusters(&s, &cfg.laser_mount, max, cfg.cluster_gap_m, r)
             .into_iter()
             .filter(|c| {
-                (c.width_m - cfg.target_diameter_m).abs() <= cfg.diameter_tolerance_m
-                    && c.centre.coords.norm() <= cfg.see_distance_m
+                cfg.is_target_width(c.width_m) && c.centre.coords.norm() <= cfg.see_distance_m
             })
             .count();
         assert!(

@@ -278,11 +278,7 @@ fn in_view_recognition_ignores_target_sized_pieces_of_a_wider_object() {
         let c = b.config();
         let fine = laser_clusters(&scan, &mount, c.laser_max_range_m, c.cluster_gap_m, 0.15);
         let joined = laser_clusters(&scan, &mount, c.laser_max_range_m, 0.3, 0.15);
-        let sized = |v: &[Cluster]| {
-            v.iter()
-                .filter(|k| (k.width_m - c.target_diameter_m).abs() <= c.diameter_tolerance_m)
-                .count()
-        };
+        let sized = |v: &[Cluster]| v.iter().filter(|k| c.is_target_width(k.width_m)).count();
         if expected == Behaviour::FollowHeading {
             assert_eq!(
                 (sized(&fine), sized(&joined)),
