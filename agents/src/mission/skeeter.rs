@@ -765,6 +765,7 @@ mod tests {
                         range_m: None,
                         pixels: 100,
                         clipped: false,
+                        occluded: false,
                     },
                     time: at,
                 })

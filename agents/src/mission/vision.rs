@@ -43,6 +43,15 @@
 //! of about `1 / width_px` (≈ 4 % for a 0.30 m object at 3 m with the default 60°, 320 px
 //! camera). A blob touching the left or right frame edge is cut off: its range is `None` and
 //! its bearing is biased towards the frame's inside (it is marked [`Blob::clipped`]).
+//!
+//! A blob that a blob of another colour borders on the left or right (at least
+//! [`OCCLUSION_MIN_PX`] pixels of the one next to pixels of the other in a row) may be
+//! partly hidden by it, or hide part of it: which one is in front does not show in the
+//! colours. Both are marked [`Blob::occluded`] and get no range either, since a sliver of a
+//! target beside the robot that hides the rest of it would give a range many times too
+//! long (a tenth of the width, ten times the range). The check assumes sharp edges, as the
+//! mock camera draws them; a real camera's mixed edge pixels can leave a one-pixel gap of
+//! unclassified colour between two touching objects, which this check does not bridge.
 
 use core::f64::consts::TAU;
 
@@ -245,7 +254,14 @@ pub struct Blob {
     pub centroid_col: f64,
     /// It touches the left or right frame edge (so it may be cut off).
     pub clipped: bool,
+    /// A blob of another colour borders it on the left or right ([module docs](self)), so
+    /// one of the two may hide part of the other.
+    pub occluded: bool,
 }
+
+/// Fewest pixels of a blob that must border another colour's pixels on the left or right
+/// for it to count as [`Blob::occluded`] (one is not enough: a noisy pixel could do it).
+pub const OCCLUSION_MIN_PX: usize = 2;
 
 impl Blob {
     /// Width in pixels, from the left edge of the leftmost column to the right edge of the
@@ -267,9 +283,10 @@ pub fn find_blobs(frame: &Frame, db: &ColourDb, cfg: &DetectorConfig) -> Vec<Blo
     if !frame.is_consistent() || w == 0 || h == 0 || db.colours.is_empty() {
         return Vec::new();
     }
-    const NONE: u16 = u16::MAX;
-    const DONE: u16 = u16::MAX - 1;
-    // Label per pixel: colour index, NONE, or DONE once assigned to a component.
+    // Label per pixel: its colour index or NONE, with DONE set once the pixel is assigned
+    // to a component (so a later component still sees its neighbours' colours).
+    const NONE: u16 = 0x7FFF;
+    const DONE: u16 = 0x8000;
     let mut label: Vec<u16> = frame
         .pixels
         .chunks_exact(3)
@@ -277,7 +294,7 @@ pub fn find_blobs(frame: &Frame, db: &ColourDb, cfg: &DetectorConfig) -> Vec<Blo
             [r, g, b] => db
                 .classify([*r, *g, *b])
                 .and_then(|i| u16::try_from(i).ok())
-                .filter(|&i| i < DONE)
+                .filter(|&i| i < NONE)
                 .unwrap_or(NONE),
             _ => NONE,
         })
@@ -286,16 +303,21 @@ pub fn find_blobs(frame: &Frame, db: &ColourDb, cfg: &DetectorConfig) -> Vec<Blo
     let mut stack: Vec<usize> = Vec::new();
     for start in 0..label.len() {
         let colour = match label.get(start) {
-            Some(&c) if c != NONE && c != DONE => c,
+            Some(&c) if c != NONE && c & DONE == 0 => c,
             _ => continue,
         };
         if let Some(l) = label.get_mut(start) {
-            *l = DONE;
+            *l |= DONE;
         }
         stack.clear();
         stack.push(start);
         let (mut cmin, mut cmax, mut rmin, mut rmax) = (usize::MAX, 0usize, usize::MAX, 0usize);
-        let (mut n, mut sum_x) = (0usize, 0f64);
+        let (mut n, mut sum_x, mut border) = (0usize, 0f64, 0usize);
+        // Whether pixel `j` has another database colour than this component's.
+        let other = |l: &[u16], j: usize| {
+            l.get(j)
+                .is_some_and(|&l| ![NONE, colour].contains(&(l & !DONE)))
+        };
         while let Some(i) = stack.pop() {
             let (x, y) = (i % w, i / w);
             cmin = cmin.min(x);
@@ -304,11 +326,14 @@ pub fn find_blobs(frame: &Frame, db: &ColourDb, cfg: &DetectorConfig) -> Vec<Blo
             rmax = rmax.max(y);
             n += 1;
             sum_x += x as f64 + 0.5;
+            if (x > 0 && other(&label, i - 1)) || (x + 1 < w && other(&label, i + 1)) {
+                border += 1;
+            }
             let mut visit = |j: usize| {
                 if let Some(l) = label.get_mut(j)
                     && *l == colour
                 {
-                    *l = DONE;
+                    *l |= DONE;
                     stack.push(j);
                 }
             };
@@ -336,6 +361,7 @@ pub fn find_blobs(frame: &Frame, db: &ColourDb, cfg: &DetectorConfig) -> Vec<Blo
                 pixels: n,
                 centroid_col: sum_x / n as f64,
                 clipped: cmin == 0 || cmax + 1 >= w,
+                occluded: border >= OCCLUSION_MIN_PX,
             });
         }
     }
@@ -438,7 +464,7 @@ impl HeadGeometry {
         let yaw = self.camera_yaw_rad(channel)?;
         let fov = self.fov_rad();
         let bearing_cam = bearing_of_column(blob.centroid_col, frame_width, fov);
-        let range_m = if blob.clipped {
+        let range_m = if blob.clipped || blob.occluded {
             None
         } else {
             let left = bearing_of_column(f64::from(blob.col_min), frame_width, fov);
@@ -454,6 +480,7 @@ impl HeadGeometry {
             range_m,
             pixels: blob.pixels,
             clipped: blob.clipped,
+            occluded: blob.occluded,
         })
     }
 }
@@ -469,26 +496,36 @@ pub struct Observation {
     pub bearing_rad: f64,
     /// Bearing relative to the camera's optical axis, radians.
     pub bearing_in_camera_rad: f64,
-    /// Range estimate, metres (`None` when clipped or the diameter is unknown).
+    /// Range estimate, metres (`None` when clipped, occluded or the diameter is unknown).
     pub range_m: Option<f64>,
     /// Pixel count of the blob.
     pub pixels: usize,
     /// The blob touched a frame edge.
     pub clipped: bool,
+    /// The blob bordered another colour's ([`Blob::occluded`]).
+    pub occluded: bool,
 }
 
 impl Observation {
-    /// Confidence posted to the SES: 1 for a whole blob, 0.5 for one cut by a frame edge.
+    /// Whether the whole object may not be in the blob (cut by a frame edge or bordered by
+    /// another object).
     #[must_use]
-    pub fn confidence(&self) -> f64 {
-        if self.clipped { 0.5 } else { 1.0 }
+    pub fn is_partial(&self) -> bool {
+        self.clipped || self.occluded
     }
 
-    /// Whether `self` is a better sighting than `other` of the same thing: an uncut blob
-    /// beats a cut one, then the larger blob wins.
+    /// Confidence posted to the SES: 1 for a whole blob, 0.5 for a
+    /// [partial](Self::is_partial) one.
+    #[must_use]
+    pub fn confidence(&self) -> f64 {
+        if self.is_partial() { 0.5 } else { 1.0 }
+    }
+
+    /// Whether `self` is a better sighting than `other` of the same thing: a whole blob
+    /// beats a [partial](Self::is_partial) one, then the larger blob wins.
     #[must_use]
     pub fn better_than(&self, other: &Observation) -> bool {
-        match (self.clipped, other.clipped) {
+        match (self.is_partial(), other.is_partial()) {
             (false, true) => true,
             (true, false) => false,
             _ => self.pixels > other.pixels,
@@ -698,6 +735,85 @@ mod tests {
             (got - want).abs() < 1.0 / focal_px(W, fov()),
             "{got} {want}"
         );
+    }
+
+    /// Scooter's marker in front of green hides all but a sliver of it: the sliver is 5 of
+    /// the disc's 28 columns, so its width alone would put green 16.7 m away, not 3 m. Both
+    /// blobs border each other: neither gets a range, and both are partial.
+    #[test]
+    fn a_target_partly_hidden_by_the_robot_gets_no_range() {
+        let db = ColourDb::default();
+        let head = HeadGeometry::default();
+        let mut f = grey(W, H, Some(2));
+        // Green 3.0 m away on the axis; the marker 1.5 m away, centred 14.6° to the left.
+        draw_disc(&mut f, fov(), 0.0, 3.0, 0.15, [30, 180, 60]);
+        draw_disc(
+            &mut f,
+            fov(),
+            14.6f64.to_radians(),
+            1.5,
+            0.40,
+            [235, 235, 235],
+        );
+        add_noise(&mut f, 6, 5);
+        let blobs = find_blobs(&f, &db, &DetectorConfig::default());
+        assert_eq!(blobs.len(), 2, "{blobs:?}");
+        let green = blobs
+            .iter()
+            .find(|b| db.colours[b.colour].name == "green")
+            .unwrap();
+        assert!(green.width_px() <= 6, "{green:?}");
+        for b in &blobs {
+            assert!(b.occluded && !b.clipped, "{b:?}");
+            let o = head.observe(2, W, b, &db.colours[b.colour]).unwrap();
+            assert_eq!(o.range_m, None, "{o:?}");
+            assert!(o.is_partial());
+            assert_eq!(o.confidence(), 0.5);
+        }
+        // Without the check the sliver's width would have ranged green far beyond 3 m.
+        let whole = Blob {
+            occluded: false,
+            ..green.clone()
+        };
+        let r = head
+            .observe(2, W, &whole, db.get("green").unwrap())
+            .unwrap()
+            .range_m;
+        assert!(r.unwrap() > 10.0, "{r:?}");
+    }
+
+    /// Two discs apart, and a single stray pixel of another colour beside a disc, leave
+    /// both whole and ranged.
+    #[test]
+    fn separate_discs_and_a_stray_pixel_are_not_occlusion() {
+        let db = ColourDb::default();
+        let head = HeadGeometry::default();
+        let mut f = grey(W, H, Some(1));
+        draw_disc(&mut f, fov(), 0.0, 3.0, 0.15, [30, 180, 60]);
+        draw_disc(
+            &mut f,
+            fov(),
+            12f64.to_radians(),
+            3.0,
+            0.40,
+            [235, 235, 235],
+        );
+        // One red pixel just right of green's middle row.
+        let green_right = (0..W)
+            .rev()
+            .find(|&x| f.pixel(x, H / 2) == Some([30, 180, 60]))
+            .unwrap();
+        f.set_pixel(green_right + 1, H / 2, [220, 30, 30]);
+        add_noise(&mut f, 6, 6);
+        let blobs = find_blobs(&f, &db, &DetectorConfig::default());
+        assert_eq!(blobs.len(), 2, "{blobs:?}");
+        for b in &blobs {
+            assert!(!b.occluded, "{b:?}");
+            let o = head.observe(1, W, b, &db.colours[b.colour]).unwrap();
+            let r = o.range_m.unwrap();
+            assert!((r - 3.0).abs() < 0.2, "{o:?}");
+            assert!(!o.is_partial());
+        }
     }
 
     #[test]
