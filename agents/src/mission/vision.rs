@@ -737,6 +737,17 @@ mod tests {
         );
     }
 
+    /// A noisy frame of green 3 m away on the axis and Scooter's marker (0.40 m radius)
+    /// `range_m` away at `bearing_deg` to the left, drawn over green.
+    fn green_and_marker(bearing_deg: f64, range_m: f64) -> Frame {
+        let mut f = grey(W, H, Some(2));
+        draw_disc(&mut f, fov(), 0.0, 3.0, 0.15, [30, 180, 60]);
+        let b = bearing_deg.to_radians();
+        draw_disc(&mut f, fov(), b, range_m, 0.40, [235, 235, 235]);
+        add_noise(&mut f, 6, 5);
+        f
+    }
+
     /// Scooter's marker in front of green hides all but a sliver of it: the sliver is 5 of
     /// the disc's 28 columns, so its width alone would put green 16.7 m away, not 3 m. Both
     /// blobs border each other: neither gets a range, and both are partial.
@@ -744,18 +755,8 @@ mod tests {
     fn a_target_partly_hidden_by_the_robot_gets_no_range() {
         let db = ColourDb::default();
         let head = HeadGeometry::default();
-        let mut f = grey(W, H, Some(2));
-        // Green 3.0 m away on the axis; the marker 1.5 m away, centred 14.6° to the left.
-        draw_disc(&mut f, fov(), 0.0, 3.0, 0.15, [30, 180, 60]);
-        draw_disc(
-            &mut f,
-            fov(),
-            14.6f64.to_radians(),
-            1.5,
-            0.40,
-            [235, 235, 235],
-        );
-        add_noise(&mut f, 6, 5);
+        // The marker 1.5 m away, centred 14.6° to the left.
+        let f = green_and_marker(14.6, 1.5);
         let blobs = find_blobs(&f, &db, &DetectorConfig::default());
         assert_eq!(blobs.len(), 2, "{blobs:?}");
         let green = blobs
@@ -788,28 +789,19 @@ mod tests {
     fn separate_discs_and_a_stray_pixel_are_not_occlusion() {
         let db = ColourDb::default();
         let head = HeadGeometry::default();
-        let mut f = grey(W, H, Some(1));
-        draw_disc(&mut f, fov(), 0.0, 3.0, 0.15, [30, 180, 60]);
-        draw_disc(
-            &mut f,
-            fov(),
-            12f64.to_radians(),
-            3.0,
-            0.40,
-            [235, 235, 235],
-        );
-        // One red pixel just right of green's middle row.
+        let mut f = green_and_marker(12.0, 3.0);
+        // One red pixel just right of green, on its middle row.
+        let green = db.get("green").unwrap();
         let green_right = (0..W)
             .rev()
-            .find(|&x| f.pixel(x, H / 2) == Some([30, 180, 60]))
+            .find(|&x| f.pixel(x, H / 2).is_some_and(|p| green.matches(p)))
             .unwrap();
         f.set_pixel(green_right + 1, H / 2, [220, 30, 30]);
-        add_noise(&mut f, 6, 6);
         let blobs = find_blobs(&f, &db, &DetectorConfig::default());
         assert_eq!(blobs.len(), 2, "{blobs:?}");
         for b in &blobs {
             assert!(!b.occluded, "{b:?}");
-            let o = head.observe(1, W, b, &db.colours[b.colour]).unwrap();
+            let o = head.observe(2, W, b, &db.colours[b.colour]).unwrap();
             let r = o.range_m.unwrap();
             assert!((r - 3.0).abs() < 0.2, "{o:?}");
             assert!(!o.is_partial());
