@@ -1,7 +1,7 @@
 //! Skeeter's Scan node (`ima_agents::mission::scan`) against the mock camera head and the
 //! mock video switcher driven by the real `ima-video-mux` shell, in tokio's paused time: a
 //! full sweep of the default world finds every object and Scooter's marker at the right
-//! bearing and range, in under five seconds.
+//! bearing and range, in under five seconds; a target Scooter partly hides gets no range.
 
 use std::time::Duration;
 
