@@ -40,7 +40,9 @@ fn secs(s: f64) -> Duration {
 }
 
 /// Connect to a P2OS base (trying the configured rate first, then the robot's others).
-pub async fn open_p2os(d: &BaseDevice, clock: &SharedClock) -> Result<P2os> {
+/// `time_scale` > 1 (a sped-up simulated world) widens the driver's odometry plausibility
+/// checks by that factor, since the world moves that much faster per real second.
+pub async fn open_p2os(d: &BaseDevice, time_scale: f64, clock: &SharedClock) -> Result<P2os> {
     anyhow::ensure!(
         d.kind == BaseKind::P2os,
         "the base on {} is not configured as p2os",
@@ -58,6 +60,7 @@ pub async fn open_p2os(d: &BaseDevice, clock: &SharedClock) -> Result<P2os> {
         }
     }
     cfg.bauds = bauds;
+    cfg.motion_time_scale = time_scale;
     P2os::connect(port, cfg, secs(d.connect_timeout_s), clock.clone())
         .await
         .with_context(|| format!("connecting to the P2OS base on {}", d.port))
@@ -219,7 +222,7 @@ impl Base {
     }
 }
 
-/// Open the base `d` names. `time_scale`: see [`open_rflex`]. `drives`: the robot moves, so
+/// Open the base `d` names. `time_scale`: see [`open_p2os`] and [`open_rflex`]. `drives`: the robot moves, so
 /// a P2OS base's motors are enabled (an rFLEX base's brake is released either way).
 pub async fn open_base(
     d: &BaseDevice,
@@ -229,7 +232,7 @@ pub async fn open_base(
 ) -> Result<Base> {
     Ok(match d.kind {
         BaseKind::P2os => {
-            let mut b = open_p2os(d, clock).await?;
+            let mut b = open_p2os(d, time_scale, clock).await?;
             if drives {
                 b.enable_motors(true).await.with_context(|| {
                     format!("enabling the motors of the P2OS base on {}", d.port)
@@ -708,7 +711,7 @@ mod tests {
             baud: 9600,
             connect_timeout_s: 1.0,
         };
-        let e = open_p2os(&d, &ima_hal::time::TokioClock::shared())
+        let e = open_p2os(&d, 1.0, &ima_hal::time::TokioClock::shared())
             .await
             .unwrap_err();
         assert!(format!("{e:#}").contains("/dev/ima-no-such-port"), "{e:#}");

@@ -135,19 +135,24 @@ fn demo_accomplishes_every_target_when_sped_up_ten_and_twenty_times() {
 }
 
 /// Issue 14: the same Scooter runtime drives a Pioneer's P2OS base (with the SICK and the
-/// compass): `--scooter-base p2os` accomplishes the three default targets too.
+/// compass): `--scooter-base p2os` accomplishes the three default targets too, at ×4 and at
+/// ×20. At ×20 the P2OS driver rejected every SIP of a robot cruising at 0.3 m/s (0.6 m per
+/// real 100 ms is beyond its jump check), so Scooter's odometry stood still and it failed its
+/// first target: the demo now gives the driver the world's speed-up.
 #[test]
 fn scooter_on_a_p2os_base_accomplishes_every_target() {
     let _turn = turn();
     let dir = std::env::temp_dir().join(format!("ima-demo-p2os-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let svg = dir.join("demo-p2os.svg");
-    let summary = demo_with(&["--scooter-base", "p2os"], "4", 1, &svg);
-    assert_eq!(summary["done"], 3, "{summary}");
-    for t in summary["targets"].as_array().unwrap() {
-        assert_eq!(t["state"], "done", "{t}");
-        let gap = t["end_gap_m"].as_f64().unwrap();
-        assert!(gap < 1.5, "Scooter ended {gap:.2} m from {t}");
+    for speed in ["4", "20"] {
+        let svg = dir.join(format!("demo-p2os-x{speed}.svg"));
+        let summary = demo_with(&["--scooter-base", "p2os"], speed, 1, &svg);
+        assert_eq!(summary["done"], 3, "×{speed}: {summary}");
+        for t in summary["targets"].as_array().unwrap() {
+            assert_eq!(t["state"], "done", "×{speed}: {t}");
+            let gap = t["end_gap_m"].as_f64().unwrap();
+            assert!(gap < 1.5, "×{speed}: Scooter ended {gap:.2} m from {t}");
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

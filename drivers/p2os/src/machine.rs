@@ -79,6 +79,11 @@ pub struct Config {
     /// Consecutive implausible SIPs after which the odometry is re-based on the robot's
     /// values rather than rejected forever (a robot reset or a SETO from elsewhere).
     pub rebase_after_implausible: u8,
+    /// How many times faster than the driver's clock the robot's world runs: 1 on a robot;
+    /// a sped-up simulated world's factor. The odometry plausibility checks allow position
+    /// and heading jumps between SIPs this many times larger (a value below 1 or not finite
+    /// counts as 1).
+    pub motion_time_scale: f64,
 }
 
 impl Default for Config {
@@ -102,6 +107,7 @@ impl Default for Config {
             request_config: true,
             encode: EncodeOptions::default(),
             rebase_after_implausible: 3,
+            motion_time_scale: 1.0,
             velocity_resend_interval: Duration::from_millis(500),
         }
     }
@@ -1030,7 +1036,9 @@ impl Machine {
         let ok_jump = match self.odo.prev {
             None => true,
             Some((px, py, pth, pt)) => {
-                let dt = now.saturating_duration_since(pt).as_secs_f64();
+                let k = self.cfg.motion_time_scale;
+                let k = if k.is_finite() { k.max(1.0) } else { 1.0 };
+                let dt = now.saturating_duration_since(pt).as_secs_f64() * k;
                 let reach_mm = p.max_velocity_mm_s * 1.5 * dt + 50.0;
                 let dx = f64::from(unwrap15(px, sip.xpos)) * p.dist_conv;
                 let dy = f64::from(unwrap15(py, sip.ypos)) * p.dist_conv;

@@ -505,6 +505,43 @@ fn implausible_sips_are_dropped_and_counted() {
     assert_eq!(s.stats().sips, 1);
 }
 
+/// In a simulated world running 20 times faster than the driver's clock, the robot really
+/// covers 20 times more ground between SIPs: with `motion_time_scale` set, that motion is
+/// integrated; without it every such SIP is rejected (and the odometry would stand still).
+#[test]
+fn a_sped_up_world_widens_the_jump_check_by_its_factor() {
+    // 0.6 m per 100 ms: 0.3 m/s in a world ×20 (P2-AT: 1.32 mm per position unit).
+    let run = |scale: f64| {
+        let mut s = Machine::new(Config {
+            motion_time_scale: scale,
+            ..Config::default()
+        });
+        let mut t = open(&mut s);
+        let _ = events(&mut s);
+        for i in 1..=5u16 {
+            t = t + Duration::from_millis(100);
+            feed(&mut s, &Packet::Sip(sip(100 + 460 * i, 100, 0, 0)), t);
+        }
+        let x = events(&mut s)
+            .into_iter()
+            .filter_map(|e| match e {
+                Event::State(st) => Some(st.odometry.value.x_m()),
+                _ => None,
+            })
+            .next_back()
+            .unwrap_or(0.0);
+        (x, s.stats().implausible_sips)
+    };
+    let (x, rejected) = run(20.0);
+    assert_eq!(rejected, 0);
+    assert!((x - 5.0 * 460.0 * 1.32 / 1000.0).abs() < 1e-9, "x = {x}");
+    let (x, rejected) = run(1.0);
+    assert!(rejected >= 3, "{rejected} rejected");
+    assert!(x < 1.0, "x = {x}");
+    // A scale below 1 or not finite is the robot's own.
+    assert_eq!(run(f64::NAN).1, run(0.5).1);
+}
+
 #[test]
 fn reset_odometry_makes_the_current_pose_the_origin() {
     let mut s = Machine::new(Config::default());
