@@ -1,6 +1,6 @@
 //! The program's stop guarantee: every device that can move a robot is stopped, and its session
-//! closed, on every exit path — a normal end, an error, SIGINT, SIGTERM, SIGHUP, a closed
-//! stdout, and a panic on any thread.
+//! closed, on every exit path — a normal end, an error, SIGINT, SIGTERM, SIGHUP, SIGQUIT, a
+//! closed stdout, and a panic on any thread.
 //!
 //! The guarantee does not depend on each command remembering a `stop()`:
 //!
@@ -8,9 +8,10 @@
 //!   [`HaltSignal`](ima_hal::safety::HaltSignal) in the process-wide
 //!   [`StopRegistry`] as they start;
 //! * [`install`] (first thing in `main`) sets a panic hook that halts every registered device and
-//!   waits for its last frames, and a signal thread: the first SIGINT/SIGTERM/SIGHUP halts every
-//!   device at once and asks the command to wind down ([`cancelled`]); a second signal, or a
-//!   command that has not finished [`GRACE`] later, ends the process after the devices are done;
+//!   waits for its last frames, and a signal thread: the first SIGINT/SIGTERM/SIGHUP/SIGQUIT
+//!   halts every device at once and asks the command to wind down ([`cancelled`]); a second
+//!   signal, or a command that has not finished [`GRACE`] later, ends the process after the
+//!   devices are done;
 //! * [`block_on`] is the only way a command runs async code: after the command's future ends
 //!   (for whatever reason) it halts every device and waits until their last frames are on the
 //!   wire before the runtime — and with it the driver tasks — goes away.
@@ -59,6 +60,8 @@ pub enum Signal {
     Hup = 1,
     /// SIGINT (Ctrl-C).
     Int = 2,
+    /// SIGQUIT (Ctrl-\\); its default action would end the program without stopping the robot.
+    Quit = 3,
     /// SIGTERM.
     Term = 15,
 }
@@ -68,6 +71,7 @@ impl Signal {
         match n {
             1 => Some(Self::Hup),
             2 => Some(Self::Int),
+            3 => Some(Self::Quit),
             15 => Some(Self::Term),
             _ => None,
         }
@@ -78,6 +82,7 @@ impl Signal {
         match self {
             Self::Hup => "SIGHUP",
             Self::Int => "SIGINT",
+            Self::Quit => "SIGQUIT",
             Self::Term => "SIGTERM",
         }
     }
@@ -230,15 +235,16 @@ fn signal_thread() {
         return;
     };
     rt.block_on(async {
-        let (Ok(mut int), Ok(mut term), Ok(mut hup)) = (
+        let (Ok(mut int), Ok(mut term), Ok(mut hup), Ok(mut quit)) = (
             listen(SignalKind::interrupt()),
             listen(SignalKind::terminate()),
             listen(SignalKind::hangup()),
+            listen(SignalKind::quit()),
         ) else {
             say(format_args!("cannot watch for signals"));
             return;
         };
-        let first = next_signal(&mut int, &mut term, &mut hup).await;
+        let first = next_signal(&mut int, &mut term, &mut hup, &mut quit).await;
         SIGNAL.store(first as i32, Ordering::SeqCst);
         // Safety first: every moving device is told to stop before anything else happens.
         let halted = StopRegistry::global().halt_all();
@@ -256,7 +262,7 @@ fn signal_thread() {
         }
         let own = first == Signal::Int && OWN_CTRL_C.load(Ordering::SeqCst);
         let code = tokio::select! {
-            s = next_signal(&mut int, &mut term, &mut hup) => s.exit_code(),
+            s = next_signal(&mut int, &mut term, &mut hup, &mut quit) => s.exit_code(),
             () = tokio::time::sleep(GRACE), if !own => first.exit_code(),
         };
         // Either way the devices get their last frames out before the process ends.
@@ -278,11 +284,13 @@ async fn next_signal(
     int: &mut tokio::signal::unix::Signal,
     term: &mut tokio::signal::unix::Signal,
     hup: &mut tokio::signal::unix::Signal,
+    quit: &mut tokio::signal::unix::Signal,
 ) -> Signal {
     tokio::select! {
         _ = int.recv() => Signal::Int,
         _ = term.recv() => Signal::Term,
         _ = hup.recv() => Signal::Hup,
+        _ = quit.recv() => Signal::Quit,
     }
 }
 

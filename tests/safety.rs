@@ -1,9 +1,9 @@
 //! The stop guarantee, proven from the mock robot's side (issue 13): `ima drive` against the
 //! mock Pioneer 2-AT (P2OS) and the mock ATRV-Jr (rFLEX) on real ptys, interrupted mid-motion
-//! by SIGINT, SIGTERM and SIGHUP, or by its stdout being closed. The test process serves the
-//! robot, so it sees every byte the host wrote (with its arrival time) and the world's ground
-//! truth, and asserts that a stop arrived within 0.3 s of the interruption, that the robot
-//! stood within 1.0 s, and that a P2OS session was closed with CLOSE.
+//! by SIGINT, SIGTERM, SIGHUP and SIGQUIT, or by its stdout being closed. The test process
+//! serves the robot, so it sees every byte the host wrote (with its arrival time) and the
+//! world's ground truth, and asserts that a stop arrived within 0.3 s of the interruption, that
+//! the robot stood within 1.0 s, and that a P2OS session was closed with CLOSE.
 
 use std::io::{BufRead, BufReader};
 use std::process::Stdio;
@@ -285,6 +285,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
         Interruption::Signal("INT") => 130,
         Interruption::Signal("TERM") => 143,
         Interruption::Signal("HUP") => 129,
+        Interruption::Signal("QUIT") => 131,
         Interruption::Signal(other) => panic!("no expectation for {other}"),
         Interruption::ClosedStdout => 141,
         Interruption::Panic => 101,
@@ -364,6 +365,12 @@ fn p2os_sighup_stops_and_closes() {
     interrupt_drive(Base::P2os, Interruption::Signal("HUP"));
 }
 
+/// Ctrl-\\: its default action ended the program at once, leaving the robot to its watchdog.
+#[test]
+fn p2os_sigquit_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Signal("QUIT"));
+}
+
 #[test]
 fn p2os_closed_stdout_stops_and_closes() {
     interrupt_drive(Base::P2os, Interruption::ClosedStdout);
@@ -392,6 +399,11 @@ fn rflex_sigterm_stops_and_brakes() {
 #[test]
 fn rflex_sighup_stops_and_brakes() {
     interrupt_drive(Base::Rflex, Interruption::Signal("HUP"));
+}
+
+#[test]
+fn rflex_sigquit_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Signal("QUIT"));
 }
 
 #[test]
@@ -672,6 +684,7 @@ fn signal_number(sig: &str) -> i32 {
     match sig {
         "HUP" => 1,
         "INT" => 2,
+        "QUIT" => 3,
         "TERM" => 15,
         other => panic!("unknown signal {other}"),
     }

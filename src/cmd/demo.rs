@@ -36,7 +36,7 @@ pub struct DemoArgs {
     /// The issue-2 demonstration instead.
     #[command(subcommand)]
     sub: Option<DemoCommand>,
-    /// Time factor in (0, 20]: world time runs this many times faster than real time (not a
+    /// Time factor, 0.05 to 20: world time runs this many times faster than real time (not a
     /// velocity; Scooter's is `--cruise`).
     #[arg(long, default_value_t = 4.0, value_parser = super::num::time_factor)]
     speed: f64,
@@ -96,8 +96,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         return super::demo_square::run(a);
     }
     anyhow::ensure!(
-        args.speed.is_finite() && args.speed > 0.0 && args.speed <= 20.0,
-        "--speed must be in (0, 20]"
+        (0.05..=20.0).contains(&args.speed),
+        "--speed must be 0.05 to 20"
     );
     anyhow::ensure!(
         args.cruise.is_finite() && args.cruise > 0.0 && args.cruise <= 1.0,

@@ -54,9 +54,10 @@ pub fn turn_rad_s(s: &str) -> Result<f64, String> {
     within(s, -10.0, 10.0, " rad/s")
 }
 
-/// A simulated world's time factor: more than 0, at most 20 times real time.
+/// A simulated world's time factor: from 20 times slower (0.05) to 20 times faster than real
+/// time. (A factor near 0 froze the world, and below about 1e-290 overflowed a `Duration`.)
 pub fn time_factor(s: &str) -> Result<f64, String> {
-    positive_up_to(s, 20.0, "×")
+    within(s, 0.05, 20.0, "×")
 }
 
 /// A cruise velocity in m/s: more than 0, at most 1.
@@ -212,7 +213,9 @@ mod tests {
         assert!(int_in::<u64, 0, 5>("-1").is_err());
         assert!(int_in::<u64, 0, 5>("1e30").is_err());
         assert_eq!(period_seconds("5"), Ok(5.0));
-        assert!(time_factor("0").unwrap_err().contains("more than 0"));
+        assert!(time_factor("0").unwrap_err().contains("0.05–20×"));
+        assert!(time_factor("1e-300").is_err());
+        assert_eq!(time_factor("0.05"), Ok(0.05));
         assert_eq!(time_factor("20"), Ok(20.0));
         assert!(time_factor("20.5").is_err());
         assert!(fov_degrees("180").is_err());

@@ -30,7 +30,7 @@ use crate::safety::outln;
 pub struct ReplayArgs {
     /// The recording (`--record` of `ima demo`, `run`, `drive`, `scan`, `compass`).
     file: PathBuf,
-    /// Time factor of the playback; 0 plays as fast as possible.
+    /// Time factor of the playback, 0.001 to 1000; 0 plays as fast as possible.
     #[arg(long, default_value_t = 1.0, value_parser = speed)]
     speed: f64,
     /// One JSON object per reading on stdout.
@@ -49,10 +49,10 @@ fn speed(s: &str) -> Result<f64, String> {
     let v: f64 = s
         .parse()
         .map_err(|_| format!("{s:?} is not a number (e.g. 1, 4, 0.5; 0 for no pacing)"))?;
-    if v.is_finite() && (0.0..=1000.0).contains(&v) {
+    if v == 0.0 || (v.is_finite() && (0.001..=1000.0).contains(&v)) {
         Ok(v)
     } else {
-        Err(format!("{v} is not in [0, 1000]"))
+        Err(format!("{} is not 0 or in [0.001, 1000]", s.trim()))
     }
 }
 
@@ -338,3 +338,18 @@ fn serve_as_mock(s: &RawStream, speed: f64) -> Result<()> {
 
 /// How long `--as-mock` waits for the host's request before sending the recorded answer.
 const AS_MOCK_WAIT: Duration = Duration::from_secs(2);
+
+#[cfg(test)]
+mod tests {
+    /// A factor near 0 overflowed the `Duration` of the first pause (1e-300) or slept for
+    /// ever (1e-20): it is refused; 0 still means no pacing.
+    #[test]
+    fn the_speed_is_0_or_a_sensible_factor() {
+        assert_eq!(super::speed("0"), Ok(0.0));
+        assert_eq!(super::speed("0.001"), Ok(0.001));
+        assert_eq!(super::speed("1000"), Ok(1000.0));
+        for bad in ["1e-300", "1e-20", "0.0009", "1001", "-1", "NaN", "inf", "x"] {
+            assert!(super::speed(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -123,7 +123,7 @@ impl MissionTime {
     /// The real (clock) duration of `mission` mission time.
     #[must_use]
     pub fn real(&self, mission: Duration) -> Duration {
-        mission.div_f64(self.scale)
+        Duration::try_from_secs_f64(mission.as_secs_f64() / self.scale).unwrap_or(Duration::MAX)
     }
 
     /// The scale factor.
@@ -202,5 +202,8 @@ mod tests {
         );
         assert_eq!(m.real(Duration::from_secs(4)), Duration::from_secs(1));
         assert!((MissionTime::new(c.shared(), f64::NAN).scale() - 1.0).abs() < 1e-12);
+        // A tiny scale saturates instead of panicking (`Duration::div_f64` overflowed).
+        let slow = MissionTime::new(c.shared(), 1e-300);
+        assert_eq!(slow.real(Duration::from_secs(1)), Duration::MAX);
     }
 }

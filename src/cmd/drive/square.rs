@@ -176,7 +176,7 @@ async fn square(
             if d >= args.side {
                 break;
             }
-            let v = ((args.side - d) * 1.5).clamp(0.03, args.vel);
+            let v = approach_speed(args.side - d, args.vel);
             robot.set_velocity(VelocityCommand::new(v, 0.0)).await?;
         }
         // Turn to the next multiple of 90°.
@@ -236,4 +236,25 @@ async fn square(
     }
     robot.close().await.ok();
     Ok(rows)
+}
+
+/// The speed on a side with `remaining_m` to go: slowing down near the corner, never below
+/// 3 cm/s (or `vel`, if that is slower) and never above `vel`.
+fn approach_speed(remaining_m: f64, vel: f64) -> f64 {
+    (remaining_m * 1.5).min(vel).max(0.03_f64.min(vel))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::approach_speed;
+
+    /// `--vel` below the 3 cm/s floor panicked (`clamp` with min > max).
+    #[test]
+    fn the_approach_speed_respects_a_cruise_velocity_below_the_floor() {
+        assert!((approach_speed(0.5, 0.02) - 0.02).abs() < 1e-12);
+        assert!((approach_speed(0.001, 0.02) - 0.02).abs() < 1e-12);
+        assert!((approach_speed(0.5, 0.3) - 0.3).abs() < 1e-12);
+        assert!((approach_speed(0.1, 0.3) - 0.15).abs() < 1e-12);
+        assert!((approach_speed(0.0, 0.3) - 0.03).abs() < 1e-12);
+    }
 }

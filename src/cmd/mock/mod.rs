@@ -84,8 +84,8 @@ pub struct MockArgs {
     /// Video mux: speak Kramer Protocol 2000 instead of Extron SIS.
     #[arg(long)]
     kramer: bool,
-    /// World: time factor, world time runs this many times faster than real time (not a
-    /// velocity).
+    /// World: time factor, 0.05 to 20: world time runs this many times faster than real time
+    /// (not a velocity).
     #[arg(long, default_value_t = 1.0, value_parser = super::num::time_factor)]
     speed: f64,
     /// World: address of the TCP frame server (port 0: any free port).
