@@ -192,7 +192,10 @@ impl RobotSpec {
         }
         finite(self.x_m).ok_or_else(|| bad("x_m"))?;
         finite(self.y_m).ok_or_else(|| bad("y_m"))?;
-        finite(self.theta_deg).ok_or_else(|| bad("theta_deg"))?;
+        self.theta_deg
+            .is_finite()
+            .then_some(())
+            .ok_or_else(|| bad("theta_deg"))?;
         positive(self.radius_m).ok_or_else(|| bad("radius_m"))?;
         positive(self.track_width_m).ok_or_else(|| bad("track_width_m"))?;
         positive(self.max_wheel_speed_m_s).ok_or_else(|| bad("max_wheel_speed_m_s"))?;
@@ -203,11 +206,16 @@ impl RobotSpec {
     }
 }
 
+/// The largest magnitude of a world's coordinates and sizes (metres; speeds in m/s and
+/// accelerations in m/s² too): 10 km. Larger finite numbers (a wall from −1e308 to 1e308 m) are
+/// no world a robot drives in, and overflow the geometry and the plots.
+pub const MAX_EXTENT_M: f64 = 10_000.0;
+
 fn finite(x: f64) -> Option<f64> {
-    x.is_finite().then_some(x)
+    (x.is_finite() && x.abs() <= MAX_EXTENT_M).then_some(x)
 }
 fn positive(x: f64) -> Option<f64> {
-    (x.is_finite() && x > 0.0).then_some(x)
+    (x.is_finite() && x > 0.0 && x <= MAX_EXTENT_M).then_some(x)
 }
 
 /// A simulated differential-drive robot.
@@ -504,8 +512,12 @@ pub enum WorldError {
     /// The TOML did not parse or did not match the schema.
     #[error("world file: {0}")]
     Toml(String),
-    /// A number is out of range (non-finite, or a radius/width that is not positive).
-    #[error("{item}: invalid {field}")]
+    /// A number is out of range (non-finite, beyond [`MAX_EXTENT_M`], or a radius/width that is
+    /// not positive).
+    #[error(
+        "{item}: invalid {field} (numbers must be finite and within ±{MAX_EXTENT_M}; sizes \
+         positive)"
+    )]
     Invalid {
         /// Which item (e.g. `robot "skeeter"`, `wall 3`).
         item: String,
@@ -584,7 +596,7 @@ pub struct World {
 }
 
 fn finite_pt(p: [f64; 2]) -> bool {
-    p.iter().all(|v| v.is_finite())
+    p.iter().all(|v| finite(*v).is_some())
 }
 
 impl World {
@@ -1565,6 +1577,17 @@ mod tests {
                 field: "radius_m"
             })
         );
+        // A wall across the whole f64 range made the demo's plot spin for ever.
+        let huge = "[[wall]]\nfrom=[-1e308,-1e308]\nto=[1e308,1e308]\n";
+        let e = World::from_toml_str(huge).unwrap_err();
+        assert_eq!(
+            e,
+            WorldError::Invalid {
+                item: "wall 0".into(),
+                field: "from"
+            }
+        );
+        assert!(e.to_string().contains("within ±10000"), "{e}");
         let nan = "[[robot]]\nname='a'\nx_m=nan\ny_m=0.0\n";
         assert!(matches!(
             World::from_toml_str(nan),

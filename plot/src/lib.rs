@@ -263,14 +263,31 @@ pub fn grid_step(px_per_m: f64, min_px: f64) -> f64 {
     step
 }
 
+/// The widest frame a metric chart draws: 1,000 km (wider spans, e.g. from a world file's
+/// wall at ±1e308 m, made the axis code spin).
+pub const MAX_FRAME_M: f64 = 1e6;
+
 /// A chart filling `area` that shows `frame` with axes described by `x_desc` and `y_desc`
 /// (give the unit, e.g. `"x (m)"`), a grid of [`grid_step`] and tick labels on it.
+///
+/// # Errors
+/// A frame wider or higher than [`MAX_FRAME_M`] (or not finite), or the backend's error.
 pub fn metric_chart<'a>(
     area: &Area<'a>,
     frame: &Frame,
     x_desc: &str,
     y_desc: &str,
 ) -> Result<Chart<'a>, PlotError> {
+    let (w, h) = (frame.width(), frame.height());
+    if !(frame.x.start.is_finite() && frame.y.start.is_finite() && w.is_finite() && h.is_finite()) {
+        return Err("cannot draw a frame whose edges are not finite numbers".into());
+    }
+    if !((0.0..=MAX_FRAME_M).contains(&w) && (0.0..=MAX_FRAME_M).contains(&h)) {
+        return Err(format!(
+            "cannot draw a frame of {w:.3e} m × {h:.3e} m (at most {MAX_FRAME_M:e} m a side)"
+        )
+        .into());
+    }
     let mut chart = ChartBuilder::on(area)
         .margin(MARGIN)
         .x_label_area_size(X_LABELS_H)
@@ -960,6 +977,26 @@ mod tests {
         assert_eq!(f.x, -0.5..2.5);
         assert_eq!(f.y, -1.0..1.0, "at least 1 m high before the margin");
         assert!(Frame::around([(f64::INFINITY, 0.0)], 1.0).is_none());
+    }
+
+    /// A world file's wall from −1e308 to 1e308 m made the axis code spin for ever.
+    #[test]
+    fn a_frame_too_wide_to_draw_is_an_error_not_a_hang() {
+        for frame in [
+            Frame::around([(-1e308, -1e308), (1e308, 1e308)], 0.5).unwrap(),
+            Frame::new(0.0..2e6, 0.0..1.0),
+            Frame::new(0.0..1.0, f64::NAN..1.0),
+        ] {
+            let svg = render(200, 200, |root| {
+                metric_chart(root, &frame, "x (m)", "y (m)").map(|_| ())
+            });
+            let found = inspect(&svg).unwrap();
+            assert!(
+                found.any_text_contains("cannot draw a frame"),
+                "{:?}",
+                found.texts
+            );
+        }
     }
 
     #[test]
