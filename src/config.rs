@@ -398,8 +398,8 @@ impl RobotConfig {
 
     /// Read, parse and check a configuration file.
     pub fn load(path: &Path) -> Result<Self> {
-        let s =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let s = ima_hal::file::read_text(path)
+            .with_context(|| format!("reading {}", path.display()))?;
         Self::from_toml_str(&s).with_context(|| format!("in {}", path.display()))
     }
 
@@ -411,6 +411,28 @@ impl RobotConfig {
     /// Ranges of the configured devices' timing and geometry values.
     fn check_devices(&self) -> Result<()> {
         let d = &self.devices;
+        // Line speeds as `--baud` takes them (0 would mean "hang up" to a real port).
+        let bauds = [
+            ("base", d.base.as_ref().map(|b| b.baud)),
+            ("video_mux", d.video_mux.as_ref().map(|m| m.baud)),
+            ("laser", d.laser.as_ref().map(|l| l.baud)),
+            ("compass", d.compass.as_ref().map(|c| c.baud)),
+        ];
+        for (what, baud) in bauds {
+            if let Some(b) = baud
+                && !(50..=4_000_000).contains(&b)
+            {
+                bail!("devices.{what}.baud must be 50 to 4000000, not {b}");
+            }
+        }
+        if let Some(c) = &d.compass
+            && !(c.deviation_deg.is_finite() && c.deviation_deg.abs() <= 360.0)
+        {
+            bail!(
+                "devices.compass.deviation_deg must be within ±360°, not {}",
+                c.deviation_deg
+            );
+        }
         if let Some(b) = &d.base {
             let t = b.connect_timeout_s;
             if !(t.is_finite() && t > 0.0 && t <= 600.0) {
@@ -472,6 +494,18 @@ impl RobotConfig {
         for (name, v, lo, hi) in bounded {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
                 bail!("{name} must be a number in [{lo}, {hi}], not {v}");
+            }
+        }
+        // Headings: NaN left Scooter with no heading for ever, standing still.
+        let headings = [
+            ("agent.common_heading_deg", Some(a.common_heading_deg)),
+            ("agent.initial_heading_deg", a.initial_heading_deg),
+        ];
+        for (name, v) in headings {
+            if let Some(v) = v
+                && !(v.is_finite() && v.abs() <= 360.0)
+            {
+                bail!("{name} must be within ±360°, not {v}");
             }
         }
         self.check_devices()?;
@@ -613,6 +647,34 @@ mod tests {
             // The key is named, with its range.
             assert!(e.contains(key) && e.contains('['), "{bad}: {e}");
         }
+        // Found by trying every key: a NaN heading left Scooter standing for ever, and a baud
+        // of 0 (hang up) or 4294967295 was taken as it was.
+        let compass = "[devices.compass]\nport = \"/dev/x\"\n";
+        for (bad, key) in [
+            (
+                "[agent]\ncommon_heading_deg = nan\n",
+                "agent.common_heading_deg",
+            ),
+            (
+                "[agent]\ninitial_heading_deg = 1e9\n",
+                "agent.initial_heading_deg",
+            ),
+            (&format!("{compass}baud = 0\n"), "devices.compass.baud"),
+            (
+                &format!("{compass}baud = 4294967295\n"),
+                "devices.compass.baud",
+            ),
+            (
+                &format!("{compass}baud = 4800\ndeviation_deg = inf\n"),
+                "devices.compass.deviation_deg",
+            ),
+        ] {
+            let cfg = format!("{mock}{bad}");
+            let e = format!("{:#}", RobotConfig::from_toml_str(&cfg).unwrap_err());
+            assert!(e.contains(key), "{bad}: {e}");
+        }
+        let fine = format!("{mock}{compass}baud = 4800\ndeviation_deg = -3.5\n");
+        assert!(RobotConfig::from_toml_str(&fine).is_ok());
     }
 
     #[test]

@@ -199,6 +199,11 @@ fn halt_everything_blocking(wait: Duration) -> Vec<String> {
 pub fn install() {
     let previous = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
+        // The `mcap` crate's panic on a malformed recording is caught and reported as the
+        // recording's damage: not the program's panic.
+        if ima_record::read::in_guarded_read() {
+            return;
+        }
         PANICKED.store(true, Ordering::SeqCst);
         if StopRegistry::global().any_running() {
             say(format_args!("panic: stopping every device that could move"));

@@ -43,6 +43,8 @@ pub mod bytes;
 pub mod camera;
 pub mod compass;
 pub mod error;
+#[cfg(feature = "std")]
+pub mod file;
 pub mod laser;
 pub mod link;
 pub mod power;

@@ -635,7 +635,7 @@ impl World {
 
     /// Read and parse a TOML world file.
     pub fn from_toml_path(path: &std::path::Path) -> Result<Self, WorldError> {
-        let text = std::fs::read_to_string(path)
+        let text = ima_hal::file::read_text(path)
             .map_err(|e| WorldError::Io(format!("{}: {e}", path.display())))?;
         Self::from_toml_str(&text)
     }

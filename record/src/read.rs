@@ -1,14 +1,161 @@
 //! Reading recordings back (with the `mcap` crate), including files cut short by a crash.
+//!
+//! Malformed files: the `mcap` crate (0.26) panics on some records it cannot hold — a length
+//! near `u64::MAX` (an overflow in its slicing), a chunk claiming an absurd uncompressed size
+//! (`capacity overflow`, or an allocation that aborts the process), or a record inside a chunk
+//! whose length is corrupt (it sizes a buffer from it). So [`Recording::open`] first walks the
+//! file's record structure itself, decompressing each chunk, and keeps only the sound prefix: a
+//! record longer than what is left of the file, a chunk that would decompress to more than
+//! [`MAX_CHUNK_BYTES`] (or does not decompress to what it claims), or a chunk whose records
+//! overrun it ends the recording there, with the reason reported as its [`Truncation`]. Any
+//! other panic of the crate is caught ([`in_guarded_read`] tells a program's panic hook to stay
+//! quiet) and reported the same way.
 
+use std::cell::Cell;
 use std::collections::BTreeMap;
+use std::panic::AssertUnwindSafe;
 use std::path::Path;
 
 use crate::raw::{self, Chunk, PortInfo};
+
+/// The largest uncompressed chunk a recording may have: 256 MiB (the recorder writes 1 MiB
+/// chunks; one larger message makes one larger chunk).
+pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
 
 /// A recording read into memory.
 #[derive(Debug)]
 pub struct Recording {
     bytes: Vec<u8>,
+    /// Where the sound record structure ends (the whole file when nothing is wrong).
+    sound: usize,
+    /// What is wrong at `sound`, if anything.
+    damage: Option<String>,
+}
+
+thread_local! {
+    static GUARDED: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Whether this thread is reading a recording under the guard that catches the `mcap` crate's
+/// panics on malformed files (a program's panic hook should then stay quiet: the panic is
+/// caught and reported as the recording's damage).
+#[must_use]
+pub fn in_guarded_read() -> bool {
+    GUARDED.with(Cell::get)
+}
+
+/// Run `f` catching a panic of the `mcap` crate; `Err` names it.
+fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, String> {
+    let was = GUARDED.with(|g| g.replace(true));
+    let r = std::panic::catch_unwind(AssertUnwindSafe(f));
+    GUARDED.with(|g| g.set(was));
+    r.map_err(|p| {
+        let what = p
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic".into());
+        format!("the MCAP reader failed on a malformed record: {what}")
+    })
+}
+
+const OP_FOOTER: u8 = 0x02;
+const OP_CHUNK: u8 = 0x06;
+
+fn u64_at(b: &[u8], at: usize) -> Option<u64> {
+    let s = b.get(at..at.checked_add(8)?)?;
+    Some(u64::from_le_bytes(s.try_into().ok()?))
+}
+
+fn u32_at(b: &[u8], at: usize) -> Option<u32> {
+    let s = b.get(at..at.checked_add(4)?)?;
+    Some(u32::from_le_bytes(s.try_into().ok()?))
+}
+
+/// Walk the records of `b` from `at` (opcode, u64 length, body): the offset where the sound
+/// structure ends and what is wrong there (a crashed recorder's file ends inside a record).
+/// Fewer than 9 bytes left are left for the reader to report. `top`: the file's top level (a
+/// chunk's header and records are checked; the footer ends the walk).
+fn walk(b: &[u8], mut at: usize, top: bool) -> (usize, Option<String>) {
+    while let Some(rest) = b.get(at..) {
+        let (Some(&op), Some(len)) = (rest.first(), u64_at(rest, 1)) else {
+            break;
+        };
+        let follow = rest.len() - 9;
+        let Some(body) = usize::try_from(len)
+            .ok()
+            .and_then(|n| rest.get(9..n.checked_add(9)?))
+        else {
+            return (
+                at,
+                Some(format!(
+                    "record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow"
+                )),
+            );
+        };
+        if top && op == OP_FOOTER {
+            break;
+        }
+        if top
+            && op == OP_CHUNK
+            && let Some(why) = chunk_problem(body)
+        {
+            return (at, Some(format!("chunk at byte {at}: {why}")));
+        }
+        at += 9 + body.len();
+    }
+    (b.len(), None)
+}
+
+/// What is wrong with a chunk record's body, if anything.
+fn chunk_problem(body: &[u8]) -> Option<String> {
+    // start time, end time, uncompressed size, CRC, compression string, records.
+    let (Some(size), Some(name_len)) = (u64_at(body, 16), u32_at(body, 28)) else {
+        return Some("its header is cut short".into());
+    };
+    if size > MAX_CHUNK_BYTES {
+        return Some(format!(
+            "it would decompress to {size} bytes, more than the {} MiB this reader accepts",
+            MAX_CHUNK_BYTES >> 20
+        ));
+    }
+    let after_name = 32 + name_len as usize;
+    let Some(records_len) = u64_at(body, after_name) else {
+        return Some("its compression name overruns it".into());
+    };
+    let rest = body.get(after_name + 8..)?;
+    let Some(records) = usize::try_from(records_len)
+        .ok()
+        .and_then(|n| rest.get(..n))
+    else {
+        return Some(format!(
+            "its records claim {records_len} bytes, but {} follow",
+            rest.len()
+        ));
+    };
+    let inflated;
+    let plain = match body.get(32..after_name)? {
+        b"" => records,
+        b"zstd" => {
+            // `size` is at most MAX_CHUNK_BYTES: the buffer is bounded.
+            inflated = match zstd::bulk::decompress(records, usize::try_from(size).ok()?) {
+                Ok(d) => d,
+                Err(e) => return Some(format!("its zstd data does not decompress ({e})")),
+            };
+            if inflated.len() as u64 != size {
+                return Some(format!(
+                    "it decompresses to {} bytes, not the {size} it claims",
+                    inflated.len()
+                ));
+            }
+            &inflated
+        }
+        // The reader reports a compression it does not have.
+        _ => return None,
+    };
+    walk(plain, 0, false)
+        .1
+        .map(|why| format!("its {why} (after decompression)"))
 }
 
 /// A recording that cannot be read.
@@ -79,74 +226,118 @@ impl RawStream {
 pub struct Truncation(pub Option<String>);
 
 impl Recording {
-    /// Read a file.
+    /// Read a file (a regular file: a device such as `/dev/zero` would never end).
     pub fn open(path: &Path) -> Result<Self, ReadError> {
-        let bytes = std::fs::read(path).map_err(|source| ReadError::Io {
+        let io = |source| ReadError::Io {
             path: path.display().to_string(),
             source,
-        })?;
-        if !bytes.starts_with(mcap::MAGIC) {
+        };
+        let meta = std::fs::metadata(path).map_err(io)?;
+        if !meta.is_file() {
             return Err(ReadError::NotMcap(
                 path.display().to_string(),
-                "no MCAP magic at the start".into(),
+                "not a regular file".into(),
             ));
         }
-        Ok(Self { bytes })
+        let bytes = std::fs::read(path).map_err(io)?;
+        Self::from_bytes(bytes).map_err(|why| ReadError::NotMcap(path.display().to_string(), why))
+    }
+
+    /// A recording held in memory; `Err` says why it is not an MCAP file.
+    pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, String> {
+        if !bytes.starts_with(mcap::MAGIC) {
+            return Err("no MCAP magic at the start".into());
+        }
+        let (sound, damage) = walk(&bytes, mcap::MAGIC.len(), true);
+        let damage = damage.map(|d| format!("{d} (the file was cut short or is damaged)"));
+        Ok(Self {
+            bytes,
+            sound,
+            damage,
+        })
+    }
+
+    /// The file's sound prefix.
+    fn sound(&self) -> &[u8] {
+        self.bytes.get(..self.sound).unwrap_or(&self.bytes)
+    }
+
+    /// What is wrong with the file's structure (where the sound prefix ends), if anything.
+    #[must_use]
+    pub fn damage(&self) -> Option<&str> {
+        self.damage.as_deref()
     }
 
     /// Every message in file order, and why reading stopped early (a crashed recorder's file
     /// ends in the middle of a chunk: the complete chunks before it are all returned).
+    ///
+    /// A file whose structure is damaged ([`damage`](Self::damage)) gives the messages before
+    /// the damage, with the damage as the reason.
     pub fn messages(&self) -> (Vec<Message>, Truncation) {
         let mut out = Vec::new();
-        let stream = match mcap::MessageStream::new(&self.bytes) {
-            Ok(s) => s,
-            Err(e) => return (out, Truncation(Some(e.to_string()))),
-        };
-        for m in stream {
-            match m {
-                Ok(m) => out.push(Message {
-                    topic: m.channel.topic.clone(),
-                    schema: m
-                        .channel
-                        .schema
-                        .as_ref()
-                        .map(|s| s.name.clone())
-                        .unwrap_or_default(),
-                    log_time: m.log_time,
-                    data: m.data.into_owned(),
-                }),
-                Err(e) => return (out, Truncation(Some(e.to_string()))),
+        let read = guarded(|| {
+            let stream = match mcap::MessageStream::new(self.sound()) {
+                Ok(s) => s,
+                Err(e) => return Some(e.to_string()),
+            };
+            for m in stream {
+                match m {
+                    Ok(m) => out.push(Message {
+                        topic: m.channel.topic.clone(),
+                        schema: m
+                            .channel
+                            .schema
+                            .as_ref()
+                            .map(|s| s.name.clone())
+                            .unwrap_or_default(),
+                        log_time: m.log_time,
+                        data: m.data.into_owned(),
+                    }),
+                    Err(e) => return Some(e.to_string()),
+                }
             }
-        }
-        (out, Truncation(None))
+            None
+        });
+        let why = match read {
+            Ok(why) => self.damage.clone().or(why),
+            Err(panic) => Some(panic),
+        };
+        (out, Truncation(why))
     }
 
     /// Every channel: topic → (schema name, metadata).
     pub fn channels(&self) -> BTreeMap<String, (String, BTreeMap<String, String>)> {
         let mut out = BTreeMap::new();
-        let Ok(stream) = mcap::MessageStream::new(&self.bytes) else {
-            return out;
-        };
-        for m in stream.map_while(Result::ok) {
-            out.entry(m.channel.topic.clone()).or_insert_with(|| {
-                (
-                    m.channel
-                        .schema
-                        .as_ref()
-                        .map(|s| s.name.clone())
-                        .unwrap_or_default(),
-                    m.channel.metadata.clone(),
-                )
-            });
-        }
+        let _ = guarded(|| {
+            let Ok(stream) = mcap::MessageStream::new(self.sound()) else {
+                return;
+            };
+            for m in stream.map_while(Result::ok) {
+                out.entry(m.channel.topic.clone()).or_insert_with(|| {
+                    (
+                        m.channel
+                            .schema
+                            .as_ref()
+                            .map(|s| s.name.clone())
+                            .unwrap_or_default(),
+                        m.channel.metadata.clone(),
+                    )
+                });
+            }
+        });
         out
     }
 
     /// Every raw serial channel with its chunks.
     pub fn raw_streams(&self) -> Vec<RawStream> {
         let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
-        let Ok(stream) = mcap::MessageStream::new(&self.bytes) else {
-            return Vec::new();
+        let _ = guarded(|| self.collect_raw(&mut by_topic));
+        by_topic.into_values().collect()
+    }
+
+    fn collect_raw(&self, by_topic: &mut BTreeMap<String, RawStream>) {
+        let Ok(stream) = mcap::MessageStream::new(self.sound()) else {
+            return;
         };
         for m in stream.map_while(Result::ok) {
             if m.channel.message_encoding != raw::ENCODING {
@@ -172,20 +363,23 @@ impl Recording {
                 None => {}
             }
         }
-        by_topic.into_values().collect()
     }
 
     /// The `ima` metadata record the recorder writes first (the session's `name`, the
     /// `version`, and under `exclude` the patterns of topics left out of the file), if the file
     /// has one. Found in files cut short by a crash too.
     pub fn ima_metadata(&self) -> Option<BTreeMap<String, String>> {
-        mcap::read::LinearReader::new(&self.bytes)
-            .ok()?
-            .map_while(Result::ok)
-            .find_map(|r| match r {
-                mcap::records::Record::Metadata(m) if m.name == "ima" => Some(m.metadata),
-                _ => None,
-            })
+        guarded(|| {
+            mcap::read::LinearReader::new(self.sound())
+                .ok()?
+                .map_while(Result::ok)
+                .find_map(|r| match r {
+                    mcap::records::Record::Metadata(m) if m.name == "ima" => Some(m.metadata),
+                    _ => None,
+                })
+        })
+        .ok()
+        .flatten()
     }
 
     /// The topic patterns the recorder was told to leave out (`--record-exclude`), as given,

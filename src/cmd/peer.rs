@@ -215,7 +215,7 @@ fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSourc
         return Ok((PeerNetConfig::default(), Vec::new()));
     };
     let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        ima_hal::file::read_text(path).with_context(|| format!("reading {}", path.display()))?;
     let mut table: toml::Table =
         toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
     let synthetic = match table.remove("synthetic") {

@@ -83,6 +83,9 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     let rec = Recording::open(&args.file)?;
     if let Some(port) = &args.as_mock {
         let stream = rec.raw_stream(port)?;
+        if let Some(why) = rec.damage() {
+            eprintln!("ima replay: the recording ends early ({why}); serving the bytes before");
+        }
         return serve_as_mock(&stream, args.speed);
     }
     let (msgs, cut) = rec.messages();

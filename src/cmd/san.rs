@@ -52,7 +52,7 @@ pub fn run(args: &SanSimulateArgs) -> anyhow::Result<()> {
 /// # Errors
 /// As [`run`], plus write errors.
 pub fn run_to(args: &SanSimulateArgs, out: &mut impl Write) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(&args.file)
+    let text = ima_hal::file::read_text(&args.file)
         .with_context(|| format!("reading {}", args.file.display()))?;
     let mut net =
         Network::from_toml(&text).with_context(|| format!("loading {}", args.file.display()))?;

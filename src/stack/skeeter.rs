@@ -51,7 +51,7 @@ pub fn runtime_config(cfg: &RobotConfig) -> Result<SkeeterRuntimeConfig> {
         ..SkeeterConfig::default()
     };
     if let Some(path) = &cfg.agent.network {
-        brain.network = std::fs::read_to_string(path)
+        brain.network = ima_hal::file::read_text(path)
             .with_context(|| format!("reading the SAN network {}", path.display()))?;
     }
     Ok(SkeeterRuntimeConfig {

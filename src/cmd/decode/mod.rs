@@ -29,6 +29,10 @@ use serde_json::Value;
 
 pub use self::hex::parse_hex;
 
+/// The largest capture `ima decode` reads (a file or stdin): 1 GiB, about a day of a busy
+/// serial line at 115200 baud.
+const CAPTURE_LIMIT: u64 = 1 << 30;
+
 /// Protocols `ima decode` understands.
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum Protocol {
@@ -93,12 +97,18 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
             protocol = protocol.or(recorded);
         }
         Some(p) => {
-            raw = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
+            raw = ima_hal::file::read_limited(p, CAPTURE_LIMIT)
+                .with_context(|| format!("reading {}", p.display()))?;
         }
         None => {
             std::io::stdin()
+                .take(CAPTURE_LIMIT + 1)
                 .read_to_end(&mut raw)
                 .context("reading stdin")?;
+            anyhow::ensure!(
+                raw.len() as u64 <= CAPTURE_LIMIT,
+                "stdin: more than {CAPTURE_LIMIT} bytes; decode a capture in parts"
+            );
         }
     }
     let bytes = if args.hex {
@@ -151,6 +161,9 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
     };
     let rec = ima_record::read::Recording::open(path)?;
     let stream = rec.raw_stream(port)?;
+    if let Some(why) = rec.damage() {
+        eprintln!("ima decode: the recording ends early ({why}); decoding the bytes before");
+    }
     let want = match args.from {
         Direction::Robot => ima_record::raw::Dir::Rx,
         Direction::Host => ima_record::raw::Dir::Tx,

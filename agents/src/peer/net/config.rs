@@ -111,7 +111,8 @@ impl PeerNetConfig {
     /// `manager.ticket_lifetime_ms` at most an hour (the last two at least 1),
     /// `broadcast.ttl` in 1..=255, `manager.data_queue` and
     /// `manager.session_queue` in 1..=[`MAX_QUEUE`], `manager.max_clients` and
-    /// `manager.max_connections` at least 1. [`super::spawn_manager`],
+    /// `manager.max_connections` at least 1, `manager.data_advertise` a `HOST:PORT`.
+    /// [`super::spawn_manager`],
     /// [`super::PeerClientHandle::connect`] and [`super::BroadcastChannel::bind`] call it.
     ///
     /// # Errors
@@ -163,6 +164,17 @@ impl PeerNetConfig {
         if m.max_connections == 0 {
             return bad("manager.max_connections", &m.max_connections, "at least 1");
         }
+        // Put in grants as it is: clients connect to it, so it must be HOST:PORT.
+        if let Some(a) = &m.data_advertise {
+            let ok = a
+                .rsplit_once(':')
+                .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
+            if !ok {
+                return Err(NetError::Config(format!(
+                    "manager.data_advertise = {a:?} is not HOST:PORT (e.g. \"10.0.0.5:7401\")"
+                )));
+            }
+        }
         Ok(())
     }
 
@@ -171,7 +183,7 @@ impl PeerNetConfig {
     /// # Errors
     /// [`NetError::Config`].
     pub fn load(path: &std::path::Path) -> Result<Self, NetError> {
-        let text = std::fs::read_to_string(path)
+        let text = ima_hal::file::read_text(path)
             .map_err(|e| NetError::Config(format!("{}: {e}", path.display())))?;
         Self::from_toml(&text)
     }
@@ -406,6 +418,16 @@ mod tests {
             assert!(e.contains(key) && e.contains(range), "{toml}: {e}");
         }
         assert!(PeerNetConfig::from_toml("[manager]\ndata_queue = 0\n").is_err());
+        // The advertised data address goes into grants as it is: clients must reach it.
+        for bad in ["x", "10.0.0.5", ":7401", "host:99999", "host:port"] {
+            let toml = format!("[manager]\ndata_advertise = \"{bad}\"\n");
+            let e = PeerNetConfig::from_toml(&toml).unwrap_err().to_string();
+            assert!(e.contains("manager.data_advertise"), "{bad}: {e}");
+        }
+        for good in ["10.0.0.5:7401", "robot.local:7401", "[::1]:7401"] {
+            let toml = format!("[manager]\ndata_advertise = \"{good}\"\n");
+            assert!(PeerNetConfig::from_toml(&toml).is_ok(), "{good}");
+        }
         assert!(PeerNetConfig::from_toml("[manager]\nsession_queue = 100000000\n").is_err());
         assert!(PeerNetConfig::from_toml("[manager]\nmax_connections = 0\n").is_err());
         assert_eq!(

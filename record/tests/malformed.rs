@@ -1,0 +1,124 @@
+//! Malformed recordings: every reading method returns what comes before the damage and says
+//! what it is, and none panics. The `mcap` crate (0.26) panicked on the first three files below
+//! (a record length near `u64::MAX`, a chunk claiming an absurd uncompressed size, an
+//! uncompressed chunk whose inner record overruns it), and on about one single-byte corruption
+//! of a real recording in ten.
+
+use std::time::Duration;
+
+use ima_record::convert::Pose2;
+use ima_record::raw::PortInfo;
+use ima_record::read::Recording;
+use ima_record::{Options, Recorder};
+
+const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+
+fn record(op: u8, body: &[u8]) -> Vec<u8> {
+    let mut r = vec![op];
+    r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    r.extend_from_slice(body);
+    r
+}
+
+/// A chunk record: `size` claimed uncompressed, `compression`, `records` as stored.
+fn chunk(size: u64, compression: &str, records: &[u8]) -> Vec<u8> {
+    let mut b = Vec::new();
+    b.extend_from_slice(&0u64.to_le_bytes()); // message start time
+    b.extend_from_slice(&0u64.to_le_bytes()); // message end time
+    b.extend_from_slice(&size.to_le_bytes());
+    b.extend_from_slice(&0u32.to_le_bytes()); // CRC: none
+    b.extend_from_slice(&(compression.len() as u32).to_le_bytes());
+    b.extend_from_slice(compression.as_bytes());
+    b.extend_from_slice(&(records.len() as u64).to_le_bytes());
+    b.extend_from_slice(records);
+    record(0x06, &b)
+}
+
+/// Every reading method on `bytes` (none may panic); the damage reported by `messages`.
+fn read_all(bytes: Vec<u8>) -> Option<String> {
+    let rec = Recording::from_bytes(bytes).ok()?;
+    let _ = rec.channels();
+    let _ = rec.raw_streams();
+    let _ = rec.ima_metadata();
+    let _ = rec.raw_stream("base");
+    rec.messages().1.0
+}
+
+#[test]
+fn a_record_length_near_u64_max_is_damage_not_a_panic() {
+    let mut f = MAGIC.to_vec();
+    f.push(0x01);
+    f.extend_from_slice(&[0xff; 8]);
+    let why = read_all(f).expect("damage");
+    assert!(why.contains("claims 18446744073709551615 bytes"), "{why}");
+}
+
+#[test]
+fn a_chunk_claiming_an_absurd_size_is_damage_not_an_allocation() {
+    let mut f = MAGIC.to_vec();
+    f.extend(chunk(u64::MAX, "zstd", &[]));
+    let why = read_all(f).expect("damage");
+    assert!(
+        why.contains("chunk at byte 8") && why.contains("256 MiB"),
+        "{why}"
+    );
+}
+
+#[test]
+fn an_uncompressed_chunk_whose_record_overruns_it_is_damage() {
+    let mut inner = vec![0x05];
+    inner.extend_from_slice(&(u64::MAX - 3).to_le_bytes());
+    let mut f = MAGIC.to_vec();
+    f.extend(chunk(inner.len() as u64, "", &inner));
+    let why = read_all(f).expect("damage");
+    assert!(why.contains("its record 0x05 at byte 0 claims"), "{why}");
+}
+
+#[test]
+fn single_byte_corruptions_of_a_real_recording_never_panic() {
+    let dir = std::env::temp_dir().join(format!("ima-record-malformed-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("small.mcap");
+    let _ = std::fs::remove_file(&path);
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        name: "malformed".into(),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.raw_port(PortInfo {
+        robot: "skeeter".into(),
+        device: "base".into(),
+        port: "/dev/pts/9".into(),
+        baud: 9600,
+        protocol: "p2os".into(),
+    });
+    for i in 0..40u8 {
+        port.tx(&[0xfa, 0xfb, 3, i, 0, i]);
+        port.rx(&[0xfa, 0xfb, 3, 0, i, i]);
+        let x_m = f64::from(i) * 0.1;
+        rec.log_odometry(
+            "skeeter",
+            Pose2 {
+                x_m,
+                ..Pose2::default()
+            },
+        );
+    }
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(report.error, None);
+    let good = std::fs::read(&path).unwrap();
+    assert_eq!(read_all(good.clone()), None);
+    let mut damaged = 0;
+    for at in (MAGIC.len()..good.len()).step_by(3) {
+        for v in [0xff, good[at] ^ 0x5e] {
+            let mut bad = good.clone();
+            bad[at] = v;
+            damaged += usize::from(read_all(bad).is_some());
+        }
+        // Cut there too.
+        let _ = read_all(good[..at].to_vec());
+    }
+    assert!(damaged > 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
