@@ -281,8 +281,9 @@ pub struct AgentConfig {
     pub laser_ranges_skeeter: bool,
     /// Scooter: seconds without a fresh SES before the lost timer fires.
     pub lost_timeout_s: f64,
-    /// Mission clocks run this many times faster than real time. 1 on a real robot; the
-    /// world's speed factor with `ima mock world --speed`.
+    /// Mission clocks run this many times faster than real time. 1 on a real robot (a factor
+    /// above 1 also widens the bases' odometry plausibility checks by it); the world's speed
+    /// factor with `ima mock world --speed`.
     pub time_scale: f64,
     /// Skeeter: SAN network file (TOML, `agents/networks/skeeter.toml` format); the built-in
     /// network when absent. (Scooter's brain always runs its built-in network.)
@@ -511,6 +512,11 @@ impl RobotConfig {
         self.check_devices()?;
         // Peer Agent periods, ms: 0 would spin (it used to be taken as 1), a huge one never
         // declares a dead peer lost.
+        if let Some(a) = &self.peer.data_advertise
+            && !ima_agents::peer::net::is_host_port(a)
+        {
+            bail!("peer.data_advertise must be HOST:PORT (e.g. \"10.0.0.5:7401\"), not {a:?}");
+        }
         let hb = self.peer.heartbeat_ms;
         if !(10..=60_000).contains(&hb) {
             bail!("peer.heartbeat_ms must be in [10, 60000] ms, not {hb}");
@@ -668,6 +674,7 @@ mod tests {
                 &format!("{compass}baud = 4800\ndeviation_deg = inf\n"),
                 "devices.compass.deviation_deg",
             ),
+            ("data_advertise = \"x\"\n", "peer.data_advertise"),
         ] {
             let cfg = format!("{mock}{bad}");
             let e = format!("{:#}", RobotConfig::from_toml_str(&cfg).unwrap_err());

@@ -30,6 +30,28 @@ pub struct Recording {
     sound: usize,
     /// What is wrong at `sound`, if anything.
     damage: Option<String>,
+    /// Why the `mcap` crate stopped before the sound prefix's end, once a read saw it.
+    stopped: std::sync::OnceLock<String>,
+}
+
+impl From<mcap::McapError> for Stop {
+    fn from(e: mcap::McapError) -> Self {
+        match e {
+            mcap::McapError::UnexpectedEof | mcap::McapError::BadFooter => Self::Cut(e.to_string()),
+            e => Self::Error(e.to_string()),
+        }
+    }
+}
+
+/// Why a pass of the `mcap` crate over the sound prefix ended early.
+enum Stop {
+    /// The prefix ended inside a record or without a footer: the walker's damage (if any)
+    /// says why.
+    Cut(String),
+    /// Another error of the crate, before the prefix's end.
+    Error(String),
+    /// The crate panicked (caught).
+    Panic(String),
 }
 
 thread_local! {
@@ -74,11 +96,17 @@ fn u32_at(b: &[u8], at: usize) -> Option<u32> {
 
 /// Walk the records of `b` from `at` (opcode, u64 length, body): the offset where the sound
 /// structure ends and what is wrong there (a crashed recorder's file ends inside a record).
-/// Fewer than 9 bytes left are left for the reader to report. `top`: the file's top level (a
-/// chunk's header and records are checked; the footer ends the walk).
+/// `top`: the file's top level (a chunk's header and records are checked; the footer ends the
+/// walk; fewer than 9 bytes left are left for the reader to report). Inside a chunk, 1–8 bytes
+/// left over are damage.
 fn walk(b: &[u8], mut at: usize, top: bool) -> (usize, Option<String>) {
     while let Some(rest) = b.get(at..) {
         let (Some(&op), Some(len)) = (rest.first(), u64_at(rest, 1)) else {
+            if !top && !rest.is_empty() {
+                // The reader would take the bytes after the chunk for the rest of a record.
+                let n = rest.len();
+                return (at, Some(format!("{n} stray bytes at byte {at}")));
+            }
             break;
         };
         let follow = rest.len() - 9;
@@ -119,11 +147,14 @@ fn chunk_problem(body: &[u8]) -> Option<String> {
             MAX_CHUNK_BYTES >> 20
         ));
     }
-    let after_name = 32 + name_len as usize;
-    let Some(records_len) = u64_at(body, after_name) else {
+    let name_end = usize::try_from(name_len)
+        .ok()
+        .and_then(|n| n.checked_add(32));
+    let (Some(name_end), Some(records_len)) = (name_end, name_end.and_then(|e| u64_at(body, e)))
+    else {
         return Some("its compression name overruns it".into());
     };
-    let rest = body.get(after_name + 8..)?;
+    let rest = body.get(name_end + 8..).unwrap_or_default();
     let Some(records) = usize::try_from(records_len)
         .ok()
         .and_then(|n| rest.get(..n))
@@ -134,7 +165,7 @@ fn chunk_problem(body: &[u8]) -> Option<String> {
         ));
     };
     let inflated;
-    let plain = match body.get(32..after_name)? {
+    let plain = match body.get(32..name_end).unwrap_or_default() {
         b"" => records,
         b"zstd" => {
             // `size` is at most MAX_CHUNK_BYTES: the buffer is bounded.
@@ -254,7 +285,48 @@ impl Recording {
             bytes,
             sound,
             damage,
+            stopped: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Run `f` over every message the `mcap` crate gives for the sound prefix (`f` must only
+    /// copy what it needs: it runs under the panic guard), and say why it stopped early.
+    fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>)) -> Option<Stop> {
+        let stop = guarded(|| {
+            let stream = match mcap::MessageStream::new(self.sound()) {
+                Ok(s) => s,
+                Err(e) => return Some(Stop::from(e)),
+            };
+            for m in stream {
+                match m {
+                    Ok(m) => f(m),
+                    Err(e) => return Some(Stop::from(e)),
+                }
+            }
+            None
+        })
+        .unwrap_or_else(|panic| Some(Stop::Panic(panic)));
+        match &stop {
+            Some(Stop::Error(e) | Stop::Panic(e)) => {
+                let _ = self.stopped.set(e.clone());
+            }
+            Some(Stop::Cut(_)) | None => {}
+        }
+        stop
+    }
+
+    /// Why reading ended early, given how the crate's pass ended: the crate's own error comes
+    /// first (it stopped before the walker's damage), then the walker's damage.
+    fn reason(&self, stop: Option<Stop>) -> Option<String> {
+        match (stop, &self.damage) {
+            (Some(Stop::Error(e) | Stop::Panic(e)), Some(d)) => {
+                Some(format!("{e}; and further on, {d}"))
+            }
+            (Some(Stop::Error(e) | Stop::Panic(e)), None) => Some(e),
+            (_, Some(d)) => Some(d.clone()),
+            (Some(Stop::Cut(e)), None) => Some(e),
+            (None, None) => None,
+        }
     }
 
     /// The file's sound prefix.
@@ -262,10 +334,15 @@ impl Recording {
         self.bytes.get(..self.sound).unwrap_or(&self.bytes)
     }
 
-    /// What is wrong with the file's structure (where the sound prefix ends), if anything.
+    /// What is wrong with the file, if anything: the `mcap` crate's error (once a read has
+    /// met it), else where the file's sound structure ends and why.
     #[must_use]
-    pub fn damage(&self) -> Option<&str> {
-        self.damage.as_deref()
+    pub fn damage(&self) -> Option<String> {
+        match (self.stopped.get(), &self.damage) {
+            (Some(e), Some(d)) => Some(format!("{e}; and further on, {d}")),
+            (Some(e), None) => Some(e.clone()),
+            (None, d) => d.clone(),
+        }
     }
 
     /// Every message in file order, and why reading stopped early (a crashed recorder's file
@@ -275,74 +352,51 @@ impl Recording {
     /// the damage, with the damage as the reason.
     pub fn messages(&self) -> (Vec<Message>, Truncation) {
         let mut out = Vec::new();
-        let read = guarded(|| {
-            let stream = match mcap::MessageStream::new(self.sound()) {
-                Ok(s) => s,
-                Err(e) => return Some(e.to_string()),
-            };
-            for m in stream {
-                match m {
-                    Ok(m) => out.push(Message {
-                        topic: m.channel.topic.clone(),
-                        schema: m
-                            .channel
-                            .schema
-                            .as_ref()
-                            .map(|s| s.name.clone())
-                            .unwrap_or_default(),
-                        log_time: m.log_time,
-                        data: m.data.into_owned(),
-                    }),
-                    Err(e) => return Some(e.to_string()),
-                }
-            }
-            None
+        let stop = self.each(|m| {
+            out.push(Message {
+                topic: m.channel.topic.clone(),
+                schema: m
+                    .channel
+                    .schema
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
+                log_time: m.log_time,
+                data: m.data.into_owned(),
+            });
         });
-        let why = match read {
-            Ok(why) => self.damage.clone().or(why),
-            Err(panic) => Some(panic),
-        };
-        (out, Truncation(why))
+        (out, Truncation(self.reason(stop)))
     }
 
     /// Every channel: topic → (schema name, metadata).
     pub fn channels(&self) -> BTreeMap<String, (String, BTreeMap<String, String>)> {
         let mut out = BTreeMap::new();
-        let _ = guarded(|| {
-            let Ok(stream) = mcap::MessageStream::new(self.sound()) else {
-                return;
-            };
-            for m in stream.map_while(Result::ok) {
-                out.entry(m.channel.topic.clone()).or_insert_with(|| {
-                    (
-                        m.channel
-                            .schema
-                            .as_ref()
-                            .map(|s| s.name.clone())
-                            .unwrap_or_default(),
-                        m.channel.metadata.clone(),
-                    )
-                });
-            }
+        self.each(|m| {
+            out.entry(m.channel.topic.clone()).or_insert_with(|| {
+                (
+                    m.channel
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default(),
+                    m.channel.metadata.clone(),
+                )
+            });
         });
         out
     }
 
     /// Every raw serial channel with its chunks.
     pub fn raw_streams(&self) -> Vec<RawStream> {
-        let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
-        let _ = guarded(|| self.collect_raw(&mut by_topic));
-        by_topic.into_values().collect()
-    }
-
-    fn collect_raw(&self, by_topic: &mut BTreeMap<String, RawStream>) {
-        let Ok(stream) = mcap::MessageStream::new(self.sound()) else {
-            return;
-        };
-        for m in stream.map_while(Result::ok) {
-            if m.channel.message_encoding != raw::ENCODING {
-                continue;
+        // The raw channels' messages, copied out under the guard; parsed outside it.
+        let mut raw_msgs = Vec::new();
+        self.each(|m| {
+            if m.channel.message_encoding == raw::ENCODING {
+                raw_msgs.push(m);
             }
+        });
+        let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
+        for m in raw_msgs {
             let Some(port) = PortInfo::from_metadata(&m.channel.metadata) else {
                 continue;
             };
@@ -363,6 +417,7 @@ impl Recording {
                 None => {}
             }
         }
+        by_topic.into_values().collect()
     }
 
     /// The `ima` metadata record the recorder writes first (the session's `name`, the
@@ -378,8 +433,10 @@ impl Recording {
                     _ => None,
                 })
         })
-        .ok()
-        .flatten()
+        .unwrap_or_else(|panic| {
+            let _ = self.stopped.set(panic);
+            None
+        })
     }
 
     /// The topic patterns the recorder was told to leave out (`--record-exclude`), as given,

@@ -35,13 +35,22 @@ fn chunk(size: u64, compression: &str, records: &[u8]) -> Vec<u8> {
 }
 
 /// Every reading method on `bytes` (none may panic); the damage reported by `messages`.
+/// The reader's own check must have caught it: a panic of the `mcap` crate, even caught,
+/// fails the test.
 fn read_all(bytes: Vec<u8>) -> Option<String> {
     let rec = Recording::from_bytes(bytes).ok()?;
     let _ = rec.channels();
     let _ = rec.raw_streams();
     let _ = rec.ima_metadata();
     let _ = rec.raw_stream("base");
-    rec.messages().1.0
+    let why = rec.messages().1.0;
+    for w in [&why, &rec.damage()].into_iter().flatten() {
+        assert!(
+            !w.contains("the MCAP reader failed"),
+            "a panic got past the check: {w}"
+        );
+    }
+    why
 }
 
 #[test]
@@ -72,6 +81,17 @@ fn an_uncompressed_chunk_whose_record_overruns_it_is_damage() {
     f.extend(chunk(inner.len() as u64, "", &inner));
     let why = read_all(f).expect("damage");
     assert!(why.contains("its record 0x05 at byte 0 claims"), "{why}");
+}
+
+/// The reader would take the bytes after the chunk for the rest of that record.
+#[test]
+fn an_uncompressed_chunk_ending_in_stray_bytes_is_damage() {
+    let mut inner = record(0x07, &[]);
+    inner.extend_from_slice(&[0x05, 1, 2]);
+    let mut f = MAGIC.to_vec();
+    f.extend(chunk(inner.len() as u64, "", &inner));
+    let why = read_all(f).expect("damage");
+    assert!(why.contains("3 stray bytes at byte 9"), "{why}");
 }
 
 #[test]

@@ -82,10 +82,11 @@ pub struct Stamped {
 pub fn run(args: &ReplayArgs) -> Result<()> {
     let rec = Recording::open(&args.file)?;
     if let Some(port) = &args.as_mock {
-        let stream = rec.raw_stream(port)?;
+        let stream = rec.raw_stream(port);
         if let Some(why) = rec.damage() {
             eprintln!("ima replay: the recording ends early ({why}); serving the bytes before");
         }
+        let stream = stream?;
         return serve_as_mock(&stream, args.speed);
     }
     let (msgs, cut) = rec.messages();

@@ -510,8 +510,9 @@ fn implausible_sips_are_dropped_and_counted() {
 /// integrated; without it every such SIP is rejected (and the odometry would stand still).
 #[test]
 fn a_sped_up_world_widens_the_jump_check_by_its_factor() {
-    // 0.6 m per 100 ms: 0.3 m/s in a world ×20 (P2-AT: 1.32 mm per position unit).
-    let run = |scale: f64| {
+    // 460 units (0.6 m) per 100 ms: 0.3 m/s in a world ×20 (P2-AT: 1.32 mm per position
+    // unit; its jump check allows 1.5 × 1.2 m/s × 100 ms + 50 mm = 230 mm at ×1).
+    let run_steps = |scale: f64, step: u16| {
         let mut s = Machine::new(Config {
             motion_time_scale: scale,
             ..Config::default()
@@ -520,7 +521,7 @@ fn a_sped_up_world_widens_the_jump_check_by_its_factor() {
         let _ = events(&mut s);
         for i in 1..=5u16 {
             t = t + Duration::from_millis(100);
-            feed(&mut s, &Packet::Sip(sip(100 + 460 * i, 100, 0, 0)), t);
+            feed(&mut s, &Packet::Sip(sip(100 + step * i, 100, 0, 0)), t);
         }
         let x = events(&mut s)
             .into_iter()
@@ -532,14 +533,18 @@ fn a_sped_up_world_widens_the_jump_check_by_its_factor() {
             .unwrap_or(0.0);
         (x, s.stats().implausible_sips)
     };
+    let run = |scale: f64| run_steps(scale, 460);
     let (x, rejected) = run(20.0);
     assert_eq!(rejected, 0);
     assert!((x - 5.0 * 460.0 * 1.32 / 1000.0).abs() < 1e-9, "x = {x}");
     let (x, rejected) = run(1.0);
     assert!(rejected >= 3, "{rejected} rejected");
     assert!(x < 1.0, "x = {x}");
-    // A scale below 1 or not finite is the robot's own.
-    assert_eq!(run(f64::NAN).1, run(0.5).1);
+    // A scale below 1 or not finite is the robot's own: 180 mm steps pass at ×1 (taken
+    // as 0.5 they would not: 140 mm; NaN would reject everything).
+    for scale in [1.0, 0.5, f64::NAN, f64::INFINITY] {
+        assert_eq!(run_steps(scale, 136).1, 0, "scale {scale}");
+    }
 }
 
 #[test]

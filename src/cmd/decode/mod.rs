@@ -160,10 +160,11 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
         anyhow::bail!("--mcap needs --port");
     };
     let rec = ima_record::read::Recording::open(path)?;
-    let stream = rec.raw_stream(port)?;
+    let stream = rec.raw_stream(port);
     if let Some(why) = rec.damage() {
         eprintln!("ima decode: the recording ends early ({why}); decoding the bytes before");
     }
+    let stream = stream?;
     let want = match args.from {
         Direction::Robot => ima_record::raw::Dir::Rx,
         Direction::Host => ima_record::raw::Dir::Tx,

@@ -165,15 +165,12 @@ impl PeerNetConfig {
             return bad("manager.max_connections", &m.max_connections, "at least 1");
         }
         // Put in grants as it is: clients connect to it, so it must be HOST:PORT.
-        if let Some(a) = &m.data_advertise {
-            let ok = a
-                .rsplit_once(':')
-                .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
-            if !ok {
-                return Err(NetError::Config(format!(
-                    "manager.data_advertise = {a:?} is not HOST:PORT (e.g. \"10.0.0.5:7401\")"
-                )));
-            }
+        if let Some(a) = &m.data_advertise
+            && !is_host_port(a)
+        {
+            return Err(NetError::Config(format!(
+                "manager.data_advertise = {a:?} is not HOST:PORT (e.g. \"10.0.0.5:7401\")"
+            )));
         }
         Ok(())
     }
@@ -362,6 +359,14 @@ pub(crate) async fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetErr
         .map_err(|e| NetError::Config(format!("{what} {s:?}: {e}")))?
         .next()
         .ok_or_else(|| NetError::Config(format!("{what} {s:?}: no address")))
+}
+
+/// Whether `a` has the shape `HOST:PORT` (a non-empty host, a port number): what
+/// `manager.data_advertise` must be, since clients connect to it as it is.
+#[must_use]
+pub fn is_host_port(a: &str) -> bool {
+    a.rsplit_once(':')
+        .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
 }
 
 #[cfg(test)]
