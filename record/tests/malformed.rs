@@ -73,13 +73,18 @@ fn a_chunk_claiming_an_absurd_size_is_damage_not_an_allocation() {
     );
 }
 
+/// The damage reported for a file holding one uncompressed chunk of `records`.
+fn uncompressed_chunk_damage(records: &[u8]) -> String {
+    let mut f = MAGIC.to_vec();
+    f.extend(chunk(records.len() as u64, "", records));
+    read_all(f).expect("damage")
+}
+
 #[test]
 fn an_uncompressed_chunk_whose_record_overruns_it_is_damage() {
     let mut inner = vec![0x05];
     inner.extend_from_slice(&(u64::MAX - 3).to_le_bytes());
-    let mut f = MAGIC.to_vec();
-    f.extend(chunk(inner.len() as u64, "", &inner));
-    let why = read_all(f).expect("damage");
+    let why = uncompressed_chunk_damage(&inner);
     assert!(why.contains("its record 0x05 at byte 0 claims"), "{why}");
 }
 
@@ -88,9 +93,7 @@ fn an_uncompressed_chunk_whose_record_overruns_it_is_damage() {
 fn an_uncompressed_chunk_ending_in_stray_bytes_is_damage() {
     let mut inner = record(0x07, &[]);
     inner.extend_from_slice(&[0x05, 1, 2]);
-    let mut f = MAGIC.to_vec();
-    f.extend(chunk(inner.len() as u64, "", &inner));
-    let why = read_all(f).expect("damage");
+    let why = uncompressed_chunk_damage(&inner);
     assert!(why.contains("3 stray bytes at byte 9"), "{why}");
 }
 

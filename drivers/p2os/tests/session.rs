@@ -66,6 +66,17 @@ fn sip(x: u16, y: u16, th: i16, flags: u16) -> Sip {
     }
 }
 
+/// The x (m) of the last odometry state among the machine's pending events.
+fn last_x(s: &mut Machine) -> Option<f64> {
+    events(s)
+        .into_iter()
+        .filter_map(|e| match e {
+            Event::State(st) => Some(st.odometry.value.x_m()),
+            _ => None,
+        })
+        .next_back()
+}
+
 fn feed(s: &mut Machine, p: &Packet<'_>, now: Instant) {
     s.handle_bytes(&frame(p), now);
 }
@@ -428,14 +439,7 @@ fn odometry_unwraps_15_bit_positions_t22() {
     feed(&mut s, &P2AT_REPLY, ms(3));
     feed(&mut s, &Packet::Sip(sip(32760, 0, 0, 0)), ms(100));
     feed(&mut s, &Packet::Sip(sip(5, 0, 0, 0)), ms(200));
-    let x = events(&mut s)
-        .into_iter()
-        .filter_map(|e| match e {
-            Event::State(st) => Some(st.odometry.value.x_m()),
-            _ => None,
-        })
-        .next_back()
-        .unwrap();
+    let x = last_x(&mut s).unwrap();
     assert!((x - 0.01716).abs() < 1e-9, "x = {x}");
 }
 
@@ -523,14 +527,7 @@ fn a_sped_up_world_widens_the_jump_check_by_its_factor() {
             t = t + Duration::from_millis(100);
             feed(&mut s, &Packet::Sip(sip(100 + step * i, 100, 0, 0)), t);
         }
-        let x = events(&mut s)
-            .into_iter()
-            .filter_map(|e| match e {
-                Event::State(st) => Some(st.odometry.value.x_m()),
-                _ => None,
-            })
-            .next_back()
-            .unwrap_or(0.0);
+        let x = last_x(&mut s).unwrap_or(0.0);
         (x, s.stats().implausible_sips)
     };
     let run = |scale: f64| run_steps(scale, 460);
@@ -558,14 +555,7 @@ fn reset_odometry_makes_the_current_pose_the_origin() {
     s.reset_odometry();
     t = t + Duration::from_millis(100);
     feed(&mut s, &Packet::Sip(sip(100 + 50 * 11, 100, 0, 0)), t);
-    let x = events(&mut s)
-        .into_iter()
-        .filter_map(|e| match e {
-            Event::State(st) => Some(st.odometry.value.x_m()),
-            _ => None,
-        })
-        .next_back()
-        .unwrap();
+    let x = last_x(&mut s).unwrap();
     assert!((x - 0.066).abs() < 1e-9, "x = {x}");
 }
 
