@@ -44,6 +44,29 @@ fn demo_refuses_an_svg_in_a_missing_directory_before_the_mission() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
+/// `ima scan --svg` checked its path only after the laser's start-up and the scan.
+#[test]
+fn scan_refuses_an_svg_in_a_missing_directory_before_opening_the_laser() {
+    let d = scratch("scan-svg");
+    let svg = d.join("no-such-dir/x.svg");
+    let out = ima()
+        .args(["scan", "--port", "/dev/ima-no-such-port", "--svg"])
+        .arg(&svg)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("--svg") && err.contains(&svg.display().to_string()),
+        "{err}"
+    );
+    assert!(
+        !err.contains("ima-no-such-port"),
+        "the port came first: {err}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}
+
 #[test]
 fn demo_prints_its_summary_even_when_the_svg_cannot_be_written() {
     // `/dev/full` passes the check (it opens for writing) but every write fails.

@@ -162,7 +162,7 @@ pub fn cap(flag: &str, value: f64, max: f64, unit: &str) -> f64 {
     if max.is_finite() && max > 0.0 && value.abs() > max {
         let capped = value.clamp(-max, max);
         eprintln!(
-            "warning: {flag} {value} {unit} is above this robot's maximum {max:.3} {unit}; using {capped:.3}"
+            "warning: {flag} {value} {unit} is beyond this robot's maximum of ±{max:.3} {unit}; using {capped:.3}"
         );
         capped
     } else {

@@ -265,6 +265,10 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     let baud = BaudRate::from_bps(args.baud)
         .with_context(|| format!("--baud {} is not an LMS rate", args.baud))?;
     let variant = parse_variant(&args.variant)?;
+    if let Some(p) = &args.svg {
+        // Before the scan: a typo in the path must not cost the laser's start-up.
+        super::output::check_file("--svg", p)?;
+    }
     let rs422 = args.rs422 || baud == BaudRate::B500000 || is_pty(&args.port);
     let cfg = Config {
         baud,

@@ -6,9 +6,20 @@ use anyhow::{Context, Result, bail};
 pub fn parse_hex(text: &str) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     for token in text.split(|c: char| c.is_whitespace() || c == ',') {
-        let t = token.trim_start_matches("0x").trim_start_matches("0X");
-        if t.is_empty() {
+        if token.is_empty() {
             continue;
+        }
+        let t = token
+            .strip_prefix("0x")
+            .or_else(|| token.strip_prefix("0X"))
+            .unwrap_or(token);
+        // Digits only: `from_str_radix` alone would take a sign ("+1"), and a bare "0x" is
+        // no byte at all.
+        if let Some(c) = t.chars().find(|c| !c.is_ascii_hexdigit()) {
+            bail!("hex token {token:?}: {c:?} is not a hex digit");
+        }
+        if t.is_empty() {
+            bail!("hex token {token:?} has no digits");
         }
         if t.len() % 2 != 0 {
             bail!("hex token {token:?} has an odd number of digits");
@@ -33,5 +44,10 @@ mod tests {
         );
         assert!(parse_hex("F").is_err());
         assert!(parse_hex("zz").is_err());
+        // Found by a new user: a sign, a bare prefix, a doubled prefix, non-ASCII.
+        for bad in ["+1", "fa+b", "0x", "0x0x", "é1"] {
+            let e = format!("{:#}", parse_hex(bad).unwrap_err());
+            assert!(e.contains(&format!("{bad:?}")), "{bad}: {e}");
+        }
     }
 }
