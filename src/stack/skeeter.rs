@@ -27,7 +27,7 @@ pub fn colour_db(cfg: &RobotConfig) -> Result<ColourDb> {
         let d = ColourDb::default();
         colours.extend(d.colours.into_iter().filter(|c| c.name == SCOOTER_TAG));
     }
-    ColourDb::new(colours).map_err(|e| anyhow::anyhow!("agent.colours: {e:?}"))
+    ColourDb::new(colours).map_err(|e| anyhow::anyhow!("agent.colours: {e}"))
 }
 
 /// Skeeter's runtime configuration from its robot configuration (reads the SAN network

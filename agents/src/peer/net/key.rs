@@ -87,6 +87,13 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
     // checked (no swap between a check by path and the open).
     let file = std::fs::File::open(path).map_err(err)?;
     let meta = file.metadata().map_err(err)?;
+    // A directory (or a device) first: its mode says nothing about a key.
+    if !meta.is_file() {
+        return Err(NetError::Key(format!(
+            "{}: not a regular file",
+            path.display()
+        )));
+    }
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
@@ -98,14 +105,6 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
                 mode & 0o777
             )));
         }
-    }
-    #[cfg(not(unix))]
-    let _ = meta;
-    if !meta.is_file() {
-        return Err(NetError::Key(format!(
-            "{}: not a regular file",
-            path.display()
-        )));
     }
     let mut contents = Vec::new();
     // A key file is small: read at most 64 KiB.
@@ -155,6 +154,10 @@ mod tests {
         std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
         assert!(load_key_file(&p).is_ok());
         assert!(load_key_file(&dir.join("missing")).is_err());
+        // A directory was reported as a mode problem ("mode 777 lets group/others read it").
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
+        let e = load_key_file(&dir).unwrap_err().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
