@@ -16,6 +16,8 @@ use std::collections::BTreeMap;
 use std::panic::AssertUnwindSafe;
 use std::path::Path;
 
+use ima_hal::bytes::Reader;
+
 use crate::raw::{self, Chunk, PortInfo};
 
 /// The largest uncompressed chunk a recording may have: 256 MiB (the recorder writes 1 MiB
@@ -32,26 +34,6 @@ pub struct Recording {
     damage: Option<String>,
     /// Why the `mcap` crate stopped before the sound prefix's end, once a read saw it.
     stopped: std::sync::OnceLock<String>,
-}
-
-impl From<mcap::McapError> for Stop {
-    fn from(e: mcap::McapError) -> Self {
-        match e {
-            mcap::McapError::UnexpectedEof | mcap::McapError::BadFooter => Self::Cut(e.to_string()),
-            e => Self::Error(e.to_string()),
-        }
-    }
-}
-
-/// Why a pass of the `mcap` crate over the sound prefix ended early.
-enum Stop {
-    /// The prefix ended inside a record or without a footer: the walker's damage (if any)
-    /// says why.
-    Cut(String),
-    /// Another error of the crate, before the prefix's end.
-    Error(String),
-    /// The crate panicked (caught).
-    Panic(String),
 }
 
 thread_local! {
@@ -84,42 +66,29 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, String> {
 const OP_FOOTER: u8 = 0x02;
 const OP_CHUNK: u8 = 0x06;
 
-fn u64_at(b: &[u8], at: usize) -> Option<u64> {
-    let s = b.get(at..at.checked_add(8)?)?;
-    Some(u64::from_le_bytes(s.try_into().ok()?))
-}
-
-fn u32_at(b: &[u8], at: usize) -> Option<u32> {
-    let s = b.get(at..at.checked_add(4)?)?;
-    Some(u32::from_le_bytes(s.try_into().ok()?))
-}
-
-/// Walk the records of `b` from `at` (opcode, u64 length, body): the offset where the sound
-/// structure ends and what is wrong there (a crashed recorder's file ends inside a record).
-/// `top`: the file's top level (a chunk's header and records are checked; the footer ends the
-/// walk; fewer than 9 bytes left are left for the reader to report). Inside a chunk, 1–8 bytes
-/// left over are damage.
-fn walk(b: &[u8], mut at: usize, top: bool) -> (usize, Option<String>) {
-    while let Some(rest) = b.get(at..) {
-        let (Some(&op), Some(len)) = (rest.first(), u64_at(rest, 1)) else {
-            if !top && !rest.is_empty() {
-                // The reader would take the bytes after the chunk for the rest of a record.
-                let n = rest.len();
-                return (at, Some(format!("{n} stray bytes at byte {at}")));
+/// Walk the records of `b` from `start` (opcode, u64 length, body): the offset where the
+/// sound structure ends and what is wrong there (a crashed recorder's file ends inside a
+/// record). `top`: the file's top level (a chunk's header and records are checked; the footer
+/// ends the walk; fewer than 9 bytes left are left for the reader to report). Inside a chunk,
+/// 1–8 bytes left over are damage.
+fn walk(b: &[u8], start: usize, top: bool) -> (usize, Option<String>) {
+    let mut r = Reader::new(b.get(start..).unwrap_or_default());
+    while !r.is_empty() {
+        let at = b.len() - r.remaining();
+        let mut next = r;
+        let (Ok(op), Ok(len)) = (next.u8(), next.le::<u64>()) else {
+            if top {
+                break;
             }
-            break;
+            // The reader would take the bytes after the chunk for the rest of a record.
+            let n = r.remaining();
+            return (at, Some(format!("{n} stray bytes at byte {at}")));
         };
-        let follow = rest.len() - 9;
-        let Some(body) = usize::try_from(len)
-            .ok()
-            .and_then(|n| rest.get(9..n.checked_add(9)?))
-        else {
-            return (
-                at,
-                Some(format!(
-                    "record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow"
-                )),
-            );
+        let follow = next.remaining();
+        let Some(body) = usize::try_from(len).ok().and_then(|n| next.take(n).ok()) else {
+            let why =
+                format!("record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow");
+            return (at, Some(why));
         };
         if top && op == OP_FOOTER {
             break;
@@ -130,15 +99,18 @@ fn walk(b: &[u8], mut at: usize, top: bool) -> (usize, Option<String>) {
         {
             return (at, Some(format!("chunk at byte {at}: {why}")));
         }
-        at += 9 + body.len();
+        r = next;
     }
     (b.len(), None)
 }
 
 /// What is wrong with a chunk record's body, if anything.
 fn chunk_problem(body: &[u8]) -> Option<String> {
-    // start time, end time, uncompressed size, CRC, compression string, records.
-    let (Some(size), Some(name_len)) = (u64_at(body, 16), u32_at(body, 28)) else {
+    let mut r = Reader::new(body);
+    // Start and end times, uncompressed size, CRC, compression name, records.
+    let (Ok(()), Ok(size), Ok(()), Ok(name_len)) =
+        (r.skip(16), r.le::<u64>(), r.skip(4), r.le::<u32>())
+    else {
         return Some("its header is cut short".into());
     };
     if size > MAX_CHUNK_BYTES {
@@ -147,25 +119,21 @@ fn chunk_problem(body: &[u8]) -> Option<String> {
             MAX_CHUNK_BYTES >> 20
         ));
     }
-    let name_end = usize::try_from(name_len)
-        .ok()
-        .and_then(|n| n.checked_add(32));
-    let (Some(name_end), Some(records_len)) = (name_end, name_end.and_then(|e| u64_at(body, e)))
-    else {
+    let name = usize::try_from(name_len).ok().and_then(|n| r.take(n).ok());
+    let (Some(name), Ok(records_len)) = (name, r.le::<u64>()) else {
         return Some("its compression name overruns it".into());
     };
-    let rest = body.get(name_end + 8..).unwrap_or_default();
+    let follow = r.remaining();
     let Some(records) = usize::try_from(records_len)
         .ok()
-        .and_then(|n| rest.get(..n))
+        .and_then(|n| r.take(n).ok())
     else {
         return Some(format!(
-            "its records claim {records_len} bytes, but {} follow",
-            rest.len()
+            "its records claim {records_len} bytes, but {follow} follow"
         ));
     };
     let inflated;
-    let plain = match body.get(32..name_end).unwrap_or_default() {
+    let plain = match name {
         b"" => records,
         b"zstd" => {
             // `size` is at most MAX_CHUNK_BYTES: the buffer is bounded.
@@ -290,43 +258,26 @@ impl Recording {
     }
 
     /// Run `f` over every message the `mcap` crate gives for the sound prefix (`f` must only
-    /// copy what it needs: it runs under the panic guard), and say why it stopped early.
-    fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>)) -> Option<Stop> {
-        let stop = guarded(|| {
-            let stream = match mcap::MessageStream::new(self.sound()) {
-                Ok(s) => s,
-                Err(e) => return Some(Stop::from(e)),
-            };
-            for m in stream {
-                match m {
-                    Ok(m) => f(m),
-                    Err(e) => return Some(Stop::from(e)),
-                }
+    /// copy what it needs: it runs under the panic guard). An error or a panic of the crate is
+    /// kept for [`damage`](Self::damage); the crate's words for a prefix that ends inside a
+    /// record or without a footer (a cut, which the walker's damage explains) are returned.
+    fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>)) -> Option<String> {
+        let end = guarded(|| -> Result<(), mcap::McapError> {
+            for m in mcap::MessageStream::new(self.sound())? {
+                f(m?);
             }
-            None
-        })
-        .unwrap_or_else(|panic| Some(Stop::Panic(panic)));
-        match &stop {
-            Some(Stop::Error(e) | Stop::Panic(e)) => {
-                let _ = self.stopped.set(e.clone());
+            Ok(())
+        });
+        let early = match end {
+            Ok(Ok(())) => return None,
+            Ok(Err(e @ (mcap::McapError::UnexpectedEof | mcap::McapError::BadFooter))) => {
+                return Some(e.to_string());
             }
-            Some(Stop::Cut(_)) | None => {}
-        }
-        stop
-    }
-
-    /// Why reading ended early, given how the crate's pass ended: the crate's own error comes
-    /// first (it stopped before the walker's damage), then the walker's damage.
-    fn reason(&self, stop: Option<Stop>) -> Option<String> {
-        match (stop, &self.damage) {
-            (Some(Stop::Error(e) | Stop::Panic(e)), Some(d)) => {
-                Some(format!("{e}; and further on, {d}"))
-            }
-            (Some(Stop::Error(e) | Stop::Panic(e)), None) => Some(e),
-            (_, Some(d)) => Some(d.clone()),
-            (Some(Stop::Cut(e)), None) => Some(e),
-            (None, None) => None,
-        }
+            Ok(Err(e)) => e.to_string(),
+            Err(panic) => panic,
+        };
+        let _ = self.stopped.set(early);
+        None
     }
 
     /// The file's sound prefix.
@@ -352,7 +303,7 @@ impl Recording {
     /// the damage, with the damage as the reason.
     pub fn messages(&self) -> (Vec<Message>, Truncation) {
         let mut out = Vec::new();
-        let stop = self.each(|m| {
+        let cut = self.each(|m| {
             out.push(Message {
                 topic: m.channel.topic.clone(),
                 schema: m
@@ -365,7 +316,8 @@ impl Recording {
                 data: m.data.into_owned(),
             });
         });
-        (out, Truncation(self.reason(stop)))
+        // The crate's own stop comes first (it stopped before the walker's damage).
+        (out, Truncation(self.damage().or(cut)))
     }
 
     /// Every channel: topic → (schema name, metadata).
