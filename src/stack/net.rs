@@ -51,12 +51,8 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
 }
 
 fn split_addr(s: &str) -> Result<(String, u16)> {
-    let (ip, port) = s
-        .rsplit_once(':')
-        .with_context(|| format!("{s:?} is not ip:port"))?;
-    let port = port
-        .parse::<u16>()
-        .with_context(|| format!("bad port in {s:?}"))?;
+    let (ip, port) = ima_agents::peer::net::split_host_port(s)
+        .with_context(|| format!("{s:?} is not ip:port (a port number after the last ':')"))?;
     Ok((ip.to_owned(), port))
 }
 

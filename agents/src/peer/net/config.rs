@@ -361,12 +361,18 @@ pub(crate) async fn parse_addr(s: &str, what: &str) -> Result<SocketAddr, NetErr
         .ok_or_else(|| NetError::Config(format!("{what} {s:?}: no address")))
 }
 
+/// `a` split at its last `:` into the host (possibly empty) and a port number.
+#[must_use]
+pub fn split_host_port(a: &str) -> Option<(&str, u16)> {
+    let (host, port) = a.rsplit_once(':')?;
+    Some((host, port.parse().ok()?))
+}
+
 /// Whether `a` has the shape `HOST:PORT` (a non-empty host, a port number): what
 /// `manager.data_advertise` must be, since clients connect to it as it is.
 #[must_use]
 pub fn is_host_port(a: &str) -> bool {
-    a.rsplit_once(':')
-        .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
+    split_host_port(a).is_some_and(|(host, _)| !host.is_empty())
 }
 
 #[cfg(test)]

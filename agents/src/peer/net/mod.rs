@@ -56,7 +56,7 @@ pub use broadcast::{AUTH_REPORT_INTERVAL, BroadcastChannel, BroadcastStats};
 pub use client::{EndReason, LossReason, PeerClientHandle, Subscription, SubscriptionEvent};
 pub use config::{
     BroadcastConfig, BroadcastMode, MAX_QUEUE, ManagerNetConfig, PeerNetConfig, SyntheticSource,
-    is_host_port,
+    is_host_port, split_host_port,
 };
 pub use key::{INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, parse_key};
 pub use manager::{
