@@ -426,14 +426,6 @@ impl RobotConfig {
                 bail!("devices.{what}.baud must be 50 to 4000000, not {b}");
             }
         }
-        if let Some(c) = &d.compass
-            && !(c.deviation_deg.is_finite() && c.deviation_deg.abs() <= 360.0)
-        {
-            bail!(
-                "devices.compass.deviation_deg must be within ±360°, not {}",
-                c.deviation_deg
-            );
-        }
         if let Some(b) = &d.base {
             let t = b.connect_timeout_s;
             if !(t.is_finite() && t > 0.0 && t <= 600.0) {
@@ -491,22 +483,32 @@ impl RobotConfig {
                 3600.0,
             ),
             ("mock_world.speed", self.mock_world.speed, 0.01, 100.0),
+            // Degrees (NaN left Scooter with no heading for ever, standing still).
+            (
+                "agent.common_heading_deg",
+                a.common_heading_deg,
+                -360.0,
+                360.0,
+            ),
+            (
+                "agent.initial_heading_deg",
+                a.initial_heading_deg.unwrap_or(0.0),
+                -360.0,
+                360.0,
+            ),
+            (
+                "devices.compass.deviation_deg",
+                self.devices
+                    .compass
+                    .as_ref()
+                    .map_or(0.0, |c| c.deviation_deg),
+                -360.0,
+                360.0,
+            ),
         ];
         for (name, v, lo, hi) in bounded {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
                 bail!("{name} must be a number in [{lo}, {hi}], not {v}");
-            }
-        }
-        // Headings: NaN left Scooter with no heading for ever, standing still.
-        let headings = [
-            ("agent.common_heading_deg", Some(a.common_heading_deg)),
-            ("agent.initial_heading_deg", a.initial_heading_deg),
-        ];
-        for (name, v) in headings {
-            if let Some(v) = v
-                && !(v.is_finite() && v.abs() <= 360.0)
-            {
-                bail!("{name} must be within ±360°, not {v}");
             }
         }
         self.check_devices()?;
