@@ -529,6 +529,14 @@ impl RobotConfig {
         if self.robot.trim().is_empty() {
             bail!("robot must be a non-empty name");
         }
+        // Every Peer frame carries the name as a string of at most 255 bytes.
+        let max = ima_agents::peer::wire::MAX_STR_LEN;
+        if self.robot.len() > max {
+            bail!(
+                "robot must be a name of at most {max} bytes, not {} bytes",
+                self.robot.len()
+            );
+        }
         if !self.peer.insecure && self.peer.key_file.is_none() {
             bail!("peer.key_file is required (or peer.insecure = true for local tests)");
         }
@@ -684,6 +692,17 @@ mod tests {
         }
         let fine = format!("{mock}{compass}baud = 4800\ndeviation_deg = -3.5\n");
         assert!(RobotConfig::from_toml_str(&fine).is_ok());
+        // A name no Peer frame can carry is refused here, not at the first broadcast.
+        let named = |n: usize| {
+            let cfg = format!(
+                "robot = \"{}\"\nrole = \"commander\"\n[peer]\ninsecure = true\n",
+                "r".repeat(n)
+            );
+            RobotConfig::from_toml_str(&cfg)
+        };
+        assert!(named(255).is_ok());
+        let e = format!("{:#}", named(256).unwrap_err());
+        assert!(e.contains("at most 255 bytes, not 256"), "{e}");
     }
 
     #[test]

@@ -196,6 +196,27 @@ fn compass_on_silent_and_noisy_lines_says_what_it_saw() {
         err.contains("the compass did not answer its configuration (step 0): silence on the line"),
         "{err}"
     );
+    // An NMEA source is asked nothing: the error says no heading came, not which step of a
+    // configuration went unanswered.
+    let err = fails(&[
+        "compass",
+        "--port",
+        &l.path,
+        "--dialect",
+        "nmea",
+        "--log",
+        "ima::connect=info",
+    ]);
+    assert!(
+        err.contains("compass: listening to an NMEA source at 4800 baud"),
+        "{err}"
+    );
+    assert!(
+        err.contains("listening to the compass on ")
+            && err.contains("no heading came from the compass: silence on the line"),
+        "{err}"
+    );
+    assert!(!err.contains("configuration"), "{err}");
     let l = line(true);
     let err = fails(&["compass", "--port", &l.path, "--dialect", "tcm2"]);
     assert!(

@@ -12,10 +12,9 @@ use std::time::{Duration, Instant};
 use common::{Child, ima, json_lines, run_ok};
 use serde_json::Value;
 
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ima-cli-peer-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test (removed at its end unless it failed).
+fn temp_dir(tag: &str) -> common::Scratch {
+    common::Scratch::new(&format!("cli-peer-{tag}"))
 }
 
 fn manager_config(dir: &std::path::Path, extra: &str) -> PathBuf {

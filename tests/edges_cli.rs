@@ -384,5 +384,22 @@ fn unknown_target_colours_list_the_known_ones() {
         err.contains("\"teal\"") && err.contains("red, green, blue, yellow, orange, purple"),
         "{err}"
     );
+    // The one-shot cancel is refused too, before anything is sent.
+    let out = ima()
+        .args(["commander", "cancel", "--target", "nosuch", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("\"nosuch\"") && err.contains("red, green, blue, yellow, orange, purple"),
+        "{err}"
+    );
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     let _ = std::fs::remove_dir_all(&d);
 }

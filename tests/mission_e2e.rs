@@ -263,10 +263,11 @@ fn run_with_mock_true_serves_its_own_world() {
 struct Fleet {
     world: SharedWorld,
     _served: ServedWorld,
-    dir: PathBuf,
     commander_cfg: PathBuf,
     _skeeter: Child,
     scooter: Child,
+    /// Removed with the fleet (after the robots are killed) unless a test failed.
+    dir: common::Scratch,
 }
 
 impl Fleet {
@@ -366,14 +367,6 @@ impl Fleet {
             .lines()
             .filter_map(|l| serde_json::from_str(l).ok())
             .collect()
-    }
-}
-
-impl Drop for Fleet {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            let _ = std::fs::remove_dir_all(&self.dir);
-        }
     }
 }
 

@@ -9,26 +9,24 @@ use common::{ima, json_lines};
 use ima_record::Decode;
 use ima_record::read::Recording;
 
-fn tmp(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("ima-record-replay-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
-    let _ = std::fs::remove_file(&p);
-    p
+/// A scratch directory for one test (removed at its end unless it failed).
+fn scratch(test: &str) -> common::Scratch {
+    common::Scratch::new(&format!("record-replay-{test}"))
 }
 
 /// `ima demo --json` at ×10 for the red target with `extra` arguments, recorded to
 /// `NAME.mcap` (the trajectory to `NAME.svg`): its output, its summary line and the file.
 fn recorded_demo(
+    dir: &std::path::Path,
     name: &str,
     extra: &[&str],
 ) -> (std::process::Output, serde_json::Value, std::path::PathBuf) {
-    let file = tmp(&format!("{name}.mcap"));
+    let file = dir.join(format!("{name}.mcap"));
     let out = ima()
         .args(["demo", "--json", "--speed", "10", "--targets", "red"])
         .args(extra)
         .arg("--svg")
-        .arg(tmp(&format!("{name}.svg")))
+        .arg(dir.join(format!("{name}.svg")))
         .arg("--record")
         .arg(&file)
         .output()
@@ -42,7 +40,8 @@ fn recorded_demo(
 
 #[test]
 fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
-    let (out, summary, file) = recorded_demo("demo", &[]);
+    let dir = scratch("demo");
+    let (out, summary, file) = recorded_demo(&dir, "demo", &[]);
     assert!(out.status.success(), "{summary}");
     let written: BTreeMap<String, u64> =
         serde_json::from_value(summary["recording"]["written"].clone()).unwrap();
@@ -316,11 +315,12 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
 
 #[test]
 fn a_killed_recording_is_still_readable() {
-    let file = tmp("killed.mcap");
+    let dir = scratch("killed");
+    let file = dir.join("killed.mcap");
     let mut child = common::Child(
         ima()
             .args(["demo", "--json", "--speed", "10", "--svg"])
-            .arg(tmp("killed.svg"))
+            .arg(dir.join("killed.svg"))
             .arg("--record")
             .arg(&file)
             .stdout(std::process::Stdio::null())
@@ -365,6 +365,7 @@ fn assert_early_topics(msgs: &[ima_record::read::Message]) {
 
 #[test]
 fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
+    let dir = scratch("live");
     use tokio_tungstenite::tungstenite::{self, Message, client::IntoClientRequest};
     let port = common::mission::free_port(false);
     let _demo = common::Child(
@@ -372,7 +373,7 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
             // Real-time speed: the mission outlasts a slow start on a loaded machine, so the
             // stream still flows when the client subscribes.
             .args(["demo", "--json", "--speed", "1", "--svg"])
-            .arg(tmp("live.svg"))
+            .arg(dir.join("live.svg"))
             .arg("--foxglove")
             .arg(format!("127.0.0.1:{port}"))
             .stdout(std::process::Stdio::null())
@@ -452,8 +453,9 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
 /// served by `ima replay --as-mock` connects the same way and reads the same odometry.
 #[test]
 fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
+    let dir = scratch("p2os");
     use std::io::BufRead;
-    let file = tmp("p2os.mcap");
+    let file = dir.join("p2os.mcap");
     let (_mock, pty) = common::spawn_mock(&["p2os"]);
     let drive = |port: &str, record: Option<&std::path::Path>| {
         let mut cmd = ima();
@@ -512,11 +514,12 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
 /// Ctrl-C during a recorded demo: the guard closes the file, which then has its summary.
 #[test]
 fn an_interrupted_recording_is_closed_properly() {
-    let file = tmp("sigint.mcap");
+    let dir = scratch("sigint");
+    let file = dir.join("sigint.mcap");
     let mut child = common::Child(
         ima()
             .args(["demo", "--json", "--speed", "10", "--svg"])
-            .arg(tmp("sigint.svg"))
+            .arg(dir.join("sigint.svg"))
             .arg("--record")
             .arg(&file)
             .stdout(std::process::Stdio::null())
@@ -556,7 +559,8 @@ fn an_interrupted_recording_is_closed_properly() {
 /// `base_link`, at ranges the transducers can measure, and Scooter's SIPs match its driver.
 #[test]
 fn a_p2os_demo_records_sonar_point_clouds() {
-    let (_, summary, file) = recorded_demo("p2os-demo", &["--scooter-base", "p2os"]);
+    let dir = scratch("p2os-demo");
+    let (_, summary, file) = recorded_demo(&dir, "p2os-demo", &["--scooter-base", "p2os"]);
     assert_eq!(summary["drivers"]["scooter"]["base"], "p2os", "{summary}");
     let rec = Recording::open(&file).unwrap();
     let ch = rec.channels();
@@ -646,7 +650,8 @@ fn a_p2os_demo_records_sonar_point_clouds() {
 /// refused before anything starts.
 #[test]
 fn record_exclude_leaves_topics_out_of_the_file() {
-    let file = tmp("exclude.mcap");
+    let dir = scratch("exclude");
+    let file = dir.join("exclude.mcap");
     let (_mock, pty) = common::spawn_mock(&["p2os"]);
     let out = ima()
         .args([
@@ -698,7 +703,7 @@ fn record_exclude_leaves_topics_out_of_the_file() {
 
     let out = ima()
         .args(["drive", "--port", &pty, "--record"])
-        .arg(tmp("never.mcap"))
+        .arg(dir.join("never.mcap"))
         .args(["--record-exclude", "sonar"])
         .output()
         .unwrap();
@@ -707,5 +712,5 @@ fn record_exclude_leaves_topics_out_of_the_file() {
         !out.status.success() && err.contains("does not start with '/'"),
         "{err}"
     );
-    assert!(!tmp("never.mcap").exists());
+    assert!(!dir.join("never.mcap").exists());
 }

@@ -53,6 +53,7 @@ fn bad_web_flags_are_refused_before_the_mission() {
 
 #[test]
 fn beyond_loopback_the_console_asks_for_its_printed_token() {
+    let dir = common::Scratch::new("web-token");
     let child = ima()
         .args([
             "demo",
@@ -64,7 +65,7 @@ fn beyond_loopback_the_console_asks_for_its_printed_token() {
             "red",
             "--svg",
         ])
-        .arg(std::env::temp_dir().join(format!("ima-web-{}.svg", std::process::id())))
+        .arg(dir.join("demo.svg"))
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()

@@ -156,6 +156,15 @@ fn one_shot(action: &Action) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
     }
     let cfg = load(&common.config, common.insecure)?;
+    // A colour the robots cannot know would be sent, reach them and change nothing: refuse it
+    // here, as the running commander's `cancel` does.
+    if let Action::Cancel { target, .. } = action {
+        super::check_colours(
+            std::slice::from_ref(target),
+            &known_colours(&cfg)?,
+            "the colour database's colours",
+        )?;
+    }
     let rt = tokio::runtime::Runtime::new()?;
     let n = rt.block_on(async {
         let key = net::group_key(&cfg, None)?;
@@ -172,6 +181,17 @@ fn one_shot(action: &Action) -> Result<()> {
             "{what} sent ({FLEET_COPIES} copies to {n} destination(s))"
         ))
     }
+}
+
+/// The target colours Skeeter can find: its colour database's (the configuration's, or the
+/// built-in), without Scooter's own tag.
+fn known_colours(cfg: &RobotConfig) -> Result<Vec<String>> {
+    Ok(crate::stack::skeeter::colour_db(cfg)?
+        .colours
+        .into_iter()
+        .map(|c| c.name)
+        .filter(|n| n != ima_agents::mission::msg::SCOOTER_TAG)
+        .collect())
 }
 
 /// A request typed on the commander's stdin, before it is checked against the series.
@@ -552,12 +572,7 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
     // Ctrl-C is the operator's: it may ask whether to stop the robots.
     crate::safety::answers_ctrl_c_itself();
     // Skeeter can only find colours of its database (the configuration's, or the built-in).
-    let known: Vec<String> = crate::stack::skeeter::colour_db(&cfg)?
-        .colours
-        .into_iter()
-        .map(|c| c.name)
-        .filter(|n| n != ima_agents::mission::msg::SCOOTER_TAG)
-        .collect();
+    let known = known_colours(&cfg)?;
     super::check_colours(&args.targets, &known, "the colour database's colours")?;
     let rt = tokio::runtime::Runtime::new()?;
     let finished = rt.block_on(async {

@@ -84,10 +84,14 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         DriverDialect::Tcm2 => "compass-tcm2",
     };
     let port = crate::record::tap(port, "compass", &args.port, baud, protocol); // record: raw bytes
+    // An NMEA source is asked nothing: it is only listened to.
+    let (doing, what) = match args.dialect {
+        DriverDialect::Nmea => ("listening to", "an NMEA source".to_owned()),
+        _ => ("configuring", format!("a {}", cfg.dialect.name())),
+    };
     tracing::info!(
         target: "ima::connect",
-        "compass: configuring a {} at {baud} baud on {}",
-        cfg.dialect.name(),
+        "compass: {doing} {what} at {baud} baud on {}",
         args.port
     );
     let drv = match CompassDriver::connect(
@@ -116,9 +120,8 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
                 }
                 _ => "",
             };
-            return Err(anyhow::anyhow!("{e}{hint}")).with_context(|| {
-                format!("configuring the compass on {} at {baud} baud", args.port)
-            });
+            return Err(anyhow::anyhow!("{e}{hint}"))
+                .with_context(|| format!("{doing} the compass on {} at {baud} baud", args.port));
         }
     };
     let start = drv.now();

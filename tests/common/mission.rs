@@ -22,11 +22,9 @@ pub fn free_port(udp: bool) -> u16 {
     }
 }
 
-pub fn scratch_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ima-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A scratch directory for one test (see [`super::Scratch`]).
+pub fn scratch_dir(name: &str) -> super::Scratch {
+    super::Scratch::new(name)
 }
 
 /// Write the three configurations and a key file, as an operator would.

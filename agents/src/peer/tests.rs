@@ -13,8 +13,8 @@ use super::manager::{
     RECENT_DECISIONS, TicketError,
 };
 use super::wire::{
-    DeclineReason, DenyReason, GroupKey, HEADER_LEN, MAC_LEN, Msg, RejectCounts, RevokeReason,
-    Signer, SourceInfo, Verifier, WireError,
+    BodyError, DeclineReason, DenyReason, GroupKey, HEADER_LEN, MAC_LEN, Msg, RejectCounts,
+    RevokeReason, Signer, SourceInfo, Verifier, WireError,
 };
 
 const KEY: &[u8] = b"group key of the test fleet, 32b";
@@ -1536,4 +1536,48 @@ fn a_session_data_address_overrides_the_configured_one_in_grants() {
     };
     assert_eq!(addr_of(n.events(a)), "192.168.1.5:7401");
     assert_eq!(addr_of(n.events(b)), ADDR);
+}
+
+/// Errors read as sentences that name the limit or the cause, not as `Debug` names
+/// (`FieldTooLong` used to be all a user saw of a name over 255 bytes).
+#[test]
+fn wire_errors_say_what_is_wrong_in_words() {
+    let long = "r".repeat(256);
+    let e = Signer::new(key(), 9, 1)
+        .seal_vec(&status(&long, 1))
+        .unwrap_err();
+    assert_eq!(e, WireError::FieldTooLong);
+    let text = e.to_string();
+    assert!(text.contains("at most 255 bytes"), "{text}");
+    assert!(text.contains("65,535"), "{text}");
+    assert!(
+        Signer::new(key(), 9, 1)
+            .seal_vec(&status(&long[..255], 1))
+            .is_ok()
+    );
+    let texts = [
+        (WireError::BadMac, "another group key"),
+        (WireError::BadMagic(*b"GE"), "47 45, not 49 50"),
+        (
+            WireError::Truncated { need: 40, got: 10 },
+            "10 bytes where 40",
+        ),
+        (
+            WireError::Body(BodyError::BadCode(9)),
+            "malformed body: code 9",
+        ),
+        (
+            WireError::Replay {
+                sender: 3,
+                last: 7,
+                got: 7,
+            },
+            "counter 7 from sender 0x0000000000000003 is not above its last accepted counter 7",
+        ),
+    ];
+    for (e, want) in texts {
+        let text = e.to_string();
+        assert!(text.contains(want), "{e:?}: {text}");
+        assert!(!text.contains(&format!("{e:?}")), "{text}");
+    }
 }

@@ -28,6 +28,9 @@ pub const DEFAULT_MAX_BODY: usize = 8192;
 pub const TICKET_LEN: usize = 32;
 /// Minimum group-key length in bytes.
 pub const MIN_KEY_LEN: usize = 16;
+/// The longest string a frame carries (a name, a text), in bytes: its length is one byte.
+/// Lists hold at most as many entries.
+pub const MAX_STR_LEN: usize = u8::MAX as usize;
 /// Default number of senders a [`Verifier`] remembers counters for.
 pub const DEFAULT_MAX_SENDERS: usize = 256;
 
@@ -96,7 +99,53 @@ impl From<BodyError> for WireError {
 
 impl core::fmt::Display for WireError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        write!(f, "{self:?}")
+        match self {
+            Self::Truncated { need, got } => {
+                write!(f, "truncated frame: {got} bytes where {need} are needed")
+            }
+            Self::BadMagic([a, b]) => write!(
+                f,
+                "not a Peer frame: it starts {a:02x} {b:02x}, not {:02x} {:02x} (\"IP\")",
+                MAGIC[0], MAGIC[1]
+            ),
+            Self::BadVersion(v) => write!(
+                f,
+                "frame-format version {v}, which this build does not speak (it speaks \
+                 {VERSION})"
+            ),
+            Self::Oversize { len, max } => {
+                write!(f, "a body of {len} bytes, over the limit of {max}")
+            }
+            Self::BadMac => f.write_str(
+                "the authentication tag does not match (another group key, or the frame was \
+                 altered)",
+            ),
+            Self::Replay { sender, last, got } => write!(
+                f,
+                "a replayed or reordered frame: counter {got} from sender {sender:#018x} is not \
+                 above its last accepted counter {last}"
+            ),
+            Self::TrailingBytes(n) => write!(f, "{n} bytes after the end of the frame"),
+            Self::UnknownType(t) => write!(f, "message type {t}, which this build does not know"),
+            Self::Body(e) => write!(f, "a malformed body: {e}"),
+            Self::BufferTooSmall => f.write_str("the frame does not fit the output buffer"),
+            Self::FieldTooLong => write!(
+                f,
+                "a field too long to encode (a name, text or list: at most {MAX_STR_LEN} bytes \
+                 or entries; a sample's payload and a whole body: at most 65,535 bytes)"
+            ),
+        }
+    }
+}
+
+impl core::fmt::Display for BodyError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Truncated => f.write_str("it ends inside a field"),
+            Self::BadUtf8 => f.write_str("a string is not UTF-8"),
+            Self::BadCode(c) => write!(f, "code {c}, which this build does not know"),
+            Self::TrailingBytes(n) => write!(f, "{n} bytes after its last field"),
+        }
     }
 }
 

@@ -25,8 +25,11 @@ pub enum Fault {
         step: u8,
     },
     /// The configuration got no usable answer: what the port received meanwhile.
-    #[error("the compass did not answer its configuration{}: {}",
-        step.map(|s| format!(" (step {s})")).unwrap_or_default(),
+    #[error("{}: {}",
+        step.map_or_else(
+            || "no heading came from the compass".to_owned(),
+            |s| format!("the compass did not answer its configuration (step {s})"),
+        ),
         Heard {
             bytes: (*bytes).into(),
             valid: (*lines).into(),
@@ -36,7 +39,7 @@ pub enum Fault {
         })]
     NoAnswer {
         /// The step of the configuration script it gave up at (`None`: the connect timeout
-        /// passed first).
+        /// passed first, or nothing was asked: an NMEA source is only listened to).
         step: Option<u8>,
         /// Bytes received.
         bytes: u32,
@@ -72,6 +75,8 @@ pub fn configuration_failed(machine: &crate::machine::Machine, step: u8) -> Driv
             seen,
             lines: st.foreign_lines,
         }),
+        // An NMEA source is asked nothing: its one step only waits for a heading.
+        None if machine.config().dialect == Dialect::Nmea => no_answer(&st, None),
         None => no_answer(&st, Some(step)),
     }
 }

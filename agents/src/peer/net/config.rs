@@ -123,6 +123,14 @@ impl PeerNetConfig {
                 "{key} = {v} is out of range ({range})"
             )))
         };
+        // Registrations and broadcasts carry the name as a string of at most 255 bytes.
+        let max = crate::peer::wire::MAX_STR_LEN;
+        if self.robot.is_empty() || self.robot.len() > max {
+            return Err(NetError::Config(format!(
+                "robot must be a name of 1 to {max} bytes, not {} bytes",
+                self.robot.len()
+            )));
+        }
         if !(256..=usize::from(u16::MAX)).contains(&self.max_body) {
             return bad("max_body", &self.max_body, "256..=65535");
         }
@@ -441,6 +449,15 @@ mod tests {
         }
         assert!(PeerNetConfig::from_toml("[manager]\nsession_queue = 100000000\n").is_err());
         assert!(PeerNetConfig::from_toml("[manager]\nmax_connections = 0\n").is_err());
+        // A name no frame can carry is refused before the first registration or broadcast.
+        for (n, ok) in [(0, false), (1, true), (255, true), (256, false)] {
+            let toml = format!("robot = \"{}\"\n", "r".repeat(n));
+            let r = PeerNetConfig::from_toml(&toml);
+            assert_eq!(r.is_ok(), ok, "{n}: {r:?}");
+            if let Err(e) = r {
+                assert!(e.to_string().contains(&format!("not {n} bytes")), "{e}");
+            }
+        }
         assert_eq!(
             PeerNetConfig::from_toml("").unwrap(),
             PeerNetConfig::default()
