@@ -974,3 +974,74 @@ async fn samples_a_data_session_missed_are_counted() {
     // The newest samples still arrive.
     let _ = next(&mut sub).await;
 }
+
+/// A manager address that is something else (a web server) or a silent listener is named as
+/// such: not as a key mismatch, which is what a session closed before any authenticated frame
+/// means from a real manager.
+#[tokio::test]
+async fn a_foreign_or_silent_server_is_not_taken_for_a_key_mismatch() {
+    // A web server: it answers the registration with HTTP and closes.
+    let web = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let web_addr = web.local_addr().unwrap();
+    tokio::spawn(async move {
+        let (mut s, _) = web.accept().await.unwrap();
+        let mut buf = [0u8; 256];
+        let _ = s.read(&mut buf).await;
+        let _ = s.write_all(b"HTTP/1.1 400 Bad Request\r\n\r\n").await;
+    });
+    let c = PeerClientHandle::connect(web_addr, &cfg("scooter"), key())
+        .await
+        .unwrap();
+    let e = within("register", c.register()).await.unwrap_err();
+    let NetError::NotAPeer(a) = e else {
+        panic!("expected NotAPeer, got {e:?}")
+    };
+    assert_eq!((a.from, a.bytes), (web_addr, 28));
+    assert_eq!(c.auth_failure(), None);
+    let text = NetError::NotAPeer(a).to_string();
+    assert!(
+        text.contains("sent 28 byte(s) that are not Peer Agent frames (they begin 48 54 54 50")
+            && text.contains("\"HTTP/1.1\"")
+            && text.contains("is a Peer Agent manager listening"),
+        "{text}"
+    );
+    // A listener that accepts and says nothing, until the session's loss window passes.
+    let mute = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let mute_addr = mute.local_addr().unwrap();
+    let keep = tokio::spawn(async move {
+        let (s, _) = mute.accept().await.unwrap();
+        tokio::time::sleep(GENEROUS).await;
+        drop(s);
+    });
+    let c = PeerClientHandle::connect(mute_addr, &cfg("scooter"), key())
+        .await
+        .unwrap();
+    let e = within("register", c.register()).await.unwrap_err();
+    let NetError::NotAPeer(a) = e else {
+        panic!("expected NotAPeer, got {e:?}")
+    };
+    assert_eq!(a.bytes, 0);
+    assert!(
+        NetError::NotAPeer(a)
+            .to_string()
+            .contains("accepted the connection but sent nothing"),
+        "{a:?}"
+    );
+    keep.abort();
+    // A listener that closes at once is what a manager under another key does: still told
+    // as a possible key mismatch.
+    let shut = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let shut_addr = shut.local_addr().unwrap();
+    tokio::spawn(async move {
+        let (s, _) = shut.accept().await.unwrap();
+        drop(s);
+    });
+    let c = PeerClientHandle::connect(shut_addr, &cfg("scooter"), key())
+        .await
+        .unwrap();
+    let e = within("register", c.register()).await.unwrap_err();
+    assert!(
+        matches!(e, NetError::Unauthenticated(a) if a.frames == 0),
+        "{e:?}"
+    );
+}

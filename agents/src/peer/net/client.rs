@@ -12,7 +12,7 @@ use tokio::task::JoinHandle;
 
 use super::config::PeerNetConfig;
 use super::frames::{FrameReader, max_frame, write_batch, write_frames};
-use super::{AuthFailure, NetError};
+use super::{AuthFailure, NetError, NotAPeer};
 use super::{random_u64, unix_micros};
 use crate::peer::client::{ClientConfig, ClientEvent, ClientLinkStatus, PeerClient};
 use crate::peer::data::{DataClientSession, DataClose, DataConfig, DataEvent};
@@ -264,8 +264,16 @@ pub struct PeerClientHandle {
     cmd: mpsc::UnboundedSender<Cmd>,
     task: JoinHandle<()>,
     call_timeout: Option<std::time::Duration>,
-    /// Set when the session ended for want of authentication (see [`AuthFailure`]).
-    auth: Arc<Mutex<Option<AuthFailure>>>,
+    /// Set when the session ended for want of authentication, or with a peer that never
+    /// spoke the protocol.
+    auth: Arc<Mutex<Option<Loss>>>,
+}
+
+/// Why a session that never heard an authenticated frame ended.
+#[derive(Debug, Clone, Copy)]
+enum Loss {
+    Auth(AuthFailure),
+    Foreign(NotAPeer),
 }
 
 impl PeerClientHandle {
@@ -333,6 +341,9 @@ impl PeerClientHandle {
             generation: 0,
             peer,
             heard_ok: false,
+            received: 0,
+            head: ([0; 8], 0),
+            eof: false,
             auth: auth.clone(),
         };
         let task = tokio::spawn(task.run(stream, cmd_rx));
@@ -346,10 +357,12 @@ impl PeerClientHandle {
     }
 
     /// Why the session is over: [`NetError::Unauthenticated`] when it ended for want of
-    /// authentication, else [`NetError::ManagerLost`].
+    /// authentication, [`NetError::NotAPeer`] when the other end never spoke the protocol,
+    /// else [`NetError::ManagerLost`].
     fn lost(&self) -> NetError {
         match *self.auth.lock().unwrap_or_else(PoisonError::into_inner) {
-            Some(a) => NetError::Unauthenticated(a),
+            Some(Loss::Auth(a)) => NetError::Unauthenticated(a),
+            Some(Loss::Foreign(a)) => NetError::NotAPeer(a),
             None => NetError::ManagerLost,
         }
     }
@@ -359,7 +372,10 @@ impl PeerClientHandle {
     /// sending one authenticated frame (what a manager does with frames under another key).
     #[must_use]
     pub fn auth_failure(&self) -> Option<AuthFailure> {
-        *self.auth.lock().unwrap_or_else(PoisonError::into_inner)
+        match *self.auth.lock().unwrap_or_else(PoisonError::into_inner) {
+            Some(Loss::Auth(a)) => Some(a),
+            _ => None,
+        }
     }
 
     async fn call<T>(&self, make: impl FnOnce(Reply<T>) -> Cmd) -> Result<T, NetError> {
@@ -474,13 +490,25 @@ struct ClientTask {
     peer: std::net::SocketAddr,
     /// A frame from the manager passed authentication.
     heard_ok: bool,
-    auth: Arc<Mutex<Option<AuthFailure>>>,
+    /// Bytes received from the manager.
+    received: u64,
+    /// The first bytes of the first frame (or bad header) read, and how many.
+    head: ([u8; 8], u8),
+    /// The manager closed the connection.
+    eof: bool,
+    auth: Arc<Mutex<Option<Loss>>>,
 }
 
 impl ClientTask {
     /// Hands frames to the core, noting whether any passed authentication.
     fn frames(&mut self, reader: &mut FrameReader, now: ima_hal::Instant) {
         while let Some(f) = reader.next_frame() {
+            if self.head.1 == 0 {
+                for (d, s) in self.head.0.iter_mut().zip(f) {
+                    *d = *s;
+                    self.head.1 += 1;
+                }
+            }
             let before = self.core.rejects();
             self.core.handle_frame(f, now);
             if self.core.rejects() == before {
@@ -491,16 +519,34 @@ impl ClientTask {
 
     /// On the loss of the session: an [`AuthFailure`] when frames from the manager failed
     /// authentication, or when the manager closed the session before one authenticated
-    /// frame came back (a manager closes the session of a frame under another key).
+    /// frame came back (a manager closes the session of a frame under another key); a
+    /// [`NotAPeer`] when no authenticated frame came and the other end sent bytes that are no
+    /// Peer frame, or nothing while keeping the connection open.
     fn note_auth_failure(&mut self) {
-        let frames = self.core.rejects().bad_mac;
-        if frames > 0 || !self.heard_ok {
-            let a = AuthFailure {
+        let r = self.core.rejects();
+        let frames = r.bad_mac;
+        let foreign = r.bad_magic > 0 || r.bad_version > 0 || (!self.eof && self.received == 0);
+        let loss = if frames > 0 {
+            Loss::Auth(AuthFailure {
                 from: self.peer,
                 frames,
-            };
-            *self.auth.lock().unwrap_or_else(PoisonError::into_inner) = Some(a);
-        }
+            })
+        } else if self.heard_ok {
+            return;
+        } else if foreign {
+            Loss::Foreign(NotAPeer {
+                from: self.peer,
+                bytes: self.received,
+                head: self.head.0,
+                head_len: self.head.1,
+            })
+        } else {
+            Loss::Auth(AuthFailure {
+                from: self.peer,
+                frames,
+            })
+        };
+        *self.auth.lock().unwrap_or_else(PoisonError::into_inner) = Some(loss);
     }
 
     async fn run(mut self, stream: TcpStream, mut cmds: mpsc::UnboundedReceiver<Cmd>) {
@@ -523,8 +569,12 @@ impl ClientTask {
             tokio::select! {
                 biased;
                 r = reader.read_from(&mut rd) => match r {
-                    Ok(0) | Err(_) => self.core.closed(),
-                    Ok(_) => {
+                    Ok(0) | Err(_) => {
+                        self.eof = true;
+                        self.core.closed();
+                    }
+                    Ok(n) => {
+                        self.received = self.received.saturating_add(n as u64);
                         let now = self.clock.now();
                         self.frames(&mut reader, now);
                     }
@@ -537,8 +587,14 @@ impl ClientTask {
                 () = sleep => {
                     let now = self.clock.now();
                     match reader.try_read_from(&rd) {
-                        Ok(Some(0)) | Err(_) => self.core.closed(),
-                        Ok(Some(_)) => self.frames(&mut reader, now),
+                        Ok(Some(0)) | Err(_) => {
+                            self.eof = true;
+                            self.core.closed();
+                        }
+                        Ok(Some(n)) => {
+                            self.received = self.received.saturating_add(n as u64);
+                            self.frames(&mut reader, now);
+                        }
                         Ok(None) => {}
                     }
                     self.core.handle_timeout(self.clock.now());

@@ -95,6 +95,61 @@ pub enum NetError {
     /// The session ended for want of authentication: most likely the two ends hold
     /// different group keys.
     Unauthenticated(AuthFailure),
+    /// The other end does not speak the Peer Agent protocol: it sent bytes that are no Peer
+    /// frame, or nothing at all until the session was declared lost.
+    NotAPeer(NotAPeer),
+}
+
+/// A manager address whose other end never spoke the Peer Agent protocol. Its `Display` is
+/// the sentence shown to the operator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NotAPeer {
+    /// The address connected to.
+    pub from: std::net::SocketAddr,
+    /// Bytes received from it (0: it stayed silent and kept the connection open).
+    pub bytes: u64,
+    /// The first bytes received (the first `head_len` of them are valid).
+    pub head: [u8; 8],
+    /// How many of `head` are valid.
+    pub head_len: u8,
+}
+
+impl core::fmt::Display for NotAPeer {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        if self.bytes == 0 {
+            write!(
+                f,
+                "{} accepted the connection but sent nothing, not even an answer to the \
+                 registration",
+                self.from
+            )?;
+        } else {
+            write!(
+                f,
+                "{} sent {} byte(s) that are not Peer Agent frames (they begin",
+                self.from, self.bytes
+            )?;
+            let head = self
+                .head
+                .get(..usize::from(self.head_len))
+                .unwrap_or_default();
+            for b in head {
+                write!(f, " {b:02x}")?;
+            }
+            let text: String = head
+                .iter()
+                .map(|&b| {
+                    if b.is_ascii_graphic() {
+                        char::from(b)
+                    } else {
+                        '.'
+                    }
+                })
+                .collect();
+            write!(f, ", {text:?})")?;
+        }
+        f.write_str(" — is a Peer Agent manager listening at that address?")
+    }
 }
 
 /// Frames that failed authentication (their MAC does not verify under this process's group
@@ -139,6 +194,7 @@ impl core::fmt::Display for NetError {
             NetError::Closed => f.write_str("the peer task has ended"),
             NetError::Timeout => f.write_str("the manager did not answer in time"),
             NetError::Unauthenticated(a) => write!(f, "manager lost: {a}"),
+            NetError::NotAPeer(a) => write!(f, "manager lost: {a}"),
         }
     }
 }
