@@ -178,6 +178,9 @@ impl Network {
         let mut capacity = Vec::new();
         let mut count = Vec::new();
         for c in &spec.conditions {
+            if c.name.trim().is_empty() {
+                return Err(SpecError::EmptyName("condition"));
+            }
             if index.insert(c.name.clone(), conditions.len()).is_some() {
                 return Err(SpecError::DuplicateCondition(c.name.clone()));
             }
@@ -192,6 +195,9 @@ impl Network {
         let mut modules = Vec::new();
         let mut names = HashMap::new();
         for m in &spec.modules {
+            if m.name.trim().is_empty() {
+                return Err(SpecError::EmptyName("module"));
+            }
             if names.insert(m.name.clone(), ()).is_some() {
                 return Err(SpecError::DuplicateModule(m.name.clone()));
             }
@@ -741,6 +747,14 @@ pre = ["c"]
             bad("name = \"x\"\ntypo = 1\n[[module]]\nname = \"m\""),
             SpecError::Toml(_)
         ));
+        // Names nothing could refer to.
+        assert_eq!(
+            bad("name = \"x\"\n[[module]]\nname = \" \""),
+            SpecError::EmptyName("module")
+        );
+        let e = bad("name = \"x\"\n[[condition]]\nname = \"\"\n[[module]]\nname = \"m\"");
+        assert_eq!(e, SpecError::EmptyName("condition"));
+        assert_eq!(e.to_string(), "a condition has an empty name");
     }
 
     #[test]

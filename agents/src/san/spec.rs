@@ -190,6 +190,9 @@ pub enum SpecError {
     BadParam(&'static str),
     /// A module weight is not finite.
     BadWeight(String),
+    /// A condition or a module (which of the two) has an empty or blank name: nothing could
+    /// name it in a precondition, a goal, a status or a log.
+    EmptyName(&'static str),
 }
 
 /// Largest value of an energy parameter (`pi`, `phi`, `gamma`, `delta`): far above
@@ -220,6 +223,7 @@ impl core::fmt::Display for SpecError {
             Self::UnknownGoal(n) => write!(f, "goal `{n}` is not a declared condition"),
             Self::BadParam(p) => write!(f, "parameter `{p}` is out of range: {}", param_range(p)),
             Self::BadWeight(m) => write!(f, "module `{m}` has a non-finite weight"),
+            Self::EmptyName(what) => write!(f, "a {what} has an empty name"),
         }
     }
 }
