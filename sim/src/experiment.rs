@@ -310,9 +310,9 @@ fn parse_bool(key: &'static str, value: &str) -> Result<bool, SettingError> {
 
 fn parse_non_negative(key: &'static str, value: &str, positive: bool) -> Result<f64, SettingError> {
     let expected = if positive {
-        "a positive finite number"
+        "a positive number up to 1e6"
     } else {
-        "a finite number ≥ 0"
+        "a number from 0 to 1e6"
     };
     match value.trim().parse::<f64>() {
         Ok(x) if x.is_finite() && (x > 0.0 || (!positive && x == 0.0)) && x <= 1e6 => Ok(x),
@@ -367,7 +367,7 @@ impl SweepConfig {
     }
 
     /// Change one model component by name (an ablation), e.g. `set("recognition",
-    /// "near-estimate")`. Keys ([`SETTING_KEYS`]):
+    /// "near-estimate")`. Keys ([`SETTING_KEYS`]; numbers are at most 1e6):
     ///
     /// | key | values | what |
     /// |---|---|---|
@@ -378,7 +378,7 @@ impl SweepConfig {
     /// | `see_distance_m` | > 0 | the laser recognises the target this far |
     /// | `turn_in_place` | bool | stop to turn on heading errors above 30° (else keep the cruise speed) |
     /// | `ses_timing` | `staggered`, `snapshot` | [`SesTiming`] |
-    /// | `scan_period_s` | > 0 | one full scan of Skeeter's head (the SES refresh) |
+    /// | `scan_period_s` | ≥ `dt` (0.05 s) | one full scan of Skeeter's head (the SES refresh) |
     /// | `bearing_noise_deg` | ≥ 0 | σ of Skeeter's bearings |
     /// | `compass_noise_deg` | ≥ 0 | σ of Scooter's compass |
     /// | `ses_ranges` | bool | SES records carry ranges (the range-aware rule falls back to the thesis rule without) |
@@ -437,8 +437,9 @@ impl SweepConfig {
             "scan_period_s" => {
                 let s = parse_non_negative(k, value, true)?;
                 let d = Duration::from_secs_f64(s);
-                if d.is_zero() {
-                    return Err(bad("a positive finite number"));
+                // Faster than the world's step, samples pile up without telling anything new.
+                if d < self.sim.dt {
+                    return Err(bad("at least one simulation step (dt, 0.05 s by default)"));
                 }
                 self.sim.scan_period = d;
             }

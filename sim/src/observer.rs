@@ -57,7 +57,7 @@ impl SesObserver {
     /// `now`.
     ///
     /// # Errors
-    /// [`SimError`] when a robot is missing or the scan period is zero.
+    /// [`SimError`] when a robot is missing or a period fails [`SimConfig::check_periods`].
     pub fn new(
         world: &World,
         cfg: &SimConfig,
@@ -70,9 +70,7 @@ impl SesObserver {
         let scooter = world
             .robot_id("scooter")
             .ok_or(SimError::NoRobot("scooter"))?;
-        if cfg.scan_period.is_zero() {
-            return Err(SimError::BadPeriod);
-        }
+        cfg.check_periods()?;
         let camera_period = match cfg.ses_timing {
             SesTiming::Staggered => cfg.scan_period / CAMERAS,
             SesTiming::Snapshot => cfg.scan_period,

@@ -150,7 +150,7 @@ pub fn runtime_config(cfg: &SimConfig, skeeter_heading_rad: f64) -> ScooterRunti
 /// paused time, made here).
 ///
 /// # Errors
-/// [`SimError`] when a robot or the target is missing, a period is zero, or the runtime
+/// [`SimError`] when a robot or the target is missing, a period fails [`SimConfig::check_periods`], or the runtime
 /// could not start.
 pub fn run_runtime(
     world: World,
@@ -158,6 +158,8 @@ pub fn run_runtime(
     cfg: &SimConfig,
     max: Duration,
 ) -> Result<RuntimeRun, SimError> {
+    // Before any device starts: a zero period would make a timer spin or panic.
+    validate(&world, target, cfg)?;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_time()
         .start_paused(true)
@@ -183,13 +185,7 @@ fn validate(world: &World, target: &str, cfg: &SimConfig) -> Result<(), SimError
     if !world.objects().iter().any(|o| o.color == target) {
         return Err(SimError::NoTarget(target.to_owned()));
     }
-    if cfg.dt.is_zero()
-        || cfg.scan_period.is_zero()
-        || !(cfg.control_hz.is_finite() && cfg.control_hz > 0.0)
-    {
-        return Err(SimError::BadPeriod);
-    }
-    Ok(())
+    cfg.check_periods()
 }
 
 /// The run's track: Scooter's positions and path length, recorded after every world step.

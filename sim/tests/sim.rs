@@ -100,8 +100,64 @@ fn setup_errors_are_typed() {
         ..SimConfig::default()
     };
     assert_eq!(
-        ScooterSim::new(w, "red", bad).unwrap_err(),
-        SimError::BadPeriod
+        ScooterSim::new(w.clone(), "red", bad).unwrap_err(),
+        SimError::BadPeriod("the step dt is zero".to_owned())
+    );
+    // A scan period below the step would pile up samples (1 µs filled 11 GB): refused by
+    // both loops, naming the period.
+    let fast = SimConfig {
+        scan_period: Duration::from_micros(1),
+        ..SimConfig::default()
+    };
+    let e = ScooterSim::new(w.clone(), "red", fast.clone()).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "bad simulation period: scan_period (1µs) is shorter than the step dt (50ms)"
+    );
+    let slow_control = SimConfig {
+        control_hz: f64::NAN,
+        ..SimConfig::default()
+    };
+    assert!(matches!(
+        ScooterSim::new(w.clone(), "red", slow_control).unwrap_err(),
+        SimError::BadPeriod(_)
+    ));
+    for (name, cfg) in [
+        (
+            "laser_period",
+            SimConfig {
+                laser_period: Duration::ZERO,
+                ..SimConfig::default()
+            },
+        ),
+        (
+            "odometry_period",
+            SimConfig {
+                odometry_period: Duration::from_millis(1),
+                ..SimConfig::default()
+            },
+        ),
+        (
+            "compass_period",
+            SimConfig {
+                compass_period: Duration::from_millis(49),
+                ..SimConfig::default()
+            },
+        ),
+    ] {
+        let e = cfg.check_periods().unwrap_err();
+        assert!(e.to_string().contains(name), "{e}");
+    }
+    assert_eq!(SimConfig::default().check_periods(), Ok(()));
+    // The runtime path refuses before any device's timer starts (a zero period would spin).
+    let zero_laser = SimConfig {
+        laser_period: Duration::ZERO,
+        ..SimConfig::default()
+    };
+    let e = ima_sim::runtime::run_runtime(w, "red", &zero_laser, Duration::from_secs(10));
+    assert!(
+        matches!(e, Err(SimError::BadPeriod(ref why)) if why.contains("laser_period")),
+        "{e:?}"
     );
 }
 
@@ -397,7 +453,7 @@ fn settings_are_typed_and_name_their_key() {
         SettingError::BadValue {
             key: "see_distance_m",
             value: "-1".to_owned(),
-            expected: "a positive finite number"
+            expected: "a positive number up to 1e6"
         }
     );
     for (k, v) in [
@@ -405,6 +461,8 @@ fn settings_are_typed_and_name_their_key() {
         ("see_distance_m", "inf"),
         ("scan_period_s", "0"),
         ("scan_period_s", "1e-12"),
+        ("scan_period_s", "0.000001"),
+        ("scan_period_s", "0.049"),
         ("bearing_noise_deg", "-0.5"),
         ("turn_in_place", "maybe"),
         ("model", "scooter"),
