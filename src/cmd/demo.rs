@@ -296,7 +296,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             async move { wiring::run_scooter(&sc, key, sc_dev, clock, events, stop_rx_sc).await }
         });
         let robots = ["skeeter".to_owned(), "scooter".to_owned()];
-        let outcomes = async {
+        // A signal (the bases already halted by the guard) ends the mission at once: the
+        // robots' runtimes are stopped below as after a normal end, and the recording is
+        // closed, well within the guard's grace period.
+        let outcomes = crate::safety::until_cancelled(async {
             let bus = crate::stack::net::bus(&cmd, key, clock.clone())?;
             let rt = crate::stack::commander::runtime_config(
                 &cmd,
@@ -315,8 +318,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             )
             .await?;
             anyhow::Ok(f.outcomes)
-        }
-        .await;
+        })
+        .await
+        .and_then(|r| r);
         // Scooter (the client) first, then Skeeter (its manager).
         for (name, stop, h) in [("scooter", stop_sc, scooter), ("skeeter", stop_sk, skeeter)] {
             let _ = stop.send(true);

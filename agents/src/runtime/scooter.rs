@@ -272,9 +272,13 @@ where
         } else {
             out.command
         };
-        if let Err(e) = base.set_velocity(command).await {
-            tracing::warn!("base: {e:?}");
-        }
+        // As text at once: a device's error need not be `Send`, and the loop awaits below.
+        let refused = base
+            .set_velocity(command)
+            .await
+            .err()
+            .map(|e| format!("{e:?}"));
+        st.base_refusals.note(refused);
         if st
             .last_control
             .is_none_or(|t| now.saturating_duration_since(t) >= cfg.control_report)
@@ -377,6 +381,46 @@ struct LoopState {
     last_odo_at: Option<Instant>,
     /// A fleet stop holds the base at zero until a fleet resume or a new target.
     halted: bool,
+    /// The control loop's velocity commands the base refused in a row.
+    base_refusals: Refusals,
+}
+
+/// A base that refuses every command (a lost link, a halted driver) is reported once, not on
+/// every control tick: the first refusal and every change of error are logged, and the count
+/// when commands go through again.
+#[derive(Default)]
+struct Refusals {
+    /// The last error (its `Debug` text) and how many times in a row it came.
+    last: Option<(String, u64)>,
+}
+
+impl Refusals {
+    /// One control tick: `refused` is the base's error (its `Debug` text), `None` when the
+    /// command went through.
+    fn note(&mut self, refused: Option<String>) {
+        match (refused, &mut self.last) {
+            (Some(text), Some((last, n))) if text == *last => *n += 1,
+            (Some(text), Some((_, n))) => {
+                tracing::warn!("base: {text} (the previous error came {n} time(s))");
+                self.last = Some((text, 1));
+            }
+            (Some(text), None) => {
+                tracing::warn!("base: {text} (further refusals of the same kind are counted)");
+                self.last = Some((text, 1));
+            }
+            (None, Some((last, n))) => {
+                tracing::info!("base: commands accepted again after {n} refusal(s) ({last})");
+                self.last = None;
+            }
+            (None, None) => {}
+        }
+    }
+
+    /// Refusals in a row so far.
+    #[cfg(test)]
+    fn count(&self) -> u64 {
+        self.last.as_ref().map_or(0, |(_, n)| *n)
+    }
 }
 
 impl LoopState {
@@ -517,6 +561,27 @@ mod tests {
 
     use super::*;
     use crate::mission::msg::MissionEvent;
+
+    #[test]
+    fn a_base_refusing_every_tick_is_counted_not_logged_each_time() {
+        let mut r = Refusals::default();
+        r.note(None);
+        assert_eq!(r.count(), 0);
+        for _ in 0..150 {
+            r.note(Some("Disconnected".to_owned()));
+        }
+        assert_eq!(r.count(), 150);
+        assert_eq!(
+            r.last.as_ref().map(|(t, _)| t.as_str()),
+            Some("Disconnected")
+        );
+        // Another error starts a new run; a command that goes through ends it.
+        r.note(Some("Timeout".to_owned()));
+        assert_eq!(r.count(), 1);
+        r.note(None);
+        assert_eq!(r.count(), 0);
+        assert!(r.last.is_none());
+    }
 
     /// What the fake base was told.
     #[derive(Debug, Clone, Copy, PartialEq)]
