@@ -363,12 +363,37 @@ fn assert_early_topics(msgs: &[ima_record::read::Message]) {
     );
 }
 
+/// The next WebSocket message, `None` when the read timed out; any other error fails the test
+/// at once (not after the deadline), saying `why`.
+fn next<S: std::io::Read + std::io::Write>(
+    ws: &mut tokio_tungstenite::tungstenite::WebSocket<S>,
+    why: &mut impl FnMut(&str) -> String,
+) -> Option<tokio_tungstenite::tungstenite::Message> {
+    match ws.read() {
+        Ok(m) => Some(m),
+        Err(tokio_tungstenite::tungstenite::Error::Io(e))
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+            ) =>
+        {
+            None
+        }
+        Err(e) => panic!(
+            "{}",
+            why(&format!("the live view's connection failed: {e}"))
+        ),
+    }
+}
+
 #[test]
 fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     let dir = scratch("live");
     use tokio_tungstenite::tungstenite::{self, Message, client::IntoClientRequest};
     let port = common::mission::free_port(false);
-    let _demo = common::Child(
+    // The demo's log, shown if no scan comes (a failure in `.ci/run` said only "no scan").
+    let log = dir.join("demo.log");
+    let mut demo = common::Child(
         ima()
             // Real-time speed: the mission outlasts a slow start on a loaded machine, so the
             // stream still flows when the client subscribes.
@@ -377,10 +402,20 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
             .arg("--foxglove")
             .arg(format!("127.0.0.1:{port}"))
             .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
             .unwrap(),
     );
+    let mut why = |what: &str| {
+        let status = demo.0.try_wait().ok().flatten();
+        let log = std::fs::read_to_string(&log).unwrap_or_default();
+        let tail: Vec<&str> = log.lines().rev().take(20).collect();
+        format!(
+            "{what}; the demo: {}; its last log lines (newest first):\n{}",
+            status.map_or("still running".to_owned(), |s| s.to_string()),
+            tail.join("\n")
+        )
+    };
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
     let stream = loop {
         match std::net::TcpStream::connect(("127.0.0.1", port)) {
@@ -406,9 +441,10 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     while laser.is_none() || !schemas.contains_key("/san/scooter") {
         assert!(
             std::time::Instant::now() < deadline,
-            "advertised: {schemas:?}"
+            "{}",
+            why(&format!("advertised: {schemas:?}"))
         );
-        let Ok(Message::Text(t)) = ws.read() else {
+        let Some(Message::Text(t)) = next(&mut ws, &mut why) else {
             continue;
         };
         let v: serde_json::Value = serde_json::from_str(&t).unwrap();
@@ -436,9 +472,18 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
         "subscriptions": [{"id": 3, "channelId": laser.unwrap()}]});
     ws.send(Message::Text(sub.to_string().into())).unwrap();
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let mut other = 0;
     loop {
-        assert!(std::time::Instant::now() < deadline, "no scan arrived");
-        if let Ok(Message::Binary(b)) = ws.read() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{}",
+            why(&format!("no scan arrived in 30 s ({other} other messages)"))
+        );
+        let Some(m) = next(&mut ws, &mut why) else {
+            continue;
+        };
+        other += 1;
+        if let Message::Binary(b) = m {
             assert_eq!(b[0], 1, "message data");
             assert_eq!(u32::from_le_bytes(b[1..5].try_into().unwrap()), 3);
             let s = ima_record::messages::LaserScan::decode(&b[13..]).unwrap();
