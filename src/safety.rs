@@ -344,7 +344,26 @@ where
     halt_and_wait().await;
     // record: every way out of a command closes the recording (its summary and indexes).
     let _ = crate::record::finish();
-    r
+    after_a_signal(r)
+}
+
+/// A body that failed after the program was asked to end failed because of it: its devices
+/// were halted under it (a driver then reports itself disconnected), so the end is reported as
+/// the interruption (exit 130 for SIGINT, 141 for a closed stdout), not as that error
+/// (`ima demo square` said "error: P2OS robot driver disconnected" and exited 1 on Ctrl-C).
+/// A command that answers Ctrl-C itself keeps its errors after a SIGINT.
+fn after_a_signal<T>(r: Result<T>) -> Result<T> {
+    match r {
+        Err(e)
+            if *cancel_channel().borrow()
+                && !(OWN_CTRL_C.load(Ordering::SeqCst) && signal() == Some(Signal::Int))
+                && !e.chain().any(|c| c.downcast_ref::<Interrupted>().is_some()) =>
+        {
+            tracing::debug!("after the interruption: {e:#}");
+            Err(Interrupted(cause()).into())
+        }
+        r => r,
+    }
 }
 
 /// Halt every registered device and wait (at most two seconds) until each has written its last

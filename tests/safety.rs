@@ -862,3 +862,55 @@ fn a_closed_stdout_ends_every_printing_command_quietly() {
     assert_eq!(code, Some(141), "scan: {err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// Ctrl-C during `ima demo square` and during the mission demo: each ends on the signal with
+/// exit 130 and the interruption's message, not with the error its halted driver reported
+/// (the square demo said "P2OS robot driver disconnected" and exited 1) nor at the forced exit
+/// after the grace period (the mission demo ran on for the whole 3 s, whose timer raced the
+/// orderly end and could cut its last lines).
+#[test]
+fn demos_end_on_sigint_as_interrupted() {
+    let dir = common::Scratch::new("safety-demos");
+    let svg = dir.join("demo.svg").display().to_string();
+    for args in [
+        &["demo", "square"][..],
+        &["demo", "--speed", "4", "--svg", &svg][..],
+    ] {
+        let mut child = Child(
+            ima()
+                .args(args)
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap(),
+        );
+        // The first line on either stream: the robots are being driven.
+        let err = child.0.stderr.take().unwrap();
+        let out = child.0.stdout.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let first = |s: Box<dyn std::io::Read + Send>, tx: std::sync::mpsc::Sender<String>| {
+            std::thread::spawn(move || {
+                let mut all = String::new();
+                for l in BufReader::new(s).lines().map_while(Result::ok) {
+                    let _ = tx.send(String::new());
+                    all.push_str(&l);
+                    all.push('\n');
+                }
+                all
+            })
+        };
+        let err = first(Box::new(err), tx.clone());
+        let _out = first(Box::new(out), tx);
+        rx.recv_timeout(Duration::from_secs(60))
+            .expect("the demo printed nothing");
+        std::thread::sleep(Duration::from_millis(500));
+        kill(&child, "INT");
+        let status = wait_exit(&mut child, args[1]);
+        let err = err.join().unwrap();
+        assert_eq!(status.code(), Some(130), "{args:?}: {err}");
+        assert!(
+            err.contains("interrupted by SIGINT; every device that could move was stopped"),
+            "{args:?}: {err}"
+        );
+    }
+}
