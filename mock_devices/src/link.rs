@@ -47,6 +47,44 @@ pub struct LinkCounters {
     pub reconnects: u64,
 }
 
+/// In words for an operator: the bytes each way, then only the faults that happened, e.g.
+/// `1200 bytes to the host, 85 from it; injected: 3 corrupted, 1 hang-up(s), 1 reconnect(s)` or
+/// `…; no faults injected`.
+impl core::fmt::Display for LinkCounters {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let (out, inn) = (&self.robot_to_host, &self.host_to_robot);
+        write!(
+            f,
+            "{} bytes to the host, {} from it",
+            out.bytes_out, inn.bytes_out
+        )?;
+        let sum = |g: fn(&FaultCounters) -> u64| g(out) + g(inn);
+        let faults = [
+            (sum(|c| c.corrupted), "corrupted"),
+            (sum(|c| c.dropped), "dropped"),
+            (sum(|c| c.garbage_bytes), "garbage byte(s)"),
+            (sum(|c| c.splits), "split write(s)"),
+            (sum(|c| c.stalls), "stall(s)"),
+            (self.hangups, "hang-up(s)"),
+            (self.reconnects, "reconnect(s)"),
+            (
+                self.discarded_while_down + sum(|c| c.lost_to_hangup),
+                "byte(s) lost while down",
+            ),
+        ];
+        let mut first = true;
+        for (n, what) in faults.iter().filter(|(n, _)| *n > 0) {
+            f.write_str(if first { "; injected: " } else { ", " })?;
+            write!(f, "{n} {what}")?;
+            first = false;
+        }
+        if first {
+            f.write_str("; no faults injected")?;
+        }
+        Ok(())
+    }
+}
+
 /// A snapshot of a running device (pty or duplex runner).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RunnerStatus {
@@ -291,6 +329,27 @@ impl<M: DeviceModel> DeviceLink<M> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn link_counters_read_as_words_with_only_the_faults_that_happened() {
+        let mut c = LinkCounters::default();
+        c.robot_to_host.bytes_out = 1200;
+        c.host_to_robot.bytes_out = 85;
+        assert_eq!(
+            c.to_string(),
+            "1200 bytes to the host, 85 from it; no faults injected"
+        );
+        c.robot_to_host.corrupted = 2;
+        c.host_to_robot.corrupted = 1;
+        c.hangups = 1;
+        c.reconnects = 1;
+        c.discarded_while_down = 7;
+        assert_eq!(
+            c.to_string(),
+            "1200 bytes to the host, 85 from it; injected: 3 corrupted, 1 hang-up(s), \
+             1 reconnect(s), 7 byte(s) lost while down"
+        );
+    }
+
     use super::*;
     use crate::model::EchoModel;
 

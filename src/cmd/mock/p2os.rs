@@ -42,7 +42,7 @@ pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32)
         .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
     let st = model.robot().stats();
     eprintln!(
-        "stopped: {} sessions, {} commands, {} SIPs, {} bad frames, {} watchdog trips; link {:?}",
+        "stopped: {} sessions, {} commands, {} SIPs, {} bad frames, {} watchdog trips; link: {}",
         st.sessions, st.commands, st.sips, st.bad_frames, st.watchdog_trips, status.counters
     );
     std::thread::sleep(Duration::from_millis(10));

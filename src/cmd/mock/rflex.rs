@@ -40,7 +40,7 @@ pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str) -> Result<
         .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
     let st = model.robot().stats();
     eprintln!(
-        "stopped: {} commands, {} frames sent, {} motion reports, {} bad frames, {} fail-safe trips; link {:?}",
+        "stopped: {} commands, {} frames sent, {} motion reports, {} bad frames, {} fail-safe trips; link: {}",
         st.commands,
         st.frames_sent,
         st.motion_reports,

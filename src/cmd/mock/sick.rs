@@ -45,7 +45,7 @@ pub fn run(world: &SharedWorld, robot: &str, seed: u64, faults: &str, baud: u32)
         .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;
     let st = model.model().stats();
     eprintln!(
-        "stopped: {} telegrams, {} NAKs, {} scans, {} baud changes, {} EEPROM writes, {} garbled bytes in; link {:?}",
+        "stopped: {} telegrams, {} NAKs, {} scans, {} baud changes, {} EEPROM writes, {} garbled bytes in; link: {}",
         st.telegrams,
         st.naks,
         st.scans,
