@@ -341,24 +341,30 @@ where
             Err(Interrupted(cause()).into())
         }
     };
+    // Read before the wait below: an error that came before the operator's Ctrl-C (pressed
+    // during that wait) stays that error.
+    let asked_to_end = asked_to_end();
     halt_and_wait().await;
     // record: every way out of a command closes the recording (its summary and indexes).
     let _ = crate::record::finish();
-    after_a_signal(r)
+    after_a_signal(r, asked_to_end)
 }
 
-/// A body that failed after the program was asked to end failed because of it: its devices
-/// were halted under it (a driver then reports itself disconnected), so the end is reported as
-/// the interruption (exit 130 for SIGINT, 141 for a closed stdout), not as that error
-/// (`ima demo square` said "error: P2OS robot driver disconnected" and exited 1 on Ctrl-C).
-/// A command that answers Ctrl-C itself keeps its errors after a SIGINT.
-fn after_a_signal<T>(r: Result<T>) -> Result<T> {
+/// The program has been asked to end: a signal, a panic or a closed stdout. Each flag is set
+/// before the devices are halted, so a body that fails because its device was halted finds it
+/// set (the cancel channel is only told afterwards).
+fn asked_to_end() -> bool {
+    signal().is_some() || PANICKED.load(Ordering::SeqCst) || OUTPUT_CLOSED.load(Ordering::SeqCst)
+}
+
+/// A body that failed after the program was asked to end (`asked_to_end`, read when the body
+/// ended) failed because of it: its devices were halted under it (a driver then reports itself
+/// disconnected), so the end is reported as the interruption (exit 130 for SIGINT, 141 for a
+/// closed stdout), not as that error (`ima demo square` said "error: P2OS robot driver
+/// disconnected" and exited 1 on Ctrl-C). The body's own error goes to the debug log.
+fn after_a_signal<T>(r: Result<T>, asked_to_end: bool) -> Result<T> {
     match r {
-        Err(e)
-            if *cancel_channel().borrow()
-                && !(OWN_CTRL_C.load(Ordering::SeqCst) && signal() == Some(Signal::Int))
-                && !e.chain().any(|c| c.downcast_ref::<Interrupted>().is_some()) =>
-        {
+        Err(e) if asked_to_end && !e.chain().any(|c| c.downcast_ref::<Interrupted>().is_some()) => {
             tracing::debug!("after the interruption: {e:#}");
             Err(Interrupted(cause()).into())
         }
@@ -426,5 +432,27 @@ pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
         Some(Interrupted(c)) => (c.exit_code(), Some(crate::error_chain(e))),
         None if broken_pipe() => (141, None),
         None => (1, Some(crate::error_chain(e))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_error_is_the_interruption_only_when_the_program_was_asked_to_end() {
+        let failed = || -> Result<()> { Err(anyhow::anyhow!("P2OS robot driver disconnected")) };
+        // Before any signal: the body's error stays (a pulled cable is not a Ctrl-C).
+        let e = after_a_signal(failed(), false).unwrap_err();
+        assert_eq!(e.to_string(), "P2OS robot driver disconnected");
+        assert_eq!(exit_status(&Err(e)).0, 1);
+        // After one: the interruption, with its exit code.
+        let e = after_a_signal(failed(), true).unwrap_err();
+        assert!(e.downcast_ref::<Interrupted>().is_some(), "{e:#}");
+        assert_eq!(exit_status(&Err(e)).0, cause().exit_code());
+        // Success and an interruption already reported pass through unchanged.
+        assert!(after_a_signal(Ok(()), true).is_ok());
+        let closed: Result<()> = Err(Interrupted(Cause::OutputClosed).into());
+        assert_eq!(exit_status(&after_a_signal(closed, true)).0, 141);
     }
 }

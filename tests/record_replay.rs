@@ -421,7 +421,11 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
         match std::net::TcpStream::connect(("127.0.0.1", port)) {
             Ok(s) => break s,
             Err(e) => {
-                assert!(std::time::Instant::now() < deadline, "no server: {e}");
+                assert!(
+                    std::time::Instant::now() < deadline,
+                    "{}",
+                    why(&format!("no server: {e}"))
+                );
                 std::thread::sleep(std::time::Duration::from_millis(100));
             }
         }

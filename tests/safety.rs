@@ -905,9 +905,17 @@ fn demos_end_on_sigint_as_interrupted() {
             .expect("the demo printed nothing");
         std::thread::sleep(Duration::from_millis(500));
         kill(&child, "INT");
+        let t0 = Instant::now();
         let status = wait_exit(&mut child, args[1]);
+        let took = t0.elapsed();
         let err = err.join().unwrap();
         assert_eq!(status.code(), Some(130), "{args:?}: {err}");
+        // Well before the guard's 3 s grace period, whose own "interrupted" line would pass the
+        // message check below (the mission demo used to run on until then).
+        assert!(
+            took < Duration::from_millis(2500),
+            "{args:?} took {took:?}: {err}"
+        );
         assert!(
             err.contains("interrupted by SIGINT; every device that could move was stopped"),
             "{args:?}: {err}"

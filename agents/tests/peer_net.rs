@@ -1028,6 +1028,52 @@ async fn a_foreign_or_silent_server_is_not_taken_for_a_key_mismatch() {
         "{a:?}"
     );
     keep.abort();
+    // A short reply, too short for a Peer header (22 bytes), then the close: foreign too.
+    let short = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let short_addr = short.local_addr().unwrap();
+    tokio::spawn(async move {
+        let (mut s, _) = short.accept().await.unwrap();
+        let mut buf = [0u8; 256];
+        let _ = s.read(&mut buf).await;
+        let _ = s.write_all(b"-ERR\r\n").await;
+    });
+    let c = PeerClientHandle::connect(short_addr, &cfg("scooter"), key())
+        .await
+        .unwrap();
+    let e = within("register", c.register()).await.unwrap_err();
+    let NetError::NotAPeer(a) = e else {
+        panic!("expected NotAPeer for a 6-byte reply, got {e:?}")
+    };
+    let text = NetError::NotAPeer(a).to_string();
+    assert!(
+        text.contains(
+            "sent 6 byte(s) that are not Peer Agent frames (they begin 2d 45 52 52 0d 0a"
+        ),
+        "{text}"
+    );
+    // A Peer header of another protocol version: named as such.
+    let other = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let other_addr = other.local_addr().unwrap();
+    tokio::spawn(async move {
+        let (mut s, _) = other.accept().await.unwrap();
+        let mut buf = [0u8; 256];
+        let _ = s.read(&mut buf).await;
+        let mut frame = vec![b'I', b'P', 9];
+        frame.resize(64, 0);
+        let _ = s.write_all(&frame).await;
+    });
+    let c = PeerClientHandle::connect(other_addr, &cfg("scooter"), key())
+        .await
+        .unwrap();
+    let e = within("register", c.register()).await.unwrap_err();
+    let NetError::NotAPeer(a) = e else {
+        panic!("expected NotAPeer for another version, got {e:?}")
+    };
+    let text = NetError::NotAPeer(a).to_string();
+    assert!(
+        text.contains("speaks version 9 of the Peer Agent protocol; this program speaks version 1"),
+        "{text}"
+    );
     // A listener that closes at once is what a manager under another key does: still told
     // as a possible key mismatch.
     let shut = TcpListener::bind("127.0.0.1:0").await.unwrap();

@@ -47,8 +47,9 @@ pub struct LinkCounters {
     pub reconnects: u64,
 }
 
-/// In words for an operator: the bytes each way, then only the faults that happened, e.g.
-/// `1200 bytes to the host, 85 from it; injected: 3 corrupted, 1 hang-up(s), 1 reconnect(s)` or
+/// In words for an operator: the bytes each end wrote (before faults), then only the faults
+/// that happened, e.g. `1200 bytes to the host, 85 from it; injected: 3 byte(s) corrupted,
+/// 1 hang-up(s), 1 reconnect(s)` or
 /// `…; no faults injected`.
 impl core::fmt::Display for LinkCounters {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -56,12 +57,12 @@ impl core::fmt::Display for LinkCounters {
         write!(
             f,
             "{} bytes to the host, {} from it",
-            out.bytes_out, inn.bytes_out
+            out.bytes_in, inn.bytes_in
         )?;
         let sum = |g: fn(&FaultCounters) -> u64| g(out) + g(inn);
         let faults = [
-            (sum(|c| c.corrupted), "corrupted"),
-            (sum(|c| c.dropped), "dropped"),
+            (sum(|c| c.corrupted), "byte(s) corrupted"),
+            (sum(|c| c.dropped), "byte(s) dropped"),
             (sum(|c| c.garbage_bytes), "garbage byte(s)"),
             (sum(|c| c.splits), "split write(s)"),
             (sum(|c| c.stalls), "stall(s)"),
@@ -332,8 +333,8 @@ mod tests {
     #[test]
     fn link_counters_read_as_words_with_only_the_faults_that_happened() {
         let mut c = LinkCounters::default();
-        c.robot_to_host.bytes_out = 1200;
-        c.host_to_robot.bytes_out = 85;
+        c.robot_to_host.bytes_in = 1200;
+        c.host_to_robot.bytes_in = 85;
         assert_eq!(
             c.to_string(),
             "1200 bytes to the host, 85 from it; no faults injected"
@@ -345,7 +346,7 @@ mod tests {
         c.discarded_while_down = 7;
         assert_eq!(
             c.to_string(),
-            "1200 bytes to the host, 85 from it; injected: 3 corrupted, 1 hang-up(s), \
+            "1200 bytes to the host, 85 from it; injected: 3 byte(s) corrupted, 1 hang-up(s), \
              1 reconnect(s), 7 byte(s) lost while down"
         );
     }

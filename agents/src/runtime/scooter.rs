@@ -400,8 +400,8 @@ impl Refusals {
     fn note(&mut self, refused: Option<String>) {
         match (refused, &mut self.last) {
             (Some(text), Some((last, n))) if text == *last => *n += 1,
-            (Some(text), Some((_, n))) => {
-                tracing::warn!("base: {text} (the previous error came {n} time(s))");
+            (Some(text), Some((last, n))) => {
+                tracing::warn!("base: {text} (after {n} refusal(s): {last})");
                 self.last = Some((text, 1));
             }
             (Some(text), None) => {
@@ -420,6 +420,17 @@ impl Refusals {
     #[cfg(test)]
     fn count(&self) -> u64 {
         self.last.as_ref().map_or(0, |(_, n)| *n)
+    }
+}
+
+/// The loop's end (usually after a halt) says how the last run of refusals ended.
+impl Drop for Refusals {
+    fn drop(&mut self) {
+        if let Some((last, n)) = &self.last
+            && *n > 1
+        {
+            tracing::info!("base: {n} refusal(s) in a row until the loop ended ({last})");
+        }
     }
 }
 

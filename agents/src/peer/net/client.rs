@@ -492,7 +492,7 @@ struct ClientTask {
     heard_ok: bool,
     /// Bytes received from the manager.
     received: u64,
-    /// The first bytes of the first frame (or bad header) read, and how many.
+    /// The first bytes read from the manager (frame or not), and how many.
     head: ([u8; 8], u8),
     /// The manager closed the connection.
     eof: bool,
@@ -502,13 +502,15 @@ struct ClientTask {
 impl ClientTask {
     /// Hands frames to the core, noting whether any passed authentication.
     fn frames(&mut self, reader: &mut FrameReader, now: ima_hal::Instant) {
-        while let Some(f) = reader.next_frame() {
-            if self.head.1 == 0 {
-                for (d, s) in self.head.0.iter_mut().zip(f) {
-                    *d = *s;
-                    self.head.1 += 1;
-                }
+        // The stream's first bytes, frame or not (a short foreign reply makes no frame).
+        let head = reader.head();
+        if usize::from(self.head.1) < head.len() {
+            for (d, s) in self.head.0.iter_mut().zip(head) {
+                *d = *s;
             }
+            self.head.1 = u8::try_from(head.len()).unwrap_or(u8::MAX);
+        }
+        while let Some(f) = reader.next_frame() {
             let before = self.core.rejects();
             self.core.handle_frame(f, now);
             if self.core.rejects() == before {
@@ -525,7 +527,16 @@ impl ClientTask {
     fn note_auth_failure(&mut self) {
         let r = self.core.rejects();
         let frames = r.bad_mac;
-        let foreign = r.bad_magic > 0 || r.bad_version > 0 || (!self.eof && self.received == 0);
+        let head = self
+            .head
+            .0
+            .get(..usize::from(self.head.1))
+            .unwrap_or_default();
+        // Bytes that cannot begin a Peer frame, even too few for a header.
+        let magic = crate::peer::wire::MAGIC;
+        let alien = !head.is_empty() && !head.starts_with(&magic) && !magic.starts_with(head);
+        let foreign =
+            r.bad_magic > 0 || r.bad_version > 0 || alien || (!self.eof && self.received == 0);
         let loss = if frames > 0 {
             Loss::Auth(AuthFailure {
                 from: self.peer,

@@ -29,6 +29,8 @@ pub(crate) struct FrameReader {
     max_body: usize,
     poisoned: bool,
     chunk: usize,
+    /// The first bytes ever read, and how many (to say what a stranger sent).
+    head: ([u8; 8], u8),
 }
 
 impl FrameReader {
@@ -39,6 +41,33 @@ impl FrameReader {
             max_body,
             poisoned: false,
             chunk: FIRST_CHUNK,
+            head: ([0; 8], 0),
+        }
+    }
+
+    /// The first bytes read from the stream (up to 8), whether or not they made a frame.
+    pub(crate) fn head(&self) -> &[u8] {
+        self.head
+            .0
+            .get(..usize::from(self.head.1))
+            .unwrap_or_default()
+    }
+
+    /// Keep the stream's first bytes, once `n` more were appended to the buffer.
+    fn note_head(&mut self, n: usize) {
+        let have = usize::from(self.head.1);
+        if have < self.head.0.len() && n > 0 {
+            let new = self.buf.len().saturating_sub(n);
+            for (d, s) in self
+                .head
+                .0
+                .iter_mut()
+                .skip(have)
+                .zip(self.buf.iter().skip(new))
+            {
+                *d = *s;
+                self.head.1 += 1;
+            }
         }
     }
 
@@ -67,7 +96,9 @@ impl FrameReader {
             return Ok(0);
         }
         self.make_room();
-        r.read_buf(&mut self.buf).await
+        let n = r.read_buf(&mut self.buf).await?;
+        self.note_head(n);
+        Ok(n)
     }
 
     /// Takes what the socket already holds, without waiting: `Ok(None)` when nothing is
@@ -79,7 +110,10 @@ impl FrameReader {
         }
         self.make_room();
         match r.try_read_buf(&mut self.buf) {
-            Ok(n) => Ok(Some(n)),
+            Ok(n) => {
+                self.note_head(n);
+                Ok(Some(n))
+            }
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(None),
             Err(e) => Err(e),
         }

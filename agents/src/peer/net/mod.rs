@@ -116,6 +116,22 @@ pub struct NotAPeer {
 
 impl core::fmt::Display for NotAPeer {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let head = self
+            .head
+            .get(..usize::from(self.head_len))
+            .unwrap_or_default();
+        if let [m0, m1, version, ..] = head
+            && [*m0, *m1] == crate::peer::wire::MAGIC
+            && *version != crate::peer::wire::VERSION
+        {
+            return write!(
+                f,
+                "{} speaks version {version} of the Peer Agent protocol; this program speaks \
+                 version {} — are both ends the same release of ima?",
+                self.from,
+                crate::peer::wire::VERSION
+            );
+        }
         if self.bytes == 0 {
             write!(
                 f,
@@ -129,10 +145,6 @@ impl core::fmt::Display for NotAPeer {
                 "{} sent {} byte(s) that are not Peer Agent frames (they begin",
                 self.from, self.bytes
             )?;
-            let head = self
-                .head
-                .get(..usize::from(self.head_len))
-                .unwrap_or_default();
             for b in head {
                 write!(f, " {b:02x}")?;
             }
