@@ -863,6 +863,22 @@ fn a_closed_stdout_ends_every_printing_command_quietly() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// Read `stream` to its end in the background, telling `line` of each line; the text read.
+fn collect_lines(
+    stream: impl std::io::Read + Send + 'static,
+    line: std::sync::mpsc::Sender<()>,
+) -> std::thread::JoinHandle<String> {
+    std::thread::spawn(move || {
+        let mut all = String::new();
+        for l in BufReader::new(stream).lines().map_while(Result::ok) {
+            let _ = line.send(());
+            all.push_str(&l);
+            all.push('\n');
+        }
+        all
+    })
+}
+
 /// Ctrl-C during `ima demo square` and during the mission demo: each ends on the signal with
 /// exit 130 and the interruption's message, not with the error its halted driver reported
 /// (the square demo said "P2OS robot driver disconnected" and exited 1) nor at the forced exit
@@ -888,19 +904,8 @@ fn demos_end_on_sigint_as_interrupted() {
         let err = child.0.stderr.take().unwrap();
         let out = child.0.stdout.take().unwrap();
         let (tx, rx) = std::sync::mpsc::channel();
-        let first = |s: Box<dyn std::io::Read + Send>, tx: std::sync::mpsc::Sender<String>| {
-            std::thread::spawn(move || {
-                let mut all = String::new();
-                for l in BufReader::new(s).lines().map_while(Result::ok) {
-                    let _ = tx.send(String::new());
-                    all.push_str(&l);
-                    all.push('\n');
-                }
-                all
-            })
-        };
-        let err = first(Box::new(err), tx.clone());
-        let _out = first(Box::new(out), tx);
+        let err = collect_lines(err, tx.clone());
+        let _out = collect_lines(out, tx);
         rx.recv_timeout(Duration::from_secs(60))
             .expect("the demo printed nothing");
         std::thread::sleep(Duration::from_millis(500));

@@ -975,24 +975,32 @@ async fn samples_a_data_session_missed_are_counted() {
     let _ = next(&mut sub).await;
 }
 
+/// Register against a server that reads the registration, answers `reply` and closes: the
+/// server's address, the client and the registration's error.
+async fn register_with(reply: &[u8]) -> (SocketAddr, PeerClientHandle, NetError) {
+    let server = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = server.local_addr().unwrap();
+    let reply = reply.to_vec();
+    tokio::spawn(async move {
+        let (mut s, _) = server.accept().await.unwrap();
+        let mut buf = [0u8; 256];
+        let _ = s.read(&mut buf).await;
+        let _ = s.write_all(&reply).await;
+    });
+    let c = PeerClientHandle::connect(addr, &cfg("scooter"), key())
+        .await
+        .unwrap();
+    let e = within("register", c.register()).await.unwrap_err();
+    (addr, c, e)
+}
+
 /// A manager address that is something else (a web server) or a silent listener is named as
 /// such: not as a key mismatch, which is what a session closed before any authenticated frame
 /// means from a real manager.
 #[tokio::test]
 async fn a_foreign_or_silent_server_is_not_taken_for_a_key_mismatch() {
     // A web server: it answers the registration with HTTP and closes.
-    let web = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let web_addr = web.local_addr().unwrap();
-    tokio::spawn(async move {
-        let (mut s, _) = web.accept().await.unwrap();
-        let mut buf = [0u8; 256];
-        let _ = s.read(&mut buf).await;
-        let _ = s.write_all(b"HTTP/1.1 400 Bad Request\r\n\r\n").await;
-    });
-    let c = PeerClientHandle::connect(web_addr, &cfg("scooter"), key())
-        .await
-        .unwrap();
-    let e = within("register", c.register()).await.unwrap_err();
+    let (web_addr, c, e) = register_with(b"HTTP/1.1 400 Bad Request\r\n\r\n").await;
     let NetError::NotAPeer(a) = e else {
         panic!("expected NotAPeer, got {e:?}")
     };
@@ -1029,18 +1037,7 @@ async fn a_foreign_or_silent_server_is_not_taken_for_a_key_mismatch() {
     );
     keep.abort();
     // A short reply, too short for a Peer header (22 bytes), then the close: foreign too.
-    let short = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let short_addr = short.local_addr().unwrap();
-    tokio::spawn(async move {
-        let (mut s, _) = short.accept().await.unwrap();
-        let mut buf = [0u8; 256];
-        let _ = s.read(&mut buf).await;
-        let _ = s.write_all(b"-ERR\r\n").await;
-    });
-    let c = PeerClientHandle::connect(short_addr, &cfg("scooter"), key())
-        .await
-        .unwrap();
-    let e = within("register", c.register()).await.unwrap_err();
+    let (_, _, e) = register_with(b"-ERR\r\n").await;
     let NetError::NotAPeer(a) = e else {
         panic!("expected NotAPeer for a 6-byte reply, got {e:?}")
     };
@@ -1052,20 +1049,9 @@ async fn a_foreign_or_silent_server_is_not_taken_for_a_key_mismatch() {
         "{text}"
     );
     // A Peer header of another protocol version: named as such.
-    let other = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let other_addr = other.local_addr().unwrap();
-    tokio::spawn(async move {
-        let (mut s, _) = other.accept().await.unwrap();
-        let mut buf = [0u8; 256];
-        let _ = s.read(&mut buf).await;
-        let mut frame = vec![b'I', b'P', 9];
-        frame.resize(64, 0);
-        let _ = s.write_all(&frame).await;
-    });
-    let c = PeerClientHandle::connect(other_addr, &cfg("scooter"), key())
-        .await
-        .unwrap();
-    let e = within("register", c.register()).await.unwrap_err();
+    let mut frame = [0u8; 64];
+    frame[..3].copy_from_slice(&[b'I', b'P', 9]);
+    let (_, _, e) = register_with(&frame).await;
     let NetError::NotAPeer(a) = e else {
         panic!("expected NotAPeer for another version, got {e:?}")
     };

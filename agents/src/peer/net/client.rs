@@ -503,13 +503,7 @@ impl ClientTask {
     /// Hands frames to the core, noting whether any passed authentication.
     fn frames(&mut self, reader: &mut FrameReader, now: ima_hal::Instant) {
         // The stream's first bytes, frame or not (a short foreign reply makes no frame).
-        let head = reader.head();
-        if usize::from(self.head.1) < head.len() {
-            for (d, s) in self.head.0.iter_mut().zip(head) {
-                *d = *s;
-            }
-            self.head.1 = u8::try_from(head.len()).unwrap_or(u8::MAX);
-        }
+        self.head = reader.head();
         while let Some(f) = reader.next_frame() {
             let before = self.core.rejects();
             self.core.handle_frame(f, now);

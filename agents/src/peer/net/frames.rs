@@ -45,12 +45,10 @@ impl FrameReader {
         }
     }
 
-    /// The first bytes read from the stream (up to 8), whether or not they made a frame.
-    pub(crate) fn head(&self) -> &[u8] {
+    /// The first bytes read from the stream (up to 8, whether or not they made a frame) and
+    /// how many of them there are.
+    pub(crate) fn head(&self) -> ([u8; 8], u8) {
         self.head
-            .0
-            .get(..usize::from(self.head.1))
-            .unwrap_or_default()
     }
 
     /// Keep the stream's first bytes, once `n` more were appended to the buffer.
