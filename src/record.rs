@@ -39,7 +39,9 @@ pub struct RecordArgs {
     pub record: Option<PathBuf>,
     /// Serve a live view to Foxglove on this address (WebSocket; default 127.0.0.1:8765,
     /// loopback only unless another address is given).
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_FOXGLOVE)]
+    /// `ADDR` is `ip:port`, `localhost:port` or a port alone (on 127.0.0.1).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_FOXGLOVE,
+          value_parser = foxglove_addr)]
     pub foxglove: Option<SocketAddr>,
     /// Camera frames raw (`foxglove.RawImage`, rgb8; the file's zstd compresses them as well
     /// as PNG would) or as PNG (`foxglove.CompressedImage`, compressed on the recorder's
@@ -62,6 +64,27 @@ pub enum ImageFormat {
     Raw,
     /// PNG in `foxglove.CompressedImage`.
     Png,
+}
+
+/// A `--foxglove` address: `ip:port` (`0.0.0.0:8765` to serve every interface),
+/// `localhost:port` or a port alone, both on 127.0.0.1.
+///
+/// # Errors
+/// A message naming the accepted forms.
+pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
+    let s = s.trim();
+    let loopback = |port: &str| port.parse().map(|p| SocketAddr::from(([127, 0, 0, 1], p)));
+    let addr = match s.strip_prefix("localhost:") {
+        Some(port) => loopback(port).ok(),
+        None if s.bytes().all(|b| b.is_ascii_digit()) => loopback(s).ok(),
+        None => s.parse().ok(),
+    };
+    addr.ok_or_else(|| {
+        format!(
+            "not an address such as {DEFAULT_FOXGLOVE}, localhost:8765, 0.0.0.0:8765 \
+             (every interface) or a port alone (8765)"
+        )
+    })
 }
 
 impl RecordArgs {
@@ -799,6 +822,28 @@ mod tests {
         v["t_s"] = json!(e.t_s);
         v["robot"] = json!(e.robot);
         v
+    }
+
+    /// `localhost:8766` and a port alone were refused as "invalid socket address syntax"
+    /// (while `--web` took `localhost:PORT`).
+    #[test]
+    fn foxglove_addresses_take_localhost_and_a_port_alone() {
+        let ok = |s: &str| foxglove_addr(s).unwrap().to_string();
+        assert_eq!(ok("localhost:8766"), "127.0.0.1:8766");
+        assert_eq!(ok("8766"), "127.0.0.1:8766");
+        assert_eq!(ok(" 0.0.0.0:8765 "), "0.0.0.0:8765");
+        assert_eq!(ok("[::1]:9000"), "[::1]:9000");
+        for bad in [
+            "",
+            "localhost",
+            "localhost:99999",
+            "99999",
+            "example.org:80",
+            "1.2.3:4",
+        ] {
+            let e = foxglove_addr(bad).unwrap_err();
+            assert!(e.contains("localhost:8765"), "{bad:?}: {e}");
+        }
     }
 
     #[test]

@@ -85,6 +85,38 @@ fn decode_reads_hex_from_stdin_and_reports_bad_frames() {
     assert_eq!(v[2]["offset"], 18);
 }
 
+/// Bytes of another protocol (or direction) give no frame: the output is empty, so stderr
+/// says what likely happened instead of leaving the user with nothing.
+#[test]
+fn decode_says_so_when_no_frame_was_found() {
+    let decode = |args: &[&str], input: &[u8]| {
+        let mut child = ima()
+            .arg("decode")
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        child.stdin.take().unwrap().write_all(input).unwrap();
+        child.wait_with_output().unwrap()
+    };
+    // NMEA text is no P2OS stream.
+    let out = decode(&["p2os"], b"$HCHDG,101.1,,,7.1,W*3C\r\n");
+    assert!(out.status.success());
+    assert!(out.stdout.is_empty());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no p2os frame in 25 bytes") && err.contains("`--from host`"),
+        "{err}"
+    );
+    // A frame, or no input at all, is not reported.
+    let out = decode(&["p2os", "--from", "host", "--hex"], b"FA FB 03 1D 00 1D");
+    assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
+    let out = decode(&["p2os"], b"");
+    assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
+}
+
 #[test]
 fn demo_drives_a_square_with_odometry_matching_ground_truth() {
     let out = run_ok(ima().args(["demo", "square", "--side", "0.4", "--json"]));

@@ -842,8 +842,9 @@ fn close_stdout_after(cmd: &mut std::process::Command, lines: usize) -> (Option<
     (status.code(), err)
 }
 
-/// `ima demo square --json | head -1`, `ima demo --json | head -1` and
-/// `ima scan --json | head -1` end quietly with 141 instead of panicking.
+/// `ima demo square --json | head -1`, `ima demo --json | head -1`,
+/// `ima scan --json | head -1` and `ima decode … | head -1` end quietly with 141 instead of
+/// panicking or reporting an error.
 #[test]
 fn a_closed_stdout_ends_every_printing_command_quietly() {
     let (code, err) = close_stdout_after(ima().args(["demo", "square", "--json"]), 1);
@@ -861,6 +862,21 @@ fn a_closed_stdout_ends_every_printing_command_quietly() {
     );
     assert_eq!(code, Some(141), "scan: {err}");
     assert!(!err.contains("panicked"), "{err}");
+
+    // `ima decode` of a capture larger than the pipe holds (it said "error: Broken pipe"
+    // and exited 1).
+    let dir = common::Scratch::new("safety-decode");
+    let capture = dir.join("commands.bin");
+    let vel = [0xFA, 0xFB, 0x06, 0x0B, 0x3B, 0xC8, 0x00, 0xD3, 0x3B];
+    std::fs::write(&capture, vel.repeat(20_000)).unwrap();
+    let (code, err) = close_stdout_after(
+        ima()
+            .args(["decode", "p2os", "--from", "host"])
+            .arg(&capture),
+        1,
+    );
+    assert_eq!(code, Some(141), "decode: {err}");
+    assert!(err.is_empty(), "{err}");
 }
 
 /// Read `stream` to its end in the background, telling `line` of each line; the text read.

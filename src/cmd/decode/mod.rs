@@ -121,8 +121,15 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     let stdout = std::io::stdout();
     let mut out = std::io::BufWriter::new(stdout.lock());
     let host = args.from == Direction::Host;
+    let (mut frames, mut errors) = (0u64, 0u64);
     let mut emit = |v: Value| -> Result<()> {
-        serde_json::to_writer(&mut out, &v)?;
+        if v["kind"] == "error" {
+            errors += 1;
+        } else {
+            frames += 1;
+        }
+        // As an `io::Error`, so that a closed stdout ends the program quietly (141).
+        serde_json::to_writer(&mut out, &v).map_err(std::io::Error::from)?;
         out.write_all(b"\n")?;
         Ok(())
     };
@@ -138,7 +145,40 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         Protocol::Rflex => rflex::decode_rflex(&bytes, host, &mut emit)?,
     }
     out.flush()?;
+    if let Some(why) = nothing_decoded(protocol, args.from, bytes.len(), frames, errors) {
+        eprintln!("ima decode: {why}");
+    }
     Ok(())
+}
+
+/// What to tell a user whose `bytes` gave no frame at all (the output is then empty or only
+/// errors, which reads as "nothing happened"): most likely the wrong protocol or direction.
+fn nothing_decoded(
+    protocol: Protocol,
+    from: Direction,
+    bytes: usize,
+    frames: u64,
+    errors: u64,
+) -> Option<String> {
+    if bytes == 0 || frames > 0 {
+        return None;
+    }
+    let name = protocol
+        .to_possible_value()
+        .map_or_else(String::new, |v| v.get_name().to_owned());
+    let other = match from {
+        Direction::Robot => "host",
+        Direction::Host => "robot",
+    };
+    Some(format!(
+        "no {name} frame in {bytes} bytes{}: another protocol, or the other direction \
+         (`--from {other}`)?",
+        if errors > 0 {
+            format!(" ({errors} rejected)")
+        } else {
+            String::new()
+        }
+    ))
 }
 
 /// The protocol of a recorded port's `protocol` metadata.
@@ -165,6 +205,18 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
         eprintln!("ima decode: the recording ends early ({why}); decoding the bytes before");
     }
     let stream = stream?;
+    let recorded = recorded_protocol(&stream.port.protocol);
+    if let (Some(asked), Some(rec)) = (args.protocol, recorded) {
+        let name = |p: Protocol| p.to_possible_value().map(|v| v.get_name().to_owned());
+        if name(asked) != name(rec) {
+            eprintln!(
+                "ima decode: {} was recorded as {}; decoding it as {} as asked",
+                stream.topic,
+                stream.port.protocol,
+                name(asked).unwrap_or_default()
+            );
+        }
+    }
     let want = match args.from {
         Direction::Robot => ima_record::raw::Dir::Rx,
         Direction::Host => ima_record::raw::Dir::Tx,
@@ -175,5 +227,5 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
         .filter(|c| c.1 == want)
         .flat_map(|c| c.2.iter().copied())
         .collect();
-    Ok((bytes, recorded_protocol(&stream.port.protocol)))
+    Ok((bytes, recorded))
 }
