@@ -1,6 +1,7 @@
 //! Issue 16: `ima demo --record` read back with the `mcap` crate's reader (channels, schemas,
 //! counts against the demo's own report), `ima replay` re-decoding the raw bytes into the
-//! same scans message by message, and a recording cut short by SIGKILL still readable.
+//! same scans message by message (and a recording of the replay into the same again), and a
+//! recording cut short by SIGKILL still readable.
 
 mod common;
 use std::collections::BTreeMap;
@@ -287,6 +288,45 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         json_lines(&out.stdout)
             .iter()
             .any(|l| l["kind"] == "odometry" && l["robot"] == "skeeter")
+    );
+
+    // A recording of the replay carries every raw channel as recorded (port metadata, stamps,
+    // both directions, line speeds): it replays into the same readings. It used to hold only
+    // the readings, so "no raw serial channel to re-decode" ended the trail there.
+    let again = file.with_file_name("replayed.mcap");
+    let rerecorded = ima()
+        .args(["replay", "--speed", "0", "--record"])
+        .arg(&again)
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&rerecorded.stderr);
+    assert!(rerecorded.status.success(), "{err}");
+    let original = Recording::open(&file).unwrap().raw_streams();
+    let copied = Recording::open(&again).unwrap().raw_streams();
+    assert_eq!(copied.len(), 5, "{err}");
+    for (c, o) in copied.iter().zip(&original) {
+        assert_eq!((&c.topic, &c.port), (&o.topic, &o.port));
+        assert_eq!(c.chunks.len(), o.chunks.len(), "{}", c.topic);
+        if let Some(i) = c.chunks.iter().zip(&o.chunks).position(|(a, b)| a != b) {
+            panic!(
+                "{}: chunk {i}: {:?} against {:?}",
+                c.topic, c.chunks[i], o.chunks[i]
+            );
+        }
+    }
+    let out2 = ima()
+        .args(["replay", "--speed", "0", "--json"])
+        .arg(&again)
+        .output()
+        .unwrap();
+    assert!(out2.status.success());
+    let (first, second) = (json_lines(&out.stdout), json_lines(&out2.stdout));
+    assert!(
+        first == second,
+        "the replay of the replay differs: {} readings against {}",
+        second.len(),
+        first.len()
     );
 
     // `ima decode --mcap` reads one port.

@@ -6,7 +6,9 @@
 //! Readings: SICK LMS scans (`/<robot>/laser/scan`, exactly as decoded), P2OS SIP odometry
 //! (`/<robot>/odom`, `/tf`), rFLEX odometry integrated from its motion reports, compass
 //! headings (`/<robot>/compass`, east-north-up). The recorded decoded topics are not replayed:
-//! they are what the replay re-creates.
+//! they are what the replay re-creates. A recording of the replay (`--record`) also carries
+//! every raw channel with its recorded stamps and port metadata, so it can itself be replayed,
+//! decoded (`ima decode --mcap`) or served `--as-mock`.
 //!
 //! `ima replay --as-mock PORT` serves one recorded port's robot→host bytes on a pty instead,
 //! paced by their stamps, so a driver can be run against a recording.
@@ -111,22 +113,44 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     }
     readings.sort_by_key(|r| r.t_ns);
     crate::record::start(&args.rec, "ima replay")?;
+    let raw = RawReplay::new(&streams);
     let json_out = args.json;
     let speed = args.speed;
     let n = readings.len();
     crate::safety::block_on(async move {
-        let Some(t0) = readings.first().map(|r| r.t_ns) else {
+        let t0 = readings.first().map(|r| r.t_ns);
+        // Pacing starts at the first reading or raw chunk, whichever is earlier.
+        let Some(first) = [t0, raw.first()].into_iter().flatten().min() else {
             return Ok(());
         };
         let start = tokio::time::Instant::now();
-        for r in &readings {
+        let mut chunks = raw.chunks.iter().peekable();
+        let mut readings = readings.iter().peekable();
+        loop {
+            // The next item in stamp order (a chunk before a reading of the same stamp: the
+            // bytes that completed it).
+            let next_chunk = chunks.peek().map(|c| c.0);
+            let next_reading = readings.peek().map(|r| r.t_ns);
+            let t = match (next_chunk, next_reading) {
+                (None, None) => break,
+                (Some(c), Some(r)) => c.min(r),
+                (Some(t), None) | (None, Some(t)) => t,
+            };
             if speed > 0.0 {
-                let due = Duration::from_nanos(r.t_ns.saturating_sub(t0)).div_f64(speed);
+                let due = Duration::from_nanos(t.saturating_sub(first)).div_f64(speed);
                 crate::safety::until_cancelled(tokio::time::sleep_until(start + due)).await?;
             }
-            publish(r);
-            if json_out {
-                outln!("{}", reading_json(r, t0))?;
+            if next_chunk == Some(t) {
+                if let Some(c) = chunks.next() {
+                    raw.publish(c);
+                }
+                continue;
+            }
+            if let Some(r) = readings.next() {
+                publish(r);
+                if json_out {
+                    outln!("{}", reading_json(r, t0.unwrap_or(r.t_ns)))?;
+                }
             }
         }
         Ok(())
@@ -135,6 +159,59 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         eprintln!("ima replay: {n} readings from {}", args.file.display());
     }
     Ok(())
+}
+
+/// The raw chunks a recording of the replay carries, so that it can itself be replayed,
+/// decoded or served `--as-mock`: every port's chunks (both directions and line-speed
+/// changes) in stamp order, with the port each goes to. Empty when nothing records.
+struct RawReplay<'a> {
+    ports: Vec<ima_record::raw::RawPort>,
+    /// `(log time, port index, direction, bytes)`, in log-time order.
+    chunks: Vec<(u64, usize, Dir, &'a [u8])>,
+}
+
+impl<'a> RawReplay<'a> {
+    fn new(streams: &'a [RawStream]) -> Self {
+        let mut ports = Vec::new();
+        crate::record::with(|rec| {
+            ports = streams
+                .iter()
+                .map(|s| rec.raw_port(s.port.clone()))
+                .collect();
+        });
+        let mut chunks: Vec<_> = if ports.is_empty() {
+            Vec::new()
+        } else {
+            streams
+                .iter()
+                .enumerate()
+                .flat_map(|(i, s)| s.chunks.iter().map(move |c| (c.0, i, c.1, &c.2[..])))
+                .collect()
+        };
+        // Stable: each port's chunks keep their recorded order.
+        chunks.sort_by_key(|c| c.0);
+        Self { ports, chunks }
+    }
+
+    fn first(&self) -> Option<u64> {
+        self.chunks.first().map(|c| c.0)
+    }
+
+    fn publish(&self, &(t_ns, port, dir, bytes): &(u64, usize, Dir, &[u8])) {
+        let Some(p) = self.ports.get(port) else {
+            return;
+        };
+        crate::record::with(|rec| rec.set_stamp(Some(t_ns)));
+        match dir {
+            Dir::Rx => p.rx(bytes),
+            Dir::Tx => p.tx(bytes),
+            Dir::Baud => {
+                if let Ok(b) = <[u8; 4]>::try_from(bytes) {
+                    p.baud(u32::from_le_bytes(b));
+                }
+            }
+        }
+    }
 }
 
 fn publish(r: &Stamped) {
