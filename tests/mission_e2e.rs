@@ -666,7 +666,7 @@ fn the_commanders_console_gets_both_robots_poses_from_separate_processes() {
         s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
         write!(
             s,
-            "GET /api/state HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+            "GET /api/state HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
         )
         .ok()?;
         let mut resp = String::new();

@@ -199,6 +199,65 @@ impl Console {
     }
 }
 
+/// Why `req` may come from another web site, which must neither command the robots nor read
+/// the console; `None` when it may not.
+///
+/// Any page the operator's browser opens can send a "simple" cross-site POST (no CORS
+/// preflight) to a console on loopback, which has no token: before this check such a page
+/// could resume a stopped fleet. So a command must be JSON (`Content-Type:
+/// application/json`, which a cross-site page can only send after a preflight this server
+/// never grants) and, when the browser names its `Origin`, come from this console's own.
+/// Without a token (`loopback`), the `Host` must also be a loopback name, so a page whose
+/// domain was re-bound to 127.0.0.1 (DNS rebinding) reads and commands nothing.
+fn cross_site(req: &Request, loopback: bool) -> Option<String> {
+    let host = req
+        .headers()
+        .get(header::HOST)
+        .and_then(|v| v.to_str().ok())
+        .or_else(|| req.uri().authority().map(|a| a.as_str()))
+        .unwrap_or("");
+    if loopback && !is_loopback_host(host) {
+        return Some(format!(
+            "Host {host:?} is not a loopback name; open http://127.0.0.1:PORT or \
+             http://localhost:PORT"
+        ));
+    }
+    if req.method() == axum::http::Method::GET || req.method() == axum::http::Method::HEAD {
+        return None;
+    }
+    if let Some(origin) = req.headers().get(header::ORIGIN) {
+        let origin = origin.to_str().unwrap_or("?");
+        let site = origin
+            .strip_prefix("http://")
+            .or_else(|| origin.strip_prefix("https://"));
+        if site != Some(host) {
+            return Some(format!("a command from another site ({origin})"));
+        }
+    }
+    let json = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|t| {
+            t.trim_start()
+                .to_ascii_lowercase()
+                .starts_with("application/json")
+        });
+    (!json).then(|| "a command must be JSON (Content-Type: application/json)".to_owned())
+}
+
+/// `localhost`, `127.x.x.x` or `[::1]`, with or without a port.
+fn is_loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or(""),
+        None => host.rsplit_once(':').map_or(host, |(h, _)| h),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
 /// Compares without stopping at the first difference.
 fn same(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
@@ -355,6 +414,10 @@ fn asset(kind: &'static str, body: &'static str) -> Response {
 }
 
 async fn guard(State(c): State<Arc<Console>>, req: Request, next: Next) -> Response {
+    if let Some(why) = cross_site(&req, c.token.is_none()) {
+        tracing::warn!("web console: {why}");
+        return (StatusCode::FORBIDDEN, format!("refused: {why}\n")).into_response();
+    }
     if c.authorised(&req) {
         next.run(req).await
     } else {

@@ -21,13 +21,20 @@ fn colours() -> Vec<String> {
     ["red", "blue", "green"].map(String::from).to_vec()
 }
 
-/// One request; the status code and the body.
+/// One request as the page makes it (JSON, to the address it was served from); the status
+/// code and the body.
 fn http(addr: SocketAddr, method: &str, path: &str, body: &str) -> (u16, String) {
+    let headers = format!("Host: {addr}\r\nContent-Type: application/json\r\n");
+    request(addr, method, path, &headers, body)
+}
+
+/// One request with these header lines (each ending in CRLF); the status code and the body.
+fn request(addr: SocketAddr, method: &str, path: &str, headers: &str, body: &str) -> (u16, String) {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     write!(
         s,
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        "{method} {path} HTTP/1.1\r\n{headers}Connection: close\r\nContent-Length: {}\r\n\r\n{body}",
         body.len()
     )
     .unwrap();
@@ -50,7 +57,7 @@ fn http(addr: SocketAddr, method: &str, path: &str, body: &str) -> (u16, String)
 fn first_state(addr: SocketAddr) -> (BufReader<TcpStream>, Value) {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(s, "GET /api/events HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    write!(s, "GET /api/events HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
     let mut r = BufReader::new(s);
     let mut line = String::new();
     loop {
@@ -269,6 +276,64 @@ fn beyond_loopback_a_token_is_needed_and_checked() {
         url(srv.addr, Some("s3cret")),
         format!("http://{}/?token=s3cret", srv.addr)
     );
+}
+
+/// A page on another site must not command the robots through the operator's browser (a
+/// "simple" cross-site POST needs no preflight, and a loopback console has no token), nor read
+/// the console through a domain re-bound to 127.0.0.1.
+#[test]
+fn other_sites_can_neither_command_nor_read_the_console() {
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let c = Console::new("commander", colours(), Some(tx), None);
+    let srv = start(Arc::clone(&c), "127.0.0.1:0".parse().unwrap()).unwrap();
+    let a = srv.addr;
+    let resume = r#"{"cmd":"resume"}"#;
+    let host = format!("Host: {a}\r\n");
+    // What a cross-site form or `fetch(…, {mode: "no-cors"})` sends: refused, nothing sent.
+    let plain = format!("{host}Content-Type: text/plain\r\n");
+    let (code, body) = request(a, "POST", "/api/command", &plain, resume);
+    assert_eq!(code, 403, "{body}");
+    assert!(body.contains("Content-Type: application/json"), "{body}");
+    let evil = format!("{host}Origin: http://evil.example\r\nContent-Type: application/json\r\n");
+    let (code, body) = request(a, "POST", "/api/command", &evil, resume);
+    assert_eq!(code, 403, "{body}");
+    assert!(
+        body.contains("another site (http://evil.example)"),
+        "{body}"
+    );
+    assert!(
+        rx.try_recv().is_err(),
+        "nothing refused reaches the commander"
+    );
+    // DNS rebinding: the right address, another site's name.
+    let rebound = "Host: evil.example\r\n";
+    assert_eq!(request(a, "GET", "/api/state", rebound, "").0, 403);
+    let json = "Content-Type: application/json\r\n";
+    let post = format!("{rebound}{json}");
+    assert_eq!(request(a, "POST", "/api/command", &post, resume).0, 403);
+    assert!(rx.try_recv().is_err());
+    // The page itself, by any loopback name, with or without an Origin header.
+    let own = format!("{host}Origin: http://{a}\r\n{json}");
+    assert_eq!(request(a, "POST", "/api/command", &own, resume).0, 200);
+    assert_eq!(rx.try_recv(), Ok(Operator::Resume));
+    let port = a.port();
+    for name in [
+        format!("localhost:{port}"),
+        format!("[::1]:{port}"),
+        "127.0.0.2".into(),
+    ] {
+        let h = format!("Host: {name}\r\n");
+        assert_eq!(request(a, "GET", "/api/state", &h, "").0, 200, "{name}");
+    }
+    // With a token (a console beyond loopback) any host name may be used, with the token.
+    let c = Console::new("demo", colours(), None, Some("s3cret".into()));
+    let srv = start(c, "127.0.0.1:0".parse().unwrap()).unwrap();
+    let lan = "Host: 192.168.1.20:8080\r\n";
+    assert_eq!(
+        request(srv.addr, "GET", "/api/state?token=s3cret", lan, "").0,
+        200
+    );
+    assert_eq!(request(srv.addr, "GET", "/api/state", lan, "").0, 401);
 }
 
 #[test]
