@@ -353,7 +353,7 @@ where
 /// The program has been asked to end: a signal, a panic or a closed stdout. Each flag is set
 /// before the devices are halted, so a body that fails because its device was halted finds it
 /// set (the cancel channel is only told afterwards).
-fn asked_to_end() -> bool {
+pub fn asked_to_end() -> bool {
     signal().is_some() || PANICKED.load(Ordering::SeqCst) || OUTPUT_CLOSED.load(Ordering::SeqCst)
 }
 

@@ -943,3 +943,34 @@ fn demos_end_on_sigint_as_interrupted() {
         );
     }
 }
+
+/// Ctrl-C during `ima experiment heading` ends the sweep after the runs under way: exit 130, a
+/// line saying how far it got, nothing on stdout (a partial sweep's tables would read as the
+/// whole). It used to run on until the signal's 3 s grace period ended the process.
+#[test]
+fn an_interrupted_experiment_ends_after_its_runs_under_way_and_writes_nothing() {
+    let mut child = Child(
+        ima()
+            .args(["experiment", "heading", "--threads", "1"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (err_line, progress) = std::sync::mpsc::channel();
+    let err = collect_lines(child.0.stderr.take().unwrap(), err_line);
+    let out = collect_lines(child.0.stdout.take().unwrap(), std::sync::mpsc::channel().0);
+    // The first progress line (a quarter of the 96 runs): the sweep is under way.
+    progress
+        .recv_timeout(Duration::from_secs(120))
+        .expect("no progress line");
+    kill(&child, "INT");
+    let status = wait_exit(&mut child, "the experiment");
+    let err = err.join().unwrap();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("when the sweep was interrupted; nothing written"),
+        "{err}"
+    );
+    assert_eq!(out.join().unwrap(), "");
+}

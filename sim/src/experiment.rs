@@ -831,6 +831,17 @@ pub fn worker_count(requested: usize, runs: usize, cores: usize) -> usize {
 /// Run the whole sweep on `cfg.threads` threads (capped by [`worker_count`]); `progress(done, total)` is called after
 /// each run (from the worker threads). Results come back in [`configurations`] order.
 pub fn run_sweep(cfg: &SweepConfig, progress: &(dyn Fn(usize, usize) + Sync)) -> Vec<RunResult> {
+    run_sweep_until(cfg, progress, &|| false)
+}
+
+/// [`run_sweep`] that ends early once `stop()` says so (asked before each run, e.g. after
+/// Ctrl-C): the runs already started finish, no other starts. The results are those of the
+/// runs done, in [`configurations`] order.
+pub fn run_sweep_until(
+    cfg: &SweepConfig,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Vec<RunResult> {
     let specs = configurations(&cfg.rules, cfg.seed);
     let total = specs.len();
     let next = AtomicUsize::new(0);
@@ -840,7 +851,7 @@ pub fn run_sweep(cfg: &SweepConfig, progress: &(dyn Fn(usize, usize) + Sync)) ->
     std::thread::scope(|s| {
         for _ in 0..workers {
             s.spawn(|| {
-                loop {
+                while !stop() {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(spec) = specs.get(i) else { break };
                     let r = run_one(spec, cfg);

@@ -21,8 +21,8 @@ use anyhow::Context;
 use ima_agents::mission::scooter::HeadingRule;
 use ima_sim::Observer;
 use ima_sim::experiment::{
-    ANGLES_DEG, RobotModel, SweepConfig, csv, json, markdown_tables, run_sweep, summary, svg_f,
-    svg_trajectories,
+    ANGLES_DEG, RobotModel, SweepConfig, csv, json, markdown_tables, run_sweep_until, summary,
+    svg_f, svg_trajectories,
 };
 
 /// `ima experiment …`.
@@ -145,10 +145,20 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
             let _ = e.flush();
         }
     };
-    let results = run_sweep(&cfg, &progress);
+    // Ctrl-C (or any signal) ends the sweep after the runs under way, at once rather than at
+    // the signal's 3 s grace period, with nothing written: a partial sweep's tables would
+    // read as the whole.
+    let results = run_sweep_until(&cfg, &progress, &crate::safety::asked_to_end);
     let elapsed = started.elapsed().as_secs_f64();
     if tty {
         eprintln!();
+    }
+    if crate::safety::asked_to_end() {
+        eprintln!(
+            "{} runs done in {elapsed:.1} s when the sweep was interrupted; nothing written",
+            results.len()
+        );
+        return Err(crate::safety::Interrupted(crate::safety::cause()).into());
     }
     eprintln!("{} runs in {elapsed:.1} s", results.len());
     let mut tables = String::new();

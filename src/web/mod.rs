@@ -199,8 +199,8 @@ impl Console {
     }
 }
 
-/// Why `req` may come from another web site, which must neither command the robots nor read
-/// the console; `None` when it may not.
+/// The reason to refuse `req` as one that may come from another web site, which must neither
+/// command the robots nor read the console; `None` lets it through.
 ///
 /// Any page the operator's browser opens can send a "simple" cross-site POST (no CORS
 /// preflight) to a console on loopback, which has no token: before this check such a page
