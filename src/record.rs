@@ -148,6 +148,20 @@ pub fn with(f: impl FnOnce(&Recorder)) {
     }
 }
 
+/// Wait while the recorder's queue is half full ([`Recorder::has_room`]), waking its thread:
+/// for a producer that may outpace it (a replay as fast as possible), which must not make it
+/// drop messages. Returns at once when nothing records.
+pub async fn room() {
+    loop {
+        let mut full = false;
+        with(|r| full = !r.has_room());
+        if !full {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+}
+
 /// Finish the recording (if any): close the file, stop the server, print one line to stderr.
 /// Callers racing each other (the command's guard, the signal thread before its forced exit)
 /// all wait until the file is closed; the line is printed once.

@@ -401,6 +401,15 @@ impl Recorder {
         self.shared.images
     }
 
+    /// Whether the queue is less than half full, in messages and in bytes. A producer that
+    /// may outpace the recorder's thread (a replay as fast as possible) waits while it is not,
+    /// so that nothing is dropped; a robot's control loop never waits.
+    #[must_use]
+    pub fn has_room(&self) -> bool {
+        let inner = self.lock();
+        inner.batch.msgs < self.shared.cap / 2 && inner.batch.bytes.len() < MAX_QUEUED_BYTES / 2
+    }
+
     /// Messages dropped so far (queue full).
     pub fn dropped(&self) -> u64 {
         self.shared.dropped.load(Ordering::Relaxed)

@@ -113,7 +113,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     }
     readings.sort_by_key(|r| r.t_ns);
     crate::record::start(&args.rec, "ima replay")?;
-    let raw = RawReplay::new(&streams);
+    let raw = RawReplay::new(&streams, args.rec.record.is_some());
     let json_out = args.json;
     let speed = args.speed;
     let n = readings.len();
@@ -140,6 +140,8 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
                 let due = Duration::from_nanos(t.saturating_sub(first)).div_f64(speed);
                 crate::safety::until_cancelled(tokio::time::sleep_until(start + due)).await?;
             }
+            // As fast as possible, the replay could outrun the recorder's queue.
+            crate::safety::until_cancelled(crate::record::room()).await?;
             if next_chunk == Some(t) {
                 if let Some(c) = chunks.next() {
                     raw.publish(c);
@@ -163,7 +165,8 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
 
 /// The raw chunks a recording of the replay carries, so that it can itself be replayed,
 /// decoded or served `--as-mock`: every port's chunks (both directions and line-speed
-/// changes) in stamp order, with the port each goes to. Empty when nothing records.
+/// changes) in stamp order, with the port each goes to. Empty without a file (a live view
+/// does not show raw bytes).
 struct RawReplay<'a> {
     ports: Vec<ima_record::raw::RawPort>,
     /// `(log time, port index, direction, bytes)`, in log-time order.
@@ -171,9 +174,12 @@ struct RawReplay<'a> {
 }
 
 impl<'a> RawReplay<'a> {
-    fn new(streams: &'a [RawStream]) -> Self {
+    fn new(streams: &'a [RawStream], to_file: bool) -> Self {
         let mut ports = Vec::new();
         crate::record::with(|rec| {
+            if !to_file {
+                return;
+            }
             ports = streams
                 .iter()
                 .map(|s| rec.raw_port(s.port.clone()))

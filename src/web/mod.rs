@@ -230,7 +230,7 @@ fn cross_site(req: &Request, loopback: bool) -> Option<String> {
         let site = origin
             .strip_prefix("http://")
             .or_else(|| origin.strip_prefix("https://"));
-        if site != Some(host) {
+        if !site.is_some_and(|s| s.eq_ignore_ascii_case(host)) {
             return Some(format!("a command from another site ({origin})"));
         }
     }
@@ -246,16 +246,22 @@ fn cross_site(req: &Request, loopback: bool) -> Option<String> {
     (!json).then(|| "a command must be JSON (Content-Type: application/json)".to_owned())
 }
 
-/// `localhost`, `127.x.x.x` or `[::1]`, with or without a port.
+/// `localhost`, `127.x.x.x` or `[::1]`, with or without a port (digits after a colon).
 fn is_loopback_host(host: &str) -> bool {
-    let name = match host.strip_prefix('[') {
-        Some(v6) => v6.split(']').next().unwrap_or(""),
-        None => host.rsplit_once(':').map_or(host, |(h, _)| h),
+    let (name, port) = match host.strip_prefix('[') {
+        Some(v6) => v6.split_once(']').unwrap_or(("", "")),
+        None => host.rfind(':').map_or((host, ""), |i| host.split_at(i)),
     };
-    name.eq_ignore_ascii_case("localhost")
+    let port_ok = port.is_empty()
+        || port
+            .strip_prefix(':')
+            .is_some_and(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()));
+    let name = name.strip_suffix('.').unwrap_or(name);
+    let loopback = name.eq_ignore_ascii_case("localhost")
         || name
             .parse::<std::net::IpAddr>()
-            .is_ok_and(|ip| ip.is_loopback())
+            .is_ok_and(|ip| ip.is_loopback());
+    port_ok && loopback
 }
 
 /// Compares without stopping at the first difference.
@@ -415,7 +421,12 @@ fn asset(kind: &'static str, body: &'static str) -> Response {
 
 async fn guard(State(c): State<Arc<Console>>, req: Request, next: Next) -> Response {
     if let Some(why) = cross_site(&req, c.token.is_none()) {
-        tracing::warn!("web console: {why}");
+        // Warned at the 1st, 2nd, 4th, 8th… refusal: a hostile page cannot flood the log.
+        static REFUSED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = REFUSED.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        if n.is_power_of_two() {
+            tracing::warn!("web console: refused {n} request(s) so far; the last: {why}");
+        }
         return (StatusCode::FORBIDDEN, format!("refused: {why}\n")).into_response();
     }
     if c.authorised(&req) {

@@ -301,11 +301,25 @@ fn other_sites_can_neither_command_nor_read_the_console() {
         body.contains("another site (http://evil.example)"),
         "{body}"
     );
+    // A sandboxed page or a local file says `Origin: null`; a preflight is refused too.
+    let null = format!("{host}Origin: null\r\nContent-Type: application/json\r\n");
+    assert_eq!(request(a, "POST", "/api/command", &null, resume).0, 403);
+    assert_eq!(request(a, "OPTIONS", "/api/command", &evil, "").0, 403);
     assert!(
         rx.try_recv().is_err(),
         "nothing refused reaches the commander"
     );
-    // DNS rebinding: the right address, another site's name.
+    // DNS rebinding: the right address, another site's name (also one that starts like a
+    // loopback name; the HTTP layer itself answers 400 to a malformed one).
+    for name in [
+        "[::1].evil.example",
+        "localhost.evil.example:80",
+        "127.0.0.1:80x",
+    ] {
+        let h = format!("Host: {name}\r\n");
+        let code = request(a, "GET", "/api/state", &h, "").0;
+        assert!(code == 403 || code == 400, "{name}: {code}");
+    }
     let rebound = "Host: evil.example\r\n";
     assert_eq!(request(a, "GET", "/api/state", rebound, "").0, 403);
     let json = "Content-Type: application/json\r\n";
@@ -319,6 +333,7 @@ fn other_sites_can_neither_command_nor_read_the_console() {
     let port = a.port();
     for name in [
         format!("localhost:{port}"),
+        format!("LocalHost.:{port}"),
         format!("[::1]:{port}"),
         "127.0.0.2".into(),
     ] {

@@ -166,18 +166,24 @@ fn nothing_decoded(
     let name = protocol
         .to_possible_value()
         .map_or_else(String::new, |v| v.get_name().to_owned());
+    let rejected = if errors > 0 {
+        format!(" ({errors} rejected)")
+    } else {
+        String::new()
+    };
+    // Kramer's protocol is the same both ways: no direction to suggest.
+    if matches!(protocol, Protocol::Kramer) {
+        return Some(format!(
+            "no {name} frame in {bytes} bytes{rejected}: another protocol?"
+        ));
+    }
     let other = match from {
         Direction::Robot => "host",
         Direction::Host => "robot",
     };
     Some(format!(
-        "no {name} frame in {bytes} bytes{}: another protocol, or the other direction \
-         (`--from {other}`)?",
-        if errors > 0 {
-            format!(" ({errors} rejected)")
-        } else {
-            String::new()
-        }
+        "no {name} frame in {bytes} bytes{rejected}: another protocol, or the other direction \
+         (`--from {other}`)?"
     ))
 }
 
