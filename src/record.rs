@@ -72,12 +72,11 @@ pub enum ImageFormat {
 /// # Errors
 /// A message naming the accepted forms.
 pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
-    let s = s.trim();
-    let loopback = |port: &str| port.parse().map(|p| SocketAddr::from(([127, 0, 0, 1], p)));
-    let addr = match s.strip_prefix("localhost:") {
-        Some(port) => loopback(port).ok(),
-        None if s.bytes().all(|b| b.is_ascii_digit()) => loopback(s).ok(),
-        None => s.parse().ok(),
+    let port_alone = s.trim().bytes().all(|b| b.is_ascii_digit());
+    let addr = if port_alone {
+        crate::web::socket_addr(&format!("localhost:{}", s.trim()))
+    } else {
+        crate::web::socket_addr(s)
     };
     addr.ok_or_else(|| {
         format!(

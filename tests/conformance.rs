@@ -498,7 +498,7 @@ mod sick_lms {
     use super::*;
     use ima_mock_devices::sick_lms::{RangeSource, SickLmsDevice, SickLmsModelConfig, WorldLaser};
     use ima_sick_lms::machine::Config;
-    use ima_sick_lms::shell::{LinkStatus, SickLms, open_port};
+    use ima_sick_lms::shell::{LinkStatus, SickLms};
     use ima_sick_lms::wire::BaudRate;
 
     pub struct SickLmsRig;
@@ -537,7 +537,6 @@ mod sick_lms {
     async fn connect_with_retries(path: &Path, retries: u8) -> SickLms {
         // Let the unit boot (its 200 ms boot delay) before probing.
         tokio::time::sleep(Duration::from_millis(300)).await;
-        let port = open_port(path.to_str().unwrap(), 9600).unwrap();
         let cfg = Config {
             baud: BaudRate::B500000,
             rs422: true,
@@ -545,15 +544,7 @@ mod sick_lms {
             stream_watchdog: Some(Duration::from_secs(1)),
             ..Config::default()
         };
-        SickLms::connect(
-            port,
-            cfg,
-            Duration::from_secs(60),
-            ima_hal::time::TokioClock::shared(),
-        )
-        .await
-        .unwrap()
-        .with_scan_timeout(Duration::from_secs(10))
+        common::connect_sick(path, cfg).await
     }
 
     impl LaserRig for SickLmsRig {

@@ -1,6 +1,8 @@
 //! End to end: the real SICK LMS driver (async and blocking shells) against the mock LMS over
 //! real pseudo-terminals, in real time, with the simulated world as ground truth.
 
+mod common;
+
 use std::time::Duration;
 
 use ima_hal::laser::{LaserScan, LaserScanner};
@@ -67,16 +69,7 @@ fn fast() -> Config {
 }
 
 async fn connect(dev: &PtyDevice<SickLmsDevice>, cfg: Config) -> SickLms {
-    let port = open_port(dev.path().to_str().unwrap(), 9600).unwrap();
-    SickLms::connect(
-        port,
-        cfg,
-        Duration::from_secs(60),
-        ima_hal::time::TokioClock::shared(),
-    )
-    .await
-    .unwrap()
-    .with_scan_timeout(Duration::from_secs(10))
+    common::connect_sick(dev.path(), cfg).await
 }
 
 async fn next(l: &mut SickLms) -> ima_hal::Stamped<LaserScan> {

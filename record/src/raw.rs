@@ -128,7 +128,10 @@ impl RawPort {
         Self { rec, stream, topic }
     }
 
-    fn chunk(&self, dir: Dir, bytes: &[u8]) {
+    /// Record one chunk as [`RawStream::chunks`](crate::read::RawStream::chunks) holds it:
+    /// bytes in `dir`, or for [`Dir::Baud`] the rate as 4 bytes little-endian (a replay
+    /// copies a recording's chunks with this).
+    pub fn chunk(&self, dir: Dir, bytes: &[u8]) {
         // Something takes this channel ([`Recorder::wants`]); if not, bytes are not even
         // copied.
         let kind = crate::queue::Kind::Encoded;

@@ -208,15 +208,7 @@ impl<'a> RawReplay<'a> {
             return;
         };
         crate::record::with(|rec| rec.set_stamp(Some(t_ns)));
-        match dir {
-            Dir::Rx => p.rx(bytes),
-            Dir::Tx => p.tx(bytes),
-            Dir::Baud => {
-                if let Ok(b) = <[u8; 4]>::try_from(bytes) {
-                    p.baud(u32::from_le_bytes(b));
-                }
-            }
-        }
+        p.chunk(dir, bytes);
     }
 }
 

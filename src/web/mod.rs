@@ -277,13 +277,25 @@ pub fn random_token() -> String {
 
 /// Parses a `--web` address; a host of `localhost` means 127.0.0.1.
 pub fn parse_addr(s: &str) -> Result<SocketAddr> {
-    let s = s.trim();
-    let fixed = s
-        .strip_prefix("localhost:")
-        .map(|p| format!("127.0.0.1:{p}"));
-    fixed.as_deref().unwrap_or(s).parse().with_context(|| {
-        format!("--web {s:?}: not an address such as {DEFAULT_ADDR} or 0.0.0.0:8080")
+    socket_addr(s).with_context(|| {
+        format!(
+            "--web {:?}: not an address such as {DEFAULT_ADDR} or 0.0.0.0:8080",
+            s.trim()
+        )
     })
+}
+
+/// `ip:port`, or `localhost:port` (127.0.0.1), surrounding blanks ignored: the addresses
+/// `--web` and `--foxglove` take.
+pub fn socket_addr(s: &str) -> Option<SocketAddr> {
+    let s = s.trim();
+    match s.strip_prefix("localhost:") {
+        Some(port) => port
+            .parse()
+            .ok()
+            .map(|p| SocketAddr::from(([127, 0, 0, 1], p))),
+        None => s.parse().ok(),
+    }
 }
 
 /// The ground-truth world for the map: walls, round obstacles and the coloured objects.

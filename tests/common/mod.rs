@@ -6,6 +6,24 @@ pub mod mission;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 
+/// The SICK LMS driver connected to the device on pty `path`: opened at 9600 baud (the unit's
+/// rate at power-up), run with `cfg`, 60 s to connect, 10 s to wait for a scan.
+pub async fn connect_sick(
+    path: &std::path::Path,
+    cfg: ima_sick_lms::machine::Config,
+) -> ima_sick_lms::shell::SickLms {
+    let port = ima_sick_lms::shell::open_port(path.to_str().unwrap(), 9600).unwrap();
+    ima_sick_lms::shell::SickLms::connect(
+        port,
+        cfg,
+        std::time::Duration::from_secs(60),
+        ima_hal::time::TokioClock::shared(),
+    )
+    .await
+    .unwrap()
+    .with_scan_timeout(std::time::Duration::from_secs(10))
+}
+
 /// The `ima` binary under test.
 pub fn ima() -> Command {
     Command::new(env!("CARGO_BIN_EXE_ima"))

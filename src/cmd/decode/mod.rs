@@ -34,7 +34,7 @@ pub use self::hex::parse_hex;
 const CAPTURE_LIMIT: u64 = 1 << 30;
 
 /// Protocols `ima decode` understands.
-#[derive(Debug, Clone, Copy, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Protocol {
     /// Pioneer 2 P2OS.
     P2os,
@@ -48,6 +48,14 @@ pub enum Protocol {
     Rflex,
     /// SICK LMS 200/291 laser scanner telegrams.
     SickLms,
+}
+
+impl Protocol {
+    /// The name on the command line (`p2os`, `sick-lms`, …).
+    fn name(self) -> String {
+        self.to_possible_value()
+            .map_or_else(String::new, |v| v.get_name().to_owned())
+    }
 }
 
 /// Which side of the link the capture is from.
@@ -163,9 +171,7 @@ fn nothing_decoded(
     if bytes == 0 || frames > 0 {
         return None;
     }
-    let name = protocol
-        .to_possible_value()
-        .map_or_else(String::new, |v| v.get_name().to_owned());
+    let name = protocol.name();
     let rejected = if errors > 0 {
         format!(" ({errors} rejected)")
     } else {
@@ -212,16 +218,15 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
     }
     let stream = stream?;
     let recorded = recorded_protocol(&stream.port.protocol);
-    if let (Some(asked), Some(rec)) = (args.protocol, recorded) {
-        let name = |p: Protocol| p.to_possible_value().map(|v| v.get_name().to_owned());
-        if name(asked) != name(rec) {
-            eprintln!(
-                "ima decode: {} was recorded as {}; decoding it as {} as asked",
-                stream.topic,
-                stream.port.protocol,
-                name(asked).unwrap_or_default()
-            );
-        }
+    if let (Some(asked), Some(rec)) = (args.protocol, recorded)
+        && asked != rec
+    {
+        eprintln!(
+            "ima decode: {} was recorded as {}; decoding it as {} as asked",
+            stream.topic,
+            stream.port.protocol,
+            asked.name()
+        );
     }
     let want = match args.from {
         Direction::Robot => ima_record::raw::Dir::Rx,
