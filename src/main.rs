@@ -148,6 +148,8 @@ fn main() -> ExitCode {
     };
     // record: a command that failed before its guarded part still closes its recording.
     let _ = record::finish();
+    // A recording that could not be written fails a command that otherwise succeeded.
+    let result = result.and_then(|()| record::check_written());
     let (code, message) = safety::exit_status(&result);
     if let Some(m) = message {
         let _ = writeln!(std::io::stderr(), "ima: error: {m}");

@@ -193,6 +193,22 @@ pub fn last_report() -> Option<Report> {
         .clone()
 }
 
+/// `Err` when the finished recording's file could not be written to its end (disk full,
+/// device gone): the command's data was not all kept, so it does not end with success.
+pub fn check_written() -> Result<()> {
+    match last_report() {
+        Some(Report {
+            path: Some(path),
+            error: Some(e),
+            ..
+        }) => anyhow::bail!(
+            "the recording to {} is incomplete ({e}); `ima replay` reads what it holds",
+            path.display()
+        ),
+        _ => Ok(()),
+    }
+}
+
 /// Name the robot whose devices are on `ports` (so their raw channels are
 /// `/<robot>/serial/<device>`).
 pub fn label_ports<'a>(robot: &str, ports: impl IntoIterator<Item = &'a str>) {

@@ -817,3 +817,66 @@ fn record_exclude_leaves_topics_out_of_the_file() {
     );
     assert!(!dir.join("never.mcap").exists());
 }
+
+/// A file that cannot grow (here a file-size limit: `write` fails with EFBIG, as a full disk
+/// fails with ENOSPC) stops the recording, not the robots: one error line names the file's
+/// own error at the moment it happens (no warning per message after it), the mission runs to
+/// its end, the report and the command's exit status say the recording is incomplete, and
+/// the file holds its chunks up to the failure.
+#[test]
+fn a_recording_that_cannot_be_written_says_so_once_and_fails_the_command() {
+    let dir = scratch("full");
+    let file = dir.join("full.mcap");
+    // 2048 blocks of 512 bytes (POSIX `sh`): 1 MiB; SIGXFSZ ignored, so writes get EFBIG.
+    let out = std::process::Command::new("sh")
+        .args(["-c", "ulimit -f 2048 && trap '' XFSZ && exec \"$0\" \"$@\""])
+        .arg(env!("CARGO_BIN_EXE_ima"))
+        .args([
+            "demo",
+            "--json",
+            "--speed",
+            "10",
+            "--targets",
+            "red",
+            "--svg",
+        ])
+        .arg(dir.join("full.svg"))
+        .arg("--record")
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    let summary = json_lines(&out.stdout)
+        .into_iter()
+        .find(|l| l["kind"] == "summary")
+        .unwrap_or_else(|| panic!("no summary: {err}"));
+    assert_eq!(summary["targets"][0]["state"], "done", "{summary}");
+    let why = summary["recording"]["error"].as_str().unwrap_or_default();
+    assert!(why.contains("File too large"), "{summary}");
+    let at_once = err
+        .lines()
+        .filter(|l| l.contains("writing stopped after"))
+        .count();
+    assert_eq!(at_once, 1, "{err}");
+    assert!(!err.contains("AttemptedWriteAfterFailure"), "{err}");
+    assert!(
+        err.lines()
+            .filter(|l| l.contains("error logging message"))
+            .count()
+            <= 1,
+        "{err}"
+    );
+    assert!(
+        err.lines()
+            .last()
+            .is_some_and(|l| l.contains("is incomplete (File too large")),
+        "{err}"
+    );
+    let size = std::fs::metadata(&file).unwrap().len();
+    assert!(size <= 1 << 20, "{size}");
+    let rec = Recording::open(&file).unwrap();
+    let (msgs, cut) = rec.messages();
+    assert!(cut.0.is_some(), "an incomplete recording has no summary");
+    assert_early_topics(&msgs);
+}

@@ -40,10 +40,10 @@ pub mod read;
 mod stream;
 
 use std::collections::{BTreeMap, HashMap};
-use std::io::BufWriter;
+use std::io::{BufWriter, Seek, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
@@ -252,6 +252,8 @@ struct Shared {
     server_port: Option<u16>,
     images: Images,
     exclude: filter::TopicFilter,
+    /// The file's first write error: with no live view, nothing is queued after it.
+    failure: Arc<Failure>,
 }
 
 /// A recorder: a handle on the background writer (clone it freely).
@@ -312,8 +314,9 @@ impl Recorder {
             opts.queue
         };
         let ctx = Context::new();
+        let failure = Arc::new(Failure::default());
         let writer = match &opts.mcap {
-            Some(path) => Some(create_file(&ctx, path, opts)?),
+            Some(path) => Some(create_file(&ctx, path, opts, &failure)?),
             None => None,
         };
         let server = match opts.foxglove {
@@ -349,6 +352,7 @@ impl Recorder {
             server_port,
             images: opts.images,
             exclude: opts.exclude.clone(),
+            failure: Arc::clone(&failure),
         });
         let worker = Worker {
             inner,
@@ -364,6 +368,7 @@ impl Recorder {
             buf: Vec::new(),
             unwritten: 0,
             exclude: opts.exclude.clone(),
+            failure,
         };
         let thread = std::thread::Builder::new()
             .name("ima-record".into())
@@ -420,7 +425,14 @@ impl Recorder {
     /// nobody takes.
     #[must_use]
     pub fn wants(&self, topic: &str) -> bool {
-        self.shared.server_port.is_some() || !self.shared.exclude.excludes(topic)
+        self.shared.server_port.is_some()
+            || (!self.shared.exclude.excludes(topic) && !self.file_failed())
+    }
+
+    /// The file could not be written (its first error is in the [`Report`]); with no live
+    /// view, nothing takes a message any more.
+    fn file_failed(&self) -> bool {
+        self.shared.failure.failed.load(Ordering::Relaxed)
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
@@ -525,7 +537,7 @@ impl Recorder {
         size: usize,
         write: impl FnOnce(&mut Vec<u8>) -> bool,
     ) -> bool {
-        if !s.wanted {
+        if !s.wanted || (self.shared.server_port.is_none() && self.file_failed()) {
             return false;
         }
         let (kept, wake) = {
@@ -658,7 +670,8 @@ fn create_file(
     ctx: &Arc<Context>,
     path: &Path,
     opts: &Options,
-) -> Result<foxglove::McapWriterHandle<BufWriter<std::fs::File>>, Error> {
+    failure: &Arc<Failure>,
+) -> Result<foxglove::McapWriterHandle<BufWriter<Watched>>, Error> {
     let fail = |source| Error::Create {
         path: path.to_owned(),
         source,
@@ -676,7 +689,13 @@ fn create_file(
         w = w.channel_filter_fn(move |c| !f.excludes(c.topic()));
     }
     let w = w
-        .create(BufWriter::with_capacity(WRITE_BUFFER, file))
+        .create(BufWriter::with_capacity(
+            WRITE_BUFFER,
+            Watched {
+                file,
+                failure: Arc::clone(failure),
+            },
+        ))
         .map_err(fail)?;
     let mut meta = BTreeMap::new();
     meta.insert("name".to_owned(), opts.name.clone());
@@ -686,6 +705,55 @@ fn create_file(
     }
     let _ = w.write_metadata("ima", meta);
     Ok(w)
+}
+
+/// The MCAP file under its write buffer: it keeps the first error the file gave (the MCAP
+/// writer reports later writes only as "attempted another write after a write method
+/// failed") and raises [`Failure::failed`] for the recorder's thread.
+struct Watched {
+    file: std::fs::File,
+    failure: Arc<Failure>,
+}
+
+/// The first error of the file, shared by its writer and the recorder.
+#[derive(Debug, Default)]
+struct Failure {
+    failed: AtomicBool,
+    first: Mutex<Option<String>>,
+}
+
+impl Failure {
+    fn note(&self, e: &std::io::Error) {
+        if e.kind() == std::io::ErrorKind::Interrupted {
+            return; // retried by the writer
+        }
+        let mut first = self.first.lock().unwrap_or_else(PoisonError::into_inner);
+        first.get_or_insert_with(|| e.to_string());
+        self.failed.store(true, Ordering::Release);
+    }
+
+    fn first(&self) -> Option<String> {
+        self.first
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+}
+
+impl Write for Watched {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.file.write(buf).inspect_err(|e| self.failure.note(e))
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush().inspect_err(|e| self.failure.note(e))
+    }
+}
+
+impl Seek for Watched {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.file.seek(pos).inspect_err(|e| self.failure.note(e))
+    }
 }
 
 /// CPU time of the calling thread so far, from the kernel (`/proc/thread-self/schedstat`:
@@ -740,7 +808,7 @@ struct Worker {
     /// The batch being written (swapped with the callers' one; both keep their capacity).
     drained: Vec<u8>,
     ctx: Arc<Context>,
-    writer: Option<foxglove::McapWriterHandle<BufWriter<std::fs::File>>>,
+    writer: Option<foxglove::McapWriterHandle<BufWriter<Watched>>>,
     server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
     server_port: Option<u16>,
     path: Option<PathBuf>,
@@ -753,6 +821,8 @@ struct Worker {
     unwritten: u64,
     /// Topics kept out of the file (and of its counts).
     exclude: filter::TopicFilter,
+    /// Raised by the file's first write error.
+    failure: Arc<Failure>,
 }
 
 impl Worker {
@@ -790,7 +860,11 @@ impl Worker {
                 if let Some(w) = &self.writer
                     && let Err(e) = w.flush()
                 {
-                    self.error.get_or_insert(e.to_string());
+                    if self.failure.failed.load(Ordering::Acquire) {
+                        self.stop_file();
+                    } else {
+                        self.error.get_or_insert(e.to_string());
+                    }
                 }
             }
             // `finish` and bursts unpark the thread so that it need not wait for the tick.
@@ -865,6 +939,8 @@ impl Worker {
 
     fn write(&mut self, r: queue::Record<'_>) {
         let mut buf = std::mem::take(&mut self.buf);
+        // A file that failed counts nothing more (a live view alone counts what it was sent).
+        let counting = self.path.is_none() || self.writer.is_some();
         if let Some(s) = self.stream(r.id)
             && let Some(chan) = &s.chan
             && s.proto
@@ -872,20 +948,51 @@ impl Worker {
                 .is_some()
         {
             chan.log_with_meta(&buf, PartialMetadata::with_log_time(r.log_time));
-            if s.counted {
+            if s.counted && counting {
                 s.written += 1;
             }
         } else {
             self.unwritten += 1;
         }
         self.buf = buf;
+        if self.writer.is_some() && self.failure.failed.load(Ordering::Acquire) {
+            self.stop_file();
+        }
+    }
+
+    /// The file failed (disk full, device gone…): close its writer, which takes it off the
+    /// channels (the writer would refuse, and the SDK warn about, every later message), keep
+    /// the file's own first error for the report, and say so once. The robot goes on; a
+    /// live view goes on.
+    fn stop_file(&mut self) {
+        if let Some(w) = self.writer.take() {
+            // It fails again (the file cannot be written); the first error is the one to tell.
+            let _ = w.close();
+        }
+        let bytes = (self.path.as_deref())
+            .and_then(|p| std::fs::metadata(p).ok())
+            .map_or(0, |m| m.len());
+        let first = self
+            .failure
+            .first()
+            .unwrap_or_else(|| "a write failed".into());
+        let path = self.path.as_deref().unwrap_or(Path::new("?"));
+        tracing::error!(
+            "recording to {}: {first}; writing stopped after {} kB (the messages of the chunk \
+             being written are lost; `ima replay` reads the chunks before)",
+            path.display(),
+            bytes.div_ceil(1024)
+        );
+        self.error.get_or_insert(first);
     }
 
     fn close(&mut self) -> Report {
         if let Some(w) = self.writer.take()
             && let Err(e) = w.close()
         {
-            self.error.get_or_insert(e.to_string());
+            // The file's own error (disk full…) rather than the writer's account of it.
+            let e = self.failure.first().unwrap_or_else(|| e.to_string());
+            self.error.get_or_insert(e);
         }
         if let Some((h, rt)) = self.server.take() {
             let shutdown = h.stop();
