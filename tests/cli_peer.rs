@@ -90,6 +90,18 @@ fn insecure_manager_serves_a_client_that_prints_json_samples() {
         assert!(seq > last);
         last = seq;
     }
+    // A source the manager does not serve is named, with the ones it does (not `UnknownSource`).
+    let out = ima()
+        .args(["peer", "client", "--insecure", "--connect", &addr])
+        .args(["--request", "blob46", "--count", "1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("the manager has no source `blob46` (it serves: blob64, counter)"),
+        "{err}"
+    );
 }
 
 #[cfg(unix)]

@@ -15,9 +15,9 @@ use clap::{Args, Subcommand, ValueEnum};
 use ima_agents::peer::data::DataClose;
 use ima_agents::peer::manager::{CloseReason, FixedSelfAgent, ManagerEvent, Outcome, TicketError};
 use ima_agents::peer::net::{
-    BroadcastChannel, BroadcastMode, EndReason, LossReason, ManagerNetEvent, PeerClientHandle,
-    PeerNetConfig, SourcePublisher, SubscriptionEvent, SyntheticSource, insecure_key,
-    load_key_file, spawn_manager,
+    BroadcastChannel, BroadcastMode, EndReason, LossReason, ManagerNetEvent, NetError,
+    PeerClientHandle, PeerNetConfig, SourcePublisher, SubscriptionEvent, SyntheticSource,
+    insecure_key, load_key_file, spawn_manager,
 };
 use ima_agents::peer::wire::{
     BodyError, DeclineReason, DenyReason, GroupKey, MissionEvent, Msg, RevokeReason, SourceInfo,
@@ -483,10 +483,22 @@ async fn client(a: &ClientArgs) -> Result<()> {
             "name": s.name, "kind": s.kind, "schema": s.schema, "rate_mhz": s.rate_mhz,
         })).collect::<Vec<_>>(),
     }))?;
-    let mut sub = c
-        .request(&a.request, a.priority)
-        .await
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut sub = c.request(&a.request, a.priority).await.map_err(|e| {
+        if matches!(e, NetError::Denied(DenyReason::UnknownSource)) {
+            let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
+            anyhow::anyhow!(
+                "the manager has no source `{}` (it serves: {})",
+                a.request,
+                if names.is_empty() {
+                    "none".to_owned()
+                } else {
+                    names.join(", ")
+                }
+            )
+        } else {
+            anyhow::anyhow!("{e}")
+        }
+    })?;
     line(&json!({ "event": "granted", "source": a.request }))?;
     let mut n: u64 = 0;
     loop {

@@ -241,6 +241,36 @@ pub enum DenyReason {
     QueueFull = 3,
 }
 
+impl core::fmt::Display for DeclineReason {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::DuplicateId => "another client holds this client ID",
+            Self::Full => "the manager serves its maximum number of clients",
+        })
+    }
+}
+
+impl core::fmt::Display for DenyReason {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::NotRegistered => "this client is not registered with the manager",
+            Self::UnknownSource => "the manager has no such source",
+            Self::QueueFull => "the manager's queue of pending requests is full",
+        })
+    }
+}
+
+impl core::fmt::Display for RevokeReason {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::TaskPriority => "the source robot's task priority rose above the request's",
+            Self::SourceGone => "the source is gone",
+            Self::Shutdown => "the manager is shutting down",
+            Self::BadTicket => "the ticket is invalid, expired or revoked",
+        })
+    }
+}
+
 /// Why a grant was revoked (or a data session closed).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RevokeReason {
