@@ -85,7 +85,20 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
     let err = |e: std::io::Error| NetError::Key(format!("{}: {e}", path.display()));
     // The permissions are checked on the opened handle, so the file read is the file
     // checked (no swap between a check by path and the open).
-    let file = std::fs::File::open(path).map_err(err)?;
+    let file = std::fs::File::open(path).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            // The first thing a new group needs: say how to make one.
+            NetError::Key(format!(
+                "{}: {e}; make one (the same file on every robot and the commander) with \
+                 `head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \\n' > {} && chmod 600 {}`",
+                path.display(),
+                path.display(),
+                path.display()
+            ))
+        } else {
+            err(e)
+        }
+    })?;
     let meta = file.metadata().map_err(err)?;
     // A directory (or a device) first: its mode says nothing about a key.
     if !meta.is_file() {
@@ -153,7 +166,17 @@ mod tests {
         assert!(load_key_file(&p).is_err());
         std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)).unwrap();
         assert!(load_key_file(&p).is_ok());
-        assert!(load_key_file(&dir.join("missing")).is_err());
+        // A missing file's error says how to make one, and that command makes a good key.
+        let missing = dir.join("missing");
+        let e = load_key_file(&missing).unwrap_err().to_string();
+        let make = e.split('`').nth(1).unwrap_or_else(|| panic!("{e}"));
+        assert!(e.contains("No such file"), "{e}");
+        let made = std::process::Command::new("sh")
+            .args(["-c", make])
+            .status()
+            .unwrap();
+        assert!(made.success(), "{make}");
+        assert!(load_key_file(&missing).is_ok(), "{make}");
         // A directory was reported as a mode problem ("mode 777 lets group/others read it").
         std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
         let e = load_key_file(&dir).unwrap_err().to_string();
