@@ -391,17 +391,28 @@ fn default_grab_timeout() -> u64 {
 
 impl RobotConfig {
     /// Parse and check a configuration.
+    #[cfg(test)]
     pub fn from_toml_str(s: &str) -> Result<Self> {
-        let c: Self = toml::from_str(s).context("parsing the configuration")?;
+        Self::from_toml_str_with(s, false)
+    }
+
+    /// Parse a configuration, apply `--insecure` (a configuration that names no key file then
+    /// runs on the documented all-zero key; one that names a key file keeps it), and check it.
+    pub fn from_toml_str_with(s: &str, insecure: bool) -> Result<Self> {
+        let mut c: Self = toml::from_str(s).context("parsing the configuration")?;
+        if insecure && c.peer.key_file.is_none() {
+            c.peer.insecure = true;
+        }
         c.check()?;
         Ok(c)
     }
 
-    /// Read, parse and check a configuration file.
-    pub fn load(path: &Path) -> Result<Self> {
+    /// Read, parse and check a configuration file, with `--insecure` applied before the
+    /// checks ([`from_toml_str_with`](Self::from_toml_str_with)).
+    pub fn load_with(path: &Path, insecure: bool) -> Result<Self> {
         let s = ima_hal::file::read_text(path)
             .with_context(|| format!("reading {}", path.display()))?;
-        Self::from_toml_str(&s).with_context(|| format!("in {}", path.display()))
+        Self::from_toml_str_with(&s, insecure).with_context(|| format!("in {}", path.display()))
     }
 
     /// The configuration as TOML.
@@ -634,6 +645,17 @@ mod tests {
         let nokey = "robot = \"c\"\nrole = \"commander\"\n";
         let e = RobotConfig::from_toml_str(nokey).unwrap_err();
         assert!(format!("{e:#}").contains("key_file"), "{e:#}");
+        // `--insecure` is applied before the check (it was checked first, so the flag never
+        // helped a configuration without a key file); a named key file stays.
+        assert!(
+            RobotConfig::from_toml_str_with(nokey, true)
+                .unwrap()
+                .peer
+                .insecure
+        );
+        let named = format!("{nokey}[peer]\nkey_file = \"/k\"\n");
+        let c = RobotConfig::from_toml_str_with(&named, true).unwrap();
+        assert!(!c.peer.insecure);
         let mock = "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n";
         let e = RobotConfig::from_toml_str(mock).unwrap_err();
         assert!(

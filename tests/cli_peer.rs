@@ -853,3 +853,86 @@ fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
     );
     drop(slave);
 }
+
+/// A commander whose configuration names no key file runs with `--insecure` (the flag was
+/// applied after the configuration's check, which refused it first), and a line of stdin
+/// that is not UTF-8 gets a hint instead of ending the operator's input: the `stop` typed
+/// after it goes out on the wire.
+#[test]
+fn stray_bytes_on_stdin_do_not_deafen_the_commander_to_a_stop() {
+    use std::io::Write;
+    let dir = temp_dir("stray");
+    let mut listener = Child(
+        ima()
+            .args(["peer", "listen", "--insecure", "--mode", "unicast"])
+            .args(["--port", "0", "--interface", "127.0.0.1"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let heard = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
+    let first: Value = serde_json::from_str(
+        &heard
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the listener's first line"),
+    )
+    .unwrap();
+    let port = first["addr"].as_str().and_then(|a| a.rsplit(':').next());
+    let cfg = dir.join("commander.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nbroadcast_group = \"\"\n\
+             broadcast_peers = [\"127.0.0.1:{}\"]\nbroadcast_bind = \"127.0.0.1:0\"\n",
+            port.unwrap()
+        ),
+    )
+    .unwrap();
+    let mut commander = Child(
+        ima()
+            .args(["commander", "--json", "--insecure", "--config"])
+            .arg(&cfg)
+            .args(["--wait-for", "nobody", "--wait-timeout", "600"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let err = line_channel(BufReader::new(commander.0.stderr.take().unwrap()));
+    let mut stdin = commander.0.stdin.take().unwrap();
+    stdin
+        .write_all(b"\xff\xfe stop\nstop stray bytes before\n")
+        .unwrap();
+    stdin.flush().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut said = String::new();
+    loop {
+        let l = heard
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .unwrap_or_else(|e| {
+                while let Ok(l) = err.try_recv() {
+                    said.push_str(&l);
+                }
+                panic!("a fleet stop on the wire: {e:?}; the commander said: {said}")
+            });
+        let v: Value = serde_json::from_str(&l).unwrap();
+        if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
+            assert_eq!(v["robot"], "commander");
+            break;
+        }
+    }
+    let hint = loop {
+        let l = err
+            .recv_timeout(Duration::from_secs(10))
+            .expect("a hint on stderr");
+        if l.contains("unknown request") {
+            break l;
+        }
+    };
+    assert!(
+        hint.contains("unknown request \"\u{fffd}\u{fffd} stop\""),
+        "{hint}"
+    );
+}

@@ -115,11 +115,7 @@ pub struct OneShot {
 }
 
 fn load(config: &Path, insecure: bool) -> Result<RobotConfig> {
-    let mut cfg = RobotConfig::load(config)?;
-    if insecure && cfg.peer.key_file.is_none() {
-        cfg.peer.insecure = true;
-    }
-    Ok(cfg)
+    RobotConfig::load_with(config, insecure)
 }
 
 fn one_shot(action: &Action) -> Result<()> {
@@ -247,6 +243,7 @@ fn parse_request(line: &str) -> Result<Option<Typed>, String> {
             colour: c(colour),
             to: position(n)?,
         })),
+        ("help" | "?", []) => Err(format!("requests: {GRAMMAR}")),
         _ => Err(format!("unknown request {line:?}: {GRAMMAR}")),
     }
 }
@@ -338,14 +335,50 @@ fn resolve(
 fn stdin_lines() -> tokio::sync::mpsc::UnboundedReceiver<String> {
     let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
     std::thread::spawn(move || {
-        for line in std::io::stdin().lock().lines() {
-            let Ok(line) = line else { return };
-            if tx.send(line).is_err() {
-                return;
-            }
-        }
+        read_lines(std::io::stdin().lock(), MAX_LINE, |l| tx.send(l).is_ok());
     });
     rx
+}
+
+/// The longest request line kept; the rest of a longer line is skipped.
+const MAX_LINE: usize = 1024;
+
+/// Hands `input`'s lines to `take` (until it returns `false` or the input ends), each as
+/// text even when it is not UTF-8 (invalid bytes become U+FFFD, so a stray byte gets a hint
+/// instead of ending the operator's input: `stop` typed after it still stops the fleet) and
+/// cut at `max` bytes (a line without end cannot fill the memory).
+fn read_lines(mut input: impl BufRead, max: usize, mut take: impl FnMut(String) -> bool) {
+    let mut line = Vec::new();
+    loop {
+        // What this buffer gives: bytes used, and whether a line (or the input) ended.
+        let (used, line_end, input_end) = match input.fill_buf() {
+            Ok([]) => (0, false, true),
+            Ok(buf) => {
+                let nl = buf.iter().position(|&b| b == b'\n');
+                let part = buf.get(..nl.unwrap_or(buf.len())).unwrap_or_default();
+                let room = max.saturating_sub(line.len());
+                line.extend_from_slice(part.get(..part.len().min(room)).unwrap_or_default());
+                nl.map_or((buf.len(), false, false), |i| (i + 1, true, false))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(_) => (0, false, true),
+        };
+        input.consume(used);
+        if input_end && line.is_empty() {
+            return;
+        }
+        if !line_end && !input_end {
+            continue;
+        }
+        if line.last() == Some(&b'\r') {
+            line.pop();
+        }
+        let text = String::from_utf8_lossy(&line).into_owned();
+        line.clear();
+        if !take(text) || input_end {
+            return;
+        }
+    }
 }
 
 /// The next stdin line; `None` at its end; never, once ended (`lines` is `None`).
@@ -719,6 +752,38 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
 mod tests {
     use super::*;
 
+    /// Stdin as the operator's lines: a line that is not UTF-8 is one more (wrong) request,
+    /// not the end of the input; an endless line is cut; CR LF and a last line without LF.
+    #[test]
+    fn stdin_lines_survive_bytes_that_are_not_text() {
+        let lines = |input: &[u8], max| {
+            let mut got = Vec::new();
+            read_lines(std::io::BufReader::with_capacity(4, input), max, |l| {
+                got.push(l);
+                true
+            });
+            got
+        };
+        assert_eq!(
+            lines(b"\x00\xff\xfe junk\n stop  \r\nresume", 64),
+            ["\0\u{fffd}\u{fffd} junk", " stop  ", "resume"]
+        );
+        assert!(parse_request(&lines(b"\xff\xfe\n", 64)[0]).is_err());
+        assert_eq!(
+            lines(b"stop 0123456789abcdef\nresume\n", 8),
+            ["stop 012", "resume"]
+        );
+        assert_eq!(lines(b"", 8), Vec::<String>::new());
+        assert_eq!(lines(b"\n\n", 8), ["", ""]);
+        // The reader stops when the taker does.
+        let mut n = 0;
+        read_lines(&b"a\nb\nc\n"[..], 8, |_| {
+            n += 1;
+            n < 2
+        });
+        assert_eq!(n, 2);
+    }
+
     #[test]
     fn typed_requests_parse_and_others_get_a_hint() {
         assert_eq!(parse_request("stop"), Ok(Some(Typed::Stop(None))));
@@ -753,6 +818,11 @@ mod tests {
             }))
         );
         assert_eq!(parse_request("   "), Ok(None));
+        assert!(
+            parse_request("help")
+                .unwrap_err()
+                .starts_with("requests: type")
+        );
         for bad in [
             "cancel",
             "cancel dark red",

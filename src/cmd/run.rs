@@ -49,10 +49,7 @@ fn serve_mock(cfg: &mut RobotConfig) -> Result<ima_mock_devices::served::ServedW
 
 /// Run `ima run`.
 pub fn run(args: &RunArgs) -> Result<()> {
-    let mut cfg = RobotConfig::load(&args.config)?;
-    if args.insecure && cfg.peer.key_file.is_none() {
-        cfg.peer.insecure = true;
-    }
+    let mut cfg = RobotConfig::load_with(&args.config, args.insecure)?;
     let _served = if cfg.mock {
         Some(serve_mock(&mut cfg)?)
     } else {
