@@ -7,6 +7,20 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+/// `eprintln!` that never panics (std's panics when standard error is a pipe whose reader
+/// went away: `ima demo 2>&1 >/dev/null | head -1` ended with a panic, status 101). A closed
+/// stderr ends the command as a closed stdout does ([`safety::err_line`]): every device
+/// halted, the recording closed, status 141. Defined before the modules, so it is the
+/// `eprintln!` of the whole crate.
+macro_rules! eprintln {
+    () => {
+        $crate::safety::err_line(format_args!(""))
+    };
+    ($($arg:tt)*) => {
+        $crate::safety::err_line(format_args!($($arg)*))
+    };
+}
+
 mod cmd;
 mod config;
 mod record;

@@ -100,7 +100,7 @@ pub enum Cause {
     Signal(Signal),
     /// A panic on some thread of the process.
     Panic,
-    /// Standard output was closed by its reader.
+    /// Standard output (or standard error) was closed by its reader.
     OutputClosed,
 }
 
@@ -109,7 +109,7 @@ impl std::fmt::Display for Cause {
         match self {
             Self::Signal(s) => write!(f, "interrupted by {}", s.name()),
             Self::Panic => f.write_str("ended by a panic (a bug: please report it)"),
-            Self::OutputClosed => f.write_str("standard output was closed"),
+            Self::OutputClosed => f.write_str("the output was closed by its reader"),
         }
     }
 }
@@ -404,6 +404,19 @@ pub fn out_line(args: std::fmt::Arguments<'_>) -> Result<()> {
             Err(Interrupted(Cause::OutputClosed).into())
         }
         Err(e) => Err(anyhow::Error::new(e).context("writing to standard output")),
+    }
+}
+
+/// Write one line to standard error (the crate's `eprintln!`). Never a panic: a stderr whose
+/// reader went away ends the command as a closed stdout does ([`output_closed`]: every
+/// device halted, the command asked to end, status 141); other errors are ignored (there is
+/// nowhere left to report them).
+pub fn err_line(args: std::fmt::Arguments<'_>) {
+    let mut err = std::io::stderr().lock();
+    if let Err(e) = err.write_fmt(args).and_then(|()| err.write_all(b"\n"))
+        && e.kind() == std::io::ErrorKind::BrokenPipe
+    {
+        output_closed();
     }
 }
 

@@ -34,6 +34,8 @@ enum Base {
 enum Interruption {
     Signal(&'static str),
     ClosedStdout,
+    /// Its text events' reader (stderr, without `--json`) went away.
+    ClosedStderr,
     /// A panic in the command's own code (`IMA_INJECT_PANIC`), seconds after the start.
     Panic,
 }
@@ -238,6 +240,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
             drain(stdout);
         }
         Interruption::ClosedStdout => drop(stdout),
+        Interruption::ClosedStderr => unimplemented!("`ima drive` prints on stdout"),
         Interruption::Panic => {
             wait_until(Duration::from_secs(20), "the injected panic", || {
                 stderr_lines
@@ -287,7 +290,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
         Interruption::Signal("HUP") => 129,
         Interruption::Signal("QUIT") => 131,
         Interruption::Signal(other) => panic!("no expectation for {other}"),
-        Interruption::ClosedStdout => 141,
+        Interruption::ClosedStdout | Interruption::ClosedStderr => 141,
         Interruption::Panic => 101,
     };
     assert_eq!(
@@ -582,8 +585,28 @@ fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
         )
     };
     let mut skeeter = run(&sk, Stdio::null());
-    let mut scooter = run(&sc, Stdio::piped());
-    let scooter_out = scooter.0.stdout.take().unwrap();
+    // Scooter's events: JSON lines on stdout, or (closed stderr) text on stderr, with stdout
+    // in the file where stderr goes otherwise.
+    let (mut scooter, scooter_out): (Child, Box<dyn std::io::Read + Send>) = match scooter_how {
+        Interruption::ClosedStderr => {
+            let mut c = Child(
+                ima()
+                    .args(["run", "--config"])
+                    .arg(&sc)
+                    .stdout(std::fs::File::create(sc.with_extension("err")).unwrap())
+                    .stderr(Stdio::piped())
+                    .spawn()
+                    .unwrap(),
+            );
+            let err = c.0.stderr.take().unwrap();
+            (c, Box::new(err))
+        }
+        _ => {
+            let mut c = run(&sc, Stdio::piped());
+            let out = c.0.stdout.take().unwrap();
+            (c, Box::new(out))
+        }
+    };
     let _commander = Child(
         ima()
             .args(["commander", "--json", "--targets", "red", "--config"])
@@ -598,7 +621,10 @@ fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
     let moving = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let reader = {
         let moving = std::sync::Arc::clone(&moving);
-        let close = matches!(scooter_how, Interruption::ClosedStdout);
+        let close = matches!(
+            scooter_how,
+            Interruption::ClosedStdout | Interruption::ClosedStderr
+        );
         std::thread::spawn(move || {
             let mut out = BufReader::new(scooter_out);
             let mut l = String::new();
@@ -622,7 +648,7 @@ fn interrupt_mission(scooter_how: Interruption, skeeter_signal: &'static str) {
             (STAND_WITHIN, 128 + signal_number(sig))
         }
         // The closed pipe is found at Scooter's next event; give that a few seconds.
-        Interruption::ClosedStdout => (Duration::from_secs(10), 141),
+        Interruption::ClosedStdout | Interruption::ClosedStderr => (Duration::from_secs(10), 141),
         Interruption::Panic => unimplemented!(),
     };
     wait_until(stand_limit * 3, "Scooter to stand", || {
@@ -709,6 +735,14 @@ fn run_scooter_sigint_and_skeeter_sigterm_stop_their_bases() {
 #[test]
 fn run_scooter_closed_stdout_and_skeeter_sighup_stop_their_bases() {
     interrupt_mission(Interruption::ClosedStdout, "HUP");
+}
+
+/// `ima run` printing its events as text on stderr, whose reader goes away (`2>&1 | tee`,
+/// with tee killed): it ended with a panic ("failed printing to stderr", status 101); it now
+/// ends as with a closed stdout, its base stopped.
+#[test]
+fn run_scooter_closed_stderr_and_skeeter_sigint_stop_their_bases() {
+    interrupt_mission(Interruption::ClosedStderr, "INT");
 }
 
 /// Ctrl-C while `ima run` is still opening its devices (a base that never answers) ends it at

@@ -125,7 +125,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
         if let Ok(Ok(Err(e))) = printed {
             return Err(e);
         }
-        if crate::safety::signal().is_some() {
+        // A signal, or a closed stdout or stderr (text events) found by a print.
+        if crate::safety::asked_to_end() {
             return Err(crate::safety::Interrupted(crate::safety::cause()).into());
         }
         r
