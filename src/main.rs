@@ -21,6 +21,13 @@ macro_rules! eprintln {
     };
 }
 
+/// `eprint!` that never panics, as [`eprintln!`].
+macro_rules! eprint {
+    ($($arg:tt)*) => {
+        $crate::safety::err_write(format_args!($($arg)*))
+    };
+}
+
 mod cmd;
 mod config;
 mod record;

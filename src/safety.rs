@@ -412,8 +412,13 @@ pub fn out_line(args: std::fmt::Arguments<'_>) -> Result<()> {
 /// device halted, the command asked to end, status 141); other errors are ignored (there is
 /// nowhere left to report them).
 pub fn err_line(args: std::fmt::Arguments<'_>) {
+    err_write(format_args!("{args}\n"));
+}
+
+/// [`err_line`] without the end of line (the crate's `eprint!`).
+pub fn err_write(args: std::fmt::Arguments<'_>) {
     let mut err = std::io::stderr().lock();
-    if let Err(e) = err.write_fmt(args).and_then(|()| err.write_all(b"\n"))
+    if let Err(e) = err.write_fmt(args)
         && e.kind() == std::io::ErrorKind::BrokenPipe
     {
         output_closed();
