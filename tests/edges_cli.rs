@@ -403,3 +403,42 @@ fn unknown_target_colours_list_the_known_ones() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// Paths that are not UTF-8 (a Linux file name may be any bytes): the demo's JSON summary
+/// named them through serde_json, which refused them, and the `unwrap` behind `json!`
+/// panicked after the mission (status 101). They are now shown as text (U+FFFD for the bad
+/// bytes) and the files are written under their real names.
+#[cfg(unix)]
+#[test]
+fn paths_that_are_not_utf8_are_written_and_named() {
+    use std::os::unix::ffi::OsStrExt as _;
+    let d = scratch("not-utf8");
+    let svg = d.join(std::ffi::OsStr::from_bytes(b"\xff.svg"));
+    let mcap = d.join(std::ffi::OsStr::from_bytes(b"\xfe.mcap"));
+    let out = run_ok(
+        ima()
+            .args([
+                "demo",
+                "--json",
+                "--speed",
+                "10",
+                "--targets",
+                "red",
+                "--svg",
+            ])
+            .arg(&svg)
+            .arg("--record")
+            .arg(&mcap),
+    );
+    let summary = json_lines(&out.stdout)
+        .into_iter()
+        .find(|l| l["kind"] == "summary")
+        .expect("a summary");
+    let named = summary["svg"].as_str().unwrap();
+    assert!(named.ends_with("\u{fffd}.svg"), "{named}");
+    let named = summary["recording"]["path"].as_str().unwrap();
+    assert!(named.ends_with("\u{fffd}.mcap"), "{named}");
+    assert!(std::fs::metadata(&svg).unwrap().len() > 0);
+    assert!(std::fs::metadata(&mcap).unwrap().len() > 0);
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -536,12 +536,13 @@ fn summarise(
         "mission_time_s": world_s,
         "wall_time_s": wall.as_secs_f64(),
         "scooter_distance_m": scooter.length(),
-        "svg": args.svg,
+        // Paths as text (a path that is not UTF-8 made serde_json fail: a panic here).
+        "svg": args.svg.display().to_string(),
         // What the drivers counted (not the recorder): a recording's counts check against it.
         "drivers": {"skeeter": counts[0], "scooter": counts[1]},
         // record: what the recording wrote (null without --record/--foxglove).
         "recording": recording.as_ref().map(|r| json!({
-            "path": r.path, "written": r.written, "dropped": r.dropped, "unwritten": r.unwritten,
+            "path": r.path.as_ref().map(|p| p.display().to_string()), "written": r.written, "dropped": r.dropped, "unwritten": r.unwritten,
             "bytes": r.bytes, "error": r.error,
             "thread_cpu_s": r.thread_cpu.map(|d| d.as_secs_f64()),
         })),
