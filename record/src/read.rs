@@ -320,6 +320,14 @@ impl Recording {
         (out, Truncation(self.damage().or(cut)))
     }
 
+    /// How many messages the file holds, and why reading stopped early (as
+    /// [`messages`](Self::messages), without keeping them).
+    pub fn count(&self) -> (usize, Truncation) {
+        let mut n = 0;
+        let cut = self.each(|_| n += 1);
+        (n, Truncation(self.damage().or(cut)))
+    }
+
     /// Every channel: topic → (schema name, metadata).
     pub fn channels(&self) -> BTreeMap<String, (String, BTreeMap<String, String>)> {
         let mut out = BTreeMap::new();
@@ -338,27 +346,30 @@ impl Recording {
         out
     }
 
-    /// Every raw serial channel with its chunks.
+    /// Every raw serial channel with its chunks, copied out message by message as the chunks
+    /// are read (no other message is kept: replaying or decoding a long recording holds its
+    /// raw bytes, not every camera frame it decompressed on the way).
     pub fn raw_streams(&self) -> Vec<RawStream> {
-        // The raw channels' messages, copied out under the guard; parsed outside it.
-        let mut raw_msgs = Vec::new();
-        self.each(|m| {
-            if m.channel.message_encoding == raw::ENCODING {
-                raw_msgs.push(m);
-            }
-        });
         let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
-        for m in raw_msgs {
-            let Some(port) = PortInfo::from_metadata(&m.channel.metadata) else {
-                continue;
+        self.each(|m| {
+            if m.channel.message_encoding != raw::ENCODING {
+                return;
+            }
+            let entry = match by_topic.get_mut(&m.channel.topic) {
+                Some(e) => e,
+                None => {
+                    let Some(port) = PortInfo::from_metadata(&m.channel.metadata) else {
+                        return;
+                    };
+                    by_topic
+                        .entry(m.channel.topic.clone())
+                        .or_insert_with(|| RawStream {
+                            port,
+                            topic: m.channel.topic.clone(),
+                            chunks: Vec::new(),
+                        })
+                }
             };
-            let entry = by_topic
-                .entry(m.channel.topic.clone())
-                .or_insert_with(|| RawStream {
-                    port,
-                    topic: m.channel.topic.clone(),
-                    chunks: Vec::new(),
-                });
             match raw::parse(&m.data) {
                 Some(Chunk::Bytes(d, b)) => entry.chunks.push((m.log_time, d, b.to_vec())),
                 Some(Chunk::Baud(b)) => {
@@ -368,7 +379,7 @@ impl Recording {
                 }
                 None => {}
             }
-        }
+        });
         by_topic.into_values().collect()
     }
 

@@ -43,7 +43,11 @@ fn read_all(bytes: Vec<u8>) -> Option<String> {
     let _ = rec.raw_streams();
     let _ = rec.ima_metadata();
     let _ = rec.raw_stream("base");
-    let why = rec.messages().1.0;
+    let (msgs, why) = rec.messages();
+    let why = why.0;
+    // Counting gives what reading gives, without keeping the messages.
+    let (n, cut) = rec.count();
+    assert_eq!((n, &cut.0), (msgs.len(), &why));
     for w in [&why, &rec.damage()].into_iter().flatten() {
         assert!(
             !w.contains("the MCAP reader failed"),

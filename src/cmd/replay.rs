@@ -91,14 +91,12 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         let stream = stream?;
         return serve_as_mock(&stream, args.speed);
     }
-    let (msgs, cut) = rec.messages();
+    let (n, cut) = rec.count();
     if let Some(why) = &cut.0 {
         eprintln!(
-            "ima replay: the recording ends early ({why}); replaying the {} messages before",
-            msgs.len()
+            "ima replay: the recording ends early ({why}); replaying the {n} messages before"
         );
     }
-    drop(msgs);
     let mut readings = Vec::new();
     let streams = rec.raw_streams();
     if streams.is_empty() {
