@@ -442,3 +442,66 @@ fn paths_that_are_not_utf8_are_written_and_named() {
     assert!(std::fs::metadata(&mcap).unwrap().len() > 0);
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// Every device of a running robot vanishes (the mock world's process is killed; on a robot,
+/// a pulled USB hub): each driver says once that its port closed, and Scooter's laser and
+/// compass readers say once what fails and then count (they logged "laser: Disconnected" and
+/// "compass: Disconnected" five times a second each, for as long as the robot ran).
+#[test]
+fn devices_that_vanish_are_reported_once_each() {
+    let d = scratch("vanish");
+    let mut world = Child(
+        ima()
+            .args(["mock", "world", "--speed", "2", "--write-configs"])
+            .arg(&d)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut first = String::new();
+    BufReader::new(world.0.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(first.contains("\"configs\""), "{first}");
+    let err_file = d.join("scooter.err");
+    let mut run = Child(
+        ima()
+            .args(["run", "--config"])
+            .arg(d.join("scooter.toml"))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&err_file).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    // Its devices answered (it waits for Skeeter's Peer link meanwhile).
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while !std::fs::read_to_string(&err_file)
+        .unwrap_or_default()
+        .contains("scooter connected")
+    {
+        assert!(std::time::Instant::now() < end, "Scooter never connected");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    world.0.kill().unwrap();
+    let _ = world.0.wait();
+    // 3 s of a robot without devices (15 failed reads of each were 15 lines each).
+    std::thread::sleep(std::time::Duration::from_secs(3));
+    let _ = std::process::Command::new("kill")
+        .args(["-INT", &run.0.id().to_string()])
+        .status();
+    let _ = run.0.wait();
+    let err = std::fs::read_to_string(&err_file).unwrap();
+    for what in ["scooter: laser: ", "scooter: compass: "] {
+        let failures = err.lines().filter(|l| l.contains(what)).count();
+        assert!(failures <= 2, "{what} {failures} times:\n{err}");
+    }
+    for device in ["rFLEX base", "SICK LMS", "compass"] {
+        assert_eq!(
+            err.matches(&format!("{device}: the port ")).count(),
+            1,
+            "one line for the {device}:\n{err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -385,31 +385,44 @@ struct LoopState {
     base_refusals: Refusals,
 }
 
-/// A base that refuses every command (a lost link, a halted driver) is reported once, not on
-/// every control tick: the first refusal and every change of error are logged, and the count
-/// when commands go through again.
-#[derive(Default)]
+/// A device that fails every call (a lost link, a halted driver, an unplugged laser) is
+/// reported once, not on every control tick or read: the first failure and every change of
+/// error are logged, and the count when calls go through again.
 struct Refusals {
+    /// The device, as the log names it.
+    what: &'static str,
     /// The last error (its `Debug` text) and how many times in a row it came.
     last: Option<(String, u64)>,
 }
 
+/// The control loop's: the base's velocity commands.
+impl Default for Refusals {
+    fn default() -> Self {
+        Self::new("base")
+    }
+}
+
 impl Refusals {
-    /// One control tick: `refused` is the base's error (its `Debug` text), `None` when the
-    /// command went through.
+    fn new(what: &'static str) -> Self {
+        Self { what, last: None }
+    }
+
+    /// One call: `refused` is the device's error (its `Debug` text), `None` when the call
+    /// went through.
     fn note(&mut self, refused: Option<String>) {
+        let what = self.what;
         match (refused, &mut self.last) {
             (Some(text), Some((last, n))) if text == *last => *n += 1,
             (Some(text), Some((last, n))) => {
-                tracing::warn!("base: {text} (after {n} refusal(s): {last})");
+                tracing::warn!("{what}: {text} (after {n} failure(s): {last})");
                 self.last = Some((text, 1));
             }
             (Some(text), None) => {
-                tracing::warn!("base: {text} (further refusals of the same kind are counted)");
+                tracing::warn!("{what}: {text} (further failures of the same kind are counted)");
                 self.last = Some((text, 1));
             }
             (None, Some((last, n))) => {
-                tracing::info!("base: commands accepted again after {n} refusal(s) ({last})");
+                tracing::info!("{what}: working again after {n} failure(s) ({last})");
                 self.last = None;
             }
             (None, None) => {}
@@ -429,7 +442,8 @@ impl Drop for Refusals {
         if let Some((last, n)) = &self.last
             && *n > 1
         {
-            tracing::info!("base: {n} refusal(s) in a row until the loop ended ({last})");
+            let what = self.what;
+            tracing::info!("{what}: {n} failure(s) in a row until the loop ended ({last})");
         }
     }
 }
@@ -541,10 +555,13 @@ async fn pump<T, E: core::fmt::Debug>(
     mut next: impl AsyncFnMut(Instant) -> Result<Stamped<T>, E>,
 ) {
     let mut after = Instant::ZERO;
+    // A device gone for good fails every read: logged once, then counted.
+    let mut failures = Refusals::new(what);
     loop {
         // The error is dropped before the pause (a device's error need not be `Send`).
         let failed = match next(after).await {
             Ok(r) => {
+                failures.note(None);
                 after = r.at;
                 if tx.send(Some(r)).is_err() {
                     return;
@@ -552,7 +569,7 @@ async fn pump<T, E: core::fmt::Debug>(
                 false
             }
             Err(e) => {
-                tracing::warn!("{what}: {e:?}");
+                failures.note(Some(format!("{e:?}")));
                 true
             }
         };

@@ -233,7 +233,18 @@ pub(crate) async fn run<D, S>(
             tracing::warn!("the device's last frames could not all be written in time");
             (Err(LinkError::Timeout), LinkStatus::Closed)
         }
-        End::Failed(e) => (Err(e), LinkStatus::Failed(e.into())),
+        End::Failed(e) => {
+            // The task ends here; without this line a device that vanished (a pulled USB
+            // adapter, a mock that quit) left only refused calls behind.
+            let device = <D::Fault as Fault>::DEVICE;
+            match e {
+                LinkError::Disconnected => {
+                    tracing::error!("{device}: the port closed; the driver has ended");
+                }
+                e => tracing::error!("{device}: the port failed ({e}); the driver has ended"),
+            }
+            (Err(e), LinkStatus::Failed(e.into()))
+        }
     };
     // A failure the shell published (why the device was given up) stays the last word.
     shell.link().send_if_modified(|s| {
