@@ -89,10 +89,8 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
         if e.kind() == std::io::ErrorKind::NotFound {
             // The first thing a new group needs: say how to make one.
             NetError::Key(format!(
-                "{}: {e}; make one (the same file on every robot and the commander) with \
-                 `head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \\n' > {} && chmod 600 {}`",
-                path.display(),
-                path.display(),
+                "{}: {e}; make it with `head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \\n' \
+                 > FILE && chmod 600 FILE` and copy it to every robot and the commander",
                 path.display()
             ))
         } else {
@@ -170,6 +168,8 @@ mod tests {
         let missing = dir.join("missing");
         let e = load_key_file(&missing).unwrap_err().to_string();
         let make = e.split('`').nth(1).unwrap_or_else(|| panic!("{e}"));
+        let make = make.replace("FILE", &missing.display().to_string());
+        let make = make.as_str();
         assert!(e.contains("No such file"), "{e}");
         let made = std::process::Command::new("sh")
             .args(["-c", make])
