@@ -115,6 +115,16 @@ fn decode_says_so_when_no_frame_was_found() {
     assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
     let out = decode(&["p2os"], b"");
     assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
+    // `-` is stdin (it was taken for a file named `-`: "reading -: No such file").
+    let out = decode(
+        &["p2os", "--from", "host", "--hex", "-"],
+        b"FA FB 03 1D 00 1D",
+    );
+    assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("\"kind\""),
+        "{out:?}"
+    );
 }
 
 #[test]

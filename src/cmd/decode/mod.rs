@@ -90,7 +90,7 @@ pub struct DecodeArgs {
     /// Robot parameters for unit conversion (P2OS subclass: p2at, p2at8, p2dx).
     #[arg(long, default_value = "p2at")]
     robot: String,
-    /// Capture file; stdin when absent.
+    /// Capture file; stdin when absent or `-`.
     file: Option<PathBuf>,
 }
 
@@ -104,11 +104,12 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
             raw = bytes;
             protocol = protocol.or(recorded);
         }
-        Some(p) => {
+        // `-` is stdin, as for most Unix tools.
+        Some(p) if p.as_os_str() != "-" => {
             raw = ima_hal::file::read_limited(p, CAPTURE_LIMIT)
                 .with_context(|| format!("reading {}", p.display()))?;
         }
-        None => {
+        Some(_) | None => {
             std::io::stdin()
                 .take(CAPTURE_LIMIT + 1)
                 .read_to_end(&mut raw)
