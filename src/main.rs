@@ -171,6 +171,14 @@ fn main() -> ExitCode {
     let _ = record::finish();
     // A recording that could not be written fails a command that otherwise succeeded.
     let result = result.and_then(|()| record::check_written());
+    // A print that found stderr closed could not fail the command itself: it ends as one that
+    // found stdout closed (141), like the robot's own commands.
+    let result = match result {
+        Ok(()) if safety::output_was_closed() => {
+            Err(safety::Interrupted(safety::Cause::OutputClosed).into())
+        }
+        r => r,
+    };
     let (code, message) = safety::exit_status(&result);
     if let Some(m) = message {
         let _ = writeln!(std::io::stderr(), "ima: error: {m}");

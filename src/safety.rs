@@ -155,6 +155,11 @@ pub fn output_closed() {
     cancel_channel().send_replace(true);
 }
 
+/// Whether a print found stdout or stderr closed ([`output_closed`]).
+pub fn output_was_closed() -> bool {
+    OUTPUT_CLOSED.load(Ordering::SeqCst)
+}
+
 /// The signal received so far, if any.
 pub fn signal() -> Option<Signal> {
     Signal::from_number(SIGNAL.load(Ordering::SeqCst))

@@ -492,9 +492,10 @@ fn devices_that_vanish_are_reported_once_each() {
         .status();
     let _ = run.0.wait();
     let err = std::fs::read_to_string(&err_file).unwrap();
+    // One line per kind of error (a timeout, the port's own error, then `Disconnected`).
     for what in ["scooter: laser: ", "scooter: compass: "] {
         let failures = err.lines().filter(|l| l.contains(what)).count();
-        assert!(failures <= 2, "{what} {failures} times:\n{err}");
+        assert!(failures <= 3, "{what} {failures} times:\n{err}");
     }
     for device in ["rFLEX base", "SICK LMS", "compass"] {
         assert_eq!(

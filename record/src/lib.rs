@@ -254,6 +254,8 @@ struct Shared {
     exclude: filter::TopicFilter,
     /// The file's first write error: with no live view, nothing is queued after it.
     failure: Arc<Failure>,
+    /// The MCAP file, if any.
+    path: Option<PathBuf>,
 }
 
 /// A recorder: a handle on the background writer (clone it freely).
@@ -353,6 +355,7 @@ impl Recorder {
             images: opts.images,
             exclude: opts.exclude.clone(),
             failure: Arc::clone(&failure),
+            path: opts.mcap.clone(),
         });
         let worker = Worker {
             inner,
@@ -647,11 +650,14 @@ impl Recorder {
         self.wake();
         let mut r = match sent.then(|| rx.recv_timeout(wait)) {
             Some(Ok(r)) => r,
+            // The file is named, so that the command says it is incomplete.
             Some(Err(_)) => Report {
+                path: self.shared.path.clone(),
                 error: Some("the recorder did not finish in time".into()),
                 ..Report::default()
             },
             None => Report {
+                path: self.shared.path.clone(),
                 error: Some("the recorder did not answer".into()),
                 ..Report::default()
             },
@@ -969,6 +975,14 @@ impl Worker {
             // It fails again (the file cannot be written); the first error is the one to tell.
             let _ = w.close();
         }
+        self.report_failure();
+    }
+
+    /// Say once, with the size written, that the file failed, and keep its first error.
+    fn report_failure(&mut self) {
+        if self.error.is_some() {
+            return;
+        }
         let bytes = (self.path.as_deref())
             .and_then(|p| std::fs::metadata(p).ok())
             .map_or(0, |m| m.len());
@@ -990,9 +1004,12 @@ impl Worker {
         if let Some(w) = self.writer.take()
             && let Err(e) = w.close()
         {
-            // The file's own error (disk full…) rather than the writer's account of it.
-            let e = self.failure.first().unwrap_or_else(|| e.to_string());
-            self.error.get_or_insert(e);
+            if self.failure.failed.load(Ordering::Acquire) {
+                // The file's own error (disk full…), said as when it comes earlier.
+                self.report_failure();
+            } else {
+                self.error.get_or_insert(e.to_string());
+            }
         }
         if let Some((h, rt)) = self.server.take() {
             let shutdown = h.stop();

@@ -258,7 +258,8 @@ impl Recording {
     }
 
     /// Run `f` over every message the `mcap` crate gives for the sound prefix (`f` must only
-    /// copy what it needs: it runs under the panic guard). An error or a panic of the crate is
+    /// copy what it needs, or parse it with code that cannot panic: it runs under the panic
+    /// guard, which would report a panic of ours as damage to the file). An error or a panic of the crate is
     /// kept for [`damage`](Self::damage); the crate's words for a prefix that ends inside a
     /// record or without a footer (a cut, which the walker's damage explains) are returned.
     fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>)) -> Option<String> {

@@ -361,7 +361,8 @@ fn read_lines(mut input: impl BufRead, max: usize, mut take: impl FnMut(String) 
                 nl.map_or((buf.len(), false, false), |i| (i + 1, true, false))
             }
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(_) => (0, false, true),
+            // A broken stdin: a part of a line is not a request.
+            Err(_) => return,
         };
         input.consume(used);
         if input_end && line.is_empty() {

@@ -89,8 +89,9 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
         if e.kind() == std::io::ErrorKind::NotFound {
             // The first thing a new group needs: say how to make one.
             NetError::Key(format!(
-                "{}: {e}; make it with `head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \\n' \
-                 > FILE && chmod 600 FILE` and copy it to every robot and the commander",
+                "{}: {e}; make it with `(umask 077 && head -c 32 /dev/urandom | od -An -v -tx1 \
+                 | tr -d ' \\n' > FILE)` (readable by its owner only, from the start) and copy \
+                 it to every robot and the commander",
                 path.display()
             ))
         } else {
@@ -168,7 +169,7 @@ mod tests {
         let missing = dir.join("missing");
         let e = load_key_file(&missing).unwrap_err().to_string();
         let make = e.split('`').nth(1).unwrap_or_else(|| panic!("{e}"));
-        let make = make.replace("FILE", &missing.display().to_string());
+        let make = make.replace("FILE", &format!("'{}'", missing.display()));
         let make = make.as_str();
         assert!(e.contains("No such file"), "{e}");
         let made = std::process::Command::new("sh")
