@@ -208,6 +208,18 @@ fn killed_manager_process_is_reported() {
     assert_eq!(last["event"], "closed");
 }
 
+/// SIGTERM (`systemctl stop`) shuts the manager down in order, as Ctrl-C does: its clients
+/// are told (revoked: shutdown). It waited out the signal's 3 s grace period and was then
+/// ended without a word, so its clients found out only when its heartbeats stopped.
+#[test]
+fn sigterm_shuts_the_manager_down_and_its_client_is_told() {
+    let lines = client_sees_loss("-TERM");
+    let last = lines.last().expect("a closing line");
+    assert_eq!(last["event"], "closed");
+    assert_eq!(last["reason"]["kind"], "revoked", "{last}");
+    assert_eq!(last["reason"]["reason"], "shutdown", "{last}");
+}
+
 #[test]
 fn frozen_manager_is_declared_lost_after_missed_heartbeats() {
     let lines = client_sees_loss("-STOP");

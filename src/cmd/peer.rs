@@ -454,7 +454,9 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     }
     loop {
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => break,
+            // SIGINT, SIGTERM (`systemctl stop`), SIGHUP or SIGQUIT: shut down in order (the
+            // clients are told), not after the signal's grace period.
+            () = crate::safety::cancelled() => break,
             e = events.recv() => match e {
                 Ok(e) => line(&json!({ "event": "manager", "detail": manager_event_json(&e) }))?,
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
@@ -509,7 +511,7 @@ async fn client(a: &ClientArgs) -> Result<()> {
         }
         let next = tokio::select! {
             e = sub.next() => e,
-            _ = tokio::signal::ctrl_c() => return Ok(()),
+            () = crate::safety::cancelled() => return Ok(()),
         };
         match next {
             Some(SubscriptionEvent::Sample {
@@ -605,7 +607,7 @@ async fn listen(a: &ListenArgs) -> Result<()> {
         let r = tokio::select! {
             r = ch.recv() => r,
             _ = check.tick() => continue,
-            _ = tokio::signal::ctrl_c() => return Ok(()),
+            () = crate::safety::cancelled() => return Ok(()),
         };
         let (m, from) = r.map_err(|e| anyhow::anyhow!("{e}"))?;
         n += 1;
