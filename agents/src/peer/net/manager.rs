@@ -948,9 +948,16 @@ async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: Sessi
         let writer = tokio::spawn(write_frames(wr, rx, lim.window));
         let io2 = io.clone();
         let max_body = lim.max_body;
+        // The reader starts once the core knows the session: its first frame (a Register)
+        // queued before `Accepted` was dropped as a stranger's, and the client waited out its
+        // call timeout (seen with 200 clients registering at once on a loaded machine).
+        let (go, known) = oneshot::channel::<()>();
         let reader = tokio::spawn(async move {
             // Held as long as the session's reader runs (dropped when it ends or is aborted).
             let _permit = permit;
+            if known.await.is_err() {
+                return;
+            }
             let credits = Arc::new(Semaphore::new(SESSION_CREDITS));
             let mut fr = FrameReader::new(max_body);
             loop {
@@ -988,6 +995,7 @@ async fn accept_sessions(listener: TcpListener, io: mpsc::Sender<Io>, lim: Sessi
             reader.abort();
             return;
         }
+        let _ = go.send(());
     }
 }
 
