@@ -728,20 +728,13 @@ fn a_robot_names_frames_under_another_key() {
     assert!(warning.contains("is the key file the same"), "{warning}");
 }
 
-/// Issue 13: Ctrl-C on a commander whose stdin is a terminal asks "stop the robots?"; "y"
-/// sends the fleet stop, seen on the wire by a listener.
-#[cfg(unix)]
-#[test]
-fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
-    use std::io::{Read, Write};
-    use std::sync::{Arc, Mutex};
-    let dir = temp_dir("prompt");
-    let key = key_file(&dir, "a.key", 0x5a);
-    // The listener: where the commander's broadcasts go.
+/// `ima peer listen` in unicast mode on a free loopback port (`key`: its key arguments): the
+/// process, the lines it prints (the first, `listening`, already taken) and its port.
+fn unicast_listener(key: &[&std::ffi::OsStr]) -> (Child, mpsc::Receiver<String>, String) {
     let mut listener = Child(
         ima()
-            .args(["peer", "listen", "--key-file"])
-            .arg(&key)
+            .args(["peer", "listen"])
+            .args(key)
             .args([
                 "--mode",
                 "unicast",
@@ -767,16 +760,57 @@ fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
         .and_then(|a| a.rsplit(':').next())
         .unwrap()
         .to_owned();
+    (listener, heard, port)
+}
+
+/// A commander configuration in `dir` whose broadcasts go to 127.0.0.1:`port` only; `key` is
+/// its `[peer]` key line (empty for none).
+fn commander_config(dir: &std::path::Path, key: &str, port: &str) -> PathBuf {
     let cfg = dir.join("commander.toml");
     std::fs::write(
         &cfg,
         format!(
-            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nkey_file = {key:?}\n\
-             broadcast_group = \"\"\nbroadcast_peers = [\"127.0.0.1:{port}\"]\n\
-             broadcast_bind = \"127.0.0.1:0\"\n"
+            "robot = \"commander\"\nrole = \"commander\"\n[peer]\n{key}broadcast_group = \"\"\n\
+             broadcast_peers = [\"127.0.0.1:{port}\"]\nbroadcast_bind = \"127.0.0.1:0\"\n"
         ),
     )
     .unwrap();
+    cfg
+}
+
+/// Wait (at most 30 s) until the listener hears the commander's fleet stop; `said` gives what
+/// the commander printed, for the failure message.
+fn await_fleet_stop(heard: &mpsc::Receiver<String>, mut said: impl FnMut() -> String) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let l = heard
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .unwrap_or_else(|e| {
+                panic!(
+                    "a fleet stop on the wire: {e:?}; the commander said: {}",
+                    said()
+                )
+            });
+        let v: Value = serde_json::from_str(&l).unwrap();
+        if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
+            assert_eq!(v["robot"], "commander");
+            return;
+        }
+    }
+}
+
+/// Issue 13: Ctrl-C on a commander whose stdin is a terminal asks "stop the robots?"; "y"
+/// sends the fleet stop, seen on the wire by a listener.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
+    use std::io::{Read, Write};
+    use std::sync::{Arc, Mutex};
+    let dir = temp_dir("prompt");
+    let key = key_file(&dir, "a.key", 0x5a);
+    // The listener: where the commander's broadcasts go.
+    let (_listener, heard, port) = unicast_listener(&["--key-file".as_ref(), key.as_os_str()]);
+    let cfg = commander_config(&dir, &format!("key_file = {key:?}\n"), &port);
     // The commander's stdin is the slave of a pseudo-terminal: a terminal.
     let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
     let slave_path = serialport::SerialPort::name(&slave).expect("the slave's path");
@@ -833,22 +867,7 @@ fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
     master.write_all(b"y\n").unwrap();
     master.flush().unwrap();
     // The fleet stop goes out (heard by the listener) and the commander ends.
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        let l = heard
-            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-            .unwrap_or_else(|e| {
-                panic!(
-                    "a fleet stop on the wire: {e:?}; the commander said: {}",
-                    err.lock().unwrap()
-                )
-            });
-        let v: Value = serde_json::from_str(&l).unwrap();
-        if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
-            assert_eq!(v["robot"], "commander");
-            break;
-        }
-    }
+    await_fleet_stop(&heard, || err.lock().unwrap().clone());
     let deadline = Instant::now() + Duration::from_secs(30);
     let status = loop {
         if let Some(s) = commander.0.try_wait().unwrap() {
@@ -874,33 +893,9 @@ fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
 fn stray_bytes_on_stdin_do_not_deafen_the_commander_to_a_stop() {
     use std::io::Write;
     let dir = temp_dir("stray");
-    let mut listener = Child(
-        ima()
-            .args(["peer", "listen", "--insecure", "--mode", "unicast"])
-            .args(["--port", "0", "--interface", "127.0.0.1"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let heard = line_channel(BufReader::new(listener.0.stdout.take().unwrap()));
-    let first: Value = serde_json::from_str(
-        &heard
-            .recv_timeout(Duration::from_secs(30))
-            .expect("the listener's first line"),
-    )
-    .unwrap();
-    let port = first["addr"].as_str().and_then(|a| a.rsplit(':').next());
-    let cfg = dir.join("commander.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "robot = \"commander\"\nrole = \"commander\"\n[peer]\nbroadcast_group = \"\"\n\
-             broadcast_peers = [\"127.0.0.1:{}\"]\nbroadcast_bind = \"127.0.0.1:0\"\n",
-            port.unwrap()
-        ),
-    )
-    .unwrap();
+    let (_listener, heard, port) = unicast_listener(&["--insecure".as_ref()]);
+    // No key file: `--insecure` below supplies the key.
+    let cfg = commander_config(&dir, "", &port);
     let mut commander = Child(
         ima()
             .args(["commander", "--json", "--insecure", "--config"])
@@ -918,23 +913,7 @@ fn stray_bytes_on_stdin_do_not_deafen_the_commander_to_a_stop() {
         .write_all(b"\xff\xfe stop\nstop stray bytes before\n")
         .unwrap();
     stdin.flush().unwrap();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let mut said = String::new();
-    loop {
-        let l = heard
-            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-            .unwrap_or_else(|e| {
-                while let Ok(l) = err.try_recv() {
-                    said.push_str(&l);
-                }
-                panic!("a fleet stop on the wire: {e:?}; the commander said: {said}")
-            });
-        let v: Value = serde_json::from_str(&l).unwrap();
-        if v["type"] == "emergency" && v["kind"] == "fleet-stop" {
-            assert_eq!(v["robot"], "commander");
-            break;
-        }
-    }
+    await_fleet_stop(&heard, || err.try_iter().collect::<Vec<_>>().join("\n"));
     let hint = loop {
         let l = err
             .recv_timeout(Duration::from_secs(10))

@@ -71,25 +71,14 @@ fn scan_refuses_an_svg_in_a_missing_directory_before_opening_the_laser() {
 fn demo_prints_its_summary_even_when_the_svg_cannot_be_written() {
     // `/dev/full` passes the check (it opens for writing) but every write fails.
     let out = ima()
-        .args([
-            "demo",
-            "--json",
-            "--speed",
-            "10",
-            "--targets",
-            "red",
-            "--svg",
-            "/dev/full",
-        ])
+        .args(common::SHORT_DEMO)
+        .args(["--svg", "/dev/full"])
         .output()
         .unwrap();
     assert!(!out.status.success());
     let err = stderr(&out);
     assert!(err.contains("--svg /dev/full"), "{err}");
-    let summary = json_lines(&out.stdout)
-        .into_iter()
-        .find(|l| l["kind"] == "summary")
-        .unwrap_or_else(|| panic!("no summary; {err}"));
+    let summary = common::demo_summary(&out);
     assert_eq!(summary["targets"][0]["target"], "red", "{summary}");
 }
 
@@ -417,23 +406,13 @@ fn paths_that_are_not_utf8_are_written_and_named() {
     let mcap = d.join(std::ffi::OsStr::from_bytes(b"\xfe.mcap"));
     let out = run_ok(
         ima()
-            .args([
-                "demo",
-                "--json",
-                "--speed",
-                "10",
-                "--targets",
-                "red",
-                "--svg",
-            ])
+            .args(common::SHORT_DEMO)
+            .arg("--svg")
             .arg(&svg)
             .arg("--record")
             .arg(&mcap),
     );
-    let summary = json_lines(&out.stdout)
-        .into_iter()
-        .find(|l| l["kind"] == "summary")
-        .expect("a summary");
+    let summary = common::demo_summary(&out);
     let named = summary["svg"].as_str().unwrap();
     assert!(named.ends_with("\u{fffd}.svg"), "{named}");
     let named = summary["recording"]["path"].as_str().unwrap();
@@ -450,19 +429,8 @@ fn paths_that_are_not_utf8_are_written_and_named() {
 #[test]
 fn devices_that_vanish_are_reported_once_each() {
     let d = scratch("vanish");
-    let mut world = Child(
-        ima()
-            .args(["mock", "world", "--speed", "2", "--write-configs"])
-            .arg(&d)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut first = String::new();
-    BufReader::new(world.0.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
+    let args = ["mock", "world", "--speed", "2", "--write-configs"].map(std::ffi::OsStr::new);
+    let (mut world, first) = common::spawn_first_line(args.into_iter().chain([d.as_os_str()]));
     assert!(first.contains("\"configs\""), "{first}");
     let err_file = d.join("scooter.err");
     let mut run = Child(

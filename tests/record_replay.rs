@@ -24,7 +24,7 @@ fn recorded_demo(
 ) -> (std::process::Output, serde_json::Value, std::path::PathBuf) {
     let file = dir.join(format!("{name}.mcap"));
     let out = ima()
-        .args(["demo", "--json", "--speed", "10", "--targets", "red"])
+        .args(common::SHORT_DEMO)
         .args(extra)
         .arg("--svg")
         .arg(dir.join(format!("{name}.svg")))
@@ -32,10 +32,7 @@ fn recorded_demo(
         .arg(&file)
         .output()
         .unwrap();
-    let summary = json_lines(&out.stdout)
-        .into_iter()
-        .find(|l| l["kind"] == "summary")
-        .unwrap_or_else(|| panic!("no summary: {}", String::from_utf8_lossy(&out.stderr)));
+    let summary = common::demo_summary(&out);
     (out, summary, file)
 }
 
@@ -831,15 +828,8 @@ fn a_recording_that_cannot_be_written_says_so_once_and_fails_the_command() {
     let out = std::process::Command::new("sh")
         .args(["-c", "ulimit -f 2048 && trap '' XFSZ && exec \"$0\" \"$@\""])
         .arg(env!("CARGO_BIN_EXE_ima"))
-        .args([
-            "demo",
-            "--json",
-            "--speed",
-            "10",
-            "--targets",
-            "red",
-            "--svg",
-        ])
+        .args(common::SHORT_DEMO)
+        .arg("--svg")
         .arg(dir.join("full.svg"))
         .arg("--record")
         .arg(&file)
@@ -847,10 +837,7 @@ fn a_recording_that_cannot_be_written_says_so_once_and_fails_the_command() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    let summary = json_lines(&out.stdout)
-        .into_iter()
-        .find(|l| l["kind"] == "summary")
-        .unwrap_or_else(|| panic!("no summary: {err}"));
+    let summary = common::demo_summary(&out);
     assert_eq!(summary["targets"][0]["state"], "done", "{summary}");
     let why = summary["recording"]["error"].as_str().unwrap_or_default();
     assert!(why.contains("File too large"), "{summary}");

@@ -51,21 +51,28 @@ impl Drop for Child {
     }
 }
 
-/// Start `ima mock <args…>` and read the pty path it prints on its first line.
-pub fn spawn_mock(args: &[&str]) -> (Child, String) {
-    let mut mock = Child(
+/// Start `ima <args…>` (its stderr discarded) and read the first line it prints.
+pub fn spawn_first_line<S: AsRef<std::ffi::OsStr>>(
+    args: impl IntoIterator<Item = S>,
+) -> (Child, String) {
+    let mut child = Child(
         ima()
-            .arg("mock")
             .args(args)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
             .unwrap(),
     );
-    let mut path = String::new();
-    BufReader::new(mock.0.stdout.take().unwrap())
-        .read_line(&mut path)
+    let mut line = String::new();
+    BufReader::new(child.0.stdout.take().unwrap())
+        .read_line(&mut line)
         .unwrap();
+    (child, line)
+}
+
+/// Start `ima mock <args…>` and read the pty path it prints on its first line.
+pub fn spawn_mock(args: &[&str]) -> (Child, String) {
+    let (mock, path) = spawn_first_line(std::iter::once("mock").chain(args.iter().copied()));
     let path = path.trim().to_owned();
     assert!(
         path.starts_with("/dev/"),
@@ -131,5 +138,17 @@ pub fn json_lines(out: &[u8]) -> Vec<serde_json::Value> {
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect()
+}
+
+/// A short mission demo: JSON lines, world ×10, the red target only.
+pub const SHORT_DEMO: [&str; 6] = ["demo", "--json", "--speed", "10", "--targets", "red"];
+
+/// The `summary` line of `ima demo --json`'s output; fails the test, showing stderr, when
+/// there is none.
+pub fn demo_summary(out: &std::process::Output) -> serde_json::Value {
+    json_lines(&out.stdout)
+        .into_iter()
+        .find(|l| l["kind"] == "summary")
+        .unwrap_or_else(|| panic!("no summary: {}", String::from_utf8_lossy(&out.stderr)))
 }
 pub mod conformance;
