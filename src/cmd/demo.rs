@@ -446,6 +446,40 @@ fn reach_m() -> f64 {
     crate::config::AgentConfig::default().reach_distance_m
 }
 
+/// Each target's mission in world seconds, (sent, ended), from the commander's events in
+/// `log`; `None` for a target without both. From the send, not the acceptance: Scooter may
+/// start on the commander's request before Skeeter's acceptance reaches the commander. A
+/// colour named twice (`red,blue,red`) is two missions: the n-th starts at the n-th send of
+/// the colour and ends at the first outcome after that send.
+fn mission_spans(outcomes: &[TargetOutcome], log: &[(f64, Event)]) -> Vec<Option<(f64, f64)>> {
+    // The commander's events about `target` in `states`, as (log index, world time).
+    let events = |target: &str, states: &[&str]| -> Vec<(usize, f64)> {
+        log.iter()
+            .enumerate()
+            .filter(|(_, (_, e))| {
+                matches!(&e.kind, EventKind::Target(ev)
+                    if ev.target == target && states.contains(&ev.state.as_str()))
+            })
+            .map(|(i, (t, _))| (i, *t))
+            .collect()
+    };
+    outcomes
+        .iter()
+        .enumerate()
+        .map(|(k, o)| {
+            let repeat = outcomes[..k]
+                .iter()
+                .filter(|p| p.target == o.target)
+                .count();
+            let (i0, t0) = *events(&o.target, &["sent"]).get(repeat)?;
+            let (_, t1) = events(&o.target, &["done", "failed"])
+                .into_iter()
+                .find(|&(i, _)| i > i0)?;
+            Some((t0, t1))
+        })
+        .collect()
+}
+
 /// The summary: per target, the drivers' counters, the recording, and the SVG.
 #[allow(clippy::too_many_arguments)] // one call site; each argument is a different result
 fn summarise(
@@ -459,16 +493,6 @@ fn summarise(
     console: Option<&crate::web::Console>,
 ) -> Result<()> {
     let scooter = &paths[1];
-    // World times of the commander's "processing" and final events per target.
-    let world_time = |target: &str, states: &[&str]| {
-        log.iter()
-            .filter(|(_, e)| {
-                matches!(&e.kind, EventKind::Target(t)
-                    if t.target == target && states.contains(&t.state.as_str()))
-            })
-            .map(|(t, _)| *t)
-            .next()
-    };
     let position_at = |t: f64| {
         scooter
             .points
@@ -480,12 +504,8 @@ fn summarise(
     };
     let objects = served.world().with(|w| w.objects().to_vec());
     let mut rows = Vec::new();
-    for o in outcomes {
-        // From the commander's send: Scooter may start on the commander's request before
-        // Skeeter's acceptance reaches the commander.
-        let start = world_time(&o.target, &["sent"]);
-        let end = world_time(&o.target, &["done", "failed"]);
-        let (Some(t0), Some(t1)) = (start, end) else {
+    for (o, span) in outcomes.iter().zip(mission_spans(outcomes, log)) {
+        let Some((t0, t1)) = span else {
             rows.push(json!({"target": o.target, "state": o.state, "time_s": null,
                 "distance_m": null, "d_min_m": null, "performance": 0.0}));
             continue;
@@ -604,4 +624,58 @@ fn summarise(
     written?;
     anyhow::ensure!(failed == 0, "{failed} target(s) failed");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ima_agents::runtime::events::TargetChange;
+
+    fn target(t: f64, colour: &str, state: &str) -> (f64, Event) {
+        let kind = EventKind::Target(TargetChange {
+            target: colour.into(),
+            state: state.into(),
+            time_s: None,
+            given_up: None,
+            cancelled: None,
+        });
+        (
+            t,
+            Event {
+                t_s: t,
+                robot: "commander".into(),
+                kind,
+            },
+        )
+    }
+
+    fn outcome(colour: &str) -> TargetOutcome {
+        TargetOutcome {
+            target: colour.into(),
+            state: TargetState::Done,
+            sent_s: 0.0,
+            accepted_s: None,
+            ended_s: 0.0,
+            reason: None,
+        }
+    }
+
+    #[test]
+    fn a_colour_named_twice_is_two_missions_each_with_its_own_span() {
+        // `--targets red,red,blue` where the second red is answered at once (Skeeter's
+        // outcome memory) and blue never ends.
+        let log = [
+            target(5.0, "red", "sent"),
+            target(5.1, "red", "processing"),
+            target(40.0, "red", "done"),
+            target(40.0, "red", "sent"),
+            target(40.3, "red", "done"),
+            target(40.3, "blue", "sent"),
+        ];
+        let outcomes = [outcome("red"), outcome("red"), outcome("blue")];
+        assert_eq!(
+            mission_spans(&outcomes, &log),
+            [Some((5.0, 40.0)), Some((40.0, 40.3)), None]
+        );
+    }
 }

@@ -44,7 +44,8 @@ impl Trajectory {
                 [a, b] => (b.1 - a.1).hypot(b.2 - a.2),
                 _ => 0.0,
             })
-            .sum()
+            // Not `sum()`: an empty f64 sum is −0.0, which the summary printed as "-0.00 m".
+            .fold(0.0, |total, d| total + d)
     }
 
     /// Total path length, metres.
@@ -204,6 +205,9 @@ mod tests {
         assert_eq!(t.points.len(), 3);
         assert!((t.length() - 6.0).abs() < 1e-9);
         assert!((t.length_between(0.0, 2.5) - 5.0).abs() < 1e-9);
+        // No sample in the window (the robot stood still): nothing driven, +0.
+        let none = t.length_between(100.0, 101.0);
+        assert!(none == 0.0 && none.is_sign_positive(), "{none}");
         let mut u = Trajectory::new("skeeter");
         u.push(0.0, 1.0, 1.0);
         u.push(1.0, f64::NAN, 1.0);
