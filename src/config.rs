@@ -474,6 +474,50 @@ impl RobotConfig {
         Ok(())
     }
 
+    /// The `[peer]` addresses' shapes, before any device or socket is opened (a typo in
+    /// `peer.listen` used to show only once the devices had connected). Names are looked up
+    /// when the network starts; these checks need no lookup.
+    fn check_addresses(&self) -> Result<()> {
+        use ima_agents::peer::net::is_host_port;
+        let p = &self.peer;
+        let host_ports = [
+            ("peer.listen", Some(&p.listen).filter(|l| !l.is_empty())),
+            ("peer.data_listen", Some(&p.data_listen)),
+            ("peer.connect", p.connect.as_ref()),
+        ];
+        for (key, a) in host_ports {
+            if let Some(a) = a
+                && !is_host_port(a)
+            {
+                bail!("{key} must be HOST:PORT (e.g. \"192.168.1.10:7600\"), not {a:?}");
+            }
+        }
+        // The broadcast socket takes IPv4 literals only (no name lookup).
+        let v4 = |key: &str, a: &str| -> Result<std::net::SocketAddrV4> {
+            a.parse().map_err(|_| {
+                anyhow::anyhow!(
+                    "{key} must be an IPv4 address and port (e.g. \"10.0.0.5:7601\"), not {a:?}"
+                )
+            })
+        };
+        if !p.broadcast_group.is_empty() {
+            let g = v4("peer.broadcast_group", &p.broadcast_group)?;
+            if !g.ip().is_multicast() {
+                bail!(
+                    "peer.broadcast_group {g} is not a multicast address (224.0.0.0 to \
+                     239.255.255.255; \"\" with peer.broadcast_peers for unicast only)"
+                );
+            }
+        }
+        for a in &p.broadcast_peers {
+            v4("peer.broadcast_peers", a)?;
+        }
+        if let Some(a) = &p.broadcast_bind {
+            v4("peer.broadcast_bind", a)?;
+        }
+        Ok(())
+    }
+
     /// Check values and that the role's devices are configured (unless `mock`).
     pub fn check(&self) -> Result<()> {
         let a = &self.agent;
@@ -530,6 +574,7 @@ impl RobotConfig {
         {
             bail!("peer.data_advertise must be HOST:PORT (e.g. \"10.0.0.5:7401\"), not {a:?}");
         }
+        self.check_addresses()?;
         let hb = self.peer.heartbeat_ms;
         if !(10..=60_000).contains(&hb) {
             bail!("peer.heartbeat_ms must be in [10, 60000] ms, not {hb}");
@@ -707,6 +752,18 @@ mod tests {
                 "devices.compass.deviation_deg",
             ),
             ("data_advertise = \"x\"\n", "peer.data_advertise"),
+            // Addresses are checked before any device opens (they failed only once the
+            // devices had connected).
+            ("listen = \"nope\"\n", "peer.listen"),
+            ("data_listen = \"7401\"\n", "peer.data_listen"),
+            ("connect = \"skeeter\"\n", "peer.connect"),
+            ("broadcast_group = \"239.1.2.3\"\n", "peer.broadcast_group"),
+            ("broadcast_group = \"10.0.0.1:7601\"\n", "not a multicast"),
+            ("broadcast_peers = [\"zz\"]\n", "peer.broadcast_peers"),
+            (
+                "broadcast_bind = \"localhost:7601\"\n",
+                "peer.broadcast_bind",
+            ),
         ] {
             let cfg = format!("{mock}{bad}");
             let e = format!("{:#}", RobotConfig::from_toml_str(&cfg).unwrap_err());
@@ -714,6 +771,11 @@ mod tests {
         }
         let fine = format!("{mock}{compass}baud = 4800\ndeviation_deg = -3.5\n");
         assert!(RobotConfig::from_toml_str(&fine).is_ok());
+        let names = format!(
+            "{mock}listen = \"skeeter.local:7600\"\nconnect = \"[::1]:7600\"\n\
+             broadcast_group = \"\"\nbroadcast_peers = [\"10.0.0.2:7601\"]\n"
+        );
+        assert!(RobotConfig::from_toml_str(&names).is_ok());
         // A name no Peer frame can carry is refused here, not at the first broadcast.
         let named = |n: usize| {
             let cfg = format!(
