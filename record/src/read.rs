@@ -4,12 +4,19 @@
 //! near `u64::MAX` (an overflow in its slicing), a chunk claiming an absurd uncompressed size
 //! (`capacity overflow`, or an allocation that aborts the process), or a record inside a chunk
 //! whose length is corrupt (it sizes a buffer from it). So [`Recording::open`] first walks the
-//! file's record structure itself, decompressing each chunk, and keeps only the sound prefix: a
-//! record longer than what is left of the file, a chunk that would decompress to more than
-//! [`MAX_CHUNK_BYTES`] (or does not decompress to what it claims), or a chunk whose records
-//! overrun it ends the recording there, with the reason reported as its [`Truncation`]. Any
-//! other panic of the crate is caught ([`in_guarded_read`] tells a program's panic hook to stay
-//! quiet) and reported the same way.
+//! file's record structure itself, decompressing each chunk, and hands the crate only what is
+//! sound:
+//! - a chunk that would decompress to more than [`MAX_CHUNK_BYTES`], does not decompress to
+//!   what it claims, or whose records overrun it, is skipped when its own length is sound (a
+//!   flipped byte in one chunk loses that chunk's messages, about a second of a demo, not the
+//!   rest of the file); the summary's schema and channel records are put ahead of the
+//!   chunks, so the messages after a skipped chunk keep their channels;
+//! - after a record whose length runs past the file, the walk goes on at the next sound chunk;
+//!   where none follows (a recorder that crashed mid-chunk), the recording ends there.
+//!
+//! What was skipped, and where the file ends early, is reported as its [`Truncation`] and by
+//! [`Recording::damage`]. Any other panic of the crate is caught ([`in_guarded_read`] tells a
+//! program's panic hook to stay quiet) and reported the same way.
 
 use std::cell::Cell;
 use std::collections::BTreeMap;
@@ -27,10 +34,12 @@ pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
 /// A recording read into memory.
 #[derive(Debug)]
 pub struct Recording {
+    /// The file (without its skipped damaged stretches, when it had any: see the module docs).
     bytes: Vec<u8>,
-    /// Where the sound record structure ends (the whole file when nothing is wrong).
+    /// Where its sound record structure ends (the whole file when nothing is wrong).
     sound: usize,
-    /// What is wrong at `sound`, if anything.
+    /// What is wrong with the file, if anything: the stretches skipped, then why it ends at
+    /// `sound` before its footer.
     damage: Option<String>,
     /// Why the `mcap` crate stopped before the sound prefix's end, once a read saw it.
     stopped: std::sync::OnceLock<String>,
@@ -63,41 +72,143 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, String> {
     })
 }
 
+const OP_HEADER: u8 = 0x01;
 const OP_FOOTER: u8 = 0x02;
+const OP_SCHEMA: u8 = 0x03;
+const OP_CHANNEL: u8 = 0x04;
 const OP_CHUNK: u8 = 0x06;
 
-/// Walk the records of `b` from `start` (opcode, u64 length, body): the offset where the
-/// sound structure ends and what is wrong there (a crashed recorder's file ends inside a
-/// record). `top`: the file's top level (a chunk's header and records are checked; the footer
-/// ends the walk; fewer than 9 bytes left are left for the reader to report). Inside a chunk,
-/// 1–8 bytes left over are damage.
-fn walk(b: &[u8], start: usize, top: bool) -> (usize, Option<String>) {
-    let mut r = Reader::new(b.get(start..).unwrap_or_default());
+/// The file's top level as [`survey`] found it.
+#[derive(Debug, Default)]
+struct Survey {
+    /// Where the sound structure ends (the footer, or the damage nothing follows).
+    end: usize,
+    /// What is wrong at `end`, if anything.
+    damage: Option<String>,
+    /// Damaged stretches the walk went past: a chunk whose framing is sound but whose contents
+    /// are not, or bytes up to the next sound chunk after a broken record. With why.
+    skipped: Vec<(std::ops::Range<usize>, String)>,
+    /// Top-level schema and channel records (the summary repeats every definition).
+    defs: Vec<std::ops::Range<usize>>,
+}
+
+/// One top-level record at `at`: its end, or why it is not sound (a chunk's contents are
+/// checked: [`chunk_problem`]). `Ok(None)`: fewer than 9 bytes left.
+fn top_record(b: &[u8], at: usize) -> Result<Option<(u8, usize)>, String> {
+    let mut r = Reader::new(b.get(at..).unwrap_or_default());
+    let (Ok(op), Ok(len)) = (r.u8(), r.le::<u64>()) else {
+        return Ok(None);
+    };
+    let follow = r.remaining();
+    let Some(body) = usize::try_from(len).ok().and_then(|n| r.take(n).ok()) else {
+        return Err(format!(
+            "record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow"
+        ));
+    };
+    if op == OP_CHUNK
+        && let Some(why) = chunk_problem(body)
+    {
+        return Err(format!("chunk at byte {at}: {why}"));
+    }
+    Ok(Some((op, b.len() - r.remaining())))
+}
+
+/// The next sound chunk record after `from`, if any: where a walk that met a broken record
+/// picks up again.
+fn next_sound_chunk(b: &[u8], from: usize) -> Option<usize> {
+    (from..b.len()).find(|&k| {
+        b[k] == OP_CHUNK
+            && framed_chunk(b, k)
+            && matches!(top_record(b, k), Ok(Some((OP_CHUNK, _))))
+    })
+}
+
+/// Whether a chunk record at `at` is framed exactly: its header and records fill its length,
+/// which fits in the file. A cheap test before a chunk is decompressed: noise rarely passes it.
+fn framed_chunk(b: &[u8], at: usize) -> bool {
+    let mut r = Reader::new(b.get(at + 1..).unwrap_or_default());
+    let Ok(len) = r.le::<u64>() else { return false };
+    let Some(mut body) = usize::try_from(len)
+        .ok()
+        .and_then(|n| r.take(n).ok())
+        .map(Reader::new)
+    else {
+        return false;
+    };
+    // Times, uncompressed size, CRC; then the compression name and the records.
+    let name = body.skip(28).and_then(|()| body.le::<u32>());
+    let records = name.ok().and_then(|n| {
+        body.skip(usize::try_from(n).ok()?).ok()?;
+        body.le::<u64>().ok()
+    });
+    records.is_some_and(|n| n == body.remaining() as u64)
+}
+
+/// Walk the file's top level from `start` (after the magic) to the footer. A chunk whose
+/// framing is sound but whose contents are not (a flipped byte in its compressed data) is
+/// skipped; after a record whose length is broken the walk goes on at the next sound chunk.
+/// Only where no sound chunk follows (a file cut short by a crash) does the walk end early.
+fn survey(b: &[u8], start: usize) -> Survey {
+    let mut s = Survey::default();
+    let mut at = start;
+    loop {
+        match top_record(b, at) {
+            Ok(None) => {
+                // Fewer than 9 bytes: the reader reports a missing footer.
+                s.end = b.len();
+                return s;
+            }
+            Ok(Some((op, next))) => {
+                if op == OP_FOOTER {
+                    s.end = b.len();
+                    return s;
+                }
+                if op == OP_SCHEMA || op == OP_CHANNEL {
+                    s.defs.push(at..next);
+                }
+                at = next;
+            }
+            Err(why) => {
+                // A chunk framed exactly: its own length says where the next record is.
+                let framed = (b.get(at) == Some(&OP_CHUNK) && framed_chunk(b, at))
+                    .then(|| {
+                        let len = Reader::new(b.get(at + 1..)?).le::<u64>().ok()?;
+                        usize::try_from(len).ok()?.checked_add(at + 9)
+                    })
+                    .flatten();
+                let Some(next) = framed.or_else(|| next_sound_chunk(b, at + 1)) else {
+                    s.end = at;
+                    s.damage = Some(why);
+                    return s;
+                };
+                s.skipped.push((at..next, why));
+                at = next;
+            }
+        }
+    }
+}
+
+/// Walk the records inside a chunk (opcode, u64 length, body): the offset where the sound
+/// structure ends and what is wrong there. 1–8 bytes left over are damage (the reader would
+/// take the bytes after the chunk for the rest of a record).
+fn walk(b: &[u8]) -> (usize, Option<String>) {
+    let mut r = Reader::new(b);
     while !r.is_empty() {
         let at = b.len() - r.remaining();
         let mut next = r;
         let (Ok(op), Ok(len)) = (next.u8(), next.le::<u64>()) else {
-            if top {
-                break;
-            }
-            // The reader would take the bytes after the chunk for the rest of a record.
             let n = r.remaining();
             return (at, Some(format!("{n} stray bytes at byte {at}")));
         };
         let follow = next.remaining();
-        let Some(body) = usize::try_from(len).ok().and_then(|n| next.take(n).ok()) else {
+        if usize::try_from(len)
+            .ok()
+            .and_then(|n| next.take(n).ok())
+            .is_none()
+        {
             let why =
                 format!("record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow");
             return (at, Some(why));
-        };
-        if top && op == OP_FOOTER {
-            break;
-        }
-        if top
-            && op == OP_CHUNK
-            && let Some(why) = chunk_problem(body)
-        {
-            return (at, Some(format!("chunk at byte {at}: {why}")));
         }
         r = next;
     }
@@ -152,9 +263,35 @@ fn chunk_problem(body: &[u8]) -> Option<String> {
         // The reader reports a compression it does not have.
         _ => return None,
     };
-    walk(plain, 0, false)
+    walk(plain)
         .1
         .map(|why| format!("its {why} (after decompression)"))
+}
+
+/// The file without the stretches `survey` skipped, up to its sound end, with every
+/// top-level schema and channel record (the summary's) copied to just after the header: a
+/// skipped chunk may have held the definitions the later chunks' messages use. The `mcap`
+/// reader accepts a definition repeated unchanged.
+fn repair(b: &[u8], survey: &Survey) -> Vec<u8> {
+    let magic = mcap::MAGIC.len();
+    let mut out = Vec::with_capacity(survey.end);
+    // The ranges come from one walk in file order; `get` keeps a slip from panicking.
+    let mut copy = |r: std::ops::Range<usize>| out.extend_from_slice(b.get(r).unwrap_or_default());
+    copy(0..magic);
+    let mut at = magic;
+    if let Ok(Some((OP_HEADER, next))) = top_record(b, magic) {
+        copy(magic..next);
+        at = next;
+    }
+    for d in &survey.defs {
+        copy(d.clone());
+    }
+    for (gap, _) in &survey.skipped {
+        copy(at..gap.start);
+        at = gap.end;
+    }
+    copy(at..survey.end);
+    out
 }
 
 /// A recording that cannot be read.
@@ -220,7 +357,7 @@ impl RawStream {
     }
 }
 
-/// Where reading stopped early: a crash left the file cut short.
+/// What reading could not give: damaged stretches skipped, or the file cut short by a crash.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Truncation(pub Option<String>);
 
@@ -247,8 +384,36 @@ impl Recording {
         if !bytes.starts_with(mcap::MAGIC) {
             return Err("no MCAP magic at the start".into());
         }
-        let (sound, damage) = walk(&bytes, mcap::MAGIC.len(), true);
-        let damage = damage.map(|d| format!("{d} (the file was cut short or is damaged)"));
+        let survey = survey(&bytes, mcap::MAGIC.len());
+        let end = survey
+            .damage
+            .as_ref()
+            .map(|d| format!("it ends early: {d} (the file was cut short or is damaged)"));
+        let skipped = (!survey.skipped.is_empty()).then(|| {
+            let n = survey.skipped.len();
+            let size: usize = survey.skipped.iter().map(|(r, _)| r.len()).sum();
+            let (_, first) = &survey.skipped[0];
+            let (what, them) = if n == 1 {
+                ("stretch", "its")
+            } else {
+                ("stretches", "their")
+            };
+            format!(
+                "{n} damaged {what} of {} kB skipped, {them} messages lost (first: {first})",
+                size.div_ceil(1024)
+            )
+        });
+        let damage = match (skipped, end) {
+            (Some(s), Some(e)) => Some(format!("{s}; {e}")),
+            (s, e) => s.or(e),
+        };
+        let (bytes, sound) = if survey.skipped.is_empty() {
+            (bytes, survey.end)
+        } else {
+            let repaired = repair(&bytes, &survey);
+            let sound = repaired.len();
+            (repaired, sound)
+        };
         Ok(Self {
             bytes,
             sound,
@@ -281,7 +446,7 @@ impl Recording {
         None
     }
 
-    /// The file's sound prefix.
+    /// The file's sound part (without the stretches the walk skipped).
     fn sound(&self) -> &[u8] {
         self.bytes.get(..self.sound).unwrap_or(&self.bytes)
     }

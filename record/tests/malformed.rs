@@ -149,3 +149,108 @@ fn single_byte_corruptions_of_a_real_recording_never_panic() {
     assert!(damaged > 0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A recording of `n` raw messages of 64 KiB of noise (each chunk then holds about 16), and the
+/// offsets of its top-level chunk records.
+fn noisy_recording(name: &str, n: u32) -> (Vec<u8>, Vec<usize>) {
+    let dir = std::env::temp_dir().join(format!("ima-record-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("noisy.mcap");
+    let _ = std::fs::remove_file(&path);
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.clone()),
+        name: name.into(),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.raw_port(PortInfo {
+        robot: "scooter".into(),
+        device: "laser".into(),
+        port: "/dev/pts/9".into(),
+        baud: 38400,
+        protocol: "sick-lms".into(),
+    });
+    let mut x = 0x2545_f491_4f6c_dd1d_u64; // xorshift: incompressible bytes
+    for _ in 0..n {
+        let noise: Vec<u8> = (0..64 * 1024)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                x as u8
+            })
+            .collect();
+        port.rx(&noise);
+    }
+    assert_eq!(rec.finish(Duration::from_secs(30)).error, None);
+    let bytes = std::fs::read(&path).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut chunks = Vec::new();
+    let mut at = MAGIC.len();
+    while at + 9 <= bytes.len() && bytes[at] != 0x02 {
+        if bytes[at] == 0x06 {
+            chunks.push(at);
+        }
+        at += 9 + usize::try_from(u64::from_le_bytes(
+            bytes[at + 1..at + 9].try_into().unwrap(),
+        ))
+        .unwrap();
+    }
+    (bytes, chunks)
+}
+
+/// A flipped byte in one chunk, or a broken chunk length, loses that chunk's messages, not the
+/// rest of the file: the reader skips the chunk (or picks up at the next sound one), the later
+/// messages keep their channel (defined in the skipped chunk; the summary repeats it), and the
+/// damage says what was skipped. It used to end the recording at the first bad chunk.
+#[test]
+fn a_damaged_chunk_in_the_middle_loses_only_its_own_messages() {
+    let (good, chunks) = noisy_recording("skip", 64);
+    assert!(chunks.len() >= 4, "{chunks:?}");
+    let all = Recording::from_bytes(good.clone()).unwrap().count();
+    assert_eq!(all, (64, Default::default()));
+    // (what is broken, the damage's words): the first chunk holds the channel definition.
+    let compressed = |c: usize| c + 9 + 44 + 2; // record, chunk header, into zstd's frame header
+    for (at, flip, words) in [
+        (
+            compressed(chunks[0]),
+            0x55,
+            "its zstd data does not decompress",
+        ),
+        (
+            compressed(chunks[1]),
+            0x55,
+            "its zstd data does not decompress",
+        ),
+        (chunks[1] + 6, 0x40, "claims"), // the chunk record's length, far past the file
+    ] {
+        let mut bad = good.clone();
+        bad[at] ^= flip;
+        let rec = Recording::from_bytes(bad).unwrap();
+        let (msgs, why) = rec.messages();
+        let why = why.0.expect("the damage is reported");
+        assert!(
+            why.contains("1 damaged stretch") && why.contains(words) && !why.contains("ends early"),
+            "{why}"
+        );
+        // One chunk's messages lost; every other one read, on its channel.
+        assert!(
+            (40..64).contains(&msgs.len()),
+            "{} of 64: {why}",
+            msgs.len()
+        );
+        assert!(msgs.iter().all(|m| m.topic == "/scooter/serial/laser"));
+        assert_eq!(
+            rec.raw_stream("scooter/laser").unwrap().chunks.len(),
+            msgs.len()
+        );
+    }
+    // Cut inside the last chunk (a crash), with a damaged chunk before: both are said.
+    let mut bad = good[..chunks[chunks.len() - 1] + 100].to_vec();
+    bad[compressed(chunks[1])] ^= 0x55;
+    let why = Recording::from_bytes(bad).unwrap().count().1.0.unwrap();
+    assert!(
+        why.contains("1 damaged stretch") && why.contains("it ends early"),
+        "{why}"
+    );
+}

@@ -86,7 +86,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     if let Some(port) = &args.as_mock {
         let stream = rec.raw_stream(port);
         if let Some(why) = rec.damage() {
-            eprintln!("ima replay: the recording ends early ({why}); serving the bytes before");
+            eprintln!("ima replay: the recording is damaged ({why}); serving the bytes it holds");
         }
         let stream = stream?;
         return serve_as_mock(&stream, args.speed);
@@ -94,7 +94,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     let (n, cut) = rec.count();
     if let Some(why) = &cut.0 {
         eprintln!(
-            "ima replay: the recording ends early ({why}); replaying the {n} messages before"
+            "ima replay: the recording is damaged ({why}); replaying the {n} messages it holds"
         );
     }
     let mut readings = Vec::new();

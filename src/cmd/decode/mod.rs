@@ -215,7 +215,7 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
     let rec = ima_record::read::Recording::open(path)?;
     let stream = rec.raw_stream(port);
     if let Some(why) = rec.damage() {
-        eprintln!("ima decode: the recording ends early ({why}); decoding the bytes before");
+        eprintln!("ima decode: the recording is damaged ({why}); decoding the bytes it holds");
     }
     let stream = stream?;
     let recorded = recorded_protocol(&stream.port.protocol);
