@@ -173,7 +173,10 @@ pub enum FaultSpecError {
         item: String,
     },
     /// A key this grammar does not have.
-    #[error("fault spec item {item:?}: unknown key")]
+    #[error(
+        "fault spec item {item:?}: unknown key (the keys: corrupt, drop, split, garbage, \
+         stall, delay, hangup, seed; r2h. or h2r. before a key for one direction)"
+    )]
     UnknownKey {
         /// The item.
         item: String,
@@ -731,6 +734,9 @@ mod tests {
                 item: item("bogus=1")
             })
         );
+        // The message lists the keys there are.
+        let e = FaultPlan::parse("curropt=0.1").unwrap_err().to_string();
+        assert!(e.contains("corrupt, drop") && e.contains("r2h."), "{e}");
         assert_eq!(
             FaultPlan::parse("x2y.drop=0.1"),
             Err(E::BadDirection {
