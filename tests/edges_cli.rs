@@ -474,3 +474,37 @@ fn devices_that_vanish_are_reported_once_each() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A world with two objects of a target's colour is refused before anything starts: Skeeter's
+/// cameras cannot tell them apart, and the demo used to run the whole `--target-timeout` (25 s
+/// of wall time at ×10) and end with "1 target(s) failed" and no reason.
+#[test]
+fn a_target_colour_two_objects_share_is_refused_at_once() {
+    let d = scratch("two-reds");
+    let world = d.join("two-reds.toml");
+    let mut text = String::new();
+    for (name, x) in [("skeeter", 0.0), ("scooter", -3.0)] {
+        text += &format!("[[robot]]\nname = \"{name}\"\nx_m = {x}\ny_m = 0.0\ntheta_deg = 0.0\n");
+    }
+    for x in ["3.0", "-3.0"] {
+        text += &format!(
+            "[[object]]\ncolor = \"red\"\nrgb = [220, 30, 30]\ncenter = [{x}, 2.0]\nradius_m = 0.15\n"
+        );
+    }
+    std::fs::write(&world, text).unwrap();
+    let out = ima()
+        .args(["demo", "--targets", "red", "--world"])
+        .arg(&world)
+        .arg("--svg")
+        .arg(d.join("x.svg"))
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("2 objects of that colour, at (3.00, 2.00) and (-3.00, 2.00)"),
+        "{err}"
+    );
+    assert!(!d.join("x.svg").exists(), "the demo ran: {err}");
+    let _ = std::fs::remove_dir_all(&d);
+}

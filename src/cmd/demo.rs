@@ -114,6 +114,24 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;
     let known: Vec<String> = world.with(|w| w.objects().iter().map(|o| o.color.clone()).collect());
     super::check_colours(&args.targets, &known, "the world's object colours")?;
+    // Two objects of a target's colour: Skeeter's cameras cannot tell them apart, and the
+    // mission failed after the whole --target-timeout without saying why.
+    for t in &args.targets {
+        let at: Vec<String> = world.with(|w| {
+            w.objects()
+                .iter()
+                .filter(|o| &o.color == t)
+                .map(|o| format!("({:.2}, {:.2})", o.center[0], o.center[1]))
+                .collect()
+        });
+        anyhow::ensure!(
+            at.len() == 1,
+            "target {t:?}: the world has {} objects of that colour, at {}; a target must be \
+             the only object of its colour (Skeeter's cameras cannot tell them apart)",
+            at.len(),
+            at.join(" and ")
+        );
+    }
     // The process's one clock: the served devices' models and every driver run on it.
     let clock = ima_hal::time::TokioClock::shared();
     crate::record::start(&args.rec, "ima demo")?; // record
