@@ -140,6 +140,19 @@ where
     T::try_from(v).map_err(|_| format!("{v} is out of range: {LO}–{HI}"))
 }
 
+/// Text a Peer frame carries (a behaviour, a colour, an emergency's text): at most
+/// [`MAX_STR_LEN`](ima_agents::peer::wire::MAX_STR_LEN) bytes of UTF-8.
+pub fn wire_text(s: &str) -> Result<String, String> {
+    let max = ima_agents::peer::wire::MAX_STR_LEN;
+    if s.len() > max {
+        return Err(format!(
+            "{} bytes is too long: a broadcast carries at most {max} bytes",
+            s.len()
+        ));
+    }
+    Ok(s.to_owned())
+}
+
 /// Seconds within `[0.1, 3600]` (liveness and similar periods).
 pub fn period_seconds(s: &str) -> Result<f64, String> {
     within(s, 0.1, 3_600.0, " s")
@@ -213,6 +226,12 @@ mod tests {
         assert!(int_in::<u64, 0, 5>("-1").is_err());
         assert!(int_in::<u64, 0, 5>("1e30").is_err());
         assert_eq!(period_seconds("5"), Ok(5.0));
+        assert_eq!(wire_text("idle"), Ok("idle".to_owned()));
+        assert!(
+            wire_text(&"é".repeat(128))
+                .unwrap_err()
+                .contains("256 bytes")
+        );
         assert!(time_factor("0").unwrap_err().contains("0.05–20×"));
         assert!(time_factor("1e-300").is_err());
         assert_eq!(time_factor("0.05"), Ok(0.05));

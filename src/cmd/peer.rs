@@ -66,8 +66,8 @@ pub struct BroadcastArgs {
     /// Broadcast mode (overrides `broadcast.mode`).
     #[arg(long, value_enum)]
     mode: Option<Mode>,
-    /// UDP port (overrides `broadcast.port`).
-    #[arg(long)]
+    /// UDP port, 1–65535 (overrides `broadcast.port`).
+    #[arg(long, value_parser = num::int_in::<u16, 1, 65_535>)]
     port: Option<u16>,
     /// Multicast group (overrides `broadcast.group`).
     #[arg(long)]
@@ -156,19 +156,19 @@ pub enum SendWhat {
     /// A status message.
     Status {
         /// Current behaviour.
-        #[arg(long)]
+        #[arg(long, value_parser = num::wire_text)]
         behaviour: String,
         /// SAN summary.
-        #[arg(long, default_value = "")]
+        #[arg(long, default_value = "", value_parser = num::wire_text)]
         san: String,
     },
     /// An emergency, e.g. `--kind scooter-lost`.
     Emergency {
         /// Kind.
-        #[arg(long)]
+        #[arg(long, value_parser = num::wire_text)]
         kind: String,
         /// Text.
-        #[arg(long, default_value = "")]
+        #[arg(long, default_value = "", value_parser = num::wire_text)]
         text: String,
     },
     /// A mission event.
@@ -177,7 +177,7 @@ pub enum SendWhat {
         #[arg(long, value_enum)]
         event: Event,
         /// Target colour.
-        #[arg(long)]
+        #[arg(long, value_parser = num::wire_text)]
         target: String,
     },
 }
