@@ -125,10 +125,22 @@ impl Cause {
     }
 }
 
-/// The command was ended by a signal or a panic; the devices were halted.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}; every device that could move was stopped")]
+/// The command was ended by a signal or a panic; the devices were halted. The message says
+/// so only when the command had opened a device that can move.
+#[derive(Debug)]
 pub struct Interrupted(pub Cause);
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0)?;
+        if StopRegistry::global().ever_registered() {
+            f.write_str("; every device that could move was stopped")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Interrupted {}
 
 /// Set once a panic hook ran.
 static PANICKED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);

@@ -595,6 +595,40 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
         "{live:?}\n{replayed:?}"
     );
     assert_eq!(replayed[..n], live[..n]);
+    // Ctrl-C on a slow replay of the recording (after its first reading): it ends as
+    // interrupted, without claiming to have stopped a device (it opened none; it said
+    // "every device that could move was stopped").
+    let mut replay = common::Child(
+        ima()
+            .args(["replay", "--json", "--speed", "0.05"])
+            .arg(&file)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut first = String::new();
+    std::io::BufReader::new(replay.0.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(first.contains("\"kind\""), "{first}");
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &replay.0.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let out = std::mem::replace(
+        &mut replay.0,
+        std::process::Command::new("true").spawn().unwrap(),
+    )
+    .wait_with_output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("interrupted by SIGINT") && !err.contains("could move"),
+        "{err}"
+    );
 }
 
 /// Ctrl-C during a recorded demo: the guard closes the file, which then has its summary.

@@ -160,6 +160,8 @@ impl Drop for DoneOnDrop {
 #[derive(Debug)]
 pub struct StopRegistry {
     entries: Mutex<Vec<(String, HaltSignal)>>,
+    /// Whether any device ever registered (entries are dropped once their task is done).
+    ever: std::sync::atomic::AtomicBool,
 }
 
 static GLOBAL: StopRegistry = StopRegistry::new();
@@ -176,6 +178,7 @@ impl StopRegistry {
     pub const fn new() -> Self {
         Self {
             entries: Mutex::new(Vec::new()),
+            ever: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
@@ -195,6 +198,14 @@ impl StopRegistry {
         let mut e = self.lock();
         e.retain(|(_, s)| !s.is_done());
         e.push((name.into(), signal));
+        self.ever.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// Whether any device has ever registered in this registry: a program that opened none
+    /// (a replay, a decoder, a mock) has nothing it could have stopped.
+    #[must_use]
+    pub fn ever_registered(&self) -> bool {
+        self.ever.load(std::sync::atomic::Ordering::SeqCst)
     }
 
     /// Halt every registered device whose task is still running; returns how many were asked.
@@ -274,6 +285,7 @@ mod tests {
         let reg = StopRegistry::new();
         let a = HaltSignal::new();
         let b = HaltSignal::new();
+        assert!(!reg.ever_registered());
         reg.register("a", a.clone());
         reg.register("b", b.clone());
         assert_eq!(reg.pending(), ["a", "b"]);
@@ -285,6 +297,8 @@ mod tests {
         b.set_done();
         assert!(reg.wait_blocking(Duration::from_secs(1)).is_empty());
         assert!(!reg.any_running());
+        // Done and forgotten, but it was there: a message may say it was stopped.
+        assert!(reg.ever_registered());
         // Registering prunes finished entries: only the new one remains.
         reg.register("c", HaltSignal::new());
         assert_eq!(reg.lock().len(), 1);

@@ -117,7 +117,7 @@ fn top_record(b: &[u8], at: usize) -> Result<Option<(u8, usize)>, String> {
 /// picks up again.
 fn next_sound_chunk(b: &[u8], from: usize) -> Option<usize> {
     (from..b.len()).find(|&k| {
-        b[k] == OP_CHUNK
+        b.get(k) == Some(&OP_CHUNK)
             && framed_chunk(b, k)
             && matches!(top_record(b, k), Ok(Some((OP_CHUNK, _))))
     })

@@ -128,7 +128,17 @@ mod tests {
         assert_eq!(n.heartbeat_ms, 250);
         let n = net_config(&cfg("broadcast_peers = [\"10.0.0.2:7601\"]\n")).unwrap();
         assert_eq!(n.broadcast.mode, BroadcastMode::Both);
-        assert!(net_config(&cfg("broadcast_group = \"nonsense\"\n")).is_err());
+        // The configuration's check refuses it first; a configuration built in code is
+        // still checked here.
+        assert!(
+            RobotConfig::from_toml_str(
+                "robot = \"c\"\nrole = \"commander\"\n[peer]\ninsecure = true\nbroadcast_group = \"nonsense\"\n"
+            )
+            .is_err()
+        );
+        let mut c = cfg("");
+        c.peer.broadcast_group = "nonsense".into();
+        assert!(net_config(&c).is_err());
     }
 
     #[test]
