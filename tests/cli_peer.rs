@@ -433,6 +433,17 @@ fn send_without_destinations_fails() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // To the multicast group on port 0: said plainly (it was "Invalid argument (os error 22)").
+    let out = ima()
+        .args(["peer", "send", "--insecure", "--port", "0"])
+        .args(["emergency", "--kind", "k"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("listeners use"),
+        "{err}"
+    );
 }
 
 /// Writes a private hex key file of `byte` repeated.

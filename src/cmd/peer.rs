@@ -66,8 +66,9 @@ pub struct BroadcastArgs {
     /// Broadcast mode (overrides `broadcast.mode`).
     #[arg(long, value_enum)]
     mode: Option<Mode>,
-    /// UDP port, 1–65535 (overrides `broadcast.port`).
-    #[arg(long, value_parser = num::int_in::<u16, 1, 65_535>)]
+    /// UDP port (overrides `broadcast.port`). `ima peer listen --port 0` listens on a free
+    /// port and prints it; a multicast sender needs the listeners' port.
+    #[arg(long)]
     port: Option<u16>,
     /// Multicast group (overrides `broadcast.group`).
     #[arg(long)]
@@ -624,6 +625,10 @@ async fn send(a: &SendArgs) -> Result<()> {
     let ch = BroadcastChannel::bind(&cfg, &robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
     if ch.destinations().is_empty() {
         bail!("nowhere to send: unicast mode with no --peer (or broadcast.peers)");
+    }
+    if cfg.broadcast.mode != BroadcastMode::Unicast && cfg.broadcast.port == 0 {
+        // Sending to port 0 failed with "Invalid argument (os error 22)".
+        bail!("--port 0: the multicast group needs the port its listeners use");
     }
     let r = match &a.what {
         SendWhat::Status { behaviour, san } => ch.send_status(behaviour, san, None).await,
