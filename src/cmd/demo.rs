@@ -109,6 +109,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     );
     anyhow::ensure!(!args.targets.is_empty(), "--targets is empty");
     super::output::check_file("--svg", &args.svg)?;
+    if let Some(r) = &args.rec.record {
+        super::output::distinct_outputs(("--svg", &args.svg), ("--record", r))?;
+    }
     args.web.check()?;
     let started = std::time::Instant::now();
     let world = super::mock::load_world(args.world.as_ref(), args.seed)?;

@@ -49,6 +49,36 @@ pub fn check_file(flag: &str, path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Refuses two output options naming one file (`--svg run.mcap --record run.mcap`: the
+/// picture written at the end replaced the recording). Paths are compared after resolving
+/// their directories, so `x.mcap` and `./x.mcap` are one file.
+///
+/// # Errors
+/// The two name one file.
+pub fn distinct_outputs(a: (&str, &Path), b: (&str, &Path)) -> Result<()> {
+    let resolved = |p: &Path| {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        std::fs::canonicalize(dir)
+            .ok()
+            .zip(p.file_name())
+            .map(|(d, f)| d.join(f))
+    };
+    if let (Some(x), Some(y)) = (resolved(a.1), resolved(b.1))
+        && x == y
+    {
+        bail!(
+            "{} and {} name one file, {}: each needs its own",
+            a.0,
+            b.0,
+            a.1.display()
+        );
+    }
+    Ok(())
+}
+
 /// Checks that files can be written into the directory `dir` of option `flag`, creating it
 /// (and its parents) when missing, as the command would at the end.
 ///
@@ -106,6 +136,21 @@ mod tests {
             check_file("--svg", &d).is_err(),
             "a directory is not a file"
         );
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn two_options_naming_one_file_are_refused() {
+        let d = scratch("same");
+        let a = d.join("run.mcap");
+        let b = d.join("sub/../run.mcap");
+        std::fs::create_dir_all(d.join("sub")).unwrap();
+        let e = distinct_outputs(("--svg", &a), ("--record", &b)).unwrap_err();
+        assert!(
+            format!("{e:#}").starts_with("--svg and --record name one file"),
+            "{e:#}"
+        );
+        distinct_outputs(("--svg", &d.join("run.svg")), ("--record", &a)).unwrap();
         let _ = std::fs::remove_dir_all(&d);
     }
 

@@ -268,6 +268,9 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     if let Some(p) = &args.svg {
         // Before the scan: a typo in the path must not cost the laser's start-up.
         super::output::check_file("--svg", p)?;
+        if let Some(r) = &args.rec.record {
+            super::output::distinct_outputs(("--svg", p), ("--record", r))?;
+        }
     }
     let rs422 = args.rs422 || baud == BaudRate::B500000 || is_pty(&args.port);
     let cfg = Config {
