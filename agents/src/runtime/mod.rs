@@ -159,12 +159,21 @@ impl HaltOnDrop {
     pub(crate) fn disarm(mut self) {
         self.0 = None;
     }
+
+    /// Whether the base's driver was halted already (the process's exit guard halts every
+    /// registered device at a signal, before the runtime's own stop: that stop then finds the
+    /// driver gone, which is no failure).
+    pub(crate) fn already_halted(&self) -> bool {
+        self.0.as_ref().is_some_and(HaltSignal::is_requested)
+    }
 }
 
 impl Drop for HaltOnDrop {
     fn drop(&mut self) {
         if let Some(s) = self.0.take() {
-            tracing::warn!("runtime dropped while driving: halting the base");
+            if !s.is_requested() {
+                tracing::warn!("runtime dropped while driving: halting the base");
+            }
             s.halt();
         }
     }

@@ -346,6 +346,10 @@ where
     drop(tasks);
     match tokio::time::timeout(Duration::from_secs(2), base.stop()).await {
         Ok(Ok(())) => guard.disarm(),
+        // Halted by the exit guard already (a signal): its driver sent the stop.
+        Ok(Err(e)) if guard.already_halted() => {
+            tracing::debug!("base: halted by the exit guard before the runtime's stop ({e:?})");
+        }
         // The guard halts the driver on the way out.
         Ok(Err(e)) => tracing::warn!("base: stop failed ({e:?}); halting its driver"),
         Err(_) => tracing::warn!("base: stop unanswered; halting its driver"),
