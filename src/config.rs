@@ -341,7 +341,8 @@ pub struct PeerConfig {
     /// The manager whose sources this robot requests (Scooter: Skeeter's manager).
     pub connect: Option<String>,
     /// The group key file (32 random bytes, or 64 hex characters). Required unless
-    /// `insecure`.
+    /// `insecure`. A relative path is read from the working directory (as `ima peer`'s
+    /// configurations are), not from the configuration file's directory.
     pub key_file: Option<PathBuf>,
     /// Run with a well-known all-zero key (tests and local experiments only).
     pub insecure: bool,

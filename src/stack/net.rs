@@ -67,11 +67,20 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
         (Some(path), _) => {
             let key = load_key_file(path).map_err(|e| {
                 let text = e.to_string();
-                if text.contains(&path.display().to_string()) {
+                let e = if text.contains(&path.display().to_string()) {
                     anyhow::anyhow!(text)
                 } else {
                     anyhow::anyhow!(text)
                         .context(format!("loading the group key {}", path.display()))
+                };
+                // A relative path is taken from the working directory, which a robot started
+                // by a service manager may not share with its configuration file.
+                match std::env::current_dir() {
+                    Ok(cwd) if path.is_relative() => e.context(format!(
+                        "peer.key_file is relative: it is read from the working directory {}",
+                        cwd.display()
+                    )),
+                    _ => e,
                 }
             })?;
             if key.is_insecure() {
@@ -150,5 +159,14 @@ mod tests {
         c.peer.key_file = Some("/nonexistent/ima.key".into());
         let e = group_key(&c, None).unwrap_err();
         assert!(format!("{e:#}").contains("/nonexistent/ima.key"), "{e:#}");
+        assert!(!format!("{e:#}").contains("working directory"), "{e:#}");
+        // A relative path: the message says where it was looked for.
+        c.peer.key_file = Some("no-such-dir/ima.key".into());
+        let e = format!("{:#}", group_key(&c, None).unwrap_err());
+        let cwd = std::env::current_dir().unwrap();
+        assert!(
+            e.contains(&format!("working directory {}", cwd.display())),
+            "{e}"
+        );
     }
 }
