@@ -51,17 +51,19 @@ pub struct ScanArgs {
     rec: crate::record::RecordArgs,
 }
 
+/// The variants the LMS has, as `--variant` takes them.
+const VARIANTS: &str = "180x1, 180x0.5, 100x1, 100x0.5 or 100x0.25";
+
 fn parse_variant(s: &str) -> Result<Variant> {
-    let (a, r) = s
-        .split_once(['x', 'X', '/'])
-        .context("variant is FOVxRES, e.g. 180x0.5")?;
-    let a: u16 = a.trim().parse().context("field of view")?;
-    let r: f64 = r.trim().parse().context("resolution")?;
+    let none = || anyhow::anyhow!("--variant {s:?}: the LMS variants are {VARIANTS}");
+    let (a, r) = s.split_once(['x', 'X', '/']).ok_or_else(none)?;
+    let a: u16 = a.trim().parse().map_err(|_| none())?;
+    let r: f64 = r.trim().parse().map_err(|_| none())?;
     let centi = (r * 100.0).round();
     if !(1.0..=100.0).contains(&centi) {
-        bail!("resolution {r}° unsupported");
+        return Err(none());
     }
-    Variant::new(a, centi as u16).with_context(|| format!("the LMS has no {s} variant"))
+    Variant::new(a, centi as u16).ok_or_else(none)
 }
 
 /// One-line summary of a scan.
@@ -262,8 +264,12 @@ fn is_pty(path: &str) -> bool {
 
 /// Run `ima scan`.
 pub fn run(args: &ScanArgs) -> Result<()> {
-    let baud = BaudRate::from_bps(args.baud)
-        .with_context(|| format!("--baud {} is not an LMS rate", args.baud))?;
+    let baud = BaudRate::from_bps(args.baud).with_context(|| {
+        format!(
+            "--baud {} is not an LMS rate (9600, 19200, 38400 or 500000)",
+            args.baud
+        )
+    })?;
     let variant = parse_variant(&args.variant)?;
     if let Some(p) = &args.svg {
         // Before the scan: a typo in the path must not cost the laser's start-up.
@@ -407,6 +413,11 @@ mod tests {
         assert_eq!(parse_variant("100x0.25").unwrap(), Variant::W100_R25);
         assert!(parse_variant("180x0.25").is_err());
         assert!(parse_variant("oops").is_err());
+        // Every refusal names the flag and lists the variants there are.
+        for bad in ["oops", "180x0.25", "180xq", "1e9x1", "180x999"] {
+            let e = parse_variant(bad).unwrap_err().to_string();
+            assert!(e.starts_with("--variant") && e.contains("100x0.25"), "{e}");
+        }
     }
 
     #[test]
