@@ -5,7 +5,7 @@ use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use ima_hal::Stamped;
 use ima_hal::laser::{BeamFlags, LaserScan, LaserScanner};
