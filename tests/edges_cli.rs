@@ -508,3 +508,39 @@ fn a_target_colour_two_objects_share_is_refused_at_once() {
     assert!(!d.join("x.svg").exists(), "the demo ran: {err}");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A robot of a world file whose name starts with a multi-byte character: `ima mock p2os`
+/// capitalised the name by byte and panicked ("byte index 1 is not a char boundary"). It
+/// capitalises by character now (`Émile`, which the driver shows as `??mile`: P2OS names
+/// are ASCII), and a robot the world lacks is named with the ones it has.
+#[test]
+fn a_mock_robot_named_in_any_script_serves_and_names_itself() {
+    let d = scratch("emile");
+    let world = d.join("emile.toml");
+    std::fs::write(
+        &world,
+        "[[robot]]\nname = \"émile\"\nx_m = 0.0\ny_m = 0.0\ntheta_deg = 0.0\n",
+    )
+    .unwrap();
+    let w = world.to_str().unwrap();
+    let (_mock, pty) = common::spawn_mock(&["p2os", "--world", w, "--robot", "émile"]);
+    let out = ima()
+        .args(["drive", "--for", "0.3", "--port", pty.trim()])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    // The driver shows a name's non-ASCII bytes as `?` (P2OS names are ASCII).
+    assert!(err.contains("connected to ??mile (Pioneer"), "{err}");
+    let out = ima()
+        .args(["mock", "rflex", "--world", w, "--robot", "scooter"])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("no robot named \"scooter\" (it has: émile)"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -82,9 +82,7 @@ pub fn run(cmd: &CameraCommand) -> Result<()> {
 fn grab(args: &GrabArgs) -> Result<()> {
     crate::cmd::output::check_file("--out", &args.out)?;
     let world = crate::cmd::mock::shared::load_world(args.world.as_ref(), args.seed)?;
-    let id = world
-        .with(|w| w.robot_id(&args.robot))
-        .with_context(|| format!("the world has no robot named {:?}", args.robot))?;
+    let id = crate::cmd::mock::shared::robot_id(&world, &args.robot)?;
     let cfg = CameraConfig {
         fov_deg: args.fov,
         width: args.width,

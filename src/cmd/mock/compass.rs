@@ -38,9 +38,7 @@ pub fn serve_mock(
     faults: &str,
     opts: MockCompassOptions,
 ) -> Result<PtyDevice<CompassDevice>> {
-    let id = world
-        .with(|w| w.robot_id(robot))
-        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let id = super::shared::robot_id(world, robot)?;
     if opts.spin_deg_s != 0.0 {
         world.with(|w| {
             w.command(

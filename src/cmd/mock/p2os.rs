@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::PtyDevice;
@@ -17,11 +17,14 @@ pub fn serve_p2os(
     baud: u32,
     step_world: bool,
 ) -> Result<PtyDevice<P2osDevice>> {
-    let id = world
-        .with(|w| w.robot_id(robot))
-        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let id = super::shared::robot_id(world, robot)?;
     let plan = super::shared::fault_plan(faults, Some(seed))?;
-    let name = robot[..1].to_uppercase() + &robot[1..];
+    // Capitalised as P2OS robots name themselves (by character: a name may start with any).
+    let mut chars = robot.chars();
+    let name: String = chars
+        .next()
+        .map(|c| c.to_uppercase().chain(chars).collect())
+        .unwrap_or_default();
     let cfg = P2osModelConfig {
         name,
         baud,

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use ima_mock_devices::body::WorldBody;
 use ima_mock_devices::pty::PtyDevice;
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
@@ -16,9 +16,7 @@ pub fn serve_rflex(
     faults: &str,
     step_world: bool,
 ) -> Result<PtyDevice<RflexDevice>> {
-    let id = world
-        .with(|w| w.robot_id(robot))
-        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let id = super::shared::robot_id(world, robot)?;
     let plan = super::shared::fault_plan(faults, Some(seed))?;
     let dev = RflexDevice::new(
         RflexModelConfig::default(),

@@ -21,6 +21,23 @@ pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
     Ok(SharedWorld::new(world))
 }
 
+/// The robot `name` of `world`; the error lists the robots the world has.
+pub fn robot_id(world: &SharedWorld, name: &str) -> Result<ima_mock_devices::world::RobotId> {
+    world.with(|w| {
+        w.robot_id(name).with_context(|| {
+            let names: Vec<&str> = w.robots().iter().map(|r| r.name()).collect();
+            format!(
+                "the world has no robot named {name:?} (it has: {})",
+                if names.is_empty() {
+                    "none".to_owned()
+                } else {
+                    names.join(", ")
+                }
+            )
+        })
+    })
+}
+
 /// Wait for Ctrl-C or SIGTERM.
 pub fn wait_for_interrupt() -> Result<()> {
     tokio::runtime::Builder::new_current_thread()

@@ -17,9 +17,7 @@ pub fn serve_sick_lms(
     baud: u32,
     step_world: bool,
 ) -> Result<PtyDevice<SickLmsDevice>> {
-    let id = world
-        .with(|w| w.robot_id(robot))
-        .with_context(|| format!("the world has no robot named {robot:?}"))?;
+    let id = super::shared::robot_id(world, robot)?;
     let baud = BaudRate::from_bps(baud)
         .with_context(|| format!("a SICK LMS runs at 9600, 19200, 38400 or 500000, not {baud}"))?;
     let plan = super::shared::fault_plan(faults, Some(seed))?;
