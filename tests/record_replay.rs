@@ -608,10 +608,11 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
             .unwrap(),
     );
     let mut first = String::new();
-    std::io::BufReader::new(replay.0.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
+    let mut lines = std::io::BufReader::new(replay.0.stdout.take().unwrap());
+    lines.read_line(&mut first).unwrap();
     assert!(first.contains("\"kind\""), "{first}");
+    // Read the rest until it ends: a closed stdout would end it with 141 instead.
+    let drain = std::thread::spawn(move || std::io::copy(&mut lines, &mut std::io::sink()));
     let ok = std::process::Command::new("kill")
         .args(["-INT", &replay.0.id().to_string()])
         .status()
@@ -623,6 +624,7 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     )
     .wait_with_output()
     .unwrap();
+    let _ = drain.join();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{err}");
     assert!(

@@ -9,10 +9,16 @@
 //! - a chunk that would decompress to more than [`MAX_CHUNK_BYTES`], does not decompress to
 //!   what it claims, or whose records overrun it, is skipped when its own length is sound (a
 //!   flipped byte in one chunk loses that chunk's messages, about a second of a demo, not the
-//!   rest of the file); the summary's schema and channel records are put ahead of the
-//!   chunks, so the messages after a skipped chunk keep their channels;
+//!   rest of the file); so is a message index whose entries do not fill it (the crate would
+//!   stop there; no message is lost). At the first skipped stretch the file's top-level schema
+//!   and channel records are put in, so when the file has its summary (it was closed), the
+//!   messages after a skipped chunk keep their channels even if that chunk defined them; in a
+//!   file a crash cut short, they may not;
 //! - after a record whose length runs past the file, the walk goes on at the next sound chunk;
-//!   where none follows (a recorder that crashed mid-chunk), the recording ends there.
+//!   where none follows (a recorder that crashed mid-chunk), the recording ends there;
+//! - the walk decompresses at most 1 GiB plus 256 bytes per byte of file (a crafted file of
+//!   small chunks each claiming 256 MiB would otherwise take hours); past that, the file ends
+//!   there.
 //!
 //! What was skipped, and where the file ends early, is reported as its [`Truncation`] and by
 //! [`Recording::damage`]. Any other panic of the crate is caught ([`in_guarded_read`] tells a
@@ -41,7 +47,7 @@ pub struct Recording {
     /// What is wrong with the file, if anything: the stretches skipped, then why it ends at
     /// `sound` before its footer.
     damage: Option<String>,
-    /// Why the `mcap` crate stopped before the sound prefix's end, once a read saw it.
+    /// Why the `mcap` crate stopped before the end of the sound part, once a read saw it.
     stopped: std::sync::OnceLock<String>,
 }
 
@@ -72,16 +78,16 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, String> {
     })
 }
 
-const OP_HEADER: u8 = 0x01;
 const OP_FOOTER: u8 = 0x02;
 const OP_SCHEMA: u8 = 0x03;
 const OP_CHANNEL: u8 = 0x04;
 const OP_CHUNK: u8 = 0x06;
+const OP_MESSAGE_INDEX: u8 = 0x07;
 
 /// The file's top level as [`survey`] found it.
 #[derive(Debug, Default)]
 struct Survey {
-    /// Where the sound structure ends (the footer, or the damage nothing follows).
+    /// Where the sound structure ends: the file's end, or the damage nothing sound follows.
     end: usize,
     /// What is wrong at `end`, if anything.
     damage: Option<String>,
@@ -92,9 +98,30 @@ struct Survey {
     defs: Vec<std::ops::Range<usize>>,
 }
 
-/// One top-level record at `at`: its end, or why it is not sound (a chunk's contents are
-/// checked: [`chunk_problem`]). `Ok(None)`: fewer than 9 bytes left.
-fn top_record(b: &[u8], at: usize) -> Result<Option<(u8, usize)>, String> {
+/// How many bytes the walk may still decompress: chunks claim their uncompressed size, and a
+/// small file of crafted chunks could otherwise claim terabytes (256 MiB each). Real
+/// recordings decompress to a few times their size.
+struct Budget(u64);
+
+impl Budget {
+    /// For a file of `len` bytes: 1 GiB, plus 256 bytes per byte of file.
+    fn for_file(len: usize) -> Self {
+        Self((1 << 30) + 256 * len as u64)
+    }
+
+    /// Take `n` bytes of the budget; `false` (and nothing taken) when there are not that many.
+    fn take(&mut self, n: u64) -> bool {
+        let ok = n <= self.0;
+        if ok {
+            self.0 -= n;
+        }
+        ok
+    }
+}
+
+/// One top-level record at `at`: its opcode and end, or why it is not sound (a chunk's
+/// contents are checked: [`chunk_problem`]). `Ok(None)`: fewer than 9 bytes left.
+fn top_record(b: &[u8], at: usize, budget: &mut Budget) -> Result<Option<(u8, usize)>, String> {
     let mut r = Reader::new(b.get(at..).unwrap_or_default());
     let (Ok(op), Ok(len)) = (r.u8(), r.le::<u64>()) else {
         return Ok(None);
@@ -106,53 +133,84 @@ fn top_record(b: &[u8], at: usize) -> Result<Option<(u8, usize)>, String> {
         ));
     };
     if op == OP_CHUNK
-        && let Some(why) = chunk_problem(body)
+        && let Some(why) = chunk_problem(body, budget)
     {
-        return Err(format!("chunk at byte {at}: {why}"));
+        return Err(format!("chunk at byte {at}: {why}; its messages are lost"));
+    }
+    if op == OP_MESSAGE_INDEX && !message_index_sound(body) {
+        // The `mcap` reader parses it and would stop the whole read there.
+        return Err(format!(
+            "message index at byte {at}: its entries do not fill it (an index: no message is lost)"
+        ));
     }
     Ok(Some((op, b.len() - r.remaining())))
 }
 
-/// The next sound chunk record after `from`, if any: where a walk that met a broken record
-/// picks up again.
-fn next_sound_chunk(b: &[u8], from: usize) -> Option<usize> {
-    (from..b.len()).find(|&k| {
-        b.get(k) == Some(&OP_CHUNK)
-            && framed_chunk(b, k)
-            && matches!(top_record(b, k), Ok(Some((OP_CHUNK, _))))
-    })
-}
-
-/// Whether a chunk record at `at` is framed exactly: its header and records fill its length,
-/// which fits in the file. A cheap test before a chunk is decompressed: noise rarely passes it.
-fn framed_chunk(b: &[u8], at: usize) -> bool {
-    let mut r = Reader::new(b.get(at + 1..).unwrap_or_default());
-    let Ok(len) = r.le::<u64>() else { return false };
-    let Some(mut body) = usize::try_from(len)
-        .ok()
-        .and_then(|n| r.take(n).ok())
-        .map(Reader::new)
-    else {
+/// Whether a message index record's body is whole: a channel id, then a byte length that its
+/// 16-byte entries (log time, offset) fill exactly.
+fn message_index_sound(body: &[u8]) -> bool {
+    let mut r = Reader::new(body);
+    let (Ok(_channel), Ok(n)) = (r.le::<u16>(), r.le::<u32>()) else {
         return false;
     };
+    n % 16 == 0 && u64::from(n) == r.remaining() as u64
+}
+
+/// Where a chunk record at `at` ends when it is framed exactly: its header and records fill
+/// its length, which fits in the file. A cheap test before a chunk is decompressed: noise
+/// rarely passes it.
+fn framed_chunk(b: &[u8], at: usize) -> Option<usize> {
+    let mut r = Reader::new(b.get(at..)?);
+    let (Ok(OP_CHUNK), Ok(len)) = (r.u8(), r.le::<u64>()) else {
+        return None;
+    };
+    let mut body = Reader::new(usize::try_from(len).ok().and_then(|n| r.take(n).ok())?);
     // Times, uncompressed size, CRC; then the compression name and the records.
-    let name = body.skip(28).and_then(|()| body.le::<u32>());
-    let records = name.ok().and_then(|n| {
-        body.skip(usize::try_from(n).ok()?).ok()?;
-        body.le::<u64>().ok()
-    });
-    records.is_some_and(|n| n == body.remaining() as u64)
+    body.skip(28).ok()?;
+    let name = usize::try_from(body.le::<u32>().ok()?).ok()?;
+    body.skip(name).ok()?;
+    let records = body.le::<u64>().ok()?;
+    (records == body.remaining() as u64).then_some(b.len() - r.remaining())
+}
+
+/// Where a message index record at `at` ends, when its length fits in the file.
+fn framed_index(b: &[u8], at: usize) -> Option<usize> {
+    let mut r = Reader::new(b.get(at..)?);
+    let (Ok(OP_MESSAGE_INDEX), Ok(len)) = (r.u8(), r.le::<u64>()) else {
+        return None;
+    };
+    r.take(usize::try_from(len).ok()?).ok()?;
+    Some(b.len() - r.remaining())
+}
+
+/// The next sound chunk record after `from`, as (start, end): where a walk that met a broken
+/// record picks up again. A candidate framed exactly but unsound is passed over whole, so
+/// the scan stays linear.
+fn next_sound_chunk(b: &[u8], from: usize, budget: &mut Budget) -> Option<(usize, usize)> {
+    let mut k = from;
+    while k < b.len() {
+        if let Some(end) = framed_chunk(b, k) {
+            if let Ok(Some((OP_CHUNK, _))) = top_record(b, k, budget) {
+                return Some((k, end));
+            }
+            k = end;
+        } else {
+            k += 1;
+        }
+    }
+    None
 }
 
 /// Walk the file's top level from `start` (after the magic) to the footer. A chunk whose
-/// framing is sound but whose contents are not (a flipped byte in its compressed data) is
-/// skipped; after a record whose length is broken the walk goes on at the next sound chunk.
+/// framing is exact but whose contents are not sound (a flipped byte in its compressed data)
+/// is skipped; after a record whose length is broken the walk goes on at the next sound chunk.
 /// Only where no sound chunk follows (a file cut short by a crash) does the walk end early.
 fn survey(b: &[u8], start: usize) -> Survey {
     let mut s = Survey::default();
+    let mut budget = Budget::for_file(b.len());
     let mut at = start;
     loop {
-        match top_record(b, at) {
+        match top_record(b, at, &mut budget) {
             Ok(None) => {
                 // Fewer than 9 bytes: the reader reports a missing footer.
                 s.end = b.len();
@@ -170,18 +228,20 @@ fn survey(b: &[u8], start: usize) -> Survey {
             }
             Err(why) => {
                 // A chunk framed exactly: its own length says where the next record is.
-                let framed = (b.get(at) == Some(&OP_CHUNK) && framed_chunk(b, at))
-                    .then(|| {
-                        let len = Reader::new(b.get(at + 1..)?).le::<u64>().ok()?;
-                        usize::try_from(len).ok()?.checked_add(at + 9)
-                    })
-                    .flatten();
-                let Some(next) = framed.or_else(|| next_sound_chunk(b, at + 1)) else {
-                    s.end = at;
-                    s.damage = Some(why);
-                    return s;
+                // Otherwise the next sound chunk, which has been checked already.
+                let own_end = framed_chunk(b, at).or_else(|| framed_index(b, at));
+                let (gap_end, next) = match own_end {
+                    Some(end) => (end, end),
+                    None => match next_sound_chunk(b, at + 1, &mut budget) {
+                        Some((k, end)) => (k, end),
+                        None => {
+                            s.end = at;
+                            s.damage = Some(why);
+                            return s;
+                        }
+                    },
                 };
-                s.skipped.push((at..next, why));
+                s.skipped.push((at..gap_end, why));
                 at = next;
             }
         }
@@ -215,8 +275,9 @@ fn walk(b: &[u8]) -> (usize, Option<String>) {
     (b.len(), None)
 }
 
-/// What is wrong with a chunk record's body, if anything.
-fn chunk_problem(body: &[u8]) -> Option<String> {
+/// What is wrong with a chunk record's body, if anything. Its claimed uncompressed size is
+/// taken from `budget` before it is decompressed.
+fn chunk_problem(body: &[u8], budget: &mut Budget) -> Option<String> {
     let mut r = Reader::new(body);
     // Start and end times, uncompressed size, CRC, compression name, records.
     let (Ok(()), Ok(size), Ok(()), Ok(name_len)) =
@@ -247,6 +308,13 @@ fn chunk_problem(body: &[u8]) -> Option<String> {
     let plain = match name {
         b"" => records,
         b"zstd" => {
+            if !budget.take(size) {
+                return Some(
+                    "the chunks so far would decompress to more than 256 times the file's size \
+                     (and 1 GiB): a crafted file, not a recording"
+                        .into(),
+                );
+            }
             // `size` is at most MAX_CHUNK_BYTES: the buffer is bounded.
             inflated = match zstd::bulk::decompress(records, usize::try_from(size).ok()?) {
                 Ok(d) => d,
@@ -268,26 +336,23 @@ fn chunk_problem(body: &[u8]) -> Option<String> {
         .map(|why| format!("its {why} (after decompression)"))
 }
 
-/// The file without the stretches `survey` skipped, up to its sound end, with every
-/// top-level schema and channel record (the summary's) copied to just after the header: a
-/// skipped chunk may have held the definitions the later chunks' messages use. The `mcap`
-/// reader accepts a definition repeated unchanged.
+/// The file without the stretches `survey` skipped, up to its sound end. At the first gap
+/// go the file's top-level schema and channel records (the summary's, when the file has one):
+/// a skipped chunk may have held the definitions the later chunks' messages use. Everything
+/// before the first gap is read as it was; the `mcap` reader accepts a definition repeated
+/// unchanged.
 fn repair(b: &[u8], survey: &Survey) -> Vec<u8> {
-    let magic = mcap::MAGIC.len();
     let mut out = Vec::with_capacity(survey.end);
     // The ranges come from one walk in file order; `get` keeps a slip from panicking.
     let mut copy = |r: std::ops::Range<usize>| out.extend_from_slice(b.get(r).unwrap_or_default());
-    copy(0..magic);
-    let mut at = magic;
-    if let Ok(Some((OP_HEADER, next))) = top_record(b, magic) {
-        copy(magic..next);
-        at = next;
-    }
-    for d in &survey.defs {
-        copy(d.clone());
-    }
-    for (gap, _) in &survey.skipped {
+    let mut at = 0;
+    for (i, (gap, _)) in survey.skipped.iter().enumerate() {
         copy(at..gap.start);
+        if i == 0 {
+            for d in &survey.defs {
+                copy(d.clone());
+            }
+        }
         at = gap.end;
     }
     copy(at..survey.end);
@@ -393,13 +458,9 @@ impl Recording {
             let n = survey.skipped.len();
             let size: usize = survey.skipped.iter().map(|(r, _)| r.len()).sum();
             let (_, first) = &survey.skipped[0];
-            let (what, them) = if n == 1 {
-                ("stretch", "its")
-            } else {
-                ("stretches", "their")
-            };
+            let what = if n == 1 { "stretch" } else { "stretches" };
             format!(
-                "{n} damaged {what} of {} kB skipped, {them} messages lost (first: {first})",
+                "{n} damaged {what} of {} kB skipped (first: {first})",
                 size.div_ceil(1024)
             )
         });
@@ -422,7 +483,7 @@ impl Recording {
         })
     }
 
-    /// Run `f` over every message the `mcap` crate gives for the sound prefix (`f` must only
+    /// Run `f` over every message the `mcap` crate gives for the sound part (`f` must only
     /// copy what it needs, or parse it with code that cannot panic: it runs under the panic
     /// guard, which would report a panic of ours as damage to the file). An error or a panic of the crate is
     /// kept for [`damage`](Self::damage); the crate's words for a prefix that ends inside a
@@ -452,11 +513,11 @@ impl Recording {
     }
 
     /// What is wrong with the file, if anything: the `mcap` crate's error (once a read has
-    /// met it), else where the file's sound structure ends and why.
+    /// met it), and what the walk skipped and where the file's sound structure ends, and why.
     #[must_use]
     pub fn damage(&self) -> Option<String> {
         match (self.stopped.get(), &self.damage) {
-            (Some(e), Some(d)) => Some(format!("{e}; and further on, {d}")),
+            (Some(e), Some(d)) => Some(format!("{e}; also: {d}")),
             (Some(e), None) => Some(e.clone()),
             (None, d) => d.clone(),
         }
@@ -465,8 +526,9 @@ impl Recording {
     /// Every message in file order, and why reading stopped early (a crashed recorder's file
     /// ends in the middle of a chunk: the complete chunks before it are all returned).
     ///
-    /// A file whose structure is damaged ([`damage`](Self::damage)) gives the messages before
-    /// the damage, with the damage as the reason.
+    /// A file whose structure is damaged ([`damage`](Self::damage)) gives the messages the
+    /// walk kept (those of skipped chunks, and those after where the file ends early, are
+    /// not there), with the damage as the reason.
     pub fn messages(&self) -> (Vec<Message>, Truncation) {
         let mut out = Vec::new();
         let cut = self.each(|m| {

@@ -254,3 +254,49 @@ fn a_damaged_chunk_in_the_middle_loses_only_its_own_messages() {
         "{why}"
     );
 }
+
+/// A message index whose entries do not fill it: the `mcap` crate parses it and stopped the
+/// whole read there. It is skipped now, and no message is lost.
+#[test]
+fn a_damaged_message_index_loses_no_message() {
+    let (mut bad, chunks) = noisy_recording("index", 32);
+    // The message index right after the second chunk: its entries' byte length, made odd.
+    let len = |at: usize| {
+        usize::try_from(u64::from_le_bytes(bad[at + 1..at + 9].try_into().unwrap())).unwrap()
+    };
+    let index = chunks[1] + 9 + len(chunks[1]);
+    assert_eq!(bad[index], 0x07, "a message index follows the chunk");
+    bad[index + 9 + 2] ^= 0x01;
+    let rec = Recording::from_bytes(bad).unwrap();
+    let (msgs, why) = rec.messages();
+    let why = why.0.expect("the damage is reported");
+    assert!(
+        why.contains("message index at byte") && why.contains("no message is lost"),
+        "{why}"
+    );
+    assert_eq!(msgs.len(), 32, "{why}");
+}
+
+/// A crafted file of small chunks that each claim a large uncompressed size: the walk stops
+/// decompressing at its budget (1 GiB plus 256 bytes per byte of file) instead of going on
+/// for as long as the file has chunks.
+#[test]
+fn chunks_claiming_more_than_the_budget_end_the_walk() {
+    const SIZE: usize = 16 << 20;
+    // One uncompressed record filling the chunk: a message record of zeros.
+    let mut plain = record(0x05, &vec![0u8; SIZE - 9]);
+    plain.truncate(SIZE);
+    let packed = zstd::bulk::compress(&plain, 1).unwrap();
+    let bomb = chunk(SIZE as u64, "zstd", &packed);
+    let mut f = MAGIC.to_vec();
+    for _ in 0..80 {
+        f.extend_from_slice(&bomb); // 80 × 16 MiB = 1.25 GiB claimed
+    }
+    let file_len = f.len() as u64;
+    let why = read_all(f).expect("damage");
+    assert!(why.contains("more than 256 times the file's size"), "{why}");
+    // Every chunk the budget allowed was checked; the first refused one ends the file.
+    let allowed = ((1u64 << 30) + 256 * file_len) / SIZE as u64;
+    let at = MAGIC.len() as u64 + allowed * bomb.len() as u64;
+    assert!(why.contains(&format!("chunk at byte {at}:")), "{why}");
+}

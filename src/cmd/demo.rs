@@ -470,8 +470,9 @@ fn reach_m() -> f64 {
 /// Each target's mission in world seconds, (sent, ended), from the commander's events in
 /// `log`; `None` for a target without both. From the send, not the acceptance: Scooter may
 /// start on the commander's request before Skeeter's acceptance reaches the commander. A
-/// colour named twice (`red,blue,red`) is two missions: the n-th starts at the n-th send of
-/// the colour and ends at the first outcome after that send.
+/// colour named twice (`red,blue,red`) is two missions: the n-th one sent starts at the n-th
+/// send of the colour and ends at the first outcome after that send; one never sent
+/// (cancelled while it waited) has no span.
 fn mission_spans(outcomes: &[TargetOutcome], log: &[(f64, Event)]) -> Vec<Option<(f64, f64)>> {
     // The commander's events about `target` in `states`, as (log index, world time).
     let events = |target: &str, states: &[&str]| -> Vec<(usize, f64)> {
@@ -488,9 +489,13 @@ fn mission_spans(outcomes: &[TargetOutcome], log: &[(f64, Event)]) -> Vec<Option
         .iter()
         .enumerate()
         .map(|(k, o)| {
+            if !o.sent {
+                return None;
+            }
+            // Earlier sends of the colour (a copy cancelled while it waited was never sent).
             let repeat = outcomes[..k]
                 .iter()
-                .filter(|p| p.target == o.target)
+                .filter(|p| p.sent && p.target == o.target)
                 .count();
             let (i0, t0) = *events(&o.target, &["sent"]).get(repeat)?;
             let (_, t1) = events(&o.target, &["done", "failed"])
@@ -674,6 +679,7 @@ mod tests {
         TargetOutcome {
             target: colour.into(),
             state: TargetState::Done,
+            sent: true,
             sent_s: 0.0,
             accepted_s: None,
             ended_s: 0.0,
@@ -697,6 +703,18 @@ mod tests {
         assert_eq!(
             mission_spans(&outcomes, &log),
             [Some((5.0, 40.0)), Some((40.0, 40.3)), None]
+        );
+        // A red cancelled while it waited, before the two that ran: never sent, no span;
+        // the two sent ones keep theirs.
+        let cancelled = TargetOutcome {
+            sent: false,
+            state: TargetState::Failed,
+            ..outcome("red")
+        };
+        let outcomes = [cancelled, outcome("red"), outcome("red")];
+        assert_eq!(
+            mission_spans(&outcomes, &log),
+            [None, Some((5.0, 40.0)), Some((40.0, 40.3))]
         );
     }
 }

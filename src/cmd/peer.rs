@@ -628,7 +628,10 @@ async fn send(a: &SendArgs) -> Result<()> {
     }
     if cfg.broadcast.mode != BroadcastMode::Unicast && cfg.broadcast.port == 0 {
         // Sending to port 0 failed with "Invalid argument (os error 22)".
-        bail!("--port 0: the multicast group needs the port its listeners use");
+        bail!(
+            "broadcast port 0 (--port or broadcast.port): the multicast group needs the port \
+             its listeners use"
+        );
     }
     let r = match &a.what {
         SendWhat::Status { behaviour, san } => ch.send_status(behaviour, san, None).await,

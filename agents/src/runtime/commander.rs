@@ -35,7 +35,9 @@ pub struct TargetOutcome {
     pub target: String,
     /// Final state.
     pub state: TargetState,
-    /// Mission second it was sent.
+    /// Whether it was sent at all (a target cancelled while it waited never was).
+    pub sent: bool,
+    /// Mission second it was sent (0 when it never was).
     pub sent_s: f64,
     /// Mission second Skeeter accepted it (if it did).
     pub accepted_s: Option<f64>,
@@ -325,6 +327,7 @@ pub async fn run(
             } else {
                 TargetState::Failed
             },
+            sent: t.sent_at.is_some(),
             sent_s: secs(t.sent_at).unwrap_or(0.0),
             accepted_s: secs(t.accepted_at),
             ended_s: secs(t.finished_at).unwrap_or(0.0),

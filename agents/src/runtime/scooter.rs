@@ -26,7 +26,7 @@ use ima_hal::compass::{Compass, Heading};
 use ima_hal::laser::{LaserScan, LaserScanner};
 use ima_hal::safety::HaltSignal;
 use ima_hal::time::{SharedClock, Stamped};
-use ima_hal::{ErrorType, Instant, normalize_angle};
+use ima_hal::{Error as _, ErrorKind, ErrorType, Instant, normalize_angle};
 use tokio::sync::watch;
 
 use super::events::{Control, EventKind, Events, MapView, SanView};
@@ -346,8 +346,9 @@ where
     drop(tasks);
     match tokio::time::timeout(Duration::from_secs(2), base.stop()).await {
         Ok(Ok(())) => guard.disarm(),
-        // Halted by the exit guard already (a signal): its driver sent the stop.
-        Ok(Err(e)) if guard.already_halted() => {
+        // Halted by the exit guard already (a signal): the driver stops the base itself on
+        // its halt and reports its own failures; the runtime's stop found it gone.
+        Ok(Err(e)) if guard.already_halted() && e.kind() == ErrorKind::Disconnected => {
             tracing::debug!("base: halted by the exit guard before the runtime's stop ({e:?})");
         }
         // The guard halts the driver on the way out.
