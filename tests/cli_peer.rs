@@ -860,12 +860,7 @@ fn ctrl_c_on_a_terminal_asks_and_y_sends_the_fleet_stop() {
     }
     out.recv_timeout(Duration::from_secs(30))
         .expect("the commander's first line");
-    let ok = std::process::Command::new("kill")
-        .args(["-INT", &commander.0.id().to_string()])
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok);
+    commander.signal("INT");
     let deadline = Instant::now() + Duration::from_secs(30);
     while !err.lock().unwrap().contains("stop the robots? [y/N]") {
         assert!(

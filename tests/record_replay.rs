@@ -613,17 +613,8 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     assert!(first.contains("\"kind\""), "{first}");
     // Read the rest until it ends: a closed stdout would end it with 141 instead.
     let drain = std::thread::spawn(move || std::io::copy(&mut lines, &mut std::io::sink()));
-    let ok = std::process::Command::new("kill")
-        .args(["-INT", &replay.0.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(ok.success());
-    let out = std::mem::replace(
-        &mut replay.0,
-        std::process::Command::new("true").spawn().unwrap(),
-    )
-    .wait_with_output()
-    .unwrap();
+    replay.signal("INT");
+    let out = replay.wait_output();
     let _ = drain.join();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{err}");
@@ -654,17 +645,8 @@ fn an_interrupted_recording_is_closed_properly() {
         std::thread::sleep(std::time::Duration::from_millis(100));
         waited += 1;
     }
-    let ok = std::process::Command::new("kill")
-        .args(["-INT", &child.0.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(ok.success());
-    let out = std::mem::replace(
-        &mut child.0,
-        std::process::Command::new("true").spawn().unwrap(),
-    )
-    .wait_with_output()
-    .unwrap();
+    child.signal("INT");
+    let out = child.wait_output();
     assert_eq!(out.status.code(), Some(130));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(

@@ -101,25 +101,36 @@ fn an_uncompressed_chunk_ending_in_stray_bytes_is_damage() {
     assert!(why.contains("3 stray bytes at byte 9"), "{why}");
 }
 
+/// A recorder writing `path`, and its one raw port (robot, device, baud, protocol) on
+/// `/dev/pts/9`.
+fn recorder(
+    path: &std::path::Path,
+    name: &str,
+    (robot, device, baud, protocol): (&str, &str, u32, &str),
+) -> (Recorder, ima_record::raw::RawPort) {
+    let rec = Recorder::start(&Options {
+        mcap: Some(path.to_path_buf()),
+        name: name.into(),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.raw_port(PortInfo {
+        robot: robot.into(),
+        device: device.into(),
+        port: "/dev/pts/9".into(),
+        baud,
+        protocol: protocol.into(),
+    });
+    (rec, port)
+}
+
 #[test]
 fn single_byte_corruptions_of_a_real_recording_never_panic() {
     let dir = std::env::temp_dir().join(format!("ima-record-malformed-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("small.mcap");
     let _ = std::fs::remove_file(&path);
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        name: "malformed".into(),
-        ..Options::default()
-    })
-    .unwrap();
-    let port = rec.raw_port(PortInfo {
-        robot: "skeeter".into(),
-        device: "base".into(),
-        port: "/dev/pts/9".into(),
-        baud: 9600,
-        protocol: "p2os".into(),
-    });
+    let (rec, port) = recorder(&path, "malformed", ("skeeter", "base", 9600, "p2os"));
     for i in 0..40u8 {
         port.tx(&[0xfa, 0xfb, 3, i, 0, i]);
         port.rx(&[0xfa, 0xfb, 3, 0, i, i]);
@@ -157,19 +168,7 @@ fn noisy_recording(name: &str, n: u32) -> (Vec<u8>, Vec<usize>) {
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("noisy.mcap");
     let _ = std::fs::remove_file(&path);
-    let rec = Recorder::start(&Options {
-        mcap: Some(path.clone()),
-        name: name.into(),
-        ..Options::default()
-    })
-    .unwrap();
-    let port = rec.raw_port(PortInfo {
-        robot: "scooter".into(),
-        device: "laser".into(),
-        port: "/dev/pts/9".into(),
-        baud: 38400,
-        protocol: "sick-lms".into(),
-    });
+    let (rec, port) = recorder(&path, name, ("scooter", "laser", 38400, "sick-lms"));
     let mut x = 0x2545_f491_4f6c_dd1d_u64; // xorshift: incompressible bytes
     for _ in 0..n {
         let noise: Vec<u8> = (0..64 * 1024)

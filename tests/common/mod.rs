@@ -51,6 +51,27 @@ impl Drop for Child {
     }
 }
 
+impl Child {
+    /// Send signal `sig` (`"INT"`, `"TERM"`, …) to the child, which must still be running.
+    pub fn signal(&self, sig: &str) {
+        let ok = std::process::Command::new("kill")
+            .args([format!("-{sig}"), self.0.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(ok.success(), "kill -{sig}");
+    }
+
+    /// Wait for the child to end, with what it printed on the outputs still piped.
+    pub fn wait_output(&mut self) -> std::process::Output {
+        std::mem::replace(
+            &mut self.0,
+            std::process::Command::new("true").spawn().unwrap(),
+        )
+        .wait_with_output()
+        .unwrap()
+    }
+}
+
 /// Start `ima <args…>` (its stderr discarded) and read the first line it prints.
 pub fn spawn_first_line<S: AsRef<std::ffi::OsStr>>(
     args: impl IntoIterator<Item = S>,
