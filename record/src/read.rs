@@ -156,31 +156,39 @@ fn message_index_sound(body: &[u8]) -> bool {
     n % 16 == 0 && u64::from(n) == r.remaining() as u64
 }
 
+/// The record at `at` when its length fits in the file: its opcode, body and end.
+fn record_at(b: &[u8], at: usize) -> Option<(u8, &[u8], usize)> {
+    let mut r = Reader::new(b.get(at..)?);
+    let (Ok(op), Ok(len)) = (r.u8(), r.le::<u64>()) else {
+        return None;
+    };
+    let body = r.take(usize::try_from(len).ok()?).ok()?;
+    Some((op, body, b.len() - r.remaining()))
+}
+
 /// Where a chunk record at `at` ends when it is framed exactly: its header and records fill
 /// its length, which fits in the file. A cheap test before a chunk is decompressed: noise
 /// rarely passes it.
 fn framed_chunk(b: &[u8], at: usize) -> Option<usize> {
-    let mut r = Reader::new(b.get(at..)?);
-    let (Ok(OP_CHUNK), Ok(len)) = (r.u8(), r.le::<u64>()) else {
+    let (OP_CHUNK, body, end) = record_at(b, at)? else {
         return None;
     };
-    let mut body = Reader::new(usize::try_from(len).ok().and_then(|n| r.take(n).ok())?);
+    let mut body = Reader::new(body);
     // Times, uncompressed size, CRC; then the compression name and the records.
     body.skip(28).ok()?;
     let name = usize::try_from(body.le::<u32>().ok()?).ok()?;
     body.skip(name).ok()?;
     let records = body.le::<u64>().ok()?;
-    (records == body.remaining() as u64).then_some(b.len() - r.remaining())
+    (records == body.remaining() as u64).then_some(end)
 }
 
-/// Where a message index record at `at` ends, when its length fits in the file.
-fn framed_index(b: &[u8], at: usize) -> Option<usize> {
-    let mut r = Reader::new(b.get(at..)?);
-    let (Ok(OP_MESSAGE_INDEX), Ok(len)) = (r.u8(), r.le::<u64>()) else {
-        return None;
-    };
-    r.take(usize::try_from(len).ok()?).ok()?;
-    Some(b.len() - r.remaining())
+/// Where a damaged record at `at` ends when its own length can be trusted: a chunk framed
+/// exactly, or a message index whose length fits in the file.
+fn trusted_end(b: &[u8], at: usize) -> Option<usize> {
+    framed_chunk(b, at).or_else(|| match record_at(b, at)? {
+        (OP_MESSAGE_INDEX, _, end) => Some(end),
+        _ => None,
+    })
 }
 
 /// The next sound chunk record after `from`, as (start, end): where a walk that met a broken
@@ -229,8 +237,7 @@ fn survey(b: &[u8], start: usize) -> Survey {
             Err(why) => {
                 // A chunk framed exactly: its own length says where the next record is.
                 // Otherwise the next sound chunk, which has been checked already.
-                let own_end = framed_chunk(b, at).or_else(|| framed_index(b, at));
-                let (gap_end, next) = match own_end {
+                let (gap_end, next) = match trusted_end(b, at) {
                     Some(end) => (end, end),
                     None => match next_sound_chunk(b, at + 1, &mut budget) {
                         Some((k, end)) => (k, end),

@@ -19,10 +19,7 @@ pub fn check_file(flag: &str, path: &Path) -> Result<()> {
     if path.as_os_str().is_empty() {
         bail!("{flag}: the path is empty");
     }
-    let parent = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let parent = dir_of(path);
     match parent.metadata() {
         Ok(m) if m.is_dir() => {}
         Ok(_) => bail!("{flag} {shown}: {} is not a directory", parent.display()),
@@ -49,6 +46,14 @@ pub fn check_file(flag: &str, path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The directory a file `path` goes into (`.` for a bare name).
+fn dir_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
 /// Refuses two output options naming one file (`--svg run.mcap --record run.mcap`: the
 /// picture written at the end replaced the recording). Paths are compared after resolving
 /// their directories, so `x.mcap` and `./x.mcap` are one file.
@@ -57,11 +62,7 @@ pub fn check_file(flag: &str, path: &Path) -> Result<()> {
 /// The two name one file.
 pub fn distinct_outputs(a: (&str, &Path), b: (&str, &Path)) -> Result<()> {
     let resolved = |p: &Path| {
-        let dir = match p.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        std::fs::canonicalize(dir)
+        std::fs::canonicalize(dir_of(p))
             .ok()
             .zip(p.file_name())
             .map(|(d, f)| d.join(f))

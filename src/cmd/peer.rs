@@ -260,8 +260,8 @@ fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> 
     } else {
         bail!(
             "no group key: name a key file with `key_file` in the config or --key-file \
-             (generate one: (umask 077 && head -c 32 /dev/urandom | od -An -v -tx1 | tr -d \
-             ' \\n' > group.key)), or pass --insecure for a test bench"
+             (generate one: {}), or pass --insecure for a test bench",
+            ima_agents::peer::net::make_key_command("group.key")
         );
     };
     Ok((cfg, synthetic, key))
@@ -271,9 +271,9 @@ fn setup(c: &Common) -> Result<(PeerNetConfig, Vec<SyntheticSource>, GroupKey)> 
 pub fn zero_key_warning(path: &Path) -> String {
     format!(
         "the key file {} holds the all-zero key, the documented insecure key: anyone on the \
-         network can register, request, read and inject. Generate a real key: (umask 077 && head \
-         -c 32 /dev/urandom | od -An -v -tx1 | tr -d ' \\n' > group.key)",
-        path.display()
+         network can register, request, read and inject. Generate a real key: {}",
+        path.display(),
+        ima_agents::peer::net::make_key_command("group.key")
     )
 }
 

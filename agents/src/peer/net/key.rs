@@ -76,6 +76,13 @@ fn parse_hex(text: &str) -> Result<Vec<u8>, NetError> {
         .collect()
 }
 
+/// The shell command that makes a group key file `file`: 32 random bytes as hex, readable by
+/// its owner only from the start (the umask is set before the file exists).
+#[must_use]
+pub fn make_key_command(file: &str) -> String {
+    format!("(umask 077 && head -c 32 /dev/urandom | od -An -v -tx1 | tr -d ' \\n' > {file})")
+}
+
 /// Loads the group key from `path`. On Unix a file readable by group or others is refused.
 ///
 /// # Errors
@@ -89,10 +96,10 @@ pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
         if e.kind() == std::io::ErrorKind::NotFound {
             // The first thing a new group needs: say how to make one.
             NetError::Key(format!(
-                "{}: {e}; make it with `(umask 077 && head -c 32 /dev/urandom | od -An -v -tx1 \
-                 | tr -d ' \\n' > FILE)` (readable by its owner only, from the start) and copy \
-                 it to every robot and the commander",
-                path.display()
+                "{}: {e}; make it with `{}` (readable by its owner only, from the start) and \
+                 copy it to every robot and the commander",
+                path.display(),
+                make_key_command("FILE")
             ))
         } else {
             err(e)

@@ -58,7 +58,9 @@ pub use config::{
     BroadcastConfig, BroadcastMode, MAX_QUEUE, ManagerNetConfig, PeerNetConfig, SyntheticSource,
     is_host_port, split_host_port,
 };
-pub use key::{INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, parse_key};
+pub use key::{
+    INSECURE_KEY, KEY_FILE_MIN_LEN, insecure_key, load_key_file, make_key_command, parse_key,
+};
 pub use manager::{
     ManagerHandle, ManagerNetEvent, ManagerNetStats, SessionLink, SourcePublisher, spawn_manager,
     spawn_manager_with_clock,
