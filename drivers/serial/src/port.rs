@@ -97,7 +97,13 @@ mod async_io {
 }
 
 /// Open a serial port for the async runner: `baud` 8N1, no flow control (a probe may change
-/// the rate later).
+/// the rate later), with its receive buffer emptied.
+///
+/// Bytes the port held before it was opened are stale: a device that talks by itself (a
+/// compass's NMEA stream) may have filled the buffer of a USB adapter, or of a pty whose
+/// other end a mock keeps open, long before this program started, and each of them would
+/// become a reading stamped now. Without the flush, `ima compass` opened 20 s after
+/// `ima mock compass` read 210 stale headings before the first fresh one.
 ///
 /// # Errors
 /// A path that is not a serial port (a regular file, `/dev/null`) fails with
@@ -106,11 +112,13 @@ mod async_io {
 #[cfg(feature = "tokio")]
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;
-    tokio_serial::new(path, baud)
+    let mut port = tokio_serial::new(path, baud)
         .data_bits(tokio_serial::DataBits::Eight)
         .parity(tokio_serial::Parity::None)
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))
+        .map_err(|e| ima_hal::serial::explain_open_error(path, io::Error::from(e)))?;
+    port.clear_input()?;
+    Ok(port)
 }

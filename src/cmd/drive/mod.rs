@@ -73,6 +73,7 @@ pub struct DriveArgs {
 
 /// Run `ima drive`.
 pub fn run(args: &DriveArgs) -> Result<()> {
+    let params = check_options(args)?;
     crate::record::start(&args.rec, "ima drive")?; // record
     if args.robot == Robot::AtrvJr {
         let opts = rflex::DriveOptions {
@@ -88,10 +89,47 @@ pub fn run(args: &DriveArgs) -> Result<()> {
         };
         return safety::block_on(rflex::drive(&opts));
     }
-    safety::block_on(drive(args))
+    safety::block_on(drive(args, params))
 }
 
-async fn drive(args: &DriveArgs) -> Result<()> {
+/// Refuse an option that belongs to the other base (it would be ignored without a word, and
+/// a user who calibrated `--kd` would drive at the default) and parse `--params`. Returns the
+/// P2OS parameter table `--params` names.
+fn check_options(args: &DriveArgs) -> Result<Option<ima_p2os::RobotParams>> {
+    let other: &[(&str, bool, &str)] = match args.robot {
+        Robot::P2at => &[
+            ("--kd", args.kd.is_some(), "--robot atrv-jr"),
+            ("--ka", args.ka.is_some(), "--robot atrv-jr"),
+        ],
+        Robot::AtrvJr => &[("--params", args.params.is_some(), "--robot p2at")],
+    };
+    if let Some((flag, _, robot)) = other.iter().find(|(_, given, _)| *given) {
+        anyhow::bail!(
+            "{flag} applies to {robot} only; this drive is for --robot {}",
+            args.robot.name()
+        );
+    }
+    args.params
+        .as_deref()
+        .map(|name| {
+            ima_p2os::RobotParams::for_subclass(name.as_bytes())
+                .copied()
+                .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))
+        })
+        .transpose()
+}
+
+impl Robot {
+    /// The robot's name on the command line.
+    fn name(self) -> &'static str {
+        match self {
+            Self::P2at => "p2at",
+            Self::AtrvJr => "atrv-jr",
+        }
+    }
+}
+
+async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Result<()> {
     let baud = args.baud.unwrap_or(9600);
     let mut cfg = ima_p2os::Config::default();
     let mut bauds = heapless::Vec::<u32, 8>::new();
@@ -102,11 +140,7 @@ async fn drive(args: &DriveArgs) -> Result<()> {
         }
     }
     cfg.bauds = bauds;
-    if let Some(name) = &args.params {
-        let p = ima_p2os::RobotParams::for_subclass(name.as_bytes())
-            .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))?;
-        cfg.params_override = Some(*p);
-    }
+    cfg.params_override = params;
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
     let port = crate::record::tap(port, "base", &args.port, baud, "p2os"); // record: raw bytes
     let connect = P2os::connect(
@@ -230,5 +264,51 @@ fn print_state(
             st.power.value.battery_v,
             ranges.join(" ")
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        drive: DriveArgs,
+    }
+
+    fn check(args: &[&str]) -> Result<Option<ima_p2os::RobotParams>> {
+        let cli = Cli::try_parse_from(["drive", "--port", "/dev/ttyS0"].iter().chain(args))?;
+        check_options(&cli.drive)
+    }
+
+    #[test]
+    fn an_option_of_the_other_base_is_refused() {
+        for (args, flag, robot) in [
+            (&["--kd", "90000"][..], "--kd", "--robot atrv-jr"),
+            (&["--ka", "37000"], "--ka", "--robot atrv-jr"),
+            (
+                &["--robot", "atrv-jr", "--params", "p2dx"],
+                "--params",
+                "--robot p2at",
+            ),
+        ] {
+            let e = check(args).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!("{flag} applies to {robot} only")),
+                "{e}"
+            );
+        }
+        assert!(
+            check(&["--robot", "atrv-jr", "--kd", "90000", "--ka", "1"])
+                .unwrap()
+                .is_none()
+        );
+        let p = check(&["--params", "p2dx"]).unwrap().expect("a table");
+        assert_eq!(Some(&p), ima_p2os::RobotParams::for_subclass(b"p2dx"));
+        let e = check(&["--params", "p3"]).unwrap_err().to_string();
+        assert!(e.contains("unknown parameter table \"p3\""), "{e}");
     }
 }
