@@ -519,6 +519,39 @@ impl RobotConfig {
         Ok(())
     }
 
+    /// No two serial devices on one port. A copied device section whose `port` was not
+    /// changed would otherwise fail only when the second device opened it, after the first
+    /// had connected, as "Device or resource busy", which reads as another program holding
+    /// the port. Paths that name one device through a link (`/dev/serial/by-id/…`) are
+    /// compared where they exist.
+    fn check_ports(&self) -> Result<()> {
+        let d = &self.devices;
+        let ports = [
+            ("base", d.base.as_ref().map(|b| &b.port)),
+            ("video_mux", d.video_mux.as_ref().map(|m| &m.port)),
+            ("laser", d.laser.as_ref().map(|l| &l.port)),
+            ("compass", d.compass.as_ref().map(|c| &c.port)),
+        ];
+        let mut seen: Vec<(&str, &str, std::path::PathBuf)> = Vec::new();
+        for (what, port) in ports {
+            let Some(port) = port else { continue };
+            let path = std::fs::canonicalize(port).unwrap_or_else(|_| port.into());
+            if let Some((other, other_port, _)) = seen.iter().find(|(_, _, p)| *p == path) {
+                let same = if other_port == port {
+                    String::new()
+                } else {
+                    format!(" ({other_port} and {port} are one device)")
+                };
+                bail!(
+                    "devices.{other}.port and devices.{what}.port both name {port}{same}: \
+                     each device needs its own serial port"
+                );
+            }
+            seen.push((what, port, path));
+        }
+        Ok(())
+    }
+
     /// Check values and that the role's devices are configured (unless `mock`).
     pub fn check(&self) -> Result<()> {
         let a = &self.agent;
@@ -600,6 +633,7 @@ impl RobotConfig {
         if self.mock {
             return Ok(());
         }
+        self.check_ports()?;
         let d = &self.devices;
         let need = |what: &str, present: bool| {
             if present {
@@ -676,6 +710,34 @@ mod tests {
             RobotConfig::from_toml_str(&sc.to_toml().unwrap()).unwrap(),
             sc
         );
+    }
+
+    #[test]
+    fn two_devices_on_one_port_are_refused() {
+        let sc = example("scooter.toml");
+        let copied = sc.replace("\"/dev/ttyS2\"", "\"/dev/ttyS1\"");
+        let e = RobotConfig::from_toml_str(&copied).unwrap_err();
+        assert_eq!(
+            format!("{e:#}"),
+            "devices.laser.port and devices.compass.port both name /dev/ttyS1: each device \
+             needs its own serial port"
+        );
+        // One device under two names (a by-id link and the node it points to).
+        let dir = std::env::temp_dir().join(format!("ima-ports-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (node, link) = (dir.join("ttyUSB0"), dir.join("by-id-laser"));
+        std::fs::write(&node, b"").unwrap();
+        let _ = std::fs::remove_file(&link);
+        std::os::unix::fs::symlink(&node, &link).unwrap();
+        let aliased = sc
+            .replace("/dev/ttyS1", link.to_str().unwrap())
+            .replace("/dev/ttyS2", node.to_str().unwrap());
+        let e = format!("{:#}", RobotConfig::from_toml_str(&aliased).unwrap_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(e.contains(" are one device)"), "{e}");
+        // A mock run opens no port: its placeholders may repeat.
+        let mock = copied.replace("mock = false", "mock = true");
+        assert!(RobotConfig::from_toml_str(&mock).is_ok());
     }
 
     #[test]
