@@ -104,8 +104,8 @@ fn stdin_add_and_move_reorder_the_series_as_the_page_sees_it() {
     let dir = std::env::temp_dir().join(format!("ima-web-stdin-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let nobody = common::mission::free_port(true);
-    let bind = common::mission::free_port(true);
+    let (_, udp) = common::mission::free_ports(0, 2);
+    let (nobody, bind) = (udp[0], udp[1]);
     let cfg = dir.join("commander.toml");
     std::fs::write(
         &cfg,

@@ -308,11 +308,11 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let counters = [sk_dev.counters(), sc_dev.counters()];
         let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);
         let (stop_sc, stop_rx_sc) = tokio::sync::watch::channel(false);
-        let skeeter = tokio::spawn({
+        let mut skeeter = tokio::spawn({
             let (sk, key, clock, events) = (sk.clone(), key.clone(), clock.clone(), events.clone());
             async move { wiring::run_skeeter(&sk, key, sk_dev, clock, events, stop_rx_sk).await }
         });
-        let scooter = tokio::spawn({
+        let mut scooter = tokio::spawn({
             let (sc, key, clock, events) = (sc.clone(), key.clone(), clock.clone(), events.clone());
             async move { wiring::run_scooter(&sc, key, sc_dev, clock, events, stop_rx_sc).await }
         });
@@ -320,31 +320,45 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         // A signal (the bases already halted by the guard) ends the mission at once: the
         // robots' runtimes are stopped below as after a normal end, and the recording is
         // closed, well within the guard's grace period.
+        // A robot whose runtime ends before the mission (its Peer Agent could not bind, a
+        // device failed) ends the mission at once with its error; the commander would
+        // otherwise wait out every target's timeout (64 s at ×10, 11 min at ×1) and report
+        // only "0/1 targets done".
+        let mut ended_early = None;
         let outcomes = crate::safety::until_cancelled(async {
-            let bus = crate::stack::net::bus(&cmd, key, clock.clone())?;
-            let rt = crate::stack::commander::runtime_config(
-                &cmd,
-                (&robots, Duration::from_secs(30)),
-                console
-                    .is_some()
-                    .then(|| Duration::from_secs_f64(cmd.agent.robot_lost_after_s)),
-            );
-            let f = ima_agents::runtime::commander::run(
-                rt,
-                &args.targets,
-                bus,
-                clock.clone(),
-                events.clone(),
-                Some(op_rx),
-            )
-            .await?;
-            anyhow::Ok(f.outcomes)
+            let mission = async {
+                let bus = crate::stack::net::bus(&cmd, key, clock.clone())?;
+                let rt = crate::stack::commander::runtime_config(
+                    &cmd,
+                    (&robots, Duration::from_secs(30)),
+                    console
+                        .is_some()
+                        .then(|| Duration::from_secs_f64(cmd.agent.robot_lost_after_s)),
+                );
+                let f = ima_agents::runtime::commander::run(
+                    rt,
+                    &args.targets,
+                    bus,
+                    clock.clone(),
+                    events.clone(),
+                    Some(op_rx),
+                )
+                .await?;
+                anyhow::Ok(f.outcomes)
+            };
+            let robots = [("skeeter", &mut skeeter), ("scooter", &mut scooter)];
+            let (r, early) = until_a_robot_ends(mission, robots).await;
+            ended_early = early;
+            r
         })
         .await
         .and_then(|r| r);
         // Scooter (the client) first, then Skeeter (its manager).
         for (name, stop, h) in [("scooter", stop_sc, scooter), ("skeeter", stop_sk, skeeter)] {
             let _ = stop.send(true);
+            if ended_early == Some(name) {
+                continue; // its end is the mission's error
+            }
             match tokio::time::timeout(Duration::from_secs(5), h).await {
                 Ok(Ok(Ok(()))) => {}
                 Ok(Ok(Err(e))) => eprintln!("ima demo: {name} stopped with an error: {e:#}"),
@@ -504,6 +518,29 @@ fn mission_spans(outcomes: &[TargetOutcome], log: &[(f64, Event)]) -> Vec<Option
             Some((t0, t1))
         })
         .collect()
+}
+
+/// A robot's runtime task in the demo.
+type RobotTask = tokio::task::JoinHandle<Result<()>>;
+
+/// Run `mission` until it ends, or until one of `robots`' tasks ends first: then the mission
+/// is dropped and its error is that robot's. Returns the result and which robot ended early
+/// (its task is done and must not be awaited again).
+async fn until_a_robot_ends<T>(
+    mission: impl Future<Output = Result<T>>,
+    [(a, ta), (b, tb)]: [(&'static str, &mut RobotTask); 2],
+) -> (Result<T>, Option<&'static str>) {
+    let (name, ended) = tokio::select! {
+        r = mission => return (r, None),
+        r = ta => (a, r),
+        r = tb => (b, r),
+    };
+    let e = match ended {
+        Ok(Err(e)) => e.context(format!("{name} stopped before the mission ended")),
+        Ok(Ok(())) => anyhow::anyhow!("{name}'s runtime ended before the mission did"),
+        Err(e) => anyhow::anyhow!("{name}'s task failed before the mission ended: {e}"),
+    };
+    (Err(e), Some(name))
 }
 
 /// The summary: per target, the drivers' counters, the recording, and the SVG.
@@ -685,6 +722,42 @@ mod tests {
             ended_s: 0.0,
             reason: None,
         }
+    }
+
+    /// A robot whose runtime fails (its Peer Agent could not bind) ends the mission at once
+    /// with its error; the other robot's task is left to be stopped.
+    #[tokio::test(start_paused = true)]
+    async fn a_robot_that_fails_ends_the_mission_with_its_error() {
+        let mut skeeter: RobotTask = tokio::spawn(async {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            Err(anyhow::anyhow!("binding 127.0.0.1:7600: Address in use"))
+        });
+        let mut scooter: RobotTask = tokio::spawn(std::future::pending());
+        let started = tokio::time::Instant::now();
+        // The commander waits for ever (its target timeouts) for a robot that is gone.
+        let mission = std::future::pending::<Result<()>>();
+        let robots = [("skeeter", &mut skeeter), ("scooter", &mut scooter)];
+        let (r, early) = until_a_robot_ends(mission, robots).await;
+        assert_eq!(started.elapsed(), Duration::from_secs(1));
+        assert_eq!(early, Some("skeeter"));
+        assert_eq!(
+            format!("{:#}", r.unwrap_err()),
+            "skeeter stopped before the mission ended: binding 127.0.0.1:7600: Address in use"
+        );
+        assert!(!scooter.is_finished());
+        // A runtime that ends without an error before the mission is an error too; a
+        // mission that ends first is the result.
+        let mut quiet: RobotTask = tokio::spawn(async { Ok(()) });
+        let robots = [("skeeter", &mut scooter), ("scooter", &mut quiet)];
+        let (r, early) = until_a_robot_ends(std::future::pending::<Result<()>>(), robots).await;
+        assert_eq!(early, Some("scooter"));
+        assert!(format!("{:#}", r.unwrap_err()).contains("scooter's runtime ended before"));
+        let mut other: RobotTask = tokio::spawn(std::future::pending());
+        let robots = [("skeeter", &mut scooter), ("scooter", &mut other)];
+        let (r, early) = until_a_robot_ends(async { Ok(7) }, robots).await;
+        assert_eq!((r.unwrap(), early), (7, None));
+        scooter.abort();
+        other.abort();
     }
 
     #[test]

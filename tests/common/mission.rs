@@ -7,19 +7,28 @@ use ima_mock_devices::served::Endpoints;
 
 /// A free loopback port (TCP, or UDP when `udp`).
 pub fn free_port(udp: bool) -> u16 {
-    if udp {
-        std::net::UdpSocket::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port()
+    let (tcp, udp) = if udp {
+        free_ports(0, 1)
     } else {
-        std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port()
-    }
+        free_ports(1, 0)
+    };
+    tcp.into_iter().chain(udp).next().unwrap()
+}
+
+/// `tcp` TCP and `udp` UDP loopback ports, all different (each stays bound until every one
+/// is picked).
+pub fn free_ports(tcp: usize, udp: usize) -> (Vec<u16>, Vec<u16>) {
+    let listeners: Vec<_> = (0..tcp)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    let sockets: Vec<_> = (0..udp)
+        .map(|_| std::net::UdpSocket::bind("127.0.0.1:0").unwrap())
+        .collect();
+    let port = |a: std::io::Result<std::net::SocketAddr>| a.unwrap().port();
+    (
+        listeners.iter().map(|l| port(l.local_addr())).collect(),
+        sockets.iter().map(|s| port(s.local_addr())).collect(),
+    )
 }
 
 /// A scratch directory for one test (see [`super::Scratch`]).
@@ -39,8 +48,8 @@ pub fn write_configs(dir: &Path, e: &Endpoints, speed: f64) -> [PathBuf; 3] {
         use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
     }
-    let (mgr, scooter_mgr) = (free_port(false), free_port(false));
-    let b = [free_port(true), free_port(true), free_port(true)];
+    let (managers, b) = free_ports(2, 3);
+    let (mgr, scooter_mgr) = (managers[0], managers[1]);
     let peers = |i: usize| {
         b.iter()
             .enumerate()

@@ -44,19 +44,27 @@ pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
     .context("serving the world")
 }
 
-/// A free local port (bound and released; another process may take it meanwhile, which only
-/// makes the later bind fail with a clear error).
-pub fn free_port(udp: bool) -> Result<u16> {
-    let port = if udp {
-        std::net::UdpSocket::bind("127.0.0.1:0")?
-            .local_addr()?
-            .port()
-    } else {
-        std::net::TcpListener::bind("127.0.0.1:0")?
-            .local_addr()?
-            .port()
-    };
-    Ok(port)
+/// `tcp` free local TCP ports and `udp` free local UDP ports, all different: each pick
+/// stays bound until every one is made (picked one at a time and released at once, two
+/// picks could be the same port, and two of the fleet's sockets then fail to bind). They are
+/// released on return; another process may take one meanwhile, which only makes the later
+/// bind fail with a clear error.
+pub fn free_ports(tcp: usize, udp: usize) -> Result<(Vec<u16>, Vec<u16>)> {
+    let listeners = (0..tcp)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0"))
+        .collect::<std::io::Result<Vec<_>>>()?;
+    let sockets = (0..udp)
+        .map(|_| std::net::UdpSocket::bind("127.0.0.1:0"))
+        .collect::<std::io::Result<Vec<_>>>()?;
+    let tcp = listeners
+        .iter()
+        .map(|l| l.local_addr().map(|a| a.port()))
+        .collect::<std::io::Result<_>>()?;
+    let udp = sockets
+        .iter()
+        .map(|s| s.local_addr().map(|a| a.port()))
+        .collect::<std::io::Result<_>>()?;
+    Ok((tcp, udp))
 }
 
 /// 32 random bytes from the operating system.
@@ -76,9 +84,8 @@ pub fn loopback_configs(
     speed: f64,
     key_file: Option<&Path>,
 ) -> Result<[RobotConfig; 3]> {
-    let skeeter_mgr = free_port(false)?;
-    let scooter_mgr = free_port(false)?;
-    let bcast = [free_port(true)?, free_port(true)?, free_port(true)?];
+    let (managers, bcast) = free_ports(2, 3)?;
+    let (skeeter_mgr, scooter_mgr) = (managers[0], managers[1]);
     let peer = |i: usize, listen: Option<u16>, connect: Option<u16>| {
         let others: Vec<String> = bcast
             .iter()
