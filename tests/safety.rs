@@ -759,19 +759,23 @@ fn run_scooter_closed_stderr_and_skeeter_sigint_stop_their_bases() {
 #[test]
 fn run_answers_sigint_while_opening_its_devices() {
     use ima_mock_devices::served::{Endpoints, ScooterEndpoints, SkeeterEndpoints};
-    let (_master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
-    let silent = std::path::PathBuf::from(serialport::SerialPort::name(&slave).unwrap());
+    // Three silent ptys (one port per device; nobody answers on any).
+    let ptys: Vec<_> = (0..3)
+        .map(|_| ima_mock_devices::pty::pty_pair().unwrap())
+        .collect();
+    let silent =
+        |i: usize| std::path::PathBuf::from(serialport::SerialPort::name(&ptys[i].1).unwrap());
     let e = Endpoints {
         skeeter: SkeeterEndpoints {
-            base: silent.clone(),
-            video_mux: silent.clone(),
+            base: silent(0),
+            video_mux: silent(1),
             frames: "127.0.0.1:9".into(),
         },
         scooter: ScooterEndpoints {
-            base: silent.clone(),
+            base: silent(0),
             base_kind: ima_mock_devices::served::BaseKind::Rflex,
-            laser: silent.clone(),
-            compass: silent,
+            laser: silent(1),
+            compass: silent(2),
         },
     };
     let dir = common::mission::scratch_dir("safety-opening");

@@ -304,6 +304,9 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         );
         let sk_dev = sk_dev.context("opening Skeeter's devices")?;
         let sc_dev = sc_dev.context("opening Scooter's devices")?;
+        // The peers' ports, picked again now that the devices are open: they are bound in
+        // milliseconds, so no other process can take one meanwhile.
+        super::mock_world::assign_ports([&mut sk, &mut sc, &mut cmd])?;
         // The drivers' own counters, read once the robots have stopped.
         let counters = [sk_dev.counters(), sc_dev.counters()];
         let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);

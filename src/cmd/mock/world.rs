@@ -84,26 +84,19 @@ pub fn loopback_configs(
     speed: f64,
     key_file: Option<&Path>,
 ) -> Result<[RobotConfig; 3]> {
-    let (managers, bcast) = free_ports(2, 3)?;
-    let (skeeter_mgr, scooter_mgr) = (managers[0], managers[1]);
-    let peer = |i: usize, listen: Option<u16>, connect: Option<u16>| {
-        let others: Vec<String> = bcast
-            .iter()
-            .enumerate()
-            .filter(|(j, _)| *j != i)
-            .map(|(_, p)| format!("127.0.0.1:{p}"))
-            .collect();
-        PeerConfig {
-            listen: listen.map(|p| format!("127.0.0.1:{p}")).unwrap_or_default(),
-            data_listen: "127.0.0.1:0".into(),
-            connect: connect.map(|p| format!("127.0.0.1:{p}")),
-            key_file: key_file.map(Path::to_path_buf),
-            insecure: key_file.is_none(),
-            broadcast_group: String::new(),
-            broadcast_peers: others,
-            broadcast_bind: bcast.get(i).map(|p| format!("127.0.0.1:{p}")),
-            ..PeerConfig::default()
-        }
+    // Ports are filled in by `assign_ports`; `listen`/`connect` say who has them.
+    let peer = |listen: bool, connect: bool| PeerConfig {
+        listen: if listen {
+            "127.0.0.1:0".into()
+        } else {
+            String::new()
+        },
+        data_listen: "127.0.0.1:0".into(),
+        connect: connect.then(|| "127.0.0.1:0".into()),
+        key_file: key_file.map(Path::to_path_buf),
+        insecure: key_file.is_none(),
+        broadcast_group: String::new(),
+        ..PeerConfig::default()
     };
     let mut base = RobotConfig {
         robot: String::new(),
@@ -135,7 +128,7 @@ pub fn loopback_configs(
         addr: e.skeeter.frames.clone(),
         timeout_ms: 2000,
     });
-    skeeter.peer = peer(0, Some(skeeter_mgr), None);
+    skeeter.peer = peer(true, false);
     skeeter.peer.priorities = [("scooter".to_owned(), 2), ("commander".to_owned(), 1)].into();
     let mut scooter = base.clone();
     scooter.robot = "scooter".into();
@@ -164,12 +157,42 @@ pub fn loopback_configs(
         dialect: CompassDialect::Kvh,
         deviation_deg: 0.0,
     });
-    scooter.peer = peer(1, Some(scooter_mgr), Some(skeeter_mgr));
+    scooter.peer = peer(true, true);
     let mut commander = base;
     commander.robot = "commander".into();
     commander.role = Role::Commander;
-    commander.peer = peer(2, None, None);
-    Ok([skeeter, scooter, commander])
+    commander.peer = peer(false, false);
+    let mut fleet = [skeeter, scooter, commander];
+    let [a, b, c] = &mut fleet;
+    assign_ports([a, b, c])?;
+    Ok(fleet)
+}
+
+/// Fresh loopback ports for Skeeter, Scooter and the commander of [`loopback_configs`]:
+/// both managers' `listen`, Scooter's `connect` to Skeeter's, and each one's broadcast
+/// `bind` with the other two as its `peers`. `ima demo` calls it again just before its
+/// robots bind, so that another process has milliseconds, not the seconds the devices take
+/// to open, to take a port picked and released here (it happened under a parallel test
+/// run: Scooter reached another demo's Skeeter, and its own could not bind).
+///
+/// # Errors
+/// No free port.
+pub fn assign_ports([skeeter, scooter, commander]: [&mut RobotConfig; 3]) -> Result<()> {
+    let (managers, bcast) = free_ports(2, 3)?;
+    let at = |p: u16| format!("127.0.0.1:{p}");
+    skeeter.peer.listen = at(managers[0]);
+    scooter.peer.listen = at(managers[1]);
+    scooter.peer.connect = Some(at(managers[0]));
+    for (i, c) in [skeeter, scooter, commander].into_iter().enumerate() {
+        c.peer.broadcast_bind = bcast.get(i).copied().map(at);
+        c.peer.broadcast_peers = bcast
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(_, p)| at(*p))
+            .collect();
+    }
+    Ok(())
 }
 
 /// The files [`write_configs`] writes into a directory.
