@@ -13,7 +13,7 @@
 //! Hook points elsewhere are marked `// record:` so they can be moved as one.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, PoisonError, RwLock};
@@ -79,9 +79,20 @@ pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
         crate::web::socket_addr(s)
     };
     addr.ok_or_else(|| {
+        // `ima replay rec.mcap` typed as `ima replay --foxglove rec.mcap`: the optional
+        // address took the file.
+        let file = s.ends_with(".mcap") || s.contains('/') || Path::new(s).is_file();
+        let hint = if file {
+            format!(
+                "; {s:?} looks like a file: name it before --foxglove, or give the address \
+                 with = (--foxglove={DEFAULT_FOXGLOVE})"
+            )
+        } else {
+            String::new()
+        };
         format!(
             "not an address such as {DEFAULT_FOXGLOVE}, localhost:8765, 0.0.0.0:8765 \
-             (every interface) or a port alone (8765)"
+             (every interface) or a port alone (8765){hint}"
         )
     })
 }
@@ -872,6 +883,18 @@ mod tests {
         ] {
             let e = foxglove_addr(bad).unwrap_err();
             assert!(e.contains("localhost:8765"), "{bad:?}: {e}");
+            assert!(!e.contains("looks like a file"), "{bad:?}: {e}");
+        }
+        // The file of `ima replay --foxglove rec.mcap`, taken as the address.
+        for file in ["rec.mcap", "/tmp/x"] {
+            let e = foxglove_addr(file).unwrap_err();
+            assert!(
+                e.ends_with(&format!(
+                    "; {file:?} looks like a file: name it before --foxglove, or give the \
+                     address with = (--foxglove=127.0.0.1:8765)"
+                )),
+                "{e}"
+            );
         }
     }
 

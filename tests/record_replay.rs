@@ -427,7 +427,6 @@ fn next<S: std::io::Read + std::io::Write>(
 fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
     let dir = scratch("live");
     use tokio_tungstenite::tungstenite::{self, Message, client::IntoClientRequest};
-    let port = common::mission::free_port(false);
     // The demo's log, shown if no scan comes (a failure in `.ci/run` said only "no scan").
     let log = dir.join("demo.log");
     let mut demo = common::Child(
@@ -436,8 +435,9 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
             // stream still flows when the client subscribes.
             .args(["demo", "--json", "--speed", "1", "--svg"])
             .arg(dir.join("live.svg"))
-            .arg("--foxglove")
-            .arg(format!("127.0.0.1:{port}"))
+            // Port 0: the server binds a free port itself and prints it (a port picked here
+            // and released could be taken by another test before the demo binds it).
+            .args(["--foxglove", "0"])
             .stdout(std::process::Stdio::null())
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
@@ -454,6 +454,23 @@ fn a_websocket_client_of_the_live_demo_gets_channels_and_a_scan() {
         )
     };
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let port: u16 = loop {
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        let printed = text
+            .split("live view for Foxglove on ws://127.0.0.1:")
+            .nth(1)
+            .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+            .and_then(|p| p.parse().ok());
+        if let Some(p) = printed {
+            break p;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "{}",
+            why("the live view's address was not printed")
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
     let stream = loop {
         match std::net::TcpStream::connect(("127.0.0.1", port)) {
             Ok(s) => break s,

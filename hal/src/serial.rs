@@ -20,8 +20,22 @@ pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
             io::ErrorKind::InvalidInput,
             format!("{path} is not a serial port ({what})"),
         ),
+        None if is_busy(&err) => io::Error::new(
+            io::ErrorKind::ResourceBusy,
+            format!(
+                "{path} is in use by another program (a port is opened by one program at a \
+                 time; `fuser {path}` names it): {err}"
+            ),
+        ),
         None => err,
     }
+}
+
+/// `EBUSY`, or the serial crate's "exclusive lock" refusal: another program holds the port
+/// (it took the exclusive lock, or this one could not take it).
+fn is_busy(err: &io::Error) -> bool {
+    const EBUSY: i32 = 16; // Linux, macOS and the BSDs
+    err.raw_os_error() == Some(EBUSY) || err.to_string().contains("exclusive lock")
 }
 
 /// `ENOTTY`, however the serial crate reported it.
@@ -37,6 +51,27 @@ fn is_not_a_tty(err: &io::Error) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A second program on a port (`ima scan` while another runs) was told only "Unable to
+    /// acquire exclusive lock on serial port".
+    #[test]
+    fn a_port_another_program_holds_is_named_busy() {
+        let locked = io::Error::other("Unable to acquire exclusive lock on serial port");
+        let e = explain_open_error("/dev/ttyUSB0", locked);
+        assert_eq!(e.kind(), io::ErrorKind::ResourceBusy);
+        assert_eq!(
+            e.to_string(),
+            "/dev/ttyUSB0 is in use by another program (a port is opened by one program at a \
+             time; `fuser /dev/ttyUSB0` names it): Unable to acquire exclusive lock on serial port"
+        );
+        let busy = explain_open_error("/dev/ttyUSB0", io::Error::from_raw_os_error(16));
+        assert!(
+            busy.to_string().contains("is in use by another program"),
+            "{busy}"
+        );
+        let absent = explain_open_error("/dev/ttyUSB9", io::Error::from_raw_os_error(2));
+        assert!(!absent.to_string().contains("in use"), "{absent}");
+    }
 
     #[test]
     fn files_and_non_terminals_are_named() {
