@@ -509,6 +509,40 @@ fn a_target_colour_two_objects_share_is_refused_at_once() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
+/// A target placed under a robot's start (Scooter's, here) is refused before anything starts:
+/// the demo ran its whole mission time (66 s of mission time at ×20) and ended with "1
+/// target(s) failed" after "Scooter lost".
+#[test]
+fn a_target_under_a_robots_start_is_refused_at_once() {
+    let d = scratch("under");
+    let world = d.join("under.toml");
+    let mut text = String::new();
+    for (name, x) in [("skeeter", 0.0), ("scooter", -3.0)] {
+        text += &format!("[[robot]]\nname = \"{name}\"\nx_m = {x}\ny_m = 0.0\ntheta_deg = 0.0\n");
+    }
+    text +=
+        "[[object]]\ncolor = \"red\"\nrgb = [220, 30, 30]\ncenter = [-3.1, 0.2]\nradius_m = 0.15\n";
+    std::fs::write(&world, text).unwrap();
+    let out = ima()
+        .args(["demo", "--targets", "red", "--world"])
+        .arg(&world)
+        .arg("--svg")
+        .arg(d.join("x.svg"))
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "target \"red\" at (-3.10, 0.20) lies under scooter's start at (-3.00, 0.00) \
+             (0.22 m apart; the robot is 0.30 m and the target 0.15 m in radius)"
+        ),
+        "{err}"
+    );
+    assert!(!d.join("x.svg").exists(), "the demo ran: {err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
 /// A robot of a world file whose name starts with a multi-byte character: `ima mock p2os`
 /// capitalised the name by byte and panicked ("byte index 1 is not a char boundary"). It
 /// capitalises by character now (`Émile`, which the driver shows as `??mile`: P2OS names

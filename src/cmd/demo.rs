@@ -134,6 +134,27 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             at.len(),
             at.join(" and ")
         );
+        // A target under a robot's start footprint: Skeeter's cameras see the robot, not the
+        // target, and Scooter cannot drive to where it stands; the mission ran to its timeout
+        // ("Scooter lost") without saying why.
+        let under = world.with(|w| {
+            let o = w.objects().iter().find(|o| &o.color == t)?;
+            w.robots().iter().find_map(|r| {
+                let s = r.spec();
+                let gap = (o.center[0] - s.x_m).hypot(o.center[1] - s.y_m);
+                (gap < o.radius_m + s.radius_m).then(|| {
+                    format!(
+                        "target {t:?} at ({:.2}, {:.2}) lies under {}'s start at ({:.2}, \
+                         {:.2}) ({gap:.2} m apart; the robot is {:.2} m and the target {:.2} m \
+                         in radius): no robot could see it or drive to it",
+                        o.center[0], o.center[1], s.name, s.x_m, s.y_m, s.radius_m, o.radius_m
+                    )
+                })
+            })
+        });
+        if let Some(why) = under {
+            anyhow::bail!(why);
+        }
     }
     // The process's one clock: the served devices' models and every driver run on it.
     let clock = ima_hal::time::TokioClock::shared();
