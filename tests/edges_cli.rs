@@ -510,8 +510,8 @@ fn a_target_colour_two_objects_share_is_refused_at_once() {
 }
 
 /// A target placed under a robot's start (Scooter's, here) is refused before anything starts:
-/// the demo ran its whole mission time (66 s of mission time at ×20) and ended with "1
-/// target(s) failed" after "Scooter lost".
+/// the demo ran until Skeeter reported "Scooter lost" (94 s of mission time at ×20), then
+/// ended with "1 target(s) failed".
 #[test]
 fn a_target_under_a_robots_start_is_refused_at_once() {
     let d = scratch("under");
