@@ -933,3 +933,31 @@ fn stray_bytes_on_stdin_do_not_deafen_the_commander_to_a_stop() {
         "{hint}"
     );
 }
+
+/// A target the commander gives up on (nobody answers: Skeeter is down) is named with its
+/// reason in the text summary. It said only "0 target(s) done, 1 failed" (after 18 s at ×10
+/// on a fleet whose Skeeter was not running), the reason being in `--json` alone.
+#[test]
+fn a_failed_target_is_named_with_its_reason() {
+    let dir = temp_dir("cmdreason");
+    let cfg = commander_config(&dir, "insecure = true\n", "9");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    std::fs::write(&cfg, format!("{text}[agent]\ntarget_timeout_s = 0.5\n")).unwrap();
+    let out = ima()
+        .args(["commander", "--config"])
+        .arg(&cfg)
+        .args(["--targets", "red", "--wait-timeout", "0"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(1), "{stdout}{stderr}");
+    assert!(
+        stdout.ends_with("0 target(s) done, 1 failed\n  red: no word from Skeeter: given up\n"),
+        "{stdout}"
+    );
+    assert!(stderr.contains("1 target(s) failed"), "{stderr}");
+}

@@ -739,6 +739,13 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         ))?;
     } else {
         crate::safety::out_line(format_args!("{done} target(s) done, {failed} failed"))?;
+        // Why each failed, when the commander knows (the JSON summary carries it too): a
+        // bare "1 failed" after minutes left the operator to guess that Skeeter was down.
+        for o in outcomes.iter().filter(|o| o.state != TargetState::Done) {
+            if let Some(why) = &o.reason {
+                crate::safety::out_line(format_args!("  {}: {why}", o.target))?;
+            }
+        }
     }
     match finished.interrupted {
         Some(true) => anyhow::bail!("interrupted; a fleet stop was sent"),

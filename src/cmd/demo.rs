@@ -597,7 +597,7 @@ fn summarise(
     for (o, span) in outcomes.iter().zip(mission_spans(outcomes, log)) {
         let Some((t0, t1)) = span else {
             rows.push(json!({"target": o.target, "state": o.state, "time_s": null,
-                "distance_m": null, "d_min_m": null, "performance": 0.0}));
+                "distance_m": null, "d_min_m": null, "performance": 0.0, "reason": o.reason}));
             continue;
         };
         let d = scooter.length_between(t0, t1);
@@ -616,7 +616,8 @@ fn summarise(
         let end_gap = gap_at(t1);
         rows.push(
             json!({"target": o.target, "state": o.state, "time_s": t1 - t0,
-            "distance_m": d, "d_min_m": d_min, "performance": f, "end_gap_m": end_gap}),
+            "distance_m": d, "d_min_m": d_min, "performance": f, "end_gap_m": end_gap,
+            "reason": o.reason}),
         );
     }
     let done = outcomes
@@ -702,6 +703,12 @@ fn summarise(
                 String::new()
             }
         )?;
+        // Why a target failed, where the commander knows (it gave up, or was cancelled).
+        for o in outcomes.iter().filter(|o| o.state != TargetState::Done) {
+            if let Some(why) = &o.reason {
+                outln!("  {}: {why}", o.target)?;
+            }
+        }
         for (robot, c) in ["skeeter", "scooter"].iter().zip(counts) {
             outln!("{robot:<8} drivers: {}", describe_counts(c))?;
         }
