@@ -244,7 +244,19 @@ pub(crate) fn bind_error(
     addr: impl core::fmt::Display,
 ) -> impl FnOnce(std::io::Error) -> NetError {
     let context = format!("binding {what} to {addr}");
-    move |e| NetError::Io(std::io::Error::new(e.kind(), format!("{context}: {e}")))
+    move |e| {
+        // The usual cause on a robot: the same robot (or configuration) started twice.
+        let hint = if e.kind() == std::io::ErrorKind::AddrInUse {
+            " (another program listens there: is this robot already running? `ss -lntup` \
+             names it)"
+        } else {
+            ""
+        };
+        NetError::Io(std::io::Error::new(
+            e.kind(),
+            format!("{context}: {e}{hint}"),
+        ))
+    }
 }
 
 /// A random `u64` from the operating system (sender IDs, client-ID seeds); falls back to a
@@ -281,4 +293,36 @@ pub fn unix_micros() -> u64 {
         .map(|d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
         .unwrap_or(1)
         .max(1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A port in use (the robot started twice) names the address and says what to check;
+    /// other bind errors only name the address.
+    #[test]
+    fn a_bind_error_names_the_address_and_a_port_in_use_says_why() {
+        let in_use = std::io::Error::from(std::io::ErrorKind::AddrInUse);
+        let e = bind_error("the manager's request channel", "127.0.0.1:7600")(in_use);
+        let text = e.to_string();
+        assert!(
+            text.contains("binding the manager's request channel to 127.0.0.1:7600: "),
+            "{text}"
+        );
+        assert!(
+            text.ends_with(
+                " (another program listens there: is this robot already running? `ss -lntup` \
+                 names it)"
+            ),
+            "{text}"
+        );
+        let denied = std::io::Error::from(std::io::ErrorKind::PermissionDenied);
+        let text = bind_error("the broadcast channel", "0.0.0.0:80")(denied).to_string();
+        assert!(
+            text.contains("binding the broadcast channel to 0.0.0.0:80"),
+            "{text}"
+        );
+        assert!(!text.contains("already running"), "{text}");
+    }
 }
