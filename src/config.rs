@@ -519,22 +519,30 @@ impl RobotConfig {
         Ok(())
     }
 
-    /// No two serial devices on one port. A copied device section whose `port` was not
-    /// changed would otherwise fail only when the second device opened it, after the first
-    /// had connected, as "Device or resource busy", which reads as another program holding
-    /// the port. Paths that name one device through a link (`/dev/serial/by-id/…`) are
-    /// compared where they exist.
+    /// The role's serial devices each name a port of their own. A copied device section
+    /// whose `port` was not changed would otherwise fail only when the second device opened
+    /// it, after the first had connected, as "Device or resource busy", which reads as
+    /// another program holding the port. Paths that name one device through a link
+    /// (`/dev/serial/by-id/…`) are compared where they exist. Sections the role does not open
+    /// (a laser in Skeeter's configuration) are not compared.
     fn check_ports(&self) -> Result<()> {
         let d = &self.devices;
-        let ports = [
-            ("base", d.base.as_ref().map(|b| &b.port)),
-            ("video_mux", d.video_mux.as_ref().map(|m| &m.port)),
-            ("laser", d.laser.as_ref().map(|l| &l.port)),
-            ("compass", d.compass.as_ref().map(|c| &c.port)),
-        ];
+        let base = ("base", d.base.as_ref().map(|b| &b.port));
+        let ports = match self.role {
+            Role::Skeeter => vec![base, ("video_mux", d.video_mux.as_ref().map(|m| &m.port))],
+            Role::Scooter => vec![
+                base,
+                ("laser", d.laser.as_ref().map(|l| &l.port)),
+                ("compass", d.compass.as_ref().map(|c| &c.port)),
+            ],
+            Role::Commander => Vec::new(),
+        };
         let mut seen: Vec<(&str, &str, std::path::PathBuf)> = Vec::new();
         for (what, port) in ports {
             let Some(port) = port else { continue };
+            if port.trim().is_empty() {
+                bail!("devices.{what}.port is empty: name the serial port (e.g. /dev/ttyUSB0)");
+            }
             let path = std::fs::canonicalize(port).unwrap_or_else(|_| port.into());
             if let Some((other, other_port, _)) = seen.iter().find(|(_, _, p)| *p == path) {
                 let same = if other_port == port {
@@ -722,19 +730,32 @@ mod tests {
             "devices.laser.port and devices.compass.port both name /dev/ttyS1: each device \
              needs its own serial port"
         );
+        // A section the role does not open is not compared (Skeeter has no laser).
+        let skeeter = example("skeeter.toml");
+        let laser = "\n[devices.laser]\nport = \"/dev/ttyS0\"\nbaud = 9600\n";
+        RobotConfig::from_toml_str(&format!("{skeeter}{laser}")).unwrap();
+        let empty = sc.replace("\"/dev/ttyS2\"", "\"\"");
+        let e = RobotConfig::from_toml_str(&empty).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("devices.compass.port is empty"),
+            "{e:#}"
+        );
         // One device under two names (a by-id link and the node it points to).
-        let dir = std::env::temp_dir().join(format!("ima-ports-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let (node, link) = (dir.join("ttyUSB0"), dir.join("by-id-laser"));
-        std::fs::write(&node, b"").unwrap();
-        let _ = std::fs::remove_file(&link);
-        std::os::unix::fs::symlink(&node, &link).unwrap();
-        let aliased = sc
-            .replace("/dev/ttyS1", link.to_str().unwrap())
-            .replace("/dev/ttyS2", node.to_str().unwrap());
-        let e = format!("{:#}", RobotConfig::from_toml_str(&aliased).unwrap_err());
-        std::fs::remove_dir_all(&dir).unwrap();
-        assert!(e.contains(" are one device)"), "{e}");
+        #[cfg(unix)]
+        {
+            let dir = std::env::temp_dir().join(format!("ima-ports-{}", std::process::id()));
+            std::fs::create_dir_all(&dir).unwrap();
+            let (node, link) = (dir.join("ttyUSB0"), dir.join("by-id-laser"));
+            std::fs::write(&node, b"").unwrap();
+            let _ = std::fs::remove_file(&link);
+            std::os::unix::fs::symlink(&node, &link).unwrap();
+            let aliased = sc
+                .replace("/dev/ttyS1", link.to_str().unwrap())
+                .replace("/dev/ttyS2", node.to_str().unwrap());
+            let e = format!("{:#}", RobotConfig::from_toml_str(&aliased).unwrap_err());
+            std::fs::remove_dir_all(&dir).unwrap();
+            assert!(e.contains(" are one device)"), "{e}");
+        }
         // A mock run opens no port: its placeholders may repeat.
         let mock = copied.replace("mock = false", "mock = true");
         assert!(RobotConfig::from_toml_str(&mock).is_ok());

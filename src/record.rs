@@ -72,6 +72,10 @@ pub enum ImageFormat {
 /// # Errors
 /// A message naming the accepted forms.
 pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
+    // The URL this program prints for the live view (`ws://127.0.0.1:8765`) is taken too.
+    let s = s.trim();
+    let s = s.strip_prefix("ws://").unwrap_or(s);
+    let s = s.strip_suffix('/').unwrap_or(s);
     let port_alone = s.trim().bytes().all(|b| b.is_ascii_digit());
     let addr = if port_alone {
         crate::web::socket_addr(&format!("localhost:{}", s.trim()))
@@ -84,8 +88,8 @@ pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
         let file = s.ends_with(".mcap") || s.contains('/') || Path::new(s).is_file();
         let hint = if file {
             format!(
-                "; {s:?} looks like a file: name it before --foxglove, or give the address \
-                 with = (--foxglove={DEFAULT_FOXGLOVE})"
+                "; {s:?} looks like a file: a recording to replay goes before --foxglove \
+                 (`ima replay {s} --foxglove`), a file to write is `--record {s}`"
             )
         } else {
             String::new()
@@ -890,12 +894,18 @@ mod tests {
             let e = foxglove_addr(file).unwrap_err();
             assert!(
                 e.ends_with(&format!(
-                    "; {file:?} looks like a file: name it before --foxglove, or give the \
-                     address with = (--foxglove=127.0.0.1:8765)"
+                    "; {file:?} looks like a file: a recording to replay goes before \
+                     --foxglove (`ima replay {file} --foxglove`), a file to write is \
+                     `--record {file}`"
                 )),
                 "{e}"
             );
         }
+        // The URL the live view is announced with.
+        assert_eq!(ok("ws://127.0.0.1:8766"), "127.0.0.1:8766");
+        assert_eq!(ok("ws://localhost:8766/"), "127.0.0.1:8766");
+        let e = foxglove_addr("ws://nowhere").unwrap_err();
+        assert!(!e.contains("looks like a file"), "{e}");
     }
 
     #[test]

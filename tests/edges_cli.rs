@@ -534,8 +534,8 @@ fn a_target_under_a_robots_start_is_refused_at_once() {
     assert!(!out.status.success(), "{err}");
     assert!(
         err.contains(
-            "target \"red\" at (-3.10, 0.20) lies under scooter's start at (-3.00, 0.00) \
-             (0.22 m apart; the robot is 0.30 m and the target 0.15 m in radius)"
+            "scooter starts at (-3.00, 0.00) overlapping the red object at (-3.10, 0.20) (0.22 m \
+             from it; it needs 0.45 m)"
         ),
         "{err}"
     );

@@ -5,8 +5,9 @@ use std::io;
 /// Turn the error of opening `path` as a serial port into one that names the problem when
 /// the path is not a serial port at all: a regular file, a directory, or a device that is no
 /// terminal (`/dev/null`) fails the terminal set-up with the cryptic `ENOTTY` ("Not a
-/// typewriter"); this says `PATH is not a serial port (a regular file)` instead. Other errors
-/// (no such file, permission denied, busy) are returned unchanged.
+/// typewriter"); this says `PATH is not a serial port (a regular file)` instead. A port another
+/// program holds (`EBUSY`, or the serial crate's exclusive lock refused) says so, and how to
+/// find that program. Other errors (no such file, permission denied) are returned unchanged.
 #[must_use]
 pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
     let what = match std::fs::metadata(path) {
@@ -32,10 +33,14 @@ pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
 }
 
 /// `EBUSY`, or the serial crate's "exclusive lock" refusal: another program holds the port
-/// (it took the exclusive lock, or this one could not take it).
+/// (it took the exclusive lock, or this one could not take it). The serial crate reports
+/// `EBUSY` from `open` by its text alone ("Device or resource busy", the errno dropped).
 fn is_busy(err: &io::Error) -> bool {
     const EBUSY: i32 = 16; // Linux, macOS and the BSDs
-    err.raw_os_error() == Some(EBUSY) || err.to_string().contains("exclusive lock")
+    let msg = err.to_string();
+    err.raw_os_error() == Some(EBUSY)
+        || msg.contains("exclusive lock")
+        || msg.contains("Device or resource busy")
 }
 
 /// `ENOTTY`, however the serial crate reported it.
@@ -63,6 +68,14 @@ mod tests {
             e.to_string(),
             "/dev/ttyUSB0 is in use by another program (a port is opened by one program at a \
              time; `fuser /dev/ttyUSB0` names it): Unable to acquire exclusive lock on serial port"
+        );
+        // As the serial crate reports EBUSY from `open`: its text, no errno.
+        let held = io::Error::new(io::ErrorKind::NotFound, "Device or resource busy");
+        let busy = explain_open_error("/dev/ttyUSB0", held);
+        assert_eq!(busy.kind(), io::ErrorKind::ResourceBusy);
+        assert!(
+            busy.to_string().contains("is in use by another program"),
+            "{busy}"
         );
         let busy = explain_open_error("/dev/ttyUSB0", io::Error::from_raw_os_error(16));
         assert!(

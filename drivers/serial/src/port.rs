@@ -99,11 +99,13 @@ mod async_io {
 /// Open a serial port for the async runner: `baud` 8N1, no flow control (a probe may change
 /// the rate later), with its receive buffer emptied.
 ///
-/// Bytes the port held before it was opened are stale: a device that talks by itself (a
-/// compass's NMEA stream) may have filled the buffer of a USB adapter, or of a pty whose
-/// other end a mock keeps open, long before this program started, and each of them would
+/// Bytes the system held for the port before it was opened are stale: a device that talks
+/// by itself (a compass's NMEA stream) may have filled the kernel's receive queue (a pty
+/// whose other end a mock keeps open does) long before this program started, and each would
 /// become a reading stamped now. Without the flush, `ima compass` opened 20 s after
-/// `ima mock compass` read 210 stale headings before the first fresh one.
+/// `ima mock compass` read 210 stale headings before the first fresh one. (What a USB
+/// adapter's own chip still holds arrives after the flush; a built-in port receives nothing
+/// while it is closed.)
 ///
 /// # Errors
 /// A path that is not a serial port (a regular file, `/dev/null`) fails with

@@ -27,9 +27,10 @@ pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
     Ok(SharedWorld::new(world))
 }
 
-/// A robot that starts overlapping another robot, a round obstacle or a wall is refused (no
-/// robot can start inside something; `ima demo` with Scooter 0.20 m from Skeeter failed its
-/// mission without a reason, Scooter having driven 0.00 m).
+/// A robot that starts overlapping another robot, a round obstacle, a coloured object or a
+/// wall is refused (no robot can start inside something; `ima demo` with Scooter 0.20 m from
+/// Skeeter failed its mission without a reason, Scooter having driven 0.00 m, and with a
+/// target under Scooter's start it ran until Skeeter said "Scooter lost").
 ///
 /// # Errors
 /// The first overlap, naming both and the distances.
@@ -57,6 +58,12 @@ pub fn check_starts(w: &World) -> Result<()> {
         for c in w.circles() {
             let what = format!("the obstacle at {}", at(c.center));
             overlap(what, dist(p, c.center), s.radius_m + c.radius_m)?;
+        }
+        // Coloured objects are solid too (the laser and the cameras see them); a target under
+        // a robot could be neither seen nor reached.
+        for o in w.objects() {
+            let what = format!("the {} object at {}", o.color, at(o.center));
+            overlap(what, dist(p, o.center), s.radius_m + o.radius_m)?;
         }
         for wall in w.walls() {
             let what = format!("the wall from {} to {}", at(wall.from), at(wall.to));
@@ -195,6 +202,16 @@ mod tests {
             err(circle),
             "scooter starts at (-3.00, 0.00) overlapping the obstacle at (-3.00, 0.50) (0.50 m \
              from it; it needs 0.60 m)"
+        );
+        let object = format!(
+            "{}[[object]]\ncolor = \"red\"\nrgb = [220, 30, 30]\ncenter = [-3.1, 0.2]\n\
+             radius_m = 0.15\n",
+            robots(-3.0)
+        );
+        assert_eq!(
+            err(object),
+            "scooter starts at (-3.00, 0.00) overlapping the red object at (-3.10, 0.20) (0.22 m \
+             from it; it needs 0.45 m)"
         );
         let wall = format!(
             "{}[[wall]]\nfrom = [-5.0, 0.1]\nto = [5.0, 0.1]\n",

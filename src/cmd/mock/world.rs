@@ -49,6 +49,9 @@ pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
 /// picks could be the same port, and two of the fleet's sockets then fail to bind). They are
 /// released on return; another process may take one meanwhile, which only makes the later
 /// bind fail with a clear error.
+///
+/// # Errors
+/// No free port (the system's ephemeral ports are exhausted).
 pub fn free_ports(tcp: usize, udp: usize) -> Result<(Vec<u16>, Vec<u16>)> {
     let listeners = (0..tcp)
         .map(|_| std::net::TcpListener::bind("127.0.0.1:0"))
