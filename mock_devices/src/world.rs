@@ -993,6 +993,101 @@ fn invalid(item: String, field: &'static str) -> WorldError {
 }
 
 /// Distance along a unit ray to a segment, if it crosses it ahead (t ≥ 0).
+/// A robot that starts overlapping something: see [`World::start_overlap`]. Its `Display` is
+/// the sentence a user reads, e.g. `scooter starts at (-3.00, 0.00) overlapping the red object
+/// at (-3.10, 0.20) (0.22 m from it; it needs 0.45 m)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StartOverlap {
+    /// The robot.
+    pub robot: String,
+    /// Its start, `[x, y]` metres.
+    pub at: [f64; 2],
+    /// What it overlaps, in words (`scooter at (0.20, 0.00)`, `the wall from … to …`).
+    pub what: String,
+    /// The distance from the robot's centre to the other shape (its centre, or the wall).
+    pub gap_m: f64,
+    /// The distance the two would need to be clear of each other.
+    pub needs_m: f64,
+}
+
+impl core::fmt::Display for StartOverlap {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "{} starts at {} overlapping {} ({:.2} m from it; it needs {:.2} m)",
+            self.robot,
+            point_text(self.at),
+            self.what,
+            self.gap_m,
+            self.needs_m
+        )
+    }
+}
+
+/// `(x.xx, y.yy)`.
+fn point_text(p: [f64; 2]) -> String {
+    format!("({:.2}, {:.2})", p[0], p[1])
+}
+
+impl World {
+    /// The first robot whose start overlaps another robot, a round obstacle, a coloured
+    /// object or a wall, if any. The world itself lets robots pass through everything; a
+    /// mission that starts so could only fail (nothing can be seen or reached from inside it).
+    #[must_use]
+    pub fn start_overlap(&self) -> Option<StartOverlap> {
+        let dist = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
+        let start = |s: &RobotSpec| [s.x_m, s.y_m];
+        for (i, r) in self.robots.iter().enumerate() {
+            let s = &r.spec;
+            let p = start(s);
+            let others = self.robots.iter().skip(i + 1).map(|o| {
+                let o = &o.spec;
+                let what = format!("{} at {}", o.name, point_text(start(o)));
+                (what, dist(p, start(o)), s.radius_m + o.radius_m)
+            });
+            let circles = self.circles.iter().map(|c| {
+                let what = format!("the obstacle at {}", point_text(c.center));
+                (what, dist(p, c.center), s.radius_m + c.radius_m)
+            });
+            let objects = self.objects.iter().map(|o| {
+                let what = format!("the {} object at {}", o.color, point_text(o.center));
+                (what, dist(p, o.center), s.radius_m + o.radius_m)
+            });
+            let walls = self.walls.iter().map(|w| {
+                let what = format!(
+                    "the wall from {} to {}",
+                    point_text(w.from),
+                    point_text(w.to)
+                );
+                (what, segment_distance(p, w.from, w.to), s.radius_m)
+            });
+            let mut all = others.chain(circles).chain(objects).chain(walls);
+            if let Some((what, gap_m, needs_m)) = all.find(|(_, gap, needs)| gap < needs) {
+                return Some(StartOverlap {
+                    robot: s.name.clone(),
+                    at: p,
+                    what,
+                    gap_m,
+                    needs_m,
+                });
+            }
+        }
+        None
+    }
+}
+
+/// The distance from `p` to the segment from `a` to `b`.
+fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = dx * dx + dy * dy;
+    let t = if len2 > 0.0 {
+        (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
+}
+
 fn ray_segment(o: (f64, f64), d: (f64, f64), a: [f64; 2], b: [f64; 2]) -> Option<f64> {
     let [ax, ay] = a;
     let [bx, by] = b;
@@ -1265,6 +1360,14 @@ pub fn gaussian(rng: &mut impl Rng) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn segment_distance_to_the_segment_its_ends_and_a_point() {
+        assert!((segment_distance([0.0, 1.0], [-1.0, 0.0], [1.0, 0.0]) - 1.0).abs() < 1e-12);
+        assert!((segment_distance([3.0, 4.0], [0.0, 0.0], [0.0, 0.0]) - 5.0).abs() < 1e-12);
+        let corner = segment_distance([2.0, 1.0], [-1.0, 0.0], [1.0, 0.0]);
+        assert!((corner - 2f64.sqrt()).abs() < 1e-12);
+    }
     use rand::SeedableRng;
     use rand::rngs::SmallRng;
 

@@ -741,10 +741,8 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
         crate::safety::out_line(format_args!("{done} target(s) done, {failed} failed"))?;
         // Why each failed, when the commander knows (the JSON summary carries it too): a
         // bare "1 failed" after minutes left the operator to guess that Skeeter was down.
-        for o in outcomes.iter().filter(|o| o.state != TargetState::Done) {
-            if let Some(why) = &o.reason {
-                crate::safety::out_line(format_args!("  {}: {why}", o.target))?;
-            }
+        for line in super::failure_lines(outcomes) {
+            crate::safety::out_line(format_args!("{line}"))?;
         }
     }
     match finished.interrupted {

@@ -687,10 +687,8 @@ fn summarise(
             }
         )?;
         // Why a target failed, where the commander knows (it gave up, or was cancelled).
-        for o in outcomes.iter().filter(|o| o.state != TargetState::Done) {
-            if let Some(why) = &o.reason {
-                outln!("  {}: {why}", o.target)?;
-            }
+        for line in super::failure_lines(outcomes) {
+            outln!("{line}")?;
         }
         for (robot, c) in ["skeeter", "scooter"].iter().zip(counts) {
             outln!("{robot:<8} drivers: {}", describe_counts(c))?;

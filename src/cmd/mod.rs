@@ -92,6 +92,19 @@ impl WebArgs {
     }
 }
 
+/// `  COLOUR: why` for each failed target whose reason the commander knows (it gave up, it
+/// was cancelled, interrupted): what the text summaries of `ima commander` and `ima demo`
+/// print under their counts.
+pub fn failure_lines(
+    outcomes: &[ima_agents::runtime::commander::TargetOutcome],
+) -> impl Iterator<Item = String> + '_ {
+    use ima_agents::runtime::commander::TargetState;
+    outcomes
+        .iter()
+        .filter(|o| o.state != TargetState::Done)
+        .filter_map(|o| Some(format!("  {}: {}", o.target, o.reason.as_ref()?)))
+}
+
 /// Checks that every target colour is one of `known`; the error lists the known colours
 /// (`what` says where they come from, e.g. "the world's objects").
 ///

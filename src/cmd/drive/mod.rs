@@ -104,9 +104,12 @@ fn check_options(args: &DriveArgs) -> Result<Option<ima_p2os::RobotParams>> {
         Robot::AtrvJr => &[("--params", args.params.is_some(), "--robot p2at")],
     };
     if let Some((flag, _, robot)) = other.iter().find(|(_, given, _)| *given) {
+        // The name clap gives the value (every variant has one).
+        let name = args.robot.to_possible_value();
         anyhow::bail!(
             "{flag} applies to {robot} only; this drive is for --robot {}",
-            args.robot.name()
+            name.as_ref()
+                .map_or("?", clap::builder::PossibleValue::get_name)
         );
     }
     args.params
@@ -117,16 +120,6 @@ fn check_options(args: &DriveArgs) -> Result<Option<ima_p2os::RobotParams>> {
                 .with_context(|| format!("unknown parameter table {name:?} (p2at, p2at8, p2dx)"))
         })
         .transpose()
-}
-
-impl Robot {
-    /// The robot's name on the command line.
-    fn name(self) -> &'static str {
-        match self {
-            Self::P2at => "p2at",
-            Self::AtrvJr => "atrv-jr",
-        }
-    }
 }
 
 async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Result<()> {

@@ -33,56 +33,12 @@ pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
 /// target under Scooter's start it ran until Skeeter said "Scooter lost").
 ///
 /// # Errors
-/// The first overlap, naming both and the distances.
+/// The first overlap ([`World::start_overlap`]), naming both and the distances.
 pub fn check_starts(w: &World) -> Result<()> {
-    let at = |p: [f64; 2]| format!("({:.2}, {:.2})", p[0], p[1]);
-    let dist = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
-    let start = |s: &ima_mock_devices::world::RobotSpec| [s.x_m, s.y_m];
-    let robots = w.robots();
-    for (i, r) in robots.iter().enumerate() {
-        let s = r.spec();
-        let p = start(s);
-        let overlap = |what: String, gap: f64, reach: f64| {
-            anyhow::ensure!(
-                gap >= reach,
-                "{} starts at {} overlapping {what} ({gap:.2} m from it; it needs {reach:.2} m)",
-                s.name,
-                at(p)
-            );
-            Ok(())
-        };
-        for other in robots.iter().skip(i + 1).map(|r| r.spec()) {
-            let what = format!("{} at {}", other.name, at(start(other)));
-            overlap(what, dist(p, start(other)), s.radius_m + other.radius_m)?;
-        }
-        for c in w.circles() {
-            let what = format!("the obstacle at {}", at(c.center));
-            overlap(what, dist(p, c.center), s.radius_m + c.radius_m)?;
-        }
-        // Coloured objects are solid too (the laser and the cameras see them); a target under
-        // a robot could be neither seen nor reached.
-        for o in w.objects() {
-            let what = format!("the {} object at {}", o.color, at(o.center));
-            overlap(what, dist(p, o.center), s.radius_m + o.radius_m)?;
-        }
-        for wall in w.walls() {
-            let what = format!("the wall from {} to {}", at(wall.from), at(wall.to));
-            overlap(what, segment_distance(p, wall.from, wall.to), s.radius_m)?;
-        }
+    match w.start_overlap() {
+        Some(o) => Err(anyhow::anyhow!(o.to_string())),
+        None => Ok(()),
     }
-    Ok(())
-}
-
-/// The distance from `p` to the segment from `a` to `b`.
-fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
-    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-    let len2 = dx * dx + dy * dy;
-    let t = if len2 > 0.0 {
-        (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
 }
 
 /// The robot `name` of `world`; the error lists the robots the world has.
@@ -222,9 +178,5 @@ mod tests {
             "skeeter starts at (0.00, 0.00) overlapping the wall from (-5.00, 0.10) to (5.00, \
              0.10) (0.10 m from it; it needs 0.30 m)"
         );
-        assert!((segment_distance([0.0, 1.0], [-1.0, 0.0], [1.0, 0.0]) - 1.0).abs() < 1e-12);
-        assert!((segment_distance([3.0, 4.0], [0.0, 0.0], [0.0, 0.0]) - 5.0).abs() < 1e-12);
-        let corner = segment_distance([2.0, 1.0], [-1.0, 0.0], [1.0, 0.0]);
-        assert!((corner - 2f64.sqrt()).abs() < 1e-12);
     }
 }
