@@ -409,7 +409,14 @@ fn world_markers(world: &ima_mock_devices::world::SharedWorld) {
 }
 
 fn print_live(world_t: f64, e: &Event) {
-    let text = match &e.kind {
+    if let Some(text) = live_line(e) {
+        eprintln!("[{world_t:7.1}s] {text}");
+    }
+}
+
+/// The live console's line for an event, if it has one.
+fn live_line(e: &Event) -> Option<String> {
+    Some(match &e.kind {
         EventKind::Target(t) => format!("TARGET {:<7} {}", t.target, t.state),
         EventKind::Behaviour(b) => format!("{:<8} → {b}", e.robot),
         EventKind::Say(said) => {
@@ -420,15 +427,14 @@ fn print_live(world_t: f64, e: &Event) {
         }
         EventKind::Connected { .. } => format!("{:<8} up", e.robot),
         EventKind::Waiting(ima_agents::runtime::events::Waiting::For(r)) => {
-            format!("{:<8} waits for {r:?}", e.robot)
+            format!("{:<8} waits for {}", e.robot, r.join(", "))
         }
         EventKind::Peer(PeerNote::Granted {
             manager: Some(_), ..
         }) => format!("{:<8} granted Skeeter's ses source", e.robot),
         EventKind::AuthFailure(text) => format!("warning: {text}"),
-        _ => return,
-    };
-    eprintln!("[{world_t:7.1}s] {text}");
+        _ => return None,
+    })
 }
 
 /// The drivers' counters in words.
@@ -737,6 +743,23 @@ mod tests {
             ended_s: 0.0,
             reason: None,
         }
+    }
+
+    /// The console said `commander waits for ["skeeter"]` (a Rust list): names, in words.
+    #[test]
+    fn the_live_console_names_whom_the_commander_waits_for() {
+        use ima_agents::runtime::events::Waiting;
+        let e = Event {
+            t_s: 1.0,
+            robot: "commander".into(),
+            kind: EventKind::Waiting(Waiting::For(vec!["skeeter".into(), "scooter".into()])),
+        };
+        assert_eq!(
+            live_line(&e).as_deref(),
+            Some("commander waits for skeeter, scooter")
+        );
+        let (_, t) = target(2.0, "red", "sent");
+        assert_eq!(live_line(&t).as_deref(), Some("TARGET red     sent"));
     }
 
     /// A target colour two objects share is refused, naming both; the thesis arena passes.

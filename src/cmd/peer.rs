@@ -535,7 +535,7 @@ async fn client(a: &ClientArgs) -> Result<()> {
             Some(SubscriptionEvent::Closed { reason }) => {
                 let r = end_reason_json(&reason);
                 line(&json!({ "event": "closed", "reason": r }))?;
-                bail!("source {} ended: {r}", a.request);
+                bail!("source {} ended: {reason}", a.request);
             }
             None => bail!("source {} ended", a.request),
         }

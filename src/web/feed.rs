@@ -153,8 +153,8 @@ pub fn outcome_text(o: &Outcome) -> String {
     match o {
         Outcome::Granted => "granted".to_owned(),
         Outcome::Pending => "pending".to_owned(),
-        Outcome::Denied(r) => format!("denied: {r:?}"),
-        Outcome::Revoked(r) => format!("revoked: {r:?}"),
+        Outcome::Denied(r) => format!("denied: {r}"),
+        Outcome::Revoked(r) => format!("revoked: {r}"),
         Outcome::Withdrawn => "withdrawn".to_owned(),
     }
 }

@@ -635,7 +635,10 @@ fn peer_status_carries_link_health_priorities_and_outcomes() {
     assert_eq!(c["requests"][0]["robot_priority"], 1);
     assert_eq!(c["requests"][0]["request_priority"], 4);
     assert_eq!(c["requests"][0]["granted"], true);
-    assert_eq!(c["recent"][0]["outcome"], "denied: UnknownSource");
+    assert_eq!(
+        c["recent"][0]["outcome"],
+        "denied: the manager has no such source"
+    );
     assert_eq!(c["recent"][1]["outcome"], "granted");
     assert_eq!(c["recent"][1]["at_ms"], 900);
     let k = &m["client"];
@@ -662,7 +665,7 @@ fn peer_status_carries_link_health_priorities_and_outcomes() {
 #[test]
 fn peer_status_json_is_unchanged() {
     use ima_agents::peer::net::BroadcastStats;
-    let golden = r#"{"address":"127.0.0.1:7400","client":{"grants":2,"link":{"client":99,"frames_received":50,"heartbeats_received":30,"heartbeats_sent":31,"last_seen_ms":20,"open_ms":3000,"registration":"registered","rejected":{"auth_failures":0,"bad_frames":0,"bad_mac":0,"bad_magic":0,"bad_version":0,"malformed":0,"oversize":0,"replay":0,"replayed":0,"truncated":0},"requests":[{"granted":true,"source":"ses"}]},"manager":"127.0.0.1:7400","outcome":"granted","priority":4,"retries":1,"samples":12,"source":"ses"},"clients":[{"client":99,"granted":["ses"],"recent":[{"at_ms":500,"outcome":"denied: UnknownSource","request_priority":4,"robot_priority":1,"source":"ses"},{"at_ms":900,"outcome":"granted","request_priority":4,"robot_priority":1,"source":"ses"}],"requesting":[],"requests":[{"granted":true,"request_priority":4,"robot_priority":1,"source":"ses"}],"robot":"scooter","session":"127.0.0.1:5000"}],"closed_bad":0,"data_bad_tickets":0,"data_rejected":{"auth_failures":0,"bad_frames":0,"bad_mac":0,"bad_magic":0,"bad_version":0,"malformed":0,"oversize":0,"replay":0,"replayed":0,"truncated":0},"data_sessions":0,"lagged_samples":0,"links":[{"addr":"127.0.0.1:5000","frames_received":40,"heartbeats_received":31,"heartbeats_sent":30,"last_seen_ms":80,"open_ms":3000,"robots":["scooter"],"session":7}],"lost":0,"rejected":{"auth_failures":3,"bad_frames":2,"bad_mac":3,"bad_magic":0,"bad_version":0,"malformed":1,"oversize":0,"replay":2,"replayed":2,"truncated":1},"sessions":1,"slow_closed":0,"sources":[],"task_priority":0}"#;
+    let golden = r#"{"address":"127.0.0.1:7400","client":{"grants":2,"link":{"client":99,"frames_received":50,"heartbeats_received":30,"heartbeats_sent":31,"last_seen_ms":20,"open_ms":3000,"registration":"registered","rejected":{"auth_failures":0,"bad_frames":0,"bad_mac":0,"bad_magic":0,"bad_version":0,"malformed":0,"oversize":0,"replay":0,"replayed":0,"truncated":0},"requests":[{"granted":true,"source":"ses"}]},"manager":"127.0.0.1:7400","outcome":"granted","priority":4,"retries":1,"samples":12,"source":"ses"},"clients":[{"client":99,"granted":["ses"],"recent":[{"at_ms":500,"outcome":"denied: the manager has no such source","request_priority":4,"robot_priority":1,"source":"ses"},{"at_ms":900,"outcome":"granted","request_priority":4,"robot_priority":1,"source":"ses"}],"requesting":[],"requests":[{"granted":true,"request_priority":4,"robot_priority":1,"source":"ses"}],"robot":"scooter","session":"127.0.0.1:5000"}],"closed_bad":0,"data_bad_tickets":0,"data_rejected":{"auth_failures":0,"bad_frames":0,"bad_mac":0,"bad_magic":0,"bad_version":0,"malformed":0,"oversize":0,"replay":0,"replayed":0,"truncated":0},"data_sessions":0,"lagged_samples":0,"links":[{"addr":"127.0.0.1:5000","frames_received":40,"heartbeats_received":31,"heartbeats_sent":30,"last_seen_ms":80,"open_ms":3000,"robots":["scooter"],"session":7}],"lost":0,"rejected":{"auth_failures":3,"bad_frames":2,"bad_mac":3,"bad_magic":0,"bad_version":0,"malformed":1,"oversize":0,"replay":2,"replayed":2,"truncated":1},"sessions":1,"slow_closed":0,"sources":[],"task_priority":0}"#;
     let mut want: Value = serde_json::from_str(golden).unwrap();
     let mut status = sample_peer_status();
     assert_eq!(super::feed::peer_status_json(&status), want);

@@ -912,6 +912,11 @@ mod tests {
 
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
     struct FakeError;
+    impl core::fmt::Display for FakeError {
+        fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+            f.write_str("the fake device failed")
+        }
+    }
     impl ima_hal::Error for FakeError {
         fn kind(&self) -> ima_hal::ErrorKind {
             ima_hal::ErrorKind::Other

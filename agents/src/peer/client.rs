@@ -108,6 +108,20 @@ pub enum ClientError {
     QueueFull,
 }
 
+impl core::fmt::Display for ClientError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::AlreadyRegistered => "already registered with the manager",
+            Self::NotRegistered => "not registered with the manager",
+            Self::NotRequested => "that source was not requested",
+            Self::Lost => "the manager session is lost",
+            Self::QueueFull => "too many messages queued for the manager",
+        })
+    }
+}
+
+impl core::error::Error for ClientError {}
+
 /// What the client reports.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ClientEvent {

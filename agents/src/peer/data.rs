@@ -102,6 +102,19 @@ pub enum DataClose {
     Local,
 }
 
+impl core::fmt::Display for DataClose {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Ticket(e) => write!(f, "ticket refused: {e}"),
+            Self::Revoked(r) => write!(f, "revoked: {r}"),
+            Self::Wire(e) => write!(f, "a damaged frame: {e}"),
+            Self::Unexpected(code) => write!(f, "an unexpected message (type {code:#04x})"),
+            Self::Lost => f.write_str("no frame within the missed-heartbeat window"),
+            Self::Local => f.write_str("closed by this end"),
+        }
+    }
+}
+
 /// Events of a data session.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum DataEvent {

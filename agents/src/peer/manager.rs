@@ -215,6 +215,17 @@ pub enum TicketError {
     AlreadyUsed,
 }
 
+impl core::fmt::Display for TicketError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Forged => "the ticket does not verify",
+            Self::Expired => "the ticket has expired",
+            Self::NotGranted => "the ticket stands for no grant",
+            Self::AlreadyUsed => "the ticket already opened a data session",
+        })
+    }
+}
+
 /// Manager configuration.
 #[derive(Debug, Clone)]
 pub struct ManagerConfig {

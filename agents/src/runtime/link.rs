@@ -465,10 +465,10 @@ async fn ses_loop(
                         }
                     }
                     SubscriptionEvent::Lost { reason } => note(PeerNote::Lost {
-                        lost: format!("{reason:?}"),
+                        lost: reason.to_string(),
                     }),
                     SubscriptionEvent::Closed { reason } => {
-                        return Err(format!("subscription closed: {reason:?}"));
+                        return Err(format!("subscription closed: {reason}"));
                     }
                 }
             }

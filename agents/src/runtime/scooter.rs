@@ -169,7 +169,7 @@ where
                 compass_tx.send_replace(Some(h));
                 compass_rx.mark_unchanged();
             }
-            Ok(Err(e)) => tracing::warn!("compass: no first heading: {e:?}"),
+            Ok(Err(e)) => tracing::warn!("compass: no first heading: {e}"),
             Err(_) => tracing::warn!("compass: no first heading in {wait:?}"),
         }
         let next = async move |after| c.next_heading(after).await;
@@ -184,7 +184,7 @@ where
     let odo_theta = match tokio::time::timeout(wait, base.odometry()).await {
         Ok(Ok(o)) => o.value.theta_rad(),
         Ok(Err(e)) => {
-            tracing::warn!("base: no first odometry: {e:?}");
+            tracing::warn!("base: no first odometry: {e}");
             0.0
         }
         Err(_) => {
@@ -277,7 +277,7 @@ where
             .set_velocity(command)
             .await
             .err()
-            .map(|e| format!("{e:?}"));
+            .map(|e| e.to_string());
         st.base_refusals.note(refused);
         if st
             .last_control
@@ -349,10 +349,10 @@ where
         // Halted by the exit guard already (a signal): the driver stops the base itself on
         // its halt and reports its own failures; the runtime's stop found it gone.
         Ok(Err(e)) if guard.already_halted() && e.kind() == ErrorKind::Disconnected => {
-            tracing::debug!("base: halted by the exit guard before the runtime's stop ({e:?})");
+            tracing::debug!("base: halted by the exit guard before the runtime's stop ({e})");
         }
         // The guard halts the driver on the way out.
-        Ok(Err(e)) => tracing::warn!("base: stop failed ({e:?}); halting its driver"),
+        Ok(Err(e)) => tracing::warn!("base: stop failed ({e}); halting its driver"),
         Err(_) => tracing::warn!("base: stop unanswered; halting its driver"),
     }
     Ok(())
@@ -475,7 +475,7 @@ impl LoopState {
                         self.halted = true;
                         // At once, not at the end of this step.
                         if let Err(e) = base.set_velocity(VelocityCommand::ZERO).await {
-                            tracing::warn!("base: {e:?}");
+                            tracing::warn!("base: {e}");
                         }
                         events.emit(
                             time,
@@ -554,7 +554,7 @@ impl LoopState {
 
 /// Keep `tx` holding the latest reading `next(after)` gives (each newer than the last); on
 /// an error, say so and try again 200 ms later. Ends when nobody listens any more.
-async fn pump<T, E: core::fmt::Debug>(
+async fn pump<T, E: core::fmt::Display>(
     what: &'static str,
     tx: watch::Sender<Option<Stamped<T>>>,
     mut next: impl AsyncFnMut(Instant) -> Result<Stamped<T>, E>,
@@ -574,7 +574,7 @@ async fn pump<T, E: core::fmt::Debug>(
                 false
             }
             Err(e) => {
-                failures.note(Some(format!("{e:?}")));
+                failures.note(Some(e.to_string()));
                 true
             }
         };

@@ -80,7 +80,7 @@ where
     } = devices;
     // Skeeter does not move: make sure its base is stopped.
     if let Err(e) = base.stop().await {
-        tracing::warn!("base: {e:?}");
+        tracing::warn!("base: {e}");
     }
     events.emit(
         &time,
@@ -99,9 +99,9 @@ where
         .mul_f64(scale.max(1.0));
     scan_cfg.step_timeout = scan_cfg.step_timeout.mul_f64(scale);
     let mut scanner = Scanner::with_default_ses(scan_cfg, cfg.colours.clone())
-        .map_err(|e| RuntimeError::Config(format!("Skeeter's scanner: {e:?}")))?;
+        .map_err(|e| RuntimeError::Config(format!("Skeeter's scanner: {e}")))?;
     let mut brain = SkeeterBrain::new(cfg.brain.clone())
-        .map_err(|e| RuntimeError::Config(format!("Skeeter's SAN: {e:?}")))?;
+        .map_err(|e| RuntimeError::Config(format!("Skeeter's SAN: {e}")))?;
     // The scanner task: one sweep per request.
     let (scan_req_tx, mut scan_req_rx) = mpsc::channel::<()>(1);
     let (report_tx, mut report_rx) = mpsc::channel::<Option<ScanReport>>(1);
@@ -205,7 +205,7 @@ where
                         // Skeeter does not drive, but a fleet stop is obeyed by every base
                         // (each copy: stopping twice is harmless).
                         if let Err(e) = base.stop().await {
-                            tracing::warn!("base: {e:?}");
+                            tracing::warn!("base: {e}");
                         }
                         if !fleet_stopped {
                             fleet_stopped = true;

@@ -184,6 +184,52 @@ pub enum MachineError {
     StreamStalled,
 }
 
+/// A command code shown as `3Bh (switch variant)`.
+struct CommandCode(u8);
+
+impl core::fmt::Display for CommandCode {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match crate::wire::command_name(self.0) {
+            Some(name) => write!(f, "{:02X}h ({name})", self.0),
+            None => write!(f, "{:02X}h", self.0),
+        }
+    }
+}
+
+impl core::fmt::Display for MachineError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Self::NoDevice => f.write_str("no SICK LMS answered at any rate probed"),
+            Self::Timeout { code } => {
+                write!(
+                    f,
+                    "no answer to command {} after every retry",
+                    CommandCode(code)
+                )
+            }
+            Self::Nak { code } => write!(f, "command {} NAKed on every attempt", CommandCode(code)),
+            Self::Rejected { code } => write!(f, "command {} rejected (92h)", CommandCode(code)),
+            Self::Refused { code, result } => write!(
+                f,
+                "command {} refused (result {result:02X}h)",
+                CommandCode(code)
+            ),
+            Self::DeviceError {
+                status,
+                device_status,
+            } => write!(
+                f,
+                "the unit reports an error (status byte {:02X}h, device status {device_status:02X}h)",
+                status.0
+            ),
+            Self::Busy => f.write_str("another request is in progress"),
+            Self::StreamStalled => f.write_str("the scan stream stopped arriving"),
+        }
+    }
+}
+
+impl core::error::Error for MachineError {}
+
 /// What the session settled on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SessionInfo {

@@ -382,7 +382,7 @@ impl Shell for SickShell {
                     let info = self.machine.session();
                     self.link.send_replace(LinkStatus::Connected(info));
                 } else {
-                    tracing::debug!(error = ?e, "sick_lms: request failed");
+                    tracing::debug!(error = %e, "sick_lms: request failed");
                 }
             }
             Event::DeviceStatus(s) => {

@@ -54,6 +54,23 @@ pub mod cmd {
     pub const WRITE_CONFIG: u8 = 0x77;
 }
 
+/// What the command `code` does, in words (`None`: not a command of spec §3).
+#[must_use]
+pub const fn command_name(code: u8) -> Option<&'static str> {
+    Some(match code {
+        cmd::RESET => "reset",
+        cmd::SET_MODE => "change operating mode",
+        cmd::REQUEST_VALUES => "request measured values",
+        cmd::STATUS => "request status",
+        cmd::ERRORS => "request errors",
+        cmd::TYPE => "request type",
+        cmd::VARIANT => "switch variant",
+        cmd::READ_CONFIG => "read configuration",
+        cmd::WRITE_CONFIG => "write configuration",
+        _ => return None,
+    })
+}
+
 /// Reply codes (LMS → host), spec §2–§3. A reply is its request's code + `0x80`, except reset.
 pub mod reply {
     /// Power-on telegram (unsolicited; also the second answer to a reset).

@@ -79,7 +79,11 @@ pub fn run_mock(
     opts: MockCompassOptions,
 ) -> Result<()> {
     let dev = serve_mock(world, robot, faults, opts)?;
-    announce_and_wait(dev.path(), &format!("{:?} compass", opts.dialect))?;
+    let what = match opts.dialect {
+        MockCompassDialect::Nmea => "KVH C100 compass (NMEA)",
+        MockCompassDialect::Tcm2 => "PNI TCM2 compass",
+    };
+    announce_and_wait(dev.path(), what)?;
     let model = dev
         .stop()
         .map_err(|e| anyhow::anyhow!("stopping the pty: {e}"))?;

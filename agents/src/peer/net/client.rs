@@ -29,6 +29,14 @@ pub enum LossReason {
     Revoked(RevokeReason),
 }
 
+impl core::fmt::Display for LossReason {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Revoked(r) => write!(f, "revoked ({r}); pending again"),
+        }
+    }
+}
+
 /// Why a subscription ended (no more events follow).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EndReason {
@@ -44,6 +52,19 @@ pub enum EndReason {
     Unregistered,
     /// A renewal of the request was denied.
     Denied(DenyReason),
+}
+
+impl core::fmt::Display for EndReason {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::ManagerLost => f.write_str("the manager is lost"),
+            Self::Revoked(r) => write!(f, "revoked: {r}"),
+            Self::Data(c) => write!(f, "data session: {c}"),
+            Self::Disconnected => f.write_str("disconnected by this client"),
+            Self::Unregistered => f.write_str("this client unregistered"),
+            Self::Denied(r) => write!(f, "denied: {r}"),
+        }
+    }
 }
 
 /// What a [`Subscription`] yields.
@@ -1000,6 +1021,46 @@ async fn run_data(t: &mut DataTask) -> DataClose {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The web console's Peer page showed `lost: Revoked(TaskPriority)` and the runtime's
+    /// retry note `subscription closed: Data(Lost)`: words now, every variant.
+    #[test]
+    fn why_a_subscription_paused_or_ended_is_said_in_words() {
+        use crate::peer::manager::TicketError;
+        let lost = LossReason::Revoked(RevokeReason::TaskPriority);
+        assert_eq!(
+            lost.to_string(),
+            "revoked (the source robot's task priority rose above the request's); pending again"
+        );
+        let ended = [
+            (EndReason::ManagerLost, "the manager is lost"),
+            (
+                EndReason::Data(DataClose::Lost),
+                "data session: no frame within the missed-heartbeat window",
+            ),
+            (
+                EndReason::Data(DataClose::Ticket(TicketError::Expired)),
+                "data session: ticket refused: the ticket has expired",
+            ),
+            (
+                EndReason::Data(DataClose::Unexpected(0x21)),
+                "data session: an unexpected message (type 0x21)",
+            ),
+            (
+                EndReason::Denied(crate::peer::wire::DenyReason::UnknownSource),
+                "denied: the manager has no such source",
+            ),
+            (
+                EndReason::Revoked(RevokeReason::Shutdown),
+                "revoked: the manager is shutting down",
+            ),
+        ];
+        for (e, words) in ended {
+            assert_eq!(e.to_string(), words);
+        }
+        let e: NetError = crate::peer::client::ClientError::NotRequested.into();
+        assert_eq!(e.to_string(), "client: that source was not requested");
+    }
 
     #[test]
     fn pending_interruptions_collapse_into_the_latest() {

@@ -712,7 +712,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                     self.data.remove(&id);
                 }
                 if let DataClose::Wire(e) = reason {
-                    tracing::warn!(error = ?e, "peer data server: session closed on a bad frame");
+                    tracing::warn!(error = %e, "peer data server: session closed on a bad frame");
                     self.data_rejects.count(e);
                 }
             }

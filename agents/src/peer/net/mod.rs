@@ -201,7 +201,7 @@ impl core::fmt::Display for NetError {
             NetError::Config(s) => write!(f, "configuration: {s}"),
             NetError::Declined(r) => write!(f, "registration declined: {r}"),
             NetError::Denied(r) => write!(f, "request denied: {r}"),
-            NetError::Client(e) => write!(f, "client: {e:?}"),
+            NetError::Client(e) => write!(f, "client: {e}"),
             NetError::AlreadySubscribed => f.write_str("already subscribed to this source"),
             NetError::Revoked(r) => write!(f, "request revoked: {r}"),
             NetError::ManagerLost => f.write_str("manager lost"),
