@@ -1,13 +1,16 @@
 //! Serial-port helpers shared by the drivers' `open_port` functions (feature `std`).
 
 use std::io;
+use std::path::Path;
 
 /// Turn the error of opening `path` as a serial port into one that names the problem when
 /// the path is not a serial port at all: a regular file, a directory, or a device that is no
 /// terminal (`/dev/null`) fails the terminal set-up with the cryptic `ENOTTY` ("Not a
 /// typewriter"); this says `PATH is not a serial port (a regular file)` instead. A port another
 /// program holds (`EBUSY`, or the serial crate's exclusive lock refused) says so, and how to
-/// find that program. Other errors (no such file, permission denied) are returned unchanged.
+/// find that program. A port that is not there lists the serial ports that are (a USB adapter
+/// takes the next free number after a replug); a port the user may not open names the group
+/// that may and how to join it. Other errors are returned unchanged.
 #[must_use]
 pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
     let what = match std::fs::metadata(path) {
@@ -28,8 +31,115 @@ pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
                  time; `fuser {path}` names it): {err}"
             ),
         ),
+        None if err.kind() == io::ErrorKind::NotFound && std::fs::metadata(path).is_err() => {
+            io::Error::new(
+                io::ErrorKind::NotFound,
+                format!(
+                    "{path}: no such port ({err}); {}",
+                    ports_here(Path::new("/dev"))
+                ),
+            )
+        }
+        None if err.kind() == io::ErrorKind::PermissionDenied => io::Error::new(
+            io::ErrorKind::PermissionDenied,
+            format!("permission denied ({err}); {}", who_may_open(path)),
+        ),
         None => err,
     }
+}
+
+/// The serial ports under `dev` (a `/dev`), as a sentence: the stable names under
+/// `serial/by-id/` (with the port each names), then `ttyUSB*` and `ttyACM*`. The built-in
+/// `ttyS*` are left out: Linux lists 32 of them whether or not a UART is behind them.
+fn ports_here(dev: &Path) -> String {
+    let names = |dir: &Path, prefixes: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| prefixes.is_empty() || prefixes.iter().any(|p| n.starts_with(p)))
+            .collect();
+        v.sort();
+        v
+    };
+    let by_id_dir = dev.join("serial").join("by-id");
+    let mut ports: Vec<String> = names(&by_id_dir, &[])
+        .into_iter()
+        .map(|n| {
+            let link = by_id_dir.join(&n);
+            match std::fs::read_link(&link) {
+                Ok(to) => {
+                    let to = to
+                        .file_name()
+                        .map_or_else(String::new, |t| dev.join(t).to_string_lossy().into_owned());
+                    format!("{} (-> {to})", link.display())
+                }
+                Err(_) => link.display().to_string(),
+            }
+        })
+        .collect();
+    let by_id = ports.len();
+    ports.extend(
+        names(dev, &["ttyUSB", "ttyACM"])
+            .into_iter()
+            .map(|n| dev.join(n).to_string_lossy().into_owned()),
+    );
+    if ports.is_empty() {
+        return format!(
+            "no USB serial port is present ({0}/ttyUSB*, {0}/ttyACM* and {0}/serial/by-id/ are \
+             empty): is the adapter plugged in?",
+            dev.display()
+        );
+    }
+    let hint = if by_id > 0 {
+        "; a by-id name stays the same across replugs"
+    } else {
+        ""
+    };
+    format!("serial ports here: {}{hint}", ports.join(", "))
+}
+
+/// Who may open `path`: its group, and how to join it (on Debian and Ubuntu serial ports
+/// belong to `dialout`).
+#[cfg(unix)]
+fn who_may_open(path: &str) -> String {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(meta) = std::fs::metadata(path) else {
+        return "this user may not open it".into();
+    };
+    let gid = meta.gid();
+    let group = std::fs::read_to_string("/etc/group")
+        .ok()
+        .and_then(|g| group_name(&g, gid));
+    match group {
+        _ if gid == 0 => "it belongs to root alone; a udev rule can give it to a group \
+                          such as `dialout`"
+            .into(),
+        Some(g) => format!(
+            "it belongs to group `{g}`: add this user (`sudo usermod -aG {g} $USER`), \
+             then log in again"
+        ),
+        None => {
+            format!("it belongs to group {gid}: add this user to that group, then log in again")
+        }
+    }
+}
+
+#[cfg(not(unix))]
+fn who_may_open(_path: &str) -> String {
+    "this user may not open it".into()
+}
+
+/// The name of group `gid` in an `/etc/group` text.
+#[cfg_attr(not(unix), allow(dead_code))]
+fn group_name(etc_group: &str, gid: u32) -> Option<String> {
+    etc_group.lines().find_map(|line| {
+        let mut f = line.split(':');
+        let name = f.next()?;
+        let id: u32 = f.nth(1)?.parse().ok()?;
+        (id == gid && !name.is_empty()).then(|| name.to_owned())
+    })
 }
 
 /// `EBUSY`, or the serial crate's "exclusive lock" refusal: another program holds the port
@@ -84,6 +194,80 @@ mod tests {
         );
         let absent = explain_open_error("/dev/ttyUSB9", io::Error::from_raw_os_error(2));
         assert!(!absent.to_string().contains("in use"), "{absent}");
+    }
+
+    /// `ima drive --port /dev/ttyUSB0` with the adapter on ttyUSB1 said only "No such file or
+    /// directory"; it now lists the ports that are there.
+    #[test]
+    fn a_missing_port_lists_the_ports_that_are_there() {
+        let dev = std::env::temp_dir().join(format!("ima-hal-dev-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dev);
+        std::fs::create_dir_all(&dev).unwrap();
+        let d = dev.display().to_string();
+        assert_eq!(
+            ports_here(&dev),
+            format!(
+                "no USB serial port is present ({d}/ttyUSB*, {d}/ttyACM* and {d}/serial/by-id/ \
+                 are empty): is the adapter plugged in?"
+            )
+        );
+        for n in ["ttyUSB1", "ttyACM0", "ttyS0", "tty0", "null"] {
+            std::fs::write(dev.join(n), b"").unwrap();
+        }
+        assert_eq!(
+            ports_here(&dev),
+            format!("serial ports here: {d}/ttyACM0, {d}/ttyUSB1")
+        );
+        #[cfg(unix)]
+        {
+            let by_id = dev.join("serial/by-id");
+            std::fs::create_dir_all(&by_id).unwrap();
+            std::os::unix::fs::symlink("../../ttyUSB1", by_id.join("usb-FTDI_FT232R-if00-port0"))
+                .unwrap();
+            assert_eq!(
+                ports_here(&dev),
+                format!(
+                    "serial ports here: {d}/serial/by-id/usb-FTDI_FT232R-if00-port0 (-> \
+                     {d}/ttyUSB1), {d}/ttyACM0, {d}/ttyUSB1; a by-id name stays the same across \
+                     replugs"
+                )
+            );
+        }
+        let _ = std::fs::remove_dir_all(&dev);
+        let e = explain_open_error("/dev/ttyUSB97", io::Error::from_raw_os_error(2));
+        assert_eq!(e.kind(), io::ErrorKind::NotFound);
+        assert!(
+            e.to_string().starts_with("/dev/ttyUSB97: no such port ("),
+            "{e}"
+        );
+    }
+
+    /// A user outside the port's group was told only "Permission denied".
+    #[test]
+    fn a_port_the_user_may_not_open_names_its_group() {
+        let etc_group = "root:x:0:\ndialout:x:20:pi\nbroken line\nplugdev:x:46:\n";
+        assert_eq!(group_name(etc_group, 20).as_deref(), Some("dialout"));
+        assert_eq!(group_name(etc_group, 46).as_deref(), Some("plugdev"));
+        assert_eq!(group_name(etc_group, 7), None);
+        let denied = io::Error::new(io::ErrorKind::PermissionDenied, "Permission denied");
+        let e = explain_open_error("/dev/null", denied);
+        assert_eq!(e.kind(), io::ErrorKind::PermissionDenied);
+        let text = e.to_string();
+        assert!(
+            text.starts_with("permission denied (Permission denied); "),
+            "{text}"
+        );
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let gid = std::fs::metadata("/dev/null").unwrap().gid();
+            let expect = if gid == 0 {
+                "belongs to root alone"
+            } else {
+                "belongs to group"
+            };
+            assert!(text.contains(expect), "{text}");
+        }
     }
 
     #[test]
