@@ -19,7 +19,7 @@ use super::{MissionTime, RuntimeError};
 use crate::mission::msg::{Broadcast, SES_SOURCE};
 use crate::peer::manager::FixedSelfAgent;
 use crate::peer::net::{
-    BroadcastChannel, ManagerHandle, PeerClientHandle, PeerNetConfig, SubscriptionEvent,
+    BroadcastChannel, ManagerHandle, NetError, PeerClientHandle, PeerNetConfig, SubscriptionEvent,
     spawn_manager_with_clock,
 };
 use crate::peer::wire::GroupKey;
@@ -413,7 +413,7 @@ async fn ses_loop(
                     time.clock().clone(),
                 )
                 .await
-                .map_err(|e| e.to_string())?,
+                .map_err(|e| connect_failed(&req.manager, &e))?,
             );
             slot(&shared).session = std::sync::Arc::downgrade(&client);
             "requesting".clone_into(&mut slot(&shared).view.outcome);
@@ -658,5 +658,45 @@ impl Drop for SkeeterLink {
         for t in &self.tasks {
             t.abort();
         }
+    }
+}
+
+/// Why the subscriber could not reach the manager at `manager`, naming it; a refused
+/// connection (nothing listens there) asks whether that robot runs yet: the usual case when
+/// the robots are started one after the other.
+fn connect_failed(manager: &str, e: &NetError) -> String {
+    let refused =
+        matches!(e, NetError::Io(io) if io.kind() == std::io::ErrorKind::ConnectionRefused);
+    let hint = if refused {
+        " (nothing listens there: is that robot running yet?)"
+    } else {
+        ""
+    };
+    format!("reaching the manager at {manager}: {e}{hint}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Scooter started before Skeeter said "I/O error: Connection refused (os error 111)"
+    /// every 5 s, naming neither the address nor why.
+    #[test]
+    fn a_manager_not_reached_is_named() {
+        let refused = NetError::Io(std::io::Error::from(std::io::ErrorKind::ConnectionRefused));
+        let text = connect_failed("10.0.0.5:7400", &refused);
+        assert!(
+            text.starts_with("reaching the manager at 10.0.0.5:7400: I/O error: "),
+            "{text}"
+        );
+        assert!(
+            text.ends_with("(nothing listens there: is that robot running yet?)"),
+            "{text}"
+        );
+        let other = connect_failed("10.0.0.5:7400", &NetError::Timeout);
+        assert_eq!(
+            other,
+            "reaching the manager at 10.0.0.5:7400: the manager did not answer in time"
+        );
     }
 }
