@@ -202,7 +202,7 @@ fn reply_json(r: &Reply<'_>, scan: &mut LaserScan) -> Value {
                         })
                         .collect();
                     v["ranges_m"] = json!(ranges);
-                    v["geometry"] = json!(format!("unknown: {e:?}"));
+                    v["geometry"] = json!(format!("unknown: {e}"));
                 }
             }
             v
@@ -274,6 +274,8 @@ mod tests {
         assert_eq!(v[1]["offset"], 1);
         assert_eq!(v[1]["values"], json!([1000, 2000, 0x1FFF]));
         assert_eq!(v[1]["units"], "mm");
+        // Three values fit no variant: ranges without geometry, and why in words.
+        assert_eq!(v[1]["geometry"], "unknown: 3 values fit no known variant");
         assert_eq!(v[2]["kind"], "reset_ack");
         assert_eq!(v[2]["offset"], 17);
     }
