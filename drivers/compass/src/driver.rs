@@ -17,7 +17,7 @@ pub enum Fault {
     #[error("{0}")]
     Request(RequestError),
     /// A configuration or calibration job gave up after its retries.
-    #[error("compass job {job:?} failed at step {step} (no answer)")]
+    #[error("the compass's {job} got no answer (step {step})")]
     JobFailed {
         /// The job.
         job: Job,

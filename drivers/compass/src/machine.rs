@@ -127,6 +127,19 @@ pub enum Job {
     ClearCalibration,
 }
 
+impl core::fmt::Display for Job {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Configure => "configuration",
+            Self::StartUserCalibration => "start of the user calibration",
+            Self::StopUserCalibration => "end of the user calibration",
+            Self::AutoCalibration(true) => "switching automatic calibration on",
+            Self::AutoCalibration(false) => "switching automatic calibration off",
+            Self::ClearCalibration => "clearing the calibration",
+        })
+    }
+}
+
 /// Where a reading came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Source {

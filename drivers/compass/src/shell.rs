@@ -102,7 +102,7 @@ impl Shell for CompassShell {
                 self.link.send_replace(LinkStatus::Connected(()));
             }
             Event::JobFailed { job, step } => {
-                tracing::warn!(?job, step, "compass: job failed");
+                tracing::warn!(%job, step, "compass: job failed");
                 if job == crate::machine::Job::Configure {
                     let e = crate::driver::configuration_failed(&self.machine, step);
                     self.job.answer(Err(e));

@@ -17,7 +17,7 @@ pub enum Fault {
     Request(RequestError),
     /// The switcher refused (Extron `Enn`, Kramer error).
     #[error("the switcher refused: {}", match .0 {
-        Refusal::Extron(e) => format!("E{:02} ({e:?})", e.code()),
+        Refusal::Extron(e) => e.to_string(),
         Refusal::Kramer(c) => format!("code {c}"),
     })]
     Refused(Refusal),

@@ -197,6 +197,19 @@ pub enum ExtronError {
     Other(u8),
 }
 
+impl core::fmt::Display for ExtronError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let what = match self {
+            Self::InvalidInput => "invalid input number",
+            Self::ChangeNotAllowed => "change not allowed (auto-switching on?)",
+            Self::InvalidCommand => "invalid command",
+            Self::InvalidValue => "invalid value",
+            Self::Other(_) => "error",
+        };
+        write!(f, "E{:02} ({what})", self.code())
+    }
+}
+
 impl ExtronError {
     /// The numeric code.
     #[must_use]
