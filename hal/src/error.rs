@@ -34,8 +34,8 @@ impl core::fmt::Display for ErrorKind {
 ///
 /// Unlike `embedded-hal` 1.0, whose errors need only `Debug`, an error here must also
 /// `Display`: generic code (the agents' runtimes) reports a device's failure to the person at
-/// the robot, who should read "no answer to 3Bh (select variant) after 3 tries", not
-/// `Device(Session(Timeout { code: 59 }))`.
+/// the robot, who should read "no answer to command 3Bh (switch variant) after every retry",
+/// not `Device(Session(Timeout { code: 59 }))`.
 pub trait Error: core::fmt::Debug + core::fmt::Display {
     /// The kind of this error.
     fn kind(&self) -> ErrorKind;

@@ -39,7 +39,7 @@ pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
         }
         None if err.kind() == io::ErrorKind::PermissionDenied => io::Error::new(
             io::ErrorKind::PermissionDenied,
-            format!("permission denied ({err}); {}", who_may_open(path)),
+            format!("permission denied; {}", who_may_open(path)),
         ),
         None => err,
     }
@@ -56,8 +56,14 @@ fn ports_here(dev: &Path) -> String {
             .flatten()
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .filter(|n| prefixes.is_empty() || prefixes.iter().any(|p| n.starts_with(p)))
+            .filter(|n| dir.join(n).exists()) // not a dangling by-id link
             .collect();
-        v.sort();
+        // `ttyUSB2` before `ttyUSB10`: by the name without its trailing number, then by it.
+        v.sort_by_key(|n| {
+            let stem = n.trim_end_matches(|c: char| c.is_ascii_digit());
+            let number: u64 = n.get(stem.len()..).unwrap_or("").parse().unwrap_or(0);
+            (stem.to_owned(), number, n.clone())
+        });
         v
     };
     let by_id_dir = dev.join("serial").join("by-id");
@@ -109,23 +115,34 @@ fn who_may_open(path: &str) -> String {
     let group = std::fs::read_to_string("/etc/group")
         .ok()
         .and_then(|g| group_name(&g, gid));
-    match group {
-        _ if gid == 0 => "it belongs to root alone; a udev rule can give it to a group \
-                          such as `dialout`"
-            .into(),
-        Some(g) => format!(
-            "it belongs to group `{g}`: add this user (`sudo usermod -aG {g} $USER`), \
-             then log in again"
-        ),
-        None => {
-            format!("it belongs to group {gid}: add this user to that group, then log in again")
-        }
-    }
+    access_advice(gid, meta.mode(), group.as_deref())
 }
 
 #[cfg(not(unix))]
 fn who_may_open(_path: &str) -> String {
     "this user may not open it".into()
+}
+
+/// What to do about a port of group `gid` (named `group`) and permission bits `mode`: join
+/// the group when it may read and write the port (and is not root's), else ask for a udev
+/// rule, since joining would not help.
+#[cfg_attr(not(unix), allow(dead_code))]
+fn access_advice(gid: u32, mode: u32, group: Option<&str>) -> String {
+    let perm = mode & 0o777;
+    let group_rw = mode & 0o060 == 0o060;
+    match group {
+        Some(g) if group_rw && gid != 0 => format!(
+            "it belongs to group `{g}`: add this user (`sudo usermod -aG {g} $USER`), then log \
+             in again"
+        ),
+        None if group_rw && gid != 0 => {
+            format!("it belongs to group {gid}: add this user to that group, then log in again")
+        }
+        _ => format!(
+            "only its owner may open it (mode {perm:03o}); a udev rule can give it to a group \
+             such as `dialout` (GROUP=\"dialout\", MODE=\"0660\")"
+        ),
+    }
 }
 
 /// The name of group `gid` in an `/etc/group` text.
@@ -208,18 +225,26 @@ mod tests {
                  are empty): is the adapter plugged in?"
             )
         );
-        for n in ["ttyUSB1", "ttyACM0", "ttyS0", "tty0", "null"] {
+        for n in [
+            "ttyUSB10", "ttyUSB1", "ttyUSB2", "ttyACM0", "ttyS0", "tty0", "null",
+        ] {
             std::fs::write(dev.join(n), b"").unwrap();
         }
         assert_eq!(
             ports_here(&dev),
-            format!("serial ports here: {d}/ttyACM0, {d}/ttyUSB1")
+            format!("serial ports here: {d}/ttyACM0, {d}/ttyUSB1, {d}/ttyUSB2, {d}/ttyUSB10")
         );
+        for n in ["ttyUSB10", "ttyUSB2"] {
+            std::fs::remove_file(dev.join(n)).unwrap();
+        }
         #[cfg(unix)]
         {
             let by_id = dev.join("serial/by-id");
             std::fs::create_dir_all(&by_id).unwrap();
             std::os::unix::fs::symlink("../../ttyUSB1", by_id.join("usb-FTDI_FT232R-if00-port0"))
+                .unwrap();
+            // A link to a port that is gone (unplugged) is not listed.
+            std::os::unix::fs::symlink("../../ttyUSB7", by_id.join("usb-Prolific-if00-port0"))
                 .unwrap();
             assert_eq!(
                 ports_here(&dev),
@@ -236,32 +261,40 @@ mod tests {
         assert!(e.to_string().starts_with("no such port ("), "{e}");
     }
 
-    /// A user outside the port's group was told only "Permission denied".
+    /// A user outside the port's group was told only "Permission denied"; the advice fits
+    /// the port's mode (joining a group that may not read the port would not help).
     #[test]
     fn a_port_the_user_may_not_open_names_its_group() {
         let etc_group = "root:x:0:\ndialout:x:20:pi\nbroken line\nplugdev:x:46:\n";
         assert_eq!(group_name(etc_group, 20).as_deref(), Some("dialout"));
         assert_eq!(group_name(etc_group, 46).as_deref(), Some("plugdev"));
         assert_eq!(group_name(etc_group, 7), None);
+        let udev = "a udev rule can give it to a group such as `dialout` (GROUP=\"dialout\", \
+                    MODE=\"0660\")";
+        // A USB adapter on Debian: crw-rw---- root dialout.
+        assert_eq!(
+            access_advice(20, 0o20660, Some("dialout")),
+            "it belongs to group `dialout`: add this user (`sudo usermod -aG dialout $USER`), \
+             then log in again"
+        );
+        assert_eq!(
+            access_advice(1234, 0o20660, None),
+            "it belongs to group 1234: add this user to that group, then log in again"
+        );
+        // A pty: crw--w---- root tty; the group may not read it.
+        assert_eq!(
+            access_advice(5, 0o20620, Some("tty")),
+            format!("only its owner may open it (mode 620); {udev}")
+        );
+        // Root's group, even with rw: never "join root".
+        assert_eq!(
+            access_advice(0, 0o20660, Some("root")),
+            format!("only its owner may open it (mode 660); {udev}")
+        );
         let denied = io::Error::new(io::ErrorKind::PermissionDenied, "Permission denied");
         let e = explain_open_error("/dev/null", denied);
         assert_eq!(e.kind(), io::ErrorKind::PermissionDenied);
-        let text = e.to_string();
-        assert!(
-            text.starts_with("permission denied (Permission denied); "),
-            "{text}"
-        );
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::MetadataExt;
-            let gid = std::fs::metadata("/dev/null").unwrap().gid();
-            let expect = if gid == 0 {
-                "belongs to root alone"
-            } else {
-                "belongs to group"
-            };
-            assert!(text.contains(expect), "{text}");
-        }
+        assert!(e.to_string().starts_with("permission denied; "), "{e}");
     }
 
     #[test]

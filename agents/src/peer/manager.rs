@@ -156,6 +156,19 @@ pub enum CloseReason {
     SlowConsumer,
 }
 
+impl core::fmt::Display for CloseReason {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Wire(e) => write!(f, "a frame failed to open: {e}"),
+            Self::Unexpected(code) => {
+                write!(f, "a message a client may not send (type {code:#04x})")
+            }
+            Self::Lost => f.write_str("no frame within the missed-heartbeat window"),
+            Self::SlowConsumer => f.write_str("its outgoing queue overflowed (a slow reader)"),
+        }
+    }
+}
+
 /// What the manager reports to its shell and status display.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ManagerEvent {
@@ -225,6 +238,8 @@ impl core::fmt::Display for TicketError {
         })
     }
 }
+
+impl core::error::Error for TicketError {}
 
 /// Manager configuration.
 #[derive(Debug, Clone)]

@@ -88,7 +88,7 @@ impl Bus {
                 .map_err(|e| RuntimeError::Net(format!("receiving broadcasts: {e}")))?;
             match Broadcast::from_wire(&msg) {
                 Ok(b) => return Ok(b),
-                Err(e) => tracing::debug!("ignoring a broadcast from {from}: {e:?}"),
+                Err(e) => tracing::debug!("ignoring a broadcast from {from}: {e}"),
             }
         }
     }
@@ -461,7 +461,7 @@ async fn ses_loop(
                                     return Ok(());
                                 }
                             }
-                            Err(e) => tracing::warn!("bad SES sample: {e:?}"),
+                            Err(e) => tracing::warn!("bad SES sample: {e}"),
                         }
                     }
                     SubscriptionEvent::Lost { reason } => note(PeerNote::Lost {
@@ -622,7 +622,7 @@ impl SkeeterLink {
                             tracing::warn!("publishing the SES: {e}");
                         }
                     }
-                    Err(e) => tracing::warn!("encoding the SES: {e:?}"),
+                    Err(e) => tracing::warn!("encoding the SES: {e}"),
                 }
             }
         }));

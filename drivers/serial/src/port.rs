@@ -109,8 +109,10 @@ mod async_io {
 ///
 /// # Errors
 /// A path that is not a serial port (a regular file, `/dev/null`) fails with
-/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`; other errors (no such
-/// file, permission denied, busy) as the system reports them.
+/// [`io::ErrorKind::InvalidInput`] and `PATH is not a serial port (…)`; a port that is not
+/// there lists the serial ports that are, one the user may not open says what would let them,
+/// and one another program holds says so ([`ima_hal::serial::explain_open_error`]); other
+/// errors as the system reports them.
 #[cfg(feature = "tokio")]
 pub fn open_port(path: &str, baud: u32) -> io::Result<tokio_serial::SerialStream> {
     use tokio_serial::SerialPortBuilderExt;

@@ -23,7 +23,7 @@ pub type DriverError = ima_serial::DriverError<Fault>;
 pub enum Fault {
     /// The session failed or refused a request.
     #[error("{}", match .0 {
-        MachineError::NoDevice => "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; powered? still booting?)".into(),
+        e @ MachineError::NoDevice => e.to_string(),
         e => format!("SICK LMS session: {e}"),
     })]
     Session(MachineError),
@@ -58,7 +58,8 @@ impl ima_serial::Fault for Fault {
             | Self::Session(
                 MachineError::NoDevice | MachineError::Timeout { .. } | MachineError::StreamStalled,
             ) => ErrorKind::Timeout,
-            Self::Session(MachineError::Busy) => ErrorKind::Other,
+            Self::Session(MachineError::Busy | MachineError::Unsendable { .. }) => ErrorKind::Other,
+            Self::Session(MachineError::NeedsRs422) => ErrorKind::InvalidArgument,
             Self::Session(_) | Self::Decode(_) => ErrorKind::Protocol,
         }
     }

@@ -164,7 +164,7 @@ pub enum MachineError {
         /// The command code.
         code: u8,
     },
-    /// The device answered with a refusal (`A0` nonzero, `BB 00`, `F7` failure or bad echo).
+    /// The device answered with a refusal (`A0` nonzero, `BB 00`, `F7` failure).
     Refused {
         /// The command code.
         code: u8,
@@ -177,6 +177,22 @@ pub enum MachineError {
         status: StatusByte,
         /// Byte 9 of the status block.
         device_status: u8,
+    },
+    /// The unit confirmed command `code` with other settings than were asked for (a
+    /// variant or configuration echo that does not match).
+    NotAsAsked {
+        /// The command code.
+        code: u8,
+    },
+    /// 500 000 baud was asked for on a line not configured as RS-422
+    /// ([`Config::rs422`]): the host refuses it before asking the unit.
+    NeedsRs422,
+    /// The unit reports a line speed other than the one just switched to.
+    BaudMismatch,
+    /// Command `code` did not fit the transmit buffer (a bug of this driver).
+    Unsendable {
+        /// The command code.
+        code: u8,
     },
     /// A request was made while another is in flight or initialisation is running.
     Busy,
@@ -199,7 +215,10 @@ impl core::fmt::Display for CommandCode {
 impl core::fmt::Display for MachineError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {
-            Self::NoDevice => f.write_str("no SICK LMS answered at any rate probed"),
+            Self::NoDevice => f.write_str(
+                "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; \
+                 powered? still booting?)",
+            ),
             Self::Timeout { code } => {
                 write!(
                     f,
@@ -221,6 +240,22 @@ impl core::fmt::Display for MachineError {
                 f,
                 "the unit reports an error (status byte {:02X}h, device status {device_status:02X}h)",
                 status.0
+            ),
+            Self::NotAsAsked { code } => write!(
+                f,
+                "the unit confirmed command {} with other settings than asked",
+                CommandCode(code)
+            ),
+            Self::NeedsRs422 => {
+                f.write_str("500000 baud needs an RS-422 line (set rs422 if this is one)")
+            }
+            Self::BaudMismatch => {
+                f.write_str("the unit reports another line speed than the one just set")
+            }
+            Self::Unsendable { code } => write!(
+                f,
+                "command {} did not fit the transmit buffer (a bug of this driver)",
+                CommandCode(code)
             ),
             Self::Busy => f.write_str("another request is in progress"),
             Self::StreamStalled => f.write_str("the scan stream stopped arriving"),
@@ -998,7 +1033,7 @@ impl Core {
         let Ok(n) = p.command.emit(&mut buf) else {
             let code = p.command.code();
             self.pending = None;
-            self.fail(MachineError::Refused { code, result: 0xFF });
+            self.fail(MachineError::Unsendable { code });
             return;
         };
         if p.attempts > 0 {
@@ -1100,10 +1135,7 @@ impl Core {
                 if self.cfg.baud != self.host_baud {
                     let b = self.cfg.baud;
                     if b == BaudRate::B500000 && !self.cfg.rs422 {
-                        self.fail(MachineError::Refused {
-                            code: crate::wire::cmd::SET_MODE,
-                            result: b.mode_code(),
-                        });
+                        self.fail(MachineError::NeedsRs422);
                         return;
                     }
                     self.phase = Phase::BaudChange(b);
@@ -1130,7 +1162,7 @@ impl Core {
             }
             (Phase::VerifyBaud(b), Reply::Status { block, .. }) => {
                 if block.baud().is_some_and(|x| x != b) {
-                    self.reprobe(MachineError::Timeout { code: 0x31 }, now);
+                    self.reprobe(MachineError::BaudMismatch, now);
                     return;
                 }
                 self.after_baud(now);
@@ -1144,13 +1176,16 @@ impl Core {
                     ..
                 },
             ) => {
-                if *accepted != 1
-                    || *angle_deg != v.angle_deg()
-                    || *res_centideg != v.res_centideg()
-                {
+                if *accepted != 1 {
                     self.fail(MachineError::Refused {
                         code: crate::wire::cmd::VARIANT,
                         result: *accepted,
+                    });
+                    return;
+                }
+                if *angle_deg != v.angle_deg() || *res_centideg != v.res_centideg() {
+                    self.fail(MachineError::NotAsAsked {
+                        code: crate::wire::cmd::VARIANT,
                     });
                     return;
                 }
@@ -1201,10 +1236,16 @@ impl Core {
             }
             (Phase::WriteConfig, Reply::ConfigWritten { result, config, .. }) => {
                 let ok_result = *result == 1 || (*result == 0 && self.cfg.config_write_zero_ok);
-                if !ok_result || Some(*config) != self.wanted_config {
+                if !ok_result {
                     self.fail(MachineError::Refused {
                         code: crate::wire::cmd::WRITE_CONFIG,
                         result: *result,
+                    });
+                    return;
+                }
+                if Some(*config) != self.wanted_config {
+                    self.fail(MachineError::NotAsAsked {
+                        code: crate::wire::cmd::WRITE_CONFIG,
                     });
                     return;
                 }

@@ -30,17 +30,55 @@ fn a_session_error_names_the_command_in_words() {
         decode.to_string(),
         "SICK LMS scan decoding: unknown measuring mode 0x0f"
     );
-    for e in [
-        MachineError::NoDevice,
-        MachineError::Rejected { code: 0x20 },
-        MachineError::DeviceError {
-            status: ima_sick_lms::wire::StatusByte(0x07),
-            device_status: 1,
-        },
-        MachineError::Busy,
-        MachineError::StreamStalled,
+    for (e, words) in [
+        (
+            MachineError::NoDevice,
+            "no SICK LMS answered at 9600, 38400 or 19200 baud (nor 500000 with RS-422; \
+             powered? still booting?)",
+        ),
+        (
+            MachineError::Rejected { code: 0x20 },
+            "SICK LMS session: command 20h (change operating mode) rejected (92h)",
+        ),
+        (
+            MachineError::DeviceError {
+                status: ima_sick_lms::wire::StatusByte(0x07),
+                device_status: 1,
+            },
+            "SICK LMS session: the unit reports an error (status byte 07h, device status 01h)",
+        ),
+        (
+            MachineError::NotAsAsked { code: 0x3B },
+            "SICK LMS session: the unit confirmed command 3Bh (switch variant) with other \
+             settings than asked",
+        ),
+        (
+            MachineError::NeedsRs422,
+            "SICK LMS session: 500000 baud needs an RS-422 line (set rs422 if this is one)",
+        ),
+        (
+            MachineError::BaudMismatch,
+            "SICK LMS session: the unit reports another line speed than the one just set",
+        ),
+        (
+            MachineError::Unsendable { code: 0x77 },
+            "SICK LMS session: command 77h (write configuration) did not fit the transmit \
+             buffer (a bug of this driver)",
+        ),
+        (
+            MachineError::Busy,
+            "SICK LMS session: another request is in progress",
+        ),
+        (
+            MachineError::StreamStalled,
+            "SICK LMS session: the scan stream stopped arriving",
+        ),
     ] {
-        let t = text(e);
-        assert!(!t.contains('{') && !t.contains("Timeout"), "{t}");
+        assert_eq!(text(e), words);
     }
+    // The session's own words for "nobody answered" are the driver's.
+    assert_eq!(
+        MachineError::NoDevice.to_string(),
+        text(MachineError::NoDevice)
+    );
 }

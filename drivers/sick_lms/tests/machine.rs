@@ -263,6 +263,8 @@ fn baud_500000_refused_without_rs422() {
     let mut w = World::new(cfg, unit(BaudRate::B9600));
     w.run_ready();
     assert!(w.m.is_failed());
+    // The host refused it, not the unit (it once read "command 20h refused (result 48h)").
+    assert!(w.has(|e| *e == Event::Error(MachineError::NeedsRs422)));
     assert!(
         !w.codes()
             .iter()

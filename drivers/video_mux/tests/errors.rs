@@ -13,5 +13,8 @@ fn a_refusal_is_named_in_words() {
         "the switcher refused: E01 (invalid input number)"
     );
     let other = Fault::Refused(Refusal::Extron(ExtronError::Other(17)));
-    assert_eq!(other.to_string(), "the switcher refused: E17 (error)");
+    assert_eq!(
+        other.to_string(),
+        "the switcher refused: E17 (an error code this driver does not know)"
+    );
 }

@@ -829,7 +829,10 @@ impl ClientTask {
             ClientEvent::SourcesChanged { .. } => {}
             ClientEvent::SourceGone { source } => self.close_data(&source),
             ClientEvent::ManagerLost(why) => {
-                tracing::warn!(error = ?why, "peer client: manager lost");
+                match why {
+                    Some(e) => tracing::warn!(error = %e, "peer client: manager lost"),
+                    None => tracing::warn!("peer client: manager lost (no frame in time)"),
+                }
                 // Before any reply goes: a caller maps `ManagerLost` to this.
                 self.note_auth_failure();
                 if let Some(r) = self.reg_reply.take() {
@@ -1023,7 +1026,7 @@ mod tests {
     use super::*;
 
     /// The web console's Peer page showed `lost: Revoked(TaskPriority)` and the runtime's
-    /// retry note `subscription closed: Data(Lost)`: words now, every variant.
+    /// retry note `subscription closed: Data(Lost)`: words now, for every variant.
     #[test]
     fn why_a_subscription_paused_or_ended_is_said_in_words() {
         use crate::peer::manager::TicketError;
@@ -1060,6 +1063,33 @@ mod tests {
         }
         let e: NetError = crate::peer::client::ClientError::NotRequested.into();
         assert_eq!(e.to_string(), "client: that source was not requested");
+        // Every other variant: words, never the Rust name.
+        use crate::peer::client::ClientError;
+        use crate::peer::manager::CloseReason;
+        let texts = [
+            EndReason::Disconnected.to_string(),
+            EndReason::Unregistered.to_string(),
+            EndReason::Data(DataClose::Revoked(RevokeReason::SourceGone)).to_string(),
+            EndReason::Data(DataClose::Local).to_string(),
+            TicketError::Forged.to_string(),
+            TicketError::NotGranted.to_string(),
+            TicketError::AlreadyUsed.to_string(),
+            ClientError::AlreadyRegistered.to_string(),
+            ClientError::NotRegistered.to_string(),
+            ClientError::Lost.to_string(),
+            ClientError::QueueFull.to_string(),
+            CloseReason::Unexpected(0x21).to_string(),
+            CloseReason::Lost.to_string(),
+            CloseReason::SlowConsumer.to_string(),
+        ];
+        for t in texts {
+            let rusty = t.split(|c: char| !c.is_alphanumeric()).any(|w| {
+                w.len() > 1
+                    && w.chars().next().is_some_and(char::is_uppercase)
+                    && w.chars().skip(1).any(char::is_uppercase)
+            });
+            assert!(!rusty && !t.contains('{'), "{t}");
+        }
     }
 
     #[test]

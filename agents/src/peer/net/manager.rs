@@ -854,7 +854,7 @@ impl<A: SelfAgent> ManagerTask<A> {
                         reason,
                         clients,
                     } => {
-                        tracing::warn!(peer, ?reason, ?clients, "peer manager: session closed");
+                        tracing::warn!(peer, %reason, ?clients, "peer manager: session closed");
                         let _ = self.close_session(*peer);
                     }
                     ManagerEvent::Decision(d) => {

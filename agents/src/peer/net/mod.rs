@@ -37,8 +37,8 @@
 //! while let Some(event) = sub.next().await {
 //!     match event {
 //!         SubscriptionEvent::Sample { payload, .. } => println!("{} bytes", payload.len()),
-//!         SubscriptionEvent::Lost { reason } => println!("paused: {reason:?}"),
-//!         SubscriptionEvent::Closed { reason } => println!("gone: {reason:?}"),
+//!         SubscriptionEvent::Lost { reason } => println!("paused: {reason}"),
+//!         SubscriptionEvent::Closed { reason } => println!("gone: {reason}"),
 //!     }
 //! }
 //! # Ok(())

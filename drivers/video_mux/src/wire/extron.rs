@@ -204,7 +204,7 @@ impl core::fmt::Display for ExtronError {
             Self::ChangeNotAllowed => "change not allowed (auto-switching on?)",
             Self::InvalidCommand => "invalid command",
             Self::InvalidValue => "invalid value",
-            Self::Other(_) => "error",
+            Self::Other(_) => "an error code this driver does not know",
         };
         write!(f, "E{:02} ({what})", self.code())
     }
