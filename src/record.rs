@@ -76,9 +76,9 @@ pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
     let s = s.trim();
     let s = s.strip_prefix("ws://").unwrap_or(s);
     let s = s.strip_suffix('/').unwrap_or(s);
-    let port_alone = s.trim().bytes().all(|b| b.is_ascii_digit());
+    let port_alone = s.bytes().all(|b| b.is_ascii_digit());
     let addr = if port_alone {
-        crate::web::socket_addr(&format!("localhost:{}", s.trim()))
+        crate::web::socket_addr(&format!("localhost:{s}"))
     } else {
         crate::web::socket_addr(s)
     };

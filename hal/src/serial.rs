@@ -13,10 +13,11 @@ use std::path::Path;
 /// that may and how to join it. Other errors are returned unchanged.
 #[must_use]
 pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
-    let what = match std::fs::metadata(path) {
-        Ok(m) if m.is_file() => Some("a regular file"),
-        Ok(m) if m.is_dir() => Some("a directory"),
-        Ok(_) if is_not_a_tty(&err) => Some("a device that is not a terminal"),
+    let meta = std::fs::metadata(path).ok();
+    let what = match &meta {
+        Some(m) if m.is_file() => Some("a regular file"),
+        Some(m) if m.is_dir() => Some("a directory"),
+        Some(_) if is_not_a_tty(&err) => Some("a device that is not a terminal"),
         _ => None,
     };
     match what {
@@ -31,15 +32,13 @@ pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
                  time; `fuser {path}` names it): {err}"
             ),
         ),
-        None if err.kind() == io::ErrorKind::NotFound && std::fs::metadata(path).is_err() => {
-            io::Error::new(
-                io::ErrorKind::NotFound,
-                format!("no such port ({err}); {}", ports_here(Path::new("/dev"))),
-            )
-        }
+        None if err.kind() == io::ErrorKind::NotFound && meta.is_none() => io::Error::new(
+            io::ErrorKind::NotFound,
+            format!("no such port ({err}); {}", ports_here(Path::new("/dev"))),
+        ),
         None if err.kind() == io::ErrorKind::PermissionDenied => io::Error::new(
             io::ErrorKind::PermissionDenied,
-            format!("permission denied; {}", who_may_open(path)),
+            format!("permission denied; {}", who_may_open(meta.as_ref())),
         ),
         None => err,
     }
@@ -48,6 +47,8 @@ pub fn explain_open_error(path: &str, err: io::Error) -> io::Error {
 /// The serial ports under `dev` (a `/dev`), as a sentence: the stable names under
 /// `serial/by-id/` (with the port each names), then `ttyUSB*` and `ttyACM*`. The built-in
 /// `ttyS*` are left out: Linux lists 32 of them whether or not a UART is behind them.
+/// (`serialport::available_ports` is not used: without libudev it panics where
+/// `/sys/class/tty` is missing, and it knows no by-id names.)
 fn ports_here(dev: &Path) -> String {
     let names = |dir: &Path, prefixes: &[&str]| -> Vec<String> {
         let mut v: Vec<String> = std::fs::read_dir(dir)
@@ -103,12 +104,12 @@ fn ports_here(dev: &Path) -> String {
     format!("serial ports here: {}{hint}", ports.join(", "))
 }
 
-/// Who may open `path`: its group, and how to join it (on Debian and Ubuntu serial ports
-/// belong to `dialout`).
+/// Who may open the port of `meta`: its group, and how to join it (on Debian and Ubuntu
+/// serial ports belong to `dialout`).
 #[cfg(unix)]
-fn who_may_open(path: &str) -> String {
+fn who_may_open(meta: Option<&std::fs::Metadata>) -> String {
     use std::os::unix::fs::MetadataExt;
-    let Ok(meta) = std::fs::metadata(path) else {
+    let Some(meta) = meta else {
         return "this user may not open it".into();
     };
     let gid = meta.gid();
@@ -119,7 +120,7 @@ fn who_may_open(path: &str) -> String {
 }
 
 #[cfg(not(unix))]
-fn who_may_open(_path: &str) -> String {
+fn who_may_open(_meta: Option<&std::fs::Metadata>) -> String {
     "this user may not open it".into()
 }
 

@@ -484,6 +484,32 @@ async fn serve_frames(
     }
 }
 
+/// `tcp` free loopback TCP ports and `udp` free loopback UDP ports, all different: each pick
+/// stays bound until every one is made (picked one at a time and released at once, two
+/// picks could be the same port, and two of a fleet's sockets then fail to bind). They are
+/// released on return; another process may take one meanwhile, which only makes the later
+/// bind fail with a clear error. For the Peer Agents of a fleet served on one machine.
+///
+/// # Errors
+/// No free port (the system's ephemeral ports are exhausted).
+pub fn free_ports(tcp: usize, udp: usize) -> std::io::Result<(Vec<u16>, Vec<u16>)> {
+    let listeners = (0..tcp)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0"))
+        .collect::<std::io::Result<Vec<_>>>()?;
+    let sockets = (0..udp)
+        .map(|_| std::net::UdpSocket::bind("127.0.0.1:0"))
+        .collect::<std::io::Result<Vec<_>>>()?;
+    let tcp = listeners
+        .iter()
+        .map(|l| l.local_addr().map(|a| a.port()))
+        .collect::<std::io::Result<_>>()?;
+    let udp = sockets
+        .iter()
+        .map(|s| s.local_addr().map(|a| a.port()))
+        .collect::<std::io::Result<_>>()?;
+    Ok((tcp, udp))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

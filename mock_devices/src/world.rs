@@ -992,7 +992,6 @@ fn invalid(item: String, field: &'static str) -> WorldError {
     WorldError::Invalid { item, field }
 }
 
-/// Distance along a unit ray to a segment, if it crosses it ahead (t ≥ 0).
 /// A robot that starts overlapping something: see [`World::start_overlap`]. Its `Display` is
 /// the sentence a user reads, e.g. `scooter starts at (-3.00, 0.00) overlapping the red object
 /// at (-3.10, 0.20) (0.22 m from it; it needs 0.45 m)`.
@@ -1024,8 +1023,9 @@ impl core::fmt::Display for StartOverlap {
     }
 }
 
-/// `(x.xx, y.yy)`.
-fn point_text(p: [f64; 2]) -> String {
+/// A point as messages show it: `(x.xx, y.yy)`, metres.
+#[must_use]
+pub fn point_text(p: [f64; 2]) -> String {
     format!("({:.2}, {:.2})", p[0], p[1])
 }
 
@@ -1088,6 +1088,7 @@ fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
 }
 
+/// Distance along a unit ray to a segment, if it crosses it ahead (t ≥ 0).
 fn ray_segment(o: (f64, f64), d: (f64, f64), a: [f64; 2], b: [f64; 2]) -> Option<f64> {
     let [ax, ay] = a;
     let [bx, by] = b;
@@ -1360,6 +1361,8 @@ pub fn gaussian(rng: &mut impl Rng) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::SeedableRng;
+    use rand::rngs::SmallRng;
 
     #[test]
     fn segment_distance_to_the_segment_its_ends_and_a_point() {
@@ -1368,8 +1371,6 @@ mod tests {
         let corner = segment_distance([2.0, 1.0], [-1.0, 0.0], [1.0, 0.0]);
         assert!((corner - 2f64.sqrt()).abs() < 1e-12);
     }
-    use rand::SeedableRng;
-    use rand::rngs::SmallRng;
 
     fn bare_robot() -> World {
         let mut w = World::new();

@@ -518,7 +518,7 @@ fn mission_spans(outcomes: &[TargetOutcome], log: &[(f64, Event)]) -> Vec<Option
 /// target(s) failed". (A target under a robot's start, and robots that start inside
 /// anything, are refused when the world is loaded: [`super::mock::shared::check_starts`].)
 fn check_world(w: &ima_mock_devices::world::World, targets: &[String]) -> Result<()> {
-    let at = |p: [f64; 2]| format!("({:.2}, {:.2})", p[0], p[1]);
+    use ima_mock_devices::world::point_text;
     for t in targets {
         let objects: Vec<_> = w.objects().iter().filter(|o| &o.color == t).collect();
         anyhow::ensure!(
@@ -528,7 +528,7 @@ fn check_world(w: &ima_mock_devices::world::World, targets: &[String]) -> Result
             objects.len(),
             objects
                 .iter()
-                .map(|o| at(o.center))
+                .map(|o| point_text(o.center))
                 .collect::<Vec<_>>()
                 .join(" and ")
         );

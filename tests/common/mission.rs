@@ -15,20 +15,10 @@ pub fn free_port(udp: bool) -> u16 {
     tcp.into_iter().chain(udp).next().unwrap()
 }
 
-/// `tcp` TCP and `udp` UDP loopback ports, all different (each stays bound until every one
-/// is picked).
+/// `tcp` TCP and `udp` UDP loopback ports, all different
+/// ([`ima_mock_devices::served::free_ports`]).
 pub fn free_ports(tcp: usize, udp: usize) -> (Vec<u16>, Vec<u16>) {
-    let listeners: Vec<_> = (0..tcp)
-        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
-        .collect();
-    let sockets: Vec<_> = (0..udp)
-        .map(|_| std::net::UdpSocket::bind("127.0.0.1:0").unwrap())
-        .collect();
-    let port = |a: std::io::Result<std::net::SocketAddr>| a.unwrap().port();
-    (
-        listeners.iter().map(|l| port(l.local_addr())).collect(),
-        sockets.iter().map(|s| port(s.local_addr())).collect(),
-    )
+    ima_mock_devices::served::free_ports(tcp, udp).unwrap()
 }
 
 /// A scratch directory for one test (see [`super::Scratch`]).

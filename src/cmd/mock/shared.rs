@@ -36,7 +36,7 @@ pub fn load_world(path: Option<&PathBuf>, seed: u64) -> Result<SharedWorld> {
 /// The first overlap ([`World::start_overlap`]), naming both and the distances.
 pub fn check_starts(w: &World) -> Result<()> {
     match w.start_overlap() {
-        Some(o) => Err(anyhow::anyhow!(o.to_string())),
+        Some(o) => Err(anyhow::Error::msg(o)),
         None => Ok(()),
     }
 }

@@ -44,32 +44,6 @@ pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
     .context("serving the world")
 }
 
-/// `tcp` free local TCP ports and `udp` free local UDP ports, all different: each pick
-/// stays bound until every one is made (picked one at a time and released at once, two
-/// picks could be the same port, and two of the fleet's sockets then fail to bind). They are
-/// released on return; another process may take one meanwhile, which only makes the later
-/// bind fail with a clear error.
-///
-/// # Errors
-/// No free port (the system's ephemeral ports are exhausted).
-pub fn free_ports(tcp: usize, udp: usize) -> Result<(Vec<u16>, Vec<u16>)> {
-    let listeners = (0..tcp)
-        .map(|_| std::net::TcpListener::bind("127.0.0.1:0"))
-        .collect::<std::io::Result<Vec<_>>>()?;
-    let sockets = (0..udp)
-        .map(|_| std::net::UdpSocket::bind("127.0.0.1:0"))
-        .collect::<std::io::Result<Vec<_>>>()?;
-    let tcp = listeners
-        .iter()
-        .map(|l| l.local_addr().map(|a| a.port()))
-        .collect::<std::io::Result<_>>()?;
-    let udp = sockets
-        .iter()
-        .map(|s| s.local_addr().map(|a| a.port()))
-        .collect::<std::io::Result<_>>()?;
-    Ok((tcp, udp))
-}
-
 /// 32 random bytes from the operating system.
 pub fn random_key() -> Result<[u8; 32]> {
     use std::io::Read;
@@ -181,7 +155,7 @@ pub fn loopback_configs(
 /// # Errors
 /// No free port.
 pub fn assign_ports([skeeter, scooter, commander]: [&mut RobotConfig; 3]) -> Result<()> {
-    let (managers, bcast) = free_ports(2, 3)?;
+    let (managers, bcast) = ima_mock_devices::served::free_ports(2, 3)?;
     let at = |p: u16| format!("127.0.0.1:{p}");
     skeeter.peer.listen = at(managers[0]);
     scooter.peer.listen = at(managers[1]);
