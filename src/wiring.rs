@@ -7,6 +7,7 @@
 //! either robot runs on either base. A test (`tests` below) checks that no other module of
 //! the robots' path names a driver crate or type.
 
+use ima_p2os::shell::Driver as _;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;

@@ -27,21 +27,34 @@ use ima_hal::compass::Compass;
 use ima_hal::laser::LaserScanner;
 use ima_mock_devices::model::DeviceModel;
 use ima_mock_devices::world::RobotId;
+use ima_serial::LinkStatus;
+use ima_serial::handle::Driver as DriverCalls;
 
 /// A driver and its mock, joined over a pty.
 trait Rig {
     /// The connected driver.
-    type Driver: Send + 'static;
+    type Driver: DriverCalls + Send + Sync + 'static;
     /// The mock device.
     type Device: DeviceModel + 'static;
     /// The mock on the world's robot `id`; `reset_on_reconnect` power-cycles it on a replug.
     fn device(world: &SharedWorld, id: RobotId, reset_on_reconnect: bool) -> Self::Device;
     /// Open the pty at `path` and connect the driver: the one call of the driver's `connect`.
     async fn connect(path: &Path) -> Self::Driver;
-    /// The driver's link status, as the suite sees it.
-    fn link(d: &Self::Driver) -> Link;
-    /// Close the driver politely.
-    async fn close(d: Self::Driver);
+}
+
+/// A driver's link status, as the suite sees it: one reading for every driver.
+fn link<D: DriverCalls>(d: &D) -> Link {
+    match d.link() {
+        LinkStatus::Connected(_) => Link::Up,
+        LinkStatus::Lost | LinkStatus::Connecting => Link::Down,
+        LinkStatus::Failed(e) => Link::Other(format!("failed: {e}")),
+        LinkStatus::Closed => Link::Other("closed".into()),
+    }
+}
+
+/// Close the driver politely: it must say it closed.
+async fn close<D: DriverCalls + Sync>(d: D) {
+    d.close().await.unwrap();
 }
 
 /// What a base rig adds.
@@ -126,8 +139,8 @@ async fn base_drives_and_turns_under_corruption<R: BaseRig>() {
         "odometry turn {odo_turn:.2}° vs ground truth {true_turn:.2}°"
     );
     assert!((true_turn - 90.0).abs() < 10.0, "turned {true_turn}°");
-    assert_eq!(R::link(&base), Link::Up);
-    R::close(base).await;
+    assert_eq!(link(&base), Link::Up);
+    close(base).await;
     dev.stop().unwrap();
 }
 
@@ -188,12 +201,12 @@ async fn base_recovers_from_a_replug<R: BaseRig>() {
         base.enable_motors(true).await.unwrap();
         dev.hang_up_for(Duration::from_secs(2));
         eventually("loss reported", Duration::from_secs(3), || {
-            R::link(&base) == Link::Down
+            link(&base) == Link::Down
         })
         .await;
         wait_device_up(&dev).await;
         eventually("reconnected", R::RECONNECT_WITHIN, || {
-            R::link(&base) == Link::Up
+            link(&base) == Link::Up
         })
         .await;
         let after = base.odometry().await.unwrap().at;
@@ -210,7 +223,7 @@ async fn base_recovers_from_a_replug<R: BaseRig>() {
             "drives again (reset = {reset})"
         );
         assert!(R::reconnects(&base) >= 1, "reset = {reset}");
-        R::close(base).await;
+        close(base).await;
         dev.stop().unwrap();
     }
 }
@@ -250,9 +263,9 @@ async fn laser_delivers_only_true_scans_under_corruption<R: LaserRig>() {
             }
         }
     }
-    let link = R::link(&laser);
+    let link = link(&laser);
     assert!(matches!(link, Link::Up | Link::Down), "{link:?}");
-    R::close(laser).await;
+    close(laser).await;
     dev.stop().unwrap();
 }
 
@@ -265,18 +278,18 @@ async fn laser_recovers_from_a_replug<R: LaserRig>() {
     laser.scan().await.unwrap();
     dev.hang_up_for(Duration::from_millis(1500));
     eventually("loss reported", Duration::from_secs(5), || {
-        R::link(&laser) == Link::Down
+        link(&laser) == Link::Down
     })
     .await;
     wait_device_up(&dev).await;
     eventually("ready again", Duration::from_secs(60), || {
-        R::link(&laser) == Link::Up
+        link(&laser) == Link::Up
     })
     .await;
     let after = laser.scan().await.unwrap().at;
     let s = laser.next_scan(after).await.unwrap();
     assert_eq!(s.value.len(), R::truth(&world, id).len());
-    R::close(laser).await;
+    close(laser).await;
     dev.stop().unwrap();
 }
 
@@ -313,8 +326,8 @@ async fn compass_delivers_only_true_headings_under_corruption<R: CompassRig>() {
             "{got:.2}° vs truth {want:.2}°"
         );
     }
-    assert_eq!(R::link(&compass), Link::Up);
-    R::close(compass).await;
+    assert_eq!(link(&compass), Link::Up);
+    close(compass).await;
     dev.stop().unwrap();
 }
 
@@ -326,17 +339,17 @@ async fn compass_recovers_from_a_replug<R: CompassRig>() {
     compass.heading().await.unwrap();
     dev.hang_up_for(Duration::from_secs(2));
     eventually("silence reported", Duration::from_secs(5), || {
-        R::link(&compass) == Link::Down
+        link(&compass) == Link::Down
     })
     .await;
     wait_device_up(&dev).await;
     eventually("running again", Duration::from_secs(5), || {
-        R::link(&compass) == Link::Up
+        link(&compass) == Link::Up
     })
     .await;
     let after = compass.heading().await.unwrap().at;
     compass.next_heading(after).await.unwrap();
-    R::close(compass).await;
+    close(compass).await;
     dev.stop().unwrap();
 }
 
@@ -349,7 +362,7 @@ mod p2os {
     use super::*;
     use ima_mock_devices::body::WorldBody;
     use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
-    use ima_p2os::shell::{LinkStatus, P2os, open_port};
+    use ima_p2os::shell::{P2os, open_port};
 
     pub struct P2osRig;
 
@@ -374,16 +387,6 @@ mod p2os {
             )
             .await
             .unwrap()
-        }
-        fn link(d: &P2os) -> Link {
-            match d.link() {
-                LinkStatus::Connected { .. } => Link::Up,
-                LinkStatus::Lost => Link::Down,
-                other => Link::Other(format!("{other:?}")),
-            }
-        }
-        async fn close(d: P2os) {
-            d.close().await.unwrap();
         }
     }
 
@@ -423,7 +426,7 @@ mod rflex {
     use super::*;
     use ima_mock_devices::body::WorldBody;
     use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
-    use ima_rflex::shell::{LinkStatus, Rflex, open_port};
+    use ima_rflex::shell::{Rflex, open_port};
 
     pub struct RflexRig;
 
@@ -448,16 +451,6 @@ mod rflex {
             )
             .await
             .unwrap()
-        }
-        fn link(d: &Rflex) -> Link {
-            match d.link() {
-                LinkStatus::Connected(()) => Link::Up,
-                LinkStatus::Lost => Link::Down,
-                other => Link::Other(format!("{other:?}")),
-            }
-        }
-        async fn close(d: Rflex) {
-            d.close().await.unwrap();
         }
     }
 
@@ -498,7 +491,7 @@ mod sick_lms {
     use super::*;
     use ima_mock_devices::sick_lms::{RangeSource, SickLmsDevice, SickLmsModelConfig, WorldLaser};
     use ima_sick_lms::machine::Config;
-    use ima_sick_lms::shell::{LinkStatus, SickLms};
+    use ima_sick_lms::shell::SickLms;
     use ima_sick_lms::wire::BaudRate;
 
     pub struct SickLmsRig;
@@ -518,16 +511,6 @@ mod sick_lms {
         }
         async fn connect(path: &Path) -> SickLms {
             connect_with_retries(path, Config::default().retries).await
-        }
-        fn link(d: &SickLms) -> Link {
-            match d.link() {
-                LinkStatus::Connected(_) => Link::Up,
-                LinkStatus::Lost | LinkStatus::Connecting => Link::Down,
-                other => Link::Other(format!("{other:?}")),
-            }
-        }
-        async fn close(d: SickLms) {
-            d.close().await.unwrap();
         }
     }
 
@@ -587,7 +570,7 @@ mod sick_lms {
 mod compass {
     use super::*;
     use ima_compass::machine::{Config, Dialect};
-    use ima_compass::shell::{CompassDriver, LinkStatus, open_port};
+    use ima_compass::shell::{CompassDriver, open_port};
     use ima_compass::wire::Tcm2Format;
     use ima_mock_devices::compass::{CompassDevice, CompassModelConfig, MockDialect, MockSentence};
 
@@ -623,16 +606,6 @@ mod compass {
             )
             .await
             .unwrap()
-        }
-        fn link(d: &CompassDriver) -> Link {
-            match d.link() {
-                LinkStatus::Connected(()) => Link::Up,
-                LinkStatus::Lost => Link::Down,
-                other => Link::Other(format!("{other:?}")),
-            }
-        }
-        async fn close(d: CompassDriver) {
-            d.close().await;
         }
     }
 

@@ -5,6 +5,7 @@
 //! device's watchdog stopping a silent host's robot, replug recovery) is in the conformance
 //! suite, `tests/conformance.rs`; this file keeps what is particular to this driver.
 
+use ima_rflex::shell::Driver as _;
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

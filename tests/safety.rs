@@ -5,6 +5,7 @@
 //! world's ground truth, and asserts that a stop arrived within 0.3 s of the interruption, that
 //! the robot stood within 1.0 s, and that a P2OS session was closed with CLOSE.
 
+use ima_p2os::shell::Driver as _;
 use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use std::time::{Duration, Instant};

@@ -3,6 +3,7 @@
 
 mod common;
 
+use ima_sick_lms::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::laser::{LaserScan, LaserScanner};

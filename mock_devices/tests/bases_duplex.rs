@@ -2,6 +2,7 @@
 //! [`RflexDevice`]) on a robot of a simulated world, served over an in-memory duplex
 //! ([`DuplexDevice`]) with the world stepped on tokio's clock: paused (virtual) time.
 
+use ima_p2os::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::base::{Bumpers, DifferentialBase, Odometer, VelocityCommand};

@@ -2,6 +2,7 @@
 //! paused (virtual) time: scan rates set by line and mirror (spec §4), variants, and recovery
 //! after an outage, all without waiting in real time.
 
+use ima_sick_lms::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::laser::LaserScanner;

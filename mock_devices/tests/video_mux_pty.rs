@@ -1,6 +1,7 @@
 //! End to end: the switcher driver against the mock Extron switcher over a real pty, and the
 //! mock camera head fed by that switcher.
 
+use ima_video_mux::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::camera::{CameraMux, FrameSource};

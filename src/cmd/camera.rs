@@ -2,6 +2,7 @@
 //! the real switcher driver) and save it as PNG (the mock switcher alone is
 //! `crate::cmd::mock::video_mux`).
 
+use ima_video_mux::shell::Driver as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -130,7 +131,9 @@ fn grab(args: &GrabArgs) -> Result<()> {
                 sel.channel,
                 mux.settle_time()
             );
-            mux.close().await;
+            if let Err(e) = mux.close().await {
+                eprintln!("warning: closing the switcher: {e}");
+            }
             sel.settled_at.saturating_duration_since(mux.now())
         };
         if !args.no_settle {

@@ -1,6 +1,7 @@
 //! `ima compass --port PATH`: configure a serial compass and print its heading live (the mock
 //! compass is `crate::cmd::mock::compass`).
 
+use ima_compass::shell::Driver as _;
 use std::io::Write;
 use std::time::Duration;
 
@@ -190,6 +191,5 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         "{} headings, {} parse errors, {} bad checksums, {} bytes dropped",
         st.headings, st.parse_errors, st.framer.bad_checksums, st.framer.dropped_bytes
     );
-    drv.close().await;
-    Ok(())
+    drv.close().await.context("closing the compass")
 }

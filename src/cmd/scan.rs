@@ -1,6 +1,7 @@
 //! `ima scan`: connect to a SICK LMS on a serial port, initialise it, print the scan rate and
 //! a one-line summary per scan, and optionally write one scan as an SVG picture.
 
+use ima_sick_lms::shell::Driver as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Duration;

@@ -21,6 +21,8 @@ use tokio::sync::watch;
 pub use crate::driver::{DriverError, Fault};
 use crate::machine::{Config, Dialect, Event, Machine, Reading, RequestError, Stats};
 use crate::wire::CalScore;
+/// The calls every driver handle answers alike: `link`, `stats`, `now`, `halt_signal`, `close`.
+pub use ima_serial::handle::Driver;
 /// Open a serial port for the shell: `baud` 8N1, no flow control (NMEA compasses: 4800;
 /// TCM2: 9600).
 pub use ima_serial::open_port;
@@ -200,24 +202,6 @@ impl CompassDriver {
         self.dialect
     }
 
-    /// Current link status.
-    #[must_use]
-    pub fn link(&self) -> LinkStatus {
-        self.h.link()
-    }
-
-    /// Session counters.
-    #[must_use]
-    pub fn stats(&self) -> Stats {
-        self.h.stats()
-    }
-
-    /// The driver's clock (the time base of every stamp it produces).
-    #[must_use]
-    pub fn now(&self) -> Instant {
-        self.h.now()
-    }
-
     /// The latest full reading (pitch, roll, temperature where the device sends them).
     #[must_use]
     pub fn latest(&self) -> Option<Stamped<Reading>> {
@@ -256,10 +240,13 @@ impl CompassDriver {
         };
         self.h.defer(Duration::from_secs(10), f).await
     }
+}
 
-    /// End the driver task (the port is released when this returns).
-    pub async fn close(&self) {
-        let _ = self.h.close(Duration::from_secs(2)).await;
+impl Driver for CompassDriver {
+    type Shell = CompassShell;
+    const CLOSE_LIMIT: Duration = Duration::from_secs(2);
+    fn handle(&self) -> &Handle<CompassShell> {
+        &self.h
     }
 }
 

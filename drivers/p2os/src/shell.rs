@@ -25,6 +25,8 @@ use crate::machine::{
 use crate::params::RobotParams;
 /// The process's one clock, passed to `connect`: every stamp the driver produces is on it.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
+/// The calls every driver handle answers alike: `link`, `stats`, `now`, `halt_signal`, `close`.
+pub use ima_serial::handle::Driver;
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (probing changes it).
 pub use ima_serial::open_port;
 
@@ -212,30 +214,10 @@ impl P2os {
         })
     }
 
-    /// This driver's halt signal: [`halt`](ima_hal::safety::HaltSignal::halt) stops the
-    /// robot and closes the session from any thread without awaiting (the same as
-    /// [`close`](Self::close), fire-and-forget).
-    #[must_use]
-    pub fn halt_signal(&self) -> ima_hal::safety::HaltSignal {
-        self.h.halt_signal()
-    }
-
     /// The parameter table in use.
     #[must_use]
     pub fn params(&self) -> &RobotParams {
         &self.params
-    }
-
-    /// Current link status.
-    #[must_use]
-    pub fn link(&self) -> LinkStatus {
-        self.h.link()
-    }
-
-    /// Session counters (frames, drops, bad checksums, implausible SIPs, reconnects…).
-    #[must_use]
-    pub fn stats(&self) -> SessionStats {
-        self.h.stats()
     }
 
     /// The robot's CONFIG packet, once received.
@@ -260,12 +242,6 @@ impl P2os {
         self.h.wait_for(&self.state, timeout, newer).await
     }
 
-    /// The driver's clock (the time base of every stamp it produces).
-    #[must_use]
-    pub fn now(&self) -> Instant {
-        self.h.now()
-    }
-
     async fn call(
         &self,
         f: impl FnOnce(&mut Machine, Instant) -> Result<(), crate::SessionError> + Send + 'static,
@@ -274,20 +250,21 @@ impl P2os {
         self.h.call(REQUEST_TIMEOUT, f).await
     }
 
-    /// Stop the robot, close the session and end the driver task. Returns once the last
-    /// frames (STOP, then CLOSE) are written to the port, or with an error if they could not
-    /// be. Dropping every handle does the same in the background.
-    pub async fn close(&self) -> Result<(), DriverError> {
-        self.h
-            .close(CLOSE_DRAIN_LIMIT + Duration::from_secs(1))
-            .await
-    }
-
     async fn wait_state(&self) -> Result<RobotState, DriverError> {
         if let Some(s) = self.latest() {
             return Ok(s);
         }
         self.next_state(Instant::ZERO, Duration::from_secs(2)).await
+    }
+}
+
+/// [`close`](Driver::close) writes STOP, then CLOSE; [`stats`](Driver::stats) are the
+/// session's counters (frames, drops, bad checksums, implausible SIPs, reconnects…).
+impl Driver for P2os {
+    type Shell = P2osShell;
+    const CLOSE_LIMIT: Duration = CLOSE_DRAIN_LIMIT.saturating_add(Duration::from_secs(1));
+    fn handle(&self) -> &Handle<P2osShell> {
+        &self.h
     }
 }
 

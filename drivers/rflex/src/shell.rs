@@ -35,6 +35,8 @@ pub use crate::driver::{BAUD, DriverError, Fault};
 use crate::machine::{CommandError, Config, Event, Machine, Phase, Stats, TX_BUF};
 /// The process's one clock, passed to `connect`: every stamp the driver produces is on it.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
+/// The calls every driver handle answers alike: `link`, `stats`, `now`, `halt_signal`, `close`.
+pub use ima_serial::handle::Driver;
 /// Open a serial port for the shell: `baud` (115200, §1) 8N1, no flow control, raw.
 pub use ima_serial::open_port;
 
@@ -260,25 +262,6 @@ impl Rflex {
         })
     }
 
-    /// This driver's halt signal: [`halt`](ima_hal::safety::HaltSignal::halt) stops the
-    /// base and shuts the session down from any thread without awaiting.
-    #[must_use]
-    pub fn halt_signal(&self) -> ima_hal::safety::HaltSignal {
-        self.h.halt_signal()
-    }
-
-    /// Current link status.
-    #[must_use]
-    pub fn link(&self) -> LinkStatus {
-        self.h.link()
-    }
-
-    /// The task's counters.
-    #[must_use]
-    pub fn stats(&self) -> ShellStats {
-        self.h.stats()
-    }
-
     /// The brake as last reported (`true`: engaged).
     #[must_use]
     pub fn brake(&self) -> Option<Stamped<bool>> {
@@ -291,23 +274,20 @@ impl Rflex {
         *self.odometry.borrow()
     }
 
-    /// The driver's clock (the time base of every stamp it produces).
-    #[must_use]
-    pub fn now(&self) -> Instant {
-        self.h.now()
-    }
-
     async fn call(
         &self,
         f: impl FnOnce(&mut RflexShell, Instant) -> Result<(), CommandError> + Send + 'static,
     ) -> Result<(), DriverError> {
         self.h.call(REQUEST_TIMEOUT, |s, now| Ok(f(s, now)?)).await
     }
+}
 
-    /// Stop the base, run the shutdown sequence and end the driver task; returns once the
-    /// port is released. Dropping every handle does the same in the background.
-    pub async fn close(&self) -> Result<(), DriverError> {
-        self.h.close(Duration::from_secs(3)).await
+/// [`close`](Driver::close) stops the base and runs the shutdown sequence.
+impl Driver for Rflex {
+    type Shell = RflexShell;
+    const CLOSE_LIMIT: Duration = Duration::from_secs(3);
+    fn handle(&self) -> &Handle<RflexShell> {
+        &self.h
     }
 }
 

@@ -15,6 +15,62 @@ use tokio::sync::{mpsc, oneshot, watch};
 use crate::runner::{self, Error, Msg, Reply, Shell, Status};
 use crate::{BaudControl, DriverError, LinkError, LinkStatus};
 
+/// What every driver's public handle offers beside its device's own calls: the link, the
+/// counters, the clock, the halt signal, and closing. A handle implements it by naming the
+/// [`Handle`] it holds and how long closing may take; the methods come with the trait, so
+/// the five drivers answer them alike (`use ima_serial::handle::Driver`, re-exported by
+/// every driver crate). A handle may refine [`stats`](Driver::stats) (the SICK driver adds
+/// the scans its handles can see).
+pub trait Driver {
+    /// The shell the driver's task runs.
+    type Shell: Shell;
+
+    /// The longest [`close`](Driver::close) waits for the last frames to be written and the
+    /// port released.
+    const CLOSE_LIMIT: Duration;
+
+    /// The handle of the driver's task.
+    fn handle(&self) -> &Handle<Self::Shell>;
+
+    /// The link's status now.
+    #[must_use]
+    fn link(&self) -> Status<Self::Shell> {
+        self.handle().link()
+    }
+
+    /// The driver's counters as last published.
+    #[must_use]
+    fn stats(&self) -> <Self::Shell as Shell>::Stats {
+        self.handle().stats()
+    }
+
+    /// Now, on the driver's clock (the time base of every stamp it produces).
+    #[must_use]
+    fn now(&self) -> Instant {
+        self.handle().now()
+    }
+
+    /// The driver's halt signal: [`HaltSignal::halt`] does what [`close`](Driver::close)
+    /// does (a base stops first), from any thread and without awaiting.
+    #[must_use]
+    fn halt_signal(&self) -> HaltSignal {
+        self.handle().halt_signal()
+    }
+
+    /// Write the device's last frames (a base: STOP, then its close or shutdown sequence),
+    /// release the port and end the task, waiting at most [`Driver::CLOSE_LIMIT`]. Closing a
+    /// driver already closed is `Ok`; dropping every handle closes it in the background.
+    ///
+    /// # Errors
+    /// `Timeout` if the last frames were not all written in time, or the link's failure.
+    fn close(&self) -> impl Future<Output = Result<(), Error<Self::Shell>>> + Send
+    where
+        Self: Sync,
+    {
+        self.handle().close(Self::CLOSE_LIMIT)
+    }
+}
+
 /// A cloneable handle to the task running shell `D`. Dropping every handle closes the
 /// task (the shell's last frames are written, then the port is released).
 pub struct Handle<D: Shell> {

@@ -10,7 +10,8 @@
 //! * [`runner`] (feature `tokio`) — the one async loop that runs a driver's [`runner::Shell`]
 //!   over a byte stream (drain events → transmit → flush → wait on read / deadline / call);
 //!   [`handle::Handle`] — spawn, connect, calls on the shell, readings, close, the halt
-//!   signal: everything a driver handle does the same way; `blocking` (feature `serial`)
+//!   signal: everything a driver handle does the same way, and [`handle::Driver`], the calls
+//!   every driver's public handle answers alike; `blocking` (feature `serial`)
 //!   — any driver handle driven from blocking code; [`probe::Probe`] — what each line rate
 //!   tried received while a driver connects.
 //! * [`line`](mod@line) — the bounded line framer of the ASCII protocols (`no_std`, no heap,

@@ -5,6 +5,7 @@
 //! the cost of one scan, end to end. `divan::AllocProfiler` shows the allocations per scan:
 //! `cargo bench -p ima-sick-lms --features serial --bench shell`.
 
+use ima_sick_lms::shell::Driver as _;
 use std::io;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};

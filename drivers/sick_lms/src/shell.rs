@@ -35,6 +35,8 @@ use crate::machine::{Config, Event, MAX_COMMAND, Machine, MachineError, SessionI
 use crate::wire::{MeasuringMode, StatusByte};
 /// The process's one clock, passed to `connect`: every stamp the driver produces is on it.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
+/// The calls every driver handle answers alike: `link`, `stats`, `now`, `halt_signal`, `close`.
+pub use ima_serial::handle::Driver;
 /// Open a serial port for the shell: 8N1, no flow control, at `baud` (probing changes it).
 pub use ima_serial::open_port;
 
@@ -125,26 +127,10 @@ impl SickLms {
         self
     }
 
-    /// Current link status.
-    #[must_use]
-    pub fn link(&self) -> LinkStatus {
-        self.h.link()
-    }
-
     /// What the session runs with, once initialised.
     #[must_use]
     pub fn session(&self) -> Option<SessionInfo> {
         self.h.link().connection().copied()
-    }
-
-    /// The driver's counters (scans delivered: up to the latest scan a handle can see).
-    #[must_use]
-    pub fn stats(&self) -> ScanStats {
-        let delivered = self.scan.borrow().seq;
-        ScanStats {
-            delivered,
-            ..self.h.stats()
-        }
     }
 
     /// The unit's type string (e.g. `LMS200;30106`), once identified.
@@ -163,12 +149,6 @@ impl SickLms {
     #[must_use]
     pub fn probe_report(&self) -> ProbeReport {
         self.probe.borrow().clone()
-    }
-
-    /// The driver's clock (the time base of every stamp it produces).
-    #[must_use]
-    pub fn now(&self) -> Instant {
-        self.h.now()
     }
 
     /// Wait until the session is ready again (after a loss or a reconfiguration).
@@ -226,18 +206,26 @@ impl SickLms {
         self.reconfigure(Duration::from_secs(10), start).await
     }
 
-    /// Stop the stream, put the unit back at its power-up rate and end the task; returns
-    /// once the port is released.
-    ///
-    /// # Errors
-    /// `Timeout` if the unit did not confirm in time.
-    pub async fn close(&self) -> Result<(), DriverError> {
-        self.h.close(CLOSE_TIMEOUT + Duration::from_secs(1)).await
-    }
-
     async fn wait_scan(&self, after: Instant) -> Result<Stamped<LaserScan>, DriverError> {
         let newer = |s: &Slot| (s.seq > 0 && s.scan.at > after).then(|| s.scan.clone());
         self.h.wait_for(&self.scan, self.scan_timeout, newer).await
+    }
+}
+
+/// [`close`](Driver::close) stops the stream and puts the unit back at its power-up rate;
+/// [`stats`](Driver::stats) count the scans delivered up to the latest a handle can see.
+impl Driver for SickLms {
+    type Shell = SickShell;
+    const CLOSE_LIMIT: Duration = CLOSE_TIMEOUT.saturating_add(Duration::from_secs(1));
+    fn handle(&self) -> &Handle<SickShell> {
+        &self.h
+    }
+    fn stats(&self) -> ScanStats {
+        let delivered = self.scan.borrow().seq;
+        ScanStats {
+            delivered,
+            ..self.h.stats()
+        }
     }
 }
 

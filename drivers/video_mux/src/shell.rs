@@ -10,8 +10,8 @@
 
 use std::time::Duration;
 
+use ima_hal::ErrorType;
 use ima_hal::camera::{CameraMux, Channel, Selection};
-use ima_hal::{ErrorType, Instant};
 use ima_serial::handle::{Handle, Pending};
 use ima_serial::runner::Shell;
 use ima_serial::{BaudControl, FixedBaud};
@@ -22,6 +22,8 @@ pub use crate::driver::{DriverError, Fault};
 use crate::machine::{Config, Event, Machine, RequestError, Stats};
 /// The process's one clock, passed to `spawn`: every stamp the driver produces is on it.
 pub use ima_hal::time::{Clock, SharedClock, TokioClock};
+/// The calls every driver handle answers alike: `link`, `stats`, `now`, `halt_signal`, `close`.
+pub use ima_serial::handle::Driver;
 /// Open a serial port for the shell: `baud` (Extron default 9600) 8N1, no flow control.
 pub use ima_serial::open_port;
 
@@ -170,29 +172,20 @@ impl VideoMux {
         *self.notices.borrow()
     }
 
-    /// Session counters.
-    #[must_use]
-    pub fn stats(&self) -> Stats {
-        self.h.stats()
-    }
-
-    /// The driver's clock (the time base of [`Selection`] stamps).
-    #[must_use]
-    pub fn now(&self) -> Instant {
-        self.h.now()
-    }
-
-    /// End the driver task.
-    pub async fn close(&self) {
-        let _ = self.h.close(Duration::from_secs(2)).await;
-    }
-
     /// How long a request may take: every attempt, plus slack for a loaded machine.
     fn request_timeout(&self) -> Duration {
         let c = &self.config;
         (c.reply_timeout
             .saturating_mul(u32::from(c.retries).saturating_add(1)))
         .saturating_add(Duration::from_secs(2))
+    }
+}
+
+impl Driver for VideoMux {
+    type Shell = MuxShell;
+    const CLOSE_LIMIT: Duration = Duration::from_secs(2);
+    fn handle(&self) -> &Handle<MuxShell> {
+        &self.h
     }
 }
 

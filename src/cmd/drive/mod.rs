@@ -8,6 +8,7 @@ pub mod report;
 pub mod rflex;
 pub mod square;
 
+use ima_p2os::shell::Driver as _;
 use std::time::Duration;
 
 use anyhow::{Context, Result};

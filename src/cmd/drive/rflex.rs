@@ -5,6 +5,7 @@ use anyhow::{Context, Result};
 use ima_hal::base::{DifferentialBase, Odometer, Odometry, VelocityCommand};
 use ima_hal::power::Power;
 use ima_hal::{Instant, Stamped};
+use ima_rflex::shell::Driver as _;
 use ima_rflex::shell::{Rflex, open_port};
 
 use crate::cmd::num;

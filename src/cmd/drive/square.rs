@@ -5,6 +5,7 @@
 //! closed-loop on its odometry, and the program prints the driver's odometry against the
 //! simulated world's ground truth at every corner.
 
+use ima_p2os::shell::Driver as _;
 use std::time::Duration;
 
 use crate::safety::outln;
