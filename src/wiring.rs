@@ -7,7 +7,6 @@
 //! either robot runs on either base. A test (`tests` below) checks that no other module of
 //! the robots' path names a driver crate or type.
 
-use ima_p2os::shell::Driver as _;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
@@ -21,6 +20,7 @@ use ima_compass::shell::CompassDriver;
 use ima_hal::base::DifferentialBase;
 use ima_hal::safety::HaltSignal;
 use ima_hal::time::SharedClock;
+use ima_p2os::shell::Driver as _;
 use ima_p2os::shell::P2os;
 use ima_rflex::shell::Rflex;
 use ima_sick_lms::shell::SickLms;

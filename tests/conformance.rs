@@ -263,8 +263,8 @@ async fn laser_delivers_only_true_scans_under_corruption<R: LaserRig>() {
             }
         }
     }
-    let link = link(&laser);
-    assert!(matches!(link, Link::Up | Link::Down), "{link:?}");
+    let seen = link(&laser);
+    assert!(matches!(seen, Link::Up | Link::Down), "{seen:?}");
     close(laser).await;
     dev.stop().unwrap();
 }

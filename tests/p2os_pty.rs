@@ -5,7 +5,6 @@
 //! device's watchdog stopping a silent host's robot, replug recovery) is in the conformance
 //! suite, `tests/conformance.rs`; this file keeps what is particular to this driver.
 
-use ima_p2os::shell::Driver as _;
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -18,6 +17,7 @@ use ima_mock_devices::model::DeviceModel;
 use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::world::{RobotSpec, SharedWorld, Wall, World};
+use ima_p2os::shell::Driver as _;
 use ima_p2os::shell::{Connection, LinkStatus, P2os, open_port};
 
 fn world_with_skeeter(wall_x: Option<f64>) -> (SharedWorld, ima_mock_devices::world::RobotId) {

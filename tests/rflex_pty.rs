@@ -5,7 +5,6 @@
 //! device's watchdog stopping a silent host's robot, replug recovery) is in the conformance
 //! suite, `tests/conformance.rs`; this file keeps what is particular to this driver.
 
-use ima_rflex::shell::Driver as _;
 use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -20,6 +19,7 @@ use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, Wall, World};
 use ima_rflex::machine::CommandError;
+use ima_rflex::shell::Driver as _;
 use ima_rflex::shell::{Rflex, open_port};
 
 fn world_with_scooter(wall_x: Option<f64>) -> (SharedWorld, RobotId) {

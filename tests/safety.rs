@@ -5,7 +5,6 @@
 //! world's ground truth, and asserts that a stop arrived within 0.3 s of the interruption, that
 //! the robot stood within 1.0 s, and that a P2OS session was closed with CLOSE.
 
-use ima_p2os::shell::Driver as _;
 use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
@@ -16,6 +15,7 @@ use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::pty::{HostLog, PtyDevice, PtyOptions};
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, World};
+use ima_p2os::shell::Driver as _;
 
 mod common;
 use common::{Child, ima};

@@ -3,7 +3,6 @@
 
 mod common;
 
-use ima_sick_lms::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::laser::{LaserScan, LaserScanner};
@@ -13,6 +12,7 @@ use ima_mock_devices::sick_lms::{SickLmsDevice, SickLmsModelConfig, WorldLaser};
 use ima_mock_devices::world::{RobotId, RobotSpec, SharedWorld, Wall, World};
 use ima_sick_lms::decode::Variant;
 use ima_sick_lms::machine::Config;
+use ima_sick_lms::shell::Driver as _;
 use ima_sick_lms::shell::{DriverError, SickLms, open_port};
 use ima_sick_lms::wire::BaudRate;
 

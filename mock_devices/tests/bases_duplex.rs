@@ -2,7 +2,6 @@
 //! [`RflexDevice`]) on a robot of a simulated world, served over an in-memory duplex
 //! ([`DuplexDevice`]) with the world stepped on tokio's clock: paused (virtual) time.
 
-use ima_p2os::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::base::{Bumpers, DifferentialBase, Odometer, VelocityCommand};
@@ -14,6 +13,7 @@ use ima_mock_devices::p2os::{P2osDevice, P2osModelConfig};
 use ima_mock_devices::rflex::{RflexDevice, RflexModelConfig};
 use ima_mock_devices::stepper::TokioWorldStepper;
 use ima_mock_devices::world::{RobotSpec, SharedWorld, SonarModel, Wall, World};
+use ima_p2os::shell::Driver as _;
 use ima_p2os::shell::{FixedBaud, P2os};
 use ima_rflex::shell::Rflex;
 use tokio::io::DuplexStream;

@@ -1,10 +1,10 @@
 //! The compass and switcher shells against their mock devices over in-memory duplexes, in
 //! tokio's paused (virtual) time: exact timing rules, silence and recovery.
 
-use ima_compass::shell::Driver as _;
 use std::time::Duration;
 
 use ima_compass::machine::{Config, Dialect};
+use ima_compass::shell::Driver as _;
 use ima_compass::shell::{CompassDriver, LinkStatus};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::camera::{CameraMux, FrameSource};

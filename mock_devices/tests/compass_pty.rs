@@ -2,10 +2,10 @@
 //! pseudo-terminals, both dialects, with the simulated world as ground truth. The test steps
 //! the world itself (no stepper) so the truth is known exactly while readings are compared.
 
-use ima_compass::shell::Driver as _;
 use std::time::Duration;
 
 use ima_compass::machine::{Config, Dialect, Source};
+use ima_compass::shell::Driver as _;
 use ima_compass::shell::{Calibration, CalibrationOutcome, CompassDriver, open_port};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::compass::Compass;

@@ -2,7 +2,6 @@
 //! paused (virtual) time: scan rates set by line and mirror (spec §4), variants, and recovery
 //! after an outage, all without waiting in real time.
 
-use ima_sick_lms::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::laser::LaserScanner;
@@ -10,6 +9,7 @@ use ima_mock_devices::duplex::{DuplexDevice, DuplexOptions};
 use ima_mock_devices::sick_lms::{RangeSource, SickLmsDevice, SickLmsModelConfig};
 use ima_sick_lms::decode::Variant;
 use ima_sick_lms::machine::Config;
+use ima_sick_lms::shell::Driver as _;
 use ima_sick_lms::shell::{FixedBaud, SickLms};
 use ima_sick_lms::wire::BaudRate;
 

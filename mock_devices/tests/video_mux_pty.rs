@@ -1,7 +1,6 @@
 //! End to end: the switcher driver against the mock Extron switcher over a real pty, and the
 //! mock camera head fed by that switcher.
 
-use ima_video_mux::shell::Driver as _;
 use std::time::Duration;
 
 use ima_hal::camera::{CameraMux, FrameSource};
@@ -11,6 +10,7 @@ use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::video_mux::{MuxDevice, MuxModelConfig, VideoBus};
 use ima_mock_devices::world::{SharedWorld, World};
 use ima_video_mux::machine::{Config, Refusal};
+use ima_video_mux::shell::Driver as _;
 use ima_video_mux::shell::{DriverError, Notice, VideoMux, open_port};
 use ima_video_mux::wire::ExtronError;
 

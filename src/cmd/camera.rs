@@ -2,7 +2,6 @@
 //! the real switcher driver) and save it as PNG (the mock switcher alone is
 //! `crate::cmd::mock::video_mux`).
 
-use ima_video_mux::shell::Driver as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -12,6 +11,7 @@ use ima_mock_devices::camera::{CameraConfig, MockCameraHead};
 use ima_mock_devices::pty::{PtyDevice, PtyOptions};
 use ima_mock_devices::video_mux::{MuxDevice, MuxModelConfig, VideoBus};
 use ima_video_mux::machine::Config as MuxConfig;
+use ima_video_mux::shell::Driver as _;
 use ima_video_mux::shell::{VideoMux, open_port};
 
 /// `ima camera` sub-commands.
@@ -132,7 +132,7 @@ fn grab(args: &GrabArgs) -> Result<()> {
                 mux.settle_time()
             );
             if let Err(e) = mux.close().await {
-                eprintln!("warning: closing the switcher: {e}");
+                eprintln!("ima: warning: closing the switcher: {e}");
             }
             sel.settled_at.saturating_duration_since(mux.now())
         };

@@ -1,7 +1,6 @@
 //! `ima compass --port PATH`: configure a serial compass and print its heading live (the mock
 //! compass is `crate::cmd::mock::compass`).
 
-use ima_compass::shell::Driver as _;
 use std::io::Write;
 use std::time::Duration;
 
@@ -9,6 +8,7 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use ima_compass::driver::{DriverError, Fault};
 use ima_compass::machine::{Config, Dialect, ForeignLine};
+use ima_compass::shell::Driver as _;
 use ima_compass::shell::{CompassDriver, open_port};
 use ima_compass::wire::Tcm2Format;
 use ima_hal::compass::HeadingReference;

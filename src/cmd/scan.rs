@@ -1,7 +1,6 @@
 //! `ima scan`: connect to a SICK LMS on a serial port, initialise it, print the scan rate and
 //! a one-line summary per scan, and optionally write one scan as an SVG picture.
 
-use ima_sick_lms::shell::Driver as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -13,6 +12,7 @@ use ima_hal::laser::{BeamFlags, LaserScan, LaserScanner};
 use ima_sick_lms::decode::Variant;
 use ima_sick_lms::driver::expected_scan_rate_hz;
 use ima_sick_lms::machine::Config;
+use ima_sick_lms::shell::Driver as _;
 use ima_sick_lms::shell::{DriverError, Fault, SickLms, open_port};
 use ima_sick_lms::wire::{BaudRate, StatusByte};
 

@@ -16,9 +16,10 @@ use ima_mock_devices::world::{RobotId, RobotSpec, Wall, World};
 pub enum Link {
     /// Data flows.
     Up,
-    /// The driver noticed the device is gone and is getting it back.
+    /// Connecting: the driver noticed the device is gone and is getting it back (every
+    /// driver starts here too, but the suite reads links only once connected).
     Down,
-    /// Anything else (connecting, failed, closed), named for the failure message.
+    /// Failed or closed, named for the failure message.
     Other(String),
 }
 

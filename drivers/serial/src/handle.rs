@@ -29,10 +29,13 @@ pub trait Driver {
     /// port released.
     const CLOSE_LIMIT: Duration;
 
-    /// The handle of the driver's task.
+    /// The handle of the driver's task, for the methods below (hidden: calling the shell
+    /// through it would bypass the driver's own API).
+    #[doc(hidden)]
     fn handle(&self) -> &Handle<Self::Shell>;
 
-    /// The link's status now.
+    /// The link's status now (a driver that only answers requests, such as the video
+    /// switcher, stays `Connecting`: it has no stream to be up).
     #[must_use]
     fn link(&self) -> Status<Self::Shell> {
         self.handle().link()

@@ -5,7 +5,6 @@
 //! the cost of one scan, end to end. `divan::AllocProfiler` shows the allocations per scan:
 //! `cargo bench -p ima-sick-lms --features serial --bench shell`.
 
-use ima_sick_lms::shell::Driver as _;
 use std::io;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
@@ -17,6 +16,7 @@ use divan::{AllocProfiler, Bencher};
 use ima_hal::blocking::LaserScanner as _;
 use ima_serial::blocking::Blocking;
 use ima_sick_lms::machine::Config;
+use ima_sick_lms::shell::Driver as _;
 use ima_sick_lms::shell::{BaudControl, SickLms};
 use ima_sick_lms::wire::{
     ACK, BaudRate, Command, LmsConfig, MAX_TELEGRAM, ModeRequest, Reply, Scan, StatusBlock,

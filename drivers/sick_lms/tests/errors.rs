@@ -1,5 +1,6 @@
 //! The SICK LMS driver's errors, as the person at the robot reads them.
 
+use ima_hal::ErrorKind;
 use ima_sick_lms::driver::{DriverError, Fault};
 use ima_sick_lms::machine::MachineError;
 
@@ -81,4 +82,48 @@ fn a_session_error_names_the_command_in_words() {
         MachineError::NoDevice.to_string(),
         text(MachineError::NoDevice)
     );
+}
+
+/// A unit that never answered: the rates tried, and the one left out without RS-422.
+#[test]
+fn not_found_names_the_rates_and_the_one_not_tried() {
+    let mut report = ima_hal::link::ProbeReport::new();
+    for b in [9600, 38400, 19200] {
+        report.attempt(b);
+    }
+    let e = DriverError::Device(Fault::NotFound {
+        report: Box::new(report.clone()),
+        rs422: false,
+    });
+    let text = e.to_string();
+    assert!(
+        text.ends_with(
+            "silence at every rate tried (9600, 38400, 19200); 500000 baud not tried (RS-422 lines only)"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("any rate"));
+    assert_eq!(ima_hal::Error::kind(&e), ErrorKind::Timeout);
+    report.attempt(500_000);
+    let e = DriverError::Device(Fault::NotFound {
+        report: Box::new(report),
+        rs422: true,
+    });
+    assert!(e.to_string().ends_with("(9600, 38400, 19200, 500000)"));
+}
+
+/// How a program can tell the failures apart.
+#[test]
+fn error_kinds() {
+    use ima_hal::Error as _;
+    assert_eq!(
+        DriverError::from(MachineError::NoDevice).kind(),
+        ErrorKind::Timeout
+    );
+    assert_eq!(
+        DriverError::from(MachineError::Rejected { code: 0x3B }).kind(),
+        ErrorKind::Protocol
+    );
+    assert_eq!(DriverError::Disconnected.kind(), ErrorKind::Disconnected);
+    assert!(!DriverError::Timeout.to_string().is_empty());
 }

@@ -8,12 +8,12 @@ pub mod report;
 pub mod rflex;
 pub mod square;
 
-use ima_p2os::shell::Driver as _;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use ima_hal::base::{DifferentialBase, VelocityCommand};
+use ima_p2os::shell::Driver as _;
 use ima_p2os::shell::{P2os, open_port};
 
 use self::report::{report_end, report_interrupted};

@@ -5,7 +5,6 @@
 //! closed-loop on its odometry, and the program prints the driver's odometry against the
 //! simulated world's ground truth at every corner.
 
-use ima_p2os::shell::Driver as _;
 use std::time::Duration;
 
 use crate::safety::outln;
@@ -13,6 +12,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use ima_hal::base::{DifferentialBase, Odometer, VelocityCommand};
 use ima_hal::normalize_angle;
+use ima_p2os::shell::Driver as _;
 use ima_p2os::shell::{LinkStatus, P2os, open_port};
 use serde_json::json;
 
