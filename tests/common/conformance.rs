@@ -16,8 +16,8 @@ use ima_mock_devices::world::{RobotId, RobotSpec, Wall, World};
 pub enum Link {
     /// Data flows.
     Up,
-    /// Connecting: the driver noticed the device is gone and is getting it back (every
-    /// driver starts here too, but the suite reads links only once connected).
+    /// Lost or connecting: the driver noticed the device is gone and is getting it back
+    /// (every driver starts connecting too, but the suite reads links only once connected).
     Down,
     /// Failed or closed, named for the failure message.
     Other(String),
