@@ -23,9 +23,18 @@
 //! What was skipped, and where the file ends early, is reported as its [`Truncation`] and by
 //! [`Recording::damage`]. Any other panic of the crate is caught ([`in_guarded_read`] tells a
 //! program's panic hook to stay quiet) and reported the same way.
+//!
+//! Memory: [`Recording::open`] walks the file a record at a time and, when nothing needs
+//! skipping (a closed recording, or one a crash cut short at its end), leaves it on disk: each
+//! read streams it again, one chunk in memory at a time, so replaying an hour of cameras
+//! (about 2 GB) does not hold 2 GB. Only a file with damage in its middle is read whole, to be
+//! repaired ([`Recording::holds_file`]). A file still being written is read up to where it
+//! was when it was opened.
 
 use std::cell::Cell;
 use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::Read;
 use std::panic::AssertUnwindSafe;
 use std::path::Path;
 
@@ -37,18 +46,87 @@ use crate::raw::{self, Chunk, PortInfo};
 /// chunks; one larger message makes one larger chunk).
 pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
 
-/// A recording read into memory.
+/// A recording: left in its file and streamed by each read, or held in memory (see the
+/// module docs).
 #[derive(Debug)]
 pub struct Recording {
-    /// The file (without its skipped damaged stretches, when it had any: see the module docs).
-    bytes: Vec<u8>,
+    /// Where the bytes are.
+    source: Source,
     /// Where its sound record structure ends (the whole file when nothing is wrong).
-    sound: usize,
+    sound: u64,
     /// What is wrong with the file, if anything: the stretches skipped, then why it ends at
     /// `sound` before its footer.
     damage: Option<String>,
     /// Why the `mcap` crate stopped before the end of the sound part, once a read saw it.
     stopped: std::sync::OnceLock<String>,
+}
+
+/// Where a recording's bytes are.
+#[derive(Debug)]
+enum Source {
+    /// In memory: the file without its skipped damaged stretches, when it had any.
+    Memory(Vec<u8>),
+    /// In the file, read again by each read.
+    File(File),
+}
+
+/// The largest top-level record the streaming walk reads into memory: a chunk of
+/// [`MAX_CHUNK_BYTES`] and its header. A file with a longer one is read whole.
+const MAX_RECORD_BYTES: u64 = MAX_CHUNK_BYTES + (1 << 20);
+
+/// The most of a file's end the streaming walk reads to check that no sound chunk follows
+/// damage (a crash leaves less than a chunk); with more, the file is read whole.
+const MAX_TAIL_BYTES: u64 = 64 << 20;
+
+/// `buf.len()` bytes of `file` from offset `at` (a positional read: a `&File` shared by
+/// readers keeps no cursor).
+fn read_exact_at(file: &File, mut buf: &mut [u8], mut at: u64) -> std::io::Result<()> {
+    while !buf.is_empty() {
+        match read_at(file, buf, at) {
+            Ok(0) => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+            Ok(n) => {
+                buf = buf.get_mut(n..).unwrap_or_default();
+                at += n as u64;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+#[cfg(unix)]
+fn read_at(file: &File, buf: &mut [u8], at: u64) -> std::io::Result<usize> {
+    std::os::unix::fs::FileExt::read_at(file, buf, at)
+}
+
+#[cfg(windows)]
+fn read_at(file: &File, buf: &mut [u8], at: u64) -> std::io::Result<usize> {
+    std::os::windows::fs::FileExt::seek_read(file, buf, at)
+}
+
+#[cfg(not(any(unix, windows)))]
+fn read_at(mut file: &File, buf: &mut [u8], at: u64) -> std::io::Result<usize> {
+    use std::io::Seek;
+    file.seek(std::io::SeekFrom::Start(at))?;
+    file.read(buf)
+}
+
+/// A [`Read`] over `file` from `at` to `end`, by positional reads.
+struct FileRange<'a> {
+    file: &'a File,
+    at: u64,
+    end: u64,
+}
+
+impl Read for FileRange<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = usize::try_from(self.end.saturating_sub(self.at)).unwrap_or(usize::MAX);
+        let want = buf.len().min(left);
+        let n = read_at(self.file, buf.get_mut(..want).unwrap_or_default(), self.at)?;
+        self.at += n as u64;
+        Ok(n)
+    }
 }
 
 thread_local! {
@@ -105,8 +183,8 @@ struct Budget(u64);
 
 impl Budget {
     /// For a file of `len` bytes: 1 GiB, plus 256 bytes per byte of file.
-    fn for_file(len: usize) -> Self {
-        Self((1 << 30) + 256 * len as u64)
+    fn for_file(len: u64) -> Self {
+        Self((1u64 << 30).saturating_add(len.saturating_mul(256)))
     }
 
     /// Take `n` bytes of the budget; `false` (and nothing taken) when there are not that many.
@@ -120,30 +198,47 @@ impl Budget {
 }
 
 /// One top-level record at `at`: its opcode and end, or why it is not sound (a chunk's
-/// contents are checked: [`chunk_problem`]). `Ok(None)`: fewer than 9 bytes left.
-fn top_record(b: &[u8], at: usize, budget: &mut Budget) -> Result<Option<(u8, usize)>, String> {
+/// contents are checked: [`chunk_problem`]). `Ok(None)`: fewer than 9 bytes left. `b[0]` is
+/// byte `base` of the file (the messages name file offsets).
+fn top_record(
+    b: &[u8],
+    at: usize,
+    base: u64,
+    budget: &mut Budget,
+) -> Result<Option<(u8, usize)>, String> {
     let mut r = Reader::new(b.get(at..).unwrap_or_default());
     let (Ok(op), Ok(len)) = (r.u8(), r.le::<u64>()) else {
         return Ok(None);
     };
     let follow = r.remaining();
     let Some(body) = usize::try_from(len).ok().and_then(|n| r.take(n).ok()) else {
-        return Err(format!(
-            "record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow"
-        ));
+        return Err(claims_too_much(op, base + at as u64, len, follow as u64));
     };
+    if let Some(why) = record_problem(op, body, base + at as u64, budget) {
+        return Err(why);
+    }
+    Ok(Some((op, b.len() - r.remaining())))
+}
+
+/// Why a record at file offset `at` is broken: its length runs past the file.
+fn claims_too_much(op: u8, at: u64, len: u64, follow: u64) -> String {
+    format!("record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow")
+}
+
+/// What is wrong with the whole top-level record `op` (body `body`) at file offset `at`.
+fn record_problem(op: u8, body: &[u8], at: u64, budget: &mut Budget) -> Option<String> {
     if op == OP_CHUNK
         && let Some(why) = chunk_problem(body, budget)
     {
-        return Err(format!("chunk at byte {at}: {why}; its messages are lost"));
+        return Some(format!("chunk at byte {at}: {why}; its messages are lost"));
     }
     if op == OP_MESSAGE_INDEX && !message_index_sound(body) {
         // The `mcap` reader parses it and would stop the whole read there.
-        return Err(format!(
+        return Some(format!(
             "message index at byte {at}: its entries do not fill it (an index: no message is lost)"
         ));
     }
-    Ok(Some((op, b.len() - r.remaining())))
+    None
 }
 
 /// Whether a message index record's body is whole: a channel id, then a byte length that its
@@ -198,7 +293,7 @@ fn next_sound_chunk(b: &[u8], from: usize, budget: &mut Budget) -> Option<(usize
     let mut k = from;
     while k < b.len() {
         if let Some(end) = framed_chunk(b, k) {
-            if let Ok(Some((OP_CHUNK, _))) = top_record(b, k, budget) {
+            if let Ok(Some((OP_CHUNK, _))) = top_record(b, k, 0, budget) {
                 return Some((k, end));
             }
             k = end;
@@ -215,10 +310,10 @@ fn next_sound_chunk(b: &[u8], from: usize, budget: &mut Budget) -> Option<(usize
 /// Only where no sound chunk follows (a file cut short by a crash) does the walk end early.
 fn survey(b: &[u8], start: usize) -> Survey {
     let mut s = Survey::default();
-    let mut budget = Budget::for_file(b.len());
+    let mut budget = Budget::for_file(b.len() as u64);
     let mut at = start;
     loop {
-        match top_record(b, at, &mut budget) {
+        match top_record(b, at, 0, &mut budget) {
             Ok(None) => {
                 // Fewer than 9 bytes: the reader reports a missing footer.
                 s.end = b.len();
@@ -252,6 +347,76 @@ fn survey(b: &[u8], start: usize) -> Survey {
                 at = next;
             }
         }
+    }
+}
+
+/// What [`survey_file`] found.
+#[derive(Debug)]
+enum FileSurvey {
+    /// Nothing to skip: the sound structure ends at `end` (the file's end, or damage after
+    /// which no sound chunk follows), with what is wrong there.
+    Sound { end: u64, damage: Option<String> },
+    /// Something must be skipped, or a record is too long to check a piece at a time: the
+    /// file is read whole and walked by [`survey`].
+    ReadWhole,
+}
+
+/// [`survey`] a record at a time from the file (`len` bytes, its magic checked): the same
+/// walk, holding one record (and, after damage, at most [`MAX_TAIL_BYTES`] of the file's end).
+fn survey_file(file: &File, len: u64) -> std::io::Result<FileSurvey> {
+    let mut budget = Budget::for_file(len);
+    let mut at = mcap::MAGIC.len() as u64;
+    let mut buf = Vec::new();
+    loop {
+        let left = len.saturating_sub(at);
+        if left < 9 {
+            // Fewer than 9 bytes: the reader reports a missing footer.
+            return Ok(FileSurvey::Sound {
+                end: len,
+                damage: None,
+            });
+        }
+        let mut head = [0u8; 9];
+        read_exact_at(file, &mut head, at)?;
+        let [op, l @ ..] = head;
+        let body_len = u64::from_le_bytes(l);
+        let why = if body_len > left - 9 {
+            claims_too_much(op, at, body_len, left - 9)
+        } else if body_len > MAX_RECORD_BYTES {
+            return Ok(FileSurvey::ReadWhole);
+        } else {
+            // Bounded by MAX_RECORD_BYTES.
+            buf.resize(usize::try_from(body_len).unwrap_or(0), 0);
+            read_exact_at(file, &mut buf, at + 9)?;
+            match record_problem(op, &buf, at, &mut budget) {
+                None if op == OP_FOOTER => {
+                    return Ok(FileSurvey::Sound {
+                        end: len,
+                        damage: None,
+                    });
+                }
+                None => {
+                    at += 9 + body_len;
+                    continue;
+                }
+                Some(why) => why,
+            }
+        };
+        // Damage at `at`: the walk ends here only if nothing it could go on at follows (as in
+        // `survey`); that is a look at the file's end, which a crash leaves short.
+        let tail_len = len - at;
+        if tail_len > MAX_TAIL_BYTES {
+            return Ok(FileSurvey::ReadWhole);
+        }
+        buf.resize(usize::try_from(tail_len).unwrap_or(0), 0);
+        read_exact_at(file, &mut buf, at)?;
+        if trusted_end(&buf, 0).is_some() || next_sound_chunk(&buf, 1, &mut budget).is_some() {
+            return Ok(FileSurvey::ReadWhole);
+        }
+        return Ok(FileSurvey::Sound {
+            end: at,
+            damage: Some(why),
+        });
     }
 }
 
@@ -366,6 +531,50 @@ fn repair(b: &[u8], survey: &Survey) -> Vec<u8> {
     out
 }
 
+/// The damage where a walk ends early, as [`Recording::damage`] says it.
+fn ends_early(why: String) -> String {
+    format!("it ends early: {why} (the file was cut short or is damaged)")
+}
+
+/// The first `sound` bytes of `b` (without the stretches the walk skipped).
+fn sound_part(b: &[u8], sound: u64) -> &[u8] {
+    usize::try_from(sound)
+        .ok()
+        .and_then(|n| b.get(..n))
+        .unwrap_or(b)
+}
+
+/// The `ima` metadata record among the top-level records of `src` (an MCAP file), read a
+/// record at a time without opening the chunks.
+fn ima_metadata_in(mut src: impl Read) -> Option<BTreeMap<String, String>> {
+    use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let opts = LinearReaderOptions::default()
+        .with_emit_chunks(true)
+        .with_record_length_limit(MAX_RECORD_BYTES as usize);
+    let mut r = LinearReader::new_with_options(opts);
+    while let Some(event) = r.next_event() {
+        match event.ok()? {
+            LinearReadEvent::ReadRequest(n) => {
+                let got = loop {
+                    match src.read(r.insert(n)) {
+                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                        got => break got.ok()?,
+                    }
+                };
+                r.notify_read(got);
+            }
+            LinearReadEvent::Record { data, opcode } => {
+                if let Ok(mcap::records::Record::Metadata(m)) = mcap::parse_record(opcode, data)
+                    && m.name == "ima"
+                {
+                    return Some(m.metadata);
+                }
+            }
+        }
+    }
+    None
+}
+
 /// A recording that cannot be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
@@ -434,21 +643,54 @@ impl RawStream {
 pub struct Truncation(pub Option<String>);
 
 impl Recording {
-    /// Read a file (a regular file: a device such as `/dev/zero` would never end).
+    /// Open a file (a regular file: a device such as `/dev/zero` would never end). Its
+    /// structure is checked here, a record at a time; a sound file (or one a crash cut short)
+    /// stays on disk and each read streams it again: see the module docs.
     pub fn open(path: &Path) -> Result<Self, ReadError> {
         let io = |source| ReadError::Io {
             path: path.display().to_string(),
             source,
         };
-        let meta = std::fs::metadata(path).map_err(io)?;
+        let not_mcap = |why: String| ReadError::NotMcap(path.display().to_string(), why);
+        let file = File::open(path).map_err(io)?;
+        let meta = file.metadata().map_err(io)?;
         if !meta.is_file() {
-            return Err(ReadError::NotMcap(
-                path.display().to_string(),
-                "not a regular file".into(),
-            ));
+            return Err(not_mcap("not a regular file".into()));
         }
-        let bytes = std::fs::read(path).map_err(io)?;
-        Self::from_bytes(bytes).map_err(|why| ReadError::NotMcap(path.display().to_string(), why))
+        let len = meta.len();
+        let mut magic = [0u8; 8];
+        if len < magic.len() as u64
+            || read_exact_at(&file, &mut magic, 0).is_err()
+            || magic != *mcap::MAGIC
+        {
+            return Err(not_mcap("no MCAP magic at the start".into()));
+        }
+        match survey_file(&file, len).map_err(io)? {
+            FileSurvey::Sound { end, damage } => Ok(Self {
+                source: Source::File(file),
+                sound: end,
+                damage: damage.map(ends_early),
+                stopped: std::sync::OnceLock::new(),
+            }),
+            FileSurvey::ReadWhole => {
+                let mut bytes = Vec::new();
+                let mut r = FileRange {
+                    file: &file,
+                    at: 0,
+                    end: len,
+                };
+                r.read_to_end(&mut bytes).map_err(io)?;
+                Self::from_bytes(bytes).map_err(not_mcap)
+            }
+        }
+    }
+
+    /// Whether the whole file is held in memory: one with damage in its middle (read whole to
+    /// be repaired) or one given as bytes ([`from_bytes`](Self::from_bytes)). Otherwise each
+    /// read streams the file, one chunk in memory at a time.
+    #[must_use]
+    pub fn holds_file(&self) -> bool {
+        matches!(self.source, Source::Memory(_))
     }
 
     /// A recording held in memory; `Err` says why it is not an MCAP file.
@@ -457,10 +699,7 @@ impl Recording {
             return Err("no MCAP magic at the start".into());
         }
         let survey = survey(&bytes, mcap::MAGIC.len());
-        let end = survey
-            .damage
-            .as_ref()
-            .map(|d| format!("it ends early: {d} (the file was cut short or is damaged)"));
+        let end = survey.damage.clone().map(ends_early);
         let skipped = (!survey.skipped.is_empty()).then(|| {
             let n = survey.skipped.len();
             let size: usize = survey.skipped.iter().map(|(r, _)| r.len()).sum();
@@ -483,8 +722,8 @@ impl Recording {
             (repaired, sound)
         };
         Ok(Self {
-            bytes,
-            sound,
+            source: Source::Memory(bytes),
+            sound: sound as u64,
             damage,
             stopped: std::sync::OnceLock::new(),
         })
@@ -497,8 +736,20 @@ impl Recording {
     /// record or without a footer (a cut, which the walker's damage explains) are returned.
     fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>)) -> Option<String> {
         let end = guarded(|| -> Result<(), mcap::McapError> {
-            for m in mcap::MessageStream::new(self.sound())? {
-                f(m?);
+            match &self.source {
+                Source::Memory(b) => {
+                    for m in mcap::MessageStream::new(sound_part(b, self.sound))? {
+                        f(m?);
+                    }
+                }
+                Source::File(file) => {
+                    let opts = mcap::sans_io::LinearReaderOptions::default()
+                        .with_record_length_limit(MAX_RECORD_BYTES as usize);
+                    let bytes = std::io::BufReader::with_capacity(1 << 16, self.range(file));
+                    for m in mcap::io::MessageReader::new_with_options(bytes, opts) {
+                        f(m?);
+                    }
+                }
             }
             Ok(())
         });
@@ -514,9 +765,13 @@ impl Recording {
         None
     }
 
-    /// The file's sound part (without the stretches the walk skipped).
-    fn sound(&self) -> &[u8] {
-        self.bytes.get(..self.sound).unwrap_or(&self.bytes)
+    /// The file's sound part, read from the file.
+    fn range<'a>(&self, file: &'a File) -> FileRange<'a> {
+        FileRange {
+            file,
+            at: 0,
+            end: self.sound,
+        }
     }
 
     /// What is wrong with the file, if anything: the `mcap` crate's error (once a read has
@@ -622,14 +877,9 @@ impl Recording {
     /// `version`, and under `exclude` the patterns of topics left out of the file), if the file
     /// has one. Found in files cut short by a crash too.
     pub fn ima_metadata(&self) -> Option<BTreeMap<String, String>> {
-        guarded(|| {
-            mcap::read::LinearReader::new(self.sound())
-                .ok()?
-                .map_while(Result::ok)
-                .find_map(|r| match r {
-                    mcap::records::Record::Metadata(m) if m.name == "ima" => Some(m.metadata),
-                    _ => None,
-                })
+        guarded(|| match &self.source {
+            Source::Memory(b) => ima_metadata_in(sound_part(b, self.sound)),
+            Source::File(file) => ima_metadata_in(self.range(file)),
         })
         .unwrap_or_else(|panic| {
             let _ = self.stopped.set(panic);

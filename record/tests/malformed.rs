@@ -34,27 +34,76 @@ fn chunk(size: u64, compression: &str, records: &[u8]) -> Vec<u8> {
     record(0x06, &b)
 }
 
+/// Everything a recording gives: its messages and why they stop, its channels, raw streams,
+/// `ima` metadata and damage (asked last: a read can add to it).
+type Everything = (
+    Vec<ima_record::read::Message>,
+    Option<String>,
+    Vec<String>,
+    Vec<ima_record::read::RawStream>,
+    Option<std::collections::BTreeMap<String, String>>,
+    Option<String>,
+);
+
+fn everything(rec: &Recording) -> Everything {
+    let (msgs, why) = rec.messages();
+    let channels = rec.channels().into_keys().collect();
+    (
+        msgs,
+        why.0,
+        channels,
+        rec.raw_streams(),
+        rec.ima_metadata(),
+        rec.damage(),
+    )
+}
+
 /// Every reading method on `bytes` (none may panic); the damage reported by `messages`.
 /// The reader's own check must have caught it: a panic of the `mcap` crate, even caught,
-/// fails the test.
+/// fails the test. The same bytes as a file, opened (and streamed, unless they need repair),
+/// must read exactly alike.
 fn read_all(bytes: Vec<u8>) -> Option<String> {
-    let rec = Recording::from_bytes(bytes).ok()?;
-    let _ = rec.channels();
-    let _ = rec.raw_streams();
-    let _ = rec.ima_metadata();
+    let opened = open_as_file(&bytes);
+    let Ok(rec) = Recording::from_bytes(bytes) else {
+        assert!(opened.is_err(), "a file of the same bytes opened");
+        return None;
+    };
     let _ = rec.raw_stream("base");
-    let (msgs, why) = rec.messages();
-    let why = why.0;
+    let all = everything(&rec);
+    let why = all.1.clone();
     // Counting gives what reading gives, without keeping the messages.
     let (n, cut) = rec.count();
-    assert_eq!((n, &cut.0), (msgs.len(), &why));
+    assert_eq!((n, &cut.0), (all.0.len(), &why));
     for w in [&why, &rec.damage()].into_iter().flatten() {
         assert!(
             !w.contains("the MCAP reader failed"),
             "a panic got past the check: {w}"
         );
     }
+    let opened = opened.expect("the bytes as a file open");
+    assert!(
+        everything(&opened) == all,
+        "the file reads otherwise: {why:?}"
+    );
+    // Only damage to skip in the middle keeps a file in memory.
+    if !opened.holds_file() {
+        assert!(!why.as_deref().unwrap_or("").contains("skipped"), "{why:?}");
+    }
     why
+}
+
+/// `bytes` written to a file and opened.
+fn open_as_file(bytes: &[u8]) -> Result<Recording, ima_record::read::ReadError> {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static N: AtomicU32 = AtomicU32::new(0);
+    let dir = std::env::temp_dir().join(format!("ima-record-open-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("{}.mcap", N.fetch_add(1, Ordering::Relaxed)));
+    std::fs::write(&path, bytes).unwrap();
+    let rec = Recording::open(&path);
+    // Open files stay readable once unlinked.
+    let _ = std::fs::remove_file(&path);
+    rec
 }
 
 #[test]
@@ -208,6 +257,13 @@ fn a_damaged_chunk_in_the_middle_loses_only_its_own_messages() {
     assert!(chunks.len() >= 4, "{chunks:?}");
     let all = Recording::from_bytes(good.clone()).unwrap().count();
     assert_eq!(all, (64, Default::default()));
+    // Sound, and cut short inside its last chunk (a crash): streamed from the file, not held.
+    for bytes in [&good[..], &good[..chunks[chunks.len() - 1] + 100]] {
+        let opened = open_as_file(bytes).unwrap();
+        assert!(!opened.holds_file());
+        let held = Recording::from_bytes(bytes.to_vec()).unwrap();
+        assert!(everything(&opened) == everything(&held));
+    }
     // (what is broken, the damage's words): the first chunk holds the channel definition.
     let compressed = |c: usize| c + 9 + 44 + 2; // record, chunk header, into zstd's frame header
     for (at, flip, words) in [
@@ -225,7 +281,11 @@ fn a_damaged_chunk_in_the_middle_loses_only_its_own_messages() {
     ] {
         let mut bad = good.clone();
         bad[at] ^= flip;
+        // Damage in the middle: the file is read whole to be repaired, and reads alike.
+        let opened = open_as_file(&bad).unwrap();
+        assert!(opened.holds_file());
         let rec = Recording::from_bytes(bad).unwrap();
+        assert!(everything(&opened) == everything(&rec));
         let (msgs, why) = rec.messages();
         let why = why.0.expect("the damage is reported");
         assert!(
