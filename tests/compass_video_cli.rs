@@ -32,6 +32,12 @@ fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
         ]));
         let lines = json_lines(&out.stdout);
         assert_eq!(lines.len(), 20);
+        // The end line says how many were printed, beside the driver's own count.
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("20 headings printed; the driver read"),
+            "{err}"
+        );
         let mean: f64 = lines
             .iter()
             .map(|l| {

@@ -187,8 +187,11 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         }
     }
     let st = drv.stats();
+    // The driver's count includes the readings that came before the first one printed (the
+    // one that confirmed the connection, and any before the start).
     eprintln!(
-        "{} headings, {} parse errors, {} bad checksums, {} bytes dropped",
+        "{n} headings printed; the driver read {} headings, {} parse errors, {} bad checksums, \
+         {} bytes dropped",
         st.headings, st.parse_errors, st.framer.bad_checksums, st.framer.dropped_bytes
     );
     drv.close().await.context("closing the compass")
