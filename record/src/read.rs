@@ -220,8 +220,15 @@ fn top_record(
     Ok(Some((op, b.len() - r.remaining())))
 }
 
-/// Why a record at file offset `at` is broken: its length runs past the file.
+/// Why a record at file offset `at` is broken: its length runs past the file. A chunk whose
+/// length is all ones is the `mcap` writer's placeholder, overwritten when the chunk is done.
 fn claims_too_much(op: u8, at: u64, len: u64, follow: u64) -> String {
+    if op == OP_CHUNK && len == u64::MAX {
+        return format!(
+            "the chunk at byte {at} was never finished (the recorder is still writing it, or \
+             stopped before it could; its messages are not in the file)"
+        );
+    }
     format!("record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow")
 }
 

@@ -115,6 +115,21 @@ fn a_record_length_near_u64_max_is_damage_not_a_panic() {
     assert!(why.contains("claims 18446744073709551615 bytes"), "{why}");
 }
 
+/// A recorder writes a chunk's header with a length of all ones and fills it in when the chunk
+/// is done: a file read while it is written, or after its recorder was killed, ends in one.
+#[test]
+fn a_chunk_being_written_is_named_as_such() {
+    let mut f = MAGIC.to_vec();
+    f.push(0x06);
+    f.extend_from_slice(&[0xff; 8]);
+    f.extend_from_slice(&[0; 44]);
+    let why = read_all(f).expect("damage");
+    assert!(
+        why.contains("it ends early: the chunk at byte 8 was never finished"),
+        "{why}"
+    );
+}
+
 #[test]
 fn a_chunk_claiming_an_absurd_size_is_damage_not_an_allocation() {
     let mut f = MAGIC.to_vec();
