@@ -659,11 +659,15 @@ impl Recording {
             source,
         };
         let not_mcap = |why: String| ReadError::NotMcap(path.display().to_string(), why);
+        let regular = |m: std::fs::Metadata| {
+            m.is_file()
+                .then_some(m)
+                .ok_or_else(|| not_mcap("not a regular file".into()))
+        };
+        // Checked before opening too: opening a FIFO waits for a writer.
+        regular(std::fs::metadata(path).map_err(io)?)?;
         let file = File::open(path).map_err(io)?;
-        let meta = file.metadata().map_err(io)?;
-        if !meta.is_file() {
-            return Err(not_mcap("not a regular file".into()));
-        }
+        let meta = regular(file.metadata().map_err(io)?)?;
         let len = meta.len();
         let mut magic = [0u8; 8];
         if len < magic.len() as u64

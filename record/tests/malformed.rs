@@ -374,3 +374,32 @@ fn chunks_claiming_more_than_the_budget_end_the_walk() {
     let at = MAGIC.len() as u64 + allowed * bomb.len() as u64;
     assert!(why.contains(&format!("chunk at byte {at}:")), "{why}");
 }
+
+/// Only regular files are read, and a FIFO is refused without opening it (opening one waits
+/// for a writer: the reader hung when it opened the file before looking at it).
+#[cfg(unix)]
+#[test]
+fn a_fifo_or_a_directory_is_refused_at_once() {
+    let dir = std::env::temp_dir().join(format!("ima-record-fifo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("pipe.mcap");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    // On a thread, so a regression fails the test instead of hanging it.
+    let (tx, rx) = std::sync::mpsc::channel();
+    for path in [fifo, dir.clone()] {
+        let tx = tx.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(Recording::open(&path).map(|_| ()).unwrap_err().to_string());
+        });
+        let err = rx.recv_timeout(Duration::from_secs(10)).expect("no answer");
+        assert!(
+            err.ends_with("not an MCAP file (not a regular file)"),
+            "{err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
