@@ -27,9 +27,13 @@
 //! Memory: [`Recording::open`] walks the file a record at a time and, when nothing needs
 //! skipping (a closed recording, or one a crash cut short at its end), leaves it on disk: each
 //! read streams it again, one chunk in memory at a time, so replaying an hour of cameras
-//! (about 2 GB) does not hold 2 GB. Only a file with damage in its middle is read whole, to be
-//! repaired ([`Recording::holds_file`]). A file still being written is read up to where it
-//! was when it was opened.
+//! (about 2 GB) does not hold 2 GB. A file with a stretch to skip (a damaged chunk, or damage
+//! that a sound chunk follows) is read whole, to be repaired; so, to keep the walk's memory
+//! bounded, is one with a record over [`MAX_CHUNK_BYTES`] plus 1 MiB, or with more than 64 MiB
+//! after its damage ([`Recording::holds_file`]). A file still being written is read up to where
+//! it was when it was opened. A file changed after it was opened is not checked again: each
+//! read still holds one chunk at most, and a record the `mcap` crate cannot take ends that
+//! read as damage.
 
 use std::cell::Cell;
 use std::collections::BTreeMap;
@@ -161,6 +165,7 @@ const OP_SCHEMA: u8 = 0x03;
 const OP_CHANNEL: u8 = 0x04;
 const OP_CHUNK: u8 = 0x06;
 const OP_MESSAGE_INDEX: u8 = 0x07;
+const OP_DATA_END: u8 = 0x0f;
 
 /// The file's top level as [`survey`] found it.
 #[derive(Debug, Default)]
@@ -368,9 +373,23 @@ enum FileSurvey {
     ReadWhole,
 }
 
+/// How much [`survey_file`] reads into memory at once.
+#[derive(Debug, Clone, Copy)]
+struct Limits {
+    /// The longest record it checks ([`MAX_RECORD_BYTES`]).
+    record: u64,
+    /// The most of the file's end it reads after damage ([`MAX_TAIL_BYTES`]).
+    tail: u64,
+}
+
+const LIMITS: Limits = Limits {
+    record: MAX_RECORD_BYTES,
+    tail: MAX_TAIL_BYTES,
+};
+
 /// [`survey`] a record at a time from the file (`len` bytes, its magic checked): the same
-/// walk, holding one record (and, after damage, at most [`MAX_TAIL_BYTES`] of the file's end).
-fn survey_file(file: &File, len: u64) -> std::io::Result<FileSurvey> {
+/// walk, holding one record (and, after damage, at most `limits.tail` of the file's end).
+fn survey_file(file: &File, len: u64, limits: Limits) -> std::io::Result<FileSurvey> {
     let mut budget = Budget::for_file(len);
     let mut at = mcap::MAGIC.len() as u64;
     let mut buf = Vec::new();
@@ -389,10 +408,10 @@ fn survey_file(file: &File, len: u64) -> std::io::Result<FileSurvey> {
         let body_len = u64::from_le_bytes(l);
         let why = if body_len > left - 9 {
             claims_too_much(op, at, body_len, left - 9)
-        } else if body_len > MAX_RECORD_BYTES {
+        } else if body_len > limits.record {
             return Ok(FileSurvey::ReadWhole);
         } else {
-            // Bounded by MAX_RECORD_BYTES.
+            // Bounded by `limits.record`.
             buf.resize(usize::try_from(body_len).unwrap_or(0), 0);
             read_exact_at(file, &mut buf, at + 9)?;
             match record_problem(op, &buf, at, &mut budget) {
@@ -412,7 +431,7 @@ fn survey_file(file: &File, len: u64) -> std::io::Result<FileSurvey> {
         // Damage at `at`: the walk ends here only if nothing it could go on at follows (as in
         // `survey`); that is a look at the file's end, which a crash leaves short.
         let tail_len = len - at;
-        if tail_len > MAX_TAIL_BYTES {
+        if tail_len > limits.tail {
             return Ok(FileSurvey::ReadWhole);
         }
         buf.resize(usize::try_from(tail_len).unwrap_or(0), 0);
@@ -440,14 +459,19 @@ fn walk(b: &[u8]) -> (usize, Option<String>) {
             return (at, Some(format!("{n} stray bytes at byte {at}")));
         };
         let follow = next.remaining();
-        if usize::try_from(len)
-            .ok()
-            .and_then(|n| next.take(n).ok())
-            .is_none()
-        {
+        let Some(body) = usize::try_from(len).ok().and_then(|n| next.take(n).ok()) else {
             let why =
                 format!("record 0x{op:02x} at byte {at} claims {len} bytes, but {follow} follow");
             return (at, Some(why));
+        };
+        // A data end record has no place in a chunk. `MessageStream` parses it there (and
+        // stops where it has no CRC), `io::MessageReader` passes over it: too short for its
+        // CRC, it is damage, so that reading a file streamed or held gives one answer.
+        if op == OP_DATA_END && body.len() < 4 {
+            return (
+                at,
+                Some(format!("data end record at byte {at} without its CRC")),
+            );
         }
         r = next;
     }
@@ -676,7 +700,7 @@ impl Recording {
         {
             return Err(not_mcap("no MCAP magic at the start".into()));
         }
-        match survey_file(&file, len).map_err(io)? {
+        match survey_file(&file, len, LIMITS).map_err(io)? {
             FileSurvey::Sound { end, damage } => Ok(Self {
                 source: Source::File(file),
                 sound: end,
@@ -685,6 +709,8 @@ impl Recording {
             }),
             FileSurvey::ReadWhole => {
                 let mut bytes = Vec::new();
+                // As `fs::read` does: one allocation when the memory is there.
+                let _ = bytes.try_reserve_exact(usize::try_from(len).unwrap_or(0));
                 let mut r = FileRange {
                     file: &file,
                     at: 0,
@@ -696,9 +722,10 @@ impl Recording {
         }
     }
 
-    /// Whether the whole file is held in memory: one with damage in its middle (read whole to
-    /// be repaired) or one given as bytes ([`from_bytes`](Self::from_bytes)). Otherwise each
-    /// read streams the file, one chunk in memory at a time.
+    /// Whether the whole file is held in memory: one given as bytes
+    /// ([`from_bytes`](Self::from_bytes)), or a file with a stretch to skip (read whole to be
+    /// repaired), a record over [`MAX_CHUNK_BYTES`] plus 1 MiB, or more than 64 MiB after its
+    /// damage. Otherwise each read streams the file, one chunk in memory at a time.
     #[must_use]
     pub fn holds_file(&self) -> bool {
         matches!(self.source, Source::Memory(_))
@@ -927,5 +954,78 @@ impl Recording {
                     .map(|p| format!(" (the recording left out: {p})"))
                     .unwrap_or_default(),
             })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(op: u8, body: &[u8]) -> Vec<u8> {
+        let mut r = vec![op];
+        r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        r.extend_from_slice(body);
+        r
+    }
+
+    /// An uncompressed chunk holding `records`.
+    fn chunk(records: &[u8]) -> Vec<u8> {
+        let mut b = Vec::new();
+        b.extend_from_slice(&[0; 16]); // message start and end times
+        b.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        b.extend_from_slice(&[0; 8]); // CRC (none), compression name: empty
+        b.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        b.extend_from_slice(records);
+        record(OP_CHUNK, &b)
+    }
+
+    fn survey_of(bytes: &[u8], limits: Limits) -> FileSurvey {
+        let path = std::env::temp_dir().join(format!(
+            "ima-record-survey-{}-{}.mcap",
+            std::process::id(),
+            bytes.len()
+        ));
+        std::fs::write(&path, bytes).unwrap();
+        let file = File::open(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        survey_file(&file, bytes.len() as u64, limits).unwrap()
+    }
+
+    /// A record over the walk's limit, or more of the file after damage than it reads, sends
+    /// the file to the in-memory walk; within the limits the same file is streamed.
+    #[test]
+    fn past_its_limits_the_walk_reads_the_file_whole() {
+        let mut sound = mcap::MAGIC.to_vec();
+        sound.extend(chunk(&record(0x07, &[0; 6])));
+        match survey_of(&sound, LIMITS) {
+            FileSurvey::Sound { end, damage: None } => assert_eq!(end, sound.len() as u64),
+            other => panic!("a sound file is streamed: {other:?}"),
+        }
+        let small = Limits {
+            record: 8,
+            tail: 64,
+        };
+        assert!(matches!(survey_of(&sound, small), FileSurvey::ReadWhole));
+
+        // A broken length after the chunk, then 100 bytes: no sound chunk follows.
+        let mut cut = sound.clone();
+        cut.push(0x05);
+        cut.extend_from_slice(&1000u64.to_le_bytes());
+        cut.extend_from_slice(&[0; 100]);
+        match survey_of(&cut, LIMITS) {
+            FileSurvey::Sound {
+                end,
+                damage: Some(why),
+            } => {
+                assert_eq!(end, sound.len() as u64);
+                assert!(why.contains("claims 1000 bytes, but 100 follow"), "{why}");
+            }
+            other => panic!("{other:?}"),
+        }
+        let short_tail = Limits {
+            record: MAX_RECORD_BYTES,
+            tail: 64,
+        };
+        assert!(matches!(survey_of(&cut, short_tail), FileSurvey::ReadWhole));
     }
 }
