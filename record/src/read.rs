@@ -878,7 +878,18 @@ impl Recording {
     /// are read (no other message is kept: replaying or decoding a long recording holds its
     /// raw bytes, not every camera frame it decompressed on the way).
     pub fn raw_streams(&self) -> Vec<RawStream> {
-        let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
+        self.raw_streams_where(|_| true).0
+    }
+
+    /// The raw serial channels whose topic and port `wanted` accepts, read as
+    /// [`raw_streams`](Self::raw_streams) reads them (the bytes of the others are not kept),
+    /// and every raw channel as "topic (port)", in topic order.
+    fn raw_streams_where(
+        &self,
+        wanted: impl Fn(&RawStream) -> bool,
+    ) -> (Vec<RawStream>, Vec<String>) {
+        // Topic → (its port's path, the stream when it is wanted: `None` passes it over).
+        let mut by_topic: BTreeMap<String, (String, Option<RawStream>)> = BTreeMap::new();
         self.each(|m| {
             if m.channel.message_encoding != raw::ENCODING {
                 return;
@@ -889,14 +900,20 @@ impl Recording {
                     let Some(port) = PortInfo::from_metadata(&m.channel.metadata) else {
                         return;
                     };
+                    let s = RawStream {
+                        port,
+                        topic: m.channel.topic.clone(),
+                        chunks: Vec::new(),
+                    };
+                    let path = s.port.port.clone();
+                    let keep = wanted(&s).then_some(s);
                     by_topic
                         .entry(m.channel.topic.clone())
-                        .or_insert_with(|| RawStream {
-                            port,
-                            topic: m.channel.topic.clone(),
-                            chunks: Vec::new(),
-                        })
+                        .or_insert((path, keep))
                 }
+            };
+            let Some(entry) = &mut entry.1 else {
+                return;
             };
             match raw::parse(&m.data) {
                 Some(Chunk::Bytes(d, b)) => entry.chunks.push((m.log_time, d, b.to_vec())),
@@ -908,7 +925,13 @@ impl Recording {
                 None => {}
             }
         });
-        by_topic.into_values().collect()
+        let mut kept = Vec::new();
+        let mut names = Vec::new();
+        for (topic, (path, s)) in by_topic {
+            names.push(format!("{topic} ({path})"));
+            kept.extend(s);
+        }
+        (kept, names)
     }
 
     /// The `ima` metadata record the recorder writes first (the session's `name`, the
@@ -931,29 +954,27 @@ impl Recording {
         self.ima_metadata()?.remove("exclude")
     }
 
-    /// The raw stream whose topic, device or port is `name`.
+    /// The raw stream whose topic, device or port is `name` (only its bytes are kept).
     pub fn raw_stream(&self, name: &str) -> Result<RawStream, ReadError> {
-        let all = self.raw_streams();
-        let have = all
-            .iter()
-            .map(|s| format!("{} ({})", s.topic, s.port.port))
-            .collect::<Vec<_>>()
-            .join(", ");
-        all.into_iter()
-            .find(|s| {
-                s.topic == name
-                    || s.topic.trim_start_matches('/') == name
-                    || s.port.port == name
-                    || format!("{}/{}", s.port.robot, s.port.device) == name
-            })
-            .ok_or_else(|| ReadError::NoPort {
-                wanted: name.to_owned(),
-                have: if have.is_empty() { "none".into() } else { have },
-                left_out: self
-                    .left_out()
-                    .map(|p| format!(" (the recording left out: {p})"))
-                    .unwrap_or_default(),
-            })
+        let is = |s: &RawStream| {
+            s.topic == name
+                || s.topic.trim_start_matches('/') == name
+                || s.port.port == name
+                || format!("{}/{}", s.port.robot, s.port.device) == name
+        };
+        let (found, have) = self.raw_streams_where(is);
+        found.into_iter().next().ok_or_else(|| ReadError::NoPort {
+            wanted: name.to_owned(),
+            have: if have.is_empty() {
+                "none".into()
+            } else {
+                have.join(", ")
+            },
+            left_out: self
+                .left_out()
+                .map(|p| format!(" (the recording left out: {p})"))
+                .unwrap_or_default(),
+        })
     }
 }
 

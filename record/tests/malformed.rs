@@ -35,13 +35,15 @@ fn chunk(size: u64, compression: &str, records: &[u8]) -> Vec<u8> {
 }
 
 /// Everything a recording gives: its messages and why they stop, its channels, raw streams,
-/// `ima` metadata and damage (asked last: a read can add to it).
+/// `ima` metadata, one raw stream by name (or what it says when it has none) and damage
+/// (asked last: a read can add to it).
 type Everything = (
     Vec<ima_record::read::Message>,
     Option<String>,
     Vec<String>,
     Vec<ima_record::read::RawStream>,
     Option<std::collections::BTreeMap<String, String>>,
+    Result<ima_record::read::RawStream, String>,
     Option<String>,
 );
 
@@ -54,6 +56,7 @@ fn everything(rec: &Recording) -> Everything {
         channels,
         rec.raw_streams(),
         rec.ima_metadata(),
+        rec.raw_stream("skeeter/base").map_err(|e| e.to_string()),
         rec.damage(),
     )
 }

@@ -105,7 +105,22 @@ fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
     assert_eq!(dirs, [Dir::Tx, Dir::Baud, Dir::Rx]);
     // Stamps are in order.
     assert!(msgs.windows(2).all(|w| w[0].log_time <= w[1].log_time));
-    assert!(r.raw_stream("nothing").is_err());
+    // The stream by name is the one among all of them, by topic, port or robot/device.
+    let all = r.raw_streams();
+    assert_eq!(all.iter().find(|s| s.topic == raw.topic), Some(&raw));
+    for name in [
+        "/scooter/serial/laser",
+        "scooter/serial/laser",
+        &raw.port.port,
+    ] {
+        assert_eq!(r.raw_stream(name).unwrap(), raw, "{name}");
+    }
+    let e = r.raw_stream("nothing").unwrap_err().to_string();
+    let have: Vec<String> = all
+        .iter()
+        .map(|s| format!("{} ({})", s.topic, s.port.port))
+        .collect();
+    assert!(e.ends_with(&format!("it has: {}", have.join(", "))), "{e}");
     // Finishing twice gives the same report.
     assert_eq!(rec.finish(Duration::from_secs(1)), report);
 }
