@@ -9,6 +9,8 @@ use ima_compass::wire::{
 };
 use serde_json::{Value, json};
 
+use super::Decoder as _;
+
 fn deg(d: Option<Decimal>) -> Option<f64> {
     d.map(Decimal::to_f64)
 }
@@ -111,71 +113,120 @@ pub fn decode(
     from_host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    if from_host {
-        return decode_commands(bytes, emit);
-    }
-    let opts = ParseOptions::default();
-    let mut framer: LineFramer = framer::framer();
-    for (i, &b) in bytes.iter().enumerate() {
-        let v = match framer.push_byte(b) {
-            None => continue,
-            Some(Frame::Prompt) => {
-                let mut v = line_json(&Line::Prompt);
-                v["offset"] = json!(i);
-                v
-            }
-            Some(Frame::Corrupt(e)) => {
-                json!({"kind": "error", "error": frame_error(e), "offset": i})
-            }
-            Some(Frame::Line(l)) => {
-                let offset = i.saturating_sub(l.len());
-                match Line::parse(l, &opts) {
-                    Ok(line) => {
-                        let mut v = line_json(&line);
-                        v["offset"] = json!(offset);
-                        v
-                    }
-                    Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
-                }
-            }
-        };
-        emit(v)?;
-    }
-    if framer.pending() > 0 {
-        emit(
-            json!({"kind": "error", "error": "truncated line at end of input", "offset": bytes.len().saturating_sub(framer.pending())}),
-        )?;
-    }
-    Ok(())
+    let mut d = CompassDecoder::new(from_host);
+    d.feed(bytes, emit)?;
+    d.finish(emit)
 }
 
-fn decode_commands(bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
-    let mut start = 0usize;
-    for (i, &b) in bytes.iter().enumerate() {
-        if b != b'\r' && b != b'\n' {
-            continue;
+/// [`decode`] a piece at a time (see [`Decoder`](super::Decoder)).
+pub struct CompassDecoder {
+    from_host: bool,
+    framer: LineFramer,
+    opts: ParseOptions,
+    /// Offset of the first byte of the next feed.
+    base: usize,
+    /// Commands: where the line being read began, and its bytes so far.
+    start: usize,
+    line: Vec<u8>,
+}
+
+impl CompassDecoder {
+    /// A decoder of the host's commands (`from_host`) or the compass's lines.
+    pub fn new(from_host: bool) -> Self {
+        Self {
+            from_host,
+            framer: framer::framer(),
+            opts: ParseOptions::default(),
+            base: 0,
+            start: 0,
+            line: Vec::new(),
         }
-        let line = bytes.get(start..i).unwrap_or(&[]);
-        let offset = start;
-        start = i + 1;
-        if line.is_empty() {
-            continue;
-        }
-        emit(match Command::parse(line) {
-            Ok(c) => {
-                let mut v = command_json(c);
-                v["offset"] = json!(offset);
-                v
+    }
+
+    fn feed_commands(
+        &mut self,
+        bytes: &[u8],
+        base: usize,
+        emit: &mut dyn FnMut(Value) -> Result<()>,
+    ) -> Result<()> {
+        for (k, &b) in bytes.iter().enumerate() {
+            if b != b'\r' && b != b'\n' {
+                self.line.push(b);
+                continue;
             }
-            Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
-        })?;
+            let offset = self.start;
+            self.start = base + k + 1;
+            let line = std::mem::take(&mut self.line);
+            if line.is_empty() {
+                continue;
+            }
+            emit(match Command::parse(&line) {
+                Ok(c) => {
+                    let mut v = command_json(c);
+                    v["offset"] = json!(offset);
+                    v
+                }
+                Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
+            })?;
+        }
+        Ok(())
     }
-    if start < bytes.len() {
-        emit(
-            json!({"kind": "error", "error": "truncated command at end of input", "offset": start}),
-        )?;
+}
+
+impl super::Decoder for CompassDecoder {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        let base = self.base;
+        self.base += bytes.len();
+        if self.from_host {
+            return self.feed_commands(bytes, base, emit);
+        }
+        for (k, &b) in bytes.iter().enumerate() {
+            let i = base + k;
+            let v = match self.framer.push_byte(b) {
+                None => continue,
+                Some(Frame::Prompt) => {
+                    let mut v = line_json(&Line::Prompt);
+                    v["offset"] = json!(i);
+                    v
+                }
+                Some(Frame::Corrupt(e)) => {
+                    json!({"kind": "error", "error": frame_error(e), "offset": i})
+                }
+                Some(Frame::Line(l)) => {
+                    let offset = i.saturating_sub(l.len());
+                    match Line::parse(l, &self.opts) {
+                        Ok(line) => {
+                            let mut v = line_json(&line);
+                            v["offset"] = json!(offset);
+                            v
+                        }
+                        Err(e) => {
+                            json!({"kind": "error", "error": e.to_string(), "offset": offset})
+                        }
+                    }
+                }
+            };
+            emit(v)?;
+        }
+        Ok(())
     }
-    Ok(())
+
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        if self.from_host {
+            if self.start < self.base {
+                emit(
+                    json!({"kind": "error", "error": "truncated command at end of input",
+                    "offset": self.start}),
+                )?;
+            }
+        } else if self.framer.pending() > 0 {
+            emit(
+                json!({"kind": "error", "error": "truncated line at end of input",
+                "offset": self.base.saturating_sub(self.framer.pending())}),
+            )?;
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
@@ -190,6 +241,28 @@ mod tests {
         })
         .unwrap();
         out
+    }
+
+    /// Fed in pieces, the stream decodes as fed whole (both directions, with damage).
+    #[test]
+    fn pieces_decode_as_the_whole() {
+        let lines: &[u8] =
+            b"$HCHDM,238.5,M*25\r\n$HCHDG,238.5,0.0,E,12.3,W*6C\r\n$HCHDM,238.5,M*26\r\n>\
+              $C328.3P28.4R-12.4T22.3E001*XX\r\nH8V7M0.4\r\n$HCH";
+        let v = crate::cmd::decode::pieces::decode_alike(
+            &|| Box::new(CompassDecoder::new(false)),
+            lines,
+        );
+        assert_eq!(v.len(), 7, "{v:?}");
+        let commands: &[u8] = b"=t,0\r=r,600\r\n\nh\rsp=8\rgo\rbogus\r=r,6";
+        let v = crate::cmd::decode::pieces::decode_alike(
+            &|| Box::new(CompassDecoder::new(true)),
+            commands,
+        );
+        assert_eq!(
+            v.last().unwrap()["error"],
+            "truncated command at end of input"
+        );
     }
 
     #[test]

@@ -9,6 +9,8 @@ use ima_p2os::params::{RobotParams, battery_v, encoder_m};
 use ima_p2os::wire::{Arg, Command, Packet};
 use serde_json::{Value, json};
 
+use super::Decoder as _;
+
 /// Decode a P2OS byte stream, calling `emit` with one JSON object per frame or error.
 pub fn decode_p2os(
     bytes: &[u8],
@@ -16,60 +18,91 @@ pub fn decode_p2os(
     params: &RobotParams,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let mut framer = if host {
-        Framer::for_commands()
-    } else {
-        Framer::new()
-    };
-    let mut input = bytes;
-    loop {
-        let n = framer.feed(input);
-        input = input.get(n..).unwrap_or(&[]);
+    let mut d = P2osDecoder::new(host, params);
+    d.feed(bytes, emit)?;
+    d.finish(emit)
+}
+
+/// [`decode_p2os`] a piece at a time (see [`Decoder`](super::Decoder)).
+pub struct P2osDecoder<'a> {
+    framer: Framer,
+    host: bool,
+    params: &'a RobotParams,
+}
+
+impl<'a> P2osDecoder<'a> {
+    /// A decoder of the host's commands (`host`) or the robot's packets.
+    pub fn new(host: bool, params: &'a RobotParams) -> Self {
+        let framer = if host {
+            Framer::for_commands()
+        } else {
+            Framer::new()
+        };
+        Self {
+            framer,
+            host,
+            params,
+        }
+    }
+}
+
+impl super::Decoder for P2osDecoder<'_> {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        let (framer, host, params) = (&mut self.framer, self.host, self.params);
+        let mut input = bytes;
         loop {
-            let (v, frame_len) = match framer.next_frame() {
-                None => break,
-                Some(FrameEvent::Rejected(r)) => {
-                    let reason = match r {
-                        Rejected::BadCount(c) => format!("bad count byte {c}"),
-                        Rejected::BadChecksum { expected, got } => {
-                            format!("bad checksum: computed {expected:#06x}, frame has {got:#06x}")
-                        }
-                    };
-                    (Err(reason), 0usize)
-                }
-                Some(FrameEvent::Frame(p)) => {
-                    let v = if host {
-                        Command::parse(p).map(|c| command_json(c, params))
-                    } else {
-                        Packet::parse(p).map(|pk| packet_json(&pk, params))
-                    };
-                    (v.map_err(|e| e.to_string()), p.len() + 5)
-                }
-            };
-            let offset = if frame_len == 0 {
-                framer.position().saturating_sub(1)
-            } else {
-                framer.position().saturating_sub(frame_len as u64)
-            };
-            emit(match v {
-                Ok(mut v) => {
-                    v["offset"] = json!(offset);
-                    v
-                }
-                Err(e) => json!({"kind": "error", "error": e, "offset": offset}),
-            })?;
+            let n = framer.feed(input);
+            input = input.get(n..).unwrap_or(&[]);
+            loop {
+                let (v, frame_len) = match framer.next_frame() {
+                    None => break,
+                    Some(FrameEvent::Rejected(r)) => {
+                        let reason = match r {
+                            Rejected::BadCount(c) => format!("bad count byte {c}"),
+                            Rejected::BadChecksum { expected, got } => format!(
+                                "bad checksum: computed {expected:#06x}, frame has {got:#06x}"
+                            ),
+                        };
+                        (Err(reason), 0usize)
+                    }
+                    Some(FrameEvent::Frame(p)) => {
+                        let v = if host {
+                            Command::parse(p).map(|c| command_json(c, params))
+                        } else {
+                            Packet::parse(p).map(|pk| packet_json(&pk, params))
+                        };
+                        (v.map_err(|e| e.to_string()), p.len() + 5)
+                    }
+                };
+                let offset = if frame_len == 0 {
+                    framer.position().saturating_sub(1)
+                } else {
+                    framer.position().saturating_sub(frame_len as u64)
+                };
+                emit(match v {
+                    Ok(mut v) => {
+                        v["offset"] = json!(offset);
+                        v
+                    }
+                    Err(e) => json!({"kind": "error", "error": e, "offset": offset}),
+                })?;
+            }
+            if input.is_empty() || n == 0 {
+                break;
+            }
         }
-        if input.is_empty() || n == 0 {
-            break;
+        Ok(())
+    }
+
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        if self.framer.buffered() > 0 {
+            emit(
+                json!({"kind": "error", "error": "truncated frame at end of input",
+                "offset": self.framer.position()}),
+            )?;
         }
+        Ok(())
     }
-    if framer.buffered() > 0 {
-        emit(
-            json!({"kind": "error", "error": "truncated frame at end of input",
-            "offset": framer.position()}),
-        )?;
-    }
-    Ok(())
 }
 
 fn text(b: &[u8]) -> String {
@@ -210,6 +243,33 @@ mod tests {
         })
         .unwrap();
         out
+    }
+
+    /// Fed in pieces, the stream decodes as fed whole (both directions, with damage).
+    #[test]
+    fn pieces_decode_as_the_whole() {
+        let mut robot = parse_hex(
+            "FA FB 21 33 E8 03 F4 01 00 04 CE FF 32 00 7D 00 00 00 04 01 00 00 02 00 4A 07 07 93 0E 00 00 00 FF 0F D9 B2",
+        )
+        .unwrap();
+        robot.extend(parse_hex("00 11 FA FB 06 0B 3B C8 00 D3 3C FA FB").unwrap());
+        robot.extend(robot.clone());
+        let v = crate::cmd::decode::pieces::decode_alike(
+            &|| Box::new(P2osDecoder::new(false, &ima_p2os::params::P2AT)),
+            &robot,
+        );
+        assert!(v.iter().any(|v| v["kind"] == "sip"), "{v:?}");
+        assert!(v.iter().any(|v| v["kind"] == "error"), "{v:?}");
+        let mut host = parse_hex("00 11 FA FB 06 0B 3B C8 00 D3 3C").unwrap();
+        host.extend(parse_hex("FA FB 06 0B 1B C8 00 D3 1B FA").unwrap());
+        let v = crate::cmd::decode::pieces::decode_alike(
+            &|| Box::new(P2osDecoder::new(true, &ima_p2os::params::P2AT)),
+            &host,
+        );
+        assert_eq!(
+            v.last().unwrap()["error"],
+            "truncated frame at end of input"
+        );
     }
 
     #[test]

@@ -11,68 +11,108 @@ use ima_rflex::machine::Config;
 use ima_rflex::wire::{Command, Report, SetDir};
 use serde_json::{Value, json};
 
+use super::Decoder as _;
+
 /// Decode an rFLEX byte stream, calling `emit` with one JSON object per frame or error.
 pub fn decode_rflex(
     bytes: &[u8],
     host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let cfg = Config::default();
-    let mut framer = Framer::strict();
-    let mut pos = 0usize;
-    // Offset of the most recent ESC STX (where the current candidate frame began).
-    let mut start = 0usize;
-    let mut prev_esc = false;
-    while pos < bytes.len() {
-        let rest = bytes.get(pos..).unwrap_or(&[]);
-        let (used, item) = framer.decode(rest);
-        // Track the last ESC STX inside the consumed bytes.
-        for (i, &b) in rest.iter().take(used).enumerate() {
-            if prev_esc && b == ima_rflex::wire::STX {
-                start = (pos + i).saturating_sub(1);
+    let mut d = RflexDecoder::new(host);
+    d.feed(bytes, emit)?;
+    d.finish(emit)
+}
+
+/// [`decode_rflex`] a piece at a time (see [`Decoder`](super::Decoder)).
+pub struct RflexDecoder {
+    cfg: Config,
+    host: bool,
+    framer: Framer,
+    /// Offset of the first byte of the next feed.
+    base: usize,
+    /// Offset of the most recent ESC STX (where the current candidate frame began).
+    start: usize,
+    prev_esc: bool,
+    /// The framer took nothing of a non-empty input: the rest of the capture is not read.
+    stuck: bool,
+}
+
+impl RflexDecoder {
+    /// A decoder of the host's commands (`host`) or the base's reports.
+    pub fn new(host: bool) -> Self {
+        Self {
+            cfg: Config::default(),
+            host,
+            framer: Framer::strict(),
+            base: 0,
+            start: 0,
+            prev_esc: false,
+            stuck: false,
+        }
+    }
+}
+
+impl super::Decoder for RflexDecoder {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        let base = self.base;
+        self.base += bytes.len();
+        let mut pos = 0usize;
+        while pos < bytes.len() && !self.stuck {
+            let rest = bytes.get(pos..).unwrap_or(&[]);
+            let (used, item) = self.framer.decode(rest);
+            // Track the last ESC STX inside the consumed bytes.
+            for (i, &b) in rest.iter().take(used).enumerate() {
+                if self.prev_esc && b == ima_rflex::wire::STX {
+                    self.start = (base + pos + i).saturating_sub(1);
+                }
+                self.prev_esc = b == ima_rflex::wire::ESC && !self.prev_esc;
             }
-            prev_esc = b == ima_rflex::wire::ESC && !prev_esc;
-        }
-        pos += used;
-        if let Some(item) = item {
-            let v = match item {
-                Ok(raw) => {
-                    let v = if host {
-                        Command::from_raw(&raw).map(|c| command_json(&c, &cfg))
-                    } else {
-                        Report::from_raw(&raw).map(|r| report_json(&r, &cfg))
-                    };
-                    match v {
-                        Ok(mut v) => {
-                            v["id"] = json!(raw.id);
-                            v["offset"] = json!(start);
-                            v
+            pos += used;
+            if let Some(item) = item {
+                let v = match item {
+                    Ok(raw) => {
+                        let v = if self.host {
+                            Command::from_raw(&raw).map(|c| command_json(&c, &self.cfg))
+                        } else {
+                            Report::from_raw(&raw).map(|r| report_json(&r, &self.cfg))
+                        };
+                        match v {
+                            Ok(mut v) => {
+                                v["id"] = json!(raw.id);
+                                v["offset"] = json!(self.start);
+                                v
+                            }
+                            Err(e) => {
+                                json!({"kind": "error", "error": e.to_string(), "offset": self.start})
+                            }
                         }
-                        Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": start}),
                     }
-                }
-                Err(e) => {
-                    let reason = match e {
-                        FrameError::Invalid(w) => w.to_string(),
-                        FrameError::BadEscape(b) => format!("ESC followed by {b:#04x}"),
-                        FrameError::Oversize => "frame longer than 264 bytes".to_owned(),
-                        FrameError::Restarted => "ESC STX before ESC ETX".to_owned(),
-                    };
-                    json!({"kind": "error", "error": reason, "offset": start})
-                }
-            };
-            emit(v)?;
+                    Err(e) => {
+                        let reason = match e {
+                            FrameError::Invalid(w) => w.to_string(),
+                            FrameError::BadEscape(b) => format!("ESC followed by {b:#04x}"),
+                            FrameError::Oversize => "frame longer than 264 bytes".to_owned(),
+                            FrameError::Restarted => "ESC STX before ESC ETX".to_owned(),
+                        };
+                        json!({"kind": "error", "error": reason, "offset": self.start})
+                    }
+                };
+                emit(v)?;
+            }
+            self.stuck = used == 0;
         }
-        if used == 0 {
-            break;
+        Ok(())
+    }
+
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        if self.framer.in_frame() {
+            emit(
+                json!({"kind": "error", "error": "truncated frame at end of input", "offset": self.start}),
+            )?;
         }
+        Ok(())
     }
-    if framer.in_frame() {
-        emit(
-            json!({"kind": "error", "error": "truncated frame at end of input", "offset": start}),
-        )?;
-    }
-    Ok(())
 }
 
 fn set_dir_json(s: &SetDir, cfg: &Config) -> Value {
@@ -208,6 +248,32 @@ mod tests {
         })
         .unwrap();
         v
+    }
+
+    /// Fed in pieces, the stream decodes as fed whole (both directions, with damage).
+    #[test]
+    fn pieces_decode_as_the_whole() {
+        let hex = crate::cmd::decode::hex::parse_hex;
+        let reports = hex(
+            "1B 02 02 05 21 19 00 00 00 00 00 00 12 34 00 00 01 62 BA 00 00 6A 6B 00 00 00 00 00 00 00 00 C1 1B 03 \
+             1B 02 01 07 01 09 00 00 12 36 00 00 0A 46 00 66 1B 03 1B 02 01",
+        )
+        .unwrap();
+        let v = crate::cmd::decode::pieces::decode_alike(
+            &|| Box::new(RflexDecoder::new(false)),
+            &reports,
+        );
+        assert_eq!(v.len(), 3, "{v:?}");
+        let commands = hex(
+            "FF 1B 02 02 00 07 0E 01 00 00 1B 00 58 00 01 86 A0 00 00 88 B8 00 5E 1B 03 \
+             1B 02 02 00 0C 00 0F 1B 03 1B 02 01",
+        )
+        .unwrap();
+        let v = crate::cmd::decode::pieces::decode_alike(
+            &|| Box::new(RflexDecoder::new(true)),
+            &commands,
+        );
+        assert_eq!(v.len(), 3, "{v:?}");
     }
 
     #[test]

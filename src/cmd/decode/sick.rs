@@ -14,6 +14,8 @@ use ima_sick_lms::wire::{
 };
 use serde_json::{Value, json};
 
+use super::Decoder as _;
+
 /// Decode a SICK LMS byte stream (`from_host`: host → LMS commands, else LMS replies),
 /// calling `emit` with one JSON object per item.
 pub fn decode_sick_lms(
@@ -21,90 +23,140 @@ pub fn decode_sick_lms(
     from_host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let dir = if from_host {
-        Direction::Commands
-    } else {
-        Direction::Replies
-    };
-    // Captures have no timing: never expire a partial telegram.
-    let mut framer = Framer::new(dir)
-        .report_bad_checksums(true)
-        .with_partial_timeout(core::time::Duration::from_secs(u64::MAX / 4_000_000));
-    let now = ima_hal::Instant::ZERO;
-    let mut pos = 0usize;
-    let mut input = bytes;
-    let mut scan = LaserScan::default();
-    loop {
+    let mut d = SickDecoder::new(from_host);
+    d.feed(bytes, emit)?;
+    d.finish(emit)
+}
+
+/// How far back a candidate that failed its CRC can have begun: its claimed length (16 bits)
+/// and the 6 bytes around it, and a little more.
+const LOOKBACK: usize = (u16::MAX as usize) + 8;
+
+/// [`decode_sick_lms`] a piece at a time (see [`Decoder`](super::Decoder)).
+pub struct SickDecoder {
+    from_host: bool,
+    framer: Framer,
+    /// Bytes consumed by the framer so far.
+    pos: usize,
+    /// The last bytes fed (at least [`LOOKBACK`] before those of the current feed), from
+    /// offset `seen0`, to find where a failed candidate began.
+    seen: Vec<u8>,
+    seen0: usize,
+    scan: LaserScan,
+}
+
+impl SickDecoder {
+    /// A decoder of the host's commands (`from_host`) or the unit's replies.
+    pub fn new(from_host: bool) -> Self {
+        let dir = if from_host {
+            Direction::Commands
+        } else {
+            Direction::Replies
+        };
+        // Captures have no timing: never expire a partial telegram.
+        let framer = Framer::new(dir)
+            .report_bad_checksums(true)
+            .with_partial_timeout(core::time::Duration::from_secs(u64::MAX / 4_000_000));
+        Self {
+            from_host,
+            framer,
+            pos: 0,
+            seen: Vec::new(),
+            seen0: 0,
+            scan: LaserScan::default(),
+        }
+    }
+}
+
+impl super::Decoder for SickDecoder {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         enum Got {
             Ack,
             Nak,
             Bad,
             Frame(Vec<u8>),
         }
-        let p = framer.push(input, now);
-        let consumed = p.consumed;
-        let item = p.item.map(|i| match i {
-            Item::Ack => Got::Ack,
-            Item::Nak => Got::Nak,
-            Item::BadChecksum => Got::Bad,
-            Item::Frame(f) => Got::Frame(f.as_bytes().to_vec()),
-        });
-        pos += consumed;
-        let held = framer.buffered();
-        let got = item.is_some();
-        let v = match item {
-            None => None,
-            Some(Got::Ack) => Some(json!({"kind": "ack", "offset": pos - 1})),
-            Some(Got::Nak) => Some(json!({"kind": "nak", "offset": pos - 1})),
-            Some(Got::Bad) => Some(json!({"kind": "error",
-                "error": "bad CRC (candidate dropped, resynchronising one byte on)",
-                "offset": bad_candidate_start(bytes, pos)})),
-            Some(Got::Frame(raw)) => {
-                let offset = pos.saturating_sub(held + raw.len());
-                let v = match Frame::new_checked(&raw) {
-                    Err(e) => json!({"kind": "error", "error": e.to_string()}),
-                    Ok(f) => {
-                        let mut v = if from_host {
-                            Command::from_frame(&f).map_or_else(
-                                |e| json!({"kind": "error", "error": e.to_string()}),
-                                |c| command_json(&c),
-                            )
-                        } else {
-                            match Reply::from_frame(&f) {
-                                Ok(r) => reply_json(&r, &mut scan),
-                                Err(e) => json!({"kind": "error", "error": e.to_string()}),
-                            }
-                        };
-                        v["address"] = json!(f.address());
-                        v
-                    }
-                };
-                let mut v = v;
-                v["offset"] = json!(offset);
-                Some(v)
+        let old = self.seen.len().saturating_sub(LOOKBACK);
+        self.seen.drain(..old);
+        self.seen0 += old;
+        self.seen.extend_from_slice(bytes);
+        let now = ima_hal::Instant::ZERO;
+        let mut input = bytes;
+        loop {
+            let p = self.framer.push(input, now);
+            let consumed = p.consumed;
+            let item = p.item.map(|i| match i {
+                Item::Ack => Got::Ack,
+                Item::Nak => Got::Nak,
+                Item::BadChecksum => Got::Bad,
+                Item::Frame(f) => Got::Frame(f.as_bytes().to_vec()),
+            });
+            self.pos += consumed;
+            let pos = self.pos;
+            let held = self.framer.buffered();
+            let got = item.is_some();
+            let v = match item {
+                None => None,
+                Some(Got::Ack) => Some(json!({"kind": "ack", "offset": pos - 1})),
+                Some(Got::Nak) => Some(json!({"kind": "nak", "offset": pos - 1})),
+                Some(Got::Bad) => {
+                    let start =
+                        bad_candidate_start(&self.seen, pos - self.seen0).map(|s| s + self.seen0);
+                    Some(json!({"kind": "error",
+                        "error": "bad CRC (candidate dropped, resynchronising one byte on)",
+                        "offset": start}))
+                }
+                Some(Got::Frame(raw)) => {
+                    let offset = pos.saturating_sub(held + raw.len());
+                    let mut v = match Frame::new_checked(&raw) {
+                        Err(e) => json!({"kind": "error", "error": e.to_string()}),
+                        Ok(f) => {
+                            let mut v = if self.from_host {
+                                Command::from_frame(&f).map_or_else(
+                                    |e| json!({"kind": "error", "error": e.to_string()}),
+                                    |c| command_json(&c),
+                                )
+                            } else {
+                                match Reply::from_frame(&f) {
+                                    Ok(r) => reply_json(&r, &mut self.scan),
+                                    Err(e) => json!({"kind": "error", "error": e.to_string()}),
+                                }
+                            };
+                            v["address"] = json!(f.address());
+                            v
+                        }
+                    };
+                    v["offset"] = json!(offset);
+                    Some(v)
+                }
+            };
+            if let Some(v) = v {
+                emit(v)?;
             }
-        };
-        if let Some(v) = v {
-            emit(v)?;
+            input = input.get(consumed..).unwrap_or(&[]);
+            if !got && consumed == 0 {
+                break;
+            }
         }
-        input = input.get(consumed..).unwrap_or(&[]);
-        if !got && consumed == 0 {
-            break;
+        Ok(())
+    }
+
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        if self.framer.buffered() > 0 {
+            emit(
+                json!({"kind": "error", "error": "truncated telegram at end of input",
+                "offset": self.pos - self.framer.buffered()}),
+            )?;
         }
+        Ok(())
     }
-    if framer.buffered() > 0 {
-        emit(
-            json!({"kind": "error", "error": "truncated telegram at end of input",
-            "offset": pos - framer.buffered()}),
-        )?;
-    }
-    Ok(())
 }
 
 /// Where the candidate that just failed its CRC began: the framer reads exactly a claimed
 /// telegram (`LEN + 6` bytes) before checking it, so it is the STX whose claimed end is `end`.
 fn bad_candidate_start(bytes: &[u8], end: usize) -> Option<usize> {
-    (0..end.saturating_sub(7)).rev().find(|&s| {
+    // A telegram holds at least one byte (its command or reply code): LEN ≥ 1, s ≤ end - 7.
+    (0..=end.saturating_sub(7)).rev().find(|&s| {
         let len = bytes
             .get(s + 2..s + 4)
             .and_then(|l| <[u8; 2]>::try_from(l).ok())
@@ -257,6 +309,36 @@ mod tests {
         })
         .unwrap();
         out
+    }
+
+    /// Fed in pieces, the stream decodes as fed whole (both directions, with a bad CRC).
+    #[test]
+    fn pieces_decode_as_the_whole() {
+        let mut b = vec![0x06];
+        b.extend([
+            0x02, 0x80, 0x0A, 0x00, 0xB0, 0x03, 0x40, 0xE8, 0x03, 0xD0, 0x07, 0xFF, 0x1F, 0x10,
+            0x16, 0xB1,
+        ]);
+        b.extend([0x02, 0x80, 0x02, 0x00, 0x91, 0x10, 0x79, 0x31]); // CRC damaged
+        b.extend([
+            0x15, 0x02, 0x80, 0x02, 0x00, 0x91, 0x10, 0x79, 0x30, 0x02, 0x80,
+        ]);
+        let v = crate::cmd::decode::pieces::decode_alike(&|| Box::new(SickDecoder::new(false)), &b);
+        let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
+        assert!(
+            kinds.contains(&"scan") && kinds.contains(&"error"),
+            "{kinds:?}"
+        );
+        let mut c = vec![0x02, 0x00, 0x02, 0x00, 0x20, 0x24, 0x34, 0x08];
+        c.extend([0x02, 0x00, 0x01, 0x00, 0x31, 0x15, 0x13]); // CRC damaged
+        c.extend([
+            0x02, 0x00, 0x05, 0x00, 0x3B, 0x64, 0x00, 0x19, 0x00, 0xE7, 0x72,
+        ]);
+        let v = crate::cmd::decode::pieces::decode_alike(&|| Box::new(SickDecoder::new(true)), &c);
+        assert!(
+            v.iter().any(|x| x["kind"] == "error" && x["offset"] == 8),
+            "{v:?}"
+        );
     }
 
     #[test]
