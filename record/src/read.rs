@@ -669,6 +669,22 @@ impl RawStream {
     }
 }
 
+/// One raw serial chunk of a recording, as [`Recording::each_raw_chunk`] reads it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RawChunk<'a> {
+    /// The channel's topic.
+    pub topic: &'a str,
+    /// The port (from the channel's metadata).
+    pub port: &'a PortInfo,
+    /// Log time, Unix nanoseconds.
+    pub log_time: u64,
+    /// Which way the bytes went; [`raw::Dir::Baud`] is a line-speed change, the rate as 4
+    /// bytes little-endian.
+    pub dir: raw::Dir,
+    /// The bytes.
+    pub bytes: &'a [u8],
+}
+
 /// What reading could not give: damaged stretches skipped, or the file cut short by a crash.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Truncation(pub Option<String>);
@@ -767,17 +783,20 @@ impl Recording {
         })
     }
 
-    /// Run `f` over every message the `mcap` crate gives for the sound part (`f` must only
-    /// copy what it needs, or parse it with code that cannot panic: it runs under the panic
-    /// guard, which would report a panic of ours as damage to the file). An error or a panic of the crate is
-    /// kept for [`damage`](Self::damage); the crate's words for a prefix that ends inside a
-    /// record or without a footer (a cut, which the walker's damage explains) are returned.
-    fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>)) -> Option<String> {
+    /// Run `f` over every message the `mcap` crate gives for the sound part, until it returns
+    /// `false` (`f` must only copy what it needs, or parse it with code that cannot panic: it
+    /// runs under the panic guard, which would report a panic of ours as damage to the file).
+    /// An error or a panic of the crate is kept for [`damage`](Self::damage); the crate's
+    /// words for a prefix that ends inside a record or without a footer (a cut, which the
+    /// walker's damage explains) are returned.
+    fn each<'a>(&'a self, mut f: impl FnMut(mcap::Message<'a>) -> bool) -> Option<String> {
         let end = guarded(|| -> Result<(), mcap::McapError> {
             match &self.source {
                 Source::Memory(b) => {
                     for m in mcap::MessageStream::new(sound_part(b, self.sound))? {
-                        f(m?);
+                        if !f(m?) {
+                            break;
+                        }
                     }
                 }
                 Source::File(file) => {
@@ -785,7 +804,9 @@ impl Recording {
                         .with_record_length_limit(MAX_RECORD_BYTES as usize);
                     let bytes = std::io::BufReader::with_capacity(1 << 16, self.range(file));
                     for m in mcap::io::MessageReader::new_with_options(bytes, opts) {
-                        f(m?);
+                        if !f(m?) {
+                            break;
+                        }
                     }
                 }
             }
@@ -843,6 +864,7 @@ impl Recording {
                 log_time: m.log_time,
                 data: m.data.into_owned(),
             });
+            true
         });
         // The crate's own stop comes first (it stopped before the walker's damage).
         (out, Truncation(self.damage().or(cut)))
@@ -852,7 +874,10 @@ impl Recording {
     /// [`messages`](Self::messages), without keeping them).
     pub fn count(&self) -> (usize, Truncation) {
         let mut n = 0;
-        let cut = self.each(|_| n += 1);
+        let cut = self.each(|_| {
+            n += 1;
+            true
+        });
         (n, Truncation(self.damage().or(cut)))
     }
 
@@ -870,6 +895,7 @@ impl Recording {
                     m.channel.metadata.clone(),
                 )
             });
+            true
         });
         out
     }
@@ -890,40 +916,24 @@ impl Recording {
     ) -> (Vec<RawStream>, Vec<String>) {
         // Topic → (its port's path, the stream when it is wanted: `None` passes it over).
         let mut by_topic: BTreeMap<String, (String, Option<RawStream>)> = BTreeMap::new();
-        self.each(|m| {
-            if m.channel.message_encoding != raw::ENCODING {
-                return;
-            }
-            let entry = match by_topic.get_mut(&m.channel.topic) {
+        self.each_raw_chunk(|c| {
+            let entry = match by_topic.get_mut(c.topic) {
                 Some(e) => e,
                 None => {
-                    let Some(port) = PortInfo::from_metadata(&m.channel.metadata) else {
-                        return;
-                    };
                     let s = RawStream {
-                        port,
-                        topic: m.channel.topic.clone(),
+                        port: c.port.clone(),
+                        topic: c.topic.to_owned(),
                         chunks: Vec::new(),
                     };
-                    let path = s.port.port.clone();
                     let keep = wanted(&s).then_some(s);
-                    by_topic
-                        .entry(m.channel.topic.clone())
-                        .or_insert((path, keep))
+                    let e = (c.port.port.clone(), keep);
+                    by_topic.entry(c.topic.to_owned()).or_insert(e)
                 }
             };
-            let Some(entry) = &mut entry.1 else {
-                return;
-            };
-            match raw::parse(&m.data) {
-                Some(Chunk::Bytes(d, b)) => entry.chunks.push((m.log_time, d, b.to_vec())),
-                Some(Chunk::Baud(b)) => {
-                    entry
-                        .chunks
-                        .push((m.log_time, raw::Dir::Baud, b.to_le_bytes().to_vec()));
-                }
-                None => {}
+            if let Some(s) = &mut entry.1 {
+                s.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
             }
+            true
         });
         let mut kept = Vec::new();
         let mut names = Vec::new();
@@ -932,6 +942,44 @@ impl Recording {
             kept.extend(s);
         }
         (kept, names)
+    }
+
+    /// Every raw serial chunk in file order, to `f` until it returns `false`, holding none of
+    /// them (a replay re-decodes a long recording this way); and why reading stopped early,
+    /// as [`messages`](Self::messages) says it. `f` runs under the guard that catches the
+    /// `mcap` crate's panics: it must not panic itself.
+    pub fn each_raw_chunk(&self, mut f: impl FnMut(RawChunk<'_>) -> bool) -> Truncation {
+        // Topic → its port, or `None` for a raw channel without port metadata (passed over).
+        let mut ports: BTreeMap<String, Option<PortInfo>> = BTreeMap::new();
+        let cut = self.each(|m| {
+            if m.channel.message_encoding != raw::ENCODING {
+                return true;
+            }
+            let topic = &m.channel.topic;
+            if !ports.contains_key(topic) {
+                ports.insert(topic.clone(), PortInfo::from_metadata(&m.channel.metadata));
+            }
+            let Some(Some(port)) = ports.get(topic) else {
+                return true;
+            };
+            let baud;
+            let (dir, bytes) = match raw::parse(&m.data) {
+                Some(Chunk::Bytes(d, b)) => (d, b),
+                Some(Chunk::Baud(b)) => {
+                    baud = b.to_le_bytes();
+                    (raw::Dir::Baud, &baud[..])
+                }
+                None => return true,
+            };
+            f(RawChunk {
+                topic,
+                port,
+                log_time: m.log_time,
+                dir,
+                bytes,
+            })
+        });
+        Truncation(self.damage().or(cut))
     }
 
     /// The `ima` metadata record the recorder writes first (the session's `name`, the

@@ -115,6 +115,30 @@ fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
     ] {
         assert_eq!(r.raw_stream(name).unwrap(), raw, "{name}");
     }
+    // Chunk by chunk, in file order: the same chunks, per stream in the same order; `false`
+    // stops the reading.
+    let mut per_topic: std::collections::BTreeMap<String, Vec<_>> = Default::default();
+    let cut = r.each_raw_chunk(|c| {
+        per_topic.entry(c.topic.to_owned()).or_default().push((
+            c.log_time,
+            c.dir,
+            c.bytes.to_vec(),
+        ));
+        assert_eq!(
+            all.iter().find(|s| s.topic == c.topic).unwrap().port,
+            *c.port
+        );
+        true
+    });
+    assert_eq!(cut.0, None);
+    let chunks: Vec<_> = all.iter().map(|s| s.chunks.clone()).collect();
+    assert_eq!(per_topic.into_values().collect::<Vec<_>>(), chunks);
+    let mut seen = 0;
+    r.each_raw_chunk(|_| {
+        seen += 1;
+        false
+    });
+    assert_eq!(seen, 1);
     let e = r.raw_stream("nothing").unwrap_err().to_string();
     let have: Vec<String> = all
         .iter()

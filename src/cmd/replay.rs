@@ -10,8 +10,14 @@
 //! every raw channel with its recorded stamps and port metadata, so it can itself be replayed,
 //! decoded (`ima decode --mcap`) or served `--as-mock`.
 //!
+//! Memory: the file is read on a thread of its own a chunk at a time, each port's bytes
+//! re-decoded as they come ([`super::decode::Decoder`]); the playback holds the items of the
+//! last [`REORDER`] of stamps, to play them in stamp order. A replay holds about as much for an
+//! hour's recording as for a minute's.
+//!
 //! `ima replay --as-mock PORT` serves one recorded port's robot→host bytes on a pty instead,
-//! paced by their stamps, so a driver can be run against a recording.
+//! paced by their stamps, so a driver can be run against a recording (that port's bytes are
+//! read into memory first).
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -22,6 +28,8 @@ use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_record::convert::Pose2;
 use ima_record::raw::Dir;
 use ima_record::read::{RawStream, Recording};
+
+use super::decode::Decoder;
 use serde_json::{Value, json};
 
 use super::decode::{Protocol, recorded_protocol};
@@ -97,117 +105,261 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
             "ima replay: the recording is damaged ({why}); replaying the {n} messages it holds"
         );
     }
-    let mut readings = Vec::new();
-    let streams = rec.raw_streams();
-    if streams.is_empty() {
-        // Nothing to re-decode: say why when the recorder was told to leave the ports out.
-        let why = rec
-            .left_out()
-            .map_or_else(String::new, |p| format!(" (the recording left out: {p})"));
-        eprintln!("ima replay: no raw serial channel to re-decode in the recording{why}");
-    }
-    for s in &streams {
-        readings.extend(decode_stream(s)?);
-    }
-    readings.sort_by_key(|r| r.t_ns);
+    let left_out = rec.left_out();
     crate::record::start(&args.rec, "ima replay")?;
-    let raw = RawReplay::new(&streams, args.rec.record.is_some());
+    let to_file = args.rec.record.is_some();
+    let file = args.file.display().to_string();
+    // The file is read and re-decoded on a thread of its own, a chunk at a time, into items in
+    // file order; the playback puts them in stamp order (a window of REORDER) and paces them.
+    let (tx, mut items) = tokio::sync::mpsc::channel::<Item>(1024);
+    let reader = std::thread::Builder::new()
+        .name("ima-replay-read".into())
+        .spawn(move || read_items(&rec, to_file, &tx))
+        .context("starting the replay's reader")?;
     let json_out = args.json;
     let speed = args.speed;
-    let n = readings.len();
-    crate::safety::block_on(async move {
-        let t0 = readings.first().map(|r| r.t_ns);
-        // Pacing starts at the first reading or raw chunk, whichever is earlier.
-        let Some(first) = [t0, raw.first()].into_iter().flatten().min() else {
-            return Ok(());
-        };
+    let played = crate::safety::block_on(async move {
+        let mut order = Reorder::default();
+        let mut raw = RawReplay::default();
+        let mut n = 0usize;
+        // Pacing starts at the first item, a reading or a raw chunk; `t_s` at the first
+        // reading.
+        let mut first: Option<u64> = None;
+        let mut t0: Option<u64> = None;
         let start = tokio::time::Instant::now();
-        let mut chunks = raw.chunks.iter().peekable();
-        let mut readings = readings.iter().peekable();
         loop {
-            // The next item in stamp order (a chunk before a reading of the same stamp: the
-            // bytes that completed it).
-            let next_chunk = chunks.peek().map(|c| c.0);
-            let next_reading = readings.peek().map(|r| r.t_ns);
-            let t = match (next_chunk, next_reading) {
-                (None, None) => break,
-                (Some(c), Some(r)) => c.min(r),
-                (Some(t), None) | (None, Some(t)) => t,
+            let next = match order.next_due() {
+                Some(item) => item,
+                None => match items.recv().await {
+                    Some(item) => {
+                        order.push(item);
+                        continue;
+                    }
+                    None if order.is_empty() => break,
+                    None => {
+                        order.ended();
+                        continue;
+                    }
+                },
             };
+            let t = next.t_ns();
+            let first = *first.get_or_insert(t);
             if speed > 0.0 {
                 let due = Duration::from_nanos(t.saturating_sub(first)).div_f64(speed);
                 crate::safety::until_cancelled(tokio::time::sleep_until(start + due)).await?;
             }
             // As fast as possible, the replay could outrun the recorder's queue.
             crate::safety::until_cancelled(crate::record::room()).await?;
-            if next_chunk == Some(t) {
-                if let Some(c) = chunks.next() {
-                    raw.publish(c);
-                }
-                continue;
-            }
-            if let Some(r) = readings.next() {
-                publish(r);
-                if json_out {
-                    outln!("{}", reading_json(r, t0.unwrap_or(r.t_ns)))?;
+            match next {
+                Item::Raw(c) => raw.publish(&c),
+                Item::Reading(r) => {
+                    n += 1;
+                    publish(&r.reading);
+                    if json_out {
+                        let t0 = *t0.get_or_insert(t);
+                        outln!("{}", reading_json(&r.reading, t0))?;
+                    }
                 }
             }
         }
-        Ok(())
-    })?;
+        Ok(n)
+    });
+    // The reader ends once the playback stops taking items (its channel is closed).
+    let read = reader
+        .join()
+        .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
+    let n = played?;
+    let streams = read?;
+    if streams == 0 {
+        // Nothing to re-decode: say why when the recorder was told to leave the ports out.
+        let why = left_out.map_or_else(String::new, |p| format!(" (the recording left out: {p})"));
+        eprintln!("ima replay: no raw serial channel to re-decode in the recording{why}");
+    }
     if !json_out {
-        eprintln!("ima replay: {n} readings from {}", args.file.display());
+        eprintln!("ima replay: {n} readings from {file}");
     }
     Ok(())
 }
 
-/// The raw chunks a recording of the replay carries, so that it can itself be replayed,
-/// decoded or served `--as-mock`: every port's chunks (both directions and line-speed
-/// changes) in stamp order, with the port each goes to. Empty without a file (a live view
-/// does not show raw bytes).
-struct RawReplay<'a> {
-    ports: Vec<ima_record::raw::RawPort>,
-    /// `(log time, port index, direction, bytes)`, in log-time order.
-    chunks: Vec<(u64, usize, Dir, &'a [u8])>,
+/// How far behind the latest stamp read an item is held, so that items read a little out of
+/// stamp order (a frame stamped by the chunk it began in, read with the one that ended it;
+/// two robots' threads logging at once) are played in order.
+const REORDER: Duration = Duration::from_secs(2);
+
+/// What the reader hands the playback.
+#[derive(Debug)]
+enum Item {
+    /// A raw chunk to record again (only with `--record`).
+    Raw(RawItem),
+    /// A reading re-decoded.
+    Reading(ReadingItem),
 }
 
-impl<'a> RawReplay<'a> {
-    fn new(streams: &'a [RawStream], to_file: bool) -> Self {
-        let mut ports = Vec::new();
-        crate::record::with(|rec| {
-            if !to_file {
-                return;
-            }
-            ports = streams
-                .iter()
-                .map(|s| rec.raw_port(s.port.clone()))
-                .collect();
+/// A raw chunk for a recording of the replay.
+#[derive(Debug)]
+struct RawItem {
+    t_ns: u64,
+    topic: std::sync::Arc<str>,
+    seq: u64,
+    port: std::sync::Arc<ima_record::raw::PortInfo>,
+    dir: Dir,
+    bytes: Vec<u8>,
+}
+
+/// A reading, with its stream's topic and its place in the stream.
+#[derive(Debug)]
+struct ReadingItem {
+    topic: std::sync::Arc<str>,
+    seq: u64,
+    reading: Stamped,
+}
+
+impl Item {
+    fn t_ns(&self) -> u64 {
+        match self {
+            Self::Raw(c) => c.t_ns,
+            Self::Reading(r) => r.reading.t_ns,
+        }
+    }
+
+    /// Play order: by stamp, a raw chunk before a reading of the same stamp (the bytes that
+    /// completed it), then by stream (topic) and by place in the stream.
+    fn key(&self) -> (u64, bool, std::sync::Arc<str>, u64) {
+        match self {
+            Self::Raw(c) => (c.t_ns, false, c.topic.clone(), c.seq),
+            Self::Reading(r) => (r.reading.t_ns, true, r.topic.clone(), r.seq),
+        }
+    }
+}
+
+impl PartialEq for Item {
+    fn eq(&self, other: &Self) -> bool {
+        self.key() == other.key()
+    }
+}
+
+impl Eq for Item {}
+
+impl PartialOrd for Item {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Item {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.key().cmp(&other.key())
+    }
+}
+
+/// Items in play order: each is held until an item stamped [`REORDER`] later has been read
+/// (or the reading ended).
+#[derive(Debug, Default)]
+struct Reorder {
+    held: std::collections::BinaryHeap<std::cmp::Reverse<Item>>,
+    latest: u64,
+    ended: bool,
+}
+
+impl Reorder {
+    fn push(&mut self, item: Item) {
+        self.latest = self.latest.max(item.t_ns());
+        self.held.push(std::cmp::Reverse(item));
+    }
+
+    fn ended(&mut self) {
+        self.ended = true;
+    }
+
+    fn is_empty(&self) -> bool {
+        self.held.is_empty()
+    }
+
+    /// The next item in play order, once no item read later can come before it.
+    fn next_due(&mut self) -> Option<Item> {
+        let window = u64::try_from(REORDER.as_nanos()).unwrap_or(u64::MAX);
+        let due = self.held.peek().is_some_and(|std::cmp::Reverse(i)| {
+            self.ended || i.t_ns().saturating_add(window) <= self.latest
         });
-        let mut chunks: Vec<_> = if ports.is_empty() {
-            Vec::new()
+        if due {
+            self.held.pop().map(|std::cmp::Reverse(i)| i)
         } else {
-            streams
-                .iter()
-                .enumerate()
-                .flat_map(|(i, s)| s.chunks.iter().map(move |c| (c.0, i, c.1, &c.2[..])))
-                .collect()
-        };
-        // Stable: each port's chunks keep their recorded order.
-        chunks.sort_by_key(|c| c.0);
-        Self { ports, chunks }
+            None
+        }
     }
+}
 
-    fn first(&self) -> Option<u64> {
-        self.chunks.first().map(|c| c.0)
-    }
+/// The raw ports of a recording of the replay, opened as their first chunks come, so that it
+/// can itself be replayed, decoded or served `--as-mock`.
+#[derive(Default)]
+struct RawReplay {
+    ports: std::collections::HashMap<std::sync::Arc<str>, Option<ima_record::raw::RawPort>>,
+}
 
-    fn publish(&self, &(t_ns, port, dir, bytes): &(u64, usize, Dir, &[u8])) {
-        let Some(p) = self.ports.get(port) else {
+impl RawReplay {
+    fn publish(&mut self, c: &RawItem) {
+        let port = self.ports.entry(c.topic.clone()).or_insert_with(|| {
+            let mut p = None;
+            crate::record::with(|rec| p = Some(rec.raw_port((*c.port).clone())));
+            p
+        });
+        let Some(p) = port else {
             return;
         };
-        crate::record::with(|rec| rec.set_stamp(Some(t_ns)));
-        p.chunk(dir, bytes);
+        crate::record::with(|rec| rec.set_stamp(Some(c.t_ns)));
+        p.chunk(c.dir, &c.bytes);
     }
+}
+
+/// Read the recording's raw chunks in file order, re-decode each port's robot→host bytes
+/// as they come, and hand the playback the readings (and, `to_file`, the chunks themselves).
+/// Returns how many raw streams the recording has; stops early when the playback has.
+fn read_items(
+    rec: &Recording,
+    to_file: bool,
+    tx: &tokio::sync::mpsc::Sender<Item>,
+) -> Result<usize> {
+    use std::collections::HashMap;
+    let mut streams: HashMap<String, StreamDecoder> = HashMap::new();
+    let mut failed = None;
+    rec.each_raw_chunk(|c| {
+        let s = match streams.get_mut(c.topic) {
+            Some(s) => s,
+            None => match StreamDecoder::new(c.topic, c.port) {
+                Ok(s) => streams.entry(c.topic.to_owned()).or_insert(s),
+                Err(e) => {
+                    failed = Some(e);
+                    return false;
+                }
+            },
+        };
+        if to_file {
+            let item = Item::Raw(RawItem {
+                t_ns: c.log_time,
+                topic: s.topic.clone(),
+                seq: s.chunks,
+                port: s.port.clone(),
+                dir: c.dir,
+                bytes: c.bytes.to_vec(),
+            });
+            s.chunks += 1;
+            if tx.blocking_send(item).is_err() {
+                return false;
+            }
+        }
+        if c.dir != Dir::Rx {
+            return true;
+        }
+        s.feed(c.log_time, c.bytes, tx)
+    });
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    let n = streams.len();
+    for s in streams.values_mut() {
+        s.finish(tx);
+    }
+    Ok(n)
 }
 
 fn publish(r: &Stamped) {
@@ -240,81 +392,142 @@ pub fn reading_json(r: &Stamped, t0: u64) -> Value {
     v
 }
 
-/// The log time of the chunk holding byte `offset` of the concatenated robot→host bytes.
-struct Clock {
-    ends: Vec<(usize, u64)>,
+/// How many bytes behind the newest a robot→host chunk's stamp is kept: a reading is stamped
+/// by the chunk its frame began in, and every frame a reading comes from is far shorter.
+const CLOCK_SPAN: usize = 256 << 10;
+
+/// One raw stream being re-decoded as its chunks are read: its decoder (`ima decode`'s), the
+/// stamps of its latest robot→host chunks, and the rFLEX odometry integrated so far.
+struct StreamDecoder {
+    topic: std::sync::Arc<str>,
+    port: std::sync::Arc<ima_record::raw::PortInfo>,
+    protocol: Option<Protocol>,
+    decoder: Option<Box<dyn Decoder + Send>>,
+    /// `(end offset, log time)` of the robot→host chunks fed, oldest first, those more than
+    /// [`CLOCK_SPAN`] bytes behind dropped.
+    clock: std::collections::VecDeque<(usize, u64)>,
+    /// Robot→host bytes fed so far.
+    fed: usize,
+    /// rFLEX odometry is integrated from the translational and rotational positions.
+    rflex: (Option<f64>, Option<f64>, Pose2),
+    /// Raw chunks handed on so far (the next one's place in the stream).
+    chunks: u64,
+    /// Readings handed on so far.
+    readings: u64,
 }
 
-impl Clock {
-    fn new(s: &RawStream) -> Self {
-        let mut end = 0;
-        let ends = s
-            .chunks
-            .iter()
-            .filter(|c| c.1 == Dir::Rx)
-            .map(|c| {
-                end += c.2.len();
-                (end, c.0)
-            })
-            .collect();
-        Self { ends }
+impl StreamDecoder {
+    fn new(topic: &str, port: &ima_record::raw::PortInfo) -> Result<Self> {
+        let protocol = recorded_protocol(&port.protocol);
+        let decoder: Option<Box<dyn Decoder + Send>> = match protocol {
+            Some(Protocol::P2os) => {
+                let params = ima_p2os::params::RobotParams::for_subclass(b"p2at")
+                    .context("the P2OS robot parameters")?;
+                Some(Box::new(super::decode::p2os::P2osDecoder::new(
+                    false, params,
+                )))
+            }
+            Some(Protocol::SickLms) => Some(Box::new(super::decode::sick::SickDecoder::new(false))),
+            Some(Protocol::Rflex) => Some(Box::new(super::decode::rflex::RflexDecoder::new(false))),
+            Some(Protocol::Compass) => {
+                Some(Box::new(super::decode::compass::CompassDecoder::new(false)))
+            }
+            Some(Protocol::VideoMux | Protocol::Kramer) | None => None,
+        };
+        Ok(Self {
+            topic: topic.into(),
+            port: std::sync::Arc::new(port.clone()),
+            protocol,
+            decoder,
+            clock: std::collections::VecDeque::new(),
+            fed: 0,
+            rflex: (None, None, Pose2::default()),
+            chunks: 0,
+            readings: 0,
+        })
     }
 
-    fn at(&self, offset: usize) -> u64 {
-        let i = self.ends.partition_point(|(end, _)| *end <= offset);
-        self.ends.get(i).or(self.ends.last()).map_or(0, |(_, t)| *t)
+    /// The log time of the chunk holding robot→host byte `offset` (the latest chunk's past
+    /// the end; the oldest kept before the kept ones).
+    fn stamp(&self, offset: usize) -> u64 {
+        let i = self.clock.partition_point(|(end, _)| *end <= offset);
+        self.clock
+            .get(i)
+            .or(self.clock.back())
+            .map_or(0, |(_, t)| *t)
     }
-}
 
-/// Re-decode one raw stream's robot→host bytes into readings.
-pub fn decode_stream(s: &RawStream) -> Result<Vec<Stamped>> {
-    let Some(protocol) = recorded_protocol(&s.port.protocol) else {
-        return Ok(Vec::new());
-    };
-    let bytes = s.rx_bytes();
-    let clock = Clock::new(s);
-    let robot = s.port.robot.clone();
-    let mut out = Vec::new();
-    // rFLEX odometry is integrated from the translational and rotational positions.
-    let mut rflex: (Option<f64>, Option<f64>, Pose2) = (None, None, Pose2::default());
-    let mut emit = |v: Value| -> Result<()> {
-        let t_ns = clock.at(v["offset"].as_u64().unwrap_or(0) as usize);
-        let reading = match (protocol, v["kind"].as_str()) {
-            (Protocol::SickLms, Some("scan")) => scan_of(&v).map(|s| Reading::Scan(Box::new(s))),
-            (Protocol::P2os, Some("sip")) => Some(Reading::Odometry(Pose2 {
+    /// Feed the robot→host `bytes` logged at `t_ns`; hand on what they complete. `false`:
+    /// the playback has stopped.
+    fn feed(&mut self, t_ns: u64, bytes: &[u8], tx: &tokio::sync::mpsc::Sender<Item>) -> bool {
+        let Some(mut decoder) = self.decoder.take() else {
+            return true;
+        };
+        self.fed += bytes.len();
+        self.clock.push_back((self.fed, t_ns));
+        while self
+            .clock
+            .front()
+            .is_some_and(|(end, _)| end + CLOCK_SPAN < self.fed)
+        {
+            self.clock.pop_front();
+        }
+        let mut open = true;
+        let _ = decoder.feed(bytes, &mut |v| {
+            open = open && self.hand_on(&v, tx);
+            Ok(())
+        });
+        self.decoder = Some(decoder);
+        open
+    }
+
+    /// The end of the stream: hand on what its last bytes complete.
+    fn finish(&mut self, tx: &tokio::sync::mpsc::Sender<Item>) {
+        let Some(mut decoder) = self.decoder.take() else {
+            return;
+        };
+        let _ = decoder.finish(&mut |v| {
+            self.hand_on(&v, tx);
+            Ok(())
+        });
+    }
+
+    /// Turn one of `ima decode`'s objects into a reading and hand it on; `false`: the
+    /// playback has stopped.
+    fn hand_on(&mut self, v: &Value, tx: &tokio::sync::mpsc::Sender<Item>) -> bool {
+        let reading = match (self.protocol, v["kind"].as_str()) {
+            (Some(Protocol::SickLms), Some("scan")) => {
+                scan_of(v).map(|s| Reading::Scan(Box::new(s)))
+            }
+            (Some(Protocol::P2os), Some("sip")) => Some(Reading::Odometry(Pose2 {
                 x_m: v["x_m"].as_f64().unwrap_or(0.0),
                 y_m: v["y_m"].as_f64().unwrap_or(0.0),
                 theta_rad: v["theta_rad"].as_f64().unwrap_or(0.0),
             })),
-            (Protocol::Rflex, Some("motion")) => {
-                rflex_odometry(&mut rflex, &v).map(Reading::Odometry)
+            (Some(Protocol::Rflex), Some("motion")) => {
+                rflex_odometry(&mut self.rflex, v).map(Reading::Odometry)
             }
-            (Protocol::Compass, _) => v["heading_rad"]
+            (Some(Protocol::Compass), _) => v["heading_rad"]
                 .as_f64()
                 .map(|h| Reading::Compass(std::f64::consts::FRAC_PI_2 - h)),
             _ => None,
         };
-        if let Some(reading) = reading {
-            out.push(Stamped {
-                t_ns,
-                robot: robot.clone(),
+        let Some(reading) = reading else {
+            return true;
+        };
+        let offset = usize::try_from(v["offset"].as_u64().unwrap_or(0)).unwrap_or(usize::MAX);
+        let item = Item::Reading(ReadingItem {
+            topic: self.topic.clone(),
+            seq: self.readings,
+            reading: Stamped {
+                t_ns: self.stamp(offset),
+                robot: self.port.robot.clone(),
                 reading,
-            });
-        }
-        Ok(())
-    };
-    match protocol {
-        Protocol::P2os => {
-            let params = ima_p2os::params::RobotParams::for_subclass(b"p2at")
-                .context("the P2OS robot parameters")?;
-            super::decode::p2os::decode_p2os(&bytes, false, params, &mut emit)?;
-        }
-        Protocol::SickLms => super::decode::sick::decode_sick_lms(&bytes, false, &mut emit)?,
-        Protocol::Rflex => super::decode::rflex::decode_rflex(&bytes, false, &mut emit)?,
-        Protocol::Compass => super::decode::compass::decode(&bytes, false, &mut emit)?,
-        Protocol::VideoMux | Protocol::Kramer => {}
+            },
+        });
+        self.readings += 1;
+        tx.blocking_send(item).is_ok()
     }
-    Ok(out)
 }
 
 /// A scan from `ima decode sick-lms`'s JSON (`None`: a scan without geometry).
@@ -418,6 +631,115 @@ const AS_MOCK_WAIT: Duration = Duration::from_secs(2);
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    fn reading(topic: &str, seq: u64, t_ns: u64) -> Item {
+        Item::Reading(ReadingItem {
+            topic: topic.into(),
+            seq,
+            reading: Stamped {
+                t_ns,
+                robot: "r".into(),
+                reading: Reading::Compass(0.0),
+            },
+        })
+    }
+
+    fn raw(topic: &str, seq: u64, t_ns: u64) -> Item {
+        Item::Raw(RawItem {
+            t_ns,
+            topic: topic.into(),
+            seq,
+            port: std::sync::Arc::new(port("compass-kvh")),
+            dir: Dir::Rx,
+            bytes: Vec::new(),
+        })
+    }
+
+    fn port(protocol: &str) -> ima_record::raw::PortInfo {
+        ima_record::raw::PortInfo {
+            robot: "scooter".into(),
+            device: "laser".into(),
+            port: "/dev/pts/3".into(),
+            baud: 38_400,
+            protocol: protocol.into(),
+        }
+    }
+
+    fn what(i: &Item) -> (u64, bool, String, u64) {
+        let (t, reading, topic, seq) = i.key();
+        (t, reading, topic.to_string(), seq)
+    }
+
+    /// Items read out of stamp order within the window play in order: by stamp, a raw chunk
+    /// before a reading of the same stamp, then by topic and place in the stream (the order
+    /// of the replay that sorted a whole recording); none is played before the window passes.
+    #[test]
+    fn items_play_in_stamp_order_within_the_window() {
+        let s = 1_000_000_000u64;
+        let mut order = Reorder::default();
+        for item in [
+            reading("/b", 0, 5 * s),
+            reading("/a", 0, 5 * s),
+            raw("/b", 0, 5 * s),
+            reading("/a", 1, 4 * s),
+            reading("/a", 2, 6 * s),
+        ] {
+            order.push(item);
+        }
+        // Nothing is 2 s behind the latest (6 s) but the one at 4 s.
+        assert_eq!(
+            what(&order.next_due().unwrap()),
+            (4 * s, true, "/a".into(), 1)
+        );
+        assert!(order.next_due().is_none());
+        order.push(reading("/a", 3, 8 * s));
+        let due: Vec<_> = std::iter::from_fn(|| order.next_due())
+            .map(|i| what(&i))
+            .collect();
+        assert_eq!(
+            due,
+            [
+                (5 * s, false, "/b".into(), 0),
+                (5 * s, true, "/a".into(), 0),
+                (5 * s, true, "/b".into(), 0),
+                (6 * s, true, "/a".into(), 2),
+            ]
+        );
+        order.ended();
+        assert_eq!(what(&order.next_due().unwrap()).0, 8 * s);
+        assert!(order.is_empty());
+    }
+
+    /// A line split across two chunks is stamped by the chunk it began in, as the replay that
+    /// decoded a whole stream at once stamped it; it is handed on when the second comes.
+    #[test]
+    fn a_reading_is_stamped_by_the_chunk_its_frame_began_in() {
+        let line = b"$HCHDM,238.5,M*25\r\n";
+        let (tx, mut rx) = tokio::sync::mpsc::channel(8);
+        let mut d = StreamDecoder::new("/scooter/serial/compass", &port("compass-kvh")).unwrap();
+        assert!(d.feed(100, b"\r\n", &tx));
+        assert!(d.feed(200, &line[..5], &tx));
+        assert!(rx.try_recv().is_err());
+        assert!(d.feed(300, &line[5..], &tx));
+        d.finish(&tx);
+        let Ok(Item::Reading(r)) = rx.try_recv() else {
+            panic!("a reading");
+        };
+        assert_eq!(
+            (r.reading.t_ns, r.seq, &*r.topic),
+            (200, 0, "/scooter/serial/compass")
+        );
+        let Reading::Compass(h) = r.reading.reading else {
+            panic!("a heading");
+        };
+        assert!((h - (90.0f64 - 238.5).to_radians()).abs() < 1e-9, "{h}");
+        assert!(rx.try_recv().is_err());
+        // A closed playback stops the reading.
+        drop(rx);
+        let mut d = StreamDecoder::new("/scooter/serial/compass", &port("compass-kvh")).unwrap();
+        assert!(!d.feed(400, line, &tx));
+    }
     /// A factor near 0 overflowed the `Duration` of the first pause (1e-300) or slept for
     /// ever (1e-20): it is refused; 0 still means no pacing.
     #[test]
