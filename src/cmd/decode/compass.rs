@@ -9,7 +9,7 @@ use ima_compass::wire::{
 };
 use serde_json::{Value, json};
 
-use super::Decoder as _;
+use super::decoder::Decoder;
 
 fn deg(d: Option<Decimal>) -> Option<f64> {
     d.map(Decimal::to_f64)
@@ -118,7 +118,7 @@ pub fn decode(
     d.finish(emit)
 }
 
-/// [`decode`] a piece at a time (see [`Decoder`](super::Decoder)).
+/// [`decode`] a piece at a time (see [`Decoder`]).
 pub struct CompassDecoder {
     from_host: bool,
     framer: LineFramer,
@@ -173,7 +173,7 @@ impl CompassDecoder {
     }
 }
 
-impl super::Decoder for CompassDecoder {
+impl Decoder for CompassDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let base = self.base;
         self.base += bytes.len();
@@ -249,13 +249,13 @@ mod tests {
         let lines: &[u8] =
             b"$HCHDM,238.5,M*25\r\n$HCHDG,238.5,0.0,E,12.3,W*6C\r\n$HCHDM,238.5,M*26\r\n>\
               $C328.3P28.4R-12.4T22.3E001*XX\r\nH8V7M0.4\r\n$HCH";
-        let v = crate::cmd::decode::pieces::decode_alike(
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(CompassDecoder::new(false)),
             lines,
         );
         assert_eq!(v.len(), 7, "{v:?}");
         let commands: &[u8] = b"=t,0\r=r,600\r\n\nh\rsp=8\rgo\rbogus\r=r,6";
-        let v = crate::cmd::decode::pieces::decode_alike(
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(CompassDecoder::new(true)),
             commands,
         );

@@ -13,6 +13,7 @@
 //! what the driver would report). [`hex`] reads `--hex` input.
 
 pub mod compass;
+pub mod decoder;
 pub mod hex;
 pub mod p2os;
 pub mod rflex;
@@ -27,6 +28,7 @@ use clap::{Args, ValueEnum};
 use ima_p2os::params::RobotParams;
 use serde_json::Value;
 
+pub use self::decoder::Decoder;
 pub use self::hex::parse_hex;
 
 /// The largest capture `ima decode` reads (a file or stdin): 1 GiB, about a day of a busy
@@ -92,17 +94,6 @@ pub struct DecodeArgs {
     robot: String,
     /// Capture file; stdin when absent or `-`.
     file: Option<PathBuf>,
-}
-
-/// A decoder fed a capture a piece at a time: [`feed`](Self::feed) emits what the bytes so
-/// far complete, [`finish`](Self::finish) what is left at the end (a truncated frame). Offsets
-/// count from the first byte fed, and a capture fed whole or in any pieces emits the same
-/// objects (`ima replay` feeds a recording's chunks as they are read).
-pub trait Decoder {
-    /// Decode the next bytes of the capture.
-    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()>;
-    /// The capture ended.
-    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()>;
 }
 
 /// Run `ima decode`.
@@ -251,42 +242,4 @@ fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
         .flat_map(|c| c.2.iter().copied())
         .collect();
     Ok((bytes, recorded))
-}
-
-/// Checks for [`Decoder`]s.
-#[cfg(test)]
-pub(crate) mod pieces {
-    use super::{Decoder, Value};
-
-    fn run(d: &mut dyn Decoder, pieces: &[&[u8]]) -> Vec<Value> {
-        let mut out = Vec::new();
-        let mut emit = |v: Value| {
-            out.push(v);
-            Ok(())
-        };
-        for p in pieces {
-            d.feed(p, &mut emit).unwrap();
-        }
-        d.finish(&mut emit).unwrap();
-        out
-    }
-
-    /// `capture` fed whole, a byte at a time, and cut in two at every byte (and cut short at
-    /// every byte, then fed the rest, from a fresh decoder's view: the same objects either way)
-    /// emits the same objects; `fresh` makes a new decoder. Returns what the whole emits.
-    pub(crate) fn decode_alike(fresh: &dyn Fn() -> Box<dyn Decoder>, capture: &[u8]) -> Vec<Value> {
-        let whole = run(&mut *fresh(), &[capture]);
-        let bytes: Vec<&[u8]> = capture.chunks(1).collect();
-        assert_eq!(run(&mut *fresh(), &bytes), whole, "a byte at a time");
-        for at in 0..=capture.len() {
-            let (a, b) = capture.split_at(at);
-            assert_eq!(run(&mut *fresh(), &[a, b]), whole, "cut at {at}");
-            assert_eq!(
-                run(&mut *fresh(), &[a, &[], b]),
-                whole,
-                "cut at {at}, empty between"
-            );
-        }
-        whole
-    }
 }

@@ -9,7 +9,7 @@ use ima_p2os::params::{RobotParams, battery_v, encoder_m};
 use ima_p2os::wire::{Arg, Command, Packet};
 use serde_json::{Value, json};
 
-use super::Decoder as _;
+use super::decoder::Decoder;
 
 /// Decode a P2OS byte stream, calling `emit` with one JSON object per frame or error.
 pub fn decode_p2os(
@@ -23,7 +23,7 @@ pub fn decode_p2os(
     d.finish(emit)
 }
 
-/// [`decode_p2os`] a piece at a time (see [`Decoder`](super::Decoder)).
+/// [`decode_p2os`] a piece at a time (see [`Decoder`]).
 pub struct P2osDecoder<'a> {
     framer: Framer,
     host: bool,
@@ -46,7 +46,7 @@ impl<'a> P2osDecoder<'a> {
     }
 }
 
-impl super::Decoder for P2osDecoder<'_> {
+impl Decoder for P2osDecoder<'_> {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let (framer, host, params) = (&mut self.framer, self.host, self.params);
         let mut input = bytes;
@@ -254,7 +254,7 @@ mod tests {
         .unwrap();
         robot.extend(parse_hex("00 11 FA FB 06 0B 3B C8 00 D3 3C FA FB").unwrap());
         robot.extend(robot.clone());
-        let v = crate::cmd::decode::pieces::decode_alike(
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(P2osDecoder::new(false, &ima_p2os::params::P2AT)),
             &robot,
         );
@@ -262,7 +262,7 @@ mod tests {
         assert!(v.iter().any(|v| v["kind"] == "error"), "{v:?}");
         let mut host = parse_hex("00 11 FA FB 06 0B 3B C8 00 D3 3C").unwrap();
         host.extend(parse_hex("FA FB 06 0B 1B C8 00 D3 1B FA").unwrap());
-        let v = crate::cmd::decode::pieces::decode_alike(
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(P2osDecoder::new(true, &ima_p2os::params::P2AT)),
             &host,
         );

@@ -11,7 +11,7 @@ use ima_rflex::machine::Config;
 use ima_rflex::wire::{Command, Report, SetDir};
 use serde_json::{Value, json};
 
-use super::Decoder as _;
+use super::decoder::Decoder;
 
 /// Decode an rFLEX byte stream, calling `emit` with one JSON object per frame or error.
 pub fn decode_rflex(
@@ -24,7 +24,7 @@ pub fn decode_rflex(
     d.finish(emit)
 }
 
-/// [`decode_rflex`] a piece at a time (see [`Decoder`](super::Decoder)).
+/// [`decode_rflex`] a piece at a time (see [`Decoder`]).
 pub struct RflexDecoder {
     cfg: Config,
     host: bool,
@@ -53,7 +53,7 @@ impl RflexDecoder {
     }
 }
 
-impl super::Decoder for RflexDecoder {
+impl Decoder for RflexDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let base = self.base;
         self.base += bytes.len();
@@ -259,7 +259,7 @@ mod tests {
              1B 02 01 07 01 09 00 00 12 36 00 00 0A 46 00 66 1B 03 1B 02 01",
         )
         .unwrap();
-        let v = crate::cmd::decode::pieces::decode_alike(
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(RflexDecoder::new(false)),
             &reports,
         );
@@ -269,7 +269,7 @@ mod tests {
              1B 02 02 00 0C 00 0F 1B 03 1B 02 01",
         )
         .unwrap();
-        let v = crate::cmd::decode::pieces::decode_alike(
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(RflexDecoder::new(true)),
             &commands,
         );

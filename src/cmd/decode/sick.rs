@@ -14,7 +14,7 @@ use ima_sick_lms::wire::{
 };
 use serde_json::{Value, json};
 
-use super::Decoder as _;
+use super::decoder::Decoder;
 
 /// Decode a SICK LMS byte stream (`from_host`: host → LMS commands, else LMS replies),
 /// calling `emit` with one JSON object per item.
@@ -32,7 +32,7 @@ pub fn decode_sick_lms(
 /// and the 6 bytes around it, and a little more.
 const LOOKBACK: usize = (u16::MAX as usize) + 8;
 
-/// [`decode_sick_lms`] a piece at a time (see [`Decoder`](super::Decoder)).
+/// [`decode_sick_lms`] a piece at a time (see [`Decoder`]).
 pub struct SickDecoder {
     from_host: bool,
     framer: Framer,
@@ -68,7 +68,7 @@ impl SickDecoder {
     }
 }
 
-impl super::Decoder for SickDecoder {
+impl Decoder for SickDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         enum Got {
             Ack,
@@ -323,7 +323,10 @@ mod tests {
         b.extend([
             0x15, 0x02, 0x80, 0x02, 0x00, 0x91, 0x10, 0x79, 0x30, 0x02, 0x80,
         ]);
-        let v = crate::cmd::decode::pieces::decode_alike(&|| Box::new(SickDecoder::new(false)), &b);
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
+            &|| Box::new(SickDecoder::new(false)),
+            &b,
+        );
         let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
         assert!(
             kinds.contains(&"scan") && kinds.contains(&"error"),
@@ -334,7 +337,10 @@ mod tests {
         c.extend([
             0x02, 0x00, 0x05, 0x00, 0x3B, 0x64, 0x00, 0x19, 0x00, 0xE7, 0x72,
         ]);
-        let v = crate::cmd::decode::pieces::decode_alike(&|| Box::new(SickDecoder::new(true)), &c);
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
+            &|| Box::new(SickDecoder::new(true)),
+            &c,
+        );
         assert!(
             v.iter().any(|x| x["kind"] == "error" && x["offset"] == 8),
             "{v:?}"
