@@ -124,13 +124,12 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         let mut n = 0usize;
         // Pacing starts at the first item, a reading or a raw chunk; `t_s` at the first
         // reading.
-        let mut first: Option<u64> = None;
+        let mut first: Option<(u64, tokio::time::Instant)> = None;
         let mut t0: Option<u64> = None;
-        let start = tokio::time::Instant::now();
         loop {
             let next = match order.next_due() {
                 Some(item) => item,
-                None => match items.recv().await {
+                None => match crate::safety::until_cancelled(items.recv()).await? {
                     Some(item) => {
                         order.push(item);
                         continue;
@@ -143,7 +142,8 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
                 },
             };
             let t = next.t_ns();
-            let first = *first.get_or_insert(t);
+            // The clock starts with the first item played, not before the first read.
+            let (first, start) = *first.get_or_insert((t, tokio::time::Instant::now()));
             if speed > 0.0 {
                 let due = Duration::from_nanos(t.saturating_sub(first)).div_f64(speed);
                 crate::safety::until_cancelled(tokio::time::sleep_until(start + due)).await?;
@@ -162,14 +162,22 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
                 }
             }
         }
-        Ok(n)
+        Ok((n, order.late))
     });
     // The reader ends once the playback stops taking items (its channel is closed).
     let read = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
-    let n = played?;
+    let (n, late) = played?;
     let streams = read?;
+    if late > 0 {
+        eprintln!(
+            "ima replay: {late} items were read more than {} s of stamps after later ones \
+             (a frame's bytes straddled a pause, or the file is out of order) and were played \
+             late",
+            REORDER.as_secs()
+        );
+    }
     if streams == 0 {
         // Nothing to re-decode: say why when the recorder was told to leave the ports out.
         let why = left_out.map_or_else(String::new, |p| format!(" (the recording left out: {p})"));
@@ -183,8 +191,15 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
 
 /// How far behind the latest stamp read an item is held, so that items read a little out of
 /// stamp order (a frame stamped by the chunk it began in, read with the one that ended it;
-/// two robots' threads logging at once) are played in order.
+/// two robots' threads logging at once) are played in order. An item read later than that
+/// (a frame whose bytes straddle a pause longer than this) is played at once, out of order,
+/// and counted ([`Reorder::late`]).
 const REORDER: Duration = Duration::from_secs(2);
+
+/// [`REORDER`] in nanoseconds.
+fn window() -> u64 {
+    u64::try_from(REORDER.as_nanos()).unwrap_or(u64::MAX)
+}
 
 /// What the reader hands the playback.
 #[derive(Debug)]
@@ -259,10 +274,15 @@ struct Reorder {
     held: std::collections::BinaryHeap<std::cmp::Reverse<Item>>,
     latest: u64,
     ended: bool,
+    /// Items read after the window had passed them (played out of order).
+    late: u64,
 }
 
 impl Reorder {
     fn push(&mut self, item: Item) {
+        if item.t_ns().saturating_add(window()) < self.latest {
+            self.late += 1;
+        }
         self.latest = self.latest.max(item.t_ns());
         self.held.push(std::cmp::Reverse(item));
     }
@@ -277,9 +297,8 @@ impl Reorder {
 
     /// The next item in play order, once no item read later can come before it.
     fn next_due(&mut self) -> Option<Item> {
-        let window = u64::try_from(REORDER.as_nanos()).unwrap_or(u64::MAX);
         let due = self.held.peek().is_some_and(|std::cmp::Reverse(i)| {
-            self.ended || i.t_ns().saturating_add(window) <= self.latest
+            self.ended || i.t_ns().saturating_add(window()) < self.latest
         });
         if due {
             self.held.pop().map(|std::cmp::Reverse(i)| i)
@@ -350,7 +369,23 @@ fn read_items(
         if c.dir != Dir::Rx {
             return true;
         }
-        s.feed(c.log_time, c.bytes, tx)
+        // This runs under the guard that reports a panic of the `mcap` crate as damage to the
+        // file; a panic of ours is a bug to report as one, not damage.
+        let fed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            s.feed(c.log_time, c.bytes, tx)
+        }));
+        fed.unwrap_or_else(|p| {
+            let what = p
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "a panic".into());
+            failed = Some(anyhow::anyhow!(
+                "re-decoding {} failed (a bug: please report it): {what}",
+                c.topic
+            ));
+            false
+        })
     });
     if let Some(e) = failed {
         return Err(e);
@@ -392,8 +427,9 @@ pub fn reading_json(r: &Stamped, t0: u64) -> Value {
     v
 }
 
-/// How many bytes behind the newest a robot→host chunk's stamp is kept: a reading is stamped
-/// by the chunk its frame began in, and every frame a reading comes from is far shorter.
+/// How many bytes behind the end of the newest robot→host chunk an older chunk's stamp is
+/// kept once that chunk is decoded: a reading is stamped by the chunk its frame began in,
+/// and every frame a reading comes from is far shorter.
 const CLOCK_SPAN: usize = 256 << 10;
 
 /// One raw stream being re-decoded as its chunks are read: its decoder (`ima decode`'s), the
@@ -465,6 +501,14 @@ impl StreamDecoder {
         };
         self.fed += bytes.len();
         self.clock.push_back((self.fed, t_ns));
+        let mut open = true;
+        let _ = decoder.feed(bytes, &mut |v| {
+            open = open && self.hand_on(&v, tx);
+            Ok(())
+        });
+        self.decoder = Some(decoder);
+        // After the feed: a frame that began in an older chunk and ended in this one (however
+        // long) had that chunk's stamp.
         while self
             .clock
             .front()
@@ -472,12 +516,6 @@ impl StreamDecoder {
         {
             self.clock.pop_front();
         }
-        let mut open = true;
-        let _ = decoder.feed(bytes, &mut |v| {
-            open = open && self.hand_on(&v, tx);
-            Ok(())
-        });
-        self.decoder = Some(decoder);
         open
     }
 
@@ -684,16 +722,17 @@ mod tests {
             raw("/b", 0, 5 * s),
             reading("/a", 1, 4 * s),
             reading("/a", 2, 6 * s),
+            reading("/a", 3, 6 * s + 1),
         ] {
             order.push(item);
         }
-        // Nothing is 2 s behind the latest (6 s) but the one at 4 s.
+        // Nothing is more than 2 s behind the latest (6 s + 1 ns) but the one at 4 s.
         assert_eq!(
             what(&order.next_due().unwrap()),
             (4 * s, true, "/a".into(), 1)
         );
         assert!(order.next_due().is_none());
-        order.push(reading("/a", 3, 8 * s));
+        order.push(reading("/a", 4, 8 * s + 2));
         let due: Vec<_> = std::iter::from_fn(|| order.next_due())
             .map(|i| what(&i))
             .collect();
@@ -704,11 +743,49 @@ mod tests {
                 (5 * s, true, "/a".into(), 0),
                 (5 * s, true, "/b".into(), 0),
                 (6 * s, true, "/a".into(), 2),
+                (6 * s + 1, true, "/a".into(), 3),
             ]
         );
         order.ended();
-        assert_eq!(what(&order.next_due().unwrap()).0, 8 * s);
+        assert_eq!(what(&order.next_due().unwrap()).0, 8 * s + 2);
         assert!(order.is_empty());
+    }
+
+    /// An item read more than the window after a later one is played at once and counted.
+    #[test]
+    fn an_item_read_past_the_window_is_counted_late() {
+        let s = 1_000_000_000u64;
+        let mut order = Reorder::default();
+        order.push(reading("/a", 0, 0));
+        order.push(reading("/a", 1, 5 * s));
+        assert_eq!(order.late, 0);
+        order.push(reading("/b", 0, s));
+        assert_eq!(order.late, 1);
+        // Exactly the window behind the latest: held, and not late.
+        order.push(reading("/b", 1, 3 * s));
+        assert_eq!(order.late, 1);
+        let due: Vec<_> = std::iter::from_fn(|| order.next_due())
+            .map(|i| what(&i).0)
+            .collect();
+        assert_eq!(due, [0, s]);
+    }
+
+    /// A frame that began in a chunk and ended in a chunk longer than the clock's span keeps
+    /// the first chunk's stamp (the span is pruned after the feed).
+    #[test]
+    fn a_long_chunk_keeps_the_stamp_of_the_chunk_a_frame_began_in() {
+        let (tx, mut rx) = tokio::sync::mpsc::channel(8);
+        let mut d = StreamDecoder::new("/scooter/serial/compass", &port("compass-kvh")).unwrap();
+        assert!(d.feed(200, b"$HCHDM", &tx));
+        let mut rest = b",238.5,M*25\r\n".to_vec();
+        rest.extend(std::iter::repeat_n(b'\n', CLOCK_SPAN + 1000));
+        assert!(d.feed(300, &rest, &tx));
+        let Ok(Item::Reading(r)) = rx.try_recv() else {
+            panic!("a reading");
+        };
+        assert_eq!(r.reading.t_ns, 200);
+        // The older chunk is gone now.
+        assert_eq!(d.clock.len(), 1);
     }
 
     /// A line split across two chunks is stamped by the chunk it began in, as the replay that

@@ -347,6 +347,32 @@ mod tests {
         );
     }
 
+    /// Past its lookback window (64 KiB of earlier bytes dropped), a telegram that fails its
+    /// CRC, split over feeds, still gets its offset, as fed whole.
+    #[test]
+    fn a_bad_crc_after_64_kib_is_placed_in_pieces_too() {
+        let mut b = vec![0u8; 70_000];
+        b.extend([0x02, 0x00, 0x01, 0x00, 0x31, 0x15, 0x13]); // CRC damaged
+        b.extend([0x02, 0x00, 0x02, 0x00, 0x20, 0x24, 0x34, 0x08]);
+        let whole = decode(&b, true);
+        let bad = whole.iter().find(|v| v["kind"] == "error").unwrap();
+        assert_eq!(bad["offset"], 70_000);
+        for size in [1000, 4096, 69_999, 70_003] {
+            let mut d = SickDecoder::new(true);
+            let mut out = Vec::new();
+            let mut emit = |v: Value| {
+                out.push(v);
+                Ok(())
+            };
+            for piece in b.chunks(size) {
+                d.feed(piece, &mut emit).unwrap();
+            }
+            d.finish(&mut emit).unwrap();
+            assert!(d.seen0 > 0, "the window moved");
+            assert_eq!(out, whole, "pieces of {size}");
+        }
+    }
+
     #[test]
     fn spec_vectors_decode() {
         // ACK, then the synthetic 3-value B0 of spec §1.1, then the QM-style reset reply.
