@@ -151,13 +151,21 @@ fn guarded<T>(f: impl FnOnce() -> T) -> Result<T, String> {
     let r = std::panic::catch_unwind(AssertUnwindSafe(f));
     GUARDED.with(|g| g.set(was));
     r.map_err(|p| {
-        let what = p
-            .downcast_ref::<&str>()
-            .map(|s| (*s).to_owned())
-            .or_else(|| p.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "a panic".into());
-        format!("the MCAP reader failed on a malformed record: {what}")
+        format!(
+            "the MCAP reader failed on a malformed record: {}",
+            panic_message(&*p)
+        )
     })
+}
+
+/// The message a caught panic carries (`"a panic"` when it carries none): for callers of
+/// [`Recording::each_raw_chunk`] that catch their own panics under its guard.
+#[must_use]
+pub fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic".into())
 }
 
 const OP_FOOTER: u8 = 0x02;

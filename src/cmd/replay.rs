@@ -375,11 +375,7 @@ fn read_items(
             s.feed(c.log_time, c.bytes, tx)
         }));
         fed.unwrap_or_else(|p| {
-            let what = p
-                .downcast_ref::<&str>()
-                .map(|s| (*s).to_owned())
-                .or_else(|| p.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "a panic".into());
+            let what = ima_record::read::panic_message(&*p);
             failed = Some(anyhow::anyhow!(
                 "re-decoding {} failed (a bug: please report it): {what}",
                 c.topic
