@@ -28,11 +28,9 @@ use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_record::convert::Pose2;
 use ima_record::raw::Dir;
 use ima_record::read::{RawStream, Recording};
-
-use super::decode::Decoder;
 use serde_json::{Value, json};
 
-use super::decode::{Protocol, recorded_protocol};
+use super::decode::{Decoder, Protocol, recorded_protocol};
 use crate::safety::outln;
 
 /// Arguments of `ima replay`.
@@ -338,8 +336,7 @@ fn read_items(
     to_file: bool,
     tx: &tokio::sync::mpsc::Sender<Item>,
 ) -> Result<usize> {
-    use std::collections::HashMap;
-    let mut streams: HashMap<String, StreamDecoder> = HashMap::new();
+    let mut streams: std::collections::BTreeMap<String, StreamDecoder> = Default::default();
     let mut failed = None;
     rec.each_raw_chunk(|c| {
         let s = match streams.get_mut(c.topic) {
