@@ -377,6 +377,51 @@ fn a_killed_recording_is_still_readable() {
     let (msgs, cut) = rec.messages();
     assert!(cut.0.is_some(), "a killed recording has no summary");
     assert_early_topics(&msgs);
+    // It replays: the damage said once (found on opening, or by the reading when the file
+    // stops inside its last record header), and the bases' odometry from their raw bytes.
+    let out = ima()
+        .args(["replay", "--speed", "0", "--json"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert_eq!(err.matches("ima replay: the recording").count(), 1, "{err}");
+    assert!(
+        (err.contains("ima replay: the recording is damaged (")
+            && err.contains("replaying what it holds"))
+            || (err.contains("ima replay: the recording ends early (")
+                && err.contains("replayed what it holds")),
+        "{err}"
+    );
+    assert!(
+        json_lines(&out.stdout)
+            .iter()
+            .any(|l| l["kind"] == "odometry"),
+        "{err}"
+    );
+    // Cut inside its first chunk: the damage is found on opening and said before the replay.
+    let bytes = std::fs::read(&file).unwrap();
+    let mut at = 8; // the magic
+    while bytes[at] != 0x06 {
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap());
+        at += 9 + usize::try_from(len).unwrap();
+    }
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..at + 20]).unwrap();
+    let out = ima()
+        .args(["replay", "--speed", "0", "--json"])
+        .arg(&cut)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert_eq!(err.matches("ima replay: the recording").count(), 1, "{err}");
+    assert!(
+        err.contains("ima replay: the recording is damaged (it ends early: ")
+            && err.contains("replaying what it holds"),
+        "{err}"
+    );
 }
 
 /// What a demo's recording cut short once its file has a written chunk must hold: both bases'

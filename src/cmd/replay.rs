@@ -97,11 +97,11 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         let stream = stream?;
         return serve_as_mock(&stream, args.speed);
     }
-    let (n, cut) = rec.count();
-    if let Some(why) = &cut.0 {
-        eprintln!(
-            "ima replay: the recording is damaged ({why}); replaying the {n} messages it holds"
-        );
+    // What opening found (a second pass to count the messages first would read the whole
+    // file once more); what the reading itself meets is said at the end.
+    let damage = rec.damage();
+    if let Some(why) = &damage {
+        eprintln!("ima replay: the recording is damaged ({why}); replaying what it holds");
     }
     let left_out = rec.left_out();
     crate::record::start(&args.rec, "ima replay")?;
@@ -167,7 +167,10 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
     let (n, late) = played?;
-    let streams = read?;
+    let (streams, cut) = read?;
+    if let Some(why) = cut.0.filter(|why| damage.as_ref() != Some(why)) {
+        eprintln!("ima replay: the recording ends early ({why}); replayed what it holds");
+    }
     if late > 0 {
         eprintln!(
             "ima replay: {late} items were read more than {} s of stamps after later ones \
@@ -330,15 +333,16 @@ impl RawReplay {
 
 /// Read the recording's raw chunks in file order, re-decode each port's robot→host bytes
 /// as they come, and hand the playback the readings (and, `to_file`, the chunks themselves).
-/// Returns how many raw streams the recording has; stops early when the playback has.
+/// Returns how many raw streams the recording has, and why the reading stopped early (as
+/// [`Recording::each_raw_chunk`] says it); stops early when the playback has.
 fn read_items(
     rec: &Recording,
     to_file: bool,
     tx: &tokio::sync::mpsc::Sender<Item>,
-) -> Result<usize> {
+) -> Result<(usize, ima_record::read::Truncation)> {
     let mut streams: std::collections::BTreeMap<String, StreamDecoder> = Default::default();
     let mut failed = None;
-    rec.each_raw_chunk(|c| {
+    let cut = rec.each_raw_chunk(|c| {
         let s = match streams.get_mut(c.topic) {
             Some(s) => s,
             None => match StreamDecoder::new(c.topic, c.port) {
@@ -387,7 +391,7 @@ fn read_items(
     for s in streams.values_mut() {
         s.finish(tx);
     }
-    Ok(n)
+    Ok((n, cut))
 }
 
 fn publish(r: &Stamped) {
