@@ -82,21 +82,11 @@ const MAX_RECORD_BYTES: u64 = MAX_CHUNK_BYTES + (1 << 20);
 /// damage (a crash leaves less than a chunk); with more, the file is read whole.
 const MAX_TAIL_BYTES: u64 = 64 << 20;
 
-/// `buf.len()` bytes of `file` from offset `at` (a positional read: a `&File` shared by
+/// `buf.len()` bytes of `file` from offset `at` (positional reads: a `&File` shared by
 /// readers keeps no cursor).
-fn read_exact_at(file: &File, mut buf: &mut [u8], mut at: u64) -> std::io::Result<()> {
-    while !buf.is_empty() {
-        match read_at(file, buf, at) {
-            Ok(0) => return Err(std::io::ErrorKind::UnexpectedEof.into()),
-            Ok(n) => {
-                buf = buf.get_mut(n..).unwrap_or_default();
-                at += n as u64;
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(())
+fn read_exact_at(file: &File, buf: &mut [u8], at: u64) -> std::io::Result<()> {
+    let end = at.saturating_add(buf.len() as u64);
+    FileRange { file, at, end }.read_exact(buf)
 }
 
 #[cfg(unix)]
