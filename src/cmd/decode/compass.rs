@@ -113,9 +113,7 @@ pub fn decode(
     from_host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let mut d = CompassDecoder::new(from_host);
-    d.feed(bytes, emit)?;
-    d.finish(emit)
+    CompassDecoder::new(from_host).decode_whole(bytes, emit)
 }
 
 /// [`decode`] a piece at a time (see [`Decoder`]).

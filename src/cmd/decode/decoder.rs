@@ -13,6 +13,15 @@ pub trait Decoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()>;
     /// The capture ended.
     fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()>;
+
+    /// Decode a whole capture: [`feed`](Self::feed) it, then [`finish`](Self::finish).
+    fn decode_whole(mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()>
+    where
+        Self: Sized,
+    {
+        self.feed(bytes, emit)?;
+        self.finish(emit)
+    }
 }
 
 /// Checks for [`Decoder`]s.

@@ -18,9 +18,7 @@ pub fn decode_p2os(
     params: &RobotParams,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let mut d = P2osDecoder::new(host, params);
-    d.feed(bytes, emit)?;
-    d.finish(emit)
+    P2osDecoder::new(host, params).decode_whole(bytes, emit)
 }
 
 /// [`decode_p2os`] a piece at a time (see [`Decoder`]).

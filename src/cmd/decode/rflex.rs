@@ -19,9 +19,7 @@ pub fn decode_rflex(
     host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let mut d = RflexDecoder::new(host);
-    d.feed(bytes, emit)?;
-    d.finish(emit)
+    RflexDecoder::new(host).decode_whole(bytes, emit)
 }
 
 /// [`decode_rflex`] a piece at a time (see [`Decoder`]).

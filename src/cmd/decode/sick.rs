@@ -23,9 +23,7 @@ pub fn decode_sick_lms(
     from_host: bool,
     emit: &mut dyn FnMut(Value) -> Result<()>,
 ) -> Result<()> {
-    let mut d = SickDecoder::new(from_host);
-    d.feed(bytes, emit)?;
-    d.finish(emit)
+    SickDecoder::new(from_host).decode_whole(bytes, emit)
 }
 
 /// How far back a candidate that failed its CRC can have begun: its claimed length (16 bits)
