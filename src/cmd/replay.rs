@@ -240,10 +240,10 @@ impl Item {
 
     /// Play order: by stamp, a raw chunk before a reading of the same stamp (the bytes that
     /// completed it), then by stream (topic) and by place in the stream.
-    fn key(&self) -> (u64, bool, std::sync::Arc<str>, u64) {
+    fn key(&self) -> (u64, bool, &str, u64) {
         match self {
-            Self::Raw(c) => (c.t_ns, false, c.topic.clone(), c.seq),
-            Self::Reading(r) => (r.reading.t_ns, true, r.topic.clone(), r.seq),
+            Self::Raw(c) => (c.t_ns, false, &c.topic, c.seq),
+            Self::Reading(r) => (r.reading.t_ns, true, &r.topic, r.seq),
         }
     }
 }
@@ -703,7 +703,7 @@ mod tests {
 
     fn what(i: &Item) -> (u64, bool, String, u64) {
         let (t, reading, topic, seq) = i.key();
-        (t, reading, topic.to_string(), seq)
+        (t, reading, topic.to_owned(), seq)
     }
 
     /// Items read out of stamp order within the window play in order: by stamp, a raw chunk
