@@ -15,6 +15,17 @@ fn scratch(test: &str) -> common::Scratch {
     common::Scratch::new(&format!("record-replay-{test}"))
 }
 
+/// `ima replay --speed 0 --json FILE`: its output, and its stderr as text.
+fn replay_json(file: &std::path::Path) -> (std::process::Output, String) {
+    let out = ima()
+        .args(["replay", "--speed", "0", "--json"])
+        .arg(file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out, err)
+}
+
 /// `ima demo --json` at ×10 for the red target with `extra` arguments, recorded to
 /// `NAME.mcap` (the trajectory to `NAME.svg`): its output, its summary line and the file.
 fn recorded_demo(
@@ -234,16 +245,8 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     }
 
     // Replay: the raw laser bytes re-decode into the recorded scans, one by one, in order.
-    let out = ima()
-        .args(["replay", "--speed", "0", "--json"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (out, err) = replay_json(&file);
+    assert!(out.status.success(), "{err}");
     let replayed: Vec<Vec<Option<f32>>> = json_lines(&out.stdout)
         .iter()
         .filter(|l| l["kind"] == "scan" && l["robot"] == "scooter")
@@ -312,11 +315,7 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
             );
         }
     }
-    let out2 = ima()
-        .args(["replay", "--speed", "0", "--json"])
-        .arg(&again)
-        .output()
-        .unwrap();
+    let (out2, _) = replay_json(&again);
     assert!(out2.status.success());
     let (first, second) = (json_lines(&out.stdout), json_lines(&out2.stdout));
     assert!(
@@ -379,12 +378,7 @@ fn a_killed_recording_is_still_readable() {
     assert_early_topics(&msgs);
     // It replays: the damage said once (found on opening, or by the reading when the file
     // stops inside its last record header), and the bases' odometry from their raw bytes.
-    let out = ima()
-        .args(["replay", "--speed", "0", "--json"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = replay_json(&file);
     assert!(out.status.success(), "{err}");
     assert_eq!(err.matches("ima replay: the recording").count(), 1, "{err}");
     assert!(
@@ -409,12 +403,7 @@ fn a_killed_recording_is_still_readable() {
     }
     let cut = dir.join("cut.mcap");
     std::fs::write(&cut, &bytes[..at + 20]).unwrap();
-    let out = ima()
-        .args(["replay", "--speed", "0", "--json"])
-        .arg(&cut)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = replay_json(&cut);
     assert!(out.status.success(), "{err}");
     assert_eq!(err.matches("ima replay: the recording").count(), 1, "{err}");
     assert!(
