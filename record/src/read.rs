@@ -902,44 +902,20 @@ impl Recording {
     /// are read (no other message is kept: replaying or decoding a long recording holds its
     /// raw bytes, not every camera frame it decompressed on the way).
     pub fn raw_streams(&self) -> Vec<RawStream> {
-        self.raw_streams_where(|_| true).0
-    }
-
-    /// The raw serial channels whose topic and port `wanted` accepts, read as
-    /// [`raw_streams`](Self::raw_streams) reads them (the bytes of the others are not kept),
-    /// and every raw channel as "topic (port)", in topic order.
-    fn raw_streams_where(
-        &self,
-        wanted: impl Fn(&RawStream) -> bool,
-    ) -> (Vec<RawStream>, Vec<String>) {
-        // Topic → (its port's path, the stream when it is wanted: `None` passes it over).
-        let mut by_topic: BTreeMap<String, (String, Option<RawStream>)> = BTreeMap::new();
+        let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
         self.each_raw_chunk(|c| {
-            let entry = match by_topic.get_mut(c.topic) {
-                Some(e) => e,
-                None => {
-                    let s = RawStream {
-                        port: c.port.clone(),
-                        topic: c.topic.to_owned(),
-                        chunks: Vec::new(),
-                    };
-                    let keep = wanted(&s).then_some(s);
-                    let e = (c.port.port.clone(), keep);
-                    by_topic.entry(c.topic.to_owned()).or_insert(e)
-                }
+            let s = match by_topic.get_mut(c.topic) {
+                Some(s) => s,
+                None => by_topic.entry(c.topic.to_owned()).or_insert(RawStream {
+                    port: c.port.clone(),
+                    topic: c.topic.to_owned(),
+                    chunks: Vec::new(),
+                }),
             };
-            if let Some(s) = &mut entry.1 {
-                s.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
-            }
+            s.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
             true
         });
-        let mut kept = Vec::new();
-        let mut names = Vec::new();
-        for (topic, (path, s)) in by_topic {
-            names.push(format!("{topic} ({path})"));
-            kept.extend(s);
-        }
-        (kept, names)
+        by_topic.into_values().collect()
     }
 
     /// Every raw serial chunk in file order, to `f` until it returns `false`, holding none of
@@ -1002,14 +978,63 @@ impl Recording {
 
     /// The raw stream whose topic, device or port is `name` (only its bytes are kept).
     pub fn raw_stream(&self, name: &str) -> Result<RawStream, ReadError> {
-        let is = |s: &RawStream| {
-            s.topic == name
-                || s.topic.trim_start_matches('/') == name
-                || s.port.port == name
-                || format!("{}/{}", s.port.robot, s.port.device) == name
-        };
-        let (found, have) = self.raw_streams_where(is);
-        found.into_iter().next().ok_or_else(|| ReadError::NoPort {
+        let mut stream: Option<RawStream> = None;
+        self.each_chunk_of(name, |c| {
+            let s = stream.get_or_insert_with(|| RawStream {
+                port: c.port.clone(),
+                topic: c.topic.to_owned(),
+                chunks: Vec::new(),
+            });
+            s.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
+            true
+        })?;
+        // `each_chunk_of` found the port, so it gave at least one chunk.
+        stream.ok_or_else(|| self.no_port(name, Vec::new()))
+    }
+
+    /// The raw chunks of one port, named as [`raw_stream`](Self::raw_stream) names it, to `f`
+    /// in file order as they are read, holding none of them (`ima replay --as-mock` and
+    /// `ima decode --mcap` serve or decode a long recording this way), until `f` returns
+    /// `false`; and why reading stopped early, as [`messages`](Self::messages) says it.
+    ///
+    /// Should two channels answer to `name` (two robots' ports at one path), the first in
+    /// file order is the one read. `f` runs under the guard that catches the `mcap` crate's
+    /// panics: it must not panic itself.
+    ///
+    /// # Errors
+    /// [`ReadError::NoPort`], naming every raw channel the recording has, if none answers to
+    /// `name` (known only once the file has been read to its end).
+    pub fn each_chunk_of(
+        &self,
+        name: &str,
+        mut f: impl FnMut(RawChunk<'_>) -> bool,
+    ) -> Result<Truncation, ReadError> {
+        // The channel read, once one answers; every raw channel seen, as "topic (path)".
+        let mut chosen: Option<String> = None;
+        let mut seen: BTreeMap<String, String> = BTreeMap::new();
+        let cut = self.each_raw_chunk(|c| {
+            if chosen.is_none() {
+                if !seen.contains_key(c.topic) {
+                    seen.insert(c.topic.to_owned(), c.port.port.clone());
+                }
+                if is_port(c.topic, c.port, name) {
+                    chosen = Some(c.topic.to_owned());
+                }
+            }
+            if chosen.as_deref() != Some(c.topic) {
+                return true;
+            }
+            f(c)
+        });
+        if chosen.is_none() {
+            let have = seen.iter().map(|(t, p)| format!("{t} ({p})")).collect();
+            return Err(self.no_port(name, have));
+        }
+        Ok(cut)
+    }
+
+    fn no_port(&self, name: &str, have: Vec<String>) -> ReadError {
+        ReadError::NoPort {
             wanted: name.to_owned(),
             have: if have.is_empty() {
                 "none".into()
@@ -1020,8 +1045,17 @@ impl Recording {
                 .left_out()
                 .map(|p| format!(" (the recording left out: {p})"))
                 .unwrap_or_default(),
-        })
+        }
     }
+}
+
+/// Whether the raw channel `topic` of `port` answers to `name`: its topic (with or without
+/// the leading `/`), its port's path, or `robot/device`.
+fn is_port(topic: &str, port: &PortInfo, name: &str) -> bool {
+    topic == name
+        || topic.trim_start_matches('/') == name
+        || port.port == name
+        || name.split_once('/') == Some((port.robot.as_str(), port.device.as_str()))
 }
 
 #[cfg(test)]

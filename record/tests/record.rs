@@ -147,6 +147,32 @@ fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
         false
     });
     assert_eq!(seen, 1);
+    // One port's chunks as they are read: exactly that topic's, in file order.
+    for name in ["scooter/laser", "/scooter/serial/laser", &raw.port.port] {
+        let mut one = Vec::new();
+        let cut = r
+            .each_chunk_of(name, |c| {
+                assert_eq!(c.topic, "/scooter/serial/laser");
+                one.push((c.log_time, c.dir, c.bytes.to_vec()));
+                true
+            })
+            .unwrap();
+        assert_eq!(cut.0, None);
+        assert_eq!(Some(&one), per_topic.get("/scooter/serial/laser"), "{name}");
+    }
+    let mut seen = 0;
+    r.each_chunk_of("scooter/laser", |_| {
+        seen += 1;
+        false
+    })
+    .unwrap();
+    assert_eq!(seen, 1);
+    assert_eq!(
+        r.each_chunk_of("nothing", |_| true)
+            .unwrap_err()
+            .to_string(),
+        r.raw_stream("nothing").unwrap_err().to_string()
+    );
     let e = r.raw_stream("nothing").unwrap_err().to_string();
     let have: Vec<String> = all
         .iter()
