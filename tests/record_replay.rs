@@ -337,6 +337,25 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         .filter(|l| l["kind"] == "scan")
         .count();
     assert_eq!(scans, replayed.len());
+    // Decoded chunk by chunk as the file is read, exactly as the port's bytes decode whole.
+    let bytes = Recording::open(&file)
+        .unwrap()
+        .raw_stream("scooter/laser")
+        .unwrap()
+        .rx_bytes();
+    let capture = file.with_extension("laser.bin");
+    std::fs::write(&capture, &bytes).unwrap();
+    let whole = ima()
+        .args(["decode", "sick-lms"])
+        .arg(&capture)
+        .output()
+        .unwrap();
+    assert!(whole.status.success() && scans > 0);
+    assert!(
+        out.stdout == whole.stdout,
+        "decoded from the recording and from its {} bytes whole differ",
+        bytes.len()
+    );
     let out = ima()
         .args(["decode", "--port", "nowhere", "--mcap"])
         .arg(&file)

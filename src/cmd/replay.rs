@@ -27,7 +27,7 @@ use clap::Args;
 use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_record::convert::Pose2;
 use ima_record::raw::Dir;
-use ima_record::read::{RawStream, Recording};
+use ima_record::read::Recording;
 use serde_json::{Value, json};
 
 use super::decode::{Decoder, Protocol, recorded_protocol};
@@ -90,12 +90,7 @@ pub struct Stamped {
 pub fn run(args: &ReplayArgs) -> Result<()> {
     let rec = Recording::open(&args.file)?;
     if let Some(port) = &args.as_mock {
-        let stream = rec.raw_stream(port);
-        if let Some(why) = rec.damage() {
-            eprintln!("ima replay: the recording is damaged ({why}); serving the bytes it holds");
-        }
-        let stream = stream?;
-        return serve_as_mock(&stream, args.speed);
+        return serve_as_mock(rec, port, args.speed);
     }
     // What opening found (a second pass to count the messages first would read the whole
     // file once more); what the reading itself meets is said at the end.
@@ -452,20 +447,14 @@ struct StreamDecoder {
 impl StreamDecoder {
     fn new(topic: &str, port: &ima_record::raw::PortInfo) -> Result<Self> {
         let protocol = recorded_protocol(&port.protocol);
-        let decoder: Option<Box<dyn Decoder + Send>> = match protocol {
-            Some(Protocol::P2os) => {
+        // The switchers' ports carry commands and acknowledgements, no reading.
+        let decoder = match protocol {
+            Some(Protocol::VideoMux | Protocol::Kramer) | None => None,
+            Some(p) => {
                 let params = ima_p2os::params::RobotParams::for_subclass(b"p2at")
                     .context("the P2OS robot parameters")?;
-                Some(Box::new(super::decode::p2os::P2osDecoder::new(
-                    false, params,
-                )))
+                Some(super::decode::decoder(p, false, params))
             }
-            Some(Protocol::SickLms) => Some(Box::new(super::decode::sick::SickDecoder::new(false))),
-            Some(Protocol::Rflex) => Some(Box::new(super::decode::rflex::RflexDecoder::new(false))),
-            Some(Protocol::Compass) => {
-                Some(Box::new(super::decode::compass::CompassDecoder::new(false)))
-            }
-            Some(Protocol::VideoMux | Protocol::Kramer) | None => None,
         };
         Ok(Self {
             topic: topic.into(),
@@ -599,27 +588,67 @@ fn rflex_odometry(st: &mut (Option<f64>, Option<f64>, Pose2), v: &Value) -> Opti
     }
 }
 
+/// What `--as-mock`'s reader sends the server.
+enum AsMock {
+    /// The port found (its topic and protocol), before its first chunk.
+    Port(String, String),
+    /// A chunk the robot sent: its stamp, the bytes the host had written before it, the bytes.
+    Rx(u64, usize, Vec<u8>),
+}
+
 /// Serve a port's recorded robot→host bytes on a pty. Each chunk the robot sent waits until
 /// the host has written as many bytes as it had when the chunk was recorded (so a driver's
 /// handshake meets its answers; at most [`AS_MOCK_WAIT`] each), then for its stamp relative to
-/// the previous chunk (÷ `speed`).
-fn serve_as_mock(s: &RawStream, speed: f64) -> Result<()> {
+/// the previous chunk (÷ `speed`). The recording is read on a thread of its own, a chunk at a
+/// time, as the bytes are served: memory does not grow with the recording's length.
+fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     use serialport::SerialPort as _;
+    let damage = rec.damage();
+    if let Some(why) = &damage {
+        eprintln!("ima replay: the recording is damaged ({why}); serving the bytes it holds");
+    }
+    let (tx, chunks) = std::sync::mpsc::sync_channel::<AsMock>(256);
+    let wanted = name.to_owned();
+    let reader = std::thread::Builder::new()
+        .name("ima-replay-read".into())
+        .spawn(move || {
+            let mut host_before = 0usize;
+            let mut found = false;
+            rec.each_chunk_of(&wanted, |c| {
+                if !found {
+                    found = true;
+                    let port = AsMock::Port(c.topic.to_owned(), c.port.protocol.clone());
+                    if tx.send(port).is_err() {
+                        return false;
+                    }
+                }
+                match c.dir {
+                    Dir::Tx => host_before += c.bytes.len(),
+                    // The server is gone (a signal, a failed write): stop reading.
+                    Dir::Rx => {
+                        return tx
+                            .send(AsMock::Rx(c.log_time, host_before, c.bytes.to_vec()))
+                            .is_ok();
+                    }
+                    Dir::Baud => {}
+                }
+                true
+            })
+        })
+        .context("starting the replay's reader")?;
+    // The port is known at its first chunk; a name no channel answers to is known at the end.
+    let Ok(AsMock::Port(topic, protocol)) = chunks.recv() else {
+        let read = reader
+            .join()
+            .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
+        read?;
+        anyhow::bail!("no chunk of {name} in the recording");
+    };
     let (mut master, slave) =
         ima_mock_devices::pty::pty_pair().context("opening a pseudo-terminal")?;
     let path = slave.name().context("the pseudo-terminal has no path")?;
     master.set_timeout(Duration::from_millis(5))?;
     outln!("{path}")?;
-    // (stamp, host bytes written before it, bytes)
-    let mut host_before = 0usize;
-    let mut chunks: Vec<(u64, usize, &[u8])> = Vec::new();
-    for c in &s.chunks {
-        match c.1 {
-            Dir::Tx => host_before += c.2.len(),
-            Dir::Rx => chunks.push((c.0, host_before, &c.2)),
-            Dir::Baud => {}
-        }
-    }
     let mut heard = 0usize;
     let mut buf = [0u8; 512];
     let mut listen = |master: &mut serialport::TTYPort, heard: &mut usize| {
@@ -629,12 +658,12 @@ fn serve_as_mock(s: &RawStream, speed: f64) -> Result<()> {
     };
     let mut sent = 0usize;
     let mut prev_t: Option<u64> = None;
-    for (t, need, bytes) in &chunks {
+    while let Ok(AsMock::Rx(t, need, bytes)) = chunks.recv() {
         if crate::safety::signal().is_some() {
             break;
         }
         let waited = std::time::Instant::now();
-        while heard < *need && waited.elapsed() < AS_MOCK_WAIT {
+        while heard < need && waited.elapsed() < AS_MOCK_WAIT {
             listen(&mut master, &mut heard);
         }
         if speed > 0.0
@@ -646,15 +675,20 @@ fn serve_as_mock(s: &RawStream, speed: f64) -> Result<()> {
                 listen(&mut master, &mut heard);
             }
         }
-        prev_t = Some(*t);
-        std::io::Write::write_all(&mut master, bytes)
+        prev_t = Some(t);
+        std::io::Write::write_all(&mut master, &bytes)
             .with_context(|| format!("writing to {path}"))?;
         sent += bytes.len();
     }
-    eprintln!(
-        "ima replay: served {sent} bytes of {} ({}) on {path}",
-        s.topic, s.port.protocol
-    );
+    // The reader stops at its next chunk once the channel is closed.
+    drop(chunks);
+    let read = reader
+        .join()
+        .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
+    eprintln!("ima replay: served {sent} bytes of {topic} ({protocol}) on {path}");
+    if let Some(why) = read?.0.filter(|why| damage.as_ref() != Some(why)) {
+        eprintln!("ima replay: the recording ends early ({why}); served what it holds");
+    }
     // The driver reads the last bytes before the pty closes.
     std::thread::sleep(Duration::from_millis(500));
     drop(slave);

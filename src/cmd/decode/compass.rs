@@ -107,26 +107,25 @@ fn frame_error(e: FrameError) -> String {
     }
 }
 
-/// Decode a compass byte stream; `from_host` selects the command direction.
-pub fn decode(
-    bytes: &[u8],
-    from_host: bool,
-    emit: &mut dyn FnMut(Value) -> Result<()>,
-) -> Result<()> {
-    CompassDecoder::new(from_host).decode_whole(bytes, emit)
-}
-
-/// [`decode`] a piece at a time (see [`Decoder`]).
+/// A compass byte stream (`from_host`: the host's commands) decoded a piece at a time (see
+/// [`Decoder`]).
 pub struct CompassDecoder {
     from_host: bool,
     framer: LineFramer,
     opts: ParseOptions,
     /// Offset of the first byte of the next feed.
     base: usize,
-    /// Commands: where the line being read began, and its bytes so far.
+    /// Commands: where the line being read began, its first [`LONGEST_LINE`] bytes, and its
+    /// length (a line without an end in sight is counted, not kept).
     start: usize,
     line: Vec<u8>,
+    line_len: usize,
 }
+
+/// Host lines longer than this are reported as too long, not kept: no command comes near it
+/// ([`ima_compass::wire::command::MAX_COMMAND`] bytes with its terminator), and a stream
+/// with no line end (a wrong direction, binary bytes) must not grow the decoder's memory.
+const LONGEST_LINE: usize = 64;
 
 impl CompassDecoder {
     /// A decoder of the host's commands (`from_host`) or the compass's lines.
@@ -138,6 +137,7 @@ impl CompassDecoder {
             base: 0,
             start: 0,
             line: Vec::new(),
+            line_len: 0,
         }
     }
 
@@ -149,13 +149,25 @@ impl CompassDecoder {
     ) -> Result<()> {
         for (k, &b) in bytes.iter().enumerate() {
             if b != b'\r' && b != b'\n' {
-                self.line.push(b);
+                if self.line.len() < LONGEST_LINE {
+                    self.line.push(b);
+                }
+                self.line_len += 1;
                 continue;
             }
             let offset = self.start;
             self.start = base + k + 1;
             let line = std::mem::take(&mut self.line);
+            let len = std::mem::take(&mut self.line_len);
             if line.is_empty() {
+                continue;
+            }
+            if len > LONGEST_LINE {
+                let error = format!(
+                    "a line of {len} bytes, longer than any command (at most {})",
+                    ima_compass::wire::command::MAX_COMMAND
+                );
+                emit(json!({"kind": "error", "error": error, "offset": offset}))?;
                 continue;
             }
             emit(match Command::parse(&line) {
@@ -233,11 +245,12 @@ mod tests {
 
     fn run(bytes: &[u8], host: bool) -> Vec<Value> {
         let mut out = Vec::new();
-        decode(bytes, host, &mut |v| {
-            out.push(v);
-            Ok(())
-        })
-        .unwrap();
+        CompassDecoder::new(host)
+            .decode_whole(bytes, &mut |v| {
+                out.push(v);
+                Ok(())
+            })
+            .unwrap();
         out
     }
 
@@ -280,6 +293,47 @@ mod tests {
         assert_eq!(v[4]["kind"], "error");
         assert_eq!(v[5]["kind"], "calibration_score");
         assert_eq!(v.len(), 6);
+    }
+
+    /// Bytes with no line end (the wrong direction, a binary file) are counted, not kept: the
+    /// decoder holds at most [`LONGEST_LINE`] of them, reports the line once at its end, and
+    /// the commands after it decode.
+    #[test]
+    fn a_host_line_without_an_end_is_counted_not_kept() {
+        let mut bytes = vec![b'x'; 1 << 20];
+        bytes.extend_from_slice(b"\rgo\r");
+        let mut d = CompassDecoder::new(true);
+        let mut out = Vec::new();
+        for piece in bytes.chunks(4096) {
+            d.feed(piece, &mut |v| {
+                out.push(v);
+                Ok(())
+            })
+            .unwrap();
+            assert!(
+                d.line.capacity() <= 2 * LONGEST_LINE,
+                "{}",
+                d.line.capacity()
+            );
+        }
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[0]["kind"], "error");
+        assert_eq!(
+            out[0]["error"],
+            "a line of 1048576 bytes, longer than any command (at most 16)"
+        );
+        assert_eq!(out[0]["offset"], 0);
+        assert_eq!(out[1]["kind"], "tcm2_go");
+        assert_eq!(out[1]["offset"], (1 << 20) + 1);
+        // Fed a byte at a time or cut anywhere, the same.
+        let short: &[u8] = b"h\rthis-line-is-far-longer-than-any-compass-command-a-host-sends-it-\
+                             is-eighty-bytes\rgo\r";
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
+            &|| Box::new(CompassDecoder::new(true)),
+            short,
+        );
+        let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
+        assert_eq!(kinds, ["tcm2_halt", "error", "tcm2_go"]);
     }
 
     #[test]

@@ -1,5 +1,5 @@
-//! [`Decoder`]: `ima decode`'s decoders fed a capture a piece at a time (`ima replay` feeds
-//! a recording's chunks as they are read).
+//! [`Decoder`]: `ima decode`'s decoders fed a capture a piece at a time (`ima replay` and
+//! `ima decode --mcap` feed a recording's chunks as they are read).
 
 use anyhow::Result;
 use serde_json::Value;
@@ -7,7 +7,7 @@ use serde_json::Value;
 /// A decoder fed a capture a piece at a time: [`feed`](Self::feed) emits what the bytes so
 /// far complete, [`finish`](Self::finish) what is left at the end (a truncated frame). Offsets
 /// count from the first byte fed, and a capture fed whole or in any pieces emits the same
-/// objects (`ima replay` feeds a recording's chunks as they are read).
+/// objects (`ima replay` and `ima decode --mcap` feed a recording's chunks as they are read).
 pub trait Decoder {
     /// Decode the next bytes of the capture.
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()>;
@@ -21,6 +21,16 @@ pub trait Decoder {
     {
         self.feed(bytes, emit)?;
         self.finish(emit)
+    }
+}
+
+/// A boxed decoder (`ima decode` picks one at run time) is one.
+impl<D: Decoder + ?Sized> Decoder for Box<D> {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        (**self).feed(bytes, emit)
+    }
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        (**self).finish(emit)
     }
 }
 

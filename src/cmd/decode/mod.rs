@@ -8,9 +8,12 @@
 //! on.
 //!
 //! One module per protocol ([`p2os`], [`rflex`], [`sick`], [`compass`], [`video_mux`]); each
-//! takes the bytes, the side that sent them and an `emit` callback, and takes its SI
-//! conversions from the driver crate (the driver's own functions, so that `ima decode` shows
-//! what the driver would report). [`hex`] reads `--hex` input.
+//! has a [`Decoder`] that takes the bytes a piece at a time (the side that sent them chosen
+//! when it is made) and an `emit` callback, and takes its SI conversions from the driver
+//! crate (the driver's own functions, so that `ima decode` shows what the driver would
+//! report); [`decoder`] picks one. [`hex`] reads `--hex` input. A host line or command with no
+//! end in sight is counted, not kept, so no input grows a decoder's memory beyond its
+//! protocol's longest frame (SICK: a 64 KiB lookback).
 
 pub mod compass;
 pub mod decoder;
@@ -98,20 +101,15 @@ pub struct DecodeArgs {
 
 /// Run `ima decode`.
 pub fn run(args: &DecodeArgs) -> Result<()> {
-    let mut raw = Vec::new();
-    let mut protocol = args.protocol;
-    match &args.file {
-        _ if args.mcap.is_some() => {
-            let (bytes, recorded) = mcap_bytes(args)?;
-            raw = bytes;
-            protocol = protocol.or(recorded);
-        }
+    if let Some(path) = &args.mcap {
+        return run_mcap(args, path);
+    }
+    let raw = match &args.file {
         // `-` is stdin, as for most Unix tools.
-        Some(p) if p.as_os_str() != "-" => {
-            raw = ima_hal::file::read_limited(p, CAPTURE_LIMIT)
-                .with_context(|| format!("reading {}", p.display()))?;
-        }
+        Some(p) if p.as_os_str() != "-" => ima_hal::file::read_limited(p, CAPTURE_LIMIT)
+            .with_context(|| format!("reading {}", p.display()))?,
         Some(_) | None => {
+            let mut raw = Vec::new();
             std::io::stdin()
                 .take(CAPTURE_LIMIT + 1)
                 .read_to_end(&mut raw)
@@ -120,46 +118,85 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
                 raw.len() as u64 <= CAPTURE_LIMIT,
                 "stdin: more than {CAPTURE_LIMIT} bytes; decode a capture in parts"
             );
+            raw
         }
-    }
+    };
     let bytes = if args.hex {
         parse_hex(std::str::from_utf8(&raw).context("--hex input is not text")?)?
     } else {
         raw
     };
-    let params = RobotParams::for_subclass(args.robot.as_bytes())
-        .with_context(|| format!("unknown P2OS robot {:?} (p2at, p2at8, p2dx)", args.robot))?;
-    let stdout = std::io::stdout();
-    let mut out = std::io::BufWriter::new(stdout.lock());
-    let host = args.from == Direction::Host;
-    let (mut frames, mut errors) = (0u64, 0u64);
-    let mut emit = |v: Value| -> Result<()> {
+    let Some(protocol) = args.protocol else {
+        anyhow::bail!("give the protocol");
+    };
+    let mut out = Output::new(args, protocol)?;
+    decoder(protocol, args.from == Direction::Host, out.params)
+        .decode_whole(&bytes, &mut |v| out.emit(v))?;
+    out.end(bytes.len())
+}
+
+/// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
+/// P2OS robot's, for its units.
+pub fn decoder(
+    protocol: Protocol,
+    host: bool,
+    params: &'static RobotParams,
+) -> Box<dyn Decoder + Send> {
+    match protocol {
+        Protocol::P2os => Box::new(p2os::P2osDecoder::new(host, params)),
+        Protocol::Compass => Box::new(compass::CompassDecoder::new(host)),
+        Protocol::SickLms => Box::new(sick::SickDecoder::new(host)),
+        Protocol::VideoMux => Box::new(video_mux::ExtronDecoder::new(host)),
+        Protocol::Kramer => Box::new(video_mux::KramerDecoder::default()),
+        Protocol::Rflex => Box::new(rflex::RflexDecoder::new(host)),
+    }
+}
+
+/// Where decoded frames go: JSON Lines on stdout, counted for the closing hint.
+struct Output {
+    out: std::io::BufWriter<std::io::StdoutLock<'static>>,
+    protocol: Protocol,
+    from: Direction,
+    params: &'static RobotParams,
+    frames: u64,
+    errors: u64,
+}
+
+impl Output {
+    fn new(args: &DecodeArgs, protocol: Protocol) -> Result<Self> {
+        let params = RobotParams::for_subclass(args.robot.as_bytes())
+            .with_context(|| format!("unknown P2OS robot {:?} (p2at, p2at8, p2dx)", args.robot))?;
+        Ok(Self {
+            out: std::io::BufWriter::new(std::io::stdout().lock()),
+            protocol,
+            from: args.from,
+            params,
+            frames: 0,
+            errors: 0,
+        })
+    }
+
+    fn emit(&mut self, v: Value) -> Result<()> {
         if v["kind"] == "error" {
-            errors += 1;
+            self.errors += 1;
         } else {
-            frames += 1;
+            self.frames += 1;
         }
         // As an `io::Error`, so that a closed stdout ends the program quietly (141).
-        serde_json::to_writer(&mut out, &v).map_err(std::io::Error::from)?;
-        out.write_all(b"\n")?;
+        serde_json::to_writer(&mut self.out, &v).map_err(std::io::Error::from)?;
+        self.out.write_all(b"\n")?;
         Ok(())
-    };
-    let Some(protocol) = protocol else {
-        anyhow::bail!("give the protocol: the recording's port names none that `ima decode` knows");
-    };
-    match protocol {
-        Protocol::P2os => p2os::decode_p2os(&bytes, host, params, &mut emit)?,
-        Protocol::Compass => compass::decode(&bytes, host, &mut emit)?,
-        Protocol::SickLms => sick::decode_sick_lms(&bytes, host, &mut emit)?,
-        Protocol::VideoMux => video_mux::decode_extron(&bytes, host, &mut emit)?,
-        Protocol::Kramer => video_mux::decode_kramer(&bytes, &mut emit)?,
-        Protocol::Rflex => rflex::decode_rflex(&bytes, host, &mut emit)?,
     }
-    out.flush()?;
-    if let Some(why) = nothing_decoded(protocol, args.from, bytes.len(), frames, errors) {
-        eprintln!("ima decode: {why}");
+
+    /// The input (`bytes` long) ended: flush, and say so if it gave no frame at all.
+    fn end(mut self, bytes: usize) -> Result<()> {
+        self.out.flush()?;
+        let (protocol, from) = (self.protocol, self.from);
+        if let Some(why) = nothing_decoded(protocol, from, bytes, self.frames, self.errors) {
+            eprintln!("ima decode: {why}");
+        }
+        Ok(())
     }
-    Ok(())
 }
 
 /// What to tell a user whose `bytes` gave no frame at all (the output is then empty or only
@@ -209,37 +246,95 @@ pub fn recorded_protocol(name: &str) -> Option<Protocol> {
     })
 }
 
-/// `--mcap FILE --port NAME`: the port's bytes in the `--from` direction, and its protocol.
-fn mcap_bytes(args: &DecodeArgs) -> Result<(Vec<u8>, Option<Protocol>)> {
-    let (Some(path), Some(port)) = (&args.mcap, &args.port) else {
+/// `--mcap FILE --port NAME`: the port's bytes in the `--from` direction, decoded a chunk at a
+/// time as the recording is read (memory does not grow with its length), as the port's
+/// recorded protocol unless one is given.
+fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
+    let Some(port) = &args.port else {
         anyhow::bail!("--mcap needs --port");
     };
     let rec = ima_record::read::Recording::open(path)?;
-    let stream = rec.raw_stream(port);
-    if let Some(why) = rec.damage() {
+    let damage = rec.damage();
+    if let Some(why) = &damage {
         eprintln!("ima decode: the recording is damaged ({why}); decoding the bytes it holds");
-    }
-    let stream = stream?;
-    let recorded = recorded_protocol(&stream.port.protocol);
-    if let (Some(asked), Some(rec)) = (args.protocol, recorded)
-        && asked != rec
-    {
-        eprintln!(
-            "ima decode: {} was recorded as {}; decoding it as {} as asked",
-            stream.topic,
-            stream.port.protocol,
-            asked.name()
-        );
     }
     let want = match args.from {
         Direction::Robot => ima_record::raw::Dir::Rx,
         Direction::Host => ima_record::raw::Dir::Tx,
     };
-    let bytes = stream
-        .chunks
-        .iter()
-        .filter(|c| c.1 == want)
-        .flat_map(|c| c.2.iter().copied())
-        .collect();
-    Ok((bytes, recorded))
+    // Made at the port's first chunk, which names its protocol.
+    let mut decoding: Option<(Box<dyn Decoder + Send>, Output)> = None;
+    let mut failed = None;
+    let mut bytes = 0usize;
+    let cut = rec.each_chunk_of(port, |c| {
+        if decoding.is_none() {
+            match chunk_protocol(args, c.topic, &c.port.protocol).and_then(|p| {
+                let out = Output::new(args, p)?;
+                Ok((p, out))
+            }) {
+                Ok((p, out)) => {
+                    let d = decoder(p, args.from == Direction::Host, out.params);
+                    decoding = Some((d, out));
+                }
+                Err(e) => {
+                    failed = Some(e);
+                    return false;
+                }
+            }
+        }
+        let Some((d, out)) = &mut decoding else {
+            return false;
+        };
+        if c.dir != want {
+            return true;
+        }
+        bytes += c.bytes.len();
+        // This runs under the guard that reports a panic of the `mcap` crate as damage to the
+        // file; a panic of ours is a bug to report as one, not damage.
+        let fed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            d.feed(c.bytes, &mut |v| out.emit(v))
+        }));
+        let e = match fed {
+            Ok(Ok(())) => return true,
+            Ok(Err(e)) => e,
+            Err(p) => anyhow::anyhow!(
+                "decoding {} failed (a bug: please report it): {}",
+                c.topic,
+                ima_record::read::panic_message(&*p)
+            ),
+        };
+        failed = Some(e);
+        false
+    })?;
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    let Some((mut d, mut out)) = decoding else {
+        anyhow::bail!("no chunk of {port} in the recording");
+    };
+    d.finish(&mut |v| out.emit(v))?;
+    if let Some(why) = cut.0.filter(|why| damage.as_ref() != Some(why)) {
+        eprintln!("ima decode: the recording ends early ({why}); decoded what it holds");
+    }
+    out.end(bytes)
+}
+
+/// The protocol to decode a recorded port as: the one asked for (said when it differs from
+/// the recorded one), else the recorded one.
+fn chunk_protocol(args: &DecodeArgs, topic: &str, recorded_as: &str) -> Result<Protocol> {
+    let recorded = recorded_protocol(recorded_as);
+    if let (Some(asked), Some(rec)) = (args.protocol, recorded)
+        && asked != rec
+    {
+        eprintln!(
+            "ima decode: {topic} was recorded as {recorded_as}; decoding it as {} as asked",
+            asked.name()
+        );
+    }
+    args.protocol.or(recorded).with_context(|| {
+        format!(
+            "give the protocol: {topic} was recorded as {recorded_as:?}, which `ima decode` \
+             does not know"
+        )
+    })
 }

@@ -11,17 +11,8 @@ use serde_json::{Value, json};
 
 use super::decoder::Decoder;
 
-/// Decode a P2OS byte stream, calling `emit` with one JSON object per frame or error.
-pub fn decode_p2os(
-    bytes: &[u8],
-    host: bool,
-    params: &RobotParams,
-    emit: &mut dyn FnMut(Value) -> Result<()>,
-) -> Result<()> {
-    P2osDecoder::new(host, params).decode_whole(bytes, emit)
-}
-
-/// [`decode_p2os`] a piece at a time (see [`Decoder`]).
+/// A P2OS byte stream decoded a piece at a time (see [`Decoder`]): one JSON object per frame or
+/// error.
 pub struct P2osDecoder<'a> {
     framer: Framer,
     host: bool,
@@ -235,11 +226,12 @@ mod tests {
 
     fn decode(bytes: &[u8], host: bool) -> Vec<Value> {
         let mut out = Vec::new();
-        decode_p2os(bytes, host, &ima_p2os::params::P2AT, &mut |v| {
-            out.push(v);
-            Ok(())
-        })
-        .unwrap();
+        P2osDecoder::new(host, &ima_p2os::params::P2AT)
+            .decode_whole(bytes, &mut |v| {
+                out.push(v);
+                Ok(())
+            })
+            .unwrap();
         out
     }
 

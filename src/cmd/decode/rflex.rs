@@ -13,16 +13,8 @@ use serde_json::{Value, json};
 
 use super::decoder::Decoder;
 
-/// Decode an rFLEX byte stream, calling `emit` with one JSON object per frame or error.
-pub fn decode_rflex(
-    bytes: &[u8],
-    host: bool,
-    emit: &mut dyn FnMut(Value) -> Result<()>,
-) -> Result<()> {
-    RflexDecoder::new(host).decode_whole(bytes, emit)
-}
-
-/// [`decode_rflex`] a piece at a time (see [`Decoder`]).
+/// An rFLEX byte stream decoded a piece at a time (see [`Decoder`]): one JSON object per frame
+/// or error.
 pub struct RflexDecoder {
     cfg: Config,
     host: bool,
@@ -240,11 +232,12 @@ mod tests {
     fn run(hex: &str, host: bool) -> Vec<Value> {
         let bytes = crate::cmd::decode::hex::parse_hex(hex).unwrap();
         let mut v = Vec::new();
-        decode_rflex(&bytes, host, &mut |x| {
-            v.push(x);
-            Ok(())
-        })
-        .unwrap();
+        RflexDecoder::new(host)
+            .decode_whole(&bytes, &mut |x| {
+                v.push(x);
+                Ok(())
+            })
+            .unwrap();
         v
     }
 
@@ -314,11 +307,12 @@ mod tests {
         let mut out = [0u8; 600];
         let n = r.emit(&mut out).unwrap();
         let mut v = Vec::new();
-        decode_rflex(&out[..n], false, &mut |x| {
-            v.push(x);
-            Ok(())
-        })
-        .unwrap();
+        RflexDecoder::new(false)
+            .decode_whole(&out[..n], &mut |x| {
+                v.push(x);
+                Ok(())
+            })
+            .unwrap();
         v
     }
 
@@ -377,11 +371,12 @@ mod tests {
             let mut out = [0u8; 64];
             let n = Command::SetDir(s).emit(&mut out).unwrap();
             let mut v = Vec::new();
-            decode_rflex(&out[..n], true, &mut |x| {
-                v.push(x);
-                Ok(())
-            })
-            .unwrap();
+            RflexDecoder::new(true)
+                .decode_whole(&out[..n], &mut |x| {
+                    v.push(x);
+                    Ok(())
+                })
+                .unwrap();
             let (x, a) = cfg.set_dir_si(&s).unwrap();
             assert_eq!(f(&v[0], speed), x);
             assert_eq!(f(&v[0], accel), a);

@@ -16,21 +16,12 @@ use serde_json::{Value, json};
 
 use super::decoder::Decoder;
 
-/// Decode a SICK LMS byte stream (`from_host`: host → LMS commands, else LMS replies),
-/// calling `emit` with one JSON object per item.
-pub fn decode_sick_lms(
-    bytes: &[u8],
-    from_host: bool,
-    emit: &mut dyn FnMut(Value) -> Result<()>,
-) -> Result<()> {
-    SickDecoder::new(from_host).decode_whole(bytes, emit)
-}
-
 /// How far back a candidate that failed its CRC can have begun: its claimed length (16 bits)
 /// and the 6 bytes around it, and a little more.
 const LOOKBACK: usize = (u16::MAX as usize) + 8;
 
-/// [`decode_sick_lms`] a piece at a time (see [`Decoder`]).
+/// A SICK LMS byte stream (host → LMS commands, or LMS replies) decoded a piece at a time (see
+/// [`Decoder`]): one JSON object per item.
 pub struct SickDecoder {
     from_host: bool,
     framer: Framer,
@@ -307,11 +298,12 @@ mod tests {
 
     fn decode(bytes: &[u8], from_host: bool) -> Vec<Value> {
         let mut out = Vec::new();
-        decode_sick_lms(bytes, from_host, &mut |v| {
-            out.push(v);
-            Ok(())
-        })
-        .unwrap();
+        SickDecoder::new(from_host)
+            .decode_whole(bytes, &mut |v| {
+                out.push(v);
+                Ok(())
+            })
+            .unwrap();
         out
     }
 

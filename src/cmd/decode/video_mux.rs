@@ -7,6 +7,8 @@ use ima_video_mux::framer::{Frame, KramerFramer, LineFramer};
 use ima_video_mux::wire::{ExtronCommand, ExtronReply, Instruction, KramerMessage, TieKind};
 use serde_json::{Value, json};
 
+use super::decoder::Decoder;
+
 fn tie(k: TieKind) -> &'static str {
     match k {
         TieKind::All => "all",
@@ -73,62 +75,131 @@ fn with_offset(mut v: Value, offset: usize) -> Value {
     v
 }
 
-/// Decode an Extron SIS byte stream; `from_host` selects the command direction.
-pub fn decode_extron(
-    bytes: &[u8],
+/// Host commands longer than this (blanks left out) are reported as too long, not kept: the
+/// longest command the driver sends is a few bytes, and a stream with no command end (the
+/// wrong direction, binary bytes) must not grow the decoder's memory.
+const LONGEST_COMMAND: usize = 32;
+
+/// An Extron SIS byte stream (`from_host`: the host's commands) decoded a piece at a time (see
+/// [`Decoder`]).
+#[derive(Debug)]
+pub struct ExtronDecoder {
     from_host: bool,
-    emit: &mut dyn FnMut(Value) -> Result<()>,
-) -> Result<()> {
-    if from_host {
-        let mut start = 0usize;
-        while start < bytes.len() {
-            let rest = bytes.get(start..).unwrap_or(&[]);
-            let Some(end) = ExtronCommand::command_end(rest) else {
-                emit(
-                    json!({"kind": "error", "error": "truncated command at end of input", "offset": start}),
-                )?;
-                break;
-            };
-            let raw = rest.get(..end).unwrap_or(&[]);
-            let trimmed: Vec<u8> = raw
-                .iter()
-                .copied()
-                .filter(|b| !matches!(b, b'\r' | b'\n' | b' '))
-                .collect();
-            emit(match ExtronCommand::parse(&trimmed) {
-                Ok(c) => with_offset(command_json(&c), start),
-                Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": start}),
-            })?;
-            start += end;
-        }
-        return Ok(());
-    }
-    let mut framer: LineFramer = LineFramer::default();
-    for (i, &b) in bytes.iter().enumerate() {
-        if let Some(Frame::Line(l)) = framer.push_byte(b) {
-            let offset = i.saturating_sub(l.len());
-            emit(match ExtronReply::parse(l) {
-                Ok(r) => with_offset(reply_json(&r), offset),
-                Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
-            })?;
-        }
-    }
-    Ok(())
+    framer: LineFramer,
+    /// Offset of the first byte of the next feed.
+    base: usize,
+    /// Commands: where the one being read began, its first [`LONGEST_COMMAND`] bytes that are
+    /// not blanks, and how many such bytes it has.
+    start: usize,
+    command: Vec<u8>,
+    command_len: usize,
 }
 
-/// Decode a Kramer Protocol 2000 byte stream (both directions look alike; bit 6 tells).
-pub fn decode_kramer(bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
-    let mut framer = KramerFramer::new();
-    for (i, &b) in bytes.iter().enumerate() {
-        if let Some(m) = framer.push_byte(b) {
-            let offset = i.saturating_sub(ima_video_mux::wire::kramer::LEN - 1);
-            emit(match KramerMessage::parse(&m) {
-                Ok(k) => with_offset(kramer_json(&k), offset),
-                Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
-            })?;
+impl ExtronDecoder {
+    /// A decoder of the host's commands (`from_host`) or the switcher's replies.
+    pub fn new(from_host: bool) -> Self {
+        Self {
+            from_host,
+            framer: LineFramer::default(),
+            base: 0,
+            start: 0,
+            command: Vec::new(),
+            command_len: 0,
         }
     }
-    Ok(())
+
+    fn feed_commands(
+        &mut self,
+        bytes: &[u8],
+        base: usize,
+        emit: &mut dyn FnMut(Value) -> Result<()>,
+    ) -> Result<()> {
+        for (k, &b) in bytes.iter().enumerate() {
+            if ExtronCommand::command_end(&[b]).is_none() {
+                if !matches!(b, b'\r' | b'\n' | b' ') {
+                    if self.command.len() < LONGEST_COMMAND {
+                        self.command.push(b);
+                    }
+                    self.command_len += 1;
+                }
+                continue;
+            }
+            let offset = std::mem::replace(&mut self.start, base + k + 1);
+            let len = std::mem::take(&mut self.command_len) + 1;
+            let mut command = std::mem::take(&mut self.command);
+            command.push(b);
+            emit(if len > LONGEST_COMMAND {
+                let error = format!("a command of {len} bytes, longer than any the switcher takes");
+                json!({"kind": "error", "error": error, "offset": offset})
+            } else {
+                match ExtronCommand::parse(&command) {
+                    Ok(c) => with_offset(command_json(&c), offset),
+                    Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
+                }
+            })?;
+        }
+        Ok(())
+    }
+}
+
+impl Decoder for ExtronDecoder {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        let base = self.base;
+        self.base += bytes.len();
+        if self.from_host {
+            return self.feed_commands(bytes, base, emit);
+        }
+        for (k, &b) in bytes.iter().enumerate() {
+            if let Some(Frame::Line(l)) = self.framer.push_byte(b) {
+                let offset = (base + k).saturating_sub(l.len());
+                emit(match ExtronReply::parse(l) {
+                    Ok(r) => with_offset(reply_json(&r), offset),
+                    Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
+                })?;
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        if self.from_host && self.start < self.base {
+            emit(
+                json!({"kind": "error", "error": "truncated command at end of input",
+                "offset": self.start}),
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// A Kramer Protocol 2000 byte stream decoded a piece at a time (see [`Decoder`]); both
+/// directions look alike (bit 6 tells).
+#[derive(Debug, Default)]
+pub struct KramerDecoder {
+    framer: KramerFramer,
+    /// Offset of the first byte of the next feed.
+    base: usize,
+}
+
+impl Decoder for KramerDecoder {
+    fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        let base = self.base;
+        self.base += bytes.len();
+        for (k, &b) in bytes.iter().enumerate() {
+            if let Some(m) = self.framer.push_byte(b) {
+                let offset = (base + k).saturating_sub(ima_video_mux::wire::kramer::LEN - 1);
+                emit(match KramerMessage::parse(&m) {
+                    Ok(k) => with_offset(kramer_json(&k), offset),
+                    Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
+                })?;
+            }
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, _emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        Ok(())
+    }
 }
 
 #[cfg(test)]
@@ -147,7 +218,10 @@ mod tests {
 
     #[test]
     fn extron_both_ways() {
-        let v = run(|e| decode_extron(b"In3 All\r\nE01\r\n3\r\nSig 1 0 1\r\nfoo\r\n", false, e));
+        let v = run(|e| {
+            ExtronDecoder::new(false)
+                .decode_whole(b"In3 All\r\nE01\r\n3\r\nSig 1 0 1\r\nfoo\r\n", e)
+        });
         let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
         assert_eq!(
             kinds,
@@ -155,7 +229,7 @@ mod tests {
         );
         assert_eq!(v[1]["code"], 1);
         assert_eq!(v[1]["offset"], 9);
-        let v = run(|e| decode_extron(b"3!!2&1B12", true, e));
+        let v = run(|e| ExtronDecoder::new(true).decode_whole(b"3!!2&1B12", e));
         let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
         assert_eq!(
             kinds,
@@ -163,9 +237,62 @@ mod tests {
         );
     }
 
+    /// Fed in pieces, both switchers' streams decode as fed whole, both ways, with damage.
+    #[test]
+    fn pieces_decode_as_the_whole() {
+        use crate::cmd::decode::decoder::pieces::decode_alike;
+        let v = decode_alike(
+            &|| Box::new(ExtronDecoder::new(false)),
+            b"In3 All\r\nE01\r\n3\r\nSig 1 0 1\r\nfoo\r\nIn",
+        );
+        assert_eq!(v.len(), 5, "{v:?}");
+        let v = decode_alike(&|| Box::new(ExtronDecoder::new(true)), b"3!!\r\n2&1B12");
+        assert_eq!(
+            v.last().unwrap()["error"],
+            "truncated command at end of input"
+        );
+        let v = decode_alike(
+            &|| Box::new(KramerDecoder::default()),
+            &[0x01, 0x83, 0x81, 0x81, 0x41, 0x83, 0x81, 0x81, 0x01],
+        );
+        assert_eq!(v.len(), 2, "{v:?}");
+    }
+
+    /// Host bytes with no command end are counted, not kept, and reported once at their end;
+    /// the command after them decodes.
+    #[test]
+    fn a_host_command_without_an_end_is_counted_not_kept() {
+        let mut bytes = vec![b'7'; 1 << 20];
+        bytes.extend_from_slice(b"!3!");
+        let mut d = ExtronDecoder::new(true);
+        let mut out = Vec::new();
+        for piece in bytes.chunks(4096) {
+            d.feed(piece, &mut |v| {
+                out.push(v);
+                Ok(())
+            })
+            .unwrap();
+            assert!(
+                d.command.capacity() <= 2 * LONGEST_COMMAND,
+                "{}",
+                d.command.capacity()
+            );
+        }
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(
+            out[0]["error"],
+            "a command of 1048577 bytes, longer than any the switcher takes"
+        );
+        assert_eq!(out[1]["kind"], "select");
+        assert_eq!(out[1]["offset"], (1 << 20) + 1);
+    }
+
     #[test]
     fn kramer() {
-        let v = run(|e| decode_kramer(&[0x01, 0x83, 0x81, 0x81, 0x41, 0x83, 0x81, 0x81], e));
+        let v = run(|e| {
+            KramerDecoder::default()
+                .decode_whole(&[0x01, 0x83, 0x81, 0x81, 0x41, 0x83, 0x81, 0x81], e)
+        });
         assert_eq!(v.len(), 2);
         assert_eq!(v[0]["input"], 3);
         assert_eq!(v[1]["from_switcher"], true);
