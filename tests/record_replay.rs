@@ -665,6 +665,34 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
         "{live:?}\n{replayed:?}"
     );
     assert_eq!(replayed[..n], live[..n]);
+    // Ctrl-C while the recording is served (waiting for a host that never writes): it ends at
+    // once as interrupted, saying what it served (it used to end with status 0, as if it had
+    // served everything).
+    let mut served = common::Child(
+        ima()
+            .args(["replay", "--as-mock", "robot/base"])
+            .arg(&file)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut path = String::new();
+    std::io::BufReader::new(served.0.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    assert!(path.starts_with("/dev/"), "{path}");
+    served.signal("INT");
+    let out = served.wait_output();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("ima replay: served ")
+            && err.contains("bytes of /robot/serial/base (p2os)")
+            && err.contains("interrupted by SIGINT")
+            && !err.contains("could move"),
+        "{err}"
+    );
     // Ctrl-C on a slow replay of the recording (after its first reading): it ends as
     // interrupted, without claiming to have stopped a device (it opened none; it said
     // "every device that could move was stopped").

@@ -658,12 +658,13 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     };
     let mut sent = 0usize;
     let mut prev_t: Option<u64> = None;
+    let asked_to_end = || crate::safety::signal().is_some();
     while let Ok(AsMock::Rx(t, need, bytes)) = chunks.recv() {
-        if crate::safety::signal().is_some() {
+        if asked_to_end() {
             break;
         }
         let waited = std::time::Instant::now();
-        while heard < need && waited.elapsed() < AS_MOCK_WAIT {
+        while heard < need && waited.elapsed() < AS_MOCK_WAIT && !asked_to_end() {
             listen(&mut master, &mut heard);
         }
         if speed > 0.0
@@ -671,9 +672,12 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
         {
             let gap = Duration::from_nanos(t.saturating_sub(p)).div_f64(speed);
             let until = std::time::Instant::now() + gap.min(Duration::from_secs(5));
-            while std::time::Instant::now() < until {
+            while std::time::Instant::now() < until && !asked_to_end() {
                 listen(&mut master, &mut heard);
             }
+        }
+        if asked_to_end() {
+            break;
         }
         prev_t = Some(t);
         std::io::Write::write_all(&mut master, &bytes)
@@ -688,6 +692,9 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     eprintln!("ima replay: served {sent} bytes of {topic} ({protocol}) on {path}");
     if let Some(why) = read?.0.filter(|why| damage.as_ref() != Some(why)) {
         eprintln!("ima replay: the recording ends early ({why}); served what it holds");
+    }
+    if asked_to_end() {
+        return Err(crate::safety::Interrupted(crate::safety::cause()).into());
     }
     // The driver reads the last bytes before the pty closes.
     std::thread::sleep(Duration::from_millis(500));
