@@ -643,20 +643,25 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     // `ima drive` records the P2OS sonar too.
     let sonar = Recording::open(&file).unwrap().channels();
     assert_eq!(sonar["/robot/sonar"].0, "foxglove.PointCloud", "{sonar:?}");
-    let mut served = common::Child(
-        ima()
-            .args(["replay", "--as-mock", "robot/base"])
-            .arg(&file)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut path = String::new();
-    std::io::BufReader::new(served.0.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
-    let replayed = drive(path.trim(), None);
+    // The recording served on a pty, and the pty's path.
+    let serve = |stderr: std::process::Stdio| {
+        let mut served = common::Child(
+            ima()
+                .args(["replay", "--as-mock", "robot/base"])
+                .arg(&file)
+                .stdout(std::process::Stdio::piped())
+                .stderr(stderr)
+                .spawn()
+                .unwrap(),
+        );
+        let mut path = String::new();
+        std::io::BufReader::new(served.0.stdout.take().unwrap())
+            .read_line(&mut path)
+            .unwrap();
+        (served, path.trim().to_owned())
+    };
+    let (_served, path) = serve(std::process::Stdio::null());
+    let replayed = drive(&path, None);
     // The same odometry in the same order; how many states each run prints within its `--for`
     // depends on timing, so one may have a state more than the other.
     let n = live.len().min(replayed.len());
@@ -668,19 +673,7 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     // Ctrl-C while the recording is served (waiting for a host that never writes): it ends at
     // once as interrupted, saying what it served (it used to end with status 0, as if it had
     // served everything).
-    let mut served = common::Child(
-        ima()
-            .args(["replay", "--as-mock", "robot/base"])
-            .arg(&file)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    let mut path = String::new();
-    std::io::BufReader::new(served.0.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
+    let (mut served, path) = serve(std::process::Stdio::piped());
     assert!(path.starts_with("/dev/"), "{path}");
     served.signal("INT");
     let out = served.wait_output();

@@ -9,7 +9,7 @@ use ima_compass::wire::{
 };
 use serde_json::{Value, json};
 
-use super::decoder::Decoder;
+use super::decoder::{Decoder, HostCommand};
 
 fn deg(d: Option<Decimal>) -> Option<f64> {
     d.map(Decimal::to_f64)
@@ -115,11 +115,8 @@ pub struct CompassDecoder {
     opts: ParseOptions,
     /// Offset of the first byte of the next feed.
     base: usize,
-    /// Commands: where the line being read began, its first [`LONGEST_LINE`] bytes, and its
-    /// length (a line without an end in sight is counted, not kept).
-    start: usize,
-    line: Vec<u8>,
-    line_len: usize,
+    /// The host's line being read.
+    line: HostCommand,
 }
 
 /// Host lines longer than this are reported as too long, not kept: no command comes near it
@@ -135,9 +132,7 @@ impl CompassDecoder {
             framer: framer::framer(),
             opts: ParseOptions::default(),
             base: 0,
-            start: 0,
-            line: Vec::new(),
-            line_len: 0,
+            line: HostCommand::new(LONGEST_LINE),
         }
     }
 
@@ -149,27 +144,22 @@ impl CompassDecoder {
     ) -> Result<()> {
         for (k, &b) in bytes.iter().enumerate() {
             if b != b'\r' && b != b'\n' {
-                if self.line.len() < LONGEST_LINE {
-                    self.line.push(b);
+                self.line.push(b);
+                continue;
+            }
+            let line = match self.line.end(base + k + 1) {
+                (_, Ok(line)) if line.is_empty() => continue,
+                (offset, Ok(line)) => (offset, line),
+                (offset, Err(len)) => {
+                    let error = format!(
+                        "a line of {len} bytes, longer than any command (at most {})",
+                        ima_compass::wire::command::MAX_COMMAND
+                    );
+                    emit(json!({"kind": "error", "error": error, "offset": offset}))?;
+                    continue;
                 }
-                self.line_len += 1;
-                continue;
-            }
-            let offset = self.start;
-            self.start = base + k + 1;
-            let line = std::mem::take(&mut self.line);
-            let len = std::mem::take(&mut self.line_len);
-            if line.is_empty() {
-                continue;
-            }
-            if len > LONGEST_LINE {
-                let error = format!(
-                    "a line of {len} bytes, longer than any command (at most {})",
-                    ima_compass::wire::command::MAX_COMMAND
-                );
-                emit(json!({"kind": "error", "error": error, "offset": offset}))?;
-                continue;
-            }
+            };
+            let (offset, line) = line;
             emit(match Command::parse(&line) {
                 Ok(c) => {
                     let mut v = command_json(c);
@@ -223,10 +213,10 @@ impl Decoder for CompassDecoder {
 
     fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         if self.from_host {
-            if self.start < self.base {
+            if self.line.start() < self.base {
                 emit(
                     json!({"kind": "error", "error": "truncated command at end of input",
-                    "offset": self.start}),
+                    "offset": self.line.start()}),
                 )?;
             }
         } else if self.framer.pending() > 0 {
@@ -295,45 +285,21 @@ mod tests {
         assert_eq!(v.len(), 6);
     }
 
-    /// Bytes with no line end (the wrong direction, a binary file) are counted, not kept: the
-    /// decoder holds at most [`LONGEST_LINE`] of them, reports the line once at its end, and
-    /// the commands after it decode.
+    /// A host line longer than any command is reported as its length, and the commands around
+    /// it decode, however the stream is cut.
     #[test]
-    fn a_host_line_without_an_end_is_counted_not_kept() {
-        let mut bytes = vec![b'x'; 1 << 20];
-        bytes.extend_from_slice(b"\rgo\r");
-        let mut d = CompassDecoder::new(true);
-        let mut out = Vec::new();
-        for piece in bytes.chunks(4096) {
-            d.feed(piece, &mut |v| {
-                out.push(v);
-                Ok(())
-            })
-            .unwrap();
-            assert!(
-                d.line.capacity() <= 2 * LONGEST_LINE,
-                "{}",
-                d.line.capacity()
-            );
-        }
-        assert_eq!(out.len(), 2, "{out:?}");
-        assert_eq!(out[0]["kind"], "error");
-        assert_eq!(
-            out[0]["error"],
-            "a line of 1048576 bytes, longer than any command (at most 16)"
-        );
-        assert_eq!(out[0]["offset"], 0);
-        assert_eq!(out[1]["kind"], "tcm2_go");
-        assert_eq!(out[1]["offset"], (1 << 20) + 1);
-        // Fed a byte at a time or cut anywhere, the same.
-        let short: &[u8] = b"h\rthis-line-is-far-longer-than-any-compass-command-a-host-sends-it-\
-                             is-eighty-bytes\rgo\r";
+    fn a_host_line_longer_than_any_command_is_reported() {
         let v = crate::cmd::decode::decoder::pieces::decode_alike(
             &|| Box::new(CompassDecoder::new(true)),
-            short,
+            b"h\rthis-line-is-far-longer-than-any-compass-command-a-host-sends-it-is-eighty-bytes\rgo\r",
         );
         let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
         assert_eq!(kinds, ["tcm2_halt", "error", "tcm2_go"]);
+        assert_eq!(
+            v[1]["error"],
+            "a line of 80 bytes, longer than any command (at most 16)"
+        );
+        assert_eq!((&v[1]["offset"], &v[2]["offset"]), (&2.into(), &83.into()));
     }
 
     #[test]

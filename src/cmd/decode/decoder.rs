@@ -24,6 +24,53 @@ pub trait Decoder {
     }
 }
 
+/// A host command being read by a decoder of commands that end at a byte: where it began, its
+/// first `limit` bytes and its length. Bytes past the limit are counted, not kept, so a stream
+/// with no end in sight (the wrong direction, a binary file) cannot grow the decoder.
+#[derive(Debug)]
+pub struct HostCommand {
+    limit: usize,
+    start: usize,
+    kept: Vec<u8>,
+    len: usize,
+}
+
+impl HostCommand {
+    /// A command of at most `limit` bytes, the first beginning at offset 0.
+    pub fn new(limit: usize) -> Self {
+        Self {
+            limit,
+            start: 0,
+            kept: Vec::new(),
+            len: 0,
+        }
+    }
+
+    /// The command's next byte.
+    pub fn push(&mut self, b: u8) {
+        if self.kept.len() < self.limit {
+            self.kept.push(b);
+        }
+        self.len += 1;
+    }
+
+    /// The command ended; the next begins at offset `next`. Its offset, and its bytes, or its
+    /// length when that is over the limit.
+    pub fn end(&mut self, next: usize) -> (usize, std::result::Result<Vec<u8>, usize>) {
+        let offset = std::mem::replace(&mut self.start, next);
+        let kept = std::mem::take(&mut self.kept);
+        match std::mem::take(&mut self.len) {
+            len if len > self.limit => (offset, Err(len)),
+            _ => (offset, Ok(kept)),
+        }
+    }
+
+    /// Where the command being read began.
+    pub fn start(&self) -> usize {
+        self.start
+    }
+}
+
 /// A boxed decoder (`ima decode` picks one at run time) is one.
 impl<D: Decoder + ?Sized> Decoder for Box<D> {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
@@ -37,6 +84,26 @@ impl<D: Decoder + ?Sized> Decoder for Box<D> {
 /// Checks for [`Decoder`]s.
 #[cfg(test)]
 pub mod pieces {
+    /// A megabyte with no command end holds the limit, not the megabyte, and is reported as
+    /// its length; the command after it is whole.
+    #[test]
+    fn a_host_command_without_an_end_is_counted_not_kept() {
+        let mut c = super::HostCommand::new(16);
+        for _ in 0..1 << 20 {
+            c.push(b'x');
+            assert!(c.kept.capacity() <= 32);
+        }
+        assert_eq!(c.end((1 << 20) + 1), (0, Err(1 << 20)));
+        c.push(b'g');
+        c.push(b'o');
+        assert_eq!(c.start(), (1 << 20) + 1);
+        assert_eq!(c.end((1 << 20) + 4), ((1 << 20) + 1, Ok(b"go".to_vec())));
+        for _ in 0..16 {
+            c.push(b'y');
+        }
+        assert_eq!(c.end(0).1, Ok(vec![b'y'; 16]), "the limit itself is kept");
+    }
+
     use super::{Decoder, Value};
 
     fn run(d: &mut dyn Decoder, pieces: &[&[u8]]) -> Vec<Value> {

@@ -7,7 +7,7 @@ use ima_video_mux::framer::{Frame, KramerFramer, LineFramer};
 use ima_video_mux::wire::{ExtronCommand, ExtronReply, Instruction, KramerMessage, TieKind};
 use serde_json::{Value, json};
 
-use super::decoder::Decoder;
+use super::decoder::{Decoder, HostCommand};
 
 fn tie(k: TieKind) -> &'static str {
     match k {
@@ -88,11 +88,8 @@ pub struct ExtronDecoder {
     framer: LineFramer,
     /// Offset of the first byte of the next feed.
     base: usize,
-    /// Commands: where the one being read began, its first [`LONGEST_COMMAND`] bytes that are
-    /// not blanks, and how many such bytes it has.
-    start: usize,
-    command: Vec<u8>,
-    command_len: usize,
+    /// The host's command being read (its bytes but blanks).
+    command: HostCommand,
 }
 
 impl ExtronDecoder {
@@ -102,9 +99,7 @@ impl ExtronDecoder {
             from_host,
             framer: LineFramer::default(),
             base: 0,
-            start: 0,
-            command: Vec::new(),
-            command_len: 0,
+            command: HostCommand::new(LONGEST_COMMAND),
         }
     }
 
@@ -115,27 +110,22 @@ impl ExtronDecoder {
         emit: &mut dyn FnMut(Value) -> Result<()>,
     ) -> Result<()> {
         for (k, &b) in bytes.iter().enumerate() {
+            if !matches!(b, b'\r' | b'\n' | b' ') {
+                self.command.push(b);
+            }
             if ExtronCommand::command_end(&[b]).is_none() {
-                if !matches!(b, b'\r' | b'\n' | b' ') {
-                    if self.command.len() < LONGEST_COMMAND {
-                        self.command.push(b);
-                    }
-                    self.command_len += 1;
-                }
                 continue;
             }
-            let offset = std::mem::replace(&mut self.start, base + k + 1);
-            let len = std::mem::take(&mut self.command_len) + 1;
-            let mut command = std::mem::take(&mut self.command);
-            command.push(b);
-            emit(if len > LONGEST_COMMAND {
-                let error = format!("a command of {len} bytes, longer than any the switcher takes");
-                json!({"kind": "error", "error": error, "offset": offset})
-            } else {
-                match ExtronCommand::parse(&command) {
+            emit(match self.command.end(base + k + 1) {
+                (offset, Err(len)) => {
+                    let error =
+                        format!("a command of {len} bytes, longer than any the switcher takes");
+                    json!({"kind": "error", "error": error, "offset": offset})
+                }
+                (offset, Ok(command)) => match ExtronCommand::parse(&command) {
                     Ok(c) => with_offset(command_json(&c), offset),
                     Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
-                }
+                },
             })?;
         }
         Ok(())
@@ -162,10 +152,10 @@ impl Decoder for ExtronDecoder {
     }
 
     fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
-        if self.from_host && self.start < self.base {
+        if self.from_host && self.command.start() < self.base {
             emit(
                 json!({"kind": "error", "error": "truncated command at end of input",
-                "offset": self.start}),
+                "offset": self.command.start()}),
             )?;
         }
         Ok(())
@@ -258,33 +248,24 @@ mod tests {
         assert_eq!(v.len(), 2, "{v:?}");
     }
 
-    /// Host bytes with no command end are counted, not kept, and reported once at their end;
-    /// the command after them decodes.
+    /// A host command longer than any the switcher takes is reported as its length, and the
+    /// commands around it decode, however the stream is cut.
     #[test]
-    fn a_host_command_without_an_end_is_counted_not_kept() {
-        let mut bytes = vec![b'7'; 1 << 20];
-        bytes.extend_from_slice(b"!3!");
-        let mut d = ExtronDecoder::new(true);
-        let mut out = Vec::new();
-        for piece in bytes.chunks(4096) {
-            d.feed(piece, &mut |v| {
-                out.push(v);
-                Ok(())
-            })
-            .unwrap();
-            assert!(
-                d.command.capacity() <= 2 * LONGEST_COMMAND,
-                "{}",
-                d.command.capacity()
-            );
-        }
-        assert_eq!(out.len(), 2, "{out:?}");
-        assert_eq!(
-            out[0]["error"],
-            "a command of 1048577 bytes, longer than any the switcher takes"
+    fn a_host_command_longer_than_any_is_reported() {
+        let mut bytes = b"3!".to_vec();
+        bytes.extend([b'7'; 40]);
+        bytes.extend(b"!2&");
+        let v = crate::cmd::decode::decoder::pieces::decode_alike(
+            &|| Box::new(ExtronDecoder::new(true)),
+            &bytes,
         );
-        assert_eq!(out[1]["kind"], "select");
-        assert_eq!(out[1]["offset"], (1 << 20) + 1);
+        let kinds: Vec<_> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
+        assert_eq!(kinds, ["select", "error", "select"]);
+        assert_eq!(
+            v[1]["error"],
+            "a command of 41 bytes, longer than any the switcher takes"
+        );
+        assert_eq!((&v[1]["offset"], &v[2]["offset"]), (&2.into(), &43.into()));
     }
 
     #[test]
