@@ -976,7 +976,9 @@ impl Recording {
         self.ima_metadata()?.remove("exclude")
     }
 
-    /// The raw stream whose topic, device or port is `name` (only its bytes are kept).
+    /// The raw stream whose topic, `robot/device` or port path is `name` (only its bytes are
+    /// kept); should two channels answer to `name`, the first in file order (see
+    /// [`each_chunk_of`](Self::each_chunk_of)).
     pub fn raw_stream(&self, name: &str) -> Result<RawStream, ReadError> {
         let mut stream: Option<RawStream> = None;
         self.each_chunk_of(name, |c| {
@@ -1055,7 +1057,8 @@ fn is_port(topic: &str, port: &PortInfo, name: &str) -> bool {
     topic == name
         || topic.trim_start_matches('/') == name
         || port.port == name
-        || name.split_once('/') == Some((port.robot.as_str(), port.device.as_str()))
+        || (name.strip_prefix(port.robot.as_str())).and_then(|r| r.strip_prefix('/'))
+            == Some(port.device.as_str())
 }
 
 #[cfg(test)]

@@ -39,6 +39,36 @@ fn record_to(path: &std::path::Path, queue: usize) -> Recorder {
     .unwrap()
 }
 
+/// Two robots' ports at one path (each robot's laptop calls its base `/dev/ttyS0`): the path
+/// names the first in file order, `robot/device` and the topic name each; a robot whose name
+/// holds a `/` is still named by `robot/device`.
+#[test]
+fn a_port_path_names_the_first_channel_in_file_order() {
+    let path = tmp("one-path.mcap");
+    let rec = record_to(&path, 0);
+    let port = |robot: &str| PortInfo {
+        robot: robot.into(),
+        device: "base".into(),
+        port: "/dev/ttyS0".into(),
+        baud: 9600,
+        protocol: "p2os".into(),
+    };
+    // Written first, but last by topic.
+    let zed = rec.raw_port(port("zed"));
+    zed.rx(b"zed");
+    let lab = rec.raw_port(port("lab/a"));
+    lab.rx(b"lab");
+    rec.finish(Duration::from_secs(10));
+    let r = Recording::open(&path).unwrap();
+    let bytes = |name: &str| r.raw_stream(name).unwrap().rx_bytes();
+    assert_eq!(bytes("/dev/ttyS0"), b"zed");
+    assert_eq!(bytes("zed/base"), b"zed");
+    assert_eq!(bytes("lab/a/base"), b"lab");
+    assert_eq!(bytes("/lab/a/serial/base"), b"lab");
+    assert!(r.raw_stream("lab/base").is_err());
+    assert!(r.raw_stream("lab").is_err());
+}
+
 #[test]
 fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
     let path = tmp("a.mcap");
@@ -167,18 +197,22 @@ fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
     })
     .unwrap();
     assert_eq!(seen, 1);
-    assert_eq!(
-        r.each_chunk_of("nothing", |_| true)
-            .unwrap_err()
-            .to_string(),
-        r.raw_stream("nothing").unwrap_err().to_string()
-    );
-    let e = r.raw_stream("nothing").unwrap_err().to_string();
+    // Not there: every raw channel named, in topic order.
     let have: Vec<String> = all
         .iter()
         .map(|s| format!("{} ({})", s.topic, s.port.port))
         .collect();
-    assert!(e.ends_with(&format!("it has: {}", have.join(", "))), "{e}");
+    let have = format!(
+        "no raw serial channel nothing in the recording; it has: {}",
+        have.join(", ")
+    );
+    let e = r.raw_stream("nothing").unwrap_err().to_string();
+    assert_eq!(e, have);
+    let e = r
+        .each_chunk_of("nothing", |_| true)
+        .unwrap_err()
+        .to_string();
+    assert_eq!(e, have);
     // Finishing twice gives the same report.
     assert_eq!(rec.finish(Duration::from_secs(1)), report);
 }

@@ -609,12 +609,14 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     }
     let (tx, chunks) = std::sync::mpsc::sync_channel::<AsMock>(256);
     let wanted = name.to_owned();
+    // The reader ends at the port's next chunk once `chunks` is dropped (on every way out of
+    // this function, an early `?` included), or with the process.
     let reader = std::thread::Builder::new()
         .name("ima-replay-read".into())
         .spawn(move || {
             let mut host_before = 0usize;
             let mut found = false;
-            rec.each_chunk_of(&wanted, |c| {
+            let read = rec.each_chunk_of(&wanted, |c| {
                 if !found {
                     found = true;
                     let port = AsMock::Port(c.topic.to_owned(), c.port.protocol.clone());
@@ -633,14 +635,36 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
                     Dir::Baud => {}
                 }
                 true
-            })
+            });
+            // What reading met besides what opening found (the `mcap` crate's own stop).
+            (read, rec.damage())
         })
         .context("starting the replay's reader")?;
+    let asked_to_end = || crate::safety::signal().is_some();
+    let interrupted = || Err(crate::safety::Interrupted(crate::safety::cause()).into());
+    // The next message, or `None` once the reader is done; a signal is seen within
+    // `AS_MOCK_POLL` however long the reader takes to reach the port's next chunk.
+    let next = || loop {
+        match chunks.recv_timeout(AS_MOCK_POLL) {
+            Ok(m) => return Ok(Some(m)),
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) if asked_to_end() => {
+                return Err(());
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Ok(None),
+        }
+    };
     // The port is known at its first chunk; a name no channel answers to is known at the end.
-    let Ok(AsMock::Port(topic, protocol)) = chunks.recv() else {
-        let read = reader
+    let Ok(first) = next() else {
+        return interrupted();
+    };
+    let Some(AsMock::Port(topic, protocol)) = first else {
+        let (read, found) = reader
             .join()
             .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
+        if let Some(why) = found.filter(|why| damage.as_ref() != Some(why)) {
+            eprintln!("ima replay: the recording is damaged ({why})");
+        }
         read?;
         anyhow::bail!("no chunk of {name} in the recording");
     };
@@ -658,11 +682,19 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     };
     let mut sent = 0usize;
     let mut prev_t: Option<u64> = None;
-    let asked_to_end = || crate::safety::signal().is_some();
-    while let Ok(AsMock::Rx(t, need, bytes)) = chunks.recv() {
-        if asked_to_end() {
-            break;
-        }
+    let served = |sent: usize| {
+        eprintln!("ima replay: served {sent} bytes of {topic} ({protocol}) on {path}");
+    };
+    loop {
+        let (t, need, bytes) = match next() {
+            Ok(Some(AsMock::Rx(t, need, bytes))) => (t, need, bytes),
+            Ok(Some(AsMock::Port(..))) => continue,
+            Ok(None) => break,
+            Err(()) => {
+                served(sent);
+                return interrupted();
+            }
+        };
         let waited = std::time::Instant::now();
         while heard < need && waited.elapsed() < AS_MOCK_WAIT && !asked_to_end() {
             listen(&mut master, &mut heard);
@@ -677,30 +709,29 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
             }
         }
         if asked_to_end() {
-            break;
+            served(sent);
+            return interrupted();
         }
         prev_t = Some(t);
         std::io::Write::write_all(&mut master, &bytes)
             .with_context(|| format!("writing to {path}"))?;
         sent += bytes.len();
     }
-    // The reader stops at its next chunk once the channel is closed.
-    drop(chunks);
-    let read = reader
+    let (read, _) = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
-    eprintln!("ima replay: served {sent} bytes of {topic} ({protocol}) on {path}");
+    served(sent);
     if let Some(why) = read?.0.filter(|why| damage.as_ref() != Some(why)) {
         eprintln!("ima replay: the recording ends early ({why}); served what it holds");
-    }
-    if asked_to_end() {
-        return Err(crate::safety::Interrupted(crate::safety::cause()).into());
     }
     // The driver reads the last bytes before the pty closes.
     std::thread::sleep(Duration::from_millis(500));
     drop(slave);
     Ok(())
 }
+
+/// How often `--as-mock` looks for a signal while it waits for the recording's next chunk.
+const AS_MOCK_POLL: Duration = Duration::from_millis(50);
 
 /// How long `--as-mock` waits for the host's request before sending the recorded answer.
 const AS_MOCK_WAIT: Duration = Duration::from_secs(2);

@@ -8,12 +8,11 @@
 //! on.
 //!
 //! One module per protocol ([`p2os`], [`rflex`], [`sick`], [`compass`], [`video_mux`]); each
-//! has a [`Decoder`] that takes the bytes a piece at a time (the side that sent them chosen
-//! when it is made) and an `emit` callback, and takes its SI conversions from the driver
-//! crate (the driver's own functions, so that `ima decode` shows what the driver would
-//! report); [`decoder`] picks one. [`hex`] reads `--hex` input. A host line or command with no
-//! end in sight is counted, not kept, so no input grows a decoder's memory beyond its
-//! protocol's longest frame (SICK: a 64 KiB lookback).
+//! has a [`Decoder`] that takes the bytes a piece at a time and an `emit` callback (which side
+//! sent them, where the two differ, is chosen when it is made), and takes its SI conversions
+//! from the driver crate (the driver's own functions, so that `ima decode` shows what the
+//! driver would report); [`decoder()`] picks one. [`hex`] reads `--hex` input. A host line or
+//! command with no end in sight is counted, not kept ([`decoder::HostCommand`]).
 
 pub mod compass;
 pub mod decoder;
@@ -266,7 +265,7 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
     let mut decoding: Option<(Box<dyn Decoder + Send>, Output)> = None;
     let mut failed = None;
     let mut bytes = 0usize;
-    let cut = rec.each_chunk_of(port, |c| {
+    let read = rec.each_chunk_of(port, |c| {
         if decoding.is_none() {
             match chunk_protocol(args, c.topic, &c.port.protocol).and_then(|p| {
                 let out = Output::new(args, p)?;
@@ -305,6 +304,12 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
         };
         failed = Some(e);
         false
+    });
+    // A port not found in a file that broke on the way may be in the part not read.
+    let cut = read.inspect_err(|_| {
+        if let Some(why) = rec.damage().filter(|why| damage.as_ref() != Some(why)) {
+            eprintln!("ima decode: the recording is damaged ({why})");
+        }
     })?;
     if let Some(e) = failed {
         return Err(e);
