@@ -367,6 +367,30 @@ where
     after_a_signal(r, asked_to_end)
 }
 
+/// How often [`recv_unless_asked_to_end`] looks whether the program has been asked to end.
+const RECV_POLL: Duration = Duration::from_millis(50);
+
+/// The next message on `rx` for a command that waits on a plain thread (a pipe, a reader
+/// thread): `Ok(None)` once every sender is gone, and [`Interrupted`] within 50 ms of the program
+/// being asked to end, however long the message takes (a read blocked on a quiet pipe would
+/// otherwise hold the command until the signal's grace period ends it without a word).
+///
+/// # Errors
+/// [`Interrupted`], with the cause.
+pub fn recv_unless_asked_to_end<T>(rx: &std::sync::mpsc::Receiver<T>) -> Result<Option<T>> {
+    use std::sync::mpsc::RecvTimeoutError;
+    loop {
+        if asked_to_end() {
+            return Err(Interrupted(cause()).into());
+        }
+        match rx.recv_timeout(RECV_POLL) {
+            Ok(m) => return Ok(Some(m)),
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => return Ok(None),
+        }
+    }
+}
+
 /// The program has been asked to end: a signal, a panic or a closed stdout. Each flag is set
 /// before the devices are halted, so a body that fails because its device was halted finds it
 /// set (the cancel channel is only told afterwards).

@@ -57,6 +57,82 @@ fn drive_reports_a_clear_error_when_nothing_answers() {
     assert!(err.contains("connecting to a P2OS robot"), "{err}");
 }
 
+/// Bytes are decoded as they are read: a heading written to a live pipe comes out as its line
+/// while the pipe stays open (a sniffer's pipe, `< /dev/ttyUSB0`); it used to come out only at
+/// the end of the input. Closing the pipe ends the decode with the truncated rest reported.
+#[test]
+fn decode_shows_each_frame_of_a_live_pipe_as_it_comes() {
+    use std::io::BufRead;
+    let mut child = ima()
+        .args(["decode", "compass"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        for l in lines.by_ref() {
+            if tx.send(l.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    let next = || {
+        rx.recv_timeout(std::time::Duration::from_secs(10))
+            .expect("no line while the pipe is open")
+    };
+    stdin.write_all(b"$HCHDM,238.5,M*25\r\n").unwrap();
+    stdin.flush().unwrap();
+    let first: serde_json::Value = serde_json::from_str(&next()).unwrap();
+    assert_eq!(
+        (first["kind"].as_str(), first["offset"].as_u64()),
+        (Some("hdm"), Some(0))
+    );
+    stdin.write_all(b"$HCHDM,100.0,M*2").unwrap();
+    stdin.flush().unwrap();
+    stdin.write_all(b"8\r\n$HCH").unwrap();
+    stdin.flush().unwrap();
+    let second: serde_json::Value = serde_json::from_str(&next()).unwrap();
+    assert_eq!(second["offset"], 19);
+    drop(stdin);
+    let last: serde_json::Value = serde_json::from_str(&next()).unwrap();
+    assert_eq!(last["error"], "truncated line at end of input");
+    assert!(child.wait().unwrap().success());
+    reader.join().unwrap();
+}
+
+/// Ctrl-C while the decode waits on a quiet pipe ends it at once as interrupted (130 and the
+/// line saying so); the blocked read used to hold it until the signal's grace period ended the
+/// process without a word.
+#[test]
+fn decode_waiting_on_a_quiet_pipe_ends_on_ctrl_c() {
+    let mut child = common::Child(
+        ima()
+            .args(["decode", "p2os"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    // Held open, and never written.
+    let _stdin = child.0.stdin.take().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    child.signal("INT");
+    let t0 = std::time::Instant::now();
+    let out = child.wait_output();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted by SIGINT"), "{err}");
+    // Well before the 3 s grace period, which ends the process without that line.
+    assert!(
+        t0.elapsed() < std::time::Duration::from_millis(2500),
+        "{err}"
+    );
+}
+
 #[test]
 fn decode_reads_hex_from_stdin_and_reports_bad_frames() {
     let mut child = ima()

@@ -640,25 +640,11 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
             (read, rec.damage())
         })
         .context("starting the replay's reader")?;
-    let asked_to_end = || crate::safety::signal().is_some();
+    let asked_to_end = crate::safety::asked_to_end;
     let interrupted = || Err(crate::safety::Interrupted(crate::safety::cause()).into());
-    // The next message, or `None` once the reader is done; a signal is seen within
-    // `AS_MOCK_POLL` however long the reader takes to reach the port's next chunk.
-    let next = || loop {
-        match chunks.recv_timeout(AS_MOCK_POLL) {
-            Ok(m) => return Ok(Some(m)),
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) if asked_to_end() => {
-                return Err(());
-            }
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Ok(None),
-        }
-    };
     // The port is known at its first chunk; a name no channel answers to is known at the end.
-    let Ok(first) = next() else {
-        return interrupted();
-    };
-    let Some(AsMock::Port(topic, protocol)) = first else {
+    let Some(AsMock::Port(topic, protocol)) = crate::safety::recv_unless_asked_to_end(&chunks)?
+    else {
         let (read, found) = reader
             .join()
             .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
@@ -686,13 +672,13 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
         eprintln!("ima replay: served {sent} bytes of {topic} ({protocol}) on {path}");
     };
     loop {
-        let (t, need, bytes) = match next() {
+        let (t, need, bytes) = match crate::safety::recv_unless_asked_to_end(&chunks) {
             Ok(Some(AsMock::Rx(t, need, bytes))) => (t, need, bytes),
             Ok(Some(AsMock::Port(..))) => continue,
             Ok(None) => break,
-            Err(()) => {
+            Err(e) => {
                 served(sent);
-                return interrupted();
+                return Err(e);
             }
         };
         let waited = std::time::Instant::now();
@@ -729,9 +715,6 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     drop(slave);
     Ok(())
 }
-
-/// How often `--as-mock` looks for a signal while it waits for the recording's next chunk.
-const AS_MOCK_POLL: Duration = Duration::from_millis(50);
 
 /// How long `--as-mock` waits for the host's request before sending the recorded answer.
 const AS_MOCK_WAIT: Duration = Duration::from_secs(2);

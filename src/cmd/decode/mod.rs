@@ -1,11 +1,11 @@
 //! `ima decode <protocol>`: a capture in, one JSON object per frame out.
 //!
-//! Contract (shared by every protocol): input is raw bytes, or hex text with `--hex`, from a
-//! file or stdin; output is JSON Lines, one object per frame in input order, each with a
-//! `"kind"` key (the snake_case message name); physical fields are in SI units with
-//! unit-suffixed names (`x_m`, `theta_rad`, `range_m`, `battery_v`) next to the raw values; a
-//! bad frame is `{"kind":"error","error":"<reason>","offset":<byte offset>}` and decoding goes
-//! on.
+//! Contract (shared by every protocol): input is raw bytes (decoded as they are read), or hex
+//! text with `--hex`, from a file or stdin; output is JSON Lines, one object per frame in input
+//! order, each with a `"kind"` key (the snake_case message name); physical fields are in SI
+//! units with unit-suffixed names (`x_m`, `theta_rad`, `range_m`, `battery_v`) next to the raw
+//! values; a bad frame is `{"kind":"error","error":"<reason>","offset":<byte offset>}` and
+//! decoding goes on.
 //!
 //! One module per protocol ([`p2os`], [`rflex`], [`sick`], [`compass`], [`video_mux`]); each
 //! has a [`Decoder`] that takes the bytes a piece at a time and an `emit` callback (which side
@@ -33,9 +33,9 @@ use serde_json::Value;
 pub use self::decoder::Decoder;
 pub use self::hex::parse_hex;
 
-/// The largest capture `ima decode` reads (a file or stdin): 1 GiB, about a day of a busy
-/// serial line at 115200 baud.
-const CAPTURE_LIMIT: u64 = 1 << 30;
+/// The most hex text `ima decode --hex` reads (a file or stdin), parsed whole: 1 GiB. Raw
+/// bytes have no limit: they are decoded as they are read.
+const HEX_LIMIT: u64 = 1 << 30;
 
 /// Protocols `ima decode` understands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -94,7 +94,8 @@ pub struct DecodeArgs {
     /// Robot parameters for unit conversion (P2OS subclass: p2at, p2at8, p2dx).
     #[arg(long, default_value = "p2at")]
     robot: String,
-    /// Capture file; stdin when absent or `-`.
+    /// Capture file; stdin when absent or `-`. Bytes are decoded as they are read, so a pipe
+    /// from a live serial line shows each frame as it comes.
     file: Option<PathBuf>,
 }
 
@@ -103,35 +104,72 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     if let Some(path) = &args.mcap {
         return run_mcap(args, path);
     }
-    let raw = match &args.file {
-        // `-` is stdin, as for most Unix tools.
-        Some(p) if p.as_os_str() != "-" => ima_hal::file::read_limited(p, CAPTURE_LIMIT)
-            .with_context(|| format!("reading {}", p.display()))?,
-        Some(_) | None => {
-            let mut raw = Vec::new();
-            std::io::stdin()
-                .take(CAPTURE_LIMIT + 1)
-                .read_to_end(&mut raw)
-                .context("reading stdin")?;
-            anyhow::ensure!(
-                raw.len() as u64 <= CAPTURE_LIMIT,
-                "stdin: more than {CAPTURE_LIMIT} bytes; decode a capture in parts"
-            );
-            raw
-        }
-    };
-    let bytes = if args.hex {
-        parse_hex(std::str::from_utf8(&raw).context("--hex input is not text")?)?
-    } else {
-        raw
-    };
     let Some(protocol) = args.protocol else {
-        anyhow::bail!("give the protocol");
+        anyhow::bail!("give the protocol of the capture");
     };
+    // `-` is stdin, as for most Unix tools.
+    let file = args.file.as_deref().filter(|p| p.as_os_str() != "-");
+    let name = file.map_or_else(|| "stdin".to_owned(), |p| p.display().to_string());
+    let mut input: Box<dyn Read + Send> = match file {
+        Some(p) => Box::new(std::fs::File::open(p).with_context(|| format!("reading {name}"))?),
+        None => Box::new(std::io::stdin()),
+    };
+    if args.hex {
+        let mut text = Vec::new();
+        input
+            .take(HEX_LIMIT + 1)
+            .read_to_end(&mut text)
+            .with_context(|| format!("reading {name}"))?;
+        anyhow::ensure!(
+            text.len() as u64 <= HEX_LIMIT,
+            "{name}: more than {HEX_LIMIT} bytes of hex text; give the capture as bytes (without \
+             --hex), which is decoded as it is read"
+        );
+        let bytes = parse_hex(std::str::from_utf8(&text).context("--hex input is not text")?)?;
+        let mut out = Output::new(args, protocol)?;
+        decoder(protocol, args.from == Direction::Host, out.params)
+            .decode_whole(&bytes, &mut |v| out.emit(v))?;
+        return out.end(bytes.len());
+    }
+    // Bytes are decoded as they are read, and each piece's frames written out before the next
+    // read: a capture of any length takes no more memory than a few pieces, and a live line
+    // (`ima decode p2os < /dev/ttyUSB0`, a pipe from a sniffer) shows each frame as it comes.
+    // The reads are made on a thread of their own, so that Ctrl-C ends a decode waiting on a
+    // quiet line at once.
+    let (tx, pieces) = std::sync::mpsc::sync_channel::<std::io::Result<Vec<u8>>>(4);
+    std::thread::Builder::new()
+        .name("ima-decode-read".into())
+        .spawn(move || {
+            loop {
+                let mut piece = vec![0u8; 64 << 10];
+                let got = match input.read(&mut piece) {
+                    Ok(0) => return,
+                    Ok(n) => {
+                        piece.truncate(n);
+                        Ok(piece)
+                    }
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(e) => Err(e),
+                };
+                let failed = got.is_err();
+                // The decode has ended (a closed stdout, a signal): stop reading.
+                if tx.send(got).is_err() || failed {
+                    return;
+                }
+            }
+        })
+        .context("starting the capture's reader")?;
     let mut out = Output::new(args, protocol)?;
-    decoder(protocol, args.from == Direction::Host, out.params)
-        .decode_whole(&bytes, &mut |v| out.emit(v))?;
-    out.end(bytes.len())
+    let mut d = decoder(protocol, args.from == Direction::Host, out.params);
+    let mut read = 0usize;
+    while let Some(piece) = crate::safety::recv_unless_asked_to_end(&pieces)? {
+        let piece = piece.with_context(|| format!("reading {name}"))?;
+        read += piece.len();
+        d.feed(&piece, &mut |v| out.emit(v))?;
+        out.flush()?;
+    }
+    d.finish(&mut |v| out.emit(v))?;
+    out.end(read)
 }
 
 /// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
@@ -184,6 +222,13 @@ impl Output {
         // As an `io::Error`, so that a closed stdout ends the program quietly (141).
         serde_json::to_writer(&mut self.out, &v).map_err(std::io::Error::from)?;
         self.out.write_all(b"\n")?;
+        Ok(())
+    }
+
+    /// Write out what is buffered (as an `io::Error`, so that a closed stdout ends the program
+    /// quietly).
+    fn flush(&mut self) -> Result<()> {
+        self.out.flush()?;
         Ok(())
     }
 
