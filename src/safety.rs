@@ -386,6 +386,10 @@ pub fn recv_unless_asked_to_end<T>(rx: &std::sync::mpsc::Receiver<T>) -> Result<
         match rx.recv_timeout(RECV_POLL) {
             Ok(m) => return Ok(Some(m)),
             Err(RecvTimeoutError::Timeout) => {}
+            // A sender that panicked is gone too: that is no end of the input.
+            Err(RecvTimeoutError::Disconnected) if asked_to_end() => {
+                return Err(Interrupted(cause()).into());
+            }
             Err(RecvTimeoutError::Disconnected) => return Ok(None),
         }
     }

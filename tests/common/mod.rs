@@ -61,6 +61,29 @@ impl Child {
         assert!(ok.success(), "kill -{sig}");
     }
 
+    /// Wait (at most 10 s) until the child catches signal number `number` (`2`: SIGINT), as
+    /// its `/proc/PID/status` says: a signal sent before its handler is installed would kill
+    /// it outright. For a child that prints nothing to wait for first.
+    pub fn wait_until_it_catches(&self, number: u32) {
+        let path = format!("/proc/{}/status", self.0.id());
+        let bit = 1u64 << (number - 1);
+        let t0 = std::time::Instant::now();
+        loop {
+            let caught = std::fs::read_to_string(&path).ok().and_then(|s| {
+                let hex = s.lines().find_map(|l| l.strip_prefix("SigCgt:"))?;
+                u64::from_str_radix(hex.trim(), 16).ok()
+            });
+            if caught.is_some_and(|c| c & bit != 0) {
+                return;
+            }
+            assert!(
+                t0.elapsed() < std::time::Duration::from_secs(10),
+                "the child never caught signal {number}"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
     /// Wait for the child to end, with what it printed on the outputs still piped.
     pub fn wait_output(&mut self) -> std::process::Output {
         std::mem::replace(

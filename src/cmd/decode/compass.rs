@@ -176,7 +176,7 @@ impl CompassDecoder {
 impl Decoder for CompassDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let base = self.base;
-        self.base += bytes.len();
+        self.base = self.base.saturating_add(bytes.len());
         if self.from_host {
             return self.feed_commands(bytes, base, emit);
         }

@@ -107,47 +107,80 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     let Some(protocol) = args.protocol else {
         anyhow::bail!("give the protocol of the capture");
     };
+    let mut out = Output::new(args, protocol)?;
     // `-` is stdin, as for most Unix tools.
-    let file = args.file.as_deref().filter(|p| p.as_os_str() != "-");
-    let name = file.map_or_else(|| "stdin".to_owned(), |p| p.display().to_string());
-    let mut input: Box<dyn Read + Send> = match file {
-        Some(p) => Box::new(std::fs::File::open(p).with_context(|| format!("reading {name}"))?),
-        None => Box::new(std::io::stdin()),
-    };
+    let file = args.file.clone().filter(|p| p.as_os_str() != "-");
+    let name = file
+        .as_deref()
+        .map_or_else(|| "stdin".to_owned(), |p| p.display().to_string());
+    let (pieces, reader) = read_pieces(file)?;
+    let mut d = decoder(protocol, args.from == Direction::Host, out.params);
     if args.hex {
         let mut text = Vec::new();
-        input
-            .take(HEX_LIMIT + 1)
-            .read_to_end(&mut text)
-            .with_context(|| format!("reading {name}"))?;
-        anyhow::ensure!(
-            text.len() as u64 <= HEX_LIMIT,
-            "{name}: more than {HEX_LIMIT} bytes of hex text; give the capture as bytes (without \
-             --hex), which is decoded as it is read"
-        );
+        while let Some(piece) = crate::safety::recv_unless_asked_to_end(&pieces)? {
+            text.extend(piece.with_context(|| format!("reading {name}"))?);
+            anyhow::ensure!(
+                text.len() as u64 <= HEX_LIMIT,
+                "{name}: more than {HEX_LIMIT} bytes of hex text; give the capture as bytes \
+                 (without --hex), which is decoded as it is read"
+            );
+        }
         let bytes = parse_hex(std::str::from_utf8(&text).context("--hex input is not text")?)?;
-        let mut out = Output::new(args, protocol)?;
-        decoder(protocol, args.from == Direction::Host, out.params)
-            .decode_whole(&bytes, &mut |v| out.emit(v))?;
-        return out.end(bytes.len());
+        d.decode_whole(&bytes, &mut |v| out.emit(v))?;
+        return out.end(bytes.len() as u64);
     }
     // Bytes are decoded as they are read, and each piece's frames written out before the next
     // read: a capture of any length takes no more memory than a few pieces, and a live line
-    // (`ima decode p2os < /dev/ttyUSB0`, a pipe from a sniffer) shows each frame as it comes.
-    // The reads are made on a thread of their own, so that Ctrl-C ends a decode waiting on a
-    // quiet line at once.
-    let (tx, pieces) = std::sync::mpsc::sync_channel::<std::io::Result<Vec<u8>>>(4);
-    std::thread::Builder::new()
+    // (a tap on a serial line, a sniffer's pipe) shows each frame as it comes.
+    let mut read = 0u64;
+    let interrupted = loop {
+        let piece = match crate::safety::recv_unless_asked_to_end(&pieces) {
+            Ok(Some(piece)) => piece.with_context(|| format!("reading {name}"))?,
+            Ok(None) => break None,
+            Err(e) => break Some(e),
+        };
+        read = read.saturating_add(piece.len() as u64);
+        d.feed(&piece, &mut |v| out.emit(v))?;
+        out.flush()?;
+    };
+    if interrupted.is_none() && reader.join().is_err() {
+        anyhow::bail!("reading {name} failed (a bug: please report it)");
+    }
+    // Ctrl-C ends a live decode: what is left, and the hint when nothing was a frame (a wrong
+    // rate or side), are said before the interruption.
+    d.finish(&mut |v| out.emit(v))?;
+    out.end(read)?;
+    interrupted.map_or(Ok(()), Err)
+}
+
+/// The pieces of a capture as they are read, or the error that ended the reading.
+type Pieces = std::sync::mpsc::Receiver<std::io::Result<Vec<u8>>>;
+
+/// Read `file` (stdin when `None`) on a thread of its own, in pieces of up to 64 KiB as they
+/// come, so that the command waiting for them (a quiet pipe, a FIFO not yet opened by a
+/// writer) still ends at once on Ctrl-C. The thread stops at its next piece once the receiver
+/// is dropped; an error (opening included) is the last message.
+fn read_pieces(file: Option<PathBuf>) -> Result<(Pieces, std::thread::JoinHandle<()>)> {
+    let (tx, pieces) = std::sync::mpsc::sync_channel(4);
+    let reader = std::thread::Builder::new()
         .name("ima-decode-read".into())
         .spawn(move || {
+            let input: std::io::Result<Box<dyn Read>> = match file {
+                Some(p) => std::fs::File::open(p).map(|f| Box::new(f) as Box<dyn Read>),
+                None => Ok(Box::new(std::io::stdin())),
+            };
+            let mut input = match input {
+                Ok(i) => i,
+                Err(e) => {
+                    let _ = tx.send(Err(e));
+                    return;
+                }
+            };
+            let mut buf = vec![0u8; 64 << 10];
             loop {
-                let mut piece = vec![0u8; 64 << 10];
-                let got = match input.read(&mut piece) {
+                let got = match input.read(&mut buf) {
                     Ok(0) => return,
-                    Ok(n) => {
-                        piece.truncate(n);
-                        Ok(piece)
-                    }
+                    Ok(n) => Ok(buf.get(..n).unwrap_or_default().to_vec()),
                     Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
                     Err(e) => Err(e),
                 };
@@ -159,17 +192,7 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
             }
         })
         .context("starting the capture's reader")?;
-    let mut out = Output::new(args, protocol)?;
-    let mut d = decoder(protocol, args.from == Direction::Host, out.params);
-    let mut read = 0usize;
-    while let Some(piece) = crate::safety::recv_unless_asked_to_end(&pieces)? {
-        let piece = piece.with_context(|| format!("reading {name}"))?;
-        read += piece.len();
-        d.feed(&piece, &mut |v| out.emit(v))?;
-        out.flush()?;
-    }
-    d.finish(&mut |v| out.emit(v))?;
-    out.end(read)
+    Ok((pieces, reader))
 }
 
 /// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
@@ -233,7 +256,7 @@ impl Output {
     }
 
     /// The input (`bytes` long) ended: flush, and say so if it gave no frame at all.
-    fn end(mut self, bytes: usize) -> Result<()> {
+    fn end(&mut self, bytes: u64) -> Result<()> {
         self.out.flush()?;
         let (protocol, from) = (self.protocol, self.from);
         if let Some(why) = nothing_decoded(protocol, from, bytes, self.frames, self.errors) {
@@ -248,7 +271,7 @@ impl Output {
 fn nothing_decoded(
     protocol: Protocol,
     from: Direction,
-    bytes: usize,
+    bytes: u64,
     frames: u64,
     errors: u64,
 ) -> Option<String> {
@@ -309,7 +332,7 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
     // Made at the port's first chunk, which names its protocol.
     let mut decoding: Option<(Box<dyn Decoder + Send>, Output)> = None;
     let mut failed = None;
-    let mut bytes = 0usize;
+    let mut bytes = 0u64;
     let read = rec.each_chunk_of(port, |c| {
         if decoding.is_none() {
             match chunk_protocol(args, c.topic, &c.port.protocol).and_then(|p| {
@@ -332,7 +355,7 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
         if c.dir != want {
             return true;
         }
-        bytes += c.bytes.len();
+        bytes = bytes.saturating_add(c.bytes.len() as u64);
         // This runs under the guard that reports a panic of the `mcap` crate as damage to the
         // file; a panic of ours is a bug to report as one, not damage.
         let fed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {

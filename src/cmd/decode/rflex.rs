@@ -46,7 +46,7 @@ impl RflexDecoder {
 impl Decoder for RflexDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let base = self.base;
-        self.base += bytes.len();
+        self.base = self.base.saturating_add(bytes.len());
         let mut pos = 0usize;
         while pos < bytes.len() && !self.stuck {
             let rest = bytes.get(pos..).unwrap_or(&[]);

@@ -80,7 +80,7 @@ impl Decoder for SickDecoder {
                 Item::BadChecksum => Got::Bad,
                 Item::Frame(f) => Got::Frame(f.as_bytes().to_vec()),
             });
-            self.pos += consumed;
+            self.pos = self.pos.saturating_add(consumed);
             let pos = self.pos;
             let held = self.framer.buffered();
             let got = item.is_some();

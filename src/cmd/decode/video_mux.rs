@@ -135,7 +135,7 @@ impl ExtronDecoder {
 impl Decoder for ExtronDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let base = self.base;
-        self.base += bytes.len();
+        self.base = self.base.saturating_add(bytes.len());
         if self.from_host {
             return self.feed_commands(bytes, base, emit);
         }
@@ -174,7 +174,7 @@ pub struct KramerDecoder {
 impl Decoder for KramerDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let base = self.base;
-        self.base += bytes.len();
+        self.base = self.base.saturating_add(bytes.len());
         for (k, &b) in bytes.iter().enumerate() {
             if let Some(m) = self.framer.push_byte(b) {
                 let offset = (base + k).saturating_sub(ima_video_mux::wire::kramer::LEN - 1);
