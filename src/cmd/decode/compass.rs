@@ -147,7 +147,7 @@ impl CompassDecoder {
                 self.line.push(b);
                 continue;
             }
-            let line = match self.line.end(base + k + 1) {
+            let line = match self.line.end(base.saturating_add(k + 1)) {
                 (_, Ok(line)) if line.is_empty() => continue,
                 (offset, Ok(line)) => (offset, line),
                 (offset, Err(len)) => {
@@ -181,7 +181,7 @@ impl Decoder for CompassDecoder {
             return self.feed_commands(bytes, base, emit);
         }
         for (k, &b) in bytes.iter().enumerate() {
-            let i = base + k;
+            let i = base.saturating_add(k);
             let v = match self.framer.push_byte(b) {
                 None => continue,
                 Some(Frame::Prompt) => {

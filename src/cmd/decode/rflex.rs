@@ -54,7 +54,7 @@ impl Decoder for RflexDecoder {
             // Track the last ESC STX inside the consumed bytes.
             for (i, &b) in rest.iter().take(used).enumerate() {
                 if self.prev_esc && b == ima_rflex::wire::STX {
-                    self.start = (base + pos + i).saturating_sub(1);
+                    self.start = base.saturating_add(pos + i).saturating_sub(1);
                 }
                 self.prev_esc = b == ima_rflex::wire::ESC && !self.prev_esc;
             }

@@ -116,7 +116,7 @@ impl ExtronDecoder {
             if ExtronCommand::command_end(&[b]).is_none() {
                 continue;
             }
-            emit(match self.command.end(base + k + 1) {
+            emit(match self.command.end(base.saturating_add(k + 1)) {
                 (offset, Err(len)) => {
                     let error =
                         format!("a command of {len} bytes, longer than any the switcher takes");
@@ -141,7 +141,7 @@ impl Decoder for ExtronDecoder {
         }
         for (k, &b) in bytes.iter().enumerate() {
             if let Some(Frame::Line(l)) = self.framer.push_byte(b) {
-                let offset = (base + k).saturating_sub(l.len());
+                let offset = base.saturating_add(k).saturating_sub(l.len());
                 emit(match ExtronReply::parse(l) {
                     Ok(r) => with_offset(reply_json(&r), offset),
                     Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
@@ -177,7 +177,9 @@ impl Decoder for KramerDecoder {
         self.base = self.base.saturating_add(bytes.len());
         for (k, &b) in bytes.iter().enumerate() {
             if let Some(m) = self.framer.push_byte(b) {
-                let offset = (base + k).saturating_sub(ima_video_mux::wire::kramer::LEN - 1);
+                let offset = base
+                    .saturating_add(k)
+                    .saturating_sub(ima_video_mux::wire::kramer::LEN - 1);
                 emit(match KramerMessage::parse(&m) {
                     Ok(k) => with_offset(kramer_json(&k), offset),
                     Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
