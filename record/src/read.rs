@@ -657,6 +657,20 @@ pub struct RawStream {
 }
 
 impl RawStream {
+    /// A stream of `c`'s port, without chunks yet.
+    fn of(c: &RawChunk<'_>) -> Self {
+        Self {
+            port: c.port.clone(),
+            topic: c.topic.to_owned(),
+            chunks: Vec::new(),
+        }
+    }
+
+    /// Keep a copy of `c`.
+    fn push(&mut self, c: &RawChunk<'_>) {
+        self.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
+    }
+
     /// All bytes the device sent, in order.
     pub fn rx_bytes(&self) -> Vec<u8> {
         self.chunks
@@ -686,6 +700,15 @@ pub struct RawChunk<'a> {
 /// What reading could not give: damaged stretches skipped, or the file cut short by a crash.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Truncation(pub Option<String>);
+
+impl Truncation {
+    /// Why reading stopped early, unless that is `known` already (the damage found on opening,
+    /// said before the reading): what a reader has left to say at its end.
+    #[must_use]
+    pub fn beyond(self, known: Option<&str>) -> Option<String> {
+        self.0.filter(|why| known != Some(why.as_str()))
+    }
+}
 
 impl Recording {
     /// Open a file (a regular file: a device such as `/dev/zero` would never end). Its
@@ -904,15 +927,13 @@ impl Recording {
     pub fn raw_streams(&self) -> Vec<RawStream> {
         let mut by_topic: BTreeMap<String, RawStream> = BTreeMap::new();
         self.each_raw_chunk(|c| {
-            let s = match by_topic.get_mut(c.topic) {
-                Some(s) => s,
-                None => by_topic.entry(c.topic.to_owned()).or_insert(RawStream {
-                    port: c.port.clone(),
-                    topic: c.topic.to_owned(),
-                    chunks: Vec::new(),
-                }),
-            };
-            s.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
+            match by_topic.get_mut(c.topic) {
+                Some(s) => s.push(&c),
+                None => by_topic
+                    .entry(c.topic.to_owned())
+                    .or_insert(RawStream::of(&c))
+                    .push(&c),
+            }
             true
         });
         by_topic.into_values().collect()
@@ -982,12 +1003,7 @@ impl Recording {
     pub fn raw_stream(&self, name: &str) -> Result<RawStream, ReadError> {
         let mut stream: Option<RawStream> = None;
         self.each_chunk_of(name, |c| {
-            let s = stream.get_or_insert_with(|| RawStream {
-                port: c.port.clone(),
-                topic: c.topic.to_owned(),
-                chunks: Vec::new(),
-            });
-            s.chunks.push((c.log_time, c.dir, c.bytes.to_vec()));
+            stream.get_or_insert_with(|| RawStream::of(&c)).push(&c);
             true
         })?;
         // `each_chunk_of` found the port, so it gave at least one chunk.

@@ -27,7 +27,7 @@ use clap::Args;
 use ima_hal::laser::{BeamFlags, LaserScan};
 use ima_record::convert::Pose2;
 use ima_record::raw::Dir;
-use ima_record::read::Recording;
+use ima_record::read::{Recording, Truncation};
 use serde_json::{Value, json};
 
 use super::decode::{Decoder, Protocol, recorded_protocol};
@@ -163,7 +163,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
     let (n, late) = played?;
     let (streams, cut) = read?;
-    if let Some(why) = cut.0.filter(|why| damage.as_ref() != Some(why)) {
+    if let Some(why) = cut.beyond(damage.as_deref()) {
         eprintln!("ima replay: the recording ends early ({why}); replayed what it holds");
     }
     if late > 0 {
@@ -648,7 +648,7 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
         let (read, found) = reader
             .join()
             .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
-        if let Some(why) = found.filter(|why| damage.as_ref() != Some(why)) {
+        if let Some(why) = Truncation(found).beyond(damage.as_deref()) {
             eprintln!("ima replay: the recording is damaged ({why})");
         }
         read?;
@@ -707,7 +707,7 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
     served(sent);
-    if let Some(why) = read?.0.filter(|why| damage.as_ref() != Some(why)) {
+    if let Some(why) = read?.beyond(damage.as_deref()) {
         eprintln!("ima replay: the recording ends early ({why}); served what it holds");
     }
     // The driver reads the last bytes before the pty closes.

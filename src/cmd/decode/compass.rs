@@ -147,7 +147,7 @@ impl CompassDecoder {
                 self.line.push(b);
                 continue;
             }
-            let line = match self.line.end(base.saturating_add(k + 1)) {
+            let (offset, line) = match self.line.end(base.saturating_add(k + 1)) {
                 (_, Ok(line)) if line.is_empty() => continue,
                 (offset, Ok(line)) => (offset, line),
                 (offset, Err(len)) => {
@@ -159,7 +159,6 @@ impl CompassDecoder {
                     continue;
                 }
             };
-            let (offset, line) = line;
             emit(match Command::parse(&line) {
                 Ok(c) => {
                     let mut v = command_json(c);
@@ -213,12 +212,7 @@ impl Decoder for CompassDecoder {
 
     fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         if self.from_host {
-            if self.line.start() < self.base {
-                emit(
-                    json!({"kind": "error", "error": "truncated command at end of input",
-                    "offset": self.line.start()}),
-                )?;
-            }
+            self.line.finish(self.base, emit)?;
         } else if self.framer.pending() > 0 {
             emit(
                 json!({"kind": "error", "error": "truncated line at end of input",

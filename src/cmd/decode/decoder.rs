@@ -65,9 +65,16 @@ impl HostCommand {
         }
     }
 
-    /// Where the command being read began.
-    pub fn start(&self) -> usize {
-        self.start
+    /// The input ended at offset `end`: a command begun there and not ended is reported, at
+    /// its offset, as truncated.
+    pub fn finish(&self, end: usize, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        if self.start < end {
+            emit(
+                serde_json::json!({"kind": "error", "error": "truncated command at end of input",
+                "offset": self.start}),
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -96,7 +103,7 @@ pub mod pieces {
         assert_eq!(c.end((1 << 20) + 1), (0, Err(1 << 20)));
         c.push(b'g');
         c.push(b'o');
-        assert_eq!(c.start(), (1 << 20) + 1);
+        assert_eq!(c.start, (1 << 20) + 1);
         assert_eq!(c.end((1 << 20) + 4), ((1 << 20) + 1, Ok(b"go".to_vec())));
         for _ in 0..16 {
             c.push(b'y');

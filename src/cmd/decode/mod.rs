@@ -28,6 +28,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use ima_p2os::params::RobotParams;
+use ima_record::read::Truncation;
 use serde_json::Value;
 
 pub use self::decoder::Decoder;
@@ -375,7 +376,7 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
     });
     // A port not found in a file that broke on the way may be in the part not read.
     let cut = read.inspect_err(|_| {
-        if let Some(why) = rec.damage().filter(|why| damage.as_ref() != Some(why)) {
+        if let Some(why) = Truncation(rec.damage()).beyond(damage.as_deref()) {
             eprintln!("ima decode: the recording is damaged ({why})");
         }
     })?;
@@ -386,7 +387,7 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
         anyhow::bail!("no chunk of {port} in the recording");
     };
     d.finish(&mut |v| out.emit(v))?;
-    if let Some(why) = cut.0.filter(|why| damage.as_ref() != Some(why)) {
+    if let Some(why) = cut.beyond(damage.as_deref()) {
         eprintln!("ima decode: the recording ends early ({why}); decoded what it holds");
     }
     out.end(bytes)

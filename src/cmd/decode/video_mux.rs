@@ -152,11 +152,8 @@ impl Decoder for ExtronDecoder {
     }
 
     fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
-        if self.from_host && self.command.start() < self.base {
-            emit(
-                json!({"kind": "error", "error": "truncated command at end of input",
-                "offset": self.command.start()}),
-            )?;
+        if self.from_host {
+            self.command.finish(self.base, emit)?;
         }
         Ok(())
     }
