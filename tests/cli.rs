@@ -2,7 +2,7 @@
 //! and the demo.
 
 use std::io::Write;
-use std::process::Stdio;
+use std::process::{Command, Stdio};
 
 mod common;
 use common::{ima, run_ok, spawn_mock};
@@ -126,6 +126,104 @@ fn decode_waiting_on_a_quiet_pipe_ends_on_ctrl_c() {
     assert_eq!(out.status.code(), Some(130), "{err}");
     // The 3 s grace period would end the process without this line.
     assert!(err.contains("interrupted by SIGINT"), "{err}");
+}
+
+/// A serial port given as FILE (a tap on a robot's line) is read raw at `--baud`: P2OS
+/// commands holding bytes a terminal's line discipline changes or holds (CR, ^S, ^C, and no
+/// newline) come out whole while the port is open, from a port left in canonical mode. Without
+/// `--baud` the decode says what it needs; with it, a plain file is refused.
+#[test]
+fn decode_reads_a_serial_port_raw_at_its_baud() {
+    use std::io::BufRead as _;
+    let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
+    let path = serialport::SerialPort::name(&slave).unwrap();
+    // Closed: a port a program has open through `serialport` is locked against other openers
+    // (the decode would be refused, as it is on a port a driver holds).
+    drop(slave);
+    // `stty` reads and sets the port's modes (the workspace has no unsafe code for termios).
+    let stty = |args: &[&str]| {
+        let out = Command::new("stty")
+            .arg("-F")
+            .arg(&path)
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let canonical = || stty(&["-a"]).split_whitespace().any(|w| w == "icanon");
+    // A terminal's defaults: lines held until a newline, CR read as LF, ^C and ^S taken.
+    stty(&["icanon", "isig", "icrnl", "ixon"]);
+    assert!(canonical());
+
+    let out = ima().args(["decode", "p2os", &path]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("give its line speed with --baud"), "{err}");
+    let out = ima()
+        .args(["decode", "p2os", "Cargo.toml", "--baud", "9600"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("--baud is for a serial port"), "{err}");
+    assert!(canonical(), "the refusals changed the port");
+
+    let mut child = common::Child(
+        ima()
+            .args(["decode", "p2os", "--from", "host", &path, "--baud", "9600"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let lines = std::io::BufReader::new(child.0.stdout.take().unwrap()).lines();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in lines {
+            if tx.send(l.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    // Written once the decode has the port raw (before, the line discipline takes them).
+    let waited = std::time::Instant::now();
+    while canonical() {
+        if waited.elapsed().as_secs() > 20 {
+            child.signal("KILL");
+            let out = child.wait_output();
+            panic!(
+                "the decode never set the port raw: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // VEL 13, 19 and 3 mm/s: arguments CR, ^S and ^C.
+    master
+        .write_all(&[
+            0xFA, 0xFB, 0x06, 0x0B, 0x3B, 0x0D, 0x00, 0x18, 0x3B, 0xFA, 0xFB, 0x06, 0x0B, 0x3B,
+            0x13, 0x00, 0x1E, 0x3B, 0xFA, 0xFB, 0x06, 0x0B, 0x3B, 0x03, 0x00, 0x0E, 0x3B,
+        ])
+        .unwrap();
+    let mut speeds = Vec::new();
+    for _ in 0..3 {
+        let line = rx
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("no frame while the port is open");
+        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+        assert_eq!(v["kind"], "vel", "{v}");
+        speeds.push(v["v_m_s"].as_f64().unwrap());
+    }
+    assert_eq!(speeds, [0.013, 0.019, 0.003]);
+    child.wait_until_it_catches(2);
+    child.signal("INT");
+    let out = child.wait_output();
+    assert_eq!(out.status.code(), Some(130));
 }
 
 #[test]

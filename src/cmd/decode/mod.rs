@@ -96,8 +96,12 @@ pub struct DecodeArgs {
     #[arg(long, default_value = "p2at")]
     robot: String,
     /// Capture file; stdin when absent or `-`. Bytes are decoded as they are read, so a pipe
-    /// from a live serial line shows each frame as it comes.
+    /// or a serial port (a tap on a robot's line: give `--baud`) shows each frame as it comes.
     file: Option<PathBuf>,
+    /// FILE is a serial port: read it raw (8N1, no flow control, no byte changed) at this
+    /// line speed. Needed when FILE is one; its settings are those of the line it taps.
+    #[arg(long, value_parser = crate::cmd::num::baud, requires = "file", conflicts_with_all = ["mcap", "hex"])]
+    baud: Option<u32>,
 }
 
 /// Run `ima decode`.
@@ -111,10 +115,14 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     let mut out = Output::new(args, protocol)?;
     // `-` is stdin, as for most Unix tools.
     let file = args.file.clone().filter(|p| p.as_os_str() != "-");
+    anyhow::ensure!(
+        file.is_some() || args.baud.is_none(),
+        "--baud is for a serial port given as FILE (stdin is read as it is)"
+    );
     let name = file
         .as_deref()
         .map_or_else(|| "stdin".to_owned(), |p| p.display().to_string());
-    let (pieces, reader) = read_pieces(file)?;
+    let (pieces, reader) = read_pieces(file, args.baud)?;
     let mut d = decoder(protocol, args.from == Direction::Host, out.params);
     if args.hex {
         let mut text = Vec::new();
@@ -157,18 +165,21 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
 /// The pieces of a capture as they are read, or the error that ended the reading.
 type Pieces = std::sync::mpsc::Receiver<std::io::Result<Vec<u8>>>;
 
-/// Read `file` (stdin when `None`) on a thread of its own, in pieces of up to 64 KiB as they
-/// come, so that the command waiting for them (a quiet pipe, a FIFO not yet opened by a
+/// Read `file` (stdin when `None`; a serial port at `baud`, [`open_capture`]) on a thread of
+/// its own, in pieces of up to 64 KiB as they come, so that the command waiting for them (a quiet pipe, a FIFO not yet opened by a
 /// writer) still ends at once on Ctrl-C. The thread stops at its next piece once the receiver
 /// is dropped; an error (opening included) is the last message.
-fn read_pieces(file: Option<PathBuf>) -> Result<(Pieces, std::thread::JoinHandle<()>)> {
+fn read_pieces(
+    file: Option<PathBuf>,
+    baud: Option<u32>,
+) -> Result<(Pieces, std::thread::JoinHandle<()>)> {
     let (tx, pieces) = std::sync::mpsc::sync_channel(4);
     let reader = std::thread::Builder::new()
         .name("ima-decode-read".into())
         .spawn(move || {
-            let input: std::io::Result<Box<dyn Read>> = match file {
-                Some(p) => std::fs::File::open(p).map(|f| Box::new(f) as Box<dyn Read>),
-                None => Ok(Box::new(std::io::stdin())),
+            let input = match file {
+                Some(p) => open_capture(&p, baud),
+                None => Ok(Box::new(std::io::stdin()) as Box<dyn Read>),
             };
             let mut input = match input {
                 Ok(i) => i,
@@ -182,6 +193,8 @@ fn read_pieces(file: Option<PathBuf>) -> Result<(Pieces, std::thread::JoinHandle
                 let got = match input.read(&mut buf) {
                     Ok(0) => return,
                     Ok(n) => Ok(buf.get(..n).unwrap_or_default().to_vec()),
+                    // A serial port's read gives up after its timeout: a quiet line.
+                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => continue,
                     Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
                     Err(e) => Err(e),
                 };
@@ -194,6 +207,46 @@ fn read_pieces(file: Option<PathBuf>) -> Result<(Pieces, std::thread::JoinHandle
         })
         .context("starting the capture's reader")?;
     Ok((pieces, reader))
+}
+
+/// Open the capture at `path`: a file, a pipe or a FIFO as it is; a serial port (a terminal)
+/// raw at `baud`, which it needs (a terminal read as it is set would change or hold bytes: a
+/// line in canonical mode is held until a newline, CR may become LF, and ^C, ^S, ^Q vanish).
+fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Box<dyn Read>> {
+    use std::io::{Error, ErrorKind, IsTerminal};
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let meta = std::fs::metadata(path)?;
+    // Looked at without waiting for a carrier (a serial port's open may, without CLOCAL) and
+    // without becoming the process's controlling terminal.
+    let serial = meta.file_type().is_char_device()
+        && std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+            .open(path)?
+            .is_terminal();
+    match (serial, baud) {
+        (false, None) => Ok(Box::new(std::fs::File::open(path)?)),
+        (false, Some(_)) => Err(Error::new(
+            ErrorKind::InvalidInput,
+            "--baud is for a serial port, and this is not one (a file, pipe or FIFO is read \
+             as it is, without --baud)",
+        )),
+        (true, None) => Err(Error::new(
+            ErrorKind::InvalidInput,
+            "this is a serial port: give its line speed with --baud RATE (what the device \
+             sends at, e.g. --baud 9600), and it is read raw at that speed",
+        )),
+        (true, Some(baud)) => {
+            let mut port = serialport::new(path.to_string_lossy(), baud)
+                .timeout(std::time::Duration::from_millis(200))
+                .open_native()
+                .map_err(Error::from)?;
+            // A tap shares the line: leave the port to others too (a driver on a Y cable's
+            // other end, `stty`).
+            serialport::TTYPort::set_exclusive(&mut port, false).map_err(Error::from)?;
+            Ok(Box::new(port))
+        }
+    }
 }
 
 /// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
