@@ -131,15 +131,33 @@ fn decode_waiting_on_a_quiet_pipe_ends_on_ctrl_c() {
 /// A serial port given as FILE (a tap on a robot's line) is read raw at `--baud`: P2OS
 /// commands holding bytes a terminal's line discipline changes or holds (CR, ^S, ^C, and no
 /// newline) come out whole while the port is open, from a port left in canonical mode. Without
-/// `--baud` the decode says what it needs; with it, a plain file is refused.
+/// `--baud` the decode says what it needs; with it, a plain file is refused, and so is a port
+/// another program holds for itself.
 #[test]
 fn decode_reads_a_serial_port_raw_at_its_baud() {
     use std::io::BufRead as _;
     let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
     let path = serialport::SerialPort::name(&slave).unwrap();
-    // Closed: a port a program has open through `serialport` is locked against other openers
-    // (the decode would be refused, as it is on a port a driver holds).
+    // The pair's slave has a shared lock: closed, and opened as a driver opens its port.
     drop(slave);
+    // Refused: stderr (a broken refusal would read the port for ever: bounded).
+    let refused = |args: &[&str]| {
+        let child = ima()
+            .arg("decode")
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let out = common::Child(child).output_within(20);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    // A port a program holds for itself through `serialport` (as a driver does).
+    let held = serialport::new(&path, 9600).open_native().unwrap();
+    let err = refused(&["p2os", &path, "--baud", "9600"]);
+    assert!(err.contains("another program has this port open"), "{err}");
+    drop(held);
     // `stty` reads and sets the port's modes (the workspace has no unsafe code for termios).
     let stty = |args: &[&str]| {
         let out = Command::new("stty")
@@ -159,17 +177,9 @@ fn decode_reads_a_serial_port_raw_at_its_baud() {
     // A terminal's defaults: lines held until a newline, CR read as LF, ^C and ^S taken.
     stty(&["icanon", "isig", "icrnl", "ixon"]);
     assert!(canonical());
-
-    let out = ima().args(["decode", "p2os", &path]).output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+    let err = refused(&["p2os", &path]);
     assert!(err.contains("give its line speed with --baud"), "{err}");
-    let out = ima()
-        .args(["decode", "p2os", "Cargo.toml", "--baud", "9600"])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+    let err = refused(&["p2os", "Cargo.toml", "--baud", "9600"]);
     assert!(err.contains("--baud is for a serial port"), "{err}");
     assert!(canonical(), "the refusals changed the port");
 

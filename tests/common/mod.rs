@@ -85,6 +85,20 @@ impl Child {
     }
 
     /// Wait for the child to end, with what it printed on the outputs still piped.
+    /// Its output once it has ended, within `secs` seconds (else it is killed and the test
+    /// fails): for a command that should end by itself but might wait forever if broken.
+    pub fn output_within(mut self, secs: u64) -> std::process::Output {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(secs);
+        while self.0.try_wait().unwrap().is_none() {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "still running after {secs} s"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        self.wait_output()
+    }
+
     pub fn wait_output(&mut self) -> std::process::Output {
         std::mem::replace(
             &mut self.0,

@@ -237,13 +237,22 @@ fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Bo
              sends at, e.g. --baud 9600), and it is read raw at that speed",
         )),
         (true, Some(baud)) => {
-            let mut port = serialport::new(path.to_string_lossy(), baud)
+            // Shared: the tap leaves the line to other listeners (`stty`, a second tap), but
+            // a program that holds the port exclusively (a driver) refuses it, and is named.
+            let port = serialport::new(path.to_string_lossy(), baud)
                 .timeout(std::time::Duration::from_millis(200))
+                .exclusive(false)
                 .open_native()
-                .map_err(Error::from)?;
-            // A tap shares the line: leave the port to others too (a driver on a Y cable's
-            // other end, `stty`).
-            serialport::TTYPort::set_exclusive(&mut port, false).map_err(Error::from)?;
+                .map_err(|e| match e.kind() {
+                    serialport::ErrorKind::NoDevice if e.description.contains("lock") => {
+                        Error::new(
+                            ErrorKind::ResourceBusy,
+                            "another program has this port open for itself (a driver?): a \
+                             tap needs a port of its own, wired to listen to the line",
+                        )
+                    }
+                    _ => Error::from(e),
+                })?;
             Ok(Box::new(port))
         }
     }
