@@ -31,6 +31,8 @@ fn base_args(path: &str, out_dir: &str) -> Vec<(String, Option<String>)> {
         "peer send" => vec![pos("stop")],
         "san simulate" => vec![pos("/nonexistent/net.toml")],
         "replay" => vec![pos("/nonexistent/recording.mcap")],
+        // Not a serial port: refused once the flag is read.
+        "decode" => vec![pos("p2os"), pos("/dev/null")],
         other => panic!("no base arguments for `ima {other}`: add them to tests/flag_fuzz.rs"),
     }
 }
