@@ -3,7 +3,8 @@
 # `--record` (alternating, so a busy machine weighs on both alike) and print the CPU time
 # (user + sys) of each, the mean and its standard error, the extra CPU relative to the demo's
 # own and in points of one core, the recorder thread's own CPU (exact, as the demo reports it),
-# max RSS, and the file size per wall minute.
+# the time the robot's threads spent in logging calls (as the demo reports it), their sum as a
+# share of the demo's own CPU, max RSS, and the file size per wall minute.
 # Usage: scripts/record-cpu.sh [N] (default 10; each run lasts ~16 s).
 # Needs GNU time (/usr/bin/time) and python3. user+sys is the process's CPU time as the
 # kernel's scheduler charged it (its total is the exact run time; only the split between user
@@ -75,11 +76,22 @@ if perf_ok:
                 / 1000 for i in range(1, n + 1)]
     extra("task-clock", tc("base"), tc("rec"))
 import json
-own = [json.load(open(f"rec-{i}.json"))["recording"].get("thread_cpu_s") for i in range(1, n + 1)]
-own = [x for x in own if x is not None]
+recs = [json.load(open(f"rec-{i}.json"))["recording"] for i in range(1, n + 1)]
+own = [r["thread_cpu_s"] for r in recs if r.get("thread_cpu_s") is not None]
+calls = [r["calls_s"] for r in recs if r.get("calls_s") is not None]
 if own:
     print(f"the recorder's own thread: {st.mean(own) * 1000:.0f} ± {se(own) * 1000:.0f} ms CPU per run "
-          f"(exact, from the kernel; the rest of the extra is on the robot's threads)")
+          f"(exact, from the kernel)")
+if calls:
+    print(f"logging calls on the robot's threads: {st.mean(calls) * 1000:.0f} ± {se(calls) * 1000:.0f} ms "
+          f"per run (their summed time: CPU, or a little more)")
+if own and calls:
+    work = st.mean(own) + st.mean(calls)
+    b = st.mean(cpu(base))
+    print(f"the recording's own work (thread + calls): {work * 1000:.0f} ms per run = "
+          f"{work / b * 100:.1f} % of the demo's own CPU time (user+sys); the whole-process "
+          f"difference above also holds its indirect costs (caches, memory) and the machine's "
+          f"scatter")
 mb = st.mean(size) / 1e6
 print(f"file: {mb:.2f} MB per run, {mb / wall * 60:.1f} MB per wall minute")
 PY

@@ -158,7 +158,8 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
 /// Use the recorder, if one runs.
 pub fn with(f: impl FnOnce(&Recorder)) {
     if let Some(r) = &*current().read().unwrap_or_else(PoisonError::into_inner) {
-        f(r);
+        // Counted as the recording's work on the caller's thread (`Report::calls_time`).
+        r.timed(f);
     }
 }
 

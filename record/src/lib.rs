@@ -166,6 +166,12 @@ pub struct Report {
     /// CPU time the recorder's own thread used, from the kernel's per-thread account
     /// (`None` where it cannot be read: not Linux).
     pub thread_cpu: Option<Duration>,
+    /// Time the callers' threads spent logging: in [`Recorder::timed`] calls (building
+    /// and logging their messages) and in raw ports' logging. Logging never waits for the
+    /// recorder's thread, so this is CPU time, give or take a wait for the queue's lock or a
+    /// preemption (which make it an overestimate); with [`thread_cpu`](Self::thread_cpu), the
+    /// recording's own work.
+    pub calls_time: Duration,
 }
 
 impl Report {
@@ -210,6 +216,12 @@ impl Report {
                 cpu.as_secs_f64() * 1e3
             ));
         }
+        if !self.calls_time.is_zero() {
+            s.push_str(&format!(
+                ", logging calls {:.0} ms",
+                self.calls_time.as_secs_f64() * 1e3
+            ));
+        }
         s
     }
 }
@@ -242,6 +254,8 @@ struct Shared {
     dropped: AtomicU64,
     /// Messages whose payload could not be written into the queue.
     unwritten: AtomicU64,
+    /// Nanoseconds spent in [`Recorder::timed`] calls and raw ports' logging.
+    calls_ns: AtomicU64,
     /// Stamp of everything logged while non-zero (a replay's recorded time).
     stamp_override: AtomicU64,
     wall0_ns: u64,
@@ -344,6 +358,7 @@ impl Recorder {
             wake_msgs: (cap / 4).max(1),
             dropped: AtomicU64::new(0),
             unwritten: AtomicU64::new(0),
+            calls_ns: AtomicU64::new(0),
             stamp_override: AtomicU64::new(0),
             wall0_ns: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
@@ -620,6 +635,17 @@ impl Recorder {
         });
     }
 
+    /// Run `f`, the caller's logging (building its messages and logging them), and count the
+    /// time it takes in [`Report::calls_time`]. Raw ports count their own; a call nested in
+    /// another is counted twice.
+    pub fn timed<R>(&self, f: impl FnOnce(&Self) -> R) -> R {
+        let t = std::time::Instant::now();
+        let r = f(self);
+        let ns = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        self.shared.calls_ns.fetch_add(ns, Ordering::Relaxed);
+        r
+    }
+
     /// Declare a raw serial port and get the handle that records its bytes.
     pub fn raw_port(&self, port: raw::PortInfo) -> raw::RawPort {
         let topic = port.topic();
@@ -664,6 +690,7 @@ impl Recorder {
         };
         r.dropped += self.dropped();
         r.unwritten += self.shared.unwritten.load(Ordering::Relaxed);
+        r.calls_time = Duration::from_nanos(self.shared.calls_ns.load(Ordering::Relaxed));
         *done = Some(r.clone());
         r
     }
@@ -1037,6 +1064,7 @@ impl Worker {
             server_port: self.server_port,
             excluded: self.exclude.describe(),
             thread_cpu: thread_cpu(),
+            calls_time: Duration::ZERO,
         }
     }
 }

@@ -135,10 +135,12 @@ impl RawPort {
         // Something takes this channel ([`Recorder::wants`]); if not, bytes are not even
         // copied.
         let kind = crate::queue::Kind::Encoded;
-        self.rec.push(self.stream, kind, bytes.len() + 1, |b| {
-            b.push(dir as u8);
-            b.extend_from_slice(bytes);
-            true
+        self.rec.timed(|rec| {
+            rec.push(self.stream, kind, bytes.len() + 1, |b| {
+                b.push(dir as u8);
+                b.extend_from_slice(bytes);
+                true
+            })
         });
     }
 

@@ -235,6 +235,48 @@ fn a_full_queue_drops_and_counts_instead_of_blocking() {
     assert_eq!(msgs.len() as u64, report.written["/scooter/laser/scan"]);
 }
 
+/// The callers' logging time is reported: what `timed` calls take (here a sleep of 20 ms
+/// stands for a caller's work), and raw ports' logging besides; untimed logging adds nothing.
+#[test]
+fn the_callers_logging_time_is_counted() {
+    let path = tmp("calls.mcap");
+    let rec = record_to(&path, 0);
+    rec.log_scan("scooter", &scan(361));
+    let untimed = rec.finish(Duration::from_secs(30));
+    assert_eq!(untimed.calls_time, Duration::ZERO, "{untimed:?}");
+
+    let path = tmp("calls2.mcap");
+    let rec = record_to(&path, 0);
+    let got = rec.timed(|r| {
+        r.log_scan("scooter", &scan(361));
+        std::thread::sleep(Duration::from_millis(20));
+        7
+    });
+    assert_eq!(got, 7);
+    let timed = rec.clone().finish(Duration::from_secs(30)).calls_time;
+    assert!(timed >= Duration::from_millis(20), "{timed:?}");
+    assert!(
+        rec.finish(Duration::ZERO)
+            .summary()
+            .contains("logging calls")
+    );
+
+    let path = tmp("calls3.mcap");
+    let rec = record_to(&path, 0);
+    let port = rec.raw_port(ima_record::raw::PortInfo {
+        robot: "scooter".into(),
+        device: "base".into(),
+        port: "/dev/ttyS0".into(),
+        baud: 9600,
+        protocol: "p2os".into(),
+    });
+    port.rx(&[0xFA, 0xFB, 0x03, 0x00, 0x00, 0x00]);
+    port.tx(&[]);
+    let r = rec.finish(Duration::from_secs(30));
+    assert!(r.calls_time > Duration::ZERO, "{r:?}");
+    assert_eq!(r.total(), 1);
+}
+
 #[test]
 fn a_burst_wakes_the_recorder_before_its_tick() {
     // A file-only recorder drains its queue every 500 ms; 64 places fill after 64 messages.

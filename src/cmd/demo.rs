@@ -645,6 +645,7 @@ fn summarise(
             "path": r.path.as_ref().map(|p| p.display().to_string()), "written": r.written, "dropped": r.dropped, "unwritten": r.unwritten,
             "bytes": r.bytes, "error": r.error,
             "thread_cpu_s": r.thread_cpu.map(|d| d.as_secs_f64()),
+            "calls_s": r.calls_time.as_secs_f64(),
         })),
     });
     if let Some(c) = console {
