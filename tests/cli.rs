@@ -130,15 +130,19 @@ fn decode_waiting_on_a_quiet_pipe_ends_on_ctrl_c() {
 
 /// A serial port given as FILE (a tap on a robot's line) is read raw at `--baud`: P2OS
 /// commands holding bytes a terminal's line discipline changes or holds (CR, ^S, ^C, and no
-/// newline) come out whole while the port is open, from a port left in canonical mode. Without
-/// `--baud` the decode says what it needs; with it, a plain file is refused, and so is a port
-/// another program holds for itself.
+/// newline) come out whole while the port is open, from a port left in canonical mode, and a
+/// hang-up is said as such after what was left. Without `--baud` the decode says what it
+/// needs; with it, a plain file is refused, and so is a port another process has open.
 #[test]
 fn decode_reads_a_serial_port_raw_at_its_baud() {
     use std::io::BufRead as _;
-    let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
+    let (pair_master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
     let path = serialport::SerialPort::name(&slave).unwrap();
-    // The pair's slave has a shared lock: closed, and opened as a driver opens its port.
+    // The master, cloned closed on exec: the programs run here must not keep it open, or
+    // closing it would not hang the line up.
+    let mut master = pair_master.try_clone_native().unwrap();
+    drop(pair_master);
+    // A port any process has open is refused, so the pair's own slave is closed.
     drop(slave);
     // Refused: stderr (a broken refusal would read the port for ever: bounded).
     let refused = |args: &[&str]| {
@@ -153,10 +157,15 @@ fn decode_reads_a_serial_port_raw_at_its_baud() {
         assert!(!out.status.success());
         String::from_utf8_lossy(&out.stderr).into_owned()
     };
-    // A port a program holds for itself through `serialport` (as a driver does).
-    let held = serialport::new(&path, 9600).open_native().unwrap();
+    // A port another program has open (here as a driver holds it): named.
+    let mut held = serialport::new(&path, 9600).open_native().unwrap();
     let err = refused(&["p2os", &path, "--baud", "9600"]);
-    assert!(err.contains("another program has this port open"), "{err}");
+    let me = format!("process {} (", std::process::id());
+    assert!(
+        err.contains(&me) && err.contains("has this port open"),
+        "{err}"
+    );
+    held.set_exclusive(false).unwrap();
     drop(held);
     // `stty` reads and sets the port's modes (the workspace has no unsafe code for termios).
     let stty = |args: &[&str]| {
@@ -230,10 +239,17 @@ fn decode_reads_a_serial_port_raw_at_its_baud() {
         speeds.push(v["v_m_s"].as_f64().unwrap());
     }
     assert_eq!(speeds, [0.013, 0.019, 0.003]);
-    child.wait_until_it_catches(2);
-    child.signal("INT");
-    let out = child.wait_output();
-    assert_eq!(out.status.code(), Some(130));
+    // Half a frame, and the line hangs up (an adapter unplugged): the rest is reported, then
+    // the hang-up.
+    master.write_all(&[0xFA, 0xFB, 0x06, 0x0B]).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    drop(master);
+    let out = child.output_within(20);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("the port went away (unplugged?)"), "{err}");
+    let last: serde_json::Value = serde_json::from_str(&rx.recv().unwrap()).unwrap();
+    assert_eq!(last["error"], "truncated frame at end of input", "{last}");
 }
 
 #[test]

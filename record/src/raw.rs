@@ -134,6 +134,9 @@ impl RawPort {
     pub fn chunk(&self, dir: Dir, bytes: &[u8]) {
         // Something takes this channel ([`Recorder::wants`]); if not, bytes are not even
         // copied.
+        if !self.stream.wanted {
+            return;
+        }
         let kind = crate::queue::Kind::Encoded;
         self.rec.timed(|rec| {
             rec.push(self.stream, kind, bytes.len() + 1, |b| {

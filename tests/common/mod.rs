@@ -84,7 +84,6 @@ impl Child {
         }
     }
 
-    /// Wait for the child to end, with what it printed on the outputs still piped.
     /// Its output once it has ended, within `secs` seconds (else it is killed and the test
     /// fails): for a command that should end by itself but might wait forever if broken.
     pub fn output_within(mut self, secs: u64) -> std::process::Output {
@@ -99,6 +98,7 @@ impl Child {
         self.wait_output()
     }
 
+    /// Wait for the child to end, with what it printed on the outputs still piped.
     pub fn wait_output(&mut self) -> std::process::Output {
         std::mem::replace(
             &mut self.0,

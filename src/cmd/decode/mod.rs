@@ -142,9 +142,10 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     // read: a capture of any length takes no more memory than a few pieces, and a live line
     // (a tap on a serial line, a sniffer's pipe) shows each frame as it comes.
     let mut read = 0u64;
-    let interrupted = loop {
+    let ended = loop {
         let piece = match crate::safety::recv_unless_asked_to_end(&pieces) {
-            Ok(Some(piece)) => piece.with_context(|| format!("reading {name}"))?,
+            Ok(Some(Ok(piece))) => piece,
+            Ok(Some(Err(e))) => break Some(read_error(&name, e)),
             Ok(None) => break None,
             Err(e) => break Some(e),
         };
@@ -152,14 +153,19 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         d.feed(&piece, &mut |v| out.emit(v))?;
         out.flush()?;
     };
-    if interrupted.is_none() && reader.join().is_err() {
+    if ended.is_none() && reader.join().is_err() {
         anyhow::bail!("reading {name} failed (a bug: please report it)");
     }
-    // Ctrl-C ends a live decode: what is left, and the hint when nothing was a frame (a wrong
-    // rate or side), are said before the interruption.
+    // Ctrl-C, or a read that failed (an adapter unplugged), ends a live decode: what is left,
+    // and the hint when nothing was a frame (a wrong rate or side), are said first.
     d.finish(&mut |v| out.emit(v))?;
     out.end(read)?;
-    interrupted.map_or(Ok(()), Err)
+    ended.map_or(Ok(()), Err)
+}
+
+/// A failed read of the capture `name`, as the decode's error.
+fn read_error(name: &str, e: std::io::Error) -> anyhow::Error {
+    anyhow::Error::new(e).context(format!("reading {name}"))
 }
 
 /// The pieces of a capture as they are read, or the error that ended the reading.
@@ -212,17 +218,32 @@ fn read_pieces(
 /// Open the capture at `path`: a file, a pipe or a FIFO as it is; a serial port (a terminal)
 /// raw at `baud`, which it needs (a terminal read as it is set would change or hold bytes: a
 /// line in canonical mode is held until a newline, CR may become LF, and ^C, ^S, ^Q vanish).
+///
+/// A tap takes the port for itself: one another program has open (a driver, a terminal
+/// program, this very terminal) is refused with its name, as its settings would be changed
+/// and its bytes shared, and none can open it while the tap reads.
 fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Box<dyn Read>> {
     use std::io::{Error, ErrorKind, IsTerminal};
-    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    use std::os::unix::fs::{FileTypeExt, MetadataExt, OpenOptionsExt};
     let meta = std::fs::metadata(path)?;
+    let shown = path.display().to_string();
+    let explain = |e: Error| ima_hal::serial::explain_open_error(&shown, e);
+    let char_device = meta.file_type().is_char_device();
+    // Who else has it open, before it is opened here (a terminal: the shell, ima's own
+    // standard streams).
+    let holder = if char_device && baud.is_some() {
+        holder_of(meta.rdev())
+    } else {
+        None
+    };
     // Looked at without waiting for a carrier (a serial port's open may, without CLOCAL) and
     // without becoming the process's controlling terminal.
-    let serial = meta.file_type().is_char_device()
+    let serial = char_device
         && std::fs::OpenOptions::new()
             .read(true)
             .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
-            .open(path)?
+            .open(path)
+            .map_err(explain)?
             .is_terminal();
     match (serial, baud) {
         (false, None) => Ok(Box::new(std::fs::File::open(path)?)),
@@ -236,26 +257,75 @@ fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Bo
             "this is a serial port: give its line speed with --baud RATE (what the device \
              sends at, e.g. --baud 9600), and it is read raw at that speed",
         )),
+        (true, Some(_)) if let Some((pid, name)) = holder => Err(Error::new(
+            ErrorKind::ResourceBusy,
+            if pid == std::process::id() {
+                "this is ima's own terminal: a tap needs a port of its own, wired to listen \
+                 to the line"
+                    .to_owned()
+            } else {
+                format!(
+                    "process {pid} ({name}) has this port open: a tap needs a port of its \
+                     own, wired to listen to the line (reading this one would change its \
+                     settings and take some of its bytes)"
+                )
+            },
+        )),
         (true, Some(baud)) => {
-            // Shared: the tap leaves the line to other listeners (`stty`, a second tap), but
-            // a program that holds the port exclusively (a driver) refuses it, and is named.
+            // Exclusive, as a driver opens its port: no program opens it while the tap reads.
             let port = serialport::new(path.to_string_lossy(), baud)
                 .timeout(std::time::Duration::from_millis(200))
-                .exclusive(false)
                 .open_native()
-                .map_err(|e| match e.kind() {
-                    serialport::ErrorKind::NoDevice if e.description.contains("lock") => {
-                        Error::new(
-                            ErrorKind::ResourceBusy,
-                            "another program has this port open for itself (a driver?): a \
-                             tap needs a port of its own, wired to listen to the line",
-                        )
-                    }
-                    _ => Error::from(e),
-                })?;
-            Ok(Box::new(port))
+                .map_err(|e| explain(e.into()))?;
+            Ok(Box::new(SerialTap(port)))
         }
     }
+}
+
+/// A serial port read by a tap: a hang-up (an adapter unplugged, a pty closed), which reads as
+/// a broken pipe or an I/O error, is said as such.
+struct SerialTap(serialport::TTYPort);
+
+impl Read for SerialTap {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.0.read(buf).map_err(|e| {
+            let gone =
+                e.kind() == std::io::ErrorKind::BrokenPipe || e.raw_os_error() == Some(libc::EIO);
+            if gone {
+                // Not a broken pipe any more: that is how a closed stdout ends the command.
+                std::io::Error::other(format!("the port went away (unplugged?): {e}"))
+            } else {
+                e
+            }
+        })
+    }
+}
+
+/// A process that has the device `rdev` open (its id and name), from `/proc` (Linux; only
+/// the processes this user may look at: the user's own, or all for root).
+fn holder_of(rdev: u64) -> Option<(u32, String)> {
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    for proc in std::fs::read_dir("/proc").ok()?.flatten() {
+        let Some(pid) = proc
+            .file_name()
+            .to_str()
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let Ok(fds) = std::fs::read_dir(proc.path().join("fd")) else {
+            continue;
+        };
+        let holds = fds.flatten().any(|fd| {
+            std::fs::metadata(fd.path())
+                .is_ok_and(|m| m.file_type().is_char_device() && m.rdev() == rdev)
+        });
+        if holds {
+            let name = std::fs::read_to_string(proc.path().join("comm")).unwrap_or_default();
+            return Some((pid, name.trim().to_owned()));
+        }
+    }
+    None
 }
 
 /// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
