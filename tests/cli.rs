@@ -241,14 +241,34 @@ fn decode_reads_a_serial_port_raw_at_its_baud() {
     assert_eq!(speeds, [0.013, 0.019, 0.003]);
     // Half a frame, and the line hangs up (an adapter unplugged): the rest is reported, then
     // the hang-up.
+    // A hang-up throws away what the port holds unread: closed once the decode has read them
+    // (its `rchar` grew by the 4 bytes).
+    let rchar = || {
+        let io = std::fs::read_to_string(format!("/proc/{}/io", child.0.id())).unwrap();
+        io.lines()
+            .find_map(|l| l.strip_prefix("rchar: "))
+            .and_then(|n| n.trim().parse::<u64>().ok())
+            .unwrap()
+    };
+    let before = rchar();
     master.write_all(&[0xFA, 0xFB, 0x06, 0x0B]).unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(300));
+    let waited = std::time::Instant::now();
+    while rchar() < before + 4 {
+        assert!(
+            waited.elapsed().as_secs() < 20,
+            "the decode never read them"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
     drop(master);
     let out = child.output_within(20);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("the port went away (unplugged?)"), "{err}");
-    let last: serde_json::Value = serde_json::from_str(&rx.recv().unwrap()).unwrap();
+    let last = rx
+        .recv_timeout(std::time::Duration::from_secs(10))
+        .expect("no line for the truncated frame");
+    let last: serde_json::Value = serde_json::from_str(&last).unwrap();
     assert_eq!(last["error"], "truncated frame at end of input", "{last}");
 }
 

@@ -219,9 +219,10 @@ fn read_pieces(
 /// raw at `baud`, which it needs (a terminal read as it is set would change or hold bytes: a
 /// line in canonical mode is held until a newline, CR may become LF, and ^C, ^S, ^Q vanish).
 ///
-/// A tap takes the port for itself: one another program has open (a driver, a terminal
-/// program, this very terminal) is refused with its name, as its settings would be changed
-/// and its bytes shared, and none can open it while the tap reads.
+/// A tap takes the port for itself: one that a process of this user (any process, for root)
+/// has open (a driver, a terminal program, this very terminal) is refused with its name, as
+/// its settings would be changed and its bytes shared; and none can open it while the tap
+/// reads.
 fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Box<dyn Read>> {
     use std::io::{Error, ErrorKind, IsTerminal};
     use std::os::unix::fs::{FileTypeExt, MetadataExt, OpenOptionsExt};
@@ -236,15 +237,39 @@ fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Bo
     } else {
         None
     };
+    let busy = |(pid, name): (u32, String)| {
+        let why = if pid == std::process::id() {
+            "this is ima's own terminal: a tap needs a port of its own, wired to listen to the \
+             line"
+                .to_owned()
+        } else {
+            format!(
+                "process {pid} ({name}) has this port open: a tap needs a port of its own, wired \
+                 to listen to the line (reading this one would change its settings and take \
+                 some of its bytes)"
+            )
+        };
+        Error::new(ErrorKind::ResourceBusy, why)
+    };
     // Looked at without waiting for a carrier (a serial port's open may, without CLOCAL) and
-    // without becoming the process's controlling terminal.
+    // without becoming the process's controlling terminal. A port a driver holds may refuse
+    // even that (TIOCEXCL): its holder is named then too.
     let serial = char_device
         && std::fs::OpenOptions::new()
             .read(true)
             .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
             .open(path)
-            .map_err(explain)?
+            .map_err(|e| match holder.clone() {
+                Some(h) if e.raw_os_error() == Some(libc::EBUSY) => busy(h),
+                _ => explain(e),
+            })?
             .is_terminal();
+    if serial
+        && baud.is_some()
+        && let Some(h) = holder
+    {
+        return Err(busy(h));
+    }
     match (serial, baud) {
         (false, None) => Ok(Box::new(std::fs::File::open(path)?)),
         (false, Some(_)) => Err(Error::new(
@@ -256,20 +281,6 @@ fn open_capture(path: &std::path::Path, baud: Option<u32>) -> std::io::Result<Bo
             ErrorKind::InvalidInput,
             "this is a serial port: give its line speed with --baud RATE (what the device \
              sends at, e.g. --baud 9600), and it is read raw at that speed",
-        )),
-        (true, Some(_)) if let Some((pid, name)) = holder => Err(Error::new(
-            ErrorKind::ResourceBusy,
-            if pid == std::process::id() {
-                "this is ima's own terminal: a tap needs a port of its own, wired to listen \
-                 to the line"
-                    .to_owned()
-            } else {
-                format!(
-                    "process {pid} ({name}) has this port open: a tap needs a port of its \
-                     own, wired to listen to the line (reading this one would change its \
-                     settings and take some of its bytes)"
-                )
-            },
         )),
         (true, Some(baud)) => {
             // Exclusive, as a driver opens its port: no program opens it while the tap reads.
@@ -302,9 +313,33 @@ impl Read for SerialTap {
 }
 
 /// A process that has the device `rdev` open (its id and name), from `/proc` (Linux; only
-/// the processes this user may look at: the user's own, or all for root).
+/// the processes whose descriptors this user may read: the user's own, or all for root). This
+/// process is looked at first, so that its own terminal is named as such; the terminal aliases
+/// (`/dev/tty`, `/dev/console`) count as this process's. Only descriptors on `/dev` are looked
+/// at (a `stat` elsewhere could wait on a hung network mount).
 fn holder_of(rdev: u64) -> Option<(u32, String)> {
     use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    let me = std::process::id();
+    let is_rdev = |p: &std::path::Path| {
+        std::fs::metadata(p).is_ok_and(|m| m.file_type().is_char_device() && m.rdev() == rdev)
+    };
+    if ["/dev/tty", "/dev/console"]
+        .iter()
+        .any(|p| is_rdev(p.as_ref()))
+    {
+        return Some((me, String::new()));
+    }
+    let holds = |proc: &std::path::Path| {
+        std::fs::read_dir(proc.join("fd")).is_ok_and(|fds| {
+            fds.flatten().any(|fd| {
+                let path = fd.path();
+                std::fs::read_link(&path).is_ok_and(|t| t.starts_with("/dev/")) && is_rdev(&path)
+            })
+        })
+    };
+    if holds(std::path::Path::new("/proc/self")) {
+        return Some((me, String::new()));
+    }
     for proc in std::fs::read_dir("/proc").ok()?.flatten() {
         let Some(pid) = proc
             .file_name()
@@ -313,14 +348,7 @@ fn holder_of(rdev: u64) -> Option<(u32, String)> {
         else {
             continue;
         };
-        let Ok(fds) = std::fs::read_dir(proc.path().join("fd")) else {
-            continue;
-        };
-        let holds = fds.flatten().any(|fd| {
-            std::fs::metadata(fd.path())
-                .is_ok_and(|m| m.file_type().is_char_device() && m.rdev() == rdev)
-        });
-        if holds {
+        if pid != me && holds(&proc.path()) {
             let name = std::fs::read_to_string(proc.path().join("comm")).unwrap_or_default();
             return Some((pid, name.trim().to_owned()));
         }
