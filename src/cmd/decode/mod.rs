@@ -172,9 +172,10 @@ fn read_error(name: &str, e: std::io::Error) -> anyhow::Error {
 type Pieces = std::sync::mpsc::Receiver<std::io::Result<Vec<u8>>>;
 
 /// Read `file` (stdin when `None`; a serial port at `baud`, [`open_capture`]) on a thread of
-/// its own, in pieces of up to 64 KiB as they come, so that the command waiting for them (a quiet pipe, a FIFO not yet opened by a
-/// writer) still ends at once on Ctrl-C. The thread stops at its next piece once the receiver
-/// is dropped; an error (opening included) is the last message.
+/// its own, in pieces of up to 64 KiB as they come, so that the command waiting for them (a
+/// quiet pipe, a FIFO not yet opened by a writer) still ends at once on Ctrl-C. The thread
+/// stops at its next piece once the receiver is dropped; an error (opening included) is the
+/// last message.
 fn read_pieces(
     file: Option<PathBuf>,
     baud: Option<u32>,
