@@ -48,9 +48,15 @@ static PAIR_LOCK: Mutex<()> = Mutex::new(());
 
 /// `TTYPort::pair()` behind a process-wide lock. Use this (not `pair()` directly) anywhere in
 /// the workspace's tests: concurrent `pair()` calls are not known to be safe.
+///
+/// Both ends are closed on exec: `pair()` opens the master without `O_CLOEXEC`, so every
+/// program the process started (a test's `ima`) kept it open, and closing it no longer hung
+/// the line up. The ends returned are copies made with `F_DUPFD_CLOEXEC`; the originals are
+/// closed here (a program started by another thread in between still inherits them).
 pub fn pty_pair() -> serialport::Result<(TTYPort, TTYPort)> {
     let _guard = PAIR_LOCK.lock().unwrap_or_else(PoisonError::into_inner);
-    TTYPort::pair()
+    let (master, slave) = TTYPort::pair()?;
+    Ok((master.try_clone_native()?, slave.try_clone_native()?))
 }
 
 /// Errors of the pty runner.
