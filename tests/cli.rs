@@ -62,7 +62,6 @@ fn drive_reports_a_clear_error_when_nothing_answers() {
 /// the end of the input. Closing the pipe ends the decode with the truncated rest reported.
 #[test]
 fn decode_shows_each_frame_of_a_live_pipe_as_it_comes() {
-    use std::io::BufRead;
     let mut child = ima()
         .args(["decode", "compass"])
         .stdin(Stdio::piped())
@@ -70,15 +69,7 @@ fn decode_shows_each_frame_of_a_live_pipe_as_it_comes() {
         .spawn()
         .unwrap();
     let mut stdin = child.stdin.take().unwrap();
-    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
-    let (tx, rx) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        for l in lines.by_ref() {
-            if tx.send(l.unwrap()).is_err() {
-                break;
-            }
-        }
-    });
+    let (rx, reader) = common::line_channel(child.stdout.take().unwrap());
     let next = || {
         rx.recv_timeout(std::time::Duration::from_secs(10))
             .expect("no line while the pipe is open")
@@ -135,7 +126,6 @@ fn decode_waiting_on_a_quiet_pipe_ends_on_ctrl_c() {
 /// needs; with it, a plain file is refused, and so is a port another process has open.
 #[test]
 fn decode_reads_a_serial_port_raw_at_its_baud() {
-    use std::io::BufRead as _;
     // Closed on exec: the programs run here do not keep the master open, so closing it hangs
     // the line up.
     let (mut master, slave) = ima_mock_devices::pty::pty_pair().unwrap();
@@ -198,15 +188,7 @@ fn decode_reads_a_serial_port_raw_at_its_baud() {
             .spawn()
             .unwrap(),
     );
-    let lines = std::io::BufReader::new(child.0.stdout.take().unwrap()).lines();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for l in lines {
-            if tx.send(l.unwrap()).is_err() {
-                break;
-            }
-        }
-    });
+    let (rx, _reader) = common::line_channel(child.0.stdout.take().unwrap());
     // Written once the decode has the port raw (before, the line discipline takes them).
     let waited = std::time::Instant::now();
     while canonical() {

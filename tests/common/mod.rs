@@ -109,6 +109,26 @@ impl Child {
     }
 }
 
+/// The lines of `out` (a child's stdout) as they come, sent on a channel by a thread of their
+/// own (which ends with `out` or once the receiver is dropped), so that a test can wait for
+/// each with a timeout.
+pub fn line_channel(
+    out: impl std::io::Read + Send + 'static,
+) -> (
+    std::sync::mpsc::Receiver<String>,
+    std::thread::JoinHandle<()>,
+) {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        for l in BufReader::new(out).lines() {
+            if tx.send(l.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    (rx, reader)
+}
+
 /// Start `ima <args…>` (its stderr discarded) and read the first line it prints.
 pub fn spawn_first_line<S: AsRef<std::ffi::OsStr>>(
     args: impl IntoIterator<Item = S>,

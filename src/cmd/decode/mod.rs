@@ -145,7 +145,9 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     let ended = loop {
         let piece = match crate::safety::recv_unless_asked_to_end(&pieces) {
             Ok(Some(Ok(piece))) => piece,
-            Ok(Some(Err(e))) => break Some(read_error(&name, e)),
+            Ok(Some(Err(e))) => {
+                break Some(anyhow::Error::new(e).context(format!("reading {name}")));
+            }
             Ok(None) => break None,
             Err(e) => break Some(e),
         };
@@ -161,11 +163,6 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     d.finish(&mut |v| out.emit(v))?;
     out.end(read)?;
     ended.map_or(Ok(()), Err)
-}
-
-/// A failed read of the capture `name`, as the decode's error.
-fn read_error(name: &str, e: std::io::Error) -> anyhow::Error {
-    anyhow::Error::new(e).context(format!("reading {name}"))
 }
 
 /// The pieces of a capture as they are read, or the error that ended the reading.
