@@ -307,9 +307,7 @@ fn resolve(
             if n == 0 {
                 return Err("the queue is empty: nothing to move".to_owned());
             }
-            check(Command::Add {
-                target: colour.clone(),
-            })?;
+            let colour = crate::web::msg::colour(&colour, known)?;
             let Some(from) = series
                 .iter()
                 .position(|(t, s)| *t == colour && s == "waiting")
@@ -757,6 +755,7 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ima_agents::mission::commander::MAX_SERIES;
 
     /// Stdin as the operator's lines: a line that is not UTF-8 is one more (wrong) request,
     /// not the end of the input; an endless line is cut; CR LF and a last line without LF.
@@ -915,6 +914,14 @@ mod tests {
                 .contains("queue is empty")
         );
         assert!(r("cancel red", &[]).unwrap_err().contains("queue is empty"));
+        // A full series takes no more targets, but its waiting ones still move.
+        let mut full = series.clone();
+        full.resize(MAX_SERIES, ("green".into(), "waiting".into()));
+        assert!(r("add red", &full).unwrap_err().contains("queue is full"));
+        assert_eq!(
+            r("move green 2", &full),
+            Ok(vec![Operator::Move { from: 2, to: 1 }])
+        );
         assert!(
             r("cancel green", &series)
                 .unwrap_err()

@@ -109,8 +109,14 @@ pub fn failure_lines(
 /// (`what` says where they come from, e.g. "the world's objects").
 ///
 /// # Errors
-/// The first unknown colour, with the known ones.
+/// More targets than a series holds; the first unknown colour, with the known ones.
 pub fn check_colours(targets: &[String], known: &[String], what: &str) -> anyhow::Result<()> {
+    use ima_agents::mission::commander::MAX_SERIES;
+    anyhow::ensure!(
+        targets.len() <= MAX_SERIES,
+        "--targets names {} targets; a series holds at most {MAX_SERIES}",
+        targets.len()
+    );
     for t in targets {
         anyhow::ensure!(
             known.contains(t),

@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use ima_agents::mission::commander::MAX_SERIES;
 use ima_agents::runtime::commander::Operator;
 
 /// A command from the page.
@@ -80,6 +81,28 @@ pub fn parse_command(body: &[u8]) -> Result<Command, String> {
 /// Longest colour or reason accepted (the wire carries short strings).
 pub const MAX_TEXT: usize = 64;
 
+/// `c` (blanks around it ignored) checked as a target colour the robots can find
+/// (`colours`), or what is wrong with it.
+pub fn colour(c: &str, colours: &[String]) -> Result<String, String> {
+    let c = c.trim();
+    if c.is_empty() {
+        return Err("no colour given: pick one of the list".to_owned());
+    }
+    if c.len() > MAX_TEXT || c.chars().any(char::is_whitespace) {
+        return Err(format!(
+            "{:?} is not a colour (one word, at most {MAX_TEXT} bytes)",
+            c.chars().take(MAX_TEXT).collect::<String>()
+        ));
+    }
+    if !colours.iter().any(|k| k == c) {
+        return Err(format!(
+            "unknown colour {c:?}: the robots know {}",
+            colours.join(", ")
+        ));
+    }
+    Ok(c.to_owned())
+}
+
 /// Checks a command against what the console knows (`colours`: colours the robots can find;
 /// `open`: whether an open target of a colour is queued; `queue_len`) and turns it into the
 /// commander's request, or says what is wrong.
@@ -89,27 +112,18 @@ pub fn to_operator(
     queue_len: usize,
     open: impl Fn(&str) -> bool,
 ) -> Result<Operator, String> {
-    let colour = |c: &str| -> Result<String, String> {
-        let c = c.trim();
-        if c.is_empty() {
-            return Err("no colour given: pick one of the list".to_owned());
-        }
-        if c.len() > MAX_TEXT || c.chars().any(char::is_whitespace) {
-            return Err(format!(
-                "{:?} is not a colour (one word, at most {MAX_TEXT} bytes)",
-                c.chars().take(MAX_TEXT).collect::<String>()
-            ));
-        }
-        if !colours.iter().any(|k| k == c) {
-            return Err(format!(
-                "unknown colour {c:?}: the robots know {}",
-                colours.join(", ")
-            ));
-        }
-        Ok(c.to_owned())
-    };
+    let colour = |c: &str| colour(c, colours);
     match cmd {
-        Command::Add { target } => Ok(Operator::Add(colour(target)?)),
+        Command::Add { target } => {
+            let c = colour(target)?;
+            if queue_len >= MAX_SERIES {
+                return Err(format!(
+                    "the queue is full ({MAX_SERIES} targets, the most one commander keeps): \
+                     {c} not added"
+                ));
+            }
+            Ok(Operator::Add(c))
+        }
         Command::Cancel { target } => {
             let c = colour(target)?;
             if queue_len == 0 {
@@ -257,6 +271,15 @@ mod tests {
                 .unwrap_err()
                 .contains("position 7")
         );
+        let full = to_operator(
+            &Command::Add {
+                target: "red".into(),
+            },
+            &colours(),
+            MAX_SERIES,
+            open,
+        );
+        assert!(full.unwrap_err().contains("queue is full (256 targets"));
         assert_eq!(
             op(Command::Stop { reason: None }),
             Ok(Operator::Stop("operator".into()))

@@ -166,6 +166,27 @@ impl core::fmt::Display for Summary {
     }
 }
 
+/// The most targets a series holds, final ones included: the mission's record (and every
+/// display of it) stays bounded however many targets an operator or a script adds. The
+/// thesis's mission sends three.
+pub const MAX_SERIES: usize = 256;
+
+/// [`Commander::add`] refused a target: the series holds [`MAX_SERIES`] already.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SeriesFull;
+
+impl core::fmt::Display for SeriesFull {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "the series is full ({MAX_SERIES} targets, the most one commander keeps): \
+             no target added; start a new commander for a new series"
+        )
+    }
+}
+
+impl core::error::Error for SeriesFull {}
+
 /// The commander's logic ([module docs](self)).
 #[derive(Debug, Clone)]
 pub struct Commander {
@@ -439,7 +460,14 @@ impl Commander {
 
     /// The operator appends `colour` to the series (waiting). When the series had run out
     /// (every target final) and the commander has started, it goes out at once.
-    pub fn add(&mut self, colour: &str, now: Instant) {
+    ///
+    /// # Errors
+    /// [`SeriesFull`] when the series already holds [`MAX_SERIES`] targets (final ones
+    /// count: the series is the mission's record); nothing changes.
+    pub fn add(&mut self, colour: &str, now: Instant) -> Result<(), SeriesFull> {
+        if self.targets.len() >= MAX_SERIES {
+            return Err(SeriesFull);
+        }
         self.targets.push(Target {
             colour: colour.to_owned(),
             state: TargetState::Waiting,
@@ -453,6 +481,7 @@ impl Commander {
         if self.started && self.current().is_none_or(|t| t.state.is_final()) {
             self.advance(now);
         }
+        Ok(())
     }
 
     /// The operator moves the waiting target at position `from` of the series to position
@@ -695,7 +724,7 @@ mod tests {
     #[test]
     fn added_targets_queue_up_and_restart_a_finished_series() {
         let mut c = Commander::new(&["red"], CommanderConfig::default());
-        c.add("blue", t(0));
+        c.add("blue", t(0)).unwrap();
         c.start(t(0));
         let _ = drain(&mut c);
         assert_eq!(states(&c), ["sent", "waiting"]);
@@ -703,9 +732,22 @@ mod tests {
         c.handle_broadcast(&from_skeeter(MissionEvent::Accomplished, "blue"), t(2));
         assert!(c.is_finished());
         let _ = drain(&mut c);
-        c.add("green", t(3));
+        c.add("green", t(3)).unwrap();
         assert_eq!(states(&c), ["done", "done", "sent"]);
         assert_eq!(drain(&mut c), [Broadcast::new_target("green")]);
+    }
+
+    #[test]
+    fn a_full_series_refuses_more_targets_and_stays_as_it_was() {
+        let mut c = Commander::new(&["red"], CommanderConfig::default());
+        for _ in 1..MAX_SERIES {
+            assert_eq!(c.add("blue", t(0)), Ok(()));
+        }
+        assert_eq!(c.targets().len(), MAX_SERIES);
+        assert_eq!(c.add("green", t(0)), Err(SeriesFull));
+        assert_eq!(c.targets().len(), MAX_SERIES);
+        assert!(c.targets().iter().all(|t| t.colour != "green"));
+        assert!(SeriesFull.to_string().contains("256 targets"));
     }
 
     #[test]

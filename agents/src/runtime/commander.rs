@@ -259,7 +259,11 @@ pub async fn run(
                     }
                     Some(Operator::Add(colour)) => {
                         // Before the robots are heard it only queues (`start` sends it).
-                        cmd.add(&colour, now);
+                        if let Err(e) = cmd.add(&colour, now) {
+                            events.emit(&time, &me, EventKind::Operator {
+                                error: format!("target {colour} not added: {e}"),
+                            });
+                        }
                     }
                     Some(Operator::Move { from, to }) => {
                         if let Err(e) = cmd.move_target(from, to) {
