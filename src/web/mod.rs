@@ -222,7 +222,12 @@ fn cross_site(req: &Request, loopback: bool) -> Option<String> {
              http://localhost:PORT"
         ));
     }
-    if req.method() == axum::http::Method::GET || req.method() == axum::http::Method::HEAD {
+    // Only a POST (the commands) or its CORS preflight can change anything; any other method
+    // is answered 405 by the routes.
+    if !matches!(
+        *req.method(),
+        axum::http::Method::POST | axum::http::Method::OPTIONS
+    ) {
         return None;
     }
     if let Some(origin) = req.headers().get(header::ORIGIN) {
@@ -377,13 +382,8 @@ pub fn start(console: Arc<Console>, addr: SocketAddr) -> Result<WebServer> {
                         return;
                     }
                 };
-                let app = router(console);
                 tokio::select! {
-                    r = axum::serve(listener, app) => {
-                        if let Err(e) = r {
-                            eprintln!("ima: web console stopped: {e}");
-                        }
-                    }
+                    () = serve(listener, router(console), HEADER_TIMEOUT) => {}
                     _ = rx => {}
                 }
             });
@@ -394,6 +394,59 @@ pub fn start(console: Arc<Console>, addr: SocketAddr) -> Result<WebServer> {
         shutdown: Some(tx),
         thread: Some(thread),
     })
+}
+
+/// Most connections served at once; more are closed as they come (a page and its event
+/// stream take two, so this is many operators).
+pub const MAX_CONNECTIONS: usize = 64;
+
+/// Longest a client may take to send a request's headers: a connection that sends them
+/// slowly or not at all is closed after this, so it does not hold a place for ever.
+pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Accept connections and serve `app` on each (HTTP/1.1), at most [`MAX_CONNECTIONS`] at
+/// once, each closed when its next request's headers take over `header_timeout`
+/// ([`HEADER_TIMEOUT`]). `axum::serve` sets neither, so a few thousand half-sent requests used
+/// to exhaust the process's file descriptors and lock the operator out.
+async fn serve(listener: tokio::net::TcpListener, app: Router, header_timeout: Duration) {
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    let places = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let mut turned_away = 0u64;
+    loop {
+        let stream = match listener.accept().await {
+            Ok((stream, _)) => stream,
+            // Out of descriptors, a connection reset before it was taken…: try again soon.
+            Err(e) => {
+                tracing::debug!("web console: accept: {e}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let Ok(place) = Arc::clone(&places).try_acquire_owned() else {
+            turned_away += 1;
+            // Warned at the 1st, 2nd, 4th, 8th… (a flood cannot flood the log).
+            if turned_away.is_power_of_two() {
+                tracing::warn!(
+                    "web console: {turned_away} connection(s) closed at once so far: \
+                     {MAX_CONNECTIONS} are open"
+                );
+            }
+            drop(stream);
+            continue;
+        };
+        let service = hyper_util::service::TowerToHyperService::new(app.clone());
+        tokio::spawn(async move {
+            let served = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(header_timeout)
+                .serve_connection(TokioIo::new(stream), service)
+                .await;
+            if let Err(e) = served {
+                tracing::debug!("web console: connection: {e}");
+            }
+            drop(place);
+        });
+    }
 }
 
 fn router(console: Arc<Console>) -> Router {
@@ -412,7 +465,17 @@ fn router(console: Arc<Console>) -> Router {
         )
         .route("/api/state", get(state_handler))
         .route("/api/events", get(events_handler))
-        .route("/api/command", post(command_handler))
+        .route(
+            "/api/command",
+            post(command_handler).fallback(|| async {
+                let how = "use POST with a JSON command such as {\"cmd\":\"stop\"}\n";
+                (
+                    StatusCode::METHOD_NOT_ALLOWED,
+                    [(header::ALLOW, "POST")],
+                    how,
+                )
+            }),
+        )
         .layer(axum::middleware::from_fn_with_state(
             Arc::clone(&console),
             guard,

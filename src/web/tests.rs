@@ -247,6 +247,13 @@ fn the_server_serves_the_page_state_and_commands() {
     assert!(r.contains("scooter is lost"), "{r}");
     assert_eq!(rx.try_recv(), Ok(Operator::Stop("operator".into())));
 
+    // Another method: 405, saying what to do.
+    let (code, r) = http(srv.addr, "GET", "/api/command", "");
+    assert_eq!(code, 405);
+    assert!(r.contains("use POST"), "{r}");
+    assert_eq!(http(srv.addr, "DELETE", "/", "").0, 405);
+    assert!(rx.try_recv().is_err());
+
     // The mission over: read-only.
     c.close_commands();
     let (code, r) = http(srv.addr, "POST", "/api/command", r#"{"cmd":"resume"}"#);
@@ -390,6 +397,69 @@ fn fifty_clients_at_once_and_clients_that_vanish_mid_stream() {
     let (code, _) = http(srv.addr, "GET", "/api/state", "");
     assert_eq!(code, 200, "the server still answers");
     drop(srv);
+}
+
+#[test]
+fn silent_clients_are_closed_and_cannot_fill_the_server() {
+    let c = Console::new("demo", colours(), None, None);
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    listener.set_nonblocking(true).unwrap();
+    let addr = listener.local_addr().unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let app = router(c);
+    // A deadline long enough that every place is still held when the extra client comes.
+    let deadline = Duration::from_secs(3);
+    std::thread::spawn(move || {
+        rt.block_on(async move {
+            let l = tokio::net::TcpListener::from_std(listener).unwrap();
+            serve(l, app, deadline).await;
+        });
+    });
+    // Every place taken by a request whose headers never end.
+    let half: Vec<TcpStream> = (0..MAX_CONNECTIONS)
+        .map(|_| {
+            let mut s = TcpStream::connect(addr).unwrap();
+            s.write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-a: ")
+                .unwrap();
+            s
+        })
+        .collect();
+    // One more is closed unanswered.
+    let mut extra = TcpStream::connect(addr).unwrap();
+    extra
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    let _ = extra.write_all(b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+    let mut got = Vec::new();
+    let end = extra.read_to_end(&mut got);
+    assert!(
+        got.is_empty()
+            && !end
+                .as_ref()
+                .is_err_and(|e| e.kind() == std::io::ErrorKind::WouldBlock),
+        "{end:?} {:?}",
+        String::from_utf8_lossy(&got)
+    );
+    // The silent ones are closed at their deadline (not left for ever)…
+    for mut s in half {
+        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        let mut rest = Vec::new();
+        let end = s.read_to_end(&mut rest);
+        assert!(
+            !end.as_ref().is_err_and(|e| {
+                matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                )
+            }),
+            "{end:?}"
+        );
+    }
+    // …and their places serve again.
+    assert_eq!(http(addr, "GET", "/api/state", "").0, 200);
 }
 
 #[test]
