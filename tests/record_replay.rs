@@ -413,7 +413,8 @@ fn a_killed_recording_is_still_readable() {
             .any(|l| l["kind"] == "odometry"),
         "{err}"
     );
-    // Cut inside its first chunk: the damage is found on opening and said before the replay.
+    // Cut inside its first chunk: the damage is found on opening and said before the replay,
+    // and a replay that found nothing at all fails (it used to end with status 0).
     let bytes = std::fs::read(&file).unwrap();
     let mut at = 8; // the magic
     while bytes[at] != 0x06 {
@@ -423,13 +424,16 @@ fn a_killed_recording_is_still_readable() {
     let cut = dir.join("cut.mcap");
     std::fs::write(&cut, &bytes[..at + 20]).unwrap();
     let (out, err) = replay_json(&cut);
-    assert!(out.status.success(), "{err}");
+    assert_eq!(out.status.code(), Some(1), "{err}");
     assert_eq!(err.matches("ima replay: the recording").count(), 1, "{err}");
     assert!(
         err.contains("ima replay: the recording is damaged (it ends early: ")
-            && err.contains("replaying what it holds"),
+            && err.contains("replaying what it holds")
+            && err.contains("nothing to replay in ")
+            && err.contains("cut.mcap: the recording is damaged (it ends early"),
         "{err}"
     );
+    assert!(out.stdout.is_empty());
 }
 
 /// What a demo's recording cut short once its file has a written chunk must hold: both bases'

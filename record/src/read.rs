@@ -7,9 +7,10 @@
 //! file's record structure itself, decompressing each chunk, and hands the crate only what is
 //! sound:
 //! - a chunk that would decompress to more than [`MAX_CHUNK_BYTES`], does not decompress to
-//!   what it claims, or whose records overrun it, is skipped when its own length is sound (a
-//!   flipped byte in one chunk loses that chunk's messages, about a second of a demo, not the
-//!   rest of the file); so is a message index whose entries do not fill it (the crate would
+//!   what it claims, does not match its CRC (when it has one), names a compression this reader
+//!   lacks (zstd and none are read), or whose records overrun it, is skipped when its own
+//!   length is sound (a flipped byte in one chunk loses that chunk's messages, about a second
+//!   of a demo, not the rest of the file); so is a message index whose entries do not fill it (the crate would
 //!   stop there; no message is lost). At the first skipped stretch the file's top-level schema
 //!   and channel records are put in, so when the file has its summary (it was closed), the
 //!   messages after a skipped chunk keep their channels even if that chunk defined them; in a
@@ -158,11 +159,13 @@ pub fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_else(|| "a panic".into())
 }
 
+const OP_HEADER: u8 = 0x01;
 const OP_FOOTER: u8 = 0x02;
 const OP_SCHEMA: u8 = 0x03;
 const OP_CHANNEL: u8 = 0x04;
 const OP_CHUNK: u8 = 0x06;
 const OP_MESSAGE_INDEX: u8 = 0x07;
+const OP_ATTACHMENT: u8 = 0x09;
 const OP_DATA_END: u8 = 0x0f;
 
 /// The file's top level as [`survey`] found it.
@@ -237,6 +240,29 @@ fn claims_too_much(op: u8, at: u64, len: u64, follow: u64) -> String {
 
 /// What is wrong with the whole top-level record `op` (body `body`) at file offset `at`.
 fn record_problem(op: u8, body: &[u8], at: u64, budget: &mut Budget) -> Option<String> {
+    if op == 0x00 {
+        // No MCAP record has it (a zeroed stretch reads as a run of these).
+        return Some(format!(
+            "record at byte {at} has opcode 0x00, which no MCAP record has (zeroed bytes?)"
+        ));
+    }
+    // A top-level record of a known kind (header, metadata, a summary's definitions and
+    // indexes…) whose fields do not parse stops the `mcap` reader's whole read; chunks and
+    // message indexes are checked above, and attachments (which the recorder never writes)
+    // are left to it.
+    if (OP_HEADER..=OP_DATA_END).contains(&op)
+        && ![OP_CHUNK, OP_MESSAGE_INDEX, OP_ATTACHMENT].contains(&op)
+    {
+        match guarded(|| mcap::read::parse_record(op, body).err()) {
+            Ok(None) => {}
+            Ok(Some(e)) => {
+                return Some(format!(
+                    "record 0x{op:02x} at byte {at} does not parse ({e})"
+                ));
+            }
+            Err(why) => return Some(format!("record 0x{op:02x} at byte {at}: {why}")),
+        }
+    }
     if op == OP_CHUNK
         && let Some(why) = chunk_problem(body, budget)
     {
@@ -481,8 +507,8 @@ fn walk(b: &[u8]) -> (usize, Option<String>) {
 fn chunk_problem(body: &[u8], budget: &mut Budget) -> Option<String> {
     let mut r = Reader::new(body);
     // Start and end times, uncompressed size, CRC, compression name, records.
-    let (Ok(()), Ok(size), Ok(()), Ok(name_len)) =
-        (r.skip(16), r.le::<u64>(), r.skip(4), r.le::<u32>())
+    let (Ok(()), Ok(size), Ok(crc), Ok(name_len)) =
+        (r.skip(16), r.le::<u64>(), r.le::<u32>(), r.le::<u32>())
     else {
         return Some("its header is cut short".into());
     };
@@ -529,9 +555,21 @@ fn chunk_problem(body: &[u8], budget: &mut Budget) -> Option<String> {
             }
             &inflated
         }
-        // The reader reports a compression it does not have.
-        _ => return None,
+        // Skipped like any damage: the chunks after it still read.
+        other => {
+            return Some(format!(
+                "its compression {:?} is not one this reader has (zstd, or none)",
+                String::from_utf8_lossy(other)
+            ));
+        }
     };
+    // A CRC of 0 means none was written (MCAP spec, Chunk).
+    let sum = crc32fast::hash(plain);
+    if crc != 0 && sum != crc {
+        return Some(format!(
+            "its records do not match its CRC (stored {crc:08x}, computed {sum:08x})"
+        ));
+    }
     walk(plain)
         .1
         .map(|why| format!("its {why} (after decompression)"))

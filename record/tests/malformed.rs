@@ -276,8 +276,8 @@ fn noisy_recording(name: &str, n: u32) -> (Vec<u8>, Vec<usize>) {
     (bytes, chunks)
 }
 
-/// A flipped byte in one chunk, or a broken chunk length, loses that chunk's messages, not the
-/// rest of the file: the reader skips the chunk (or picks up at the next sound one), the later
+/// A flipped byte in one chunk (caught by zstd, by the chunk's CRC or as a compression
+/// nobody has), or a broken chunk length, loses that chunk's messages, not the rest of the file: the reader skips the chunk (or picks up at the next sound one), the later
 /// messages keep their channel (defined in the skipped chunk; the summary repeats it), and the
 /// damage says what was skipped. It used to end the recording at the first bad chunk.
 #[test]
@@ -307,6 +307,14 @@ fn a_damaged_chunk_in_the_middle_loses_only_its_own_messages() {
             "its zstd data does not decompress",
         ),
         (chunks[1] + 6, 0x40, "claims"), // the chunk record's length, far past the file
+        // Its CRC; a byte deep in its (stored, incompressible) data; its compression's name.
+        (chunks[1] + 9 + 24, 0x01, "do not match its CRC"),
+        (compressed(chunks[1]) + 1000, 0x01, "do not match its CRC"),
+        (
+            chunks[1] + 9 + 32,
+            0x20,
+            "compression \"Zstd\" is not one this reader has",
+        ),
     ] {
         let mut bad = good.clone();
         bad[at] ^= flip;
@@ -363,6 +371,44 @@ fn a_damaged_message_index_loses_no_message() {
         "{why}"
     );
     assert_eq!(msgs.len(), 32, "{why}");
+}
+
+/// A zeroed stretch from inside the file's metadata record to inside its second chunk (a
+/// bad disk block, a file system's hole): the metadata no longer parses, and the `mcap` reader
+/// used to stop the whole read there. Now the stretch is skipped and the chunks after it read,
+/// on their channel (defined in the first, zeroed chunk; the summary repeats it).
+#[test]
+fn a_zeroed_stretch_loses_only_what_it_covers() {
+    let (good, chunks) = noisy_recording("zeroed", 64);
+    let mut at = MAGIC.len();
+    let meta = loop {
+        if good[at] == 0x0c {
+            break at;
+        }
+        assert!(at < chunks[0], "a metadata record before the first chunk");
+        at += 9 + usize::try_from(u64::from_le_bytes(good[at + 1..at + 9].try_into().unwrap()))
+            .unwrap();
+    };
+    let mut bad = good.clone();
+    bad[meta + 20..chunks[1] + 100].fill(0);
+    let opened = open_as_file(&bad).unwrap();
+    assert!(opened.holds_file());
+    let rec = Recording::from_bytes(bad).unwrap();
+    assert!(everything(&opened) == everything(&rec));
+    let (msgs, why) = rec.messages();
+    let why = why.0.expect("the damage is reported");
+    assert!(
+        why.contains("1 damaged stretch")
+            && why.contains("record 0x0c at byte")
+            && why.contains("does not parse"),
+        "{why}"
+    );
+    assert!(
+        (20..64).contains(&msgs.len()),
+        "{} of 64: {why}",
+        msgs.len()
+    );
+    assert!(msgs.iter().all(|m| m.topic == "/scooter/serial/laser"));
 }
 
 /// A crafted file of small chunks that each claim a large uncompressed size: the walk stops

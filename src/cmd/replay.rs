@@ -163,7 +163,13 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
     let (n, late) = played?;
     let (streams, cut) = read?;
-    if let Some(why) = cut.beyond(damage.as_deref()) {
+    let ends_early = cut.beyond(damage.as_deref());
+    if streams == 0 && n == 0 && (damage.is_some() || ends_early.is_some()) {
+        // A damaged file that gave nothing at all: a failure, not an empty replay.
+        let why = ends_early.or(damage).unwrap_or_default();
+        anyhow::bail!("nothing to replay in {file}: the recording is damaged ({why})");
+    }
+    if let Some(why) = ends_early {
         eprintln!("ima replay: the recording ends early ({why}); replayed what it holds");
     }
     if late > 0 {
