@@ -79,6 +79,12 @@ impl KramerFramer {
         self.stats
     }
 
+    /// Bytes of the message in progress (0 between messages).
+    #[must_use]
+    pub const fn pending(&self) -> usize {
+        self.len
+    }
+
     /// Feed one byte; returns a complete 4-byte message (not yet parsed).
     pub fn push_byte(&mut self, b: u8) -> Option<[u8; LEN]> {
         let starts = b & 0x80 == 0;

@@ -3,7 +3,7 @@
 //! `ima decode`).
 
 use anyhow::Result;
-use ima_compass::framer::{self, Frame, FrameError, LineFramer};
+use ima_compass::framer::{self, Frame, LineFramer};
 use ima_compass::wire::{
     Command, Decimal, KvhCommand, Line, NmeaBody, Offset, ParseOptions, Tcm2Command, Tcm2Data,
 };
@@ -97,16 +97,6 @@ fn command_json(c: Command) -> Value {
     }
 }
 
-fn frame_error(e: FrameError) -> String {
-    match e {
-        FrameError::Overlong => "line too long".into(),
-        FrameError::BadByte(b) => format!("non-printable byte {b:#04x}"),
-        FrameError::BadChecksum { expected, got } => {
-            format!("bad checksum: computed {expected:02X}, line has {got:02X}")
-        }
-    }
-}
-
 /// A compass byte stream (`from_host`: the host's commands) decoded a piece at a time (see
 /// [`Decoder`]).
 pub struct CompassDecoder {
@@ -189,7 +179,7 @@ impl Decoder for CompassDecoder {
                     v
                 }
                 Some(Frame::Corrupt(e)) => {
-                    json!({"kind": "error", "error": frame_error(e), "offset": i})
+                    json!({"kind": "error", "error": super::decoder::line_error(e), "offset": i})
                 }
                 Some(Frame::Line(l)) => {
                     let offset = i.saturating_sub(l.len());

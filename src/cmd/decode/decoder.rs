@@ -89,6 +89,18 @@ impl<D: Decoder + ?Sized> Decoder for Box<D> {
 }
 
 /// Checks for [`Decoder`]s.
+/// A line framer's loss in the words of `ima decode`'s errors.
+pub fn line_error(e: ima_serial::line::FrameError) -> String {
+    use ima_serial::line::FrameError;
+    match e {
+        FrameError::Overlong => "line too long".into(),
+        FrameError::BadByte(b) => format!("non-printable byte {b:#04x}"),
+        FrameError::BadChecksum { expected, got } => {
+            format!("bad checksum: computed {expected:02X}, line has {got:02X}")
+        }
+    }
+}
+
 #[cfg(test)]
 pub mod pieces {
     /// A megabyte with no command end holds the limit, not the megabyte, and is reported as

@@ -140,13 +140,25 @@ impl Decoder for ExtronDecoder {
             return self.feed_commands(bytes, base, emit);
         }
         for (k, &b) in bytes.iter().enumerate() {
-            if let Some(Frame::Line(l)) = self.framer.push_byte(b) {
-                let offset = base.saturating_add(k).saturating_sub(l.len());
-                emit(match ExtronReply::parse(l) {
-                    Ok(r) => with_offset(reply_json(&r), offset),
-                    Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
-                })?;
-            }
+            let i = base.saturating_add(k);
+            let v = match self.framer.push_byte(b) {
+                None | Some(Frame::Prompt) => continue,
+                // A line too long or with a byte no reply has: lost, and said (the framer
+                // picks up at the next line).
+                Some(Frame::Corrupt(e)) => {
+                    json!({"kind": "error", "error": super::decoder::line_error(e), "offset": i})
+                }
+                Some(Frame::Line(l)) => {
+                    let offset = i.saturating_sub(l.len());
+                    match ExtronReply::parse(l) {
+                        Ok(r) => with_offset(reply_json(&r), offset),
+                        Err(e) => {
+                            json!({"kind": "error", "error": e.to_string(), "offset": offset})
+                        }
+                    }
+                }
+            };
+            emit(v)?;
         }
         Ok(())
     }
@@ -154,29 +166,63 @@ impl Decoder for ExtronDecoder {
     fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         if self.from_host {
             self.command.finish(self.base, emit)?;
+        } else if self.framer.pending() > 0 {
+            let offset = self.base.saturating_sub(self.framer.pending());
+            emit(
+                json!({"kind": "error", "error": "truncated line at end of input", "offset": offset}),
+            )?;
         }
         Ok(())
     }
 }
 
 /// A Kramer Protocol 2000 byte stream decoded a piece at a time (see [`Decoder`]); both
-/// directions look alike (bit 6 tells).
+/// directions look alike (bit 6 tells). What the framer drops is said: a run of bytes that
+/// start no message as one error where the run ends, a message cut short by the next one's
+/// first byte (or by the end of the input) as one error each.
 #[derive(Debug, Default)]
 pub struct KramerDecoder {
     framer: KramerFramer,
     /// Offset of the first byte of the next feed.
     base: usize,
+    /// Bytes that start no message, not yet said: (offset of the first, how many).
+    stray: Option<(usize, usize)>,
+}
+
+impl KramerDecoder {
+    /// Say the run of stray bytes, if any.
+    fn stray_said(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        match self.stray.take() {
+            Some((offset, n)) => emit(json!({"kind": "error", "offset": offset,
+                "error": format!("{n} byte(s) that start no message (bit 7 set outside one)")})),
+            None => Ok(()),
+        }
+    }
 }
 
 impl Decoder for KramerDecoder {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        use ima_video_mux::wire::kramer::LEN;
         let base = self.base;
         self.base = self.base.saturating_add(bytes.len());
         for (k, &b) in bytes.iter().enumerate() {
+            let i = base.saturating_add(k);
+            let partial = self.framer.pending();
+            let starts = b & 0x80 == 0;
+            if !starts && partial == 0 {
+                let run = self.stray.get_or_insert((i, 0));
+                run.1 = run.1.saturating_add(1);
+            } else {
+                self.stray_said(emit)?;
+            }
+            if starts && partial > 0 {
+                let error = format!("a message cut short after {partial} of its {LEN} bytes");
+                emit(
+                    json!({"kind": "error", "error": error, "offset": i.saturating_sub(partial)}),
+                )?;
+            }
             if let Some(m) = self.framer.push_byte(b) {
-                let offset = base
-                    .saturating_add(k)
-                    .saturating_sub(ima_video_mux::wire::kramer::LEN - 1);
+                let offset = i.saturating_sub(LEN - 1);
                 emit(match KramerMessage::parse(&m) {
                     Ok(k) => with_offset(kramer_json(&k), offset),
                     Err(e) => json!({"kind": "error", "error": e.to_string(), "offset": offset}),
@@ -186,7 +232,15 @@ impl Decoder for KramerDecoder {
         Ok(())
     }
 
-    fn finish(&mut self, _emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+    fn finish(&mut self, emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
+        self.stray_said(emit)?;
+        let partial = self.framer.pending();
+        if partial > 0 {
+            let offset = self.base.saturating_sub(partial);
+            emit(
+                json!({"kind": "error", "error": "truncated message at end of input", "offset": offset}),
+            )?;
+        }
         Ok(())
     }
 }
@@ -234,7 +288,8 @@ mod tests {
             &|| Box::new(ExtronDecoder::new(false)),
             b"In3 All\r\nE01\r\n3\r\nSig 1 0 1\r\nfoo\r\nIn",
         );
-        assert_eq!(v.len(), 5, "{v:?}");
+        assert_eq!(v.len(), 6, "{v:?}");
+        assert_eq!(v[5]["error"], "truncated line at end of input");
         let v = decode_alike(&|| Box::new(ExtronDecoder::new(true)), b"3!!\r\n2&1B12");
         assert_eq!(
             v.last().unwrap()["error"],
@@ -244,7 +299,57 @@ mod tests {
             &|| Box::new(KramerDecoder::default()),
             &[0x01, 0x83, 0x81, 0x81, 0x41, 0x83, 0x81, 0x81, 0x01],
         );
-        assert_eq!(v.len(), 2, "{v:?}");
+        assert_eq!(v.len(), 3, "{v:?}");
+        assert_eq!(v[2]["error"], "truncated message at end of input");
+    }
+
+    /// What the framers drop is said, where it was, however the stream is cut: Extron lines
+    /// with a byte no reply has, too long, or cut by the end; Kramer bytes that start no
+    /// message (one error per run) and messages cut short.
+    #[test]
+    fn dropped_bytes_are_said_not_lost() {
+        use crate::cmd::decode::decoder::pieces::decode_alike;
+        let mut extron = b"In\x012 All\r\nIn2 All\r\n".to_vec();
+        extron.extend([b'x'; 200]);
+        extron.extend(b"\r\nIn3 All\r\nxxxx");
+        let v = decode_alike(&|| Box::new(ExtronDecoder::new(false)), &extron);
+        let said: Vec<(&str, u64)> = v
+            .iter()
+            .map(|x| {
+                let what = x["error"].as_str().or(x["kind"].as_str()).unwrap();
+                (what, x["offset"].as_u64().unwrap())
+            })
+            .collect();
+        assert_eq!(
+            said,
+            [
+                ("non-printable byte 0x01", 2),
+                ("input", 10),
+                ("line too long", 115),
+                ("input", 221),
+                ("truncated line at end of input", 230),
+            ]
+        );
+        let kramer = [
+            0x81, 0x81, 0x81, 0x01, 0x83, 0x01, 0x83, 0x81, 0x81, 0x41, 0x83,
+        ];
+        let v = decode_alike(&|| Box::new(KramerDecoder::default()), &kramer);
+        let said: Vec<(&str, u64)> = v
+            .iter()
+            .map(|x| {
+                let what = x["error"].as_str().or(x["kind"].as_str()).unwrap();
+                (what, x["offset"].as_u64().unwrap())
+            })
+            .collect();
+        assert_eq!(
+            said,
+            [
+                ("3 byte(s) that start no message (bit 7 set outside one)", 0),
+                ("a message cut short after 2 of its 4 bytes", 3),
+                ("switch_video", 5),
+                ("truncated message at end of input", 9),
+            ]
+        );
     }
 
     /// A host command longer than any the switcher takes is reported as its length, and the
