@@ -394,6 +394,13 @@ fn bad_synthetic_sources_are_refused() {
     manager_fails_with("rate0", &src("counter", "0.0"), "rate_hz");
     manager_fails_with("rateneg", &src("counter", "-5.0"), "rate_hz");
     manager_fails_with("ratenan", &src("counter", "nan"), "rate_hz");
+    // Far above what the manager can serve or advertise (it ran at 100 kHz, said 4.3 kHz).
+    manager_fails_with("ratehuge", &src("counter", "1e12"), "from 0.001 to 100000");
+    let twice = format!(
+        "{}[[synthetic]]\nname = \"s\"\ngenerator = \"sine\"\nrate_hz = 1.0\n",
+        src("counter", "1.0")
+    );
+    manager_fails_with("twice", &twice, "two [[synthetic]] sources are named \"s\"");
     manager_fails_with("blobbig", &src("blob100000", "1.0"), "payload limit");
     manager_fails_with("unknown", "bogus_key = 1\n", "bogus_key");
 }
@@ -960,4 +967,71 @@ fn a_failed_target_is_named_with_its_reason() {
         "{stdout}"
     );
     assert!(stderr.contains("1 target(s) failed"), "{stderr}");
+}
+
+/// The listener counts what it refuses, by class, and prints its counts when interrupted too
+/// (it printed them only at `--count`, and only bad MACs and replays of the refusals).
+#[test]
+fn the_listener_counts_what_it_refuses_and_says_so_on_ctrl_c() {
+    let (listener, heard, port) = unicast_listener(&["--insecure".as_ref()]);
+    let to = format!("127.0.0.1:{port}");
+    let sock = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let mut bad_version = b"IP".to_vec();
+    bad_version.push(9);
+    bad_version.resize(80, 0);
+    let bad_magic = b"hello, robot! ".repeat(6);
+    for junk in [&bad_magic[..], b"IP", &bad_version] {
+        sock.send_to(junk, &to).unwrap();
+    }
+    // A good message after them: once it is printed, the junk before it was read.
+    let sent = ima()
+        .args([
+            "peer",
+            "send",
+            "--insecure",
+            "--mode",
+            "unicast",
+            "--peer",
+            &to,
+        ])
+        .args(["mission", "--event", "accepted", "--target", "red"])
+        .output()
+        .unwrap();
+    assert!(
+        sent.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sent.stderr)
+    );
+    let first: Value = serde_json::from_str(
+        &heard
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the message sent"),
+    )
+    .unwrap();
+    assert_eq!(first["type"], "mission", "{first}");
+    listener.wait_until_it_catches(2);
+    listener.signal("INT");
+    let stats: Value = serde_json::from_str(
+        &heard
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the counts at Ctrl-C"),
+    )
+    .unwrap();
+    assert_eq!(stats["event"], "stats", "{stats}");
+    let n = |k: &str| stats[k].as_u64().unwrap_or(u64::MAX);
+    assert_eq!(
+        [
+            n("accepted"),
+            n("bad_magic"),
+            n("truncated"),
+            n("bad_version")
+        ],
+        [1, 1, 1, 1],
+        "{stats}"
+    );
+    assert_eq!(
+        [n("bad_mac"), n("oversize"), n("malformed")],
+        [0, 0, 0],
+        "{stats}"
+    );
 }

@@ -350,14 +350,20 @@ fn synth(generator: &str, i: u64, t: f64) -> Result<Vec<u8>> {
     })
 }
 
-/// Checks a synthetic source before it is published: a finite positive rate, a known
+/// The rates a synthetic source may have, Hz: its period is at most 1000 s, at least 10 µs,
+/// and the rate is advertised in mHz.
+const SYNTHETIC_RATES: std::ops::RangeInclusive<f64> = 0.001..=100_000.0;
+
+/// Checks a synthetic source before it is published: a rate in [`SYNTHETIC_RATES`], a known
 /// generator, and a sample that fits in one data frame (`max_payload`).
 fn check_synthetic(s: &SyntheticSource, max_payload: usize) -> Result<()> {
-    if !(s.rate_hz.is_finite() && s.rate_hz > 0.0) {
+    if !SYNTHETIC_RATES.contains(&s.rate_hz) {
         bail!(
-            "synthetic source {:?}: rate_hz = {} must be a finite number above 0",
+            "synthetic source {:?}: rate_hz = {} must be a number from {} to {}",
             s.name,
-            s.rate_hz
+            s.rate_hz,
+            SYNTHETIC_RATES.start(),
+            SYNTHETIC_RATES.end()
         );
     }
     if let Some(n) = s
@@ -379,7 +385,11 @@ fn check_synthetic(s: &SyntheticSource, max_payload: usize) -> Result<()> {
 fn run_source(s: &SyntheticSource, p: SourcePublisher) -> Result<tokio::task::JoinHandle<()>> {
     let generator = s.generator.clone();
     check_synthetic(s, p.max_payload())?;
-    let period = Duration::from_secs_f64(1.0 / s.rate_hz.clamp(0.001, 100_000.0));
+    let period = Duration::from_secs_f64(
+        1.0 / s
+            .rate_hz
+            .clamp(*SYNTHETIC_RATES.start(), *SYNTHETIC_RATES.end()),
+    );
     Ok(tokio::spawn(async move {
         let start = std::time::Instant::now();
         let mut tick = tokio::time::interval(period);
@@ -418,6 +428,17 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     if synthetic.is_empty() {
         synthetic = default_synthetic();
     }
+    // Every source checked before the manager starts: a bad one is the config's mistake.
+    for (i, s) in synthetic.iter().enumerate() {
+        check_synthetic(s, cfg.max_body.saturating_sub(18))?;
+        if synthetic[..i].iter().any(|o| o.name == s.name) {
+            bail!(
+                "two [[synthetic]] sources are named {:?}: a client asks for a source by its \
+                 name, so each needs its own",
+                s.name
+            );
+        }
+    }
     let agent = FixedSelfAgent::new(cfg.manager.task_priority, Vec::new());
     let m = spawn_manager(&cfg, key.clone(), agent)
         .await
@@ -425,7 +446,6 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
     let mut events = m.events();
     let mut tasks = Vec::new();
     for s in &synthetic {
-        check_synthetic(s, cfg.max_body.saturating_sub(18))?;
         let p = m
             .publisher(SourceInfo::new(&s.name, &s.generator, 1, s.rate_hz))
             .map_err(|e| anyhow::anyhow!("source {:?}: {e}", s.name))?;
@@ -592,23 +612,29 @@ async fn listen(a: &ListenArgs) -> Result<()> {
     // Frames under another key are refused silently by the channel: say so (rate-limited).
     let mut check = tokio::time::interval(Duration::from_secs(1));
     check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    // What was heard and refused, by class: at `--count`, and on Ctrl-C or SIGTERM.
+    let stats = || {
+        let s = ch.stats();
+        let w = s.wire;
+        line(&json!({
+            "event": "stats", "accepted": s.receiver.accepted,
+            "duplicate": s.receiver.duplicate, "stale": s.receiver.stale,
+            "bad_mac": w.bad_mac, "replay": w.replay, "truncated": w.truncated,
+            "bad_magic": w.bad_magic, "bad_version": w.bad_version, "oversize": w.oversize,
+            "malformed": w.malformed,
+        }))
+    };
     loop {
         if let Some(report) = ch.take_auth_report() {
             eprintln!("ima: warning: {report}");
         }
         if a.count.is_some_and(|c| n >= c) {
-            let s = ch.stats();
-            line(&json!({
-                "event": "stats", "accepted": s.receiver.accepted, "bad_mac": s.wire.bad_mac,
-                "replay": s.wire.replay, "duplicate": s.receiver.duplicate,
-                "stale": s.receiver.stale,
-            }))?;
-            return Ok(());
+            return stats();
         }
         let r = tokio::select! {
             r = ch.recv() => r,
             _ = check.tick() => continue,
-            () = crate::safety::cancelled() => return Ok(()),
+            () = crate::safety::cancelled() => return stats(),
         };
         let (m, from) = r.map_err(|e| anyhow::anyhow!("{e}"))?;
         n += 1;
