@@ -891,7 +891,8 @@ fn close_stdout_after(cmd: &mut std::process::Command, lines: usize) -> (Option<
 }
 
 /// `ima demo square --json | head -1`, `ima demo --json | head -1`,
-/// `ima scan --json | head -1` and `ima decode … | head -1` end quietly with 141 instead of
+/// `ima scan --json | head -1`, `ima decode … | head -1` and `ima san simulate … | head -1`
+/// end quietly with 141 instead of
 /// panicking or reporting an error.
 #[test]
 fn a_closed_stdout_ends_every_printing_command_quietly() {
@@ -924,6 +925,15 @@ fn a_closed_stdout_ends_every_printing_command_quietly() {
         1,
     );
     assert_eq!(code, Some(141), "decode: {err}");
+    assert!(err.is_empty(), "{err}");
+
+    // `ima san simulate` (it said "error: Broken pipe" and exited 1).
+    let toy = concat!(env!("CARGO_MANIFEST_DIR"), "/agents/networks/maes_toy.toml");
+    let (code, err) = close_stdout_after(
+        ima().args(["san", "simulate", toy, "--steps", "1000000"]),
+        1,
+    );
+    assert_eq!(code, Some(141), "san simulate: {err}");
     assert!(err.is_empty(), "{err}");
 }
 

@@ -70,7 +70,8 @@ pub fn run_to(args: &SanSimulateArgs, out: &mut impl Write) -> anyhow::Result<()
     }
     for _ in 0..args.steps {
         let trace = net.simulate_step();
-        serde_json::to_writer(&mut *out, &trace)?;
+        // As an I/O error, so a closed stdout ends the command as one (status 141, quietly).
+        serde_json::to_writer(&mut *out, &trace).map_err(std::io::Error::from)?;
         out.write_all(b"\n")?;
     }
     out.flush()?;

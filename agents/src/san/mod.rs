@@ -757,6 +757,28 @@ pre = ["c"]
         assert_eq!(e.to_string(), "a condition has an empty name");
     }
 
+    /// A wrong initial value says what is allowed (it said "data did not match any variant
+    /// of untagged enum Initial").
+    #[test]
+    fn a_wrong_initial_value_says_what_is_allowed() {
+        let spec = |v: &str| {
+            format!(
+                "name = \"m\"\n[[condition]]\nname = \"h\"\ninitial = {v}\n[[module]]\nname = \"x\""
+            )
+        };
+        for v in ["-5", "2.5", "99999999999", "\"yes\""] {
+            let e = Network::from_toml(&spec(v)).unwrap_err().to_string();
+            assert!(
+                e.contains("expected true, false, or a count from 0 to 4294967295"),
+                "{v}: {e}"
+            );
+        }
+        for (v, want) in [("7", Initial::Count(7)), ("true", Initial::Flag(true))] {
+            let s: spec::NetworkSpec = toml::from_str(&spec(v)).unwrap();
+            assert_eq!(s.conditions[0].initial, want, "{v}");
+        }
+    }
+
     #[test]
     fn multiset_state() {
         let text = "name = \"m\"\n[[condition]]\nname = \"h\"\ninitial = 2\n[[condition]]\nname = \"f\"\ninitial = true\n[[module]]\nname = \"x\"\npre = [\"h\"]\ndel = [\"h\"]\nadd = [\"f\"]";

@@ -83,14 +83,41 @@ pub enum Normalization {
     ScaleDown,
 }
 
-/// Initial value of a condition.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(untagged)]
+/// Initial value of a condition: `true`/`false`, or a count from 0 to `u32::MAX`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Initial {
     /// A flag, initially true or false.
     Flag(bool),
     /// A counter (multiset proposition) with this many instances.
     Count(u32),
+}
+
+/// By hand, so a wrong value is named with what is allowed (serde's untagged enum said only
+/// "data did not match any variant").
+impl<'de> Deserialize<'de> for Initial {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = Initial;
+            fn expecting(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                write!(f, "true, false, or a count from 0 to {}", u32::MAX)
+            }
+            fn visit_bool<E: serde::de::Error>(self, v: bool) -> Result<Initial, E> {
+                Ok(Initial::Flag(v))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Initial, E> {
+                u32::try_from(v)
+                    .map(Initial::Count)
+                    .map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Initial, E> {
+                u64::try_from(v)
+                    .map_err(|_| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+                    .and_then(|v| self.visit_u64(v))
+            }
+        }
+        d.deserialize_any(V)
+    }
 }
 
 impl Default for Initial {
