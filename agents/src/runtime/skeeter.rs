@@ -108,7 +108,14 @@ where
     let scan_task = tokio::spawn({
         let time = time.clone();
         async move {
+            // Sweeps in a row in which every camera failed (the switcher or the grabber is
+            // gone): the next waits, so a dead device is not swept thousands of times a
+            // second (it was, with a broadcast and a log line each).
+            let mut blind = 0u32;
             while scan_req_rx.recv().await.is_some() {
+                if blind > 0 {
+                    tokio::time::sleep(blind_backoff(blind)).await;
+                }
                 let r = run_scan(
                     &mut scanner,
                     &mut mux,
@@ -117,12 +124,28 @@ where
                     || time.now(),
                 )
                 .await;
+                match &r {
+                    Some(r) if r.cameras_ok == 0 && r.cameras_failed > 0 => {
+                        blind = blind.saturating_add(1);
+                        if blind.is_power_of_two() {
+                            tracing::warn!(
+                                "Skeeter: every camera failed in {blind} sweep(s) in a row; \
+                                 the next sweep waits {:?}",
+                                blind_backoff(blind)
+                            );
+                        }
+                    }
+                    Some(_) => blind = 0,
+                    None => {}
+                }
                 if report_tx.send(r).await.is_err() {
                     return;
                 }
             }
         }
     });
+    // Broadcasts and SES samples lost to a full queue, warned at the 1st, 2nd, 4th, 8th…
+    let (mut said_lost, mut ses_lost) = (0u64, 0u64);
     brain.start(time.now());
     let mut last_behaviour = String::new();
     let mut last_detail: Option<ima_hal::Instant> = None;
@@ -137,9 +160,13 @@ where
                         events.emit(&time, &me, EventKind::Say(b.to_string()));
                     }
                     if link.say.try_send(b).is_err() {
-                        tracing::warn!(
-                            "Skeeter's broadcast queue is full or closed: a message is lost"
-                        );
+                        said_lost += 1;
+                        if said_lost.is_power_of_two() {
+                            tracing::warn!(
+                                "Skeeter's broadcast queue is full or closed: {said_lost} \
+                                 message(s) lost so far"
+                            );
+                        }
                     }
                 }
                 SkeeterOutput::StartScan => {
@@ -158,7 +185,13 @@ where
                         .collect();
                     events.emit(&time, &me, EventKind::SesPublished { marks });
                     if link.publish.try_send(form).is_err() {
-                        tracing::warn!("Skeeter's SES queue is full or closed: a sample is lost");
+                        ses_lost += 1;
+                        if ses_lost.is_power_of_two() {
+                            tracing::warn!(
+                                "Skeeter's SES queue is full or closed: {ses_lost} sample(s) \
+                                 lost so far"
+                            );
+                        }
                     }
                 }
             }
@@ -251,6 +284,12 @@ where
     result
 }
 
+/// How long the sweep after `blind` blind sweeps in a row waits (real time): 0.5 s, doubling,
+/// at most 8 s.
+fn blind_backoff(blind: u32) -> Duration {
+    Duration::from_millis(500).saturating_mul(1 << blind.saturating_sub(1).min(4))
+}
+
 #[cfg(test)]
 mod tests {
     use std::sync::{Arc, Mutex};
@@ -339,6 +378,75 @@ mod tests {
                 Frame::black(64, 48, None).unwrap(),
             ))
         }
+    }
+
+    /// A switcher whose port has closed: every call fails at once.
+    #[derive(Debug)]
+    struct DeadMux(Arc<Mutex<u32>>);
+
+    impl ErrorType for DeadMux {
+        type Error = ima_hal::ErrorKind;
+    }
+
+    impl CameraMux for DeadMux {
+        fn channel_count(&self) -> Channel {
+            7
+        }
+        fn settle_time(&self) -> Duration {
+            Duration::from_millis(10)
+        }
+        async fn select(&mut self, _channel: Channel) -> Result<Selection, Self::Error> {
+            *self.0.lock().unwrap() += 1;
+            Err(ima_hal::ErrorKind::Disconnected)
+        }
+        async fn current_channel(&mut self) -> Result<Option<Channel>, Self::Error> {
+            Err(ima_hal::ErrorKind::Disconnected)
+        }
+    }
+
+    /// With its switcher gone every sweep fails at once, and the SAN asks for the next at
+    /// once: the sweeps back off (0.5 s, doubling, at most 8 s) instead of running thousands
+    /// of times a second with a broadcast and a warning each.
+    #[tokio::test(start_paused = true)]
+    async fn sweeps_with_every_camera_failed_back_off() {
+        let clock = TokioClock::shared();
+        let selects = Arc::new(Mutex::new(0));
+        let dev = SkeeterDevices {
+            base: Base::default(),
+            mux: DeadMux(Arc::clone(&selects)),
+            frames: Frames(clock.clone()),
+        };
+        let (link, ends) = SkeeterLink::channels();
+        let (events, mut rx) = Events::channel(100_000);
+        let (stop_tx, stop) = watch::channel(false);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        ends.heard
+            .send(Broadcast::mission(
+                "commander",
+                MissionEvent::Accepted,
+                "red",
+            ))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(60)).await;
+        stop_tx.send(true).unwrap();
+        run.await.unwrap().unwrap();
+        let mut blind = 0;
+        while let Some(e) = rx.try_recv() {
+            if let EventKind::Scan {
+                cameras_ok,
+                cameras_failed,
+                ..
+            } = e.kind
+            {
+                assert_eq!((cameras_ok, cameras_failed), (0, 7));
+                blind += 1;
+            }
+        }
+        // 1 + after 0.5, 1, 2, 4, 8, 8, 8… s: about 10 sweeps in a minute (a handful more if
+        // the SAN waits less between them), not thousands.
+        assert!((5..=20).contains(&blind), "{blind} blind sweeps in 60 s");
+        assert_eq!(*selects.lock().unwrap(), blind * 7);
     }
 
     fn cfg() -> SkeeterRuntimeConfig {
