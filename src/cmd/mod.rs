@@ -84,10 +84,20 @@ impl WebArgs {
         };
         let console = crate::web::Console::new(mode, colours, ops, token.clone());
         let server = crate::web::start(std::sync::Arc::clone(&console), addr)?;
-        eprintln!(
-            "ima: web console at {}",
-            crate::web::url(server.addr, token.as_deref())
-        );
+        let url = crate::web::url(server.addr, token.as_deref());
+        if server.addr.ip().is_unspecified() {
+            eprintln!(
+                "ima: web console at {url} (from another machine, put this machine's address \
+                 in place of {})",
+                if server.addr.is_ipv4() {
+                    "127.0.0.1"
+                } else {
+                    "[::1]"
+                }
+            );
+        } else {
+            eprintln!("ima: web console at {url}");
+        }
         Ok(Some((console, server)))
     }
 }

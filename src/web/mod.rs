@@ -143,7 +143,26 @@ impl Console {
         };
         let (op, lost) = {
             let s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
-            let op = msg::to_operator(&cmd, &s.colours, s.targets.len(), |c| s.open_target(c));
+            let op = msg::to_operator(&cmd, &s.colours, s.targets.len(), |c| s.open_target(c))
+                .and_then(|op| {
+                    // Only waiting targets move (the commander refuses the rest): say so
+                    // here, not "moved" and a refusal in the log after it.
+                    if let Operator::Move { from, to } = op {
+                        for p in [from, to] {
+                            let t = s.targets.get(p);
+                            let state = t.and_then(|t| t["state"].as_str()).unwrap_or("?");
+                            if state != "waiting" {
+                                let colour = t.and_then(|t| t["target"].as_str()).unwrap_or("?");
+                                return Err(format!(
+                                    "position {} holds {colour}, which is {state}: only waiting \
+                                     targets move",
+                                    p + 1
+                                ));
+                            }
+                        }
+                    }
+                    Ok(op)
+                });
             (op, s.lost_robots())
         };
         let op = match op {
@@ -153,7 +172,10 @@ impl Console {
         let what = match &op {
             Operator::Add(c) => format!("target {c} added to the queue"),
             Operator::Cancel(c) => format!("target {c} cancelled"),
-            Operator::Move { from, to } => format!("target moved from position {from} to {to}"),
+            // Positions as the page shows them, from 1.
+            Operator::Move { from, to } => {
+                format!("target moved from position {} to {}", from + 1, to + 1)
+            }
             Operator::Stop(_) => "fleet stop sent".to_owned(),
             Operator::Resume => "fleet resume sent".to_owned(),
             Operator::Quit { .. } => "quit".to_owned(),
@@ -347,8 +369,16 @@ impl Drop for WebServer {
     }
 }
 
-/// The URL to open (with the token when there is one).
+/// The URL to open (with the token when there is one). A console bound to every address
+/// (`0.0.0.0`, `[::]`) is named by its loopback address, which a browser can open.
 pub fn url(addr: SocketAddr, token: Option<&str>) -> String {
+    let mut addr = addr;
+    if addr.ip().is_unspecified() {
+        addr.set_ip(match addr.ip() {
+            std::net::IpAddr::V4(_) => std::net::Ipv4Addr::LOCALHOST.into(),
+            std::net::IpAddr::V6(_) => std::net::Ipv6Addr::LOCALHOST.into(),
+        });
+    }
     match token {
         Some(t) => format!("http://{addr}/?token={t}"),
         None => format!("http://{addr}/"),
@@ -504,7 +534,11 @@ async fn guard(State(c): State<Arc<Console>>, req: Request, next: Next) -> Respo
         }
         return (StatusCode::FORBIDDEN, format!("refused: {why}\n")).into_response();
     }
-    if c.authorised(&req) {
+    // The page's script and style sheet hold no state and no secret, and the page loads them
+    // without its token (a console beyond loopback served them only with 401, so its page
+    // had no script: no live state, no fleet-stop key).
+    let asset = matches!(req.uri().path(), "/app.js" | "/style.css");
+    if asset || c.authorised(&req) {
         next.run(req).await
     } else {
         (

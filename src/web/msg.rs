@@ -143,7 +143,7 @@ pub fn to_operator(
             if *from >= queue_len || *to >= queue_len {
                 return Err(format!(
                     "no target at position {} (the queue has {queue_len})",
-                    (*from).max(*to)
+                    (*from).max(*to) + 1
                 ));
             }
             Ok(Operator::Move {
@@ -269,7 +269,7 @@ mod tests {
         assert!(
             op(Command::Move { from: 0, to: 7 })
                 .unwrap_err()
-                .contains("position 7")
+                .contains("position 8 (the queue has 3)")
         );
         let full = to_operator(
             &Command::Add {

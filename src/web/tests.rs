@@ -247,6 +247,18 @@ fn the_server_serves_the_page_state_and_commands() {
     assert!(r.contains("scooter is lost"), "{r}");
     assert_eq!(rx.try_recv(), Ok(Operator::Stop("operator".into())));
 
+    // A move onto a target already sent is refused here (the commander refused it after an
+    // "ok"), in the page's positions (from 1).
+    let (code, r) = http(
+        srv.addr,
+        "POST",
+        "/api/command",
+        r#"{"cmd":"move","from":1,"to":0}"#,
+    );
+    assert_eq!(code, 400, "{r}");
+    assert!(r.contains("position 1 holds red, which is sent"), "{r}");
+    assert!(rx.try_recv().is_err());
+
     // Another method: 405, saying what to do.
     let (code, r) = http(srv.addr, "GET", "/api/command", "");
     assert_eq!(code, 405);
@@ -279,10 +291,22 @@ fn beyond_loopback_a_token_is_needed_and_checked() {
     assert_eq!(http(srv.addr, "GET", "/?token=wrong", "").0, 401);
     assert_eq!(http(srv.addr, "GET", "/api/state?token=s3cret", "").0, 200);
     assert_eq!(http(srv.addr, "GET", "/?token=s3cret", "").0, 200);
+    // The page loads its script and style sheet without the token (they were refused, so a
+    // console beyond loopback had a page without its script); the state still needs it.
+    let (code, js) = http(srv.addr, "GET", "/app.js", "");
+    assert_eq!(code, 200);
+    assert!(js.contains("token"), "the script passes the token on");
+    assert_eq!(http(srv.addr, "GET", "/style.css", "").0, 200);
+    assert_eq!(http(srv.addr, "GET", "/api/state", "").0, 401);
+    assert_eq!(http(srv.addr, "GET", "/api/events", "").0, 401);
     assert_eq!(
         url(srv.addr, Some("s3cret")),
         format!("http://{}/?token=s3cret", srv.addr)
     );
+    let any: SocketAddr = "0.0.0.0:8080".parse().unwrap();
+    assert_eq!(url(any, Some("t")), "http://127.0.0.1:8080/?token=t");
+    let any6: SocketAddr = "[::]:8080".parse().unwrap();
+    assert_eq!(url(any6, None), "http://[::1]:8080/");
 }
 
 /// A page on another site must not command the robots through the operator's browser (a
