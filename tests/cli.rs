@@ -35,6 +35,46 @@ fn mock_and_drive_talk_over_a_pty_in_separate_processes() {
     );
 }
 
+/// A reader that does not read (a pager nobody scrolls) does not stall the drive: the state
+/// lines wait on a thread of their own, the robot drives for `--for` and is stopped and
+/// closed, and the lines come out once the reader reads. The motion loop used to block on
+/// the full pipe after ~9 s of JSON lines: no velocity command went out, the robot's
+/// watchdog stopped it short, and `ima drive` hung until the reader read.
+#[test]
+fn a_stalled_stdout_does_not_stall_the_drive() {
+    let (_mock, path) = spawn_mock(&["p2os", "--seed", "3"]);
+    let mut drive = common::Child(
+        ima()
+            .args(["drive", "--port", &path, "--vel", "0.1", "--turn", "0"])
+            .args(["--for", "14", "--json"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (err, _reader) = common::line_channel(drive.0.stderr.take().unwrap());
+    // 14 s of JSON lines (~7 KB/s) overfill the pipe (64 KiB), which nobody reads yet.
+    let stopped = loop {
+        let l = err
+            .recv_timeout(std::time::Duration::from_secs(40))
+            .expect("the drive ended its motion");
+        if l.starts_with("stopped at") || l.starts_with("still moving") {
+            break l;
+        }
+    };
+    let x: f64 = stopped
+        .strip_prefix("stopped at x=")
+        .and_then(|r| r.split(' ').next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{stopped}"));
+    assert!(x > 1.2, "drove {x} m of the 1.4 m asked: {stopped}");
+    let mut out = String::new();
+    std::io::Read::read_to_string(&mut drive.0.stdout.take().unwrap(), &mut out).unwrap();
+    assert!(drive.0.wait().unwrap().success());
+    let lines = out.lines().count();
+    assert!(lines >= 100, "{lines} state lines");
+}
+
 #[test]
 fn drive_reports_a_clear_error_when_nothing_answers() {
     // A pty nobody serves: the handshake times out at every rate.

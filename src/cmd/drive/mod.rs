@@ -18,7 +18,7 @@ use ima_p2os::shell::{P2os, open_port};
 
 use self::report::{report_end, report_interrupted};
 use super::num;
-use crate::safety::{self, outln};
+use crate::safety;
 
 /// Robot bases `ima drive` can drive.
 #[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
@@ -168,6 +168,7 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
     let start = robot.now();
     let end = start + num::duration(args.duration);
     let mut last = start;
+    let mut live = report::Live::start()?;
     let motion = async {
         while robot.now() < end {
             robot.set_velocity(cmd).await?;
@@ -181,7 +182,7 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
                     r.log_sonar("robot", robot.transducers(), &st.sonar.value);
                 }
             }); // record: odometry, sonar
-            print_state(&st, start, args.json)?;
+            live.line(state_line(&st, start, args.json));
         }
         anyhow::Ok(())
     };
@@ -208,14 +209,13 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
         .close()
         .await
         .context("closing the session (STOP, CLOSE)")?;
+    // The robot is closed: now wait for stdout to take the last state lines.
+    live.finish();
     Ok(())
 }
 
-fn print_state(
-    st: &ima_p2os::machine::RobotState,
-    start: ima_hal::Instant,
-    json: bool,
-) -> Result<()> {
+/// One line of the robot's state, as text or JSON.
+fn state_line(st: &ima_p2os::machine::RobotState, start: ima_hal::Instant, json: bool) -> String {
     let t = st
         .odometry
         .at
@@ -230,7 +230,7 @@ fn print_state(
             .iter()
             .map(|r| serde_json::json!({"index": r.index, "range_m": r.range_m}))
             .collect();
-        outln!(
+        format!(
             "{}",
             serde_json::json!({
                 "t_s": t, "x_m": o.x_m(), "y_m": o.y_m(), "theta_rad": o.theta_rad(),
@@ -248,7 +248,7 @@ fn print_state(
             .filter(|r| r.index < 8)
             .map(|r| format!("{:.2}", r.range_m))
             .collect();
-        outln!(
+        format!(
             "t={t:6.2}s x={:+.3} y={:+.3} θ={:+6.1}° v={:+.2} ω={:+.2} batt={:.1}V front sonar [{}]",
             o.x_m(),
             o.y_m(),

@@ -69,3 +69,67 @@ pub fn report_interrupted(last: Option<&Odometry>) {
         );
     }
 }
+
+/// The state lines printed while the robot moves, written to stdout by a thread of their
+/// own: the motion loop never waits on its reader. A reader that stalls (a pipe into a pager
+/// nobody scrolls) used to stall the loop, so no velocity command went out: the driver's
+/// watchdog stopped the robot short and `--for` was not honoured. Lines that find
+/// [`LIVE_LINES`] waiting are dropped and counted; a closed stdout still ends the command as
+/// one (every base halted, status 141).
+pub struct Live {
+    tx: Option<std::sync::mpsc::SyncSender<String>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    dropped: u64,
+}
+
+/// Lines that may wait for stdout before new ones are dropped (several seconds of a drive).
+pub const LIVE_LINES: usize = 256;
+
+impl Live {
+    /// Start the writing thread.
+    ///
+    /// # Errors
+    /// The thread could not start.
+    pub fn start() -> anyhow::Result<Self> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<String>(LIVE_LINES);
+        let thread = std::thread::Builder::new()
+            .name("ima-drive-out".into())
+            .spawn(move || {
+                for line in rx {
+                    // A closed stdout halts the bases and asks the command to end.
+                    if crate::safety::out_line(format_args!("{line}")).is_err() {
+                        break;
+                    }
+                }
+            })?;
+        Ok(Self {
+            tx: Some(tx),
+            thread: Some(thread),
+            dropped: 0,
+        })
+    }
+
+    /// Queue one line (dropped and counted when [`LIVE_LINES`] are waiting already).
+    pub fn line(&mut self, line: String) {
+        if let Some(tx) = &self.tx
+            && let Err(std::sync::mpsc::TrySendError::Full(_)) = tx.try_send(line)
+        {
+            self.dropped += 1;
+        }
+    }
+
+    /// Wait until the queued lines are written (the robot has stopped by then) and say how
+    /// many were dropped.
+    pub fn finish(mut self) {
+        self.tx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        if self.dropped > 0 {
+            eprintln!(
+                "ima drive: {} state line(s) not printed: standard output did not keep up",
+                self.dropped
+            );
+        }
+    }
+}

@@ -9,7 +9,7 @@ use ima_rflex::shell::Driver as _;
 use ima_rflex::shell::{Rflex, open_port};
 
 use crate::cmd::num;
-use crate::safety::{self, outln};
+use crate::safety;
 
 /// What to do (from `ima drive`'s arguments).
 #[derive(Debug, Clone)]
@@ -70,6 +70,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     let end = start + num::duration(o.duration_s);
     let mut last = start;
     let mut latest = None;
+    let mut live = super::report::Live::start()?;
     let motion = async {
         while base.now() < end {
             base.set_velocity(cmd).await?;
@@ -80,7 +81,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
                 r.log_odometry("robot", p);
             }); // record: odometry
             latest = Some(odo.value);
-            report(&mut base, odo, start, o.json).await?;
+            live.line(state_line(&mut base, odo, start, o.json).await);
         }
         anyhow::Ok(())
     };
@@ -108,16 +109,19 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     base.close()
         .await
         .context("shutting the base down (zero speed, brake)")?;
+    // The robot is closed: now wait for stdout to take the last state lines.
+    live.finish();
     Ok(())
 }
 
 /// One line (or JSON object) per motion report.
-async fn report(
+/// One line of the base's state (its odometry, battery and sonar), as text or JSON.
+async fn state_line(
     base: &mut Rflex,
     odo: Stamped<Odometry>,
     start: Instant,
     json: bool,
-) -> Result<()> {
+) -> String {
     let t = odo.at.saturating_duration_since(start).as_secs_f64();
     let v = odo.value;
     let battery_v = base.power().await.ok().map(|p| p.value.battery_v);
@@ -131,7 +135,7 @@ async fn report(
             .flat_map(|s| s.readings.iter())
             .map(|r| serde_json::json!({"index": r.index, "range_m": r.range_m}))
             .collect();
-        outln!(
+        format!(
             "{}",
             serde_json::json!({
                 "t_s": t, "x_m": v.x_m(), "y_m": v.y_m(), "theta_rad": v.theta_rad(),
@@ -146,7 +150,7 @@ async fn report(
             .filter(|r| r.index <= 2 || r.index >= 15)
             .map(|r| format!("{:.2}", r.range_m))
             .collect();
-        outln!(
+        format!(
             "t={t:6.2}s x={:+.3} y={:+.3} θ={:+6.1}° v={:+.2} ω={:+.2} batt={} front sonar [{}]",
             v.x_m(),
             v.y_m(),
