@@ -873,11 +873,19 @@ fn record_exclude_leaves_topics_out_of_the_file() {
         .arg(&file)
         .args(["--record-exclude", "/*/sonar"])
         .args(["--record-exclude", "/robot/serial"])
+        .args(["--record-exclude", "/skeeter/serial/base"])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
-    assert!(err.contains("(left out: /*/sonar, /robot/serial)"), "{err}");
+    // A pattern that left nothing out (a typo: this drive's topics are /robot/…) is named.
+    assert!(
+        err.contains(
+            "(left out: /*/sonar, /robot/serial, /skeeter/serial/base; no topic matched \
+             /skeeter/serial/base)"
+        ),
+        "{err}"
+    );
     let ch = Recording::open(&file).unwrap().channels();
     assert!(ch.contains_key("/robot/odom"), "{ch:?}");
     assert!(
@@ -886,7 +894,10 @@ fn record_exclude_leaves_topics_out_of_the_file() {
         "{ch:?}"
     );
     let meta = Recording::open(&file).unwrap().ima_metadata().unwrap();
-    assert_eq!(meta["exclude"], "/*/sonar, /robot/serial");
+    assert_eq!(
+        meta["exclude"],
+        "/*/sonar, /robot/serial, /skeeter/serial/base"
+    );
     // Asked for the port it left out, a replay says why it is missing.
     let out = ima()
         .args(["replay", "--as-mock", "robot/base"])
@@ -896,7 +907,10 @@ fn record_exclude_leaves_topics_out_of_the_file() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success()
-            && err.contains("it has: none (the recording left out: /*/sonar, /robot/serial)"),
+            && err.contains(
+                "it has: none (the recording left out: /*/sonar, /robot/serial, \
+                 /skeeter/serial/base)"
+            ),
         "{err}"
     );
     let out = ima()
@@ -909,7 +923,7 @@ fn record_exclude_leaves_topics_out_of_the_file() {
         out.status.success()
             && err.contains(
                 "no raw serial channel to re-decode in the recording \
-                 (the recording left out: /*/sonar, /robot/serial)"
+                 (the recording left out: /*/sonar, /robot/serial, /skeeter/serial/base)"
             ),
         "{err}"
     );

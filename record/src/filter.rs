@@ -121,6 +121,17 @@ impl TopicFilter {
         self.patterns.is_empty()
     }
 
+    /// The patterns that match none of `topics` (a typo, or a device that never logged), as
+    /// given.
+    #[must_use]
+    pub fn unmatched<'a>(&self, topics: impl Iterator<Item = &'a str> + Clone) -> Vec<String> {
+        self.patterns
+            .iter()
+            .filter(|p| !topics.clone().any(|t| p.matches(t)))
+            .map(|p| p.as_str().to_owned())
+            .collect()
+    }
+
     /// The patterns, as given, comma-separated.
     #[must_use]
     pub fn describe(&self) -> String {
@@ -177,6 +188,8 @@ mod tests {
         assert!(f.excludes("/broadcasts"));
         assert!(!f.excludes("/scooter/scan"));
         assert_eq!(f.describe(), "/*/camera, /broadcasts");
+        let topics = ["/skeeter/camera/2", "/scooter/scan"];
+        assert_eq!(f.unmatched(topics.iter().copied()), ["/broadcasts"]);
         assert!(!TopicFilter::default().excludes("/skeeter/camera"));
     }
 

@@ -163,6 +163,9 @@ pub struct Report {
     pub server_port: Option<u16>,
     /// The topics left out of the file, as the patterns were given (empty: none).
     pub excluded: String,
+    /// The patterns of [`Options::exclude`] that matched no topic logged (a typo: nothing was
+    /// left out by them).
+    pub excluded_nothing: Vec<String>,
     /// CPU time the recorder's own thread used, from the kernel's per-thread account
     /// (`None` where it cannot be read: not Linux).
     pub thread_cpu: Option<Duration>,
@@ -193,7 +196,14 @@ impl Report {
             None => format!("published {} messages", self.total()),
         };
         if !self.excluded.is_empty() && self.path.is_some() {
-            s.push_str(&format!(" (left out: {})", self.excluded));
+            s.push_str(&format!(" (left out: {}", self.excluded));
+            if !self.excluded_nothing.is_empty() {
+                s.push_str(&format!(
+                    "; no topic matched {}",
+                    self.excluded_nothing.join(", ")
+                ));
+            }
+            s.push(')');
         }
         if self.dropped > 0 {
             s.push_str(&format!(
@@ -690,6 +700,12 @@ impl Recorder {
         };
         r.dropped += self.dropped();
         r.unwritten += self.shared.unwritten.load(Ordering::Relaxed);
+        {
+            // Every topic logged was declared as a stream, left out or not.
+            let inner = self.lock();
+            let topics = inner.streams.iter().map(|s| &*s.topic);
+            r.excluded_nothing = self.shared.exclude.unmatched(topics);
+        }
         r.calls_time = Duration::from_nanos(self.shared.calls_ns.load(Ordering::Relaxed));
         *done = Some(r.clone());
         r
@@ -1063,6 +1079,7 @@ impl Worker {
             bytes,
             server_port: self.server_port,
             excluded: self.exclude.describe(),
+            excluded_nothing: Vec::new(),
             thread_cpu: thread_cpu(),
             calls_time: Duration::ZERO,
         }
