@@ -217,6 +217,12 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     assert_eq!(schema("/skeeter/ses"), "foxglove.SceneUpdate");
     assert_eq!(schema("/broadcasts"), "foxglove.Log");
     assert_eq!(schema("/scooter/truth"), "foxglove.PoseInFrame");
+    // Both robots' odometry, though Skeeter's runtime never reads its own (it had none, so
+    // nothing placed `skeeter/base_link`, where its sonar and SES are drawn).
+    for robot in ["skeeter", "scooter"] {
+        assert_eq!(schema(&format!("/{robot}/odom")), "foxglove.PoseInFrame");
+        assert!(written[&format!("/{robot}/odom")] > 0);
+    }
     assert_eq!(schema("/san/scooter"), "ima.SanState");
     assert_eq!(schema("/peer/skeeter/status"), "ima.PeerStatus");
     assert!(
