@@ -165,6 +165,22 @@ fn a_robot_without_its_devices_fails_with_the_port_named() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("/dev/ima-no-such-port"), "{err}");
+    // A listening address whose name does not resolve is named before any port is opened
+    // (it failed only after the devices had connected).
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let unresolvable = text.replace(
+        "[peer]\n",
+        "[peer]\nlisten = \"ima-no-such-host.invalid:7610\"\n",
+    );
+    std::fs::write(&cfg, unresolvable).unwrap();
+    let out = ima().args(["run", "--config"]).arg(&cfg).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("peer.listen \"ima-no-such-host.invalid:7610\": the name does not resolve")
+            && !err.contains("/dev/ima-no"),
+        "{err}"
+    );
     // A configuration without a key is refused.
     std::fs::write(&cfg, "robot = \"commander\"\nrole = \"commander\"\n").unwrap();
     let out = ima()

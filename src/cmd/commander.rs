@@ -29,6 +29,7 @@ use crate::stack::{EVENT_QUEUE, Event, EventKind, Events, net};
 #[derive(Debug, Args)]
 #[command(
     args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true,
     after_help = "While it runs, type a request and Enter: `stop [reason]` (fleet stop), `resume`, \
                   `cancel COLOUR`, `add COLOUR [at N]` (append, or insert at position N), \
                   `move COLOUR N` (a waiting target to position N; positions from 1).\nCtrl-C: with --stop-on-exit a fleet stop goes out first; \
@@ -40,7 +41,7 @@ pub struct CommanderArgs {
     #[command(subcommand)]
     action: Option<Action>,
     /// Configuration file (role `commander`; see `configs/commander.toml`).
-    #[arg(long)]
+    #[arg(long, required = true)]
     config: Option<PathBuf>,
     /// Target colours, in order.
     #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]

@@ -131,8 +131,36 @@ pub fn check_colours(targets: &[String], known: &[String], what: &str) -> anyhow
         anyhow::ensure!(
             known.contains(t),
             "unknown target colour {t:?}; {what} are: {}",
-            known.join(", ")
+            if known.is_empty() {
+                "none (nothing to find)".to_owned()
+            } else {
+                known.join(", ")
+            }
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A colour nobody knows names the known ones, or says there are none (it printed an
+    /// empty list); a series longer than one holds is refused.
+    #[test]
+    fn target_colours_are_checked() {
+        let red = vec!["red".to_owned()];
+        assert!(check_colours(&red, &red, "the world's object colours").is_ok());
+        let e = check_colours(&red, &[], "the world's object colours").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "unknown target colour \"red\"; the world's object colours are: none (nothing to find)"
+        );
+        let many = vec!["red".to_owned(); ima_agents::mission::commander::MAX_SERIES + 1];
+        let e = check_colours(&many, &red, "x").unwrap_err().to_string();
+        assert!(
+            e.contains("names 257 targets; a series holds at most 256"),
+            "{e}"
+        );
+    }
 }

@@ -50,6 +50,20 @@ fn serve_mock(cfg: &mut RobotConfig) -> Result<ima_mock_devices::served::ServedW
 /// Run `ima run`.
 pub fn run(args: &RunArgs) -> Result<()> {
     let mut cfg = RobotConfig::load_with(&args.config, args.insecure)?;
+    // The addresses this robot listens on, looked up before any device opens (a name that
+    // does not resolve failed only after the devices had connected and waited out their
+    // timeout). The config's own checks take names without a lookup, so that a robot's
+    // configuration can be checked on another machine.
+    for (key, a) in [
+        ("peer.listen", &cfg.peer.listen),
+        ("peer.data_listen", &cfg.peer.data_listen),
+    ] {
+        if !a.is_empty()
+            && let Err(e) = std::net::ToSocketAddrs::to_socket_addrs(a.as_str())
+        {
+            bail!("{key} {a:?}: the name does not resolve on this machine ({e})");
+        }
+    }
     let _served = if cfg.mock {
         Some(serve_mock(&mut cfg)?)
     } else {
