@@ -21,8 +21,8 @@
 //!   small chunks each claiming 256 MiB would otherwise take hours); past that, the file ends
 //!   there.
 //!
-//! What was skipped, and where the file ends early, is reported as its [`Truncation`] and by
-//! [`Recording::damage`]. Any other panic of the crate is caught ([`in_guarded_read`] tells a
+//! What was skipped, where the file ends early, and bytes that follow its end (two files
+//! joined) are reported as its [`Truncation`] and by [`Recording::damage`]. Any other panic of the crate is caught ([`in_guarded_read`] tells a
 //! program's panic hook to stay quiet) and reported the same way.
 //!
 //! Memory: [`Recording::open`] walks the file a record at a time and, when nothing needs
@@ -180,6 +180,8 @@ struct Survey {
     skipped: Vec<(std::ops::Range<usize>, String)>,
     /// Top-level schema and channel records (the summary repeats every definition).
     defs: Vec<std::ops::Range<usize>>,
+    /// Bytes after the file's end, said ([`after_the_end`]).
+    after_end: Option<String>,
 }
 
 /// How many bytes the walk may still decompress: chunks claim their uncompressed size, and a
@@ -358,6 +360,7 @@ fn survey(b: &[u8], start: usize) -> Survey {
             Ok(Some((op, next))) => {
                 if op == OP_FOOTER {
                     s.end = b.len();
+                    s.after_end = after_the_end(b.len() as u64, next as u64);
                     return s;
                 }
                 if op == OP_SCHEMA || op == OP_CHANNEL {
@@ -386,12 +389,27 @@ fn survey(b: &[u8], start: usize) -> Survey {
     }
 }
 
+/// Bytes after a file's end (its footer record, ending at `footer_end`, and the closing
+/// magic), which no reader reads: said, so that two recordings joined by `cat` do not read as
+/// the first alone without a word.
+fn after_the_end(len: u64, footer_end: u64) -> Option<String> {
+    let extra = len.saturating_sub(footer_end.saturating_add(mcap::MAGIC.len() as u64));
+    (extra > 0).then(|| {
+        format!("{extra} bytes follow the file's end and are not read (another file appended?)")
+    })
+}
+
 /// What [`survey_file`] found.
 #[derive(Debug)]
 enum FileSurvey {
     /// Nothing to skip: the sound structure ends at `end` (the file's end, or damage after
-    /// which no sound chunk follows), with what is wrong there.
-    Sound { end: u64, damage: Option<String> },
+    /// which no sound chunk follows), with what is wrong there, and what follows the file's
+    /// end.
+    Sound {
+        end: u64,
+        damage: Option<String>,
+        after_end: Option<String>,
+    },
     /// Something must be skipped, or a record is too long to check a piece at a time: the
     /// file is read whole and walked by [`survey`].
     ReadWhole,
@@ -424,6 +442,7 @@ fn survey_file(file: &File, len: u64, limits: Limits) -> std::io::Result<FileSur
             return Ok(FileSurvey::Sound {
                 end: len,
                 damage: None,
+                after_end: None,
             });
         }
         let mut head = [0u8; 9];
@@ -443,6 +462,7 @@ fn survey_file(file: &File, len: u64, limits: Limits) -> std::io::Result<FileSur
                     return Ok(FileSurvey::Sound {
                         end: len,
                         damage: None,
+                        after_end: after_the_end(len, at + 9 + body_len),
                     });
                 }
                 None => {
@@ -466,6 +486,7 @@ fn survey_file(file: &File, len: u64, limits: Limits) -> std::io::Result<FileSur
         return Ok(FileSurvey::Sound {
             end: at,
             damage: Some(why),
+            after_end: None,
         });
     }
 }
@@ -596,6 +617,12 @@ fn repair(b: &[u8], survey: &Survey) -> Vec<u8> {
     }
     copy(at..survey.end);
     out
+}
+
+/// What is said of a file, one part after the other ("; "), or nothing.
+fn joined<const N: usize>(parts: [Option<String>; N]) -> Option<String> {
+    let parts: Vec<String> = parts.into_iter().flatten().collect();
+    (!parts.is_empty()).then(|| parts.join("; "))
 }
 
 /// The damage where a walk ends early, as [`Recording::damage`] says it.
@@ -776,10 +803,14 @@ impl Recording {
             return Err(not_mcap("no MCAP magic at the start".into()));
         }
         match survey_file(&file, len, LIMITS).map_err(io)? {
-            FileSurvey::Sound { end, damage } => Ok(Self {
+            FileSurvey::Sound {
+                end,
+                damage,
+                after_end,
+            } => Ok(Self {
                 source: Source::File(file),
                 sound: end,
-                damage: damage.map(ends_early),
+                damage: joined([damage.map(ends_early), after_end]),
                 stopped: std::sync::OnceLock::new(),
             }),
             FileSurvey::ReadWhole => {
@@ -823,10 +854,7 @@ impl Recording {
                 size.div_ceil(1024)
             )
         });
-        let damage = match (skipped, end) {
-            (Some(s), Some(e)) => Some(format!("{s}; {e}")),
-            (s, e) => s.or(e),
-        };
+        let damage = joined([skipped, end, survey.after_end.clone()]);
         let (bytes, sound) = if survey.skipped.is_empty() {
             (bytes, survey.end)
         } else {
@@ -1156,7 +1184,9 @@ mod tests {
         let mut sound = mcap::MAGIC.to_vec();
         sound.extend(chunk(&record(0x07, &[0; 6])));
         match survey_of(&sound, LIMITS) {
-            FileSurvey::Sound { end, damage: None } => assert_eq!(end, sound.len() as u64),
+            FileSurvey::Sound {
+                end, damage: None, ..
+            } => assert_eq!(end, sound.len() as u64),
             other => panic!("a sound file is streamed: {other:?}"),
         }
         let small = Limits {
@@ -1174,6 +1204,7 @@ mod tests {
             FileSurvey::Sound {
                 end,
                 damage: Some(why),
+                ..
             } => {
                 assert_eq!(end, sound.len() as u64);
                 assert!(why.contains("claims 1000 bytes, but 100 follow"), "{why}");

@@ -411,6 +411,29 @@ fn a_zeroed_stretch_loses_only_what_it_covers() {
     assert!(msgs.iter().all(|m| m.topic == "/scooter/serial/laser"));
 }
 
+/// Two recordings joined (`cat a.mcap b.mcap`): the first is read whole and what follows its
+/// end is said (it was read as the first alone, without a word).
+#[test]
+fn bytes_after_the_end_are_said() {
+    let (good, _) = noisy_recording("joined", 8);
+    let mut joined = good.clone();
+    joined.extend_from_slice(&good);
+    let opened = open_as_file(&joined).unwrap();
+    assert!(!opened.holds_file());
+    let held = Recording::from_bytes(joined).unwrap();
+    assert!(everything(&opened) == everything(&held));
+    let why = held.damage().expect("said");
+    assert_eq!(
+        why,
+        format!(
+            "{} bytes follow the file's end and are not read (another file appended?)",
+            good.len()
+        )
+    );
+    assert_eq!(held.messages().0.len(), 8);
+    assert_eq!(Recording::from_bytes(good).unwrap().damage(), None);
+}
+
 /// A crafted file of small chunks that each claim a large uncompressed size: the walk stops
 /// decompressing at its budget (1 GiB plus 256 bytes per byte of file) instead of going on
 /// for as long as the file has chunks.
