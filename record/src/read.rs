@@ -625,6 +625,42 @@ fn joined<const N: usize>(parts: [Option<String>; N]) -> Option<String> {
     (!parts.is_empty()).then(|| parts.join("; "))
 }
 
+/// [`repair`] in `b`'s own buffer, when the definitions fit in the first skipped stretch (a
+/// damaged chunk is usually much larger than the file's definitions): the file is not held
+/// twice. Every move is towards the start, so nothing is overwritten before it is moved; the
+/// definitions are copied first, from sound records outside the stretch they go into.
+/// `false` (and `b` unchanged) when they do not fit.
+fn repair_in_place(b: &mut Vec<u8>, survey: &Survey) -> bool {
+    let Some((first, _)) = survey.skipped.first() else {
+        b.truncate(survey.end);
+        return true;
+    };
+    let defs: usize = survey.defs.iter().map(std::ops::Range::len).sum();
+    let sound = |r: &std::ops::Range<usize>| r.start <= r.end && r.end <= b.len();
+    if defs > first.len()
+        || survey.end > b.len()
+        || !survey.defs.iter().all(sound)
+        || !survey.skipped.iter().all(|(r, _)| sound(r))
+    {
+        return false;
+    }
+    let mut w = first.start;
+    for d in &survey.defs {
+        b.copy_within(d.clone(), w);
+        w += d.len();
+    }
+    let starts = survey.skipped.iter().map(|(r, _)| r.end);
+    let ends = survey.skipped.iter().skip(1).map(|(r, _)| r.start);
+    for (start, end) in starts.zip(ends.chain([survey.end])) {
+        if start < end {
+            b.copy_within(start..end, w);
+            w += end - start;
+        }
+    }
+    b.truncate(w);
+    true
+}
+
 /// The damage where a walk ends early, as [`Recording::damage`] says it.
 fn ends_early(why: String) -> String {
     format!("it ends early: {why} (the file was cut short or is damaged)")
@@ -858,9 +894,12 @@ impl Recording {
         let (bytes, sound) = if survey.skipped.is_empty() {
             (bytes, survey.end)
         } else {
-            let repaired = repair(&bytes, &survey);
-            let sound = repaired.len();
-            (repaired, sound)
+            let mut bytes = bytes;
+            if !repair_in_place(&mut bytes, &survey) {
+                bytes = repair(&bytes, &survey);
+            }
+            let sound = bytes.len();
+            (bytes, sound)
         };
         Ok(Self {
             source: Source::Memory(bytes),
@@ -1146,6 +1185,45 @@ fn is_port(topic: &str, port: &PortInfo, name: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// Repairing in the file's own buffer gives what the copying repair gives, whenever
+        /// the definitions fit in the first skipped stretch; otherwise it leaves the buffer
+        /// as it was.
+        #[test]
+        fn repairing_in_place_is_the_copying_repair(
+            len in 0usize..400,
+            cuts in proptest::collection::vec(0usize..400, 0..8),
+            defs in proptest::collection::vec((0usize..400, 0usize..20), 0..4),
+            seed in proptest::prelude::any::<u8>(),
+        ) {
+            let b: Vec<u8> = (0..len).map(|i| (i as u8).wrapping_mul(31) ^ seed).collect();
+            // Sorted, disjoint skipped stretches from pairs of cut points; definitions outside
+            // them; the sound end after the last.
+            let mut cuts: Vec<usize> = cuts.into_iter().map(|c| c.min(len)).collect();
+            cuts.sort_unstable();
+            cuts.dedup();
+            let end = cuts.pop().unwrap_or(len);
+            let skipped: Vec<_> = cuts
+                .chunks_exact(2)
+                .map(|c| (c[0]..c[1], String::new()))
+                .collect();
+            let inside = |p: usize| skipped.iter().any(|(r, _)| r.start <= p && p < r.end);
+            let defs: Vec<_> = defs
+                .into_iter()
+                .map(|(s, n)| s.min(end)..(s + n).min(end))
+                .filter(|d| !d.clone().any(inside))
+                .collect();
+            let survey = Survey { end, skipped, defs, ..Survey::default() };
+            let copied = repair(&b, &survey);
+            let mut own = b.clone();
+            if repair_in_place(&mut own, &survey) {
+                proptest::prop_assert_eq!(own, copied);
+            } else {
+                proptest::prop_assert_eq!(own, b);
+            }
+        }
+    }
 
     fn record(op: u8, body: &[u8]) -> Vec<u8> {
         let mut r = vec![op];
