@@ -261,3 +261,37 @@ fn scan_json_prints_one_object_per_scan_with_every_beam() {
     assert!(stderr.contains("connected: LMS200"), "{stderr}");
     assert!(stderr.contains("2 scans delivered"), "{stderr}");
 }
+
+/// Ctrl-C ends a scan stream as it ends every command: the unit closed (its summary said),
+/// then status 130 (it was 0, so a supervisor could not tell an interruption from an end).
+#[test]
+fn ctrl_c_ends_a_scan_with_the_units_summary_and_status_130() {
+    let (_mock, path) = spawn_mock(&["--baud", "38400"]);
+    let mut scan = common::Child(
+        ima()
+            .args(["scan", "--port", &path, "--baud", "38400"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, reader) = common::line_channel(scan.0.stdout.take().unwrap());
+    // Two scans: the stream runs (and the handler is installed).
+    let mut scans = 0;
+    while scans < 2 {
+        let l = lines
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("a scan line");
+        scans += usize::from(l.starts_with("scan "));
+    }
+    scan.wait_until_it_catches(2);
+    scan.signal("INT");
+    let status = scan.0.wait().unwrap();
+    let _ = reader.join();
+    let rest: Vec<String> = lines.try_iter().collect();
+    assert_eq!(status.code(), Some(130), "{rest:?}");
+    assert!(
+        rest.iter().any(|l| l.contains("scans delivered")),
+        "the summary after the close: {rest:?}"
+    );
+}

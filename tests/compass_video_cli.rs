@@ -209,3 +209,35 @@ fn decode_compass_and_switchers() {
     assert_eq!(v[0]["kind"], "switch_video");
     assert_eq!(v[0]["input"], 3);
 }
+
+/// SIGTERM ends a live compass as it ends every command: the compass closed (its summary
+/// said), then status 143 (it was 0).
+#[test]
+fn sigterm_ends_the_compass_with_its_summary_and_status_143() {
+    let (_mock, path) = spawn_mock(&["compass", "--dialect", "nmea", "--seed", "5"]);
+    let mut compass = common::Child(
+        ima()
+            .args(["compass", "--port", &path, "--dialect", "kvh", "--json"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, _out) = common::line_channel(compass.0.stdout.take().unwrap());
+    let (err, err_reader) = common::line_channel(compass.0.stderr.take().unwrap());
+    for _ in 0..2 {
+        lines
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("a heading line");
+    }
+    compass.wait_until_it_catches(15);
+    compass.signal("TERM");
+    let status = compass.0.wait().unwrap();
+    let _ = err_reader.join();
+    let said: Vec<String> = err.try_iter().collect();
+    assert_eq!(status.code(), Some(143), "{said:?}");
+    assert!(
+        said.iter().any(|l| l.contains("headings printed")),
+        "{said:?}"
+    );
+}

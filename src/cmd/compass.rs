@@ -194,5 +194,11 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
          {} bytes dropped",
         st.headings, st.parse_errors, st.framer.bad_checksums, st.framer.dropped_bytes
     );
-    drv.close().await.context("closing the compass")
+    drv.close().await.context("closing the compass")?;
+    // Ended by a signal: the status says how (130 for Ctrl-C, 143 for SIGTERM), as every
+    // command's does.
+    if let Some(s) = crate::safety::signal() {
+        return Err(crate::safety::Interrupted(crate::safety::Cause::Signal(s)).into());
+    }
+    Ok(())
 }

@@ -317,7 +317,13 @@ pub fn run(args: &ScanArgs) -> Result<()> {
         let result = scan_loop(args, lms.clone(), variant).await;
         let closed = lms.close().await;
         result?;
-        closed.context("closing the LMS (it may be left at the session's rate)")
+        closed.context("closing the LMS (it may be left at the session's rate)")?;
+        // Ended by a signal: the unit is closed; the status says how it ended (130 for
+        // Ctrl-C, 143 for SIGTERM), as every command's does.
+        if let Some(s) = crate::safety::signal() {
+            return Err(crate::safety::Interrupted(crate::safety::Cause::Signal(s)).into());
+        }
+        Ok(())
     });
     let _ = crate::record::finish(); // record: close the file
     r
