@@ -190,6 +190,39 @@ fn a_robot_without_its_devices_fails_with_the_port_named() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("key_file"));
+    // A commander's configuration given to `ima run` (with --insecure), and a robot's given
+    // to `ima commander`: the mix-up is said first (the key was looked at first, and a
+    // commander would have spoken under the robot's name).
+    let out = ima()
+        .args(["run", "--insecure", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("is a commander's configuration: run it with `ima commander")
+            && !err.contains("insecure"),
+        "{err}"
+    );
+    let robot = dir.join("robot.toml");
+    std::fs::write(
+        &robot,
+        "robot = \"skeeter\"\nrole = \"skeeter\"\nmock = true\n[peer]\nkey_file = \"/nonexistent/group.key\"\n",
+    )
+    .unwrap();
+    let out = ima()
+        .args(["commander", "--config"])
+        .arg(&robot)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("is skeeter's configuration (a robot's), not a commander's")
+            && !err.contains("group.key"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -594,6 +594,18 @@ pub fn run(args: &CommanderArgs) -> Result<()> {
     };
     args.web.check()?;
     let mut cfg = load(config, args.insecure)?;
+    // A robot's configuration would make this commander speak under the robot's name; said
+    // before anything else (its key file, say) is looked at.
+    if cfg.role != crate::config::Role::Commander {
+        anyhow::bail!(
+            "{} is {}'s configuration (a robot's), not a commander's: run it with \
+             `ima run --config {}`, or give `ima commander` a configuration with \
+             role = \"commander\" (see configs/commander.toml)",
+            config.display(),
+            cfg.robot,
+            config.display()
+        );
+    }
     if let Some(s) = args.lost_after {
         anyhow::ensure!(
             s.is_finite() && (0.1..=3600.0).contains(&s),

@@ -50,6 +50,15 @@ fn serve_mock(cfg: &mut RobotConfig) -> Result<ima_mock_devices::served::ServedW
 /// Run `ima run`.
 pub fn run(args: &RunArgs) -> Result<()> {
     let mut cfg = RobotConfig::load_with(&args.config, args.insecure)?;
+    // Said first: a commander's configuration has no devices to open (it used to warn about
+    // its insecure key before saying so).
+    if cfg.role == Role::Commander {
+        bail!(
+            "{} is a commander's configuration: run it with `ima commander --config {}`",
+            args.config.display(),
+            args.config.display()
+        );
+    }
     // The addresses this robot listens on, looked up before any device opens (a name that
     // does not resolve failed only after the devices had connected and waited out their
     // timeout). The config's own checks take names without a lookup, so that a robot's
