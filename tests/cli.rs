@@ -75,6 +75,40 @@ fn a_stalled_stdout_does_not_stall_the_drive() {
     assert!(lines >= 100, "{lines} state lines");
 }
 
+/// The robot's port goes away mid-drive (a pulled cable; here the mock is killed): the drive
+/// fails saying that nothing from here can stop the robot any more and what does (it said only
+/// "P2OS robot driver disconnected").
+#[test]
+fn a_link_lost_mid_drive_says_who_stops_the_robot_now() {
+    let (mut mock, path) = spawn_mock(&["p2os", "--seed", "3"]);
+    let mut drive = common::Child(
+        ima()
+            .args([
+                "drive", "--port", &path, "--vel", "0.1", "--for", "30", "--json",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, _out) = common::line_channel(drive.0.stdout.take().unwrap());
+    lines
+        .recv_timeout(std::time::Duration::from_secs(30))
+        .expect("a state line");
+    mock.0.kill().unwrap();
+    let _ = mock.0.wait();
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut drive.0.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(drive.0.wait().unwrap().code(), Some(1), "{err}");
+    assert!(
+        err.contains(
+            "the link to the robot is lost while it was driving: ima can no longer stop it; \
+             the robot stops itself when commands stop coming"
+        ),
+        "{err}"
+    );
+}
+
 #[test]
 fn drive_reports_a_clear_error_when_nothing_answers() {
     // A pty nobody serves: the handshake times out at every rate.

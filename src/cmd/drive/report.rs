@@ -133,3 +133,27 @@ impl Live {
         }
     }
 }
+
+/// A motion that failed because the link to the robot is gone (its port closed, an I/O
+/// error) says what that means for the robot: nothing from here can stop it any more, its own
+/// watchdog does. Other errors go as they are.
+pub fn link_lost<F: ima_serial::Fault + Send + Sync + 'static>(
+    e: anyhow::Error,
+    watchdog: &str,
+) -> anyhow::Error {
+    use ima_serial::DriverError;
+    let lost = e.chain().any(|c| {
+        matches!(
+            c.downcast_ref::<DriverError<F>>(),
+            Some(DriverError::Disconnected | DriverError::Io(_))
+        )
+    });
+    if lost {
+        e.context(format!(
+            "the link to the robot is lost while it was driving: ima can no longer stop it; \
+             {watchdog}"
+        ))
+    } else {
+        e
+    }
+}
