@@ -468,13 +468,14 @@ impl Drop for AbortOnDrop {
     }
 }
 
-/// record: a P2OS base's odometry (`/<robot>/odom` and the `odom → base_link` transform) after
-/// every SIP, and its sonar as `/<robot>/sonar` (a point cloud in `<robot>/base_link`) after
-/// every SIP that brought new readings — while a recorder runs and until the returned guard
-/// drops (the task holds a handle on the base, which would keep its driver running). For
-/// Skeeter, whose runtime never reads its odometry: without it the recording had no
-/// `/skeeter/odom` and nothing placed `skeeter/base_link` in the map.
-fn record_base(base: &Base, robot: &str) -> AbortOnDrop {
+/// record: a P2OS base's sonar as `/<robot>/sonar` (a point cloud in `<robot>/base_link`) after
+/// every SIP that brought new readings and, with `odometry`, its odometry (`/<robot>/odom` and
+/// the `odom → base_link` transform) after every SIP — while a recorder runs and until the
+/// returned guard drops (the task holds a handle on the base, which would keep its driver
+/// running). Odometry for Skeeter, whose runtime never reads it (the recording had no
+/// `/skeeter/odom`, so nothing placed `skeeter/base_link` in the map); Scooter's runtime reads
+/// its own through [`crate::record::Recorded`], which records it.
+fn record_base(base: &Base, robot: &str, odometry: bool) -> AbortOnDrop {
     let Base::P2os(b) = base else {
         return AbortOnDrop(None);
     };
@@ -492,8 +493,11 @@ fn record_base(base: &Base, robot: &str) -> AbortOnDrop {
                 Ok(st) => {
                     last = st.odometry.at;
                     crate::record::with(|r| {
-                        let pose = &st.odometry.value.pose;
-                        r.log_odometry(&robot, ima_record::convert::Pose2::from_isometry(pose));
+                        if odometry {
+                            let pose = &st.odometry.value.pose;
+                            let pose = ima_record::convert::Pose2::from_isometry(pose);
+                            r.log_odometry(&robot, pose);
+                        }
                         if st.new_sonar {
                             r.log_sonar(&robot, &transducers, &st.sonar.value);
                         }
@@ -531,7 +535,7 @@ pub async fn run_scooter(
         scans_read,
     } = hw;
     let halt = Some(base.halt_signal());
-    let _base = record_base(&base, &cfg.robot); // record: odometry, sonar
+    let _base = record_base(&base, &cfg.robot, false); // record: sonar
     // record: scans, odometry and headings as the runtime reads them.
     let laser = crate::record::Recorded::new(laser, &cfg.robot).counting(scans_read);
     let compass = compass.map(|c| crate::record::Recorded::new(c, &cfg.robot));
@@ -580,7 +584,7 @@ pub async fn run_skeeter(
         frames,
         frames_received,
     } = hw;
-    let _base = record_base(&base, &cfg.robot); // record: odometry, sonar
+    let _base = record_base(&base, &cfg.robot, true); // record: odometry, sonar
     // record: camera frames (and the client's own count of them)
     let frames =
         crate::record::frames(frames, &cfg.robot).counting(frames_received, NetFrames::grabs);

@@ -1034,4 +1034,7 @@ fn the_listener_counts_what_it_refuses_and_says_so_on_ctrl_c() {
         [0, 0, 0],
         "{stats}"
     );
+    // Then the signal's status, as every command ends (it was 0).
+    let mut listener = listener;
+    assert_eq!(listener.0.wait().unwrap().code(), Some(130));
 }

@@ -807,6 +807,17 @@ fn a_p2os_demo_records_sonar_point_clouds() {
             }
         }
         assert!(points > 0, "{topic}: no echoes");
+        // Each odometry reading once: at most one per SIP (Scooter's was logged twice, by its
+        // runtime's reader and by the sonar task).
+        let odom = msgs
+            .iter()
+            .filter(|m| m.topic == format!("/{robot}/odom"))
+            .count() as u64;
+        let sips = summary["drivers"][robot]["base_sips"].as_u64().unwrap();
+        assert!(
+            odom > 0 && odom <= sips,
+            "/{robot}/odom: {odom}, {sips} SIPs"
+        );
     }
     // Every topic the shipped layout opens is in the recording (`/robot/…`: drive and scan),
     // and its SAN plot's fields are in the messages.

@@ -637,12 +637,7 @@ fn repair_in_place(b: &mut Vec<u8>, survey: &Survey) -> bool {
         return true;
     };
     let defs: usize = survey.defs.iter().map(std::ops::Range::len).sum();
-    let sound = |r: &std::ops::Range<usize>| r.start <= r.end && r.end <= b.len();
-    if defs > first.len()
-        || survey.end > b.len()
-        || !survey.defs.iter().all(sound)
-        || !survey.skipped.iter().all(|(r, _)| sound(r))
-    {
+    if defs > first.len() || !laid_out(survey, b.len()) {
         return false;
     }
     let mut w = first.start;
@@ -662,6 +657,20 @@ fn repair_in_place(b: &mut Vec<u8>, survey: &Survey) -> bool {
     true
 }
 
+/// Whether `survey`'s ranges are as a walk of a `len`-byte file makes them, which the
+/// in-place repairs rely on: skipped stretches non-empty, in file order and apart, before the
+/// sound end; definitions within the file and outside every stretch.
+fn laid_out(survey: &Survey, len: usize) -> bool {
+    let gaps = || survey.skipped.iter().map(|(r, _)| r);
+    let in_order = gaps().all(|r| r.start < r.end)
+        && gaps().zip(gaps().skip(1)).all(|(a, b)| a.end <= b.start)
+        && gaps().last().is_none_or(|r| r.end <= survey.end);
+    let defs_apart = survey.defs.iter().all(|d| {
+        d.start <= d.end && d.end <= len && gaps().all(|g| d.end <= g.start || g.end <= d.start)
+    });
+    in_order && defs_apart && survey.end <= len
+}
+
 /// [`repair`] of a file held in `b`, in its own buffer: when the definitions do not fit in the
 /// first skipped stretch, the rest of the file is first moved up by what they lack (the
 /// buffer grows by that much, not by the file's size).
@@ -675,7 +684,7 @@ fn repair_owned(mut b: Vec<u8>, survey: &Survey) -> Vec<u8> {
     let defs: usize = survey.defs.iter().map(std::ops::Range::len).sum();
     let extra = defs.saturating_sub(first.len());
     let old = b.len();
-    if first.end > old || survey.end > old || b.try_reserve(extra).is_err() {
+    if !laid_out(survey, old) || b.try_reserve_exact(extra).is_err() {
         return repair(&b, survey);
     }
     b.resize(old + extra, 0);

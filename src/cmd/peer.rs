@@ -634,7 +634,11 @@ async fn listen(a: &ListenArgs) -> Result<()> {
         let r = tokio::select! {
             r = ch.recv() => r,
             _ = check.tick() => continue,
-            () = crate::safety::cancelled() => return stats(),
+            // The counts, then the signal's status (130, 143), as every command ends.
+            () = crate::safety::cancelled() => {
+                stats()?;
+                return Err(crate::safety::Interrupted(crate::safety::cause()).into());
+            }
         };
         let (m, from) = r.map_err(|e| anyhow::anyhow!("{e}"))?;
         n += 1;

@@ -156,7 +156,7 @@ impl Console {
                                 return Err(format!(
                                     "position {} holds {colour}, which is {state}: only waiting \
                                      targets move",
-                                    p + 1
+                                    p.saturating_add(1)
                                 ));
                             }
                         }
@@ -174,7 +174,8 @@ impl Console {
             Operator::Cancel(c) => format!("target {c} cancelled"),
             // Positions as the page shows them, from 1.
             Operator::Move { from, to } => {
-                format!("target moved from position {} to {}", from + 1, to + 1)
+                let (from, to) = (from.saturating_add(1), to.saturating_add(1));
+                format!("target moved from position {from} to {to}")
             }
             Operator::Stop(_) => "fleet stop sent".to_owned(),
             Operator::Resume => "fleet resume sent".to_owned(),
@@ -434,10 +435,95 @@ pub const MAX_CONNECTIONS: usize = 64;
 /// slowly or not at all is closed after this, so it does not hold a place for ever.
 pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// How long a write to a client may wait for it to read (an event stream nobody reads).
+pub const WRITE_STALL: Duration = Duration::from_secs(30);
+
+/// A client's connection whose writes may not wait longer than a limit for the client to
+/// read: an event stream its client stopped reading is closed then, and its place freed.
+struct WriteDeadline<S> {
+    io: S,
+    limit: Duration,
+    /// Running while a write waits.
+    waiting: Option<std::pin::Pin<Box<tokio::time::Sleep>>>,
+}
+
+impl<S> WriteDeadline<S> {
+    fn new(io: S, limit: Duration) -> Self {
+        Self {
+            io,
+            limit,
+            waiting: None,
+        }
+    }
+
+    /// What a write that returned `p` means: ready resets the clock; pending starts it, or
+    /// is an error once the limit has passed.
+    fn after<T>(
+        &mut self,
+        p: std::task::Poll<std::io::Result<T>>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<T>> {
+        use std::future::Future as _;
+        if p.is_ready() {
+            self.waiting = None;
+            return p;
+        }
+        let limit = self.limit;
+        let clock = self
+            .waiting
+            .get_or_insert_with(|| Box::pin(tokio::time::sleep(limit)));
+        match clock.as_mut().poll(cx) {
+            std::task::Poll::Ready(()) => std::task::Poll::Ready(Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the client has not read what was sent to it",
+            ))),
+            std::task::Poll::Pending => std::task::Poll::Pending,
+        }
+    }
+}
+
+impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for WriteDeadline<S> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.io).poll_read(cx, buf)
+    }
+}
+
+impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for WriteDeadline<S> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        let p = std::pin::Pin::new(&mut self.io).poll_write(cx, buf);
+        self.after(p, cx)
+    }
+
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        let p = std::pin::Pin::new(&mut self.io).poll_flush(cx);
+        self.after(p, cx)
+    }
+
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.io).poll_shutdown(cx)
+    }
+}
+
 /// Accept connections and serve `app` on each (HTTP/1.1), at most [`MAX_CONNECTIONS`] at
 /// once, each closed when its next request's headers take over `header_timeout`
-/// ([`HEADER_TIMEOUT`]). `axum::serve` sets neither, so a few thousand half-sent requests used
-/// to exhaust the process's file descriptors and lock the operator out.
+/// ([`HEADER_TIMEOUT`]), when a request's response does not start within it (a body that
+/// trickles in), or when a write waits over [`WRITE_STALL`] for the client to read.
+/// `axum::serve` sets none of these, so a few thousand half-sent requests used to exhaust the
+/// process's file descriptors and lock the operator out.
 async fn serve(listener: tokio::net::TcpListener, app: Router, header_timeout: Duration) {
     use hyper_util::rt::{TokioIo, TokioTimer};
     let places = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
@@ -469,7 +555,10 @@ async fn serve(listener: tokio::net::TcpListener, app: Router, header_timeout: D
             let served = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
                 .header_read_timeout(header_timeout)
-                .serve_connection(TokioIo::new(stream), service)
+                .serve_connection(
+                    TokioIo::new(WriteDeadline::new(stream, WRITE_STALL)),
+                    service,
+                )
                 .await;
             if let Err(e) = served {
                 tracing::debug!("web console: connection: {e}");
@@ -539,7 +628,19 @@ async fn guard(State(c): State<Arc<Console>>, req: Request, next: Next) -> Respo
     // had no script: no live state, no fleet-stop key).
     let asset = matches!(req.uri().path(), "/app.js" | "/style.css");
     if asset || c.authorised(&req) {
-        next.run(req).await
+        // The response's head within the deadline: a command's body that trickles in does
+        // not hold a place for ever (an event stream's head goes at once).
+        match tokio::time::timeout(HEADER_TIMEOUT, next.run(req)).await {
+            Ok(r) => r,
+            Err(_) => (
+                StatusCode::REQUEST_TIMEOUT,
+                format!(
+                    "the request did not arrive within {} s\n",
+                    HEADER_TIMEOUT.as_secs()
+                ),
+            )
+                .into_response(),
+        }
     } else {
         (
             StatusCode::UNAUTHORIZED,

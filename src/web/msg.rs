@@ -143,7 +143,7 @@ pub fn to_operator(
             if *from >= queue_len || *to >= queue_len {
                 return Err(format!(
                     "no target at position {} (the queue has {queue_len})",
-                    (*from).max(*to) + 1
+                    (*from).max(*to).saturating_add(1)
                 ));
             }
             Ok(Operator::Move {
@@ -271,6 +271,14 @@ mod tests {
                 .unwrap_err()
                 .contains("position 8 (the queue has 3)")
         );
+        // The page's numbers are any JSON number a usize holds: no overflow (a panic in a
+        // debug build, "position 0" in a release one).
+        let e = op(Command::Move {
+            from: usize::MAX,
+            to: 0,
+        })
+        .unwrap_err();
+        assert!(e.contains(&format!("position {}", usize::MAX)), "{e}");
         let full = to_operator(
             &Command::Add {
                 target: "red".into(),

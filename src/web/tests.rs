@@ -434,20 +434,27 @@ fn silent_clients_are_closed_and_cannot_fill_the_server() {
         .build()
         .unwrap();
     let app = router(c);
-    // A deadline long enough that every place is still held when the extra client comes.
-    let deadline = Duration::from_secs(3);
+    // A deadline long enough that every place is still held when the extra client comes,
+    // on a loaded machine too.
+    let deadline = Duration::from_secs(10);
     std::thread::spawn(move || {
         rt.block_on(async move {
             let l = tokio::net::TcpListener::from_std(listener).unwrap();
             serve(l, app, deadline).await;
         });
     });
-    // Every place taken by a request whose headers never end.
+    // Every place taken: the first by a command whose body never comes whole, the others by
+    // requests whose headers never end.
     let half: Vec<TcpStream> = (0..MAX_CONNECTIONS)
-        .map(|_| {
+        .map(|i| {
             let mut s = TcpStream::connect(addr).unwrap();
-            s.write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-a: ")
-                .unwrap();
+            let sent: &[u8] = if i == 0 {
+                b"POST /api/command HTTP/1.1\r\nHost: 127.0.0.1\r\n\
+                  Content-Type: application/json\r\nContent-Length: 100\r\n\r\n{\"cmd\""
+            } else {
+                b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-a: "
+            };
+            s.write_all(sent).unwrap();
             s
         })
         .collect();
@@ -467,11 +474,16 @@ fn silent_clients_are_closed_and_cannot_fill_the_server() {
         "{end:?} {:?}",
         String::from_utf8_lossy(&got)
     );
-    // The silent ones are closed at their deadline (not left for ever)…
-    for mut s in half {
-        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+    // The silent ones are closed at their deadline (not left for ever), the command with
+    // "408 Request Timeout"…
+    for (i, mut s) in half.into_iter().enumerate() {
+        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
         let mut rest = Vec::new();
         let end = s.read_to_end(&mut rest);
+        if i == 0 {
+            let answer = String::from_utf8_lossy(&rest);
+            assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
+        }
         assert!(
             !end.as_ref().is_err_and(|e| {
                 matches!(
@@ -484,6 +496,26 @@ fn silent_clients_are_closed_and_cannot_fill_the_server() {
     }
     // …and their places serve again.
     assert_eq!(http(addr, "GET", "/api/state", "").0, 200);
+}
+
+/// A write that waits for a client that does not read (an event stream nobody reads) fails
+/// after the limit, freeing the connection's place; a client that reads resets the clock.
+#[tokio::test(start_paused = true)]
+async fn a_write_the_client_does_not_read_ends_after_the_limit() {
+    use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+    let (a, mut client) = tokio::io::duplex(64);
+    let mut w = WriteDeadline::new(a, Duration::from_secs(30));
+    w.write_all(&[1; 64]).await.unwrap();
+    // Read within the limit: the next write goes through.
+    tokio::time::sleep(Duration::from_secs(20)).await;
+    let mut buf = [0; 64];
+    client.read_exact(&mut buf).await.unwrap();
+    w.write_all(&[2; 64]).await.unwrap();
+    // Not read: the write after it fails at the limit, not before.
+    let t0 = tokio::time::Instant::now();
+    let e = w.write_all(&[3; 1]).await.unwrap_err();
+    assert_eq!(e.kind(), std::io::ErrorKind::TimedOut);
+    assert_eq!(t0.elapsed(), Duration::from_secs(30));
 }
 
 #[test]

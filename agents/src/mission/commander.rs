@@ -490,19 +490,20 @@ impl Commander {
     ///
     /// # Errors
     /// A message naming the problem when either position is out of the series or not a
-    /// waiting target.
+    /// waiting target; positions in it count from 1, as the operator's displays show them.
     pub fn move_target(&mut self, from: usize, to: usize) -> Result<(), String> {
         let n = self.targets.len();
         for (what, i) in [("from", from), ("to", to)] {
+            let shown = i.saturating_add(1);
             match self.targets.get(i) {
                 None => {
                     return Err(format!(
-                        "{what}: no target at position {i} (the series has {n})"
+                        "{what}: no target at position {shown} (the series has {n})"
                     ));
                 }
                 Some(t) if t.state != TargetState::Waiting => {
                     return Err(format!(
-                        "{what}: target {i} ({}) is {}, only waiting targets move",
+                        "{what}: target {shown} ({}) is {}, only waiting targets move",
                         t.colour,
                         t.state.as_str()
                     ));
@@ -758,11 +759,13 @@ mod tests {
         );
         c.start(t(0));
         let _ = drain(&mut c);
-        assert!(c.move_target(0, 2).unwrap_err().contains("only waiting"));
+        // Positions in the messages count from 1, as the displays show them.
+        let e = c.move_target(0, 2).unwrap_err();
+        assert_eq!(e, "from: target 1 (red) is sent, only waiting targets move");
         assert!(
             c.move_target(1, 9)
                 .unwrap_err()
-                .contains("no target at position 9")
+                .contains("no target at position 10 (the series has 4)")
         );
         c.move_target(3, 1).unwrap();
         let order: Vec<&str> = c.targets().iter().map(|t| t.colour.as_str()).collect();

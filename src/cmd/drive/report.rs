@@ -79,8 +79,13 @@ pub fn report_interrupted(last: Option<&Odometry>) {
 pub struct Live {
     tx: Option<std::sync::mpsc::SyncSender<String>>,
     thread: Option<std::thread::JoinHandle<()>>,
+    /// Told when the thread has written every line (or stopped on an error).
+    done: std::sync::mpsc::Receiver<()>,
     dropped: u64,
 }
+
+/// How long a drive that ends on an error or a signal waits for its last state lines.
+const LIVE_FLUSH: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// Lines that may wait for stdout before new ones are dropped (several seconds of a drive).
 pub const LIVE_LINES: usize = 256;
@@ -92,6 +97,7 @@ impl Live {
     /// The thread could not start.
     pub fn start() -> anyhow::Result<Self> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<String>(LIVE_LINES);
+        let (done_tx, done) = std::sync::mpsc::channel();
         let thread = std::thread::Builder::new()
             .name("ima-drive-out".into())
             .spawn(move || {
@@ -101,10 +107,12 @@ impl Live {
                         break;
                     }
                 }
+                let _ = done_tx.send(());
             })?;
         Ok(Self {
             tx: Some(tx),
             thread: Some(thread),
+            done,
             dropped: 0,
         })
     }
@@ -125,11 +133,25 @@ impl Live {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
-        if self.dropped > 0 {
-            eprintln!(
-                "ima drive: {} state line(s) not printed: standard output did not keep up",
-                self.dropped
-            );
+        self.say_dropped();
+    }
+
+    fn say_dropped(&mut self) {
+        let n = std::mem::take(&mut self.dropped);
+        if n > 0 {
+            eprintln!("ima drive: {n} state line(s) not printed: standard output did not keep up");
+        }
+    }
+}
+
+/// A drive that ends on an error or a signal (not through [`Live::finish`]) gives the queued
+/// lines [`LIVE_FLUSH`] to go out, so its output does not end in a cut line; a reader that
+/// does not read does not hold the exit up for longer.
+impl Drop for Live {
+    fn drop(&mut self) {
+        if self.tx.take().is_some() {
+            let _ = self.done.recv_timeout(LIVE_FLUSH);
+            self.say_dropped();
         }
     }
 }

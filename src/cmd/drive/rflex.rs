@@ -119,7 +119,6 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     Ok(())
 }
 
-/// One line (or JSON object) per motion report.
 /// One line of the base's state (its odometry, battery and sonar), as text or JSON.
 async fn state_line(
     base: &mut Rflex,
