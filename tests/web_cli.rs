@@ -86,9 +86,13 @@ fn beyond_loopback_the_console_asks_for_its_printed_token() {
         .and_then(|r| r.split_once("/?token="))
         .expect("a token in the URL");
     assert_eq!(token.len(), 32, "{url}");
-    let port = hostport.rsplit_once(':').unwrap().1;
+    // Bound to every address, the URL names one a browser can open.
+    let (host, port) = hostport.rsplit_once(':').unwrap();
+    assert_eq!(host, "127.0.0.1", "{url}");
     let local = format!("127.0.0.1:{port}");
     assert_eq!(status_of(&local, "/"), 401);
+    // The page's script loads without the token (the page asks for it without one).
+    assert_eq!(status_of(&local, "/app.js"), 200);
     assert_eq!(status_of(&local, "/api/state?token=nope"), 401);
     assert_eq!(status_of(&local, &format!("/?token={token}")), 200);
     assert_eq!(status_of(&local, &format!("/api/state?token={token}")), 200);

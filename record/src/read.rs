@@ -664,7 +664,7 @@ fn laid_out(survey: &Survey, len: usize) -> bool {
     let gaps = || survey.skipped.iter().map(|(r, _)| r);
     let in_order = gaps().all(|r| r.start < r.end)
         && gaps().zip(gaps().skip(1)).all(|(a, b)| a.end <= b.start)
-        && gaps().last().is_none_or(|r| r.end <= survey.end);
+        && gaps().next_back().is_none_or(|r| r.end <= survey.end);
     let defs_apart = survey.defs.iter().all(|d| {
         d.start <= d.end && d.end <= len && gaps().all(|g| d.end <= g.start || g.end <= d.start)
     });

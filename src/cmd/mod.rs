@@ -84,19 +84,18 @@ impl WebArgs {
         };
         let console = crate::web::Console::new(mode, colours, ops, token.clone());
         let server = crate::web::start(std::sync::Arc::clone(&console), addr)?;
-        let url = crate::web::url(server.addr, token.as_deref());
+        // The URL alone on its line, to be copied or read by a script.
+        eprintln!(
+            "ima: web console at {}",
+            crate::web::url(server.addr, token.as_deref())
+        );
         if server.addr.ip().is_unspecified() {
-            eprintln!(
-                "ima: web console at {url} (from another machine, put this machine's address \
-                 in place of {})",
-                if server.addr.is_ipv4() {
-                    "127.0.0.1"
-                } else {
-                    "[::1]"
-                }
-            );
-        } else {
-            eprintln!("ima: web console at {url}");
+            let local = if server.addr.is_ipv4() {
+                "127.0.0.1"
+            } else {
+                "[::1]"
+            };
+            eprintln!("ima: from another machine, put this machine's address in place of {local}");
         }
         Ok(Some((console, server)))
     }
