@@ -12,6 +12,7 @@
 //!
 //! Hook points elsewhere are marked `// record:` so they can be moved as one.
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::pin::Pin;
@@ -153,6 +154,25 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
     }
     *current().write().unwrap_or_else(PoisonError::into_inner) = Some(rec);
     Ok(())
+}
+
+/// Where each robot started in `map` (metres), when a simulated world says so: a robot's
+/// dead-reckoned belief, measured from its start in the compass's east-north-up axes, is
+/// placed in `map` by it.
+fn starts() -> &'static RwLock<BTreeMap<String, (f64, f64)>> {
+    static STARTS: std::sync::OnceLock<RwLock<BTreeMap<String, (f64, f64)>>> =
+        std::sync::OnceLock::new();
+    STARTS.get_or_init(Default::default)
+}
+
+/// Say where `robot` started in `map` (the demo's world): its `/<robot>/belief` is then
+/// recorded in `map` (without it, in `map` too, measured from the start: a real robot's
+/// `ima run` has no other frame for it).
+pub fn set_start(robot: &str, x_m: f64, y_m: f64) {
+    starts()
+        .write()
+        .unwrap_or_else(PoisonError::into_inner)
+        .insert(robot.to_owned(), (x_m, y_m));
 }
 
 /// Use the recorder, if one runs.
@@ -834,15 +854,23 @@ pub fn log_event(e: &ima_agents::runtime::Event) {
                     .collect();
                 r.log_ses(&e.robot, &marks);
             }
-            EventKind::Control(c) => r.log_pose(
-                &format!("/{}/belief", e.robot),
-                "map",
-                ima_record::convert::Pose2 {
-                    x_m: c.dr[0],
-                    y_m: c.dr[1],
-                    theta_rad: c.heading_rad.unwrap_or(0.0),
-                },
-            ),
+            EventKind::Control(c) => {
+                let (x0, y0) = starts()
+                    .read()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .get(&e.robot)
+                    .copied()
+                    .unwrap_or_default();
+                r.log_pose(
+                    &format!("/{}/belief", e.robot),
+                    "map",
+                    ima_record::convert::Pose2 {
+                        x_m: x0 + c.dr[0],
+                        y_m: y0 + c.dr[1],
+                        theta_rad: c.heading_rad.unwrap_or(0.0),
+                    },
+                );
+            }
             _ => {}
         }
     });

@@ -217,6 +217,17 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     assert_eq!(schema("/skeeter/ses"), "foxglove.SceneUpdate");
     assert_eq!(schema("/broadcasts"), "foxglove.Log");
     assert_eq!(schema("/scooter/truth"), "foxglove.PoseInFrame");
+    // Scooter's belief is in `map` where its truth is (it was measured from its start, 4 m
+    // off the robot in the 3D view): its first one, at the start, within 0.3 m of the truth.
+    let first_pose = |topic: &str| {
+        let m = msgs.iter().find(|m| m.topic == topic).unwrap();
+        let p = ima_record::messages::PoseInFrame::decode(&m.data[..]).unwrap();
+        assert_eq!(p.frame_id, "map", "{topic}");
+        let pos = p.pose.unwrap().position.unwrap();
+        (pos.x, pos.y)
+    };
+    let (b, t) = (first_pose("/scooter/belief"), first_pose("/scooter/truth"));
+    assert!((b.0 - t.0).hypot(b.1 - t.1) < 0.3, "belief {b:?}, truth {t:?}");
     // Both robots' odometry, though Skeeter's runtime never reads its own (it had none, so
     // nothing placed `skeeter/base_link`, where its sonar and SES are drawn).
     for robot in ["skeeter", "scooter"] {

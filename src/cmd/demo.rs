@@ -238,6 +238,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                         })
                         .collect()
                 });
+                // record: the belief in `map` (dead reckoning from the start).
+                for (name, p) in &starts {
+                    crate::record::set_start(name, p.x_m, p.y_m);
+                }
                 loop {
                     tick.tick().await;
                     n += 1;

@@ -3,12 +3,16 @@
 //!
 //! [`Broadcaster`] numbers and seals this robot's [`Msg::Status`], [`Msg::Emergency`] and
 //! [`Msg::Mission`] messages. [`BroadcastReceiver`] opens frames from any group member and
-//! keeps, per sender robot, the highest sequence number accepted: an equal number is a
-//! [`Rejection::Duplicate`] (e.g. the same datagram by multicast and by the unicast
-//! fallback), a lower one a [`Rejection::Stale`] reordering. A sender not heard for
-//! [`ReceiverConfig::forget_after`] is forgotten, so a restarted robot whose sequence began
-//! again is accepted after that quiet time (the shell should also start sequences from a
-//! growing clock value). The receiver needs no manager: the commander runs one alone.
+//! keeps, per sender — the robot name *and* the sending node's ID — the highest sequence
+//! number accepted: an equal number is a [`Rejection::Duplicate`] (e.g. the same datagram by
+//! multicast and by the unicast fallback), a lower one a [`Rejection::Stale`] reordering.
+//! Two processes may share a name (the operator's commander and a one-shot
+//! `ima commander stop`, both "commander"); each has its own sequence, so keyed by name alone
+//! the later one's higher sequence made every message of the other stale for
+//! [`ReceiverConfig::forget_after`] — a fleet stop typed in the running commander among them.
+//! A sender not heard for `forget_after` is forgotten, so a restarted robot whose sequence
+//! began again is accepted after that quiet time (a restarted process has a new node ID too).
+//! The receiver needs no manager: the commander runs one alone.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -181,8 +185,8 @@ pub struct ReceiverStats {
 pub struct BroadcastReceiver {
     cfg: ReceiverConfig,
     verifier: Verifier,
-    /// robot → (last seq, last heard)
-    robots: BTreeMap<String, (u64, Instant)>,
+    /// (robot, sender node) → (last seq, last heard)
+    robots: BTreeMap<(String, u64), (u64, Instant)>,
     stats: ReceiverStats,
     last_sender: Option<u64>,
 }
@@ -272,7 +276,8 @@ impl BroadcastReceiver {
             | Msg::Mission { robot, seq, .. } => (robot.clone(), *seq),
             other => return Err(Rejection::NotBroadcast(other.code())),
         };
-        if let Some(&(last, heard)) = self.robots.get(&robot)
+        let from = (robot, o.sender);
+        if let Some(&(last, heard)) = self.robots.get(&from)
             && now.saturating_duration_since(heard) < self.cfg.forget_after
         {
             if seq == last {
@@ -282,7 +287,7 @@ impl BroadcastReceiver {
                 return Err(Rejection::Stale { last, seq });
             }
         }
-        if !self.robots.contains_key(&robot) && self.robots.len() >= self.cfg.max_robots.max(1) {
+        if !self.robots.contains_key(&from) && self.robots.len() >= self.cfg.max_robots.max(1) {
             let oldest = self
                 .robots
                 .iter()
@@ -292,7 +297,7 @@ impl BroadcastReceiver {
                 self.robots.remove(&r);
             }
         }
-        self.robots.insert(robot, (seq, now));
+        self.robots.insert(from, (seq, now));
         self.last_sender = Some(o.sender);
         Ok(o.msg)
     }

@@ -909,6 +909,40 @@ fn broadcast_drops_duplicates_and_stale_reorderings() {
     );
 }
 
+/// Two processes of one name (the operator's commander and a one-shot `ima commander stop`)
+/// each have their own sequence: the later one's higher numbers do not make the other's
+/// messages stale. Keyed by name alone, a fleet stop typed in the running commander was
+/// dropped for 10 s after any one-shot command.
+#[test]
+fn two_senders_of_one_name_have_their_own_sequences() {
+    let mut rx = BroadcastReceiver::new(key(), ReceiverConfig::default());
+    let mut running = Signer::new(key(), 3, 1);
+    let mut one_shot = Signer::new(key(), 4, 1);
+    let stop = |seq| Msg::Emergency {
+        robot: "commander".into(),
+        seq,
+        kind: "fleet-stop".into(),
+        text: "operator".into(),
+    };
+    let mut feed =
+        |s: &mut Signer, m: Msg, t: u64| rx.handle_datagram(&s.seal_vec(&m).unwrap(), ms(t));
+    assert!(feed(&mut running, stop(100), 0).is_ok());
+    assert!(feed(&mut one_shot, stop(900), 1).is_ok());
+    assert_eq!(feed(&mut running, stop(101), 2), Ok(stop(101)));
+    // Each sender's own duplicates and reorderings are still caught.
+    assert_eq!(
+        feed(&mut running, stop(101), 3),
+        Err(Rejection::Duplicate { seq: 101 })
+    );
+    assert_eq!(
+        feed(&mut one_shot, stop(800), 4),
+        Err(Rejection::Stale {
+            last: 900,
+            seq: 800
+        })
+    );
+}
+
 #[test]
 fn broadcast_rejects_strangers_and_replays() {
     let mut rx = BroadcastReceiver::new(key(), ReceiverConfig::default());
