@@ -227,7 +227,10 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         (pos.x, pos.y)
     };
     let (b, t) = (first_pose("/scooter/belief"), first_pose("/scooter/truth"));
-    assert!((b.0 - t.0).hypot(b.1 - t.1) < 0.3, "belief {b:?}, truth {t:?}");
+    assert!(
+        (b.0 - t.0).hypot(b.1 - t.1) < 0.3,
+        "belief {b:?}, truth {t:?}"
+    );
     // Both robots' odometry, though Skeeter's runtime never reads its own (it had none, so
     // nothing placed `skeeter/base_link`, where its sonar and SES are drawn).
     for robot in ["skeeter", "scooter"] {

@@ -31,6 +31,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use crate::body::WorldBody;
 use crate::camera::{CameraConfig, CameraError, MockCameraHead};
 use crate::compass::{CompassDevice, CompassModelConfig};
+use crate::faults::FaultPlan;
 use ima_hal::time::Clock as _;
 
 use crate::p2os::{P2osDevice, P2osModelConfig};
@@ -81,6 +82,10 @@ pub struct ServeOptions {
     /// The clock of every served device's model ([`PtyOptions::clock`]): a program serving
     /// the world to its own drivers passes its one clock. `None`: each device's own.
     pub clock: Option<ima_hal::time::SharedClock>,
+    /// Faults between every served serial device and its port (`ima mock world --faults`);
+    /// each device's seed is the plan's plus its place in the order base, switcher, Scooter's
+    /// base, laser, compass, so no two lose the same bytes.
+    pub faults: FaultPlan,
 }
 
 /// A kind of served base controller.
@@ -107,6 +112,7 @@ impl Default for ServeOptions {
             scooter_base_log: None,
             scooter_base: BaseKind::Rflex,
             clock: None,
+            faults: FaultPlan::none(),
         }
     }
 }
@@ -173,9 +179,15 @@ impl ServedWorld {
         };
         let (sk, sc) = (id(&opts.skeeter)?, id(&opts.scooter)?);
         let seed = opts.seed;
-        let pty = || PtyOptions {
-            clock: opts.clock.clone(),
-            ..PtyOptions::default()
+        let next = std::cell::Cell::new(0u64);
+        let pty = || {
+            let mut faults = opts.faults.clone();
+            faults.seed = faults.seed.wrapping_add(next.replace(next.get() + 1));
+            PtyOptions {
+                clock: opts.clock.clone(),
+                faults,
+                ..PtyOptions::default()
+            }
         };
         let cap = |s: &str| {
             let mut c = s.chars();
@@ -287,6 +299,23 @@ impl ServedWorld {
     #[must_use]
     pub fn endpoints(&self) -> &Endpoints {
         &self.endpoints
+    }
+
+    /// Each served serial device's link, by name (`skeeter base`, …): the bytes each end
+    /// wrote, the faults injected ([`ServeOptions::faults`]), outages.
+    #[must_use]
+    pub fn links(&self) -> [(&'static str, crate::link::RunnerStatus); 5] {
+        let base = match &self._scooter_base {
+            ScooterBase::Rflex(d) => d.status(),
+            ScooterBase::P2os(d) => d.status(),
+        };
+        [
+            ("skeeter base", self._p2os.status()),
+            ("skeeter video_mux", self._mux.status()),
+            ("scooter base", base),
+            ("scooter laser", self._laser.status()),
+            ("scooter compass", self._compass.status()),
+        ]
     }
 }
 
@@ -595,5 +624,37 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    /// The world's `--faults` reach its serial devices (they were parsed and dropped): the
+    /// compass, which talks unasked, has its bytes corrupted, and no two devices draw the same
+    /// faults.
+    #[test]
+    fn the_worlds_faults_reach_its_devices() {
+        let opts = ServeOptions {
+            faults: FaultPlan::parse("corrupt=0.5").unwrap(),
+            ..ServeOptions::default()
+        };
+        let served = ServedWorld::start(SharedWorld::new(World::default_world()), &opts).unwrap();
+        let e = served.endpoints().clone();
+        // Something must read the compass's pty for its bytes to flow.
+        let mut port = std::fs::File::open(&e.scooter.compass).unwrap();
+        let mut buf = [0u8; 256];
+        let t0 = std::time::Instant::now();
+        let mut corrupted = 0;
+        while corrupted == 0 && t0.elapsed() < Duration::from_secs(20) {
+            let _ = std::io::Read::read(&mut port, &mut buf);
+            let [.., (_, compass)] = served.links();
+            corrupted = compass.counters.robot_to_host.corrupted;
+        }
+        assert!(corrupted > 0, "no byte of the compass corrupted");
+        let [(name, clean), ..] = ServedWorld::start(
+            SharedWorld::new(World::default_world()),
+            &ServeOptions::default(),
+        )
+        .unwrap()
+        .links();
+        assert_eq!(name, "skeeter base");
+        assert_eq!(clean.counters.robot_to_host.corrupted, 0);
     }
 }

@@ -36,6 +36,7 @@ fn serve_mock(cfg: &mut RobotConfig) -> Result<ima_mock_devices::served::ServedW
         speed: cfg.mock_world.speed,
         frames_addr: "127.0.0.1:0".parse()?,
         write_configs: None,
+        faults: ima_mock_devices::faults::FaultPlan::none(),
     })?;
     let [sk, sc, _] = super::mock_world::loopback_configs(served.endpoints(), 1.0, None)?;
     cfg.devices = match cfg.role {

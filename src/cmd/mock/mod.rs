@@ -52,7 +52,8 @@ pub struct MockArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Faults between device and port, e.g. `corrupt=0.01,split=1,stall=0.0005:300ms`
-    /// (grammar: `ima-mock-devices` docs, module `faults`).
+    /// (grammar: `ima-mock-devices` docs, module `faults`); for the world, between each of its
+    /// serial devices and its port.
     #[arg(long, default_value = "")]
     faults: String,
     /// Which robot of the world the device belongs to (default: skeeter for p2os and the
@@ -153,6 +154,7 @@ pub fn run(args: &MockArgs) -> Result<()> {
                 speed: args.speed,
                 frames_addr: args.frames_addr,
                 write_configs: args.write_configs.clone(),
+                faults: shared::fault_plan(&args.faults, Some(args.seed))?,
             })
         }
         Device::P2os => p2os::run(

@@ -27,6 +27,8 @@ pub struct WorldOptions {
     pub frames_addr: SocketAddr,
     /// Write skeeter.toml, scooter.toml, commander.toml and group.key here.
     pub write_configs: Option<PathBuf>,
+    /// `--faults`, between every serial device and its port.
+    pub faults: ima_mock_devices::faults::FaultPlan,
 }
 
 /// Start the world and its devices.
@@ -38,6 +40,7 @@ pub fn serve(opts: &WorldOptions) -> Result<ServedWorld> {
             seed: opts.seed,
             speed: opts.speed,
             frames_addr: opts.frames_addr,
+            faults: opts.faults.clone(),
             ..ServeOptions::default()
         },
     )
@@ -268,7 +271,12 @@ pub fn run(opts: &WorldOptions) -> Result<()> {
         opts.seed,
         describe(&e)
     );
-    super::shared::wait_for_interrupt()?;
+    let ended = super::shared::wait_for_interrupt();
+    // What each line carried, with the faults injected (`--faults`): the three-process set-up
+    // has no other place that says so.
+    for (device, status) in served.links() {
+        eprintln!("{device}: {}", status.counters);
+    }
     drop(served);
-    Ok(())
+    ended
 }
