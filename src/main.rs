@@ -93,6 +93,19 @@ enum SanCommand {
 const CONNECT_TARGET: &str = "ima::connect";
 
 /// Checks a `--log` filter (clap then reports a bad one with exit status 2).
+/// The Foxglove server logs each client's mistake (a subscription to an unknown channel, an
+/// old subprotocol) at ERROR: any program or web page on the machine could write into the
+/// robot's terminal that way. Those lines are left out unless the filter names `foxglove`.
+fn quiet_clients(f: tracing_subscriber::EnvFilter, given: &str) -> tracing_subscriber::EnvFilter {
+    if given.contains("foxglove") {
+        return f;
+    }
+    match "foxglove::websocket=off".parse() {
+        Ok(d) => f.add_directive(d),
+        Err(_) => f,
+    }
+}
+
 fn log_filter(s: &str) -> Result<String, String> {
     tracing_subscriber::EnvFilter::try_new(s)
         .map(|_| s.to_owned())
@@ -145,10 +158,11 @@ fn main() -> ExitCode {
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
                 .with_ansi(tty)
-                .with_filter(
+                .with_filter(quiet_clients(
                     tracing_subscriber::EnvFilter::try_new(&cli.log)
                         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-                ),
+                    &cli.log,
+                )),
         )
         .with(progress)
         .init();

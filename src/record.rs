@@ -145,12 +145,24 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
         exclude: ima_record::filter::TopicFilter::new(args.record_exclude.clone()),
     })?;
     if let Some(port) = rec.server_port() {
-        let host = args
+        let bound = args
             .foxglove
-            .map_or("127.0.0.1".into(), |a| a.ip().to_string());
-        eprintln!(
-            "ima: live view for Foxglove on ws://{host}:{port} (open docs/foxglove-layout.json)"
-        );
+            .map_or(std::net::Ipv4Addr::LOCALHOST.into(), |a| a.ip());
+        // A URL a client can open: every address (`0.0.0.0`, `[::]`) by its loopback one.
+        let ip = match bound {
+            std::net::IpAddr::V4(a) if a.is_unspecified() => std::net::Ipv4Addr::LOCALHOST.into(),
+            std::net::IpAddr::V6(a) if a.is_unspecified() => std::net::Ipv6Addr::LOCALHOST.into(),
+            ip => ip,
+        };
+        let url = std::net::SocketAddr::new(ip, port);
+        eprintln!("ima: live view for Foxglove on ws://{url} (open docs/foxglove-layout.json)");
+        if !bound.is_loopback() {
+            eprintln!(
+                "ima: warning: the live view is served on {bound}, beyond loopback, with no \
+                 token: anyone who can reach this machine there can watch the robot (from \
+                 another machine, use this machine's address)"
+            );
+        }
     }
     *current().write().unwrap_or_else(PoisonError::into_inner) = Some(rec);
     Ok(())
@@ -173,6 +185,28 @@ pub fn set_start(robot: &str, x_m: f64, y_m: f64) {
         .write()
         .unwrap_or_else(PoisonError::into_inner)
         .insert(robot.to_owned(), (x_m, y_m));
+}
+
+/// The `foxglove.Log` level of a stack event, so a Log panel can show the failures alone: a
+/// failed target, a fleet stop, a robot lost, a refused operator request, frames under
+/// another key, a lost link or subscription and lost events are warnings; the rest is
+/// information.
+fn event_level(kind: &ima_agents::runtime::EventKind) -> ima_record::messages::log::Level {
+    use ima_agents::runtime::EventKind;
+    use ima_agents::runtime::events::PeerNote;
+    use ima_record::messages::log::Level;
+    let warning = match kind {
+        EventKind::Target(t) => t.state == "failed",
+        EventKind::Robot { state, .. } => state == "lost",
+        EventKind::FleetStop { .. }
+        | EventKind::Operator { .. }
+        | EventKind::AuthFailure(_)
+        | EventKind::Lagged { .. }
+        | EventKind::Peer(PeerNote::Lost { .. } | PeerNote::Retry { .. }) => true,
+        EventKind::Fleet { command, .. } => command == "stop",
+        _ => false,
+    };
+    if warning { Level::Warning } else { Level::Info }
 }
 
 /// Use the recorder, if one runs.
@@ -642,6 +676,8 @@ fn peer_schema() -> Value {
 /// The JSON Schema of `/commander/queue`.
 fn queue_schema() -> Value {
     let num = json!({"type": "number"});
+    // Times not reached yet are null.
+    let maybe = json!({"type": ["number", "null"]});
     json!({
         "title": "ima.TargetQueue",
         "description": "The commander's series of targets, after each change.",
@@ -650,8 +686,8 @@ fn queue_schema() -> Value {
             "t_s": num, "robot": {"type": "string"},
             "targets": {"type": "array", "items": {"type": "object", "properties": {
                 "index": {"type": "integer"}, "target": {"type": "string"},
-                "state": {"type": "string"}, "sent_s": num, "accepted_s": num, "ended_s": num,
-                "time_s": num, "cancelled": {"type": "boolean"},
+                "state": {"type": "string"}, "sent_s": maybe, "accepted_s": maybe,
+                "ended_s": maybe, "time_s": maybe, "cancelled": {"type": "boolean"},
                 "given_up": {"type": "boolean"}, "sends": {"type": "integer"}}}},
         },
     })
@@ -668,11 +704,13 @@ fn map_schema() -> Value {
         "properties": {
             "t_s": num, "robot": {"type": "string"},
             "dr": {"type": "array", "items": num},
-            "heading_rad": num, "desired_rad": num,
-            "plan": {"type": "object", "properties": {
+            // What Scooter does not know yet is null.
+            "heading_rad": {"type": ["number", "null"]},
+            "desired_rad": {"type": ["number", "null"]},
+            "plan": {"type": ["object", "null"], "properties": {
                 "heading_rad": num, "point": {"type": "array", "items": num}}},
             "obstacles": {"type": "array", "items": {"type": "array", "items": num}},
-            "target": {"type": "string"},
+            "target": {"type": ["string", "null"]},
         },
     })
 }
@@ -831,8 +869,7 @@ pub fn log_event(e: &ima_agents::runtime::Event) {
         }
         let log_line = |line: &mut String| {
             event_line(&e.kind, line);
-            let level = ima_record::messages::log::Level::Info;
-            r.log_text("/events", level, &e.robot, line);
+            r.log_text("/events", event_level(&e.kind), &e.robot, line);
         };
         // The thread's line buffer, or a fresh one if it is in use or gone (thread exit).
         let _ = LINE
@@ -887,6 +924,34 @@ mod tests {
             robot: "scooter".into(),
             kind,
         }
+    }
+
+    /// Failures are warnings in the Log panels (every event was INFO).
+    #[test]
+    fn failures_are_logged_as_warnings() {
+        use ima_agents::runtime::EventKind;
+        use ima_agents::runtime::events::TargetChange;
+        use ima_record::messages::log::Level;
+        let target = |state: &str| {
+            EventKind::Target(TargetChange {
+                target: "red".into(),
+                state: state.into(),
+                time_s: None,
+                given_up: None,
+                cancelled: None,
+            })
+        };
+        assert_eq!(event_level(&target("failed")), Level::Warning);
+        assert_eq!(event_level(&target("done")), Level::Info);
+        let stop = EventKind::FleetStop {
+            by: "commander".into(),
+            reason: "test".into(),
+        };
+        assert_eq!(event_level(&stop), Level::Warning);
+        assert_eq!(
+            event_level(&EventKind::Behaviour("scan".into())),
+            Level::Info
+        );
     }
 
     /// What the state topics held when they were built as JSON trees: the typed

@@ -208,6 +208,17 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         scooter.last()
     );
     assert!(!json_of("/commander/queue").is_empty());
+    // Every message of a JSON topic fits its channel's schema (a null where the schema said
+    // "number" failed a JSON Schema validator; Foxglove's panels read the schema).
+    let schemas = rec.json_schemas();
+    assert!(schemas.len() >= 6, "{:?}", schemas.keys());
+    for (topic, schema) in &schemas {
+        for v in json_of(topic) {
+            if let Err(at) = fits(&v, schema, topic) {
+                panic!("{at}: {v}");
+            }
+        }
+    }
 
     // Channels and schemas.
     let ch = rec.channels();
@@ -971,6 +982,93 @@ fn record_exclude_leaves_topics_out_of_the_file() {
         "{err}"
     );
     assert!(!dir.join("never.mcap").exists());
+}
+
+/// Whether `v` fits `schema`, for the parts of JSON Schema the `ima.*` schemas use: `type`
+/// (one or several), `properties` (undeclared ones allowed) and `items`. `Err` names where
+/// it does not.
+fn fits(v: &serde_json::Value, schema: &serde_json::Value, at: &str) -> Result<(), String> {
+    use serde_json::Value;
+    let is = |t: &str| match t {
+        "number" => v.is_number(),
+        "integer" => v.is_i64() || v.is_u64(),
+        "string" => v.is_string(),
+        "boolean" => v.is_boolean(),
+        "object" => v.is_object(),
+        "array" => v.is_array(),
+        "null" => v.is_null(),
+        _ => true,
+    };
+    let ok = match &schema["type"] {
+        Value::String(t) => is(t),
+        Value::Array(ts) => ts.iter().filter_map(Value::as_str).any(is),
+        _ => true,
+    };
+    if !ok {
+        return Err(format!("{at} is not {}", schema["type"]));
+    }
+    if let (Some(props), Some(obj)) = (schema["properties"].as_object(), v.as_object()) {
+        for (k, s) in props {
+            if let Some(x) = obj.get(k) {
+                fits(x, s, &format!("{at}.{k}"))?;
+            }
+        }
+    }
+    if let (Some(items), Some(arr)) = (schema.get("items"), v.as_array()) {
+        for (i, x) in arr.iter().enumerate() {
+            fits(x, items, &format!("{at}[{i}]"))?;
+        }
+    }
+    Ok(())
+}
+
+/// `--foxglove` on an address in use fails before the recording's file is made (it left an
+/// empty file behind, which the next try refused to overwrite); bound to every address, the
+/// live view names a URL a client can open and warns that anyone may watch.
+#[test]
+fn the_live_view_is_bound_before_the_file_is_made() {
+    let dir = scratch("busy");
+    let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let busy = held.local_addr().unwrap().to_string();
+    let file = dir.join("busy.mcap");
+    let out = ima()
+        .args(["demo", "--speed", "20", "--foxglove", &busy, "--record"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains(&format!("--foxglove {busy}")),
+        "{err}"
+    );
+    assert!(!file.exists(), "an empty recording was left behind");
+    let mut demo = common::Child(
+        ima()
+            .args(["demo", "--speed", "20", "--foxglove", "0.0.0.0:0"])
+            .arg("--svg")
+            .arg(dir.join("any.svg"))
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, _reader) = common::line_channel(demo.0.stderr.take().unwrap());
+    let url = loop {
+        let l = lines
+            .recv_timeout(std::time::Duration::from_secs(30))
+            .expect("the live view's line");
+        if let Some(rest) = l.strip_prefix("ima: live view for Foxglove on ") {
+            break rest.to_owned();
+        }
+    };
+    assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
+    let warning = lines
+        .recv_timeout(std::time::Duration::from_secs(10))
+        .unwrap();
+    assert!(
+        warning.contains("served on 0.0.0.0, beyond loopback, with no token"),
+        "{warning}"
+    );
 }
 
 /// A file that cannot grow (here a file-size limit: `write` fails with EFBIG, as a full disk

@@ -438,12 +438,14 @@ impl Recorder {
         self.log_pose2(s, p);
     }
 
-    /// A compass heading of `robot` (radians, counter-clockwise in the robot's common frame)
-    /// as a pose at the robot's origin on `/<robot>/compass`.
+    /// A compass heading of `robot` (radians, counter-clockwise from east: east-north-up) as
+    /// an orientation in `map` on `/<robot>/compass`. An absolute heading: in the robot's
+    /// `base_link`, as it was, a viewer turned it by the robot's own yaw once more and drew
+    /// it at twice the heading.
     pub fn log_compass(&self, robot: &str, heading_rad: f64) {
         let s = self.stream(&["compass", robot], || {
             let proto = Proto::Pose(PoseInFrame {
-                frame_id: format!("{robot}/base_link"),
+                frame_id: "map".to_owned(),
                 ..PoseInFrame::default()
             });
             (format!("/{robot}/compass"), proto)

@@ -341,12 +341,23 @@ impl Recorder {
         };
         let ctx = Context::new();
         let failure = Arc::new(Failure::default());
-        let writer = match &opts.mcap {
-            Some(path) => Some(create_file(&ctx, path, opts, &failure)?),
-            None => None,
-        };
+        // The server first: an address in use must not leave an empty file behind, which the
+        // next try would then refuse to overwrite.
         let server = match opts.foxglove {
             Some(addr) => Some(start_server(&ctx, addr, &opts.name)?),
+            None => None,
+        };
+        let writer = match &opts.mcap {
+            Some(path) => match create_file(&ctx, path, opts, &failure) {
+                Ok(w) => Some(w),
+                Err(e) => {
+                    if let Some((h, rt)) = server {
+                        let _ = h.stop();
+                        rt.shutdown_background();
+                    }
+                    return Err(e);
+                }
+            },
             None => None,
         };
         let server_port = server.as_ref().map(|(h, _)| h.port());

@@ -1084,6 +1084,25 @@ impl Recording {
         out
     }
 
+    /// Every channel whose schema is a JSON Schema (encoding `jsonschema`, the `ima.*` state
+    /// topics): topic → the schema, parsed (`Null` where it does not parse).
+    pub fn json_schemas(&self) -> BTreeMap<String, serde_json::Value> {
+        let mut out = BTreeMap::new();
+        self.each(|m| {
+            if let Some(s) = m
+                .channel
+                .schema
+                .as_ref()
+                .filter(|s| s.encoding == "jsonschema")
+            {
+                out.entry(m.channel.topic.clone())
+                    .or_insert_with(|| serde_json::from_slice(&s.data).unwrap_or_default());
+            }
+            true
+        });
+        out
+    }
+
     /// Every raw serial channel with its chunks, copied out message by message as the chunks
     /// are read (no other message is kept: replaying or decoding a long recording holds its
     /// raw bytes, not every camera frame it decompressed on the way).
