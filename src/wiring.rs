@@ -509,8 +509,65 @@ fn record_base(base: &Base, robot: &str, odometry: bool) -> AbortOnDrop {
     })))
 }
 
+/// Whether a driver's link has ended for good (its port closed or failed): it does not come
+/// back by itself.
+fn ended<U, E>(s: &ima_serial::LinkStatus<U, E>) -> bool {
+    matches!(
+        s,
+        ima_serial::LinkStatus::Closed | ima_serial::LinkStatus::Failed(_)
+    )
+}
+
+/// A device whose driver has ended, by name (`checks`: each device's "has it ended?").
+type EndedCheck = (&'static str, Box<dyn Fn() -> bool + Send + Sync>);
+
+/// Resolves with the name of the first device whose driver has ended for good, unless the
+/// robot is asked to stop first (its drivers then close on purpose: this never resolves). A
+/// robot whose devices are gone (a pulled USB hub; the mock world killed) used to run on,
+/// broadcasting that it was well, while the commander sent it targets it could not do.
+async fn a_device_ended(checks: Vec<EndedCheck>, mut stop: StopRequest) -> &'static str {
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            r = stop.changed() => if r.is_err() { std::future::pending::<()>().await },
+        }
+        // Asked to stop, or a signal, a closed stdout, a panic: the drivers close on purpose.
+        if *stop.borrow() || crate::safety::asked_to_end() {
+            std::future::pending::<()>().await;
+        }
+        if let Some((name, _)) = checks.iter().find(|(_, f)| f()) {
+            return name;
+        }
+    }
+}
+
+/// The error that ends a robot's run when one of its devices is gone.
+fn device_gone(robot: &str, device: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "{robot}'s {device}: its driver has ended (the port closed or failed for good): the run \
+         ends, so that the other robots and the commander see {robot} lost (start it again once \
+         the device is back)"
+    )
+}
+
+/// The base's "has it ended?".
+fn base_check(base: &Base) -> EndedCheck {
+    match base {
+        Base::P2os(b) => {
+            let b = b.clone();
+            ("base", Box::new(move || ended(&b.link())))
+        }
+        Base::Rflex(b) => {
+            let b = b.clone();
+            ("base", Box::new(move || ended(&b.link())))
+        }
+    }
+}
+
 /// Run Scooter's runtime ([`scooter::run`]) on its devices, linked to the other robots over
-/// the Peer Agent network of `cfg`, until `stop`.
+/// the Peer Agent network of `cfg`, until `stop`, or until one of its devices is gone (an
+/// error naming it).
 pub async fn run_scooter(
     cfg: &RobotConfig,
     key: GroupKey,
@@ -535,6 +592,16 @@ pub async fn run_scooter(
         scans_read,
     } = hw;
     let halt = Some(base.halt_signal());
+    let mut checks = vec![base_check(&base)];
+    {
+        let l = laser.clone();
+        checks.push(("laser", Box::new(move || ended(&l.link()))));
+    }
+    if let Some(c) = &compass {
+        let c = c.clone();
+        checks.push(("compass", Box::new(move || ended(&c.link()))));
+    }
+    let gone = a_device_ended(checks, stop.clone());
     let _base = record_base(&base, &cfg.robot, false); // record: sonar
     // record: scans, odometry and headings as the runtime reads them.
     let laser = crate::record::Recorded::new(laser, &cfg.robot).counting(scans_read);
@@ -547,7 +614,10 @@ pub async fn run_scooter(
                 compass,
                 halt,
             };
-            scooter::run(rt, dev, link, clock, events, stop).await?;
+            tokio::select! {
+                r = scooter::run(rt, dev, link, clock, events, stop) => r?,
+                device = gone => return Err(device_gone(&cfg.robot, device)),
+            }
         }
         Base::Rflex(base) => {
             let dev = scooter::ScooterDevices {
@@ -556,7 +626,10 @@ pub async fn run_scooter(
                 compass,
                 halt,
             };
-            scooter::run(rt, dev, link, clock, events, stop).await?;
+            tokio::select! {
+                r = scooter::run(rt, dev, link, clock, events, stop) => r?,
+                device = gone => return Err(device_gone(&cfg.robot, device)),
+            }
         }
     }
     Ok(())
@@ -584,6 +657,12 @@ pub async fn run_skeeter(
         frames,
         frames_received,
     } = hw;
+    let mut checks = vec![base_check(&base)];
+    {
+        let m = mux.clone();
+        checks.push(("video switcher", Box::new(move || ended(&m.link()))));
+    }
+    let gone = a_device_ended(checks, stop.clone());
     let _base = record_base(&base, &cfg.robot, true); // record: odometry, sonar
     // record: camera frames (and the client's own count of them)
     let frames =
@@ -591,11 +670,17 @@ pub async fn run_skeeter(
     match base {
         Base::P2os(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };
-            skeeter::run(rt, dev, link, clock, events, stop).await?;
+            tokio::select! {
+                r = skeeter::run(rt, dev, link, clock, events, stop) => r?,
+                device = gone => return Err(device_gone(&cfg.robot, device)),
+            }
         }
         Base::Rflex(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };
-            skeeter::run(rt, dev, link, clock, events, stop).await?;
+            tokio::select! {
+                r = skeeter::run(rt, dev, link, clock, events, stop) => r?,
+                device = gone => return Err(device_gone(&cfg.robot, device)),
+            }
         }
     }
     Ok(())

@@ -423,9 +423,10 @@ fn paths_that_are_not_utf8_are_written_and_named() {
 }
 
 /// Every device of a running robot vanishes (the mock world's process is killed; on a robot,
-/// a pulled USB hub): each driver says once that its port closed, and Scooter's laser and
-/// compass readers say once what fails and then count (they logged "laser: Disconnected" and
-/// "compass: Disconnected" five times a second each, for as long as the robot ran).
+/// a pulled USB hub): each driver says once that its port closed, Scooter's laser and
+/// compass readers say once what fails (they logged "laser: Disconnected" and "compass:
+/// Disconnected" five times a second each, for as long as the robot ran), and the run ends,
+/// naming the device.
 #[test]
 fn devices_that_vanish_are_reported_once_each() {
     let d = scratch("vanish");
@@ -453,13 +454,25 @@ fn devices_that_vanish_are_reported_once_each() {
     }
     world.0.kill().unwrap();
     let _ = world.0.wait();
-    // 3 s of a robot without devices (15 failed reads of each were 15 lines each).
-    std::thread::sleep(std::time::Duration::from_secs(3));
-    let _ = std::process::Command::new("kill")
-        .args(["-INT", &run.0.id().to_string()])
-        .status();
-    let _ = run.0.wait();
+    // The robot's run ends by itself, naming a device that is gone (it ran on, saying it was
+    // well, while the commander sent it targets it could not do), within 10 s.
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let status = loop {
+        if let Some(s) = run.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            std::time::Instant::now() < end,
+            "the run went on without its devices"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
     let err = std::fs::read_to_string(&err_file).unwrap();
+    assert_eq!(status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("its driver has ended (the port closed or failed for good): the run ends"),
+        "{err}"
+    );
     // One line per kind of error (a timeout, the port's own error, then `Disconnected`).
     for what in ["scooter: laser: ", "scooter: compass: "] {
         let failures = err.lines().filter(|l| l.contains(what)).count();
