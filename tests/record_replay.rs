@@ -875,6 +875,11 @@ fn a_p2os_demo_records_sonar_point_clouds() {
         }
     }
     assert!(paths.len() > 10, "{paths:?}");
+    // The arena's walls are drawn (the laser sees them; only the objects were).
+    let arena = msgs.iter().find(|m| m.topic == "/world/arena").unwrap();
+    let arena = ima_record::messages::SceneUpdate::decode(&arena.data[..]).unwrap();
+    let walls = &arena.entities[0].lines[0];
+    assert!(walls.points.len() >= 8 && walls.points.len() % 2 == 0, "{walls:?}");
     for t in paths.iter().filter(|t| !t.starts_with("/robot/")) {
         assert!(
             ch.contains_key(t),

@@ -324,6 +324,72 @@ pub fn map_markers(at_ns: u64, markers: &[MapMarker]) -> SceneUpdate {
     }
 }
 
+/// The arena in `map`: its walls as grey segments on the floor (3 cm wide) and its round
+/// obstacles as grey cylinders 0.5 m tall, one entity — what the laser sees and Scooter
+/// avoids, beside the coloured objects of [`map_markers`].
+pub fn arena_scene(
+    at_ns: u64,
+    walls: &[([f64; 2], [f64; 2])],
+    posts: &[([f64; 2], f64)],
+) -> SceneUpdate {
+    use foxglove::messages::{CylinderPrimitive, LinePrimitive, Point3, line_primitive};
+    let grey = Color {
+        r: 0.6,
+        g: 0.6,
+        b: 0.6,
+        a: 1.0,
+    };
+    let point = |p: [f64; 2]| Point3 {
+        x: p[0],
+        y: p[1],
+        z: 0.0,
+    };
+    let lines = (!walls.is_empty())
+        .then(|| LinePrimitive {
+            r#type: line_primitive::Type::LineList as i32,
+            pose: Some(pose3(Pose2::default())),
+            thickness: 0.03,
+            scale_invariant: false,
+            points: walls
+                .iter()
+                .flat_map(|(a, b)| [point(*a), point(*b)])
+                .collect(),
+            color: Some(grey),
+            ..LinePrimitive::default()
+        })
+        .into_iter()
+        .collect();
+    let cylinders = posts
+        .iter()
+        .map(|(c, r)| CylinderPrimitive {
+            pose: Some(pose3(Pose2 {
+                x_m: c[0],
+                y_m: c[1],
+                theta_rad: 0.0,
+            })),
+            size: Some(Vector3 {
+                x: 2.0 * r,
+                y: 2.0 * r,
+                z: 0.5,
+            }),
+            bottom_scale: 1.0,
+            top_scale: 1.0,
+            color: Some(grey),
+        })
+        .collect();
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![SceneEntity {
+            timestamp: Some(stamp(at_ns)),
+            frame_id: "map".to_owned(),
+            id: "arena".to_owned(),
+            lines,
+            cylinders,
+            ..SceneEntity::default()
+        }],
+    }
+}
+
 /// The sink API: readings by robot, on the topics and frames of this module.
 /// `n` in decimal, written into `buf` (no allocation).
 fn decimal(mut n: u8, buf: &mut [u8; 3]) -> &str {
@@ -526,6 +592,17 @@ impl Recorder {
     pub fn log_markers(&self, topic: &str, markers: &[MapMarker]) {
         let at = self.now_ns();
         self.log(topic, map_markers(at, markers));
+    }
+
+    /// The arena's walls and round obstacles on `topic` (see [`arena_scene`]).
+    pub fn log_arena(
+        &self,
+        topic: &str,
+        walls: &[([f64; 2], [f64; 2])],
+        posts: &[([f64; 2], f64)],
+    ) {
+        let at = self.now_ns();
+        self.log(topic, arena_scene(at, walls, posts));
     }
 
     /// A line of text on `topic` (`/broadcasts`, `/events`) as `foxglove.Log`, `name` being

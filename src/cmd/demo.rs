@@ -409,6 +409,14 @@ fn world_markers(world: &ima_mock_devices::world::SharedWorld) {
                 .collect()
         });
         rec.log_markers("/world/objects", &marks);
+        // The walls and posts too: what the laser sees and Scooter avoids.
+        let (walls, posts): (Vec<_>, Vec<_>) = world.with(|w| {
+            (
+                w.walls().iter().map(|x| (x.from, x.to)).collect(),
+                w.circles().iter().map(|c| (c.center, c.radius_m)).collect(),
+            )
+        });
+        rec.log_arena("/world/arena", &walls, &posts);
     });
 }
 
