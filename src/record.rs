@@ -209,6 +209,31 @@ fn event_level(kind: &ima_agents::runtime::EventKind) -> ima_record::messages::l
     if warning { Level::Warning } else { Level::Info }
 }
 
+/// The fixed frames of a robot alone in a command (`ima drive`, `ima scan`), so that a viewer
+/// that follows `map` (the shipped layout) can place it: `map` → `<robot>/odom` at the
+/// origin, `<robot>/odom` → `<robot>/base_link` at the origin when nothing gives the robot's
+/// odometry (a scanner alone), and `<robot>/base_link` → `<robot>/laser` with a `laser`. At
+/// most once a second (for viewers that join late), whatever the caller's rate.
+pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) {
+    static LAST: std::sync::Mutex<Option<std::time::Instant>> = std::sync::Mutex::new(None);
+    {
+        let mut last = LAST.lock().unwrap_or_else(PoisonError::into_inner);
+        if last.is_some_and(|t| t.elapsed() < Duration::from_secs(1)) {
+            return;
+        }
+        *last = Some(std::time::Instant::now());
+    }
+    let origin = ima_record::convert::Pose2::default();
+    let (odom, base) = (format!("{robot}/odom"), format!("{robot}/base_link"));
+    r.log_transform("map", &odom, origin);
+    if !odometry {
+        r.log_transform(&odom, &base, origin);
+    }
+    if laser {
+        r.log_transform(&base, &format!("{robot}/laser"), origin);
+    }
+}
+
 /// Use the recorder, if one runs.
 pub fn with(f: impl FnOnce(&Recorder)) {
     if let Some(r) = &*current().read().unwrap_or_else(PoisonError::into_inner) {

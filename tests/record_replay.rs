@@ -935,6 +935,16 @@ fn record_exclude_leaves_topics_out_of_the_file() {
     );
     let ch = Recording::open(&file).unwrap().channels();
     assert!(ch.contains_key("/robot/odom"), "{ch:?}");
+    // `map` → `robot/odom`, so a viewer following `map` (the shipped layout) places the robot
+    // (a drive had no `map` frame).
+    let (msgs, _) = Recording::open(&file).unwrap().messages();
+    assert!(
+        msgs.iter().filter(|m| m.topic == "/tf").any(|m| {
+            let t = ima_record::messages::FrameTransform::decode(&m.data[..]).unwrap();
+            t.parent_frame_id == "map" && t.child_frame_id == "robot/odom"
+        }),
+        "no map → robot/odom"
+    );
     assert!(
         !ch.keys()
             .any(|t| t.contains("sonar") || t.contains("serial")),

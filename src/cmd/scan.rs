@@ -357,7 +357,10 @@ async fn scan_loop(args: &ScanArgs, mut lms: SickLms, variant: Variant) -> Resul
             _ = &mut stop => break,
         };
         last = s.at;
-        crate::record::with(|r| r.log_scan("robot", &s.value)); // record: scan
+        crate::record::with(|r| {
+            r.log_scan("robot", &s.value);
+            crate::record::log_fixed_frames(r, "robot", false, true);
+        }); // record: scan, the frames that place it
         n += 1;
         let t0 = *first.get_or_insert(s.at);
         let secs = s.at.saturating_duration_since(t0).as_secs_f64();

@@ -177,6 +177,7 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
             crate::record::with(|r| {
                 let p = &st.odometry.value.pose;
                 r.log_odometry("robot", ima_record::convert::Pose2::from_isometry(p));
+                crate::record::log_fixed_frames(r, "robot", true, false);
                 if st.new_sonar {
                     use ima_hal::sonar::SonarArray as _;
                     r.log_sonar("robot", robot.transducers(), &st.sonar.value);

@@ -79,6 +79,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
             crate::record::with(|r| {
                 let p = ima_record::convert::Pose2::from_isometry(&odo.value.pose);
                 r.log_odometry("robot", p);
+                crate::record::log_fixed_frames(r, "robot", true, false);
             }); // record: odometry
             latest = Some(odo.value);
             live.line(state_line(&mut base, odo, start, o.json).await);
