@@ -346,6 +346,19 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
             );
         }
     }
+    // The fixed transforms come along, so the replayed readings have a place in `map` (a
+    // replay's scans could not be shown by a viewer following `map`).
+    let fixed = Recording::open(&file).unwrap().fixed_transforms();
+    assert!(
+        fixed
+            .iter()
+            .any(|(p, c, _)| p == "map" && c == "scooter/odom")
+            && fixed
+                .iter()
+                .any(|(p, c, _)| p == "scooter/base_link" && c == "scooter/laser"),
+        "{fixed:?}"
+    );
+    assert_eq!(Recording::open(&again).unwrap().fixed_transforms(), fixed);
     let (out2, _) = replay_json(&again);
     assert!(out2.status.success());
     let (first, second) = (json_lines(&out.stdout), json_lines(&out2.stdout));
@@ -879,7 +892,10 @@ fn a_p2os_demo_records_sonar_point_clouds() {
     let arena = msgs.iter().find(|m| m.topic == "/world/arena").unwrap();
     let arena = ima_record::messages::SceneUpdate::decode(&arena.data[..]).unwrap();
     let walls = &arena.entities[0].lines[0];
-    assert!(walls.points.len() >= 8 && walls.points.len() % 2 == 0, "{walls:?}");
+    assert!(
+        walls.points.len() >= 8 && walls.points.len() % 2 == 0,
+        "{walls:?}"
+    );
     for t in paths.iter().filter(|t| !t.starts_with("/robot/")) {
         assert!(
             ch.contains_key(t),

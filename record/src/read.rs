@@ -1084,6 +1084,39 @@ impl Recording {
         out
     }
 
+    /// The transforms that do not move, as the first 5 s of the recording's `/tf` hold them
+    /// (the recorder sends them again every second): `map` → `<robot>/odom` (where each robot
+    /// started) and `<robot>/base_link` → `<robot>/laser`. `(parent, child, [x, y, yaw])`,
+    /// metres and radians; a replay republishes them, so its readings have a place in `map`.
+    pub fn fixed_transforms(&self) -> Vec<(String, String, [f64; 3])> {
+        use foxglove::Decode as _;
+        let mut out: Vec<(String, String, [f64; 3])> = Vec::new();
+        let mut first: Option<u64> = None;
+        self.each(|m| {
+            let t0 = *first.get_or_insert(m.log_time);
+            if m.log_time.saturating_sub(t0) > 5_000_000_000 {
+                return false;
+            }
+            if m.channel.topic != "/tf" {
+                return true;
+            }
+            let Ok(t) = foxglove::messages::FrameTransform::decode(&m.data[..]) else {
+                return true;
+            };
+            let fixed = t.parent_frame_id == "map" || t.child_frame_id.ends_with("/laser");
+            let known = out
+                .iter()
+                .any(|(p, c, _)| *p == t.parent_frame_id && *c == t.child_frame_id);
+            if fixed && !known {
+                let (x, y) = t.translation.map_or((0.0, 0.0), |v| (v.x, v.y));
+                let yaw = t.rotation.map_or(0.0, |q| 2.0 * q.z.atan2(q.w));
+                out.push((t.parent_frame_id, t.child_frame_id, [x, y, yaw]));
+            }
+            true
+        });
+        out
+    }
+
     /// Every channel whose schema is a JSON Schema (encoding `jsonschema`, the `ima.*` state
     /// topics): topic → the schema, parsed (`Null` where it does not parse).
     pub fn json_schemas(&self) -> BTreeMap<String, serde_json::Value> {

@@ -99,6 +99,9 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         eprintln!("ima replay: the recording is damaged ({why}); replaying what it holds");
     }
     let left_out = rec.left_out();
+    // Republished every second, so the replayed readings have a place in `map` (a viewer
+    // that follows it, the shipped layout, could not show a replay's scans).
+    let fixed = rec.fixed_transforms();
     crate::record::start(&args.rec, "ima replay")?;
     let to_file = args.rec.record.is_some();
     let file = args.file.display().to_string();
@@ -119,7 +122,21 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         // reading.
         let mut first: Option<(u64, tokio::time::Instant)> = None;
         let mut t0: Option<u64> = None;
+        let mut fixed_sent: Option<tokio::time::Instant> = None;
         loop {
+            if fixed_sent.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                fixed_sent = Some(tokio::time::Instant::now());
+                crate::record::with(|r| {
+                    for (parent, child, [x_m, y_m, theta_rad]) in &fixed {
+                        let p = ima_record::convert::Pose2 {
+                            x_m: *x_m,
+                            y_m: *y_m,
+                            theta_rad: *theta_rad,
+                        };
+                        r.log_transform(parent, child, p);
+                    }
+                });
+            }
             let next = match order.next_due() {
                 Some(item) => item,
                 None => match crate::safety::until_cancelled(items.recv()).await? {
