@@ -411,7 +411,8 @@ pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Skee
     anyhow::ensure!(cfg.role == Role::Skeeter, "not a Skeeter configuration");
     let d = &cfg.devices;
     label_ports(cfg); // record: raw channels named by robot
-    let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?, clock).await?;
+    // The serial ports first: a missing one is named at once (the frame server's refusal
+    // used to be the only thing said when nothing was there).
     let mux = open_mux(
         d.video_mux.as_ref().ok_or_else(|| missing("video_mux"))?,
         clock,
@@ -423,6 +424,7 @@ pub async fn open_skeeter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Skee
         clock,
     )
     .await?;
+    let frames = open_frames(d.frames.as_ref().ok_or_else(|| missing("frames"))?, clock).await?;
     Ok(SkeeterHw {
         base,
         mux,
