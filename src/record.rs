@@ -209,19 +209,23 @@ fn event_level(kind: &ima_agents::runtime::EventKind) -> ima_record::messages::l
     if warning { Level::Warning } else { Level::Info }
 }
 
-/// The fixed frames of a robot alone in a command (`ima drive`, `ima scan`), so that a viewer
-/// that follows `map` (the shipped layout) can place it: `map` → `<robot>/odom` at the
+/// The fixed frames of a robot alone in a command (`ima drive`, `ima scan`, `ima run`), so
+/// that a viewer that follows `map` (the shipped layout) can place it: `map` → `<robot>/odom` at the
 /// origin, `<robot>/odom` → `<robot>/base_link` at the origin when nothing gives the robot's
 /// odometry (a scanner alone), and `<robot>/base_link` → `<robot>/laser` with a `laser`. At
 /// most once a second (for viewers that join late), whatever the caller's rate.
 pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) {
-    static LAST: std::sync::Mutex<Option<std::time::Instant>> = std::sync::Mutex::new(None);
+    static LAST: std::sync::Mutex<BTreeMap<String, std::time::Instant>> =
+        std::sync::Mutex::new(BTreeMap::new());
     {
         let mut last = LAST.lock().unwrap_or_else(PoisonError::into_inner);
-        if last.is_some_and(|t| t.elapsed() < Duration::from_secs(1)) {
+        if last
+            .get(robot)
+            .is_some_and(|t| t.elapsed() < Duration::from_secs(1))
+        {
             return;
         }
-        *last = Some(std::time::Instant::now());
+        last.insert(robot.to_owned(), std::time::Instant::now());
     }
     let origin = ima_record::convert::Pose2::default();
     let (odom, base) = (format!("{robot}/odom"), format!("{robot}/base_link"));
@@ -668,7 +672,7 @@ fn peer_schema() -> Value {
         "properties": {
             "t_s": {"type": "number", "description": "mission seconds"},
             "robot": {"type": "string"},
-            "address": {"type": "string", "description": "where the manager listens"},
+            "address": {"type": ["string", "null"], "description": "where the manager listens"},
             "broadcast": {"type": "object", "properties": {
                 "accepted": int, "duplicate": int, "stale": int, "sent": int,
                 "send_errors": int, "rejected": rejects}},
@@ -683,11 +687,11 @@ fn peer_schema() -> Value {
                 "robots": {"type": "array", "items": {"type": "string"}},
                 "frames_received": int, "heartbeats_received": int, "heartbeats_sent": int,
                 "last_seen_ms": int, "open_ms": int}}},
-            "client": {"type": "object", "description": "this robot's own client of another \
+            "client": {"type": ["object", "null"], "description": "this robot's own client of another \
                 manager (Scooter's of Skeeter's ses source)", "properties": {
                 "manager": {"type": "string"}, "source": {"type": "string"},
                 "outcome": {"type": "string"}, "priority": int, "grants": int,
-                "retries": int, "samples": int, "link": {"type": "object", "properties": {
+                "retries": int, "samples": int, "link": {"type": ["object", "null"], "properties": {
                     "registration": {"type": "string"}, "frames_received": int,
                     "heartbeats_received": int, "heartbeats_sent": int, "last_seen_ms": int,
                     "open_ms": int}}}},

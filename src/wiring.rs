@@ -535,10 +535,15 @@ async fn a_device_ended(checks: Vec<EndedCheck>, mut stop: StopRequest) -> &'sta
             r = stop.changed() => if r.is_err() { std::future::pending::<()>().await },
         }
         // Asked to stop, or a signal, a closed stdout, a panic: the drivers close on purpose.
-        if *stop.borrow() || crate::safety::asked_to_end() {
+        let on_purpose = || *stop.borrow() || crate::safety::asked_to_end();
+        if on_purpose() {
             std::future::pending::<()>().await;
         }
         if let Some((name, _)) = checks.iter().find(|(_, f)| f()) {
+            // Asked meanwhile (a signal between the two looks): that is why it closed.
+            if on_purpose() {
+                std::future::pending::<()>().await;
+            }
             return name;
         }
     }
@@ -551,6 +556,44 @@ fn device_gone(robot: &str, device: &str) -> anyhow::Error {
          ends, so that the other robots and the commander see {robot} lost (start it again once \
          the device is back)"
     )
+}
+
+/// Run a robot's runtime (`run`, given its own stop request) until it ends, or until one of
+/// its devices is gone (`checks`): then the runtime is asked to stop and given 3 s to end in
+/// order (its base stopped, its Peer Agent link shut down, its tasks ended), and the error
+/// names the device. `stop` is the robot's stop request, passed on to the runtime.
+async fn run_watching<Fut>(
+    robot: &str,
+    checks: Vec<EndedCheck>,
+    stop: StopRequest,
+    run: impl FnOnce(StopRequest) -> Fut,
+) -> Result<()>
+where
+    Fut: std::future::Future<Output = Result<(), ima_agents::runtime::RuntimeError>>,
+{
+    let (tx, rx) = tokio::sync::watch::channel(*stop.borrow());
+    let forward = {
+        let (mut outer, tx) = (stop.clone(), tx.clone());
+        AbortOnDrop(Some(tokio::spawn(async move {
+            while outer.changed().await.is_ok() {
+                let asked = *outer.borrow();
+                let _ = tx.send(asked);
+            }
+        })))
+    };
+    let gone = a_device_ended(checks, stop);
+    let run = run(rx);
+    tokio::pin!(run);
+    let ended = tokio::select! {
+        r = &mut run => r.map_err(anyhow::Error::from),
+        device = gone => {
+            let _ = tx.send(true);
+            let _ = tokio::time::timeout(Duration::from_secs(3), &mut run).await;
+            Err(device_gone(robot, device))
+        }
+    };
+    drop(forward);
+    ended
 }
 
 /// The base's "has it ended?".
@@ -599,11 +642,7 @@ pub async fn run_scooter(
         let l = laser.clone();
         checks.push(("laser", Box::new(move || ended(&l.link()))));
     }
-    if let Some(c) = &compass {
-        let c = c.clone();
-        checks.push(("compass", Box::new(move || ended(&c.link()))));
-    }
-    let gone = a_device_ended(checks, stop.clone());
+    // The compass is optional: Scooter goes on without it, as it starts without one.
     let _base = record_base(&base, &cfg.robot, false); // record: sonar
     // record: scans, odometry and headings as the runtime reads them.
     let laser = crate::record::Recorded::new(laser, &cfg.robot).counting(scans_read);
@@ -616,10 +655,8 @@ pub async fn run_scooter(
                 compass,
                 halt,
             };
-            tokio::select! {
-                r = scooter::run(rt, dev, link, clock, events, stop) => r?,
-                device = gone => return Err(device_gone(&cfg.robot, device)),
-            }
+            let run = |stop| scooter::run(rt, dev, link, clock, events, stop);
+            run_watching(&cfg.robot, checks, stop, run).await?;
         }
         Base::Rflex(base) => {
             let dev = scooter::ScooterDevices {
@@ -628,10 +665,8 @@ pub async fn run_scooter(
                 compass,
                 halt,
             };
-            tokio::select! {
-                r = scooter::run(rt, dev, link, clock, events, stop) => r?,
-                device = gone => return Err(device_gone(&cfg.robot, device)),
-            }
+            let run = |stop| scooter::run(rt, dev, link, clock, events, stop);
+            run_watching(&cfg.robot, checks, stop, run).await?;
         }
     }
     Ok(())
@@ -664,7 +699,6 @@ pub async fn run_skeeter(
         let m = mux.clone();
         checks.push(("video switcher", Box::new(move || ended(&m.link()))));
     }
-    let gone = a_device_ended(checks, stop.clone());
     let _base = record_base(&base, &cfg.robot, true); // record: odometry, sonar
     // record: camera frames (and the client's own count of them)
     let frames =
@@ -672,17 +706,13 @@ pub async fn run_skeeter(
     match base {
         Base::P2os(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };
-            tokio::select! {
-                r = skeeter::run(rt, dev, link, clock, events, stop) => r?,
-                device = gone => return Err(device_gone(&cfg.robot, device)),
-            }
+            let run = |stop| skeeter::run(rt, dev, link, clock, events, stop);
+            run_watching(&cfg.robot, checks, stop, run).await?;
         }
         Base::Rflex(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };
-            tokio::select! {
-                r = skeeter::run(rt, dev, link, clock, events, stop) => r?,
-                device = gone => return Err(device_gone(&cfg.robot, device)),
-            }
+            let run = |stop| skeeter::run(rt, dev, link, clock, events, stop);
+            run_watching(&cfg.robot, checks, stop, run).await?;
         }
     }
     Ok(())

@@ -473,6 +473,8 @@ fn devices_that_vanish_are_reported_once_each() {
         err.contains("its driver has ended (the port closed or failed for good): the run ends"),
         "{err}"
     );
+    // …in order: the runtime was asked to stop and tried to stop its base (which is gone).
+    assert!(err.contains("base: stop failed"), "{err}");
     // One line per kind of error (a timeout, the port's own error, then `Disconnected`).
     for what in ["scooter: laser: ", "scooter: compass: "] {
         let failures = err.lines().filter(|l| l.contains(what)).count();

@@ -1086,33 +1086,57 @@ impl Recording {
 
     /// The transforms that do not move, as the first 5 s of the recording's `/tf` hold them
     /// (the recorder sends them again every second): `map` → `<robot>/odom` (where each robot
-    /// started) and `<robot>/base_link` → `<robot>/laser`. `(parent, child, [x, y, yaw])`,
-    /// metres and radians; a replay republishes them, so its readings have a place in `map`.
+    /// started), `<robot>/base_link` → `<robot>/laser`, and `<robot>/odom` →
+    /// `<robot>/base_link` for a robot with no odometry to replay (`ima scan`'s).
+    /// `(parent, child, [x, y, yaw])`, metres and radians; a replay republishes them, so its
+    /// readings have a place in `map`. The window starts at the first `/tf`, and the read
+    /// stops 30 s of log time into the file whatever it holds.
     pub fn fixed_transforms(&self) -> Vec<(String, String, [f64; 3])> {
         use foxglove::Decode as _;
         let mut out: Vec<(String, String, [f64; 3])> = Vec::new();
-        let mut first: Option<u64> = None;
+        let mut odometry: Vec<String> = Vec::new();
+        let (mut start, mut first_tf): (Option<u64>, Option<u64>) = (None, None);
         self.each(|m| {
-            let t0 = *first.get_or_insert(m.log_time);
-            if m.log_time.saturating_sub(t0) > 5_000_000_000 {
+            let t = m.log_time;
+            let since = |t0: Option<u64>| t0.map_or(0, |t0| t.saturating_sub(t0));
+            if since(Some(*start.get_or_insert(t))) > 30_000_000_000
+                || since(first_tf) > 5_000_000_000
+            {
                 return false;
             }
-            if m.channel.topic != "/tf" {
+            let topic = &m.channel.topic;
+            if let Some(robot) = topic
+                .strip_prefix('/')
+                .and_then(|r| r.strip_suffix("/odom"))
+                && !odometry.iter().any(|o| o == robot)
+            {
+                odometry.push(robot.to_owned());
+            }
+            if topic != "/tf" {
                 return true;
             }
-            let Ok(t) = foxglove::messages::FrameTransform::decode(&m.data[..]) else {
+            first_tf.get_or_insert(t);
+            let Ok(tf) = foxglove::messages::FrameTransform::decode(&m.data[..]) else {
                 return true;
             };
-            let fixed = t.parent_frame_id == "map" || t.child_frame_id.ends_with("/laser");
-            let known = out
-                .iter()
-                .any(|(p, c, _)| *p == t.parent_frame_id && *c == t.child_frame_id);
+            let (parent, child) = (&tf.parent_frame_id, &tf.child_frame_id);
+            let fixed = parent == "map"
+                || child.ends_with("/laser")
+                || (parent.ends_with("/odom") && child.ends_with("/base_link"));
+            let known = out.iter().any(|(p, c, _)| p == parent && c == child);
             if fixed && !known {
-                let (x, y) = t.translation.map_or((0.0, 0.0), |v| (v.x, v.y));
-                let yaw = t.rotation.map_or(0.0, |q| 2.0 * q.z.atan2(q.w));
-                out.push((t.parent_frame_id, t.child_frame_id, [x, y, yaw]));
+                let (x, y) = tf.translation.map_or((0.0, 0.0), |v| (v.x, v.y));
+                let yaw = tf.rotation.map_or(0.0, |q| 2.0 * q.z.atan2(q.w));
+                out.push((parent.clone(), child.clone(), [x, y, yaw]));
             }
             true
+        });
+        // A robot's odometry moves: its `odom` → `base_link` is the replay's to publish.
+        out.retain(|(p, c, _)| {
+            let moving = c.ends_with("/base_link")
+                && p.strip_suffix("/odom")
+                    .is_some_and(|r| odometry.iter().any(|o| o == r));
+            !moving
         });
         out
     }

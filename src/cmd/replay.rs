@@ -101,7 +101,11 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     let left_out = rec.left_out();
     // Republished every second, so the replayed readings have a place in `map` (a viewer
     // that follows it, the shipped layout, could not show a replay's scans).
-    let fixed = rec.fixed_transforms();
+    let fixed = if args.rec.is_off() {
+        Vec::new()
+    } else {
+        rec.fixed_transforms()
+    };
     crate::record::start(&args.rec, "ima replay")?;
     let to_file = args.rec.record.is_some();
     let file = args.file.display().to_string();

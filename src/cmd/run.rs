@@ -127,6 +127,20 @@ pub fn run(args: &RunArgs) -> Result<()> {
                 let _ = stop_tx.send(true);
             })
         };
+        // record: the fixed frames that place the robot under `map` (the layout follows it),
+        // every second: `map` is this robot's start here (no world says otherwise).
+        let _frames = crate::record::active().then(|| {
+            let (robot, laser) = (cfg.robot.clone(), cfg.role == Role::Scooter);
+            AbortOnDrop(tokio::spawn(async move {
+                let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
+                loop {
+                    tick.tick().await;
+                    crate::record::with(|r| {
+                        crate::record::log_fixed_frames(r, &robot, true, laser);
+                    });
+                }
+            }))
+        });
         // The process's one clock: every device of this robot stamps on it.
         let clock = ima_hal::time::TokioClock::shared();
         let r = match cfg.role {
@@ -155,4 +169,13 @@ pub fn run(args: &RunArgs) -> Result<()> {
         }
         r
     })
+}
+
+/// A task aborted when dropped (on every way out of the run).
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
