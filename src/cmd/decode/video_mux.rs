@@ -312,16 +312,18 @@ mod tests {
         let mut extron = b"In\x012 All\r\nIn2 All\r\n".to_vec();
         extron.extend([b'x'; 200]);
         extron.extend(b"\r\nIn3 All\r\nxxxx");
+        /// Each output as (its error, or its kind; its offset).
+        fn said(v: &[Value]) -> Vec<(&str, u64)> {
+            v.iter()
+                .map(|x| {
+                    let what = x["error"].as_str().or(x["kind"].as_str()).unwrap();
+                    (what, x["offset"].as_u64().unwrap())
+                })
+                .collect()
+        }
         let v = decode_alike(&|| Box::new(ExtronDecoder::new(false)), &extron);
-        let said: Vec<(&str, u64)> = v
-            .iter()
-            .map(|x| {
-                let what = x["error"].as_str().or(x["kind"].as_str()).unwrap();
-                (what, x["offset"].as_u64().unwrap())
-            })
-            .collect();
         assert_eq!(
-            said,
+            said(&v),
             [
                 ("non-printable byte 0x01", 2),
                 ("input", 10),
@@ -334,15 +336,8 @@ mod tests {
             0x81, 0x81, 0x81, 0x01, 0x83, 0x01, 0x83, 0x81, 0x81, 0x41, 0x83,
         ];
         let v = decode_alike(&|| Box::new(KramerDecoder::default()), &kramer);
-        let said: Vec<(&str, u64)> = v
-            .iter()
-            .map(|x| {
-                let what = x["error"].as_str().or(x["kind"].as_str()).unwrap();
-                (what, x["offset"].as_u64().unwrap())
-            })
-            .collect();
         assert_eq!(
-            said,
+            said(&v),
             [
                 ("3 byte(s) that start no message (bit 7 set outside one)", 0),
                 ("a message cut short after 2 of its 4 bytes", 3),
