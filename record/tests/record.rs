@@ -769,7 +769,7 @@ fn every_reading_is_recorded_as_its_convert_message() {
         ("/scooter/belief", "map", p),
         (
             "/scooter/compass",
-            "scooter/base_link",
+            "map",
             Pose2 {
                 theta_rad: 0.75,
                 ..Pose2::default()
