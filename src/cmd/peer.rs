@@ -487,10 +487,12 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
             },
         }
     }
+    // The manager first, so that its clients are told "shutdown": a source task ended first
+    // drops its publisher, and a client could hear "source-gone" before it.
+    m.shutdown().await;
     for t in tasks {
         t.abort();
     }
-    m.shutdown().await;
     Ok(())
 }
 
