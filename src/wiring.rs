@@ -460,7 +460,7 @@ pub async fn open_scooter(cfg: &RobotConfig, clock: &SharedClock) -> Result<Scoo
 }
 
 /// A task aborted when dropped (on every way out of a runtime's run).
-struct AbortOnDrop(Option<tokio::task::JoinHandle<()>>);
+pub(crate) struct AbortOnDrop(pub(crate) Option<tokio::task::JoinHandle<()>>);
 
 impl Drop for AbortOnDrop {
     fn drop(&mut self) {
@@ -509,15 +509,6 @@ fn record_base(base: &Base, robot: &str, odometry: bool) -> AbortOnDrop {
             }
         }
     })))
-}
-
-/// Whether a driver's link has ended for good (its port closed or failed): it does not come
-/// back by itself.
-fn ended<U, E>(s: &ima_serial::LinkStatus<U, E>) -> bool {
-    matches!(
-        s,
-        ima_serial::LinkStatus::Closed | ima_serial::LinkStatus::Failed(_)
-    )
 }
 
 /// A device whose driver has ended, by name (`checks`: each device's "has it ended?").
@@ -601,11 +592,11 @@ fn base_check(base: &Base) -> EndedCheck {
     match base {
         Base::P2os(b) => {
             let b = b.clone();
-            ("base", Box::new(move || ended(&b.link())))
+            ("base", Box::new(move || b.link().is_ended()))
         }
         Base::Rflex(b) => {
             let b = b.clone();
-            ("base", Box::new(move || ended(&b.link())))
+            ("base", Box::new(move || b.link().is_ended()))
         }
     }
 }
@@ -640,7 +631,7 @@ pub async fn run_scooter(
     let mut checks = vec![base_check(&base)];
     {
         let l = laser.clone();
-        checks.push(("laser", Box::new(move || ended(&l.link()))));
+        checks.push(("laser", Box::new(move || l.link().is_ended())));
     }
     // The compass is optional: Scooter goes on without it, as it starts without one.
     let _base = record_base(&base, &cfg.robot, false); // record: sonar
@@ -697,7 +688,7 @@ pub async fn run_skeeter(
     let mut checks = vec![base_check(&base)];
     {
         let m = mux.clone();
-        checks.push(("video switcher", Box::new(move || ended(&m.link()))));
+        checks.push(("video switcher", Box::new(move || m.link().is_ended())));
     }
     let _base = record_base(&base, &cfg.robot, true); // record: odometry, sonar
     // record: camera frames (and the client's own count of them)

@@ -159,11 +159,11 @@ pub struct ServedWorld {
     // Field order = drop order: the stepper stops first, then the devices.
     _stepper: ScaledStepper,
     _frames: FrameServer,
-    _p2os: PtyDevice<P2osDevice>,
-    _mux: PtyDevice<MuxDevice>,
-    _scooter_base: ScooterBase,
-    _laser: PtyDevice<SickLmsDevice>,
-    _compass: PtyDevice<CompassDevice>,
+    p2os: PtyDevice<P2osDevice>,
+    mux: PtyDevice<MuxDevice>,
+    scooter_base: ScooterBase,
+    laser: PtyDevice<SickLmsDevice>,
+    compass: PtyDevice<CompassDevice>,
 }
 
 impl ServedWorld {
@@ -281,11 +281,11 @@ impl ServedWorld {
             endpoints,
             _stepper: stepper,
             _frames: frames,
-            _p2os: p2os,
-            _mux: mux,
-            _scooter_base: scooter_base,
-            _laser: laser,
-            _compass: compass,
+            p2os,
+            mux,
+            scooter_base,
+            laser,
+            compass,
         })
     }
 
@@ -305,16 +305,16 @@ impl ServedWorld {
     /// wrote, the faults injected ([`ServeOptions::faults`]), outages.
     #[must_use]
     pub fn links(&self) -> [(&'static str, crate::link::RunnerStatus); 5] {
-        let base = match &self._scooter_base {
+        let base = match &self.scooter_base {
             ScooterBase::Rflex(d) => d.status(),
             ScooterBase::P2os(d) => d.status(),
         };
         [
-            ("skeeter base", self._p2os.status()),
-            ("skeeter video_mux", self._mux.status()),
+            ("skeeter base", self.p2os.status()),
+            ("skeeter video_mux", self.mux.status()),
             ("scooter base", base),
-            ("scooter laser", self._laser.status()),
-            ("scooter compass", self._compass.status()),
+            ("scooter laser", self.laser.status()),
+            ("scooter compass", self.compass.status()),
         ]
     }
 }

@@ -131,7 +131,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         // every second: `map` is this robot's start here (no world says otherwise).
         let _frames = crate::record::active().then(|| {
             let (robot, laser) = (cfg.robot.clone(), cfg.role == Role::Scooter);
-            AbortOnDrop(tokio::spawn(async move {
+            crate::wiring::AbortOnDrop(Some(tokio::spawn(async move {
                 let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
                 loop {
                     tick.tick().await;
@@ -139,7 +139,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
                         crate::record::log_fixed_frames(r, &robot, true, laser);
                     });
                 }
-            }))
+            })))
         });
         // The process's one clock: every device of this robot stamps on it.
         let clock = ima_hal::time::TokioClock::shared();
@@ -169,13 +169,4 @@ pub fn run(args: &RunArgs) -> Result<()> {
         }
         r
     })
-}
-
-/// A task aborted when dropped (on every way out of the run).
-struct AbortOnDrop(tokio::task::JoinHandle<()>);
-
-impl Drop for AbortOnDrop {
-    fn drop(&mut self) {
-        self.0.abort();
-    }
 }

@@ -416,18 +416,7 @@ mod tests {
             mux: DeadMux(Arc::clone(&selects)),
             frames: Frames(clock.clone()),
         };
-        let (link, ends) = SkeeterLink::channels();
-        let (events, mut rx) = Events::channel(100_000);
-        let (stop_tx, stop) = watch::channel(false);
-        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
-        ends.heard
-            .send(Broadcast::mission(
-                "commander",
-                MissionEvent::Accepted,
-                "red",
-            ))
-            .await
-            .unwrap();
+        let (run, _ends, mut rx, stop_tx) = started(dev, clock, 100_000).await;
         tokio::time::sleep(Duration::from_secs(60)).await;
         stop_tx.send(true).unwrap();
         run.await.unwrap().unwrap();
@@ -446,6 +435,38 @@ mod tests {
         // 1 + after 0.5, 1, 2, 4, 4, 4… s: about 18 sweeps in a minute, not thousands.
         assert!((5..=25).contains(&blind), "{blind} blind sweeps in 60 s");
         assert_eq!(*selects.lock().unwrap(), blind * 7);
+    }
+
+    /// Skeeter's runtime started on `dev` (events kept: `events`), given the commander's
+    /// target red: its task, the link's other ends, its events and its stop request.
+    async fn started<B, M, F>(
+        dev: SkeeterDevices<B, M, F>,
+        clock: SharedClock,
+        events: usize,
+    ) -> (
+        tokio::task::JoinHandle<Result<(), RuntimeError>>,
+        crate::runtime::link::SkeeterLinkEnds,
+        crate::runtime::EventReceiver,
+        watch::Sender<bool>,
+    )
+    where
+        B: DifferentialBase + Send + 'static,
+        M: CameraMux + Send + 'static,
+        F: FrameSource + Send + 'static,
+    {
+        let (link, ends) = SkeeterLink::channels();
+        let (events, rx) = Events::channel(events);
+        let (stop_tx, stop) = watch::channel(false);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        ends.heard
+            .send(Broadcast::mission(
+                "commander",
+                MissionEvent::Accepted,
+                "red",
+            ))
+            .await
+            .unwrap();
+        (run, ends, rx, stop_tx)
     }
 
     fn cfg() -> SkeeterRuntimeConfig {
@@ -472,18 +493,7 @@ mod tests {
             mux: Mux(clock.clone(), 1),
             frames: Frames(clock.clone()),
         };
-        let (link, mut ends) = SkeeterLink::channels();
-        let (events, mut rx) = Events::channel(1024);
-        let (_stop_tx, stop) = watch::channel(false);
-        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
-        ends.heard
-            .send(Broadcast::mission(
-                "commander",
-                MissionEvent::Accepted,
-                "red",
-            ))
-            .await
-            .unwrap();
+        let (run, mut ends, mut rx, _stop_tx) = started(dev, clock, 1024).await;
         tokio::time::sleep(Duration::from_secs(5)).await;
         ends.heard
             .send(Broadcast::Emergency {

@@ -25,6 +25,13 @@ impl<U, E> LinkStatus<U, E> {
         matches!(self, Self::Connected(_))
     }
 
+    /// Whether the link has ended for good ([`Failed`](Self::Failed) or
+    /// [`Closed`](Self::Closed)): the driver does not come back by itself.
+    #[must_use]
+    pub fn is_ended(&self) -> bool {
+        matches!(self, Self::Failed(_) | Self::Closed)
+    }
+
     /// What a connected link reports.
     #[must_use]
     pub fn connection(&self) -> Option<&U> {
