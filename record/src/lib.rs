@@ -7,10 +7,12 @@
 //! queue. One background thread takes the queue whole, fills each stream's message in place
 //! (frame ids, topics and schemas are kept once per stream), encodes it (protobuf, the
 //! `foxglove.*` well-known schemas), writes it to the MCAP file (zstd-compressed chunks,
-//! message and chunk indexes, a summary) and hands it to the WebSocket server. The thread
-//! drains the queue on a tick — every 20 ms with a live view, every 500 ms when it only writes
-//! a file — and earlier when the queue fills to a quarter or [`Recorder::finish`] is called, so
-//! no message wakes it on its own. When the queue is full the message is dropped and counted;
+//! message and chunk indexes, a summary) and hands it to the WebSocket server. The live view
+//! keeps the last message of every stream it serves and sends them to each new subscriber, so
+//! no client misses a channel's first message or waits for a topic that is logged only when
+//! it changes. The thread drains the queue on a tick — every 20 ms with a live view, every
+//! 500 ms when it only writes a file — and earlier when the queue fills to a quarter or
+//! [`Recorder::finish`] is called, so no message wakes it on its own. When the queue is full the message is dropped and counted;
 //! [`Recorder::finish`] reports the counts and the CPU time the thread used
 //! ([`Report::thread_cpu`]).
 //!
@@ -34,6 +36,7 @@
 
 pub mod convert;
 pub mod filter;
+mod latch;
 mod queue;
 pub mod raw;
 pub mod read;
@@ -343,9 +346,10 @@ impl Recorder {
         let failure = Arc::new(Failure::default());
         // The server first: an address in use must not leave an empty file behind, which the
         // next try would then refuse to overwrite.
-        let server = match opts.foxglove {
-            Some(addr) => Some(start_server(&ctx, addr, &opts.name)?),
-            None => None,
+        let latch = opts.foxglove.map(|_| Arc::new(latch::Latch::default()));
+        let server = match (opts.foxglove, &latch) {
+            (Some(addr), Some(latch)) => Some(start_server(&ctx, addr, &opts.name, latch)?),
+            _ => None,
         };
         let writer = match &opts.mcap {
             Some(path) => match create_file(&ctx, path, opts, &failure) {
@@ -400,6 +404,7 @@ impl Recorder {
             writer,
             server,
             server_port,
+            latch,
             path: opts.mcap.clone(),
             streams: Vec::new(),
             channels: BTreeMap::new(),
@@ -824,10 +829,17 @@ pub fn thread_cpu() -> Option<Duration> {
     Some(Duration::from_nanos(ns))
 }
 
+/// Whether the live view serves `topic`: raw serial bytes stay in the file (a viewer cannot
+/// decode them).
+fn served(topic: &str) -> bool {
+    !topic.contains("/serial/")
+}
+
 fn start_server(
     ctx: &Arc<Context>,
     addr: SocketAddr,
     name: &str,
+    latch: &Arc<latch::Latch>,
 ) -> Result<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime), Error> {
     let fail = |reason: String| Error::Server { addr, reason };
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -841,8 +853,8 @@ fn start_server(
         .name(name)
         .bind(addr.ip().to_string(), addr.port())
         .tokio_runtime(rt.handle())
-        // Raw serial bytes stay in the file: a viewer cannot decode them.
-        .channel_filter_fn(|c| !c.topic().contains("/serial/"));
+        .channel_filter_fn(|c| served(c.topic()))
+        .listener(Arc::new(latch::Replay(Arc::clone(latch))));
     // Started from a plain thread: the caller may be inside another runtime.
     let handle = std::thread::scope(|s| {
         s.spawn(|| rt.block_on(server.start()))
@@ -860,6 +872,8 @@ struct WorkerStream {
     topic: Arc<str>,
     /// Counted where it ends up: the file (when there is one) or the live view.
     counted: bool,
+    /// Its last message is kept for new subscribers of the live view.
+    latched: bool,
     written: u64,
 }
 
@@ -871,6 +885,8 @@ struct Worker {
     writer: Option<foxglove::McapWriterHandle<BufWriter<Watched>>>,
     server: Option<(foxglove::WebSocketServerHandle, tokio::runtime::Runtime)>,
     server_port: Option<u16>,
+    /// The last message of each served stream (with a live view).
+    latch: Option<Arc<latch::Latch>>,
     path: Option<PathBuf>,
     streams: Vec<Option<WorkerStream>>,
     /// One channel per topic (several streams share `/tf`, `/events`).
@@ -990,6 +1006,7 @@ impl Worker {
                 proto: s.proto.clone(),
                 chan,
                 counted: self.path.is_none() || !self.exclude.excludes(&s.topic),
+                latched: self.latch.is_some() && served(&s.topic),
                 topic: Arc::clone(&s.topic),
                 written: 0,
             });
@@ -1001,13 +1018,17 @@ impl Worker {
         let mut buf = std::mem::take(&mut self.buf);
         // A file that failed counts nothing more (a live view alone counts what it was sent).
         let counting = self.path.is_none() || self.writer.is_some();
+        let latch = self.latch.clone();
         if let Some(s) = self.stream(r.id)
             && let Some(chan) = &s.chan
             && s.proto
                 .encode(r.kind, r.log_time, r.payload, &mut buf)
                 .is_some()
         {
-            chan.log_with_meta(&buf, PartialMetadata::with_log_time(r.log_time));
+            match latch.as_deref() {
+                Some(latch) if s.latched => latch.log(chan, r.id, &buf, r.log_time),
+                _ => chan.log_with_meta(&buf, PartialMetadata::with_log_time(r.log_time)),
+            }
             if s.counted && counting {
                 s.written += 1;
             }

@@ -307,6 +307,78 @@ fn an_existing_file_is_refused_and_named() {
     assert!(e.to_string().contains("not an MCAP file"), "{e}");
 }
 
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// Connect a Foxglove client to the live view on `port` and read its advertisements until
+/// `topic`'s channel is seen; `check` looks at every channel advertised on the way. Returns
+/// the connection, the channel's id and whether `serverInfo` came first.
+async fn connect_to(
+    port: u16,
+    topic: &str,
+    mut check: impl FnMut(&serde_json::Value),
+) -> (Ws, u64, bool) {
+    let mut req = format!("ws://127.0.0.1:{port}")
+        .into_client_request()
+        .unwrap();
+    req.headers_mut()
+        .insert("sec-websocket-protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tokio_tungstenite::connect_async(req).await.unwrap();
+    let mut id = None;
+    let mut saw_server_info = false;
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
+    while id.is_none() {
+        let msg = tokio::time::timeout_at(deadline, ws.next())
+            .await
+            .expect("an advertisement")
+            .unwrap()
+            .unwrap();
+        let WsMessage::Text(t) = msg else { continue };
+        let v: serde_json::Value = serde_json::from_str(&t).unwrap();
+        match v["op"].as_str() {
+            Some("serverInfo") => saw_server_info = true,
+            Some("advertise") => {
+                for c in v["channels"].as_array().unwrap() {
+                    check(c);
+                    if c["topic"] == topic {
+                        id = c["id"].as_u64();
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    (ws, id.unwrap(), saw_server_info)
+}
+
+/// Subscribe `ws` to `channel` as subscription `sub`.
+async fn subscribe(ws: &mut Ws, sub: u32, channel: u64) {
+    let msg = serde_json::json!({"op": "subscribe",
+        "subscriptions": [{"id": sub, "channelId": channel}]});
+    ws.send(WsMessage::Text(msg.to_string().into()))
+        .await
+        .unwrap();
+}
+
+/// The next message-data payload on `ws` within `wait` (checked to be of subscription
+/// `sub`), or `None`.
+async fn next_data(ws: &mut Ws, sub: u32, wait: Duration) -> Option<Vec<u8>> {
+    let deadline = tokio::time::Instant::now() + wait;
+    loop {
+        match tokio::time::timeout_at(deadline, ws.next()).await {
+            Ok(Some(Ok(WsMessage::Binary(b)))) => {
+                // opcode 1 (message data), subscription id, timestamp, payload.
+                assert_eq!(b[0], 1);
+                assert_eq!(u32::from_le_bytes(b[1..5].try_into().unwrap()), sub);
+                return Some(b[13..].to_vec());
+            }
+            Ok(Some(Ok(_))) => {}
+            Err(_) => return None,
+            Ok(other) => panic!("connection ended: {other:?}"),
+        }
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_websocket_client_sees_the_channels_and_receives_a_scan() {
     let rec = Recorder::start(&Options {
@@ -320,64 +392,85 @@ async fn a_websocket_client_sees_the_channels_and_receives_a_scan() {
     rec.log_scan("scooter", &scan(181));
     rec.log_broadcast("skeeter", "hello");
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut req = format!("ws://127.0.0.1:{port}")
-        .into_client_request()
-        .unwrap();
-    req.headers_mut()
-        .insert("sec-websocket-protocol", "foxglove.sdk.v1".parse().unwrap());
-    let (mut ws, _) = tokio_tungstenite::connect_async(req).await.unwrap();
-    let mut laser_id = None;
-    let mut saw_server_info = false;
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
-    while laser_id.is_none() {
-        let msg = tokio::time::timeout_at(deadline, ws.next())
-            .await
-            .expect("an advertisement")
-            .unwrap()
-            .unwrap();
-        let WsMessage::Text(t) = msg else { continue };
-        let v: serde_json::Value = serde_json::from_str(&t).unwrap();
-        match v["op"].as_str() {
-            Some("serverInfo") => saw_server_info = true,
-            Some("advertise") => {
-                for c in v["channels"].as_array().unwrap() {
-                    if c["topic"] == "/scooter/laser/scan" {
-                        assert_eq!(c["schemaName"], "foxglove.LaserScan");
-                        assert_eq!(c["encoding"], "protobuf");
-                        laser_id = c["id"].as_u64();
-                    }
-                    assert!(
-                        !c["topic"].as_str().unwrap().contains("/serial/"),
-                        "raw channels stay off the live view"
-                    );
-                }
-            }
-            _ => {}
+    let (mut ws, laser, saw_server_info) = connect_to(port, "/scooter/laser/scan", |c| {
+        if c["topic"] == "/scooter/laser/scan" {
+            assert_eq!(c["schemaName"], "foxglove.LaserScan");
+            assert_eq!(c["encoding"], "protobuf");
         }
-    }
+        assert!(
+            !c["topic"].as_str().unwrap().contains("/serial/"),
+            "raw channels stay off the live view"
+        );
+    })
+    .await;
     assert!(saw_server_info);
-    let sub = serde_json::json!({"op": "subscribe",
-        "subscriptions": [{"id": 7, "channelId": laser_id.unwrap()}]});
-    ws.send(WsMessage::Text(sub.to_string().into()))
-        .await
-        .unwrap();
+    subscribe(&mut ws, 7, laser).await;
     // Keep logging until a scan arrives.
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
     let got = loop {
         rec.log_scan("scooter", &scan(181));
-        match tokio::time::timeout(Duration::from_millis(200), ws.next()).await {
-            Ok(Some(Ok(WsMessage::Binary(b)))) => break b,
-            Ok(Some(Ok(_))) | Err(_) => {}
-            Ok(other) => panic!("connection ended: {other:?}"),
+        if let Some(b) = next_data(&mut ws, 7, Duration::from_millis(200)).await {
+            break b;
         }
         assert!(tokio::time::Instant::now() < deadline, "no scan arrived");
     };
-    // opcode 1 (message data), subscription id, timestamp, payload.
-    assert_eq!(got[0], 1);
-    assert_eq!(u32::from_le_bytes(got[1..5].try_into().unwrap()), 7);
-    let s = foxglove::messages::LaserScan::decode(&got[13..]).unwrap();
+    let s = foxglove::messages::LaserScan::decode(&got[..]).unwrap();
     assert_eq!(s.ranges.len(), 181);
     let report = rec.finish(Duration::from_secs(5));
     assert_eq!(report.server_port, Some(port));
+}
+
+/// A client that subscribes after a topic was logged gets the last message of each of the
+/// topic's streams (here two `/tf` pairs, one of them logged twice) at once, oldest first;
+/// a later subscriber gets them too, and the first one nothing twice.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_subscriber_gets_the_last_message_of_each_stream() {
+    use foxglove::messages::FrameTransform;
+    let rec = Recorder::start(&Options {
+        foxglove: Some("127.0.0.1:0".parse().unwrap()),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.server_port().unwrap();
+    let at = |x_m| Pose2 {
+        x_m,
+        ..Pose2::default()
+    };
+    rec.log_transform("map", "odom", at(1.0));
+    rec.log_transform("map", "odom", at(2.0));
+    rec.log_transform("odom", "base_link", at(3.0));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let got = |b: Vec<u8>| {
+        let t = FrameTransform::decode(&b[..]).unwrap();
+        (t.child_frame_id, t.translation.unwrap().x)
+    };
+    let (mut first, tf, _) = connect_to(port, "/tf", |_| {}).await;
+    subscribe(&mut first, 1, tf).await;
+    let wait = Duration::from_secs(10);
+    let a = next_data(&mut first, 1, wait)
+        .await
+        .expect("the first pair");
+    let b = next_data(&mut first, 1, wait)
+        .await
+        .expect("the second pair");
+    assert_eq!(got(a), ("odom".to_owned(), 2.0));
+    assert_eq!(got(b), ("base_link".to_owned(), 3.0));
+    let (mut second, tf2, _) = connect_to(port, "/tf", |_| {}).await;
+    assert_eq!(tf, tf2);
+    subscribe(&mut second, 9, tf).await;
+    let a = next_data(&mut second, 9, wait)
+        .await
+        .expect("the first pair");
+    assert_eq!(got(a), ("odom".to_owned(), 2.0));
+    let quiet = Duration::from_millis(500);
+    assert_eq!(next_data(&mut first, 1, quiet).await, None, "sent twice");
+    // A live message still reaches both.
+    rec.log_transform("map", "odom", at(4.0));
+    let live = next_data(&mut first, 1, wait)
+        .await
+        .expect("a live message");
+    assert_eq!(got(live), ("odom".to_owned(), 4.0));
+    rec.finish(Duration::from_secs(5));
 }
 
 #[test]
