@@ -142,27 +142,34 @@ impl Console {
             Err(e) => return Reply::refused(e),
         };
         let (op, lost) = {
-            let s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
-            let op = msg::to_operator(&cmd, &s.colours, s.targets.len(), |c| s.open_target(c))
-                .and_then(|op| {
-                    // Only waiting targets move (the commander refuses the rest): say so
-                    // here, not "moved" and a refusal in the log after it.
-                    if let Operator::Move { from, to } = op {
-                        for p in [from, to] {
-                            let t = s.targets.get(p);
-                            let state = t.and_then(|t| t["state"].as_str()).unwrap_or("?");
-                            if state != "waiting" {
-                                let colour = t.and_then(|t| t["target"].as_str()).unwrap_or("?");
-                                return Err(format!(
-                                    "position {} holds {colour}, which is {state}: only waiting \
+            let mut s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+            // An add counts the adds sent that the commander has not shown yet.
+            let len = match cmd {
+                msg::Command::Add { .. } => s.added.max(s.targets.len()),
+                _ => s.targets.len(),
+            };
+            let op = msg::to_operator(&cmd, &s.colours, len, |c| s.open_target(c)).and_then(|op| {
+                // Only waiting targets move (the commander refuses the rest): say so
+                // here, not "moved" and a refusal in the log after it.
+                if let Operator::Move { from, to } = op {
+                    for p in [from, to] {
+                        let t = s.targets.get(p);
+                        let state = t.and_then(|t| t["state"].as_str()).unwrap_or("?");
+                        if state != "waiting" {
+                            let colour = t.and_then(|t| t["target"].as_str()).unwrap_or("?");
+                            return Err(format!(
+                                "position {} holds {colour}, which is {state}: only waiting \
                                      targets move",
-                                    p.saturating_add(1)
-                                ));
-                            }
+                                p.saturating_add(1)
+                            ));
                         }
                     }
-                    Ok(op)
-                });
+                }
+                Ok(op)
+            });
+            if let Ok(Operator::Add(_)) = op {
+                s.added = len.saturating_add(1);
+            }
             (op, s.lost_robots())
         };
         let op = match op {

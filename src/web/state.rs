@@ -82,6 +82,12 @@ pub struct ConsoleState {
     pub colours: Vec<String>,
     /// The series, as the commander's last `queue` event gave it.
     pub targets: Vec<Value>,
+    /// How many targets the series holds or will hold once the adds sent from here reach it:
+    /// the commander's series never shrinks, so an add the console accepted counts at once,
+    /// and a flood of adds cannot all be told "added" past the commander's limit. (An add
+    /// from another console of the same commander, racing, can still be refused by the
+    /// commander after an "ok" here; it says so in its log.)
+    pub added: usize,
     /// Performance index per target position, when known (simulated worlds).
     pub performance: BTreeMap<usize, f64>,
     /// Robots by name.
@@ -190,6 +196,7 @@ impl ConsoleState {
             "queue" => {
                 if let Some(list) = d["targets"].as_array() {
                     self.targets = list.clone();
+                    self.added = self.added.max(self.targets.len());
                 }
             }
             "target" => {
