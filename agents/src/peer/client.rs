@@ -232,6 +232,16 @@ pub struct ClientLinkStatus {
     pub requests: Vec<(String, bool)>,
 }
 
+/// The largest client ID (and sender ID the shells draw): 2^53 − 1, the largest integer a
+/// JSON reader that holds numbers as doubles (a browser, Foxglove, `jq`) shows exactly.
+pub const MAX_ID: u64 = (1 << 53) - 1;
+
+/// The next client ID of the sequence `state`: 53 bits, so that status shown as JSON (in a
+/// browser, Foxglove, `jq`) names the client exactly.
+fn next_id(state: &mut u64) -> u64 {
+    splitmix64(state) >> 11
+}
+
 fn splitmix64(state: &mut u64) -> u64 {
     *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
     let mut z = *state;
@@ -245,7 +255,7 @@ impl PeerClient {
     #[must_use]
     pub fn new(cfg: ClientConfig, key: GroupKey, now: Instant) -> Self {
         let mut id_state = cfg.id_seed;
-        let id = splitmix64(&mut id_state);
+        let id = next_id(&mut id_state);
         Self {
             signer: Signer::new(key.clone(), cfg.node, cfg.first_counter),
             verifier: Verifier::with_limits(key, cfg.max_body, 1),
@@ -473,7 +483,7 @@ impl PeerClient {
                     reason == DeclineReason::DuplicateId && self.retries < self.cfg.max_retries;
                 let retry_with = if retry {
                     self.retries = self.retries.saturating_add(1);
-                    self.id = splitmix64(&mut self.id_state);
+                    self.id = next_id(&mut self.id_state);
                     let m = Msg::Register {
                         client: self.id,
                         robot: self.cfg.robot.clone(),
@@ -615,5 +625,26 @@ impl PeerClient {
     /// The next event.
     pub fn poll_event(&mut self) -> Option<ClientEvent> {
         self.events.pop_front()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Client IDs fit in 53 bits, so JSON readers that hold numbers as doubles show them
+    /// exactly (an ID of 64 random bits showed in the browser console rounded).
+    #[test]
+    fn client_ids_are_exact_as_json_numbers() {
+        for seed in [0, 1, 42, u64::MAX, 0x9E37_79B9_7F4A_7C15] {
+            let mut state = seed;
+            for _ in 0..1000 {
+                let id = next_id(&mut state);
+                assert!(id <= MAX_ID, "{id}");
+                #[allow(clippy::cast_precision_loss, clippy::cast_possible_truncation)]
+                let back = (id as f64) as u64;
+                assert_eq!(back, id);
+            }
+        }
     }
 }

@@ -73,7 +73,8 @@
 //!   multicast, unicast and both). In unicast mode every process on one host needs its own
 //!   port, because a unicast datagram reaches only one of the sockets sharing a port.
 //! * **Counters and IDs** — every sender (manager, client, data-session end, broadcaster)
-//!   draws its sender ID from the OS random source and starts its frame counter (and the
+//!   draws its sender ID from the OS random source (53 bits, [`client::MAX_ID`], as client
+//!   IDs: status and logs show them as JSON numbers) and starts its frame counter (and the
 //!   broadcast sequence) at the UNIX time in µs, so a restarted process is not taken for a
 //!   replayer. The manager's ticket key is 32 random bytes drawn at start-up.
 //! * **Robustness of the shell** — every session loop polls input before timers

@@ -8,7 +8,7 @@ use socket2::{Domain, Protocol, Socket, Type};
 use tokio::net::UdpSocket;
 
 use super::config::{BroadcastConfig, BroadcastMode, PeerNetConfig, parse_ip_addr};
-use super::{AuthFailure, NetError, random_u64, unix_micros};
+use super::{AuthFailure, NetError, random_id, unix_micros};
 use crate::peer::broadcast::{BroadcastReceiver, Broadcaster, ReceiverConfig, ReceiverStats};
 use crate::peer::wire::{
     GroupKey, HEADER_LEN, MAC_LEN, MissionEvent, Msg, Pose, RejectCounts, WireError,
@@ -152,7 +152,7 @@ impl BroadcastChannel {
         Ok(Self {
             socket: Arc::new(socket),
             inner: Arc::new(Mutex::new(Inner {
-                tx: Broadcaster::new(robot, key.clone(), random_u64(), start, start),
+                tx: Broadcaster::new(robot, key.clone(), random_id(), start, start),
                 rx: BroadcastReceiver::new(key, rcfg),
                 sent: 0,
                 send_errors: 0,

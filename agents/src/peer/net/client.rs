@@ -13,7 +13,7 @@ use tokio::task::JoinHandle;
 use super::config::PeerNetConfig;
 use super::frames::{FrameReader, max_frame, write_batch, write_frames};
 use super::{AuthFailure, NetError, NotAPeer};
-use super::{random_u64, unix_micros};
+use super::{random_id, random_u64, unix_micros};
 use crate::peer::client::{ClientConfig, ClientEvent, ClientLinkStatus, PeerClient};
 use crate::peer::data::{DataClientSession, DataClose, DataConfig, DataEvent};
 use crate::peer::wire::{
@@ -337,7 +337,7 @@ impl PeerClientHandle {
         let _ = stream.set_nodelay(true);
         let peer = stream.peer_addr()?;
         let auth = Arc::new(Mutex::new(None));
-        let mut ccfg = ClientConfig::new(&cfg.robot, random_u64(), random_u64());
+        let mut ccfg = ClientConfig::new(&cfg.robot, random_id(), random_u64());
         ccfg.first_counter = unix_micros();
         ccfg.heartbeat = cfg.heartbeat();
         ccfg.missed_heartbeats = cfg.missed_heartbeats;
@@ -880,7 +880,7 @@ impl ClientTask {
         let (ctx, crx) = oneshot::channel();
         sub.data = Some((generation, ctx));
         let mut cfg = self.dcfg.clone();
-        cfg.node = random_u64();
+        cfg.node = random_id();
         cfg.first_counter = unix_micros();
         tokio::spawn(data_session(DataTask {
             address,

@@ -14,7 +14,7 @@ use tokio::task::{AbortHandle, JoinHandle};
 
 use super::config::{PeerNetConfig, parse_addr};
 use super::frames::{FrameReader, max_frame, write_batch, write_frames};
-use super::{NetError, random_key32, random_u64, unix_micros};
+use super::{NetError, random_id, random_key32, unix_micros};
 use crate::peer::data::{DataClose, DataConfig, DataEvent, DataServerSession, TicketAuthority};
 use crate::peer::manager::{
     ClientStatus, Decision, LinkStatus, ManagerConfig, ManagerEvent, ManagerStats, Outcome, PeerId,
@@ -524,7 +524,7 @@ pub async fn spawn_manager_with_clock<A: SelfAgent + Send + 'static>(
     let local_addr = listener.local_addr()?;
     let data_addr = data_listener.local_addr()?;
     let hb = cfg.heartbeat();
-    let mut mcfg = ManagerConfig::new(&cfg.robot, random_u64(), &advertised(cfg, data_addr));
+    let mut mcfg = ManagerConfig::new(&cfg.robot, random_id(), &advertised(cfg, data_addr));
     mcfg.first_counter = unix_micros();
     mcfg.heartbeat = hb;
     mcfg.missed_heartbeats = cfg.missed_heartbeats;
@@ -1026,7 +1026,7 @@ async fn accept_data(
         };
         let _ = stream.set_nodelay(true);
         let mut cfg = dcfg.clone();
-        cfg.node = random_u64();
+        cfg.node = random_id();
         cfg.first_counter = unix_micros();
         let (ctl, events, key, clock) = (ctl.clone(), events.clone(), key.clone(), clock.clone());
         let h = tokio::spawn(async move {

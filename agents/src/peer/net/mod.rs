@@ -274,6 +274,14 @@ pub fn random_u64() -> u64 {
     h.finish()
 }
 
+pub use crate::peer::client::MAX_ID;
+
+/// A random ID of at most [`MAX_ID`] (sender IDs, shown in status and logs as JSON numbers).
+#[must_use]
+pub fn random_id() -> u64 {
+    random_u64() & MAX_ID
+}
+
 /// 32 random bytes from the operating system (the manager's ticket key).
 ///
 /// # Errors
