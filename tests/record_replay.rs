@@ -368,6 +368,35 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
             "{v:?} {v2:?}"
         );
     }
+    // Stamped on the recording's clock, as every replayed message, and sent again every
+    // recorded second: they were stamped with the time of the replay (the re-recording
+    // spanned 258 s for 16 s of data) and sent once at `--speed 0`.
+    let span = |f: &std::path::Path| {
+        let (msgs, _) = Recording::open(f).unwrap().messages();
+        let t = |m: &ima_record::read::Message| m.log_time;
+        let (lo, hi) = (
+            msgs.iter().map(t).min().unwrap(),
+            msgs.iter().map(t).max().unwrap(),
+        );
+        let map_odom = |m: &&ima_record::read::Message| {
+            let t = ima_record::messages::FrameTransform::decode(&m.data[..]).unwrap();
+            t.parent_frame_id == "map" && t.child_frame_id == "scooter/odom"
+        };
+        let tf = msgs
+            .iter()
+            .filter(|m| m.topic == "/tf")
+            .filter(map_odom)
+            .count();
+        (lo, hi, tf)
+    };
+    let (lo, hi, _) = span(&file);
+    let (lo2, hi2, sends) = span(&again);
+    assert!(lo2 >= lo && hi2 <= hi, "{lo}..{hi} against {lo2}..{hi2}");
+    let seconds = (hi - lo) / 1_000_000_000;
+    assert!(
+        sends as u64 >= seconds.saturating_sub(1),
+        "map → scooter/odom sent {sends} times in {seconds} s"
+    );
     let (out2, _) = replay_json(&again);
     assert!(out2.status.success());
     let (first, second) = (json_lines(&out.stdout), json_lines(&out2.stdout));

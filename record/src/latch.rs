@@ -9,14 +9,20 @@
 //! gets the last message of each stream on the channel at once (each `/tf` pair, each
 //! camera), oldest first, and only it: other clients and the file see nothing twice.
 //!
+//! A log stream (`foxglove.Log`: `/events`, `/broadcasts`, one stream per name) keeps its
+//! last [`LOG_DEPTH`] lines instead of one, so a log panel opened late shows the recent
+//! history, and the lines of the first batch (all logged before the channel could be
+//! subscribed to) reach a client that connected first.
+//!
 //! Order: the recorder's thread logs a message and keeps it under one lock, and a
 //! subscriber's replay takes the same lock, so a subscriber never gets a replayed message
-//! after a newer live one (at worst the newest twice).
+//! after a newer live one (at worst the newest once more).
 //!
-//! Memory is bounded: a message over [`MAX_MESSAGE`] is not kept (its stream's older copy is
-//! dropped), nor one that would take the whole over [`MAX_BYTES`].
+//! Memory is bounded: a message over [`MAX_MESSAGE`] is not kept, nor one that would take
+//! the whole over [`MAX_BYTES`]; either way the stream's older copies are dropped, so what a
+//! subscriber gets is never older than what it would have got.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use foxglove::websocket::{ChannelView, Client, ServerListener};
@@ -26,8 +32,10 @@ use foxglove::{ChannelId, PartialMetadata, RawChannel, SinkId};
 pub(crate) const MAX_MESSAGE: usize = 4 << 20;
 /// The most bytes kept over every stream.
 pub(crate) const MAX_BYTES: usize = 64 << 20;
+/// Lines kept per log stream.
+pub(crate) const LOG_DEPTH: usize = 100;
 
-/// The last message of every served stream, by channel.
+/// The last messages of every served stream, by channel.
 #[derive(Default)]
 pub(crate) struct Latch {
     state: Mutex<State>,
@@ -39,11 +47,12 @@ struct State {
     bytes: usize,
 }
 
-/// A channel and the last message of each of its streams.
+/// A channel and the last messages of each of its streams.
 struct Kept {
     chan: Arc<RawChannel>,
-    /// (stream id, log time, message); few streams share a channel.
-    last: Vec<(u32, u64, Vec<u8>)>,
+    /// (stream id, its last messages as (log time, message), oldest first); few streams
+    /// share a channel.
+    streams: Vec<(u32, VecDeque<(u64, Vec<u8>)>)>,
 }
 
 impl Latch {
@@ -51,43 +60,63 @@ impl Latch {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// Log `msg` of `stream` on `chan` to every sink, and keep it as the stream's last.
-    pub(crate) fn log(&self, chan: &Arc<RawChannel>, stream: u32, msg: &[u8], log_time: u64) {
+    /// Log `msg` of `stream` on `chan` to every sink, and keep it among the stream's last
+    /// `depth` messages.
+    pub(crate) fn log(
+        &self,
+        chan: &Arc<RawChannel>,
+        stream: u32,
+        depth: usize,
+        msg: &[u8],
+        log_time: u64,
+    ) {
         let mut st = self.state();
         chan.log_with_meta(msg, PartialMetadata::with_log_time(log_time));
         let State { channels, bytes } = &mut *st;
         let kept = channels.entry(chan.id()).or_insert_with(|| Kept {
             chan: Arc::clone(chan),
-            last: Vec::new(),
+            streams: Vec::new(),
         });
-        let old = kept.last.iter().position(|(s, _, _)| *s == stream);
-        let old_len = old
-            .and_then(|i| kept.last.get(i))
-            .map_or(0, |(_, _, m)| m.len());
-        let fits = msg.len() <= MAX_MESSAGE && *bytes - old_len + msg.len() <= MAX_BYTES;
-        match (old, fits) {
-            (Some(i), true) => {
-                if let Some((_, t, m)) = kept.last.get_mut(i) {
-                    *t = log_time;
-                    m.clear();
-                    m.extend_from_slice(msg);
-                }
+        let i = match kept.streams.iter().position(|(s, _)| *s == stream) {
+            Some(i) => i,
+            None => {
+                kept.streams.push((stream, VecDeque::new()));
+                kept.streams.len() - 1
             }
-            (None, true) => kept.last.push((stream, log_time, msg.to_vec())),
-            (Some(i), false) => drop(kept.last.swap_remove(i)),
-            (None, false) => {}
-        }
-        *bytes = *bytes - old_len + if fits { msg.len() } else { 0 };
-    }
-
-    /// Send `sink` the last message of every stream on `channel`, oldest first.
-    pub(crate) fn replay(&self, channel: ChannelId, sink: SinkId) {
-        let mut st = self.state();
-        let Some(kept) = st.channels.get_mut(&channel) else {
+        };
+        let Some((_, last)) = kept.streams.get_mut(i) else {
             return;
         };
-        kept.last.sort_by_key(|&(_, t, _)| t);
-        for (_, t, m) in &kept.last {
+        // Room for it: the oldest go first (all of them if it cannot be kept).
+        let fits = msg.len() <= MAX_MESSAGE;
+        let mut spare = None;
+        while !last.is_empty()
+            && (!fits || last.len() >= depth.max(1) || *bytes + msg.len() > MAX_BYTES)
+        {
+            if let Some((_, m)) = last.pop_front() {
+                *bytes -= m.len();
+                spare = Some(m);
+            }
+        }
+        if fits && *bytes + msg.len() <= MAX_BYTES {
+            // The buffer of the message that just went (no allocation per frame).
+            let mut m = spare.unwrap_or_default();
+            m.clear();
+            m.extend_from_slice(msg);
+            last.push_back((log_time, m));
+            *bytes += msg.len();
+        }
+    }
+
+    /// Send `sink` the last messages of every stream on `channel`, oldest first.
+    pub(crate) fn replay(&self, channel: ChannelId, sink: SinkId) {
+        let st = self.state();
+        let Some(kept) = st.channels.get(&channel) else {
+            return;
+        };
+        let mut all: Vec<&(u64, Vec<u8>)> = kept.streams.iter().flat_map(|(_, l)| l).collect();
+        all.sort_by_key(|&&(t, _)| t);
+        for (t, m) in all {
             let meta = PartialMetadata::with_log_time(*t);
             kept.chan.log_with_meta_to_sink(m, meta, Some(sink));
         }
@@ -97,6 +126,17 @@ impl Latch {
     #[cfg(test)]
     fn bytes(&self) -> usize {
         self.state().bytes
+    }
+
+    /// The messages kept of `stream` on `chan`.
+    #[cfg(test)]
+    fn kept(&self, chan: &RawChannel, stream: u32) -> Vec<(u64, Vec<u8>)> {
+        let st = self.state();
+        let streams = st.channels.get(&chan.id()).map(|k| &k.streams);
+        streams
+            .and_then(|s| s.iter().find(|(id, _)| *id == stream))
+            .map(|(_, l)| l.iter().cloned().collect())
+            .unwrap_or_default()
     }
 }
 
@@ -123,34 +163,40 @@ mod tests {
     }
 
     #[test]
-    fn each_stream_keeps_its_last_message_within_the_bounds() {
+    fn each_stream_keeps_its_last_messages_within_the_bounds() {
         let ctx = foxglove::Context::new();
         let tf = channel(&ctx, "/tf");
         let latch = Latch::default();
-        latch.log(&tf, 1, b"a1", 10);
-        latch.log(&tf, 2, b"b1", 11);
-        latch.log(&tf, 1, b"a22", 12);
+        latch.log(&tf, 1, 1, b"a1", 10);
+        latch.log(&tf, 2, 1, b"b1", 11);
+        latch.log(&tf, 1, 1, b"a22", 12);
         assert_eq!(latch.bytes(), 5);
-        {
-            let st = latch.state();
-            let kept = &st.channels[&tf.id()].last;
-            assert_eq!(kept.len(), 2);
-            assert!(kept.contains(&(1, 12, b"a22".to_vec())));
+        assert_eq!(latch.kept(&tf, 1), [(12, b"a22".to_vec())]);
+        assert_eq!(latch.kept(&tf, 2), [(11, b"b1".to_vec())]);
+        // A log stream keeps its depth, oldest out first.
+        let log = channel(&ctx, "/events");
+        for t in 0..5u8 {
+            latch.log(&log, 3, 3, &[t], u64::from(t));
         }
-        // Too large: the stream's older copy goes too, and the count follows.
-        latch.log(&tf, 1, &vec![0; MAX_MESSAGE + 1], 13);
-        assert_eq!(latch.bytes(), 2);
-        assert_eq!(latch.state().channels[&tf.id()].last.len(), 1);
+        assert_eq!(
+            latch.kept(&log, 3),
+            [(2, vec![2]), (3, vec![3]), (4, vec![4])]
+        );
+        assert_eq!(latch.bytes(), 8);
+        // Too large: the stream's older copies go too, and the count follows.
+        latch.log(&tf, 1, 1, &vec![0; MAX_MESSAGE + 1], 13);
+        assert_eq!(latch.bytes(), 5);
+        assert!(latch.kept(&tf, 1).is_empty());
         // The whole is bounded: streams past the budget are not kept.
         let cam = channel(&ctx, "/cam");
         let frame = vec![0; MAX_MESSAGE];
         for s in 0..40 {
-            latch.log(&cam, s, &frame, 20);
+            latch.log(&cam, s, 1, &frame, 20);
         }
         assert!(latch.bytes() <= MAX_BYTES, "{}", latch.bytes());
         assert_eq!(
             latch.bytes(),
-            2 + (MAX_BYTES - 2) / MAX_MESSAGE * MAX_MESSAGE
+            5 + (MAX_BYTES - 5) / MAX_MESSAGE * MAX_MESSAGE
         );
     }
 }

@@ -1026,7 +1026,13 @@ impl Worker {
                 .is_some()
         {
             match latch.as_deref() {
-                Some(latch) if s.latched => latch.log(chan, r.id, &buf, r.log_time),
+                Some(latch) if s.latched => {
+                    let depth = match s.proto {
+                        stream::Proto::Text(_) => latch::LOG_DEPTH,
+                        _ => 1,
+                    };
+                    latch.log(chan, r.id, depth, &buf, r.log_time);
+                }
                 _ => chan.log_with_meta(&buf, PartialMetadata::with_log_time(r.log_time)),
             }
             if s.counted && counting {

@@ -473,6 +473,40 @@ async fn a_late_subscriber_gets_the_last_message_of_each_stream() {
     rec.finish(Duration::from_secs(5));
 }
 
+/// A log topic keeps its recent lines per name, not only the last: a client that subscribes
+/// after the first batch (all logged before anyone could subscribe) gets every line, in
+/// order.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_subscriber_gets_the_recent_lines_of_a_log_topic() {
+    use foxglove::messages::Log;
+    let rec = Recorder::start(&Options {
+        foxglove: Some("127.0.0.1:0".parse().unwrap()),
+        ..Options::default()
+    })
+    .unwrap();
+    let port = rec.server_port().unwrap();
+    let lines = [
+        "commander: waiting",
+        "scooter: connected",
+        "commander: red sent",
+    ];
+    for l in lines {
+        let (name, text) = l.split_once(": ").unwrap();
+        rec.log_text("/events", foxglove::messages::log::Level::Info, name, text);
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let (mut ws, events, _) = connect_to(port, "/events", |_| {}).await;
+    subscribe(&mut ws, 2, events).await;
+    for l in lines {
+        let b = next_data(&mut ws, 2, Duration::from_secs(10))
+            .await
+            .expect(l);
+        let m = Log::decode(&b[..]).unwrap();
+        assert_eq!(format!("{}: {}", m.name, m.message), l);
+    }
+    rec.finish(Duration::from_secs(5));
+}
+
 #[test]
 fn camera_frames_count_against_the_byte_budget_and_every_message_is_accounted_for() {
     let path = tmp("d.mcap");

@@ -99,8 +99,9 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         eprintln!("ima replay: the recording is damaged ({why}); replaying what it holds");
     }
     let left_out = rec.left_out();
-    // Republished every second, so the replayed readings have a place in `map` (a viewer
-    // that follows it, the shipped layout, could not show a replay's scans).
+    // Republished every recorded second, stamped on the recording's clock, so the replayed
+    // readings have a place in `map` (a viewer that follows it, the shipped layout, could not
+    // show a replay's scans), wherever a re-recording is read from.
     let fixed = if args.rec.is_off() {
         Vec::new()
     } else {
@@ -126,21 +127,9 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         // reading.
         let mut first: Option<(u64, tokio::time::Instant)> = None;
         let mut t0: Option<u64> = None;
-        let mut fixed_sent: Option<tokio::time::Instant> = None;
+        // The recorded stamp at which the fixed transforms were last sent.
+        let mut fixed_sent: Option<u64> = None;
         loop {
-            if fixed_sent.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
-                fixed_sent = Some(tokio::time::Instant::now());
-                crate::record::with(|r| {
-                    for (parent, child, [x_m, y_m, theta_rad]) in &fixed {
-                        let p = ima_record::convert::Pose2 {
-                            x_m: *x_m,
-                            y_m: *y_m,
-                            theta_rad: *theta_rad,
-                        };
-                        r.log_transform(parent, child, p);
-                    }
-                });
-            }
             let next = match order.next_due() {
                 Some(item) => item,
                 None => match crate::safety::until_cancelled(items.recv()).await? {
@@ -164,6 +153,20 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
             }
             // As fast as possible, the replay could outrun the recorder's queue.
             crate::safety::until_cancelled(crate::record::room()).await?;
+            if !fixed.is_empty() && fixed_sent.is_none_or(|f| t < f || t - f >= 1_000_000_000) {
+                fixed_sent = Some(t);
+                crate::record::with(|r| {
+                    r.set_stamp(Some(t));
+                    for (parent, child, [x_m, y_m, theta_rad]) in &fixed {
+                        let p = ima_record::convert::Pose2 {
+                            x_m: *x_m,
+                            y_m: *y_m,
+                            theta_rad: *theta_rad,
+                        };
+                        r.log_transform(parent, child, p);
+                    }
+                });
+            }
             match next {
                 Item::Raw(c) => raw.publish(&c),
                 Item::Reading(r) => {
