@@ -47,12 +47,14 @@ struct State {
     bytes: usize,
 }
 
+/// A stream's last messages as (log time, message), oldest first.
+type Last = VecDeque<(u64, Vec<u8>)>;
+
 /// A channel and the last messages of each of its streams.
 struct Kept {
     chan: Arc<RawChannel>,
-    /// (stream id, its last messages as (log time, message), oldest first); few streams
-    /// share a channel.
-    streams: Vec<(u32, VecDeque<(u64, Vec<u8>)>)>,
+    /// (stream id, its last messages); few streams share a channel.
+    streams: Vec<(u32, Last)>,
 }
 
 impl Latch {
