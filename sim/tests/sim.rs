@@ -37,6 +37,35 @@ fn range_aware_runs_score_high_and_the_thesis_rule_is_exact_on_a_short_chord() {
     }
 }
 
+/// Both rules are scored against the same shortest path: `d_min` is the configuration's
+/// (within the last control step), not the point where a run happened to stop, which gave a
+/// path that curved round to the target's side a longer `d_min` and a higher f (3.29 m for
+/// the thesis rule against 3.04 m for the range-aware rule here).
+#[test]
+fn both_rules_are_scored_against_the_same_shortest_path() {
+    let cfg = SweepConfig::default();
+    let k = configurations(&[HeadingRule::Thesis, HeadingRule::RangeAware], 1);
+    let (thesis, range) = [HeadingRule::Thesis, HeadingRule::RangeAware]
+        .map(|rule| {
+            let s = k
+                .iter()
+                .find(|s| s.rule == rule && s.angle_deg == 45.0 && s.ds_m == 5.0 && s.dt_m == 2.0)
+                .unwrap();
+            run_one(s, &cfg)
+        })
+        .into();
+    assert!(
+        (thesis.d_min_m - range.d_min_m).abs() < 0.03,
+        "{} against {}",
+        thesis.d_min_m,
+        range.d_min_m
+    );
+    for r in [&thesis, &range] {
+        assert_eq!(r.reason, "reached", "{r:?}");
+        assert!(r.d_actual_m >= r.d_min_m, "{r:?}");
+    }
+}
+
 #[test]
 fn the_thesis_rule_spirals_inward_when_the_target_is_farther_than_scooter() {
     // Target 5 m out, Scooter 2 m out, 135° apart: the isosceles rule keeps aiming at
@@ -61,6 +90,8 @@ fn runs_are_reproducible_from_the_seed() {
     assert_eq!(k.len(), 96);
     assert_eq!(k[0].seed, k[48].seed);
     assert_ne!(k[0].seed, k[1].seed);
+    // Exact as JSON numbers (`jq` read 16834447057089888969 as 16834447057089888000).
+    assert!(k.iter().all(|s| s.seed < 1 << 53));
     assert_ne!(
         configurations(&[HeadingRule::Thesis], 5)[0].seed,
         configurations(&[HeadingRule::Thesis], 6)[0].seed
@@ -232,7 +263,7 @@ fn fake(rule: &'static str, angle_deg: f64, ds_m: f64, dt_m: f64, f: f64) -> Run
 
 #[test]
 fn table_csv_json_and_svg_writers() {
-    let results = vec![
+    let mut results = vec![
         fake("thesis", 45.0, 2.0, 3.0, 0.5),
         fake("thesis", 45.0, 5.0, 2.0, 0.25),
         fake("range-aware", 90.0, 2.0, 5.0, 0.99),
@@ -241,6 +272,13 @@ fn table_csv_json_and_svg_writers() {
     // Row Dt = 3, column Ds = 2; row Dt = 2, column Ds = 5 (the last cell of its row).
     assert!(t.contains("| 3 m | 0.50 | — | — | — |"), "{t}");
     assert!(t.contains("| 2 m | — | — | — | 0.25 |"), "{t}");
+    // A run that did not reach is marked, not shown as a plain score of 0.
+    let mut timeout = fake("thesis", 90.0, 4.0, 4.0, 0.0);
+    timeout.reason = "timeout";
+    results.push(timeout);
+    let t = markdown_tables(&results, "thesis");
+    assert!(t.contains("| 4 m | — | — | 0.00* | — |"), "{t}");
+    results.pop();
     assert!(t.contains("**thesis, θ = 135°**"));
     assert_eq!(t.matches("| Dt \\ Ds | 2 m | 3 m | 4 m | 5 m |").count(), 3);
     let c = csv(&results);
@@ -256,6 +294,7 @@ fn table_csv_json_and_svg_writers() {
     assert_eq!(j["runs"][2]["rule"], "range-aware");
     assert!(j["runs"][0].get("trajectory").is_none());
     assert_eq!(j["speed_m_s"], 0.05);
+    assert_eq!(j["observer"], "geometric");
     let s = summary(&results);
     assert!(s.contains("thesis: 2 runs, f min 0.250"), "{s}");
     let f = ima_plot::inspect(&svg_f(&results)).unwrap();
