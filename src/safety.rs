@@ -1,6 +1,7 @@
 //! The program's stop guarantee: every device that can move a robot is stopped, and its session
-//! closed, on every exit path — a normal end, an error, SIGINT, SIGTERM, SIGHUP, SIGQUIT, a
-//! closed stdout, and a panic on any thread.
+//! closed, on every exit path — a normal end, an error, SIGINT, SIGTERM, SIGHUP, SIGQUIT,
+//! Ctrl-Z and every other signal whose default action would end or suspend the process
+//! ([`WATCHED`]), a closed stdout, and a panic on any thread.
 //!
 //! The guarantee does not depend on each command remembering a `stop()`:
 //!
@@ -8,8 +9,8 @@
 //!   [`HaltSignal`](ima_hal::safety::HaltSignal) in the process-wide
 //!   [`StopRegistry`] as they start;
 //! * [`install`] (first thing in `main`) sets a panic hook that halts every registered device and
-//!   waits for its last frames, and a signal thread: the first SIGINT/SIGTERM/SIGHUP/SIGQUIT
-//!   halts every device at once and asks the command to wind down ([`cancelled`]); a second
+//!   waits for its last frames, and a signal thread: the first signal of [`WATCHED`] halts
+//!   every device at once and asks the command to wind down ([`cancelled`]); a second
 //!   signal, or a command that has not finished [`GRACE`] later, ends the process after the
 //!   devices are done;
 //! * [`block_on`] is the only way a command runs async code: after the command's future ends
@@ -53,43 +54,62 @@ fn cancel_channel() -> &'static tokio::sync::watch::Sender<bool> {
     CANCEL.get_or_init(|| tokio::sync::watch::channel(false).0)
 }
 
-/// A signal that ends the program.
+/// A signal that ends the program: one whose default action would end or suspend the process
+/// without stopping the robot, so the signal thread takes it ([`WATCHED`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Signal {
-    /// SIGHUP (the terminal or SSH session closed).
-    Hup = 1,
-    /// SIGINT (Ctrl-C).
-    Int = 2,
-    /// SIGQUIT (Ctrl-\\); its default action would end the program without stopping the robot.
-    Quit = 3,
-    /// SIGTERM.
-    Term = 15,
-}
+pub struct Signal(i32);
+
+/// The signals the program takes over, with their names: the four a user sends to end a
+/// program; Ctrl-Z and the background-terminal stops (a suspended driver cannot keep the
+/// robot safe, so they stop it and end the program instead); and the others whose default
+/// action ends a process (a file-size or CPU-time limit, a stray `kill -USR1`, a timer).
+/// SIGKILL and SIGSTOP cannot be caught (the README's "Safety" section); the faults
+/// (SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT, SIGSYS, SIGTRAP) come from the process itself.
+#[cfg(unix)]
+pub const WATCHED: &[(i32, &str)] = &[
+    (libc::SIGHUP, "SIGHUP"),
+    (libc::SIGINT, "SIGINT"),
+    (libc::SIGQUIT, "SIGQUIT"),
+    (libc::SIGTERM, "SIGTERM"),
+    (libc::SIGTSTP, "SIGTSTP (Ctrl-Z)"),
+    (libc::SIGTTIN, "SIGTTIN"),
+    (libc::SIGTTOU, "SIGTTOU"),
+    (libc::SIGXFSZ, "SIGXFSZ (file size limit)"),
+    (libc::SIGXCPU, "SIGXCPU (CPU time limit)"),
+    (libc::SIGUSR1, "SIGUSR1"),
+    (libc::SIGUSR2, "SIGUSR2"),
+    (libc::SIGALRM, "SIGALRM"),
+    (libc::SIGVTALRM, "SIGVTALRM"),
+    (libc::SIGPROF, "SIGPROF"),
+    (libc::SIGPWR, "SIGPWR"),
+    (libc::SIGIO, "SIGIO"),
+];
 
 impl Signal {
+    /// SIGINT (Ctrl-C).
+    pub const INT: Self = Self(2);
+
     fn from_number(n: i32) -> Option<Self> {
-        match n {
-            1 => Some(Self::Hup),
-            2 => Some(Self::Int),
-            3 => Some(Self::Quit),
-            15 => Some(Self::Term),
-            _ => None,
-        }
+        #[cfg(unix)]
+        return WATCHED.iter().any(|&(w, _)| w == n).then_some(Self(n));
+        #[cfg(not(unix))]
+        return (n == 2).then_some(Self(n));
     }
 
     /// The signal's name.
     pub fn name(self) -> &'static str {
-        match self {
-            Self::Hup => "SIGHUP",
-            Self::Int => "SIGINT",
-            Self::Quit => "SIGQUIT",
-            Self::Term => "SIGTERM",
-        }
+        #[cfg(unix)]
+        return WATCHED
+            .iter()
+            .find(|&&(w, _)| w == self.0)
+            .map_or("a signal", |&(_, name)| name);
+        #[cfg(not(unix))]
+        return "SIGINT";
     }
 
     /// The shell's exit status for a program ended by this signal (128 + its number).
     pub fn exit_code(self) -> u8 {
-        128 + self as u8
+        u8::try_from(128 + self.0).unwrap_or(u8::MAX)
     }
 }
 
@@ -155,7 +175,7 @@ pub fn cause() -> Cause {
         Some(s) => Cause::Signal(s),
         None if PANICKED.load(Ordering::SeqCst) => Cause::Panic,
         None if OUTPUT_CLOSED.load(Ordering::SeqCst) => Cause::OutputClosed,
-        None => Cause::Signal(Signal::Int),
+        None => Cause::Signal(Signal::INT),
     }
 }
 
@@ -257,17 +277,23 @@ fn signal_thread() {
         return;
     };
     rt.block_on(async {
-        let (Ok(mut int), Ok(mut term), Ok(mut hup), Ok(mut quit)) = (
-            listen(SignalKind::interrupt()),
-            listen(SignalKind::terminate()),
-            listen(SignalKind::hangup()),
-            listen(SignalKind::quit()),
-        ) else {
-            say(format_args!("cannot watch for signals"));
+        // One task per signal; each sends its number here.
+        let (tx, mut got) = tokio::sync::mpsc::unbounded_channel::<i32>();
+        for &(n, name) in WATCHED {
+            match listen(SignalKind::from_raw(n)) {
+                Ok(mut s) => {
+                    let tx = tx.clone();
+                    tokio::spawn(
+                        async move { while s.recv().await.is_some() && tx.send(n).is_ok() {} },
+                    );
+                }
+                Err(e) => say(format_args!("cannot watch for {name}: {e}")),
+            }
+        }
+        let Some(first) = got.recv().await.and_then(Signal::from_number) else {
             return;
         };
-        let first = next_signal(&mut int, &mut term, &mut hup, &mut quit).await;
-        SIGNAL.store(first as i32, Ordering::SeqCst);
+        SIGNAL.store(first.0, Ordering::SeqCst);
         // Safety first: every moving device is told to stop before anything else happens.
         let halted = StopRegistry::global().halt_all();
         cancel_channel().send_replace(true);
@@ -275,16 +301,16 @@ fn signal_thread() {
             say(format_args!(
                 "{}: stopping the robot ({} again to exit at once)",
                 first.name(),
-                if first == Signal::Int {
+                if first == Signal::INT {
                     "Ctrl-C"
                 } else {
                     "a second signal"
                 }
             ));
         }
-        let own = first == Signal::Int && OWN_CTRL_C.load(Ordering::SeqCst);
+        let own = first == Signal::INT && OWN_CTRL_C.load(Ordering::SeqCst);
         let code = tokio::select! {
-            s = next_signal(&mut int, &mut term, &mut hup, &mut quit) => s.exit_code(),
+            Some(n) = got.recv() => Signal::from_number(n).unwrap_or(first).exit_code(),
             () = tokio::time::sleep(GRACE), if !own => first.exit_code(),
         };
         // Either way the devices get their last frames out before the process ends.
@@ -299,21 +325,6 @@ fn signal_thread() {
         let _ = crate::record::finish();
         std::process::exit(i32::from(code));
     });
-}
-
-#[cfg(unix)]
-async fn next_signal(
-    int: &mut tokio::signal::unix::Signal,
-    term: &mut tokio::signal::unix::Signal,
-    hup: &mut tokio::signal::unix::Signal,
-    quit: &mut tokio::signal::unix::Signal,
-) -> Signal {
-    tokio::select! {
-        _ = int.recv() => Signal::Int,
-        _ = term.recv() => Signal::Term,
-        _ = hup.recv() => Signal::Hup,
-        _ = quit.recv() => Signal::Quit,
-    }
 }
 
 /// Run a command's async body on a multi-threaded tokio runtime under the stop guarantee: when

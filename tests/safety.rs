@@ -1,8 +1,8 @@
 //! The stop guarantee, proven from the mock robot's side (issue 13): `ima drive` against the
 //! mock Pioneer 2-AT (P2OS) and the mock ATRV-Jr (rFLEX) on real ptys, interrupted mid-motion
-//! by SIGINT, SIGTERM, SIGHUP and SIGQUIT, or by its stdout being closed. The test process
-//! serves the robot, so it sees every byte the host wrote (with its arrival time) and the
-//! world's ground truth, and asserts that a stop arrived within 0.3 s of the interruption, that
+//! by SIGINT, SIGTERM, SIGHUP and SIGQUIT, Ctrl-Z (SIGTSTP), SIGXFSZ and SIGUSR1, or by its
+//! stdout being closed. The test process serves the robot, so it sees every byte the host
+//! wrote (with its arrival time) and the world's ground truth, and asserts that a stop arrived within 0.3 s of the interruption, that
 //! the robot stood within 1.0 s, and that a P2OS session was closed with CLOSE.
 
 use std::io::{BufRead, BufReader};
@@ -290,6 +290,9 @@ fn interrupt_drive(base: Base, how: Interruption) {
         Interruption::Signal("TERM") => 143,
         Interruption::Signal("HUP") => 129,
         Interruption::Signal("QUIT") => 131,
+        Interruption::Signal("USR1") => 138,
+        Interruption::Signal("TSTP") => 148,
+        Interruption::Signal("XFSZ") => 153,
         Interruption::Signal(other) => panic!("no expectation for {other}"),
         Interruption::ClosedStdout | Interruption::ClosedStderr => 141,
         Interruption::Panic => 101,
@@ -373,6 +376,31 @@ fn p2os_sighup_stops_and_closes() {
 #[test]
 fn p2os_sigquit_stops_and_closes() {
     interrupt_drive(Base::P2os, Interruption::Signal("QUIT"));
+}
+
+/// Ctrl-Z: its default action suspended the program while the robot drove on until its
+/// watchdog tripped (2 s later), and `fg` blamed the robot for not answering.
+#[test]
+fn p2os_ctrl_z_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Signal("TSTP"));
+}
+
+/// A file-size limit (`ulimit -f`) reached by `--json` or `--record`: its default action
+/// ended the program without a stop.
+#[test]
+fn p2os_sigxfsz_stops_and_closes() {
+    interrupt_drive(Base::P2os, Interruption::Signal("XFSZ"));
+}
+
+#[test]
+fn rflex_ctrl_z_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Signal("TSTP"));
+}
+
+/// A stray `kill -USR1`: its default action ended the program without a stop.
+#[test]
+fn rflex_sigusr1_stops_and_brakes() {
+    interrupt_drive(Base::Rflex, Interruption::Signal("USR1"));
 }
 
 #[test]
