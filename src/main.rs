@@ -142,12 +142,18 @@ fn main() -> ExitCode {
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
     let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    // Log lines go through a thread of their own (see `safety::set_log_writer`).
+    let (log, guard) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+        .lossy(true)
+        .thread_name("ima-log")
+        .finish(std::io::stderr());
+    safety::set_log_writer(log.clone(), guard);
     let progress = (tty && !cli.log.contains(CONNECT_TARGET)).then(|| {
         tracing_subscriber::fmt::layer()
             .without_time()
             .with_level(false)
             .with_target(false)
-            .with_writer(std::io::stderr)
+            .with_writer(log.clone())
             .with_filter(
                 tracing_subscriber::filter::Targets::new()
                     .with_target(CONNECT_TARGET, tracing::Level::INFO),
@@ -156,7 +162,7 @@ fn main() -> ExitCode {
     tracing_subscriber::registry()
         .with(
             tracing_subscriber::fmt::layer()
-                .with_writer(std::io::stderr)
+                .with_writer(log)
                 .with_ansi(tty)
                 .with_filter(quiet_clients(
                     tracing_subscriber::EnvFilter::try_new(&cli.log)
@@ -194,6 +200,8 @@ fn main() -> ExitCode {
         r => r,
     };
     let (code, message) = safety::exit_status(&result);
+    // The log lines before the error message.
+    safety::flush_logs();
     if let Some(m) = message {
         let _ = writeln!(std::io::stderr(), "ima: error: {m}");
     }

@@ -213,9 +213,50 @@ pub async fn until_cancelled<T>(fut: impl Future<Output = T>) -> Result<T> {
     }
 }
 
+/// The log writer ([`set_log_writer`]) and the guard whose drop flushes it.
+type LogWriter = (
+    tracing_appender::non_blocking::NonBlocking,
+    std::sync::Mutex<Option<tracing_appender::non_blocking::WorkerGuard>>,
+);
+
+static LOG: OnceLock<LogWriter> = OnceLock::new();
+
+/// Where log lines and the guard's own messages go: a thread of their own writes them to
+/// stderr, and a line that finds its queue full is dropped. A stderr nobody reads (an SSH
+/// session that stalled, `2>&1 | less` not scrolled) then never blocks a driver task that
+/// logs, nor the signal thread: a blocked warning had kept a driver from sending its
+/// keep-alive and STOP, and the signal thread from ending the program.
+pub fn set_log_writer(
+    writer: tracing_appender::non_blocking::NonBlocking,
+    guard: tracing_appender::non_blocking::WorkerGuard,
+) {
+    let _ = LOG.set((writer, std::sync::Mutex::new(Some(guard))));
+}
+
+/// Write out the log lines still queued, waiting at most about a second (a stderr that
+/// blocks cannot hold the exit longer). Later log lines are dropped.
+pub fn flush_logs() {
+    if let Some((_, guard)) = LOG.get() {
+        drop(
+            guard
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .take(),
+        );
+    }
+}
+
 fn say(msg: std::fmt::Arguments<'_>) {
-    // stderr may be gone too; never panic here.
-    let _ = writeln!(std::io::stderr(), "ima: {msg}");
+    // stderr may be gone too; never panic here, and never block on it.
+    let line = format!("ima: {msg}\n");
+    match LOG.get() {
+        Some((w, _)) => {
+            let _ = w.clone().write_all(line.as_bytes());
+        }
+        None => {
+            let _ = std::io::stderr().write_all(line.as_bytes());
+        }
+    }
 }
 
 /// Halt every registered device from a thread outside any runtime (so the driver tasks are woken
@@ -323,6 +364,7 @@ fn signal_thread() {
         }
         // record: close the recording before the forced exit.
         let _ = crate::record::finish();
+        flush_logs();
         std::process::exit(i32::from(code));
     });
 }

@@ -1060,3 +1060,58 @@ fn an_interrupted_experiment_ends_after_its_runs_under_way_and_writes_nothing() 
     );
     assert_eq!(out.join().unwrap(), "");
 }
+
+/// A stderr nobody reads (an SSH session that stalled, `2>&1 | less` not scrolled): a log
+/// line of the driver's (here the one saying it stops the device) once blocked its task, so
+/// nothing more reached the robot (no STOP on Ctrl-C: only its watchdog stopped it), and the
+/// signal thread's own message blocked the forced exit. Log lines now go through a thread of
+/// their own and are dropped when it cannot keep up.
+#[test]
+fn a_stderr_nobody_reads_does_not_keep_the_stop_from_the_robot() {
+    use std::io::Write as _;
+    let (world, id, served, log) = serve(Base::P2os);
+    let (reader, writer) = std::io::pipe().unwrap();
+    let mut filler = writer.try_clone().unwrap();
+    let mut cmd = ima();
+    cmd.args(["drive", "--robot", "p2at", "--port", &served.path()])
+        .args(["--vel", "0.3", "--for", "30", "--connect-timeout", "20"])
+        .env("IMA_LOG", "warn,ima_serial=info")
+        .stdout(Stdio::piped())
+        .stderr(writer);
+    let mut child = Child(cmd.spawn().unwrap());
+    drain(child.0.stdout.take().unwrap());
+    wait_until(Duration::from_secs(20), "the robot to move", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l > 0.2 && r > 0.2
+    });
+    // Fill the pipe (its writes block from then on), never read it.
+    let fill = std::thread::spawn(move || {
+        // Until the reader is dropped at the end of the test (EPIPE).
+        while filler.write_all(&[b'.'; 4096]).is_ok() {}
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    // The driver logs that it stops the device (`ima_serial=info`) before it does.
+    let t0 = Instant::now();
+    kill(&child, "INT");
+    wait_until(STAND_WITHIN * 3, "the robot to stand", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+    let cmds = p2os_commands(&log);
+    let stop = cmds
+        .iter()
+        .find(|(at, n)| *at >= t0 && (n == "stop" || n == "e_stop" || n == "vel 0"))
+        .unwrap_or_else(|| panic!("no stop after the signal: {cmds:?}"));
+    assert!(
+        stop.0.duration_since(t0) <= STOP_WITHIN,
+        "STOP arrived {:?} after the signal",
+        stop.0.duration_since(t0)
+    );
+    let end = Instant::now() + Duration::from_secs(10);
+    while child.0.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < end, "ima drive did not exit");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    drop(reader);
+    fill.join().unwrap();
+}

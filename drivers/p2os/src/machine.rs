@@ -565,8 +565,26 @@ impl Machine {
     }
 
     /// Stop the robot and close the session (STOP then CLOSE, spec §5.2).
+    ///
+    /// Also while reconnecting after a link loss: a robot that went quiet for less than its
+    /// watchdog still runs the last session's commands (it drove on at 0.3 m/s when closing
+    /// sent nothing), so it gets STOP and CLOSE at the rate that session used, ahead of any
+    /// handshake frame still queued.
     pub fn close(&mut self) {
-        if matches!(self.state, SessionState::Open | SessionState::Opening) {
+        let open = matches!(self.state, SessionState::Open | SessionState::Opening);
+        let reconnecting = matches!(
+            self.state,
+            SessionState::Syncing | SessionState::ClosingStale
+        ) && self.last_good_baud.is_some();
+        if reconnecting {
+            self.tx.clear();
+            if let Some(good) = self.last_good_baud
+                && good != self.current_baud()
+            {
+                self.push_event(Event::SetBaud(good));
+            }
+        }
+        if open || reconnecting {
             let _ = self.queue(Command::Stop, None);
             let _ = self.queue(Command::CLOSE, None);
             self.push_event(Event::Disconnected(DisconnectReason::Closed));

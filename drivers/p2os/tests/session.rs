@@ -570,6 +570,46 @@ fn close_stops_then_closes() {
     assert_eq!(s.poll_timeout(), None);
 }
 
+/// Closing while reconnecting after a link loss still stops the robot: it may have been
+/// quiet for less than its watchdog and drive on under the last session. STOP and CLOSE go
+/// out at the old rate, ahead of the handshake frames (closing sent nothing, and the robot
+/// drove on at 0.3 m/s until its watchdog).
+#[test]
+fn closing_while_reconnecting_stops_the_robot_at_the_old_rate() {
+    let mut s = Machine::new(Config::default());
+    let t = open(&mut s);
+    let _ = sent(&mut s, t);
+    let _ = events(&mut s);
+    // No SIP: the link is lost, and the probe goes on until the line is at another rate than
+    // the session's (within 30 s).
+    let mut now = t;
+    let mut line = 9600;
+    let end = t + Duration::from_secs(30);
+    while (s.state() != SessionState::Syncing || line == 9600) && now < end {
+        now = now + Duration::from_millis(10);
+        if s.poll_timeout().is_some_and(|d| d <= now) {
+            s.handle_timeout(now);
+        }
+        let _ = sent(&mut s, now);
+        for e in events(&mut s) {
+            if let Event::SetBaud(b) = e {
+                line = b;
+            }
+        }
+    }
+    assert_ne!(line, 9600, "the probe never left the session's rate");
+    s.close();
+    assert!(events(&mut s).contains(&Event::SetBaud(9600)));
+    assert_eq!(sent(&mut s, now), vec![Command::Stop, Command::CLOSE]);
+    assert_eq!(s.state(), SessionState::Closed);
+    // Never connected: nothing is sent to whatever is on the port.
+    let mut fresh = Machine::new(Config::default());
+    fresh.connect(ms(0));
+    let _ = sent(&mut fresh, ms(0));
+    fresh.close();
+    assert_eq!(sent(&mut fresh, ms(1)), vec![]);
+}
+
 /// After a link loss the robot stays away for a while: the session must keep the line speed it
 /// announces (SetBaud) in step with the rate it believes it is using, and find the robot again
 /// at the old rate as soon as it answers.
