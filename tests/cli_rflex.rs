@@ -121,6 +121,30 @@ fn decode_rflex_reads_hex_from_stdin_and_reports_bad_frames() {
     assert_eq!(v["kind"], "brake_release");
 }
 
+/// A full disk under `--json` (here `/dev/full`) is an error naming what was lost, after
+/// the base is shut down: it ended with status 0 and no word.
+#[test]
+fn a_full_disk_under_the_state_lines_is_an_error() {
+    let (_mock, path) = spawn_mock(&["rflex", "--seed", "3"]);
+    let out = ima()
+        .args(["drive", "--robot", "atrv-jr", "--port", path.as_str()])
+        .args(["--vel", "0.2", "--for", "1", "--json"])
+        .stdout(std::fs::File::create("/dev/full").unwrap())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("No space left on device") && stderr.contains("state line(s) not written"),
+        "{stderr}"
+    );
+    // The base was shut down first, as at any end.
+    assert!(
+        stderr.contains("stopped at") || stderr.contains("still moving"),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn drive_atrv_jr_rejects_a_bad_calibration() {
     let out = ima()
@@ -141,7 +165,16 @@ fn drive_atrv_jr_rejects_a_bad_calibration() {
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("--kd") && err.contains("must be more than 0"),
+        err.contains("--kd") && err.contains("not a plausible translation factor"),
         "{err}"
     );
+    // One digit too many: it would have sent 3 m/s for a capped 0.3 m/s, and shown 0.1 m/s.
+    let out = ima()
+        .args(["drive", "--robot", "atrv-jr", "--port", "/dev/null"])
+        .args(["--kd", "908100", "--for", "0"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("22702.5–363240"), "{err}");
 }

@@ -102,14 +102,34 @@ fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
     }
 }
 
-/// A strictly positive calibration factor, at most 1e9.
-pub fn positive_factor(s: &str) -> Result<f64, String> {
-    let v = within(s, 0.0, 1e9, "")?;
-    if v > 0.0 {
+/// An rFLEX conversion factor (`--kd`, `--ka`): within a quarter and four times the
+/// ATRV-Jr's (`default`, `name` saying what it is). Every speed is sent as speed × factor and
+/// every odometry reading divided by it, so a wrong factor scales the robot's true speed,
+/// the speed cap with it, and the readout hides it (one extra digit in `--kd`: 3 m/s sent
+/// for a capped 0.3 m/s, shown as 0.1 m/s).
+fn rflex_factor(s: &str, default: f64, name: &str) -> Result<f64, String> {
+    let v = number(s)?;
+    let (lo, hi) = (default / 4.0, default * 4.0);
+    if (lo..=hi).contains(&v) {
         Ok(v)
     } else {
-        Err("must be more than 0".into())
+        Err(format!(
+            "{} is not a plausible {name}: an rFLEX base's is near the ATRV-Jr's {default} \
+             ({lo}–{hi} accepted); a wrong factor scales every speed sent, the speed cap with \
+             it, and the odometry shown",
+            s.trim()
+        ))
     }
+}
+
+/// `--kd`: translation units per metre ([`rflex_factor`]).
+pub fn rflex_kd(s: &str) -> Result<f64, String> {
+    rflex_factor(s, 90_810.0, "translation factor (units per metre)")
+}
+
+/// `--ka`: rotation units per radian ([`rflex_factor`]).
+pub fn rflex_ka(s: &str) -> Result<f64, String> {
+    rflex_factor(s, 37_000.0, "rotation factor (units per radian)")
 }
 
 /// A serial line speed in baud, 50 to 4,000,000.
@@ -190,12 +210,13 @@ mod tests {
     #[test]
     fn every_parser_refuses_nan_infinities_and_huge_values() {
         type Parser = fn(&str) -> Result<f64, String>;
-        let parsers: [Parser; 6] = [
+        let parsers: [Parser; 7] = [
             seconds,
             timeout_seconds,
             speed_m_s,
             turn_rad_s,
-            positive_factor,
+            rflex_kd,
+            rflex_ka,
             number,
         ];
         for p in parsers {
@@ -203,7 +224,7 @@ mod tests {
                 assert!(p(bad).is_err(), "{bad} accepted");
             }
         }
-        for p in &parsers[..5] {
+        for p in &parsers[..6] {
             assert!(p("1e30").is_err());
             assert!(p("-1e30").is_err());
         }
@@ -219,7 +240,16 @@ mod tests {
         );
         assert_eq!(speed_m_s("-0.2"), Ok(-0.2));
         assert!(speed_m_s("11").is_err());
-        assert!(positive_factor("0").is_err());
+        assert!(rflex_kd("0").is_err());
+        assert_eq!(rflex_kd("90810"), Ok(90_810.0));
+        assert_eq!(rflex_kd("45405"), Ok(45_405.0));
+        let e = rflex_kd("908100").unwrap_err();
+        assert!(
+            e.contains("not a plausible translation factor") && e.contains("22702.5–363240"),
+            "{e}"
+        );
+        assert!(rflex_ka("370000").is_err());
+        assert_eq!(rflex_ka("9250"), Ok(9_250.0));
         assert_eq!(int_in::<u8, 1, 7>("7"), Ok(7));
         assert!(int_in::<u8, 1, 7>("8").unwrap_err().contains("1–7"));
         assert!(int_in::<u8, 0, 300>("300").is_err(), "does not fit a u8");

@@ -58,11 +58,13 @@ pub struct DriveArgs {
     /// needed for robots whose subclass has no built-in table.
     #[arg(long)]
     params: Option<String>,
-    /// rFLEX only: translation units per metre (Kd; ATRV-Jr default 90810, calibrate it).
-    #[arg(long, value_parser = num::positive_factor)]
+    /// rFLEX only: translation units per metre (Kd; ATRV-Jr default 90810, calibrate it;
+    /// a quarter to four times that: a wrong factor scales every speed and the speed cap).
+    #[arg(long, value_parser = num::rflex_kd)]
     kd: Option<f64>,
-    /// rFLEX only: rotation units per radian (Ka; ATRV-Jr default 37000, calibrate it).
-    #[arg(long, value_parser = num::positive_factor)]
+    /// rFLEX only: rotation units per radian (Ka; ATRV-Jr default 37000, calibrate it; a
+    /// quarter to four times that).
+    #[arg(long, value_parser = num::rflex_ka)]
     ka: Option<f64>,
     /// How long to wait for the robot to answer, seconds (more than 0, at most 3600).
     #[arg(long, default_value_t = 10.0, value_parser = num::timeout_seconds)]
@@ -216,7 +218,7 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
         .await
         .context("closing the session (STOP, CLOSE)")?;
     // The robot is closed: now wait for stdout to take the last state lines.
-    live.finish();
+    live.finish()?;
     Ok(())
 }
 

@@ -78,7 +78,9 @@ pub fn report_interrupted(last: Option<&Odometry>) {
 /// one (every base halted, status 141).
 pub struct Live {
     tx: Option<std::sync::mpsc::SyncSender<String>>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    /// The thread's end: the first write error other than a closed stdout (a full disk), and
+    /// the lines it could not write after it.
+    thread: Option<std::thread::JoinHandle<Option<(String, u64)>>>,
     /// Told when the thread has written every line (or stopped on an error).
     done: std::sync::mpsc::Receiver<()>,
     dropped: u64,
@@ -101,13 +103,23 @@ impl Live {
         let thread = std::thread::Builder::new()
             .name("ima-drive-out".into())
             .spawn(move || {
+                let mut failed: Option<(String, u64)> = None;
                 for line in rx {
+                    if let Some((_, lost)) = &mut failed {
+                        *lost += 1;
+                        continue;
+                    }
                     // A closed stdout halts the bases and asks the command to end.
-                    if crate::safety::out_line(format_args!("{line}")).is_err() {
-                        break;
+                    if let Err(e) = crate::safety::out_line(format_args!("{line}")) {
+                        if crate::safety::output_was_closed() {
+                            break;
+                        }
+                        // Another error (a full disk): said at the end, with what was lost.
+                        failed = Some((format!("{e:#}"), 1));
                     }
                 }
                 let _ = done_tx.send(());
+                failed
             })?;
         Ok(Self {
             tx: Some(tx),
@@ -128,12 +140,19 @@ impl Live {
 
     /// Wait until the queued lines are written (the robot has stopped by then) and say how
     /// many were dropped.
-    pub fn finish(mut self) {
+    ///
+    /// # Errors
+    /// Standard output failed (a full disk): the error and the lines not written, so a run
+    /// whose record is incomplete does not end as a success (it ended with status 0 and no
+    /// word).
+    pub fn finish(mut self) -> anyhow::Result<()> {
         self.tx = None;
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
+        let failed = self.thread.take().and_then(|t| t.join().ok()).flatten();
         self.say_dropped();
+        match failed {
+            Some((e, lost)) => Err(anyhow::anyhow!("{e}; {lost} state line(s) not written")),
+            None => Ok(()),
+        }
     }
 
     fn say_dropped(&mut self) {

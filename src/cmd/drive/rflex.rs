@@ -116,7 +116,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
         .await
         .context("shutting the base down (zero speed, brake)")?;
     // The robot is closed: now wait for stdout to take the last state lines.
-    live.finish();
+    live.finish()?;
     Ok(())
 }
 
