@@ -295,3 +295,18 @@ fn ctrl_c_ends_a_scan_with_the_units_summary_and_status_130() {
         "the summary after the close: {rest:?}"
     );
 }
+
+/// The LMS goes silent for 7 s mid-stream: `ima scan` waits while the driver re-probes, says
+/// so, and goes on (it gave up 5 s into a re-probe that would have recovered).
+#[test]
+fn scan_waits_through_a_silent_spell() {
+    let (_mock, path) = spawn_mock(&["--faults", "hangup=4s:7s"]);
+    let out = common::run_ok(ima().args(["scan", "--port", &path, "--count", "25", "--json"]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(common::json_lines(&out.stdout).len(), 25, "{err}");
+    assert!(
+        err.contains("no scan for 5 s; waiting while the driver re-probes the LMS")
+            && err.contains("scans again"),
+        "{err}"
+    );
+}

@@ -62,6 +62,52 @@ fn mock_compass_and_compass_talk_over_a_pty_both_dialects() {
     }
 }
 
+/// One reading a second: the configuration waits two periods for the first heading (it gave
+/// up after 500 ms, so `--rate 1` always failed, blaming the device). A compass that goes
+/// quiet for longer than 3 s is waited for, not given up on.
+#[test]
+fn a_slow_rate_and_a_silent_spell_are_waited_for() {
+    let (_mock, path) = spawn_mock(&["compass", "--seed", "5"]);
+    let out = run_ok(ima().args(["compass", "--port", &path, "--rate", "1", "--count", "2"]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("2 headings printed"), "{err}");
+    let (_mock, path) = spawn_mock(&["compass", "--seed", "5", "--faults", "hangup=1s:4s"]);
+    let out = run_ok(ima().args(["compass", "--port", &path, "--count", "30", "--json"]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(json_lines(&out.stdout).len(), 30, "{err}");
+    assert!(
+        err.contains("no heading for 3 s; waiting for the compass")
+            && err.contains("headings again"),
+        "{err}"
+    );
+}
+
+/// `ima mock compass --seed` seeds its faults too: two seeds corrupt other bytes (the
+/// counts were the same whatever the seed).
+#[test]
+fn the_mock_compass_seed_seeds_its_faults() {
+    let counts = |seed: &str| {
+        let (_mock, path) = spawn_mock(&["compass", "--seed", seed, "--faults", "corrupt=0.05"]);
+        let out = run_ok(ima().args([
+            "compass",
+            "--port",
+            &path,
+            "--dialect",
+            "nmea",
+            "--count",
+            "10",
+        ]));
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        let line = err
+            .lines()
+            .find(|l| l.contains("headings printed"))
+            .map(str::to_owned);
+        line.unwrap_or_else(|| panic!("{err}"))
+    };
+    let (a, b) = (counts("1"), counts("2"));
+    assert_ne!(a, b, "the same faults for both seeds");
+}
+
 #[test]
 fn compass_on_a_switcher_port_fails_cleanly() {
     let (_mock, path) = spawn_mock(&["video-mux"]);

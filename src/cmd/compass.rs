@@ -36,7 +36,9 @@ pub struct CompassArgs {
     /// Line speed (default: 4800 for NMEA/KVH, 9600 for TCM2).
     #[arg(long, value_parser = super::num::baud)]
     baud: Option<u32>,
-    /// Readings per second asked of the device (KVH: ×60 per minute; TCM2: `sp=N`).
+    /// Readings per second asked of the device (KVH: ×60 per minute, at most 10; TCM2:
+    /// `sp=N`, at most 8; more is capped, with a warning; a plain NMEA source is asked
+    /// nothing).
     #[arg(long, default_value_t = 10, value_parser = super::num::int_in::<u16, 1, 100>)]
     rate: u16,
     /// Stop after this many readings (0: run until interrupted).
@@ -77,6 +79,18 @@ pub fn run(args: &CompassArgs) -> Result<()> {
 
 async fn run_async(args: &CompassArgs) -> Result<()> {
     let cfg = config(args);
+    let most = match args.dialect {
+        DriverDialect::Kvh => 10,
+        DriverDialect::Tcm2 => 8,
+        DriverDialect::Nmea => u16::MAX,
+    };
+    if args.rate > most {
+        eprintln!(
+            "ima compass: --rate {} is more than a {} gives: asking for {most} a second",
+            args.rate,
+            cfg.dialect.name()
+        );
+    }
     let baud = args.baud.unwrap_or_else(|| cfg.dialect.default_baud());
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
     let protocol = match args.dialect {
@@ -129,11 +143,28 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     let mut after = start;
     let mut n = 0u64;
     let mut stdout = std::io::stdout();
+    // A compass that goes quiet is waited for (the driver re-configures it), saying so once per
+    // silence: a live display gave up after 3 s without a heading.
+    let mut quiet = false;
     loop {
         let r = tokio::select! {
-            r = drv.next_reading(after, Duration::from_secs(3)) => r.context("reading the compass")?,
+            r = drv.next_reading(after, Duration::from_secs(3)) => r,
             () = crate::safety::cancelled() => break,
         };
+        let r = match r {
+            Ok(r) => r,
+            Err(DriverError::Timeout) if !drv.link().is_ended() => {
+                if !quiet {
+                    eprintln!("ima compass: no heading for 3 s; waiting for the compass");
+                    quiet = true;
+                }
+                continue;
+            }
+            Err(e) => return Err(e).context("reading the compass"),
+        };
+        if std::mem::take(&mut quiet) {
+            eprintln!("ima compass: headings again");
+        }
         after = r.at;
         let h = &r.value.heading;
         crate::record::with(|rec| rec.log_compass("robot", h.yaw_enu_rad())); // record: heading

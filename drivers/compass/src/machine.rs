@@ -560,6 +560,7 @@ impl Machine {
 
     /// Send the current step's command and arm its deadline; finish the job past the end.
     fn run_step(&mut self, now: Instant) {
+        let data_wait = self.data_wait();
         let Some(script) = self.script.as_mut() else {
             return;
         };
@@ -576,11 +577,27 @@ impl Machine {
             let _ = self.tx.push_back(cmd);
         }
         let wait = match step.wait {
-            Wait::Prompt | Wait::Data => self.config.reply_timeout,
+            Wait::Prompt => self.config.reply_timeout,
+            Wait::Data => data_wait,
             Wait::Gap => self.config.command_gap,
             Wait::Score => self.config.score_timeout,
         };
         script.deadline = now + wait;
+    }
+
+    /// How long a step waits for the first reading: the reply timeout, or two output periods
+    /// of the rate asked when that is longer (at 1 Hz the first heading comes up to 1 s after
+    /// the rate is set, and 500 ms failed every configuration). A plain NMEA source's rate is
+    /// not known: 2.5 s, for one at 1 Hz.
+    fn data_wait(&self) -> Duration {
+        let period_ms = match self.config.dialect {
+            Dialect::KvhC100 { rate_per_minute } => 60_000 / u64::from(rate_per_minute.max(1)),
+            Dialect::Tcm2 { sample_rate_hz, .. } => 1_000 / u64::from(sample_rate_hz.max(1)),
+            Dialect::Nmea => 1_250,
+        };
+        self.config
+            .reply_timeout
+            .max(Duration::from_millis(2 * period_ms))
     }
 
     fn next_step(&mut self, now: Instant) {

@@ -50,7 +50,8 @@ pub fn serve_mock(
             )
         });
     }
-    let plan = super::shared::fault_plan(faults, None)?;
+    // `--seed` seeds the faults too (unless the spec names its own `seed=`).
+    let plan = super::shared::fault_plan(faults, Some(opts.seed))?;
     let cfg = CompassModelConfig {
         dialect: match opts.dialect {
             MockCompassDialect::Nmea => MockDialect::Kvh,

@@ -60,7 +60,9 @@ pub struct MockArgs {
     /// video switcher, scooter for rflex, sick-lms and the compass).
     #[arg(long)]
     robot: Option<String>,
-    /// The device's serial rate (the driver must find it).
+    /// The device's serial rate, P2OS and SICK LMS (the driver must find it); the rFLEX,
+    /// compass and video switcher mocks answer at any rate a pty carries (`--baud` is
+    /// ignored for them).
     #[arg(long, default_value_t = 9600, value_parser = super::num::baud)]
     baud: u32,
     /// Compass: the dialect.
@@ -126,7 +128,7 @@ pub fn run(args: &MockArgs) -> Result<()> {
                 auto_switch: args.auto_switch,
                 kramer: args.kramer,
             };
-            video_mux::run_mock(&args.faults, opts)
+            video_mux::run_mock(&args.faults, args.seed, opts)
         }
         Device::Rflex => rflex::run(
             &world,

@@ -21,9 +21,9 @@ pub struct MockMuxOptions {
     pub kramer: bool,
 }
 
-/// `ima mock video-mux`.
-pub fn run_mock(faults: &str, opts: MockMuxOptions) -> Result<()> {
-    let plan = super::shared::fault_plan(faults, None)?;
+/// `ima mock video-mux`; `seed` seeds the faults (unless the spec names its own `seed=`).
+pub fn run_mock(faults: &str, seed: u64, opts: MockMuxOptions) -> Result<()> {
+    let plan = super::shared::fault_plan(faults, Some(seed))?;
     let cfg = MuxModelConfig {
         dialect: if opts.kramer {
             MuxDialect::Kramer

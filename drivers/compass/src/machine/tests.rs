@@ -64,7 +64,8 @@ fn nmea_listen_only() {
     let mut m = Machine::new(Config::for_dialect(Dialect::Nmea));
     m.start(ms(0));
     assert!(sent(&mut m).is_empty());
-    assert_eq!(m.poll_timeout(), Some(ms(500)));
+    // A plain NMEA source's rate is not known: long enough for one at 1 Hz.
+    assert_eq!(m.poll_timeout(), Some(ms(2500)));
     m.handle_bytes(b"$HCHDM,238.5,M*25\r\n", ms(40));
     let ev = events(&mut m);
     assert_eq!(ev.len(), 2);
@@ -98,6 +99,25 @@ fn kvh_configures_with_prompts() {
     let t = r.heading.true_rad().unwrap().to_degrees();
     assert!((t - 226.2).abs() < 1e-9);
     assert_eq!(m.current_job(), None);
+}
+
+/// At one reading a second the first heading comes up to 1 s after the rate is set: the
+/// configuration waits two periods for it (it gave up after 500 ms, so `--rate 1` always
+/// failed).
+#[test]
+fn a_slow_rate_gets_two_periods_for_its_first_reading() {
+    let mut m = Machine::new(Config::for_dialect(Dialect::KvhC100 {
+        rate_per_minute: 60,
+    }));
+    m.start(ms(0));
+    assert_eq!(sent(&mut m), ["=t,0\r"]);
+    m.handle_bytes(b">", ms(20));
+    assert_eq!(sent(&mut m), ["=r,60\r"]);
+    m.handle_bytes(b">", ms(40));
+    assert_eq!(m.poll_timeout(), Some(ms(2040)));
+    m.handle_timeout(ms(900));
+    m.handle_bytes(b"$HCHDG,238.5,0.0,E,12.3,W*6C\r\n", ms(950));
+    assert_eq!(events(&mut m).first(), Some(&Event::Configured));
 }
 
 #[test]
