@@ -579,7 +579,8 @@ impl RobotConfig {
                 0.1,
                 3600.0,
             ),
-            ("mock_world.speed", self.mock_world.speed, 0.01, 100.0),
+            // As `ima mock world --speed` takes it.
+            ("mock_world.speed", self.mock_world.speed, 0.05, 20.0),
             // Degrees (NaN left Scooter with no heading for ever, standing still).
             (
                 "agent.common_heading_deg",
@@ -808,6 +809,8 @@ mod tests {
             ),
             ("heartbeat_ms = 0\n", "peer.heartbeat_ms"),
             ("heartbeat_ms = 100000000\n", "peer.heartbeat_ms"),
+            // As `ima mock world --speed` takes it (it took up to 100).
+            ("[mock_world]\nspeed = 50\n", "mock_world.speed"),
         ] {
             let cfg = format!("{mock}{bad}");
             let e = format!("{:#}", RobotConfig::from_toml_str(&cfg).unwrap_err());

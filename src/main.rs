@@ -30,6 +30,7 @@ macro_rules! eprint {
 
 mod cmd;
 mod config;
+mod logs;
 mod record;
 mod safety;
 mod stack;
@@ -142,12 +143,9 @@ fn main() -> ExitCode {
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
     let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    // Log lines go through a thread of their own (see `safety::set_log_writer`).
-    let (log, guard) = tracing_appender::non_blocking::NonBlockingBuilder::default()
-        .lossy(true)
-        .thread_name("ima-log")
-        .finish(std::io::stderr());
-    safety::set_log_writer(log.clone(), guard);
+    // Log lines go through a thread of their own (`logs`).
+    let log = logs::Logs::start();
+    safety::set_log_writer(log.clone());
     let progress = (tty && !cli.log.contains(CONNECT_TARGET)).then(|| {
         tracing_subscriber::fmt::layer()
             .without_time()

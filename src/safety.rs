@@ -1,6 +1,6 @@
 //! The program's stop guarantee: every device that can move a robot is stopped, and its session
 //! closed, on every exit path — a normal end, an error, SIGINT, SIGTERM, SIGHUP, SIGQUIT,
-//! Ctrl-Z and every other signal whose default action would end or suspend the process
+//! Ctrl-Z and the other common signals whose default action would end or suspend the process
 //! ([`WATCHED`]), a closed stdout, and a panic on any thread.
 //!
 //! The guarantee does not depend on each command remembering a `stop()`:
@@ -61,10 +61,12 @@ pub struct Signal(i32);
 
 /// The signals the program takes over, with their names: the four a user sends to end a
 /// program; Ctrl-Z and the background-terminal stops (a suspended driver cannot keep the
-/// robot safe, so they stop it and end the program instead); and the others whose default
-/// action ends a process (a file-size or CPU-time limit, a stray `kill -USR1`, a timer).
-/// SIGKILL and SIGSTOP cannot be caught (the README's "Safety" section); the faults
-/// (SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT, SIGSYS, SIGTRAP) come from the process itself.
+/// robot safe, so they stop it and end the program instead); and the common others whose
+/// default action ends a process (a file-size or CPU-time limit, a stray `kill -USR1`, a
+/// timer; an in-process profiler's SIGPROF too, so profile with `perf`). SIGKILL and SIGSTOP
+/// cannot be caught (the README's "Safety" section); the faults (SIGSEGV, SIGBUS, SIGILL,
+/// SIGFPE, SIGABRT, SIGSYS, SIGTRAP) come from the process itself; SIGPWR, SIGSTKFLT and the
+/// real-time signals are not watched.
 #[cfg(unix)]
 pub const WATCHED: &[(i32, &str)] = &[
     (libc::SIGHUP, "SIGHUP"),
@@ -81,7 +83,6 @@ pub const WATCHED: &[(i32, &str)] = &[
     (libc::SIGALRM, "SIGALRM"),
     (libc::SIGVTALRM, "SIGVTALRM"),
     (libc::SIGPROF, "SIGPROF"),
-    (libc::SIGPWR, "SIGPWR"),
     (libc::SIGIO, "SIGIO"),
 ];
 
@@ -213,36 +214,21 @@ pub async fn until_cancelled<T>(fut: impl Future<Output = T>) -> Result<T> {
     }
 }
 
-/// The log writer ([`set_log_writer`]) and the guard whose drop flushes it.
-type LogWriter = (
-    tracing_appender::non_blocking::NonBlocking,
-    std::sync::Mutex<Option<tracing_appender::non_blocking::WorkerGuard>>,
-);
+static LOG: OnceLock<crate::logs::Logs> = OnceLock::new();
 
-static LOG: OnceLock<LogWriter> = OnceLock::new();
-
-/// Where log lines and the guard's own messages go: a thread of their own writes them to
-/// stderr, and a line that finds its queue full is dropped. A stderr nobody reads (an SSH
-/// session that stalled, `2>&1 | less` not scrolled) then never blocks a driver task that
-/// logs, nor the signal thread: a blocked warning had kept a driver from sending its
-/// keep-alive and STOP, and the signal thread from ending the program.
-pub fn set_log_writer(
-    writer: tracing_appender::non_blocking::NonBlocking,
-    guard: tracing_appender::non_blocking::WorkerGuard,
-) {
-    let _ = LOG.set((writer, std::sync::Mutex::new(Some(guard))));
+/// Where log lines and the guard's own messages go ([`crate::logs`]): a stderr nobody reads
+/// then never blocks a driver task that logs, nor the signal thread (a blocked warning had
+/// kept a driver from sending its keep-alive and STOP, and the signal thread from ending the
+/// program).
+pub fn set_log_writer(logs: crate::logs::Logs) {
+    let _ = LOG.set(logs);
 }
 
-/// Write out the log lines still queued, waiting at most about a second (a stderr that
-/// blocks cannot hold the exit longer). Later log lines are dropped.
+/// Write out the log lines still queued, waiting at most a second (a stderr that blocks
+/// cannot hold the exit longer).
 pub fn flush_logs() {
-    if let Some((_, guard)) = LOG.get() {
-        drop(
-            guard
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .take(),
-        );
+    if let Some(l) = LOG.get() {
+        let _ = l.flush(Duration::from_secs(1));
     }
 }
 
@@ -250,9 +236,7 @@ fn say(msg: std::fmt::Arguments<'_>) {
     // stderr may be gone too; never panic here, and never block on it.
     let line = format!("ima: {msg}\n");
     match LOG.get() {
-        Some((w, _)) => {
-            let _ = w.clone().write_all(line.as_bytes());
-        }
+        Some(l) => l.send(line.into_bytes()),
         None => {
             let _ = std::io::stderr().write_all(line.as_bytes());
         }
@@ -296,6 +280,7 @@ pub fn install() {
         cancel_channel().send_replace(true);
         // record: the recording gets its summary even after a panic.
         let _ = crate::record::finish();
+        flush_logs();
         previous(info);
     }));
     #[cfg(unix)]
@@ -331,6 +316,7 @@ fn signal_thread() {
                 Err(e) => say(format_args!("cannot watch for {name}: {e}")),
             }
         }
+        // `got` cannot close: `tx` lives as long as this future.
         let Some(first) = got.recv().await.and_then(Signal::from_number) else {
             return;
         };
@@ -350,9 +336,24 @@ fn signal_thread() {
             ));
         }
         let own = first == Signal::INT && OWN_CTRL_C.load(Ordering::SeqCst);
-        let code = tokio::select! {
-            Some(n) = got.recv() => Signal::from_number(n).unwrap_or(first).exit_code(),
-            () = tokio::time::sleep(GRACE), if !own => first.exit_code(),
+        // A second signal ends the program at once. A background-terminal stop comes again
+        // at each retry of the read or write that raised it: not a second signal.
+        let job_control = [libc::SIGTTIN, libc::SIGTTOU].contains(&first.0);
+        let deadline = tokio::time::Instant::now() + GRACE;
+        let code = loop {
+            tokio::select! {
+                n = got.recv() => match n {
+                    Some(n) if job_control && n == first.0 => {}
+                    Some(n) => break Signal::from_number(n).unwrap_or(first).exit_code(),
+                    // Cannot happen (this thread keeps a sender); the grace ends it anyway.
+                    None if own => break first.exit_code(),
+                    None => {
+                        tokio::time::sleep_until(deadline).await;
+                        break first.exit_code();
+                    }
+                },
+                () = tokio::time::sleep_until(deadline), if !own => break first.exit_code(),
+            }
         };
         // Either way the devices get their last frames out before the process ends.
         let pending = halt_everything_blocking(Duration::from_millis(500));

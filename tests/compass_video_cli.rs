@@ -82,32 +82,6 @@ fn a_slow_rate_and_a_silent_spell_are_waited_for() {
     );
 }
 
-/// `ima mock compass --seed` seeds its faults too: two seeds corrupt other bytes (the
-/// counts were the same whatever the seed).
-#[test]
-fn the_mock_compass_seed_seeds_its_faults() {
-    let counts = |seed: &str| {
-        let (_mock, path) = spawn_mock(&["compass", "--seed", seed, "--faults", "corrupt=0.05"]);
-        let out = run_ok(ima().args([
-            "compass",
-            "--port",
-            &path,
-            "--dialect",
-            "nmea",
-            "--count",
-            "10",
-        ]));
-        let err = String::from_utf8_lossy(&out.stderr).into_owned();
-        let line = err
-            .lines()
-            .find(|l| l.contains("headings printed"))
-            .map(str::to_owned);
-        line.unwrap_or_else(|| panic!("{err}"))
-    };
-    let (a, b) = (counts("1"), counts("2"));
-    assert_ne!(a, b, "the same faults for both seeds");
-}
-
 #[test]
 fn compass_on_a_switcher_port_fails_cleanly() {
     let (_mock, path) = spawn_mock(&["video-mux"]);

@@ -15,8 +15,10 @@
 //! subscribed to) reach a client that connected first.
 //!
 //! Order: the recorder's thread logs a message and keeps it under one lock, and a
-//! subscriber's replay takes the same lock, so a subscriber never gets a replayed message
-//! after a newer live one (at worst the newest once more).
+//! subscriber's replay takes the same lock. The SDK starts sending a new subscriber live
+//! messages just before it calls the listener, so a message logged in that gap arrives live
+//! first and then again among the replayed ones, after it in time order (once per
+//! subscription, at most the messages of one recorder tick).
 //!
 //! Memory is bounded: a message over [`MAX_MESSAGE`] is not kept, nor one that would take
 //! the whole over [`MAX_BYTES`]; either way the stream's older copies are dropped, so what a

@@ -470,6 +470,11 @@ async fn a_late_subscriber_gets_the_last_message_of_each_stream() {
         .await
         .expect("a live message");
     assert_eq!(got(live), ("odom".to_owned(), 4.0));
+    let mut seen = Vec::new();
+    while let Some(b) = next_data(&mut second, 9, quiet).await {
+        seen.push(got(b));
+    }
+    assert_eq!(seen.last(), Some(&("odom".to_owned(), 4.0)), "{seen:?}");
     rec.finish(Duration::from_secs(5));
 }
 

@@ -77,6 +77,10 @@ pub fn run(args: &CompassArgs) -> Result<()> {
     r
 }
 
+/// How long `ima compass` waits for a compass that went silent before it gives up (after the
+/// first 3 s without a heading).
+const SILENCE_LIMIT: Duration = Duration::from_secs(30);
+
 async fn run_async(args: &CompassArgs) -> Result<()> {
     let cfg = config(args);
     let most = match args.dialect {
@@ -143,9 +147,9 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
     let mut after = start;
     let mut n = 0u64;
     let mut stdout = std::io::stdout();
-    // A compass that goes quiet is waited for (the driver re-configures it), saying so once per
-    // silence: a live display gave up after 3 s without a heading.
-    let mut quiet = false;
+    // A compass that goes quiet is waited for, saying so once per silence, for up to
+    // SILENCE_LIMIT: a live display gave up after 3 s without a heading (a replug, a brown-out).
+    let mut quiet: Option<std::time::Instant> = None;
     loop {
         let r = tokio::select! {
             r = drv.next_reading(after, Duration::from_secs(3)) => r,
@@ -154,15 +158,22 @@ async fn run_async(args: &CompassArgs) -> Result<()> {
         let r = match r {
             Ok(r) => r,
             Err(DriverError::Timeout) if !drv.link().is_ended() => {
-                if !quiet {
+                let since = *quiet.get_or_insert_with(|| {
                     eprintln!("ima compass: no heading for 3 s; waiting for the compass");
-                    quiet = true;
+                    std::time::Instant::now()
+                });
+                if since.elapsed() >= SILENCE_LIMIT {
+                    anyhow::bail!(
+                        "no heading from the compass for {} s: it went silent (unplugged? \
+                         powered off?)",
+                        SILENCE_LIMIT.as_secs() + 3
+                    );
                 }
                 continue;
             }
             Err(e) => return Err(e).context("reading the compass"),
         };
-        if std::mem::take(&mut quiet) {
+        if quiet.take().is_some() {
             eprintln!("ima compass: headings again");
         }
         after = r.at;

@@ -569,16 +569,18 @@ impl Machine {
     /// Also while reconnecting after a link loss: a robot that went quiet for less than its
     /// watchdog still runs the last session's commands (it drove on at 0.3 m/s when closing
     /// sent nothing), so it gets STOP and CLOSE at the rate that session used, ahead of any
-    /// handshake frame still queued.
+    /// handshake frame still queued; and while closing a stale session just heard, at the
+    /// line's rate.
     pub fn close(&mut self) {
         let open = matches!(self.state, SessionState::Open | SessionState::Opening);
-        let reconnecting = matches!(
-            self.state,
-            SessionState::Syncing | SessionState::ClosingStale
-        ) && self.last_good_baud.is_some();
+        // A stale session was just heard at the line's rate: STOP and CLOSE go there.
+        let stale = self.state == SessionState::ClosingStale;
+        let reconnecting =
+            stale || (self.state == SessionState::Syncing && self.last_good_baud.is_some());
         if reconnecting {
             self.tx.clear();
             if let Some(good) = self.last_good_baud
+                && !stale
                 && good != self.current_baud()
             {
                 self.push_event(Event::SetBaud(good));

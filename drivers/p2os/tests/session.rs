@@ -203,6 +203,21 @@ fn stale_open_session_is_closed_then_resynced() {
     assert!(events(&mut s).contains(&Event::FlushInput));
     assert_eq!(sent(&mut s, ms(450)), vec![Command::Sync0]);
     assert_eq!(s.state(), SessionState::Syncing);
+    // Closed while a stale session is being closed: STOP and CLOSE at the line's rate, where
+    // the robot was just heard.
+    let mut s = Machine::new(Config::default());
+    s.connect(ms(0));
+    let _ = sent(&mut s, ms(0));
+    feed(&mut s, &Packet::Sip(sip(1, 1, 0, 1)), ms(50));
+    assert_eq!(s.state(), SessionState::ClosingStale);
+    let _ = events(&mut s);
+    s.close();
+    assert!(
+        !events(&mut s)
+            .iter()
+            .any(|e| matches!(e, Event::SetBaud(_)))
+    );
+    assert_eq!(sent(&mut s, ms(50)), vec![Command::Stop, Command::CLOSE]);
 }
 
 #[test]

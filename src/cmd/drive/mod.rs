@@ -304,7 +304,7 @@ mod tests {
             );
         }
         assert!(
-            check(&["--robot", "atrv-jr", "--kd", "90000", "--ka", "1"])
+            check(&["--robot", "atrv-jr", "--kd", "90000", "--ka", "37000"])
                 .unwrap()
                 .is_none()
         );

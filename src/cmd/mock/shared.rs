@@ -130,6 +130,18 @@ pub fn spawn_on_pty<M: ima_mock_devices::model::DeviceModel + 'static>(
 mod tests {
     use super::*;
 
+    /// `--seed` seeds the faults unless the spec names its own seed (the compass and
+    /// video-switcher mocks passed none, so their faults were the same whatever `--seed`).
+    #[test]
+    fn the_seed_seeds_the_faults_unless_the_spec_names_one() {
+        assert_eq!(fault_plan("corrupt=0.05", Some(7)).unwrap().seed, 7);
+        assert_eq!(fault_plan("corrupt=0.05,seed=3", Some(7)).unwrap().seed, 3);
+        assert_ne!(
+            fault_plan("corrupt=0.05", Some(1)).unwrap().seed,
+            fault_plan("corrupt=0.05", Some(2)).unwrap().seed
+        );
+    }
+
     /// Robots that start inside something are refused, naming it; the thesis arena passes.
     #[test]
     fn robots_that_start_inside_something_are_refused() {
