@@ -292,6 +292,21 @@ pub fn install() {
     }
 }
 
+/// The signals ignored when the program started (Linux: `SigIgn` of `/proc/self/status`;
+/// elsewhere none are known).
+#[cfg(unix)]
+fn ignored_at_start() -> Vec<i32> {
+    let Ok(status) = std::fs::read_to_string("/proc/self/status") else {
+        return Vec::new();
+    };
+    let mask = status
+        .lines()
+        .find_map(|l| l.strip_prefix("SigIgn:"))
+        .and_then(|m| u64::from_str_radix(m.trim(), 16).ok())
+        .unwrap_or(0);
+    (1..=64).filter(|n| mask & (1 << (n - 1)) != 0).collect()
+}
+
 #[cfg(unix)]
 fn signal_thread() {
     use tokio::signal::unix::{SignalKind, signal as listen};
@@ -305,7 +320,15 @@ fn signal_thread() {
     rt.block_on(async {
         // One task per signal; each sends its number here.
         let (tx, mut got) = tokio::sync::mpsc::unbounded_channel::<i32>();
+        let ignored = ignored_at_start();
         for &(n, name) in WATCHED {
+            // A signal the program was started with ignored (`trap '' XFSZ`: writes past a
+            // size limit then fail with EFBIG instead) cannot end it: it stays ignored. The
+            // four a user sends to end a program are always taken, as before.
+            let asked_to_end = [libc::SIGHUP, libc::SIGINT, libc::SIGQUIT, libc::SIGTERM];
+            if !asked_to_end.contains(&n) && ignored.contains(&n) {
+                continue;
+            }
             match listen(SignalKind::from_raw(n)) {
                 Ok(mut s) => {
                     let tx = tx.clone();
