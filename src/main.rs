@@ -93,7 +93,6 @@ enum SanCommand {
 /// The tracing target of the drivers' connection progress (`ima::connect`).
 const CONNECT_TARGET: &str = "ima::connect";
 
-/// Checks a `--log` filter (clap then reports a bad one with exit status 2).
 /// The Foxglove server logs each client's mistake (a subscription to an unknown channel, an
 /// old subprotocol) at ERROR: any program or web page on the machine could write into the
 /// robot's terminal that way. Those lines are left out unless the filter names `foxglove`.
@@ -107,6 +106,7 @@ fn quiet_clients(f: tracing_subscriber::EnvFilter, given: &str) -> tracing_subsc
     }
 }
 
+/// Checks a `--log` filter (clap then reports a bad one with exit status 2).
 fn log_filter(s: &str) -> Result<String, String> {
     tracing_subscriber::EnvFilter::try_new(s)
         .map(|_| s.to_owned())

@@ -210,8 +210,8 @@ fn event_level(kind: &ima_agents::runtime::EventKind) -> ima_record::messages::l
 }
 
 /// The fixed frames of a robot alone in a command (`ima drive`, `ima scan`, `ima run`), so
-/// that a viewer that follows `map` (the shipped layout) can place it: `map` → `<robot>/odom` at the
-/// origin, `<robot>/odom` → `<robot>/base_link` at the origin when nothing gives the robot's
+/// that a viewer that follows `map` (the shipped layout) can place it: `map` →
+/// `<robot>/odom` at the origin, `<robot>/odom` → `<robot>/base_link` at the origin when nothing gives the robot's
 /// odometry (a scanner alone), and `<robot>/base_link` → `<robot>/laser` with a `laser`. At
 /// most once a second (for viewers that join late), whatever the caller's rate.
 pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) {

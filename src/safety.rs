@@ -320,12 +320,12 @@ fn signal_thread() {
     rt.block_on(async {
         // One task per signal; each sends its number here.
         let (tx, mut got) = tokio::sync::mpsc::unbounded_channel::<i32>();
+        // A signal the program was started with ignored (`trap '' XFSZ`: writes past a size
+        // limit then fail with EFBIG instead) cannot end it: it stays ignored. The four a user
+        // sends to end a program are always taken, as before.
         let ignored = ignored_at_start();
+        let asked_to_end = [libc::SIGHUP, libc::SIGINT, libc::SIGQUIT, libc::SIGTERM];
         for &(n, name) in WATCHED {
-            // A signal the program was started with ignored (`trap '' XFSZ`: writes past a
-            // size limit then fail with EFBIG instead) cannot end it: it stays ignored. The
-            // four a user sends to end a program are always taken, as before.
-            let asked_to_end = [libc::SIGHUP, libc::SIGINT, libc::SIGQUIT, libc::SIGTERM];
             if !asked_to_end.contains(&n) && ignored.contains(&n) {
                 continue;
             }
@@ -368,12 +368,8 @@ fn signal_thread() {
                 n = got.recv() => match n {
                     Some(n) if job_control && n == first.0 => {}
                     Some(n) => break Signal::from_number(n).unwrap_or(first).exit_code(),
-                    // Cannot happen (this thread keeps a sender); the grace ends it anyway.
-                    None if own => break first.exit_code(),
-                    None => {
-                        tokio::time::sleep_until(deadline).await;
-                        break first.exit_code();
-                    }
+                    // Cannot happen: this future keeps a sender.
+                    None => break first.exit_code(),
                 },
                 () = tokio::time::sleep_until(deadline), if !own => break first.exit_code(),
             }

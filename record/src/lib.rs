@@ -12,8 +12,8 @@
 //! no client misses a channel's first message or waits for a topic that is logged only when
 //! it changes. The thread drains the queue on a tick — every 20 ms with a live view, every
 //! 500 ms when it only writes a file — and earlier when the queue fills to a quarter or
-//! [`Recorder::finish`] is called, so no message wakes it on its own. When the queue is full the message is dropped and counted;
-//! [`Recorder::finish`] reports the counts and the CPU time the thread used
+//! [`Recorder::finish`] is called, so no message wakes it on its own. When the queue is full
+//! the message is dropped and counted; [`Recorder::finish`] reports the counts and the CPU time the thread used
 //! ([`Report::thread_cpu`]).
 //!
 //! What is recorded:
@@ -346,10 +346,13 @@ impl Recorder {
         let failure = Arc::new(Failure::default());
         // The server first: an address in use must not leave an empty file behind, which the
         // next try would then refuse to overwrite.
-        let latch = opts.foxglove.map(|_| Arc::new(latch::Latch::default()));
-        let server = match (opts.foxglove, &latch) {
-            (Some(addr), Some(latch)) => Some(start_server(&ctx, addr, &opts.name, latch)?),
-            _ => None,
+        let (server, latch) = match opts.foxglove {
+            Some(addr) => {
+                let latch = Arc::new(latch::Latch::default());
+                let server = start_server(&ctx, addr, &opts.name, &latch)?;
+                (Some(server), Some(latch))
+            }
+            None => (None, None),
         };
         let writer = match &opts.mcap {
             Some(path) => match create_file(&ctx, path, opts, &failure) {
@@ -872,8 +875,9 @@ struct WorkerStream {
     topic: Arc<str>,
     /// Counted where it ends up: the file (when there is one) or the live view.
     counted: bool,
-    /// Its last message is kept for new subscribers of the live view.
-    latched: bool,
+    /// How many of its last messages are kept for new subscribers of the live view (0:
+    /// none; a log stream keeps its recent lines).
+    latch_depth: usize,
     written: u64,
 }
 
@@ -1006,7 +1010,11 @@ impl Worker {
                 proto: s.proto.clone(),
                 chan,
                 counted: self.path.is_none() || !self.exclude.excludes(&s.topic),
-                latched: self.latch.is_some() && served(&s.topic),
+                latch_depth: match &s.proto {
+                    _ if self.latch.is_none() || !served(&s.topic) => 0,
+                    stream::Proto::Text(_) => latch::LOG_DEPTH,
+                    _ => 1,
+                },
                 topic: Arc::clone(&s.topic),
                 written: 0,
             });
@@ -1026,12 +1034,8 @@ impl Worker {
                 .is_some()
         {
             match latch.as_deref() {
-                Some(latch) if s.latched => {
-                    let depth = match s.proto {
-                        stream::Proto::Text(_) => latch::LOG_DEPTH,
-                        _ => 1,
-                    };
-                    latch.log(chan, r.id, depth, &buf, r.log_time);
+                Some(latch) if s.latch_depth > 0 => {
+                    latch.log(chan, r.id, s.latch_depth, &buf, r.log_time);
                 }
                 _ => chan.log_with_meta(&buf, PartialMetadata::with_log_time(r.log_time)),
             }

@@ -143,9 +143,10 @@ impl Console {
         };
         let (op, lost) = {
             let mut s = self.state.lock().unwrap_or_else(PoisonError::into_inner);
-            // An add counts the adds sent that the commander has not shown yet.
+            // An add counts the adds sent that the commander has not shown yet (`added` is
+            // never below the queue shown).
             let len = match cmd {
-                msg::Command::Add { .. } => s.added.max(s.targets.len()),
+                msg::Command::Add { .. } => s.added,
                 _ => s.targets.len(),
             };
             let op = msg::to_operator(&cmd, &s.colours, len, |c| s.open_target(c)).and_then(|op| {
