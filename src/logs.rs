@@ -6,11 +6,16 @@
 //! Each event is one message on a bounded queue ([`QUEUE`] lines); a line that finds the
 //! queue full is dropped and counted, and the count is said at the next [`Logs::flush`] that
 //! gets through. [`Logs::flush`] waits a bounded time for the lines queued before it, so a
-//! stalled stderr cannot hold an exit up. (`tracing-appender`'s writer does the same, but on
+//! stalled stderr cannot hold an exit up.
+//!
+//! The program's own messages (the crate's `eprintln!`: `ima run`'s event lines, the demo's
+//! live lines, warnings, the final error) take the same queue ([`Logs::say`]), in order with
+//! the log lines: a task printing them never waits on stderr either (one that did froze a
+//! tokio worker of a robot's runtime until stderr was read). A message that finds stderr closed
+//! ends the command as a closed stdout does (`safety::output_closed`, status 141). (`tracing-appender`'s writer does the same, but on
 //! a shutdown that times out it prints to stdout, which may be the stalled terminal too, a
 //! closed pipe, or `--json` output.)
 
-use std::io::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, sync_channel};
 use std::time::Duration;
@@ -19,7 +24,10 @@ use std::time::Duration;
 pub const QUEUE: usize = 4096;
 
 enum Msg {
+    /// A log line: a failed write is ignored.
     Line(Vec<u8>),
+    /// The program's own message: a closed stderr ends the command.
+    Said(Vec<u8>),
     /// Answered once every line queued before it is written.
     Flush(Sender<()>),
 }
@@ -37,16 +45,32 @@ impl Logs {
     /// Start the writing thread. If it cannot start, lines are dropped (and counted).
     #[must_use]
     pub fn start() -> Self {
+        Self::start_with(std::io::stderr(), crate::safety::output_closed)
+    }
+
+    /// [`start`](Self::start) writing to `out`, calling `closed` when one of the program's
+    /// own messages finds it closed (a broken pipe).
+    fn start_with(out: impl std::io::Write + Send + 'static, closed: fn()) -> Self {
         let (tx, rx) = sync_channel(QUEUE);
         let _ = std::thread::Builder::new()
             .name("ima-log".into())
-            .spawn(move || write_out(&rx));
+            .spawn(move || write_out(&rx, out, closed));
         Self { tx }
     }
 
-    /// Queue `bytes` as one message; dropped (and counted) when the queue is full.
+    /// Queue `bytes` as one log line; dropped (and counted) when the queue is full.
     pub fn send(&self, bytes: Vec<u8>) {
-        if self.tx.try_send(Msg::Line(bytes)).is_err() {
+        self.queue(Msg::Line(bytes));
+    }
+
+    /// Queue `bytes` as one of the program's own messages; dropped (and counted) when the
+    /// queue is full. A closed stderr found writing it ends the command.
+    pub fn say(&self, bytes: Vec<u8>) {
+        self.queue(Msg::Said(bytes));
+    }
+
+    fn queue(&self, m: Msg) {
+        if self.tx.try_send(m).is_err() {
             DROPPED.fetch_add(1, Ordering::Relaxed);
         }
     }
@@ -68,12 +92,18 @@ impl Logs {
     }
 }
 
-fn write_out(rx: &Receiver<Msg>) {
-    let mut err = std::io::stderr();
+fn write_out(rx: &Receiver<Msg>, mut out: impl std::io::Write, closed: fn()) {
     for m in rx {
         match m {
             // Nowhere left to report a failed write.
-            Msg::Line(b) => drop(err.write_all(&b)),
+            Msg::Line(b) => drop(out.write_all(&b)),
+            Msg::Said(b) => {
+                if let Err(e) = out.write_all(&b)
+                    && e.kind() == std::io::ErrorKind::BrokenPipe
+                {
+                    closed();
+                }
+            }
             Msg::Flush(ack) => drop(ack.send(())),
         }
     }
@@ -118,6 +148,7 @@ impl<'a> tracing_subscriber::fmt::MakeWriter<'a> for Logs {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Write as _;
 
     /// Lines go out whole and in order; a flush waits for them.
     #[test]
@@ -149,5 +180,53 @@ mod tests {
         assert!(DROPPED.load(Ordering::Relaxed) >= before + 3);
         // Nobody writes these out: the flush gives up in its time.
         assert!(!logs.flush(Duration::from_millis(50)));
+    }
+
+    /// The program's own messages never wait for a stderr nobody reads (the pipe is full):
+    /// they queue, then are dropped and counted; a flush gives up in its time.
+    #[test]
+    fn messages_to_a_stalled_stderr_return_at_once() {
+        let (reader, writer) = std::io::pipe().unwrap();
+        // Fill the pipe (its writes block from then on) until the reader is dropped.
+        let mut filler = writer.try_clone().unwrap();
+        let fill = std::thread::spawn(move || while filler.write_all(&[b'.'; 4096]).is_ok() {});
+        std::thread::sleep(Duration::from_millis(300));
+        let logs = Logs::start_with(writer, || {});
+        let (done_tx, done) = std::sync::mpsc::channel();
+        let sayer = std::thread::spawn(move || {
+            for i in 0..2 * QUEUE {
+                logs.say(format!("line {i}\n").into_bytes());
+            }
+            done_tx
+                .send(logs.flush(Duration::from_millis(100)))
+                .unwrap();
+        });
+        // Generous: a message that waited for stderr would never return at all.
+        let flushed = done.recv_timeout(Duration::from_secs(30));
+        assert_eq!(flushed, Ok(false), "the messages waited for stderr");
+        sayer.join().unwrap();
+        drop(reader); // the blocked writes fail, and both threads end
+        fill.join().unwrap();
+    }
+
+    /// A message that finds stderr closed (its reader gone) says so; a log line does not.
+    #[test]
+    fn a_message_to_a_closed_stderr_ends_the_command() {
+        static CLOSED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let logs = Logs::start_with(writer, || {
+            CLOSED.fetch_add(1, Ordering::SeqCst);
+        });
+        logs.send(b"a log line\n".to_vec());
+        assert!(logs.flush(Duration::from_secs(10)));
+        assert_eq!(
+            CLOSED.load(Ordering::SeqCst),
+            0,
+            "a log line ended the command"
+        );
+        logs.say(b"a message\n".to_vec());
+        assert!(logs.flush(Duration::from_secs(10)));
+        assert_eq!(CLOSED.load(Ordering::SeqCst), 1);
     }
 }

@@ -2,7 +2,6 @@
 //!
 //! Sub-commands grow with the issues; see `ima --help` and the README.
 
-use std::io::Write as _;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -198,11 +197,11 @@ fn main() -> ExitCode {
         r => r,
     };
     let (code, message) = safety::exit_status(&result);
-    // The log lines before the error message.
-    safety::flush_logs();
     if let Some(m) = message {
-        let _ = writeln!(std::io::stderr(), "ima: error: {m}");
+        eprintln!("ima: error: {m}");
     }
+    // Every message out, waiting at most a second for a stderr nobody reads.
+    safety::flush_logs();
     ExitCode::from(code)
 }
 

@@ -213,19 +213,20 @@ fn event_level(kind: &ima_agents::runtime::EventKind) -> ima_record::messages::l
 /// that a viewer that follows `map` (the shipped layout) can place it: `map` →
 /// `<robot>/odom` at the origin, `<robot>/odom` → `<robot>/base_link` at the origin when nothing gives the robot's
 /// odometry (a scanner alone), and `<robot>/base_link` → `<robot>/laser` with a `laser`. At
-/// most once a second (for viewers that join late), whatever the caller's rate.
+/// most once a second of the recording's clock (for viewers that join late or seek), whatever
+/// the caller's rate.
 pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) {
-    static LAST: std::sync::Mutex<BTreeMap<String, std::time::Instant>> =
-        std::sync::Mutex::new(BTreeMap::new());
+    static LAST: std::sync::Mutex<BTreeMap<String, u64>> = std::sync::Mutex::new(BTreeMap::new());
     {
+        let now = r.now_ns();
         let mut last = LAST.lock().unwrap_or_else(PoisonError::into_inner);
         if last
             .get(robot)
-            .is_some_and(|t| t.elapsed() < Duration::from_secs(1))
+            .is_some_and(|&t| t <= now && now - t < 1_000_000_000)
         {
             return;
         }
-        last.insert(robot.to_owned(), std::time::Instant::now());
+        last.insert(robot.to_owned(), now);
     }
     let origin = ima_record::convert::Pose2::default();
     let (odom, base) = (format!("{robot}/odom"), format!("{robot}/base_link"));

@@ -533,8 +533,13 @@ pub fn err_line(args: std::fmt::Arguments<'_>) {
     err_write(format_args!("{args}\n"));
 }
 
-/// [`err_line`] without the end of line (the crate's `eprint!`).
+/// [`err_line`] without the end of line (the crate's `eprint!`). Once the log writer runs
+/// ([`set_log_writer`]) it goes through its queue, never waiting on stderr ([`crate::logs`]).
 pub fn err_write(args: std::fmt::Arguments<'_>) {
+    if let Some(l) = LOG.get() {
+        l.say(std::fmt::format(args).into_bytes());
+        return;
+    }
     let mut err = std::io::stderr().lock();
     if let Err(e) = err.write_fmt(args)
         && e.kind() == std::io::ErrorKind::BrokenPipe

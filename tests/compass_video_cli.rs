@@ -180,6 +180,15 @@ fn camera_grab_writes_a_png_with_the_expected_blob() {
     assert!(n > 300, "red pixels: {n}");
     let col = sum as f64 / n as f64 + 0.5;
     assert!((col - 160.0).abs() < 1.5, "{col}");
+    // Grabbing before the picture settles says so (it said "settled in 300ms").
+    let out = run_ok(
+        ima()
+            .args(["camera", "grab", "--channel", "2", "--no-settle", "--out"])
+            .arg(dir.join("early.png")),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("before the picture settles"), "{err}");
+    assert!(!err.contains("settles in"), "{err}");
     let bad = ima()
         .args(["camera", "grab", "--channel", "9", "--out"])
         .arg(dir.join("x.png"))

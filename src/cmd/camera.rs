@@ -126,11 +126,12 @@ fn grab(args: &GrabArgs) -> Result<()> {
                 .select(args.channel)
                 .await
                 .context("selecting the camera")?;
-            eprintln!(
-                "switcher confirmed channel {}; settled in {:?}",
-                sel.channel,
-                mux.settle_time()
-            );
+            let settle = if args.no_settle {
+                "grabbing before the picture settles (--no-settle)".to_owned()
+            } else {
+                format!("the picture settles in {:?}", mux.settle_time())
+            };
+            eprintln!("switcher confirmed channel {}; {settle}", sel.channel);
             if let Err(e) = mux.close().await {
                 eprintln!("ima: warning: closing the switcher: {e}");
             }
