@@ -6,18 +6,20 @@
 //! Each event is one message on a bounded queue ([`QUEUE`] lines); a line that finds the
 //! queue full is dropped and counted, and the count is said at the next [`Logs::flush`] that
 //! gets through. [`Logs::flush`] waits a bounded time for the lines queued before it, so a
-//! stalled stderr cannot hold an exit up.
-//!
-//! The program's own messages (the crate's `eprintln!`: `ima run`'s event lines, the demo's
-//! live lines, warnings, the final error) take the same queue ([`Logs::say`]), in order with
-//! the log lines: a task printing them never waits on stderr either (one that did froze a
-//! tokio worker of a robot's runtime until stderr was read). A message that finds stderr closed
-//! ends the command as a closed stdout does (`safety::output_closed`, status 141). (`tracing-appender`'s writer does the same, but on
+//! stalled stderr cannot hold an exit up. (`tracing-appender`'s writer does the same, but on
 //! a shutdown that times out it prints to stdout, which may be the stalled terminal too, a
 //! closed pipe, or `--json` output.)
+//!
+//! The program's own messages (the crate's `eprintln!`: `ima run`'s event lines, the demo's
+//! live lines, warnings) take the same queue ([`Logs::say`]), in order with the log lines: a
+//! task printing them never waits on stderr either (one that did froze a worker thread of a
+//! robot's runtime until stderr was read). A message that finds stderr closed ends the
+//! command as a closed stdout does (`safety::output_closed`, status 141). The last error
+//! line waits for room in the queue for a bounded time ([`Logs::say_by`]) rather than being
+//! dropped.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, Sender, SyncSender, sync_channel};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, sync_channel};
 use std::time::Duration;
 
 /// Lines that may wait for stderr before new ones are dropped.
@@ -60,28 +62,61 @@ impl Logs {
 
     /// Queue `bytes` as one log line; dropped (and counted) when the queue is full.
     pub fn send(&self, bytes: Vec<u8>) {
-        self.queue(Msg::Line(bytes));
-    }
-
-    /// Queue `bytes` as one of the program's own messages; dropped (and counted) when the
-    /// queue is full. A closed stderr found writing it ends the command.
-    pub fn say(&self, bytes: Vec<u8>) {
-        self.queue(Msg::Said(bytes));
-    }
-
-    fn queue(&self, m: Msg) {
-        if self.tx.try_send(m).is_err() {
+        if self.tx.try_send(Msg::Line(bytes)).is_err() {
             DROPPED.fetch_add(1, Ordering::Relaxed);
         }
     }
 
-    /// Wait up to `wait` for every line queued so far to be written; whether they were.
+    /// Queue `bytes` as one of the program's own messages; dropped (and counted) when the
+    /// queue is full. A closed stderr found writing it ends the command.
+    ///
+    /// # Errors
+    /// The message back if no thread writes the queue out (it could not start): the caller
+    /// writes it itself.
+    pub fn say(&self, bytes: Vec<u8>) -> Result<(), Vec<u8>> {
+        match self.tx.try_send(Msg::Said(bytes)) {
+            Ok(()) => Ok(()),
+            Err(TrySendError::Full(_)) => {
+                DROPPED.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            }
+            Err(TrySendError::Disconnected(Msg::Said(b))) => Err(b),
+            Err(TrySendError::Disconnected(_)) => Ok(()),
+        }
+    }
+
+    /// [`say`](Self::say) for a message that must not be dropped (the last error): while the
+    /// queue is full, retry until `deadline`. Whether it was queued (not: the queue stayed
+    /// full, as behind a stderr nobody reads).
+    ///
+    /// # Errors
+    /// The message back if no thread writes the queue out.
+    pub fn say_by(&self, bytes: Vec<u8>, deadline: std::time::Instant) -> Result<bool, Vec<u8>> {
+        let mut m = Msg::Said(bytes);
+        loop {
+            match self.tx.try_send(m) {
+                Ok(()) => return Ok(true),
+                Err(TrySendError::Full(back)) if std::time::Instant::now() < deadline => {
+                    m = back;
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                Err(TrySendError::Full(_)) => {
+                    DROPPED.fetch_add(1, Ordering::Relaxed);
+                    return Ok(false);
+                }
+                Err(TrySendError::Disconnected(Msg::Said(b))) => return Err(b),
+                Err(TrySendError::Disconnected(_)) => return Ok(false),
+            }
+        }
+    }
+
+    /// Wait up to `wait` for every line queued so far to be written; whether they were. (The
+    /// note of lines dropped is queued first, if it finds room.)
     pub fn flush(&self, wait: Duration) -> bool {
         let dropped = DROPPED.swap(0, Ordering::Relaxed);
         if dropped > 0 {
             self.send(
-                format!("ima: {dropped} log line(s) dropped: stderr did not keep up\n")
-                    .into_bytes(),
+                format!("ima: {dropped} message(s) dropped: stderr did not keep up\n").into_bytes(),
             );
         }
         let (ack, done) = std::sync::mpsc::channel();
@@ -195,7 +230,7 @@ mod tests {
         let (done_tx, done) = std::sync::mpsc::channel();
         let sayer = std::thread::spawn(move || {
             for i in 0..2 * QUEUE {
-                logs.say(format!("line {i}\n").into_bytes());
+                logs.say(format!("line {i}\n").into_bytes()).unwrap();
             }
             done_tx
                 .send(logs.flush(Duration::from_millis(100)))
@@ -225,7 +260,7 @@ mod tests {
             0,
             "a log line ended the command"
         );
-        logs.say(b"a message\n".to_vec());
+        logs.say(b"a message\n".to_vec()).unwrap();
         assert!(logs.flush(Duration::from_secs(10)));
         assert_eq!(CLOSED.load(Ordering::SeqCst), 1);
     }

@@ -188,6 +188,10 @@ fn main() -> ExitCode {
     let _ = record::finish();
     // A recording that could not be written fails a command that otherwise succeeded.
     let result = result.and_then(|()| record::check_written());
+    // The messages still queued go out first (waiting a second at most, shared with the
+    // error line below): one that finds stderr closed marks it so.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
+    safety::flush_logs_by(deadline);
     // A print that found stderr closed could not fail the command itself: it ends as one that
     // found stdout closed (141), like the robot's own commands.
     let result = match result {
@@ -198,10 +202,9 @@ fn main() -> ExitCode {
     };
     let (code, message) = safety::exit_status(&result);
     if let Some(m) = message {
-        eprintln!("ima: error: {m}");
+        safety::last_error_line(&m, deadline);
+        safety::flush_logs_by(deadline);
     }
-    // Every message out, waiting at most a second for a stderr nobody reads.
-    safety::flush_logs();
     ExitCode::from(code)
 }
 

@@ -227,8 +227,26 @@ pub fn set_log_writer(logs: crate::logs::Logs) {
 /// Write out the log lines still queued, waiting at most a second (a stderr that blocks
 /// cannot hold the exit longer).
 pub fn flush_logs() {
-    if let Some(l) = LOG.get() {
-        let _ = l.flush(Duration::from_secs(1));
+    flush_logs_by(std::time::Instant::now() + Duration::from_secs(1));
+}
+
+/// [`flush_logs`] waiting until `deadline` at most; whether everything queued was written.
+pub fn flush_logs_by(deadline: std::time::Instant) -> bool {
+    match LOG.get() {
+        Some(l) => l.flush(deadline.saturating_duration_since(std::time::Instant::now())),
+        None => true,
+    }
+}
+
+/// The program's last error line: queued behind everything before it, waiting until
+/// `deadline` for room rather than being dropped (written directly when no log thread runs).
+pub fn last_error_line(message: &str, deadline: std::time::Instant) {
+    let line = format!("ima: error: {message}\n");
+    match LOG.get().map(|l| l.say_by(line.into_bytes(), deadline)) {
+        // Queued, or the queue stayed full behind a stderr nobody reads (then dropped).
+        Some(Ok(_)) => {}
+        // No thread writes the queue out.
+        Some(Err(_)) | None => say_directly(format_args!("ima: error: {message}\n")),
     }
 }
 
@@ -537,9 +555,17 @@ pub fn err_line(args: std::fmt::Arguments<'_>) {
 /// ([`set_log_writer`]) it goes through its queue, never waiting on stderr ([`crate::logs`]).
 pub fn err_write(args: std::fmt::Arguments<'_>) {
     if let Some(l) = LOG.get() {
-        l.say(std::fmt::format(args).into_bytes());
-        return;
+        match l.say(std::fmt::format(args).into_bytes()) {
+            Ok(()) => return,
+            // No thread writes the queue out: write it here.
+            Err(b) => return say_directly(format_args!("{}", String::from_utf8_lossy(&b))),
+        }
     }
+    say_directly(args);
+}
+
+/// Write to stderr from the calling thread (a closed stderr ends the command).
+fn say_directly(args: std::fmt::Arguments<'_>) {
     let mut err = std::io::stderr().lock();
     if let Err(e) = err.write_fmt(args)
         && e.kind() == std::io::ErrorKind::BrokenPipe

@@ -1117,18 +1117,15 @@ fn a_stderr_nobody_reads_does_not_keep_the_stop_from_the_robot() {
 }
 
 /// The program's own messages (the demo's live lines here, `ima run`'s event lines, the last
-/// error) never wait for a stderr nobody reads. They once did: the demo's first live line
-/// froze the task printing it, so a Ctrl-C ended the program only at the guard's forced exit
-/// after its 3 s grace period (measured: 3.02 s; now 1.1 s, most of it the bounded wait for
-/// the lines still queued).
+/// error) never wait for a stderr nobody reads. They once did: the first live line after the
+/// stall (here while Scooter drives) froze the task printing it, so a Ctrl-C ended the program
+/// only at the guard's forced exit after its 3 s grace period (measured: 3.0 s; now 1.1 s,
+/// most of it the bounded wait for the lines still queued).
 #[test]
 fn a_stderr_nobody_reads_does_not_hold_up_a_demo_s_end() {
     use std::io::Write as _;
     let (reader, writer) = std::io::pipe().unwrap();
     let mut filler = writer.try_clone().unwrap();
-    // Fill the pipe first (its writes block from then on), never read it.
-    let fill = std::thread::spawn(move || while filler.write_all(&[b'.'; 4096]).is_ok() {});
-    std::thread::sleep(Duration::from_millis(300));
     let mut child = Child(
         ima()
             .args(["demo", "--speed", "2"])
@@ -1137,15 +1134,45 @@ fn a_stderr_nobody_reads_does_not_hold_up_a_demo_s_end() {
             .spawn()
             .unwrap(),
     );
-    // Well into the mission: robots connected and driving, live lines queued.
-    std::thread::sleep(Duration::from_secs(6));
+    // Read stderr until the robots drive (the mission's live lines), then stop reading and
+    // fill the pipe: the stall comes mid-mission.
+    let mut lines = BufReader::new(reader);
+    let mut l = String::new();
+    let t0 = Instant::now();
+    while !l.contains("follow-heading") {
+        l.clear();
+        assert!(lines.read_line(&mut l).unwrap() > 0, "the demo ended");
+        assert!(t0.elapsed() < Duration::from_secs(60), "no mission line");
+    }
+    let fill = std::thread::spawn(move || while filler.write_all(&[b'.'; 4096]).is_ok() {});
+    std::thread::sleep(Duration::from_secs(3));
     kill(&child, "INT");
     let t0 = Instant::now();
     let status = wait_exit(&mut child, "the demo");
     let took = t0.elapsed();
-    drop(reader);
+    drop(lines);
     fill.join().unwrap();
     assert_eq!(status.code(), Some(130), "{status}");
-    // Before the guard's 3 s grace period: the orderly end, not the forced exit.
-    assert!(took < Duration::from_millis(2500), "took {took:?}");
+    // Before the guard's 3 s grace period: the orderly end, not the forced exit (which
+    // cannot come sooner).
+    assert!(took < Duration::from_millis(2800), "took {took:?}");
+}
+
+/// A command whose last message finds stderr closed ends as one that found stdout closed:
+/// status 141. The messages go through the log thread, which finds the closed pipe after the
+/// command's body has ended; the exit waits for it (it once reported success, 0).
+#[test]
+fn a_last_message_into_a_closed_stderr_ends_with_141() {
+    let dir = common::Scratch::new("safety-closed-stderr");
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let status = ima()
+        // `--direct`: no switcher, so the line saying what was written is the only one.
+        .args(["camera", "grab", "--direct", "--channel", "1", "--out"])
+        .arg(dir.join("c.png"))
+        .stdout(Stdio::null())
+        .stderr(writer)
+        .status()
+        .unwrap();
+    assert_eq!(status.code(), Some(141), "{status}");
 }

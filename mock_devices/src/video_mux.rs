@@ -19,6 +19,11 @@
 //!   answers `Sig 1 1 …`; `1B`/`0B` answer `Vmt1`/`Vmt0`. Errors: `E01` for an input out of
 //!   range, `E06` for a selection while auto-switch mode is on, `E10` for an unknown command.
 //!   Matrix ties `I*1!` are accepted for output 1 (`Out1 InI All`); other outputs give `E01`.
+//!   The information requests of the SIS manuals are answered too, so that a control system
+//!   that asks them first is not left waiting (they used to be taken for the start of the next
+//!   command): `I` answers `V<in> A<in> F<mode> Vmt<0|1> Amt0` (mode 1 manual, 2 auto-switch;
+//!   SW VGA and MTP manuals), `Q` the model's firmware version [`FIRMWARE`], `B` the video
+//!   mute (`0`/`1`; SW AV manual); `N` (part number) gets `E10`, as the model has none.
 //!   A power-on banner is sent once, when the model starts.
 //! * Kramer (`expect_reply` drivers): a video switch to output 1 of machine 1 is echoed with
 //!   bit 6 set after the switch delay; a status request answers the input; anything else is
@@ -37,6 +42,9 @@ use ima_video_mux::wire::{
 };
 
 use crate::model::DeviceModel;
+
+/// The mock switcher's answer to `Q` (firmware version, two decimals as SIS gives it).
+pub const FIRMWARE: &str = "1.00";
 
 #[derive(Debug, Clone, Copy)]
 struct BusState {
@@ -263,7 +271,25 @@ impl MuxDevice {
                 self.muted = on;
                 self.reply(ExtronReply::Mute(on));
             }
+            ExtronCommand::ReadVideoMute => self.reply_line(if self.muted { "1" } else { "0" }),
+            ExtronCommand::Information => {
+                let input = self.current.map_or(0, u16::from);
+                let mode = if self.cfg.auto_switch { 2 } else { 1 };
+                let mute = u8::from(self.muted);
+                self.reply_line(&format!("V{input} A{input} F{mode} Vmt{mute} Amt0"));
+            }
+            ExtronCommand::FirmwareVersion => self.reply_line(FIRMWARE),
+            // The model has no part number of its own.
+            ExtronCommand::PartNumber => {
+                self.reply(ExtronReply::Error(ExtronError::InvalidCommand))
+            }
         }
+    }
+
+    /// A reply the wire module has no type for, ended with CR LF.
+    fn reply_line(&mut self, line: &str) {
+        self.out.extend_from_slice(line.as_bytes());
+        self.out.extend_from_slice(b"\r\n");
     }
 
     fn kramer(&mut self, m: KramerMessage, now: Instant) {
@@ -427,6 +453,12 @@ mod tests {
         assert_eq!(run(&mut d, b"5x!", Instant::ZERO), b"E10\r\n");
         assert_eq!(run(&mut d, b"2&", Instant::ZERO), b"In2 Vid\r\n");
         assert_eq!(run(&mut d, b"1B", Instant::ZERO), b"Vmt1\r\n");
+        // Information requests are answered, and never swallow the command after them.
+        assert_eq!(run(&mut d, b"b", Instant::ZERO), b"1\r\n");
+        assert_eq!(run(&mut d, b"I", Instant::ZERO), b"V2 A2 F1 Vmt1 Amt0\r\n");
+        assert_eq!(run(&mut d, b"q!", Instant::ZERO), b"1.00\r\n2\r\n");
+        assert_eq!(run(&mut d, b"N3!", Instant::ZERO), b"E10\r\nIn3 All\r\n");
+        assert_eq!(run(&mut d, b"0B", Instant::ZERO), b"Vmt0\r\n");
         let mut auto = MuxDevice::new(
             MuxModelConfig {
                 auto_switch: true,

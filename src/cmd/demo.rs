@@ -370,6 +370,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     if let Some(c) = &console {
         c.close_commands();
     }
+    // The live lines out before the summary, which may go to the same terminal.
+    crate::safety::flush_logs();
     let r = summarise(
         args,
         &served,

@@ -137,12 +137,12 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
     let progress = |done: usize, total: usize| {
         // On a terminal the bar redraws in place; otherwise one line per quarter.
         if tty || done == total || (total >= 4 && done.is_multiple_of(total / 4)) {
-            let mut e = std::io::stderr().lock();
-            let _ = write!(e, "{}", bar(done, total));
-            if !tty {
-                let _ = writeln!(e);
+            // Through the log thread, in order with the messages before it.
+            if tty {
+                eprint!("{}", bar(done, total));
+            } else {
+                eprintln!("{}", bar(done, total));
             }
-            let _ = e.flush();
         }
     };
     // Ctrl-C (or any signal) ends the sweep after the runs under way, at once rather than at

@@ -53,6 +53,10 @@ fn command_json(c: &ExtronCommand) -> Value {
         ExtronCommand::QueryInput => json!({"kind": "query_input"}),
         ExtronCommand::SignalStatus => json!({"kind": "signal_status"}),
         ExtronCommand::VideoMute(on) => json!({"kind": "video_mute", "on": on}),
+        ExtronCommand::ReadVideoMute => json!({"kind": "read_video_mute"}),
+        ExtronCommand::Information => json!({"kind": "information"}),
+        ExtronCommand::PartNumber => json!({"kind": "part_number"}),
+        ExtronCommand::FirmwareVersion => json!({"kind": "firmware_version"}),
     }
 }
 

@@ -75,6 +75,15 @@ pub enum ExtronCommand {
     SignalStatus,
     /// `1B` / `0B`: video mute on / off.
     VideoMute(bool),
+    /// `B`: is the video muted (answered `0` or `1`; SW AV manual).
+    ReadVideoMute,
+    /// `I`: information request (selected inputs, switch mode, mutes: `V3 A3 F1 Vmt0 Amt0`
+    /// on the SW VGA and MTP manuals; the fields vary by model).
+    Information,
+    /// `N`: the part number (`60-xxx-xx`).
+    PartNumber,
+    /// `Q`: the firmware version (`1.23`).
+    FirmwareVersion,
 }
 
 /// Longest command emitted (`65535*65535!`).
@@ -119,6 +128,18 @@ impl ExtronCommand {
             Self::VideoMute(on) => {
                 w.bytes(if on { b"1B" } else { b"0B" })?;
             }
+            Self::ReadVideoMute => {
+                w.u8(b'B')?;
+            }
+            Self::Information => {
+                w.u8(b'I')?;
+            }
+            Self::PartNumber => {
+                w.u8(b'N')?;
+            }
+            Self::FirmwareVersion => {
+                w.u8(b'Q')?;
+            }
         }
         Ok(w.pos())
     }
@@ -128,7 +149,12 @@ impl ExtronCommand {
     #[must_use]
     pub fn command_end(buf: &[u8]) -> Option<usize> {
         buf.iter()
-            .position(|c| matches!(c, b'!' | b'&' | b'$' | b'%' | b'S' | b's' | b'B' | b'b'))
+            .position(|c| {
+                matches!(
+                    c.to_ascii_uppercase(),
+                    b'!' | b'&' | b'$' | b'%' | b'S' | b'B' | b'I' | b'N' | b'Q'
+                )
+            })
             .map(|i| i.saturating_add(1))
     }
 
@@ -145,6 +171,10 @@ impl ExtronCommand {
             (b'S', b"0") => Ok(Self::SignalStatus),
             (b'B', b"1") => Ok(Self::VideoMute(true)),
             (b'B', b"0") => Ok(Self::VideoMute(false)),
+            (b'B', []) => Ok(Self::ReadVideoMute),
+            (b'I', []) => Ok(Self::Information),
+            (b'N', []) => Ok(Self::PartNumber),
+            (b'Q', []) => Ok(Self::FirmwareVersion),
             (b'!' | b'&' | b'$' | b'%', _) => {
                 let tie = args.iter().position(|c| *c == b'*');
                 match tie {
