@@ -230,7 +230,7 @@ pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) 
     }
     let origin = ima_record::convert::Pose2::default();
     let (odom, base) = (format!("{robot}/odom"), format!("{robot}/base_link"));
-    r.log_transform("map", &odom, origin);
+    r.log_odom_origin(robot, origin);
     if !odometry {
         r.log_transform(&odom, &base, origin);
     }

@@ -10,6 +10,8 @@ use foxglove::messages::{
     Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
     Vector3, log, packed_element_field::NumericType,
 };
+use std::sync::PoisonError;
+
 use ima_hal::camera::Frame;
 
 use crate::Recorder;
@@ -25,6 +27,26 @@ pub struct Pose2 {
     pub y_m: f64,
     /// Heading, radians.
     pub theta_rad: f64,
+}
+
+/// Where a robot is: its `odom` frame in `map`, and its `base_link` in `odom`.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Place {
+    origin: Pose2,
+    odom: Pose2,
+}
+
+impl Place {
+    /// The robot's `base_link` in `map`.
+    fn in_map(&self) -> Pose2 {
+        let (o, p) = (self.origin, self.odom);
+        let (s, c) = o.theta_rad.sin_cos();
+        Pose2 {
+            x_m: o.x_m + c * p.x_m - s * p.y_m,
+            y_m: o.y_m + s * p.x_m + c * p.y_m,
+            theta_rad: o.theta_rad + p.theta_rad,
+        }
+    }
 }
 
 impl Pose2 {
@@ -465,10 +487,33 @@ impl Recorder {
             (format!("/{robot}/odom"), proto)
         });
         self.log_pose2_at(pose, at, p);
+        self.place(robot, |pl| pl.odom = p);
+    }
+
+    /// Where `robot`'s `odom` frame is in `map` (`map` → `<robot>/odom` on `/tf`, as
+    /// [`log_transform`](Self::log_transform) logs it).
+    pub fn log_odom_origin(&self, robot: &str, p: Pose2) {
+        self.log_transform("map", &format!("{robot}/odom"), p);
+    }
+
+    /// Update where `robot` is.
+    fn place(&self, robot: &str, f: impl FnOnce(&mut Place)) {
+        let mut places = (self.shared.places.lock()).unwrap_or_else(PoisonError::into_inner);
+        match places.get_mut(robot) {
+            Some(pl) => f(pl),
+            None => f(places.entry(robot.to_owned()).or_default()),
+        }
     }
 
     /// A static or moving transform `parent` → `child` on `/tf`.
+    /// `map` → `<robot>/odom` also says where the robot's compass arrow goes
+    /// ([`log_compass`](Self::log_compass)).
     pub fn log_transform(&self, parent: &str, child: &str, p: Pose2) {
+        if parent == "map"
+            && let Some(robot) = child.strip_suffix("/odom")
+        {
+            self.place(robot, |pl| pl.origin = p);
+        }
         let s = self.stream(&["tf", parent, child], || {
             let proto = Proto::Transform(FrameTransform {
                 parent_frame_id: parent.to_owned(),
@@ -505,9 +550,11 @@ impl Recorder {
     }
 
     /// A compass heading of `robot` (radians, counter-clockwise from east: east-north-up) as
-    /// an orientation in `map` on `/<robot>/compass`. An absolute heading: in the robot's
-    /// `base_link`, as it was, a viewer turned it by the robot's own yaw once more and drew
-    /// it at twice the heading.
+    /// an orientation in `map` on `/<robot>/compass`, placed where the robot's transforms put
+    /// it (its odometry in its `odom` frame, [`log_odom_origin`](Self::log_odom_origin)). An
+    /// absolute heading: in the robot's `base_link`, as it was, a viewer turned it by the
+    /// robot's own yaw once more and drew it at twice the heading; at the map's origin, as it
+    /// then was, it pointed away from the robot.
     pub fn log_compass(&self, robot: &str, heading_rad: f64) {
         let s = self.stream(&["compass", robot], || {
             let proto = Proto::Pose(PoseInFrame {
@@ -516,10 +563,17 @@ impl Recorder {
             });
             (format!("/{robot}/compass"), proto)
         });
+        let at = (self
+            .shared
+            .places
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner))
+        .get(robot)
+        .map(Place::in_map)
+        .unwrap_or_default();
         let p = Pose2 {
-            x_m: 0.0,
-            y_m: 0.0,
             theta_rad: heading_rad,
+            ..at
         };
         self.log_pose2(s, p);
     }
@@ -625,5 +679,31 @@ impl Recorder {
     /// A broadcast heard or said by `robot`, on `/broadcasts`.
     pub fn log_broadcast(&self, robot: &str, text: &str) {
         self.log_text("/broadcasts", log::Level::Info, robot, text);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A robot's place in `map`: its odometry turned and moved by its `odom` frame's pose.
+    #[test]
+    fn a_place_composes_the_odometry_frame_and_the_odometry() {
+        let pl = Place {
+            origin: Pose2 {
+                x_m: 2.0,
+                y_m: 1.0,
+                theta_rad: std::f64::consts::FRAC_PI_2,
+            },
+            odom: Pose2 {
+                x_m: 1.5,
+                y_m: -0.25,
+                theta_rad: 0.5,
+            },
+        };
+        let m = pl.in_map();
+        assert!((m.x_m - 2.25).abs() < 1e-12, "{m:?}");
+        assert!((m.y_m - 2.5).abs() < 1e-12, "{m:?}");
+        assert!((m.theta_rad - (std::f64::consts::FRAC_PI_2 + 0.5)).abs() < 1e-12);
     }
 }

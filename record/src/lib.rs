@@ -283,6 +283,8 @@ struct Shared {
     failure: Arc<Failure>,
     /// The MCAP file, if any.
     path: Option<PathBuf>,
+    /// Where each robot is in `map`, as its transforms say (for the compass's arrow).
+    places: Mutex<HashMap<String, convert::Place>>,
 }
 
 /// A recorder: a handle on the background writer (clone it freely).
@@ -399,6 +401,7 @@ impl Recorder {
             exclude: opts.exclude.clone(),
             failure: Arc::clone(&failure),
             path: opts.mcap.clone(),
+            places: Mutex::new(HashMap::new()),
         });
         let worker = Worker {
             inner,

@@ -850,7 +850,13 @@ fn every_reading_is_recorded_as_its_convert_message() {
     }
     rec.log_scan("scooter", &s);
     rec.log_odometry("scooter", p);
-    rec.log_transform("map", "scooter/odom", p);
+    // Scooter's odometry frame 2 m east and 1 m north of the map's origin.
+    let origin = Pose2 {
+        x_m: 2.0,
+        y_m: 1.0,
+        theta_rad: 0.0,
+    };
+    rec.log_odom_origin("scooter", origin);
     rec.log_ground_truth("skeeter", p);
     rec.log_compass("scooter", 0.75);
     rec.log_sonar("skeeter", &transducers, &sonar);
@@ -892,19 +898,22 @@ fn every_reading_is_recorded_as_its_convert_message() {
         tf,
         [
             convert::transform("scooter/odom", "scooter/base_link", tf_t[0], p),
-            convert::transform("map", "scooter/odom", tf_t[1], p)
+            convert::transform("map", "scooter/odom", tf_t[1], origin)
         ]
     );
     for (topic, frame, pose) in [
         ("/scooter/odom", "scooter/odom", p),
         ("/skeeter/truth", "map", p),
         ("/scooter/belief", "map", p),
+        // Where the robot is (odometry from the odometry frame's origin), turned to the
+        // heading: it was drawn at the map's origin.
         (
             "/scooter/compass",
             "map",
             Pose2 {
+                x_m: 3.5,
+                y_m: 0.75,
                 theta_rad: 0.75,
-                ..Pose2::default()
             },
         ),
     ] {

@@ -273,7 +273,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                         world_markers(&world); // record: targets, once a second
                         crate::record::with(|rec| {
                             for (name, p) in &starts {
-                                rec.log_transform("map", &format!("{name}/odom"), *p);
+                                rec.log_odom_origin(name, *p);
                                 rec.log_transform(
                                     &format!("{name}/base_link"),
                                     &format!("{name}/laser"),
