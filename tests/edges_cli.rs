@@ -587,3 +587,27 @@ fn a_mock_robot_named_in_any_script_serves_and_names_itself() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// `ima mock --help` gives the fault grammar (it pointed to a crate's rustdoc), and every key
+/// it lists parses.
+#[test]
+fn mock_help_gives_the_fault_grammar_and_its_keys_parse() {
+    let out = run_ok(ima().args(["mock", "p2os", "--help"]));
+    let help = String::from_utf8_lossy(&out.stdout);
+    for key in [
+        "corrupt=P",
+        "drop=P",
+        "garbage=P[:MIN-MAX]",
+        "split=P",
+        "stall=P:DUR",
+        "delay=DUR",
+        "hangup=DUR[:OUTAGE]",
+        "seed=N",
+        "r2h.",
+    ] {
+        assert!(help.contains(key), "{key} missing from:\n{help}");
+    }
+    let spec = "corrupt=0.01,drop=0.001,garbage=0.001:1-4,split=1,stall=0.0005:300ms,\
+                delay=5ms,r2h.hangup=5s:1s,seed=3";
+    assert!(ima_mock_devices::faults::FaultPlan::parse(spec).is_ok());
+}
