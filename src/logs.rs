@@ -44,7 +44,8 @@ pub struct Logs {
 static DROPPED: AtomicU64 = AtomicU64::new(0);
 
 impl Logs {
-    /// Start the writing thread. If it cannot start, lines are dropped (and counted).
+    /// Start the writing thread. If it cannot start, log lines are dropped (and counted), and
+    /// the program's own messages are written by their callers ([`say`](Self::say)).
     #[must_use]
     pub fn start() -> Self {
         Self::start_with(std::io::stderr(), crate::safety::output_closed)

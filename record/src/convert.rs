@@ -5,13 +5,13 @@
 //! odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>`, `/<robot>/ses`,
 //! `/<robot>/sonar`, `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
 
+use std::sync::PoisonError;
+
 use foxglove::messages::{
     Color, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose, PoseInFrame,
     Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
     Vector3, log, packed_element_field::NumericType,
 };
-use std::sync::PoisonError;
-
 use ima_hal::camera::Frame;
 
 use crate::Recorder;
