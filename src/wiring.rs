@@ -676,21 +676,22 @@ pub async fn run_skeeter(
     let rt = stack::skeeter::runtime_config(cfg)?;
     let net = stack::net::net_config(cfg)?;
     let time = ima_agents::runtime::MissionTime::new(clock.clone(), rt.time_scale);
-    let link = SkeeterLink::network(&net, key, events.clone(), time)
-        .await
-        .context("starting Skeeter's Peer Agent manager")?;
     let SkeeterHw {
         base,
         mux,
         frames,
         frames_received,
     } = hw;
+    // record: odometry, sonar (from now: not only once the Peer Agent manager is up)
+    let _base = record_base(&base, &cfg.robot, true);
+    let link = SkeeterLink::network(&net, key, events.clone(), time)
+        .await
+        .context("starting Skeeter's Peer Agent manager")?;
     let mut checks = vec![base_check(&base)];
     {
         let m = mux.clone();
         checks.push(("video switcher", Box::new(move || m.link().is_ended())));
     }
-    let _base = record_base(&base, &cfg.robot, true); // record: odometry, sonar
     // record: camera frames (and the client's own count of them)
     let frames =
         crate::record::frames(frames, &cfg.robot).counting(frames_received, NetFrames::grabs);

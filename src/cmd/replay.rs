@@ -4,8 +4,10 @@
 //! paced by their recorded stamps (`--speed`, 0: as fast as possible).
 //!
 //! Readings: SICK LMS scans (`/<robot>/laser/scan`, exactly as decoded), P2OS SIP odometry
-//! (`/<robot>/odom`, `/tf`), rFLEX odometry integrated from its motion reports, compass
-//! headings (`/<robot>/compass`, east-north-up). The recorded decoded topics are not replayed:
+//! (`/<robot>/odom`, `/tf`) and sonar (`/<robot>/sonar`, after each SIP that brought readings,
+//! the P2-AT's transducer table), rFLEX odometry as the driver's own session machine integrates
+//! its motion reports (ATRV-Jr calibration), compass headings (`/<robot>/compass`,
+//! east-north-up). The recorded decoded topics are not replayed:
 //! they are what the replay re-creates. A recording of the replay (`--record`) also carries
 //! every raw channel with its recorded stamps and port metadata, so it can itself be replayed,
 //! decoded (`ima decode --mcap`) or served `--as-mock`.
@@ -25,6 +27,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use clap::Args;
 use ima_hal::laser::{BeamFlags, LaserScan};
+use ima_hal::sonar::{SonarReading, SonarScan, SonarTransducer};
 use ima_record::convert::Pose2;
 use ima_record::raw::Dir;
 use ima_record::read::{Recording, Truncation};
@@ -73,6 +76,9 @@ pub enum Reading {
     Odometry(Pose2),
     /// A compass heading, radians, east-north-up (counter-clockwise from east).
     Compass(f64),
+    /// The latest reading of every sonar transducer heard so far, after a P2OS SIP that
+    /// brought new ones (as the live recording logs them), and where the transducers sit.
+    Sonar(std::sync::Arc<[SonarTransducer]>, Box<SonarScan>),
 }
 
 /// One reading with its stamp and robot.
@@ -427,6 +433,7 @@ fn publish(r: &Stamped) {
             Reading::Scan(s) => rec.log_scan(&r.robot, s),
             Reading::Odometry(p) => rec.log_odometry(&r.robot, *p),
             Reading::Compass(h) => rec.log_compass(&r.robot, *h),
+            Reading::Sonar(transducers, scan) => rec.log_sonar(&r.robot, transducers, scan),
         }
     });
 }
@@ -442,6 +449,8 @@ pub fn reading_json(r: &Stamped, t0: u64) -> Value {
             json!({"kind": "odometry", "x_m": p.x_m, "y_m": p.y_m, "theta_rad": p.theta_rad})
         }
         Reading::Compass(h) => json!({"kind": "compass", "heading_rad": h}),
+        Reading::Sonar(_, scan) => json!({"kind": "sonar", "readings": scan.readings.iter()
+            .map(|r| json!({"index": r.index, "range_m": r.range_m})).collect::<Vec<_>>()}),
     };
     v["robot"] = json!(r.robot);
     v["t_ns"] = json!(r.t_ns);
@@ -466,8 +475,12 @@ struct StreamDecoder {
     clock: std::collections::VecDeque<(usize, u64)>,
     /// Robot→host bytes fed so far.
     fed: usize,
-    /// rFLEX odometry is integrated from the translational and rotational positions.
-    rflex: (Option<f64>, Option<f64>, Pose2),
+    /// An rFLEX stream's odometry comes from the driver's own session machine (its pairing of
+    /// the two axes, midpoint integration and plausibility rule), fed the motion reports.
+    rflex: Option<Box<ima_rflex::machine::Machine>>,
+    /// A P2OS stream's sonar: where the transducers sit (the P2-AT's table, as `ima decode`
+    /// reads the ranges), and the latest reading of each.
+    sonar: Option<(std::sync::Arc<[SonarTransducer]>, SonarScan)>,
     /// Raw chunks handed on so far (the next one's place in the stream).
     chunks: u64,
     /// Readings handed on so far.
@@ -478,13 +491,13 @@ impl StreamDecoder {
     fn new(topic: &str, port: &ima_record::raw::PortInfo) -> Result<Self> {
         let protocol = recorded_protocol(&port.protocol);
         // The switchers' ports carry commands and acknowledgements, no reading.
+        let params = ima_p2os::params::RobotParams::for_subclass(b"p2at")
+            .context("the P2OS robot parameters")?;
+        let sonar = (protocol == Some(Protocol::P2os))
+            .then(|| (params.transducers().collect(), SonarScan::default()));
         let decoder = match protocol {
             Some(Protocol::VideoMux | Protocol::Kramer) | None => None,
-            Some(p) => {
-                let params = ima_p2os::params::RobotParams::for_subclass(b"p2at")
-                    .context("the P2OS robot parameters")?;
-                Some(super::decode::decoder(p, false, params))
-            }
+            Some(p) => Some(super::decode::decoder(p, false, params)),
         };
         Ok(Self {
             topic: topic.into(),
@@ -493,7 +506,13 @@ impl StreamDecoder {
             decoder,
             clock: std::collections::VecDeque::new(),
             fed: 0,
-            rflex: (None, None, Pose2::default()),
+            sonar,
+            rflex: (protocol == Some(Protocol::Rflex)).then(|| {
+                Box::new(ima_rflex::machine::Machine::new(
+                    ima_rflex::machine::Config::default(),
+                    ima_hal::Instant::ZERO,
+                ))
+            }),
             chunks: 0,
             readings: 0,
         })
@@ -549,6 +568,8 @@ impl StreamDecoder {
     /// Turn one of `ima decode`'s objects into a reading and hand it on; `false`: the
     /// playback has stopped.
     fn hand_on(&mut self, v: &Value, tx: &tokio::sync::mpsc::Sender<Item>) -> bool {
+        let offset = usize::try_from(v["offset"].as_u64().unwrap_or(0)).unwrap_or(usize::MAX);
+        let t_ns = self.stamp(offset);
         let reading = match (self.protocol, v["kind"].as_str()) {
             (Some(Protocol::SickLms), Some("scan")) => {
                 scan_of(v).map(|s| Reading::Scan(Box::new(s)))
@@ -558,23 +579,58 @@ impl StreamDecoder {
                 y_m: v["y_m"].as_f64().unwrap_or(0.0),
                 theta_rad: v["theta_rad"].as_f64().unwrap_or(0.0),
             })),
-            (Some(Protocol::Rflex), Some("motion")) => {
-                rflex_odometry(&mut self.rflex, v).map(Reading::Odometry)
-            }
+            (Some(Protocol::Rflex), Some("motion")) => self
+                .rflex
+                .as_deref_mut()
+                .and_then(|m| rflex_odometry(m, v, t_ns))
+                .map(Reading::Odometry),
             (Some(Protocol::Compass), _) => v["heading_rad"]
                 .as_f64()
                 .map(|h| Reading::Compass(std::f64::consts::FRAC_PI_2 - h)),
             _ => None,
         };
+        // A SIP that brought sonar readings: the sonar too, after its odometry.
+        if self.protocol == Some(Protocol::P2os)
+            && v["kind"] == "sip"
+            && let Some(sonar) = self.sonar_of(v, t_ns)
+        {
+            if let Some(r) = reading
+                && !self.send(r, t_ns, tx)
+            {
+                return false;
+            }
+            return self.send(sonar, t_ns, tx);
+        }
         let Some(reading) = reading else {
             return true;
         };
-        let offset = usize::try_from(v["offset"].as_u64().unwrap_or(0)).unwrap_or(usize::MAX);
+        self.send(reading, t_ns, tx)
+    }
+
+    /// The sonar after a SIP's `sonar` readings, if it brought any.
+    fn sonar_of(&mut self, v: &Value, t_ns: u64) -> Option<Reading> {
+        let (transducers, scan) = self.sonar.as_mut()?;
+        let at = ima_hal::Instant::from_micros(t_ns / 1000);
+        let mut new = false;
+        for r in v["sonar"].as_array()? {
+            let (Some(index), Some(range_m)) = (r["index"].as_u64(), r["range_m"].as_f64()) else {
+                continue;
+            };
+            let Ok(index) = u8::try_from(index) else {
+                continue;
+            };
+            new |= scan.upsert(SonarReading { index, range_m, at });
+        }
+        new.then(|| Reading::Sonar(transducers.clone(), Box::new(scan.clone())))
+    }
+
+    /// Hand one reading on; `false`: the playback has stopped.
+    fn send(&mut self, reading: Reading, t_ns: u64, tx: &tokio::sync::mpsc::Sender<Item>) -> bool {
         let item = Item::Reading(ReadingItem {
             topic: self.topic.clone(),
             seq: self.readings,
             reading: Stamped {
-                t_ns: self.stamp(offset),
+                t_ns,
                 robot: self.port.robot.clone(),
                 reading,
             },
@@ -597,25 +653,30 @@ fn scan_of(v: &Value) -> Option<LaserScan> {
     Some(s)
 }
 
-/// Integrate an rFLEX motion report (axis 0: translation, axis 1: rotation).
-fn rflex_odometry(st: &mut (Option<f64>, Option<f64>, Pose2), v: &Value) -> Option<Pose2> {
-    match v["axis"].as_u64()? {
-        0 => {
-            let d = v["position_m"].as_f64()?;
-            let last = st.0.replace(d);
-            let step = last.map_or(0.0, |l| d - l);
-            st.2.x_m += step * st.2.theta_rad.cos();
-            st.2.y_m += step * st.2.theta_rad.sin();
-            Some(st.2)
+/// Feed an rFLEX motion report (`ima decode rflex`'s object, received at `t_ns`) to the
+/// driver's session machine; the odometry it integrates, once both axes of a cycle are in.
+fn rflex_odometry(m: &mut ima_rflex::machine::Machine, v: &Value, t_ns: u64) -> Option<Pose2> {
+    let int = |k: &str| v[k].as_i64().and_then(|x| i32::try_from(x).ok());
+    let report = ima_rflex::wire::Report::Motion(ima_rflex::wire::MotionReport {
+        rv: v["rv"].as_u64().and_then(|x| u32::try_from(x).ok())?,
+        ts: v["ts"].as_u64().and_then(|x| u32::try_from(x).ok())?,
+        axis: v["axis"].as_u64().and_then(|x| u8::try_from(x).ok())?,
+        position: int("position")?,
+        velocity: int("velocity")?,
+        acceleration: int("acceleration")?,
+        torque: int("torque")?,
+    });
+    m.handle_frame(&report, ima_hal::Instant::from_micros(t_ns / 1000));
+    // What it would send (its keep-alives) goes nowhere: nothing is driven in a replay.
+    let mut frame = [0u8; ima_rflex::wire::MAX_WIRE_FRAME];
+    while m.poll_transmit(&mut frame).is_some() {}
+    let mut odometry = None;
+    while let Some(e) = m.poll_event() {
+        if let ima_rflex::machine::Event::Odometry(o) = e {
+            odometry = Some(Pose2::from_isometry(&o.value.pose));
         }
-        1 => {
-            let a = v["position_rad"].as_f64()?;
-            let first = *st.1.get_or_insert(a);
-            st.2.theta_rad = a - first;
-            None
-        }
-        _ => None,
     }
+    odometry
 }
 
 /// What `--as-mock`'s reader sends the server.
