@@ -3,7 +3,8 @@
 //! A simulated Pioneer 2-AT is served on a pseudo-terminal, the real P2OS
 //! driver connects to it through the pty exactly as it would to `/dev/ttyS0`, drives a square
 //! closed-loop on its odometry, and the program prints the driver's odometry against the
-//! simulated world's ground truth at every corner.
+//! simulated world's ground truth at every corner. `--record`/`--foxglove` record or show the
+//! robot's raw bytes, its odometry and the ground truth (`/skeeter/...`).
 
 use std::time::Duration;
 
@@ -15,6 +16,9 @@ use ima_hal::normalize_angle;
 use ima_p2os::shell::Driver as _;
 use ima_p2os::shell::{LinkStatus, P2os, open_port};
 use serde_json::json;
+
+/// The simulated robot's name in the world and in a recording's topics (`/skeeter/odom`).
+const ROBOT: &str = "skeeter";
 
 /// Arguments of `ima demo square`.
 #[derive(Debug, Args)]
@@ -38,6 +42,8 @@ pub struct SquareArgs {
     /// Print machine-readable JSON lines instead of a table.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    rec: crate::record::RecordArgs,
 }
 
 /// `--speed` of `ima demo square`: always refused, pointing at `--vel`.
@@ -59,6 +65,7 @@ pub fn run(args: &SquareArgs) -> Result<()> {
         args.vel.is_finite() && args.vel > 0.0 && args.vel <= 1.0,
         "--vel must be in (0, 1] m/s"
     );
+    crate::record::start(&args.rec, "ima demo square")?; // record
     let world = crate::cmd::mock::shared::load_world(None, args.seed)?;
     let dev =
         crate::cmd::mock::p2os::serve_p2os(&world, "skeeter", args.seed, &args.faults, 9600, true)?;
@@ -118,6 +125,8 @@ async fn square(
     truth: &(dyn Fn() -> (f64, f64, f64) + Sync),
 ) -> Result<Vec<Row>> {
     let port = open_port(path, 9600)?;
+    crate::record::label_ports(ROBOT, [path]);
+    let port = crate::record::tap(port, "base", path, 9600, "p2os"); // record: raw bytes
     let mut robot = P2os::connect(
         port,
         ima_p2os::Config::default(),
@@ -139,6 +148,34 @@ async fn square(
     robot.enable_motors(true).await?;
     robot.reset_odometry().await?;
     let t0 = truth();
+    // record: odometry and the ground truth after every SIP the square reads, the odometry
+    // frame at the start pose (where the odometry was reset) so that both meet in `map`.
+    let origin = ima_record::convert::Pose2 {
+        x_m: t0.0,
+        y_m: t0.1,
+        theta_rad: t0.2,
+    };
+    let mut origin_at = None;
+    let mut record = |o: &ima_hal::Stamped<ima_hal::base::Odometry>| {
+        crate::record::with(|r| {
+            let now = r.now_ns();
+            if origin_at.is_none_or(|t: u64| now.saturating_sub(t) >= 1_000_000_000) {
+                origin_at = Some(now);
+                r.log_odom_origin(ROBOT, origin);
+            }
+            let p = ima_record::convert::Pose2::from_isometry(&o.value.pose);
+            r.log_odometry(ROBOT, p);
+            let (x_m, y_m, theta_rad) = truth();
+            r.log_ground_truth(
+                ROBOT,
+                ima_record::convert::Pose2 {
+                    x_m,
+                    y_m,
+                    theta_rad,
+                },
+            );
+        });
+    };
     // Ground truth in the frame of the start pose, to compare with odometry.
     let rel = |t: (f64, f64, f64)| {
         let (s, c) = (-t0.2).sin_cos();
@@ -171,6 +208,7 @@ async fn square(
         let mut at = robot.odometry().await?.at;
         loop {
             let s = robot.next_odometry(at).await?;
+            record(&s);
             at = s.at;
             let o = s.value;
             let d = (o.x_m() - sx).hypot(o.y_m() - sy);
@@ -184,6 +222,7 @@ async fn square(
         let goal = normalize_angle(f64::from(corner) * std::f64::consts::FRAC_PI_2);
         loop {
             let s = robot.next_odometry(at).await?;
+            record(&s);
             at = s.at;
             let e = normalize_angle(goal - s.value.theta_rad());
             if e.abs() < 0.5f64.to_radians() {
