@@ -18,9 +18,10 @@
 //! line waits for room in the queue for a bounded time ([`Logs::say_by`]) rather than being
 //! dropped.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, sync_channel};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Lines that may wait for stderr before new ones are dropped.
 pub const QUEUE: usize = 4096;
@@ -38,10 +39,21 @@ enum Msg {
 #[derive(Clone)]
 pub struct Logs {
     tx: SyncSender<Msg>,
+    state: Arc<State>,
 }
 
-/// Lines dropped because the queue was full.
-static DROPPED: AtomicU64 = AtomicU64::new(0);
+/// Shared with the writing thread.
+#[derive(Default)]
+struct State {
+    /// Lines and messages queued and not yet written (or dropped).
+    queued: AtomicUsize,
+    /// Set by [`Logs::abandon`]: what is still queued is dropped, not written.
+    abandoned: AtomicBool,
+    /// Lines and messages dropped because the queue was full, not yet said.
+    dropped: AtomicU64,
+    /// Lines and messages written so far (whether stderr is being read at all).
+    written: AtomicU64,
+}
 
 impl Logs {
     /// Start the writing thread. If it cannot start, log lines are dropped (and counted), and
@@ -55,16 +67,44 @@ impl Logs {
     /// own messages finds it closed (a broken pipe).
     fn start_with(out: impl std::io::Write + Send + 'static, closed: fn()) -> Self {
         let (tx, rx) = sync_channel(QUEUE);
+        let state = Arc::new(State::default());
+        let st = Arc::clone(&state);
         let _ = std::thread::Builder::new()
             .name("ima-log".into())
-            .spawn(move || write_out(&rx, out, closed));
-        Self { tx }
+            .spawn(move || write_out(&rx, out, closed, &st));
+        Self { tx, state }
+    }
+
+    /// Queue `m`; `Full` or `Disconnected` gives it back.
+    fn queue(&self, m: Msg) -> Result<(), TrySendError<Msg>> {
+        let counted = !matches!(m, Msg::Flush(_));
+        if counted {
+            self.state.queued.fetch_add(1, Ordering::SeqCst);
+        }
+        let r = self.tx.try_send(m);
+        if r.is_err() && counted {
+            self.state.queued.fetch_sub(1, Ordering::SeqCst);
+        }
+        r
+    }
+
+    /// [`queue`](Self::queue), retrying while the queue is full until `deadline`.
+    fn queue_by(&self, mut m: Msg, deadline: Instant) -> Result<(), TrySendError<Msg>> {
+        loop {
+            match self.queue(m) {
+                Err(TrySendError::Full(back)) if Instant::now() < deadline => {
+                    m = back;
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                r => return r,
+            }
+        }
     }
 
     /// Queue `bytes` as one log line; dropped (and counted) when the queue is full.
     pub fn send(&self, bytes: Vec<u8>) {
-        if self.tx.try_send(Msg::Line(bytes)).is_err() {
-            DROPPED.fetch_add(1, Ordering::Relaxed);
+        if self.queue(Msg::Line(bytes)).is_err() {
+            self.state.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
@@ -75,10 +115,10 @@ impl Logs {
     /// The message back if no thread writes the queue out (it could not start): the caller
     /// writes it itself.
     pub fn say(&self, bytes: Vec<u8>) -> Result<(), Vec<u8>> {
-        match self.tx.try_send(Msg::Said(bytes)) {
+        match self.queue(Msg::Said(bytes)) {
             Ok(()) => Ok(()),
             Err(TrySendError::Full(_)) => {
-                DROPPED.fetch_add(1, Ordering::Relaxed);
+                self.state.dropped.fetch_add(1, Ordering::Relaxed);
                 Ok(())
             }
             Err(TrySendError::Disconnected(Msg::Said(b))) => Err(b),
@@ -92,45 +132,65 @@ impl Logs {
     ///
     /// # Errors
     /// The message back if no thread writes the queue out.
-    pub fn say_by(&self, bytes: Vec<u8>, deadline: std::time::Instant) -> Result<bool, Vec<u8>> {
-        let mut m = Msg::Said(bytes);
-        loop {
-            match self.tx.try_send(m) {
-                Ok(()) => return Ok(true),
-                Err(TrySendError::Full(back)) if std::time::Instant::now() < deadline => {
-                    m = back;
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-                Err(TrySendError::Full(_)) => {
-                    DROPPED.fetch_add(1, Ordering::Relaxed);
-                    return Ok(false);
-                }
-                Err(TrySendError::Disconnected(Msg::Said(b))) => return Err(b),
-                Err(TrySendError::Disconnected(_)) => return Ok(false),
+    pub fn say_by(&self, bytes: Vec<u8>, deadline: Instant) -> Result<bool, Vec<u8>> {
+        match self.queue_by(Msg::Said(bytes), deadline) {
+            Ok(()) => Ok(true),
+            Err(TrySendError::Full(_)) => {
+                self.state.dropped.fetch_add(1, Ordering::Relaxed);
+                Ok(false)
             }
+            Err(TrySendError::Disconnected(Msg::Said(b))) => Err(b),
+            Err(TrySendError::Disconnected(_)) => Ok(false),
         }
     }
 
-    /// Wait up to `wait` for every line queued so far to be written; whether they were. (The
-    /// note of lines dropped is queued first, if it finds room.)
+    /// Wait up to `wait` for every line queued so far to be written; whether they were. The
+    /// lines dropped so far are said first (the count is kept until the note is queued), and
+    /// a full queue is waited on for room, within the same time.
     pub fn flush(&self, wait: Duration) -> bool {
-        let dropped = DROPPED.swap(0, Ordering::Relaxed);
+        let deadline = Instant::now() + wait;
+        let dropped = self.state.dropped.load(Ordering::Relaxed);
         if dropped > 0 {
-            self.send(
-                format!("ima: {dropped} message(s) dropped: stderr did not keep up\n").into_bytes(),
-            );
+            let note = format!("ima: {dropped} message(s) dropped: stderr did not keep up\n");
+            if self
+                .queue_by(Msg::Line(note.into_bytes()), deadline)
+                .is_ok()
+            {
+                self.state.dropped.fetch_sub(dropped, Ordering::Relaxed);
+            }
         }
         let (ack, done) = std::sync::mpsc::channel();
-        if self.tx.try_send(Msg::Flush(ack)).is_err() {
+        if self.queue_by(Msg::Flush(ack), deadline).is_err() {
             return false;
         }
-        done.recv_timeout(wait).is_ok()
+        done.recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .is_ok()
+    }
+
+    /// Lines and messages written so far: whether stderr is read at all, however slowly.
+    pub fn written(&self) -> u64 {
+        self.state.written.load(Ordering::SeqCst)
+    }
+
+    /// Give up on what is still queued (stderr did not keep up at the exit): the writing
+    /// thread drops it instead of writing it. How many lines and messages were not written,
+    /// with those dropped before and not yet said.
+    pub fn abandon(&self) -> usize {
+        self.state.abandoned.store(true, Ordering::SeqCst);
+        let dropped =
+            usize::try_from(self.state.dropped.swap(0, Ordering::Relaxed)).unwrap_or(usize::MAX);
+        self.state
+            .queued
+            .load(Ordering::SeqCst)
+            .saturating_add(dropped)
     }
 }
 
-fn write_out(rx: &Receiver<Msg>, mut out: impl std::io::Write, closed: fn()) {
+fn write_out(rx: &Receiver<Msg>, mut out: impl std::io::Write, closed: fn(), st: &State) {
     for m in rx {
+        let abandoned = st.abandoned.load(Ordering::SeqCst);
         match m {
+            Msg::Line(_) | Msg::Said(_) if abandoned => {}
             // Nowhere left to report a failed write.
             Msg::Line(b) => drop(out.write_all(&b)),
             Msg::Said(b) => {
@@ -140,8 +200,15 @@ fn write_out(rx: &Receiver<Msg>, mut out: impl std::io::Write, closed: fn()) {
                     closed();
                 }
             }
-            Msg::Flush(ack) => drop(ack.send(())),
+            Msg::Flush(ack) => {
+                let _ = ack.send(());
+                continue;
+            }
         }
+        if !abandoned {
+            st.written.fetch_add(1, Ordering::SeqCst);
+        }
+        st.queued.fetch_sub(1, Ordering::SeqCst);
     }
 }
 
@@ -191,7 +258,10 @@ mod tests {
     fn lines_are_sent_whole_and_flushed() {
         let logs = Logs::start();
         let (tx, rx) = sync_channel(QUEUE);
-        let mine = Logs { tx };
+        let mine = Logs {
+            tx,
+            state: Arc::default(),
+        };
         {
             let mut l = tracing_subscriber::fmt::MakeWriter::make_writer(&mine);
             l.write_all(b"one ").unwrap();
@@ -208,12 +278,15 @@ mod tests {
     #[test]
     fn a_full_queue_drops_instead_of_blocking() {
         let (tx, _rx) = sync_channel(2);
-        let logs = Logs { tx };
-        let before = DROPPED.load(Ordering::Relaxed);
+        let logs = Logs {
+            tx,
+            state: Arc::default(),
+        };
+        let before = logs.state.dropped.load(Ordering::Relaxed);
         for _ in 0..5 {
             logs.send(b"x\n".to_vec());
         }
-        assert!(DROPPED.load(Ordering::Relaxed) >= before + 3);
+        assert!(logs.state.dropped.load(Ordering::Relaxed) >= before + 3);
         // Nobody writes these out: the flush gives up in its time.
         assert!(!logs.flush(Duration::from_millis(50)));
     }
@@ -242,6 +315,32 @@ mod tests {
         assert_eq!(flushed, Ok(false), "the messages waited for stderr");
         sayer.join().unwrap();
         drop(reader); // the blocked writes fail, and both threads end
+        fill.join().unwrap();
+    }
+
+    /// Behind a stderr nobody reads, the count of what was dropped is kept until its note can
+    /// be queued (it was reset, and the note dropped with the queue full), and giving up
+    /// counts everything not written.
+    #[test]
+    fn the_dropped_count_survives_a_full_queue_and_abandon_counts_all() {
+        let (reader, writer) = std::io::pipe().unwrap();
+        let mut filler = writer.try_clone().unwrap();
+        let fill = std::thread::spawn(move || while filler.write_all(&[b'.'; 4096]).is_ok() {});
+        std::thread::sleep(Duration::from_millis(300));
+        let logs = Logs::start_with(writer, || {});
+        // The writing thread takes the first and blocks on it; the queue fills behind.
+        logs.say(b"first\n".to_vec()).unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        for i in 0..QUEUE + 10 {
+            logs.say(format!("line {i}\n").into_bytes()).unwrap();
+        }
+        let dropped = logs.state.dropped.load(Ordering::Relaxed);
+        assert_eq!(dropped, 10);
+        assert!(!logs.flush(Duration::from_millis(50)));
+        assert_eq!(logs.state.dropped.load(Ordering::Relaxed), dropped);
+        // Everything not written: the one being written, the queue's and the dropped.
+        assert_eq!(logs.abandon(), 1 + QUEUE + 10);
+        drop(reader);
         fill.join().unwrap();
     }
 

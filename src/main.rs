@@ -191,6 +191,7 @@ fn main() -> ExitCode {
     // The messages still queued go out first (waiting a second at most, shared with the
     // error line below): one that finds stderr closed marks it so.
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(1);
+    let written = safety::logs_written();
     safety::flush_logs_by(deadline);
     // A print that found stderr closed could not fail the command itself: it ends as one that
     // found stdout closed (141), like the robot's own commands.
@@ -201,10 +202,7 @@ fn main() -> ExitCode {
         r => r,
     };
     let (code, message) = safety::exit_status(&result);
-    if let Some(m) = message {
-        safety::last_error_line(&m, deadline);
-        safety::flush_logs_by(deadline);
-    }
+    safety::last_words(message.as_deref(), deadline, written);
     ExitCode::from(code)
 }
 

@@ -238,15 +238,82 @@ pub fn flush_logs_by(deadline: std::time::Instant) -> bool {
     }
 }
 
-/// The program's last error line: queued behind everything before it, waiting until
-/// `deadline` for room rather than being dropped (written directly when no log thread runs).
-pub fn last_error_line(message: &str, deadline: std::time::Instant) {
-    let line = format!("ima: error: {message}\n");
-    match LOG.get().map(|l| l.say_by(line.into_bytes(), deadline)) {
-        // Queued, or the queue stayed full behind a stderr nobody reads (then dropped).
-        Some(Ok(_)) => {}
-        // No thread writes the queue out.
-        Some(Err(_)) | None => say_directly(format_args!("ima: error: {message}\n")),
+/// The program's last words on stderr: the error line, if any, behind everything queued,
+/// all of it written by `deadline` if stderr keeps up. If it does not (a slow or stalled
+/// reader), what is still queued is given up, and a note of how many messages were not
+/// written and the error line are written directly, waiting at most 2 s for a reader that is
+/// slow and 0.3 s for one that took nothing: the error line is never dropped silently behind
+/// a backlog of log lines. (It follows the line being written then, or, if that one is longer
+/// than what a pipe takes whole, may cut into it.)
+pub fn last_words(error: Option<&str>, deadline: std::time::Instant, written_before: u64) {
+    let line = error.map(|m| format!("ima: error: {m}\n"));
+    let Some(l) = LOG.get() else {
+        if let Some(line) = &line {
+            say_directly(format_args!("{line}"));
+        }
+        return;
+    };
+    let queued = match &line {
+        None => true,
+        Some(line) => match l.say_by(line.clone().into_bytes(), deadline) {
+            Ok(queued) => queued,
+            // No thread writes the queue out.
+            Err(_) => return say_directly(format_args!("{line}")),
+        },
+    };
+    if queued && l.flush(deadline.saturating_duration_since(std::time::Instant::now())) {
+        return;
+    }
+    // A reader that took something since the exit began (`written_before`, from
+    // [`logs_written`]) is slow, not gone: wait longer for it to take the last words (a pipe
+    // frees room a page at a time) than for one that took nothing.
+    let wait = if l.written() > written_before {
+        Duration::from_secs(2)
+    } else {
+        Duration::from_millis(300)
+    };
+    let lost = l.abandon();
+    let mut words = String::new();
+    if lost > 0 {
+        words = format!("ima: {lost} message(s) not written: stderr did not keep up\n");
+    }
+    words.push_str(line.as_deref().unwrap_or_default());
+    if words.is_empty() {
+        return;
+    }
+    // On a thread of its own (a stderr nobody reads blocks it, not the exit), and on a copy of
+    // the descriptor rather than through `Stderr`, whose lock the log thread may hold while a
+    // long line of its own waits for the reader: one short write, which a pipe takes whole.
+    let (tx, rx) = std::sync::mpsc::channel();
+    let spawned = std::thread::Builder::new()
+        .name("ima-last-words".into())
+        .spawn(move || {
+            use std::os::fd::AsFd as _;
+            if let Ok(fd) = std::io::stderr().as_fd().try_clone_to_owned() {
+                let _ = std::fs::File::from(fd).write_all(words.as_bytes());
+            }
+            let _ = tx.send(());
+        });
+    if spawned.is_ok() {
+        let _ = rx.recv_timeout(wait);
+    }
+}
+
+/// How many log lines and messages have been written to stderr so far (0 without a log
+/// thread): taken when the exit begins, for [`last_words`].
+pub fn logs_written() -> u64 {
+    LOG.get().map_or(0, crate::logs::Logs::written)
+}
+
+/// A progress line (`ima experiment`'s bar) on stderr, as a log line is: dropped when stderr
+/// does not keep up, and never the end of the command when it is closed (the results still
+/// go to stdout).
+pub fn progress(args: std::fmt::Arguments<'_>) {
+    match LOG.get() {
+        Some(l) => l.send(std::fmt::format(args).into_bytes()),
+        None => {
+            let _ = std::io::stderr().write_fmt(args);
+        }
     }
 }
 

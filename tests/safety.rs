@@ -1176,3 +1176,72 @@ fn a_last_message_into_a_closed_stderr_ends_with_141() {
         .unwrap();
     assert_eq!(status.code(), Some(141), "{status}");
 }
+
+/// The error line ends stderr even when stderr is read slowly (a 19200-baud
+/// console, a slow SSH link) behind a backlog of log lines: what could not be written in time
+/// is given up and counted, then the error line is written. It was queued behind the backlog,
+/// the exit's wait ended first, and it was lost without a word.
+#[test]
+fn a_slow_stderr_still_gets_the_error_line() {
+    use std::io::Read as _;
+    let mut child = Child(
+        ima()
+            .args([
+                "demo",
+                "--speed",
+                "20",
+                "--svg",
+                "/dev/full",
+                "--log",
+                "debug",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut err = child.0.stderr.take().unwrap();
+    let (mut got, mut buf) = (Vec::new(), [0u8; 1024]);
+    // 4 kB/s: far slower than the debug log comes.
+    loop {
+        let n = err.read(&mut buf).unwrap();
+        if n == 0 {
+            break;
+        }
+        got.extend_from_slice(&buf[..n]);
+        std::thread::sleep(Duration::from_millis(250 * n as u64 / 1024));
+    }
+    let status = wait_exit(&mut child, "the demo");
+    assert_eq!(status.code(), Some(1), "{status}");
+    let text = String::from_utf8_lossy(&got);
+    // After what was being written when the rest was given up (a long debug line may be
+    // written around it).
+    let tail: Vec<&str> = text.lines().rev().take(3).collect();
+    assert!(
+        tail.iter()
+            .any(|l| l.contains("ima: error: --svg /dev/full")),
+        "the last lines: {tail:?}"
+    );
+    assert!(
+        text.contains("message(s) not written: stderr did not keep up"),
+        "no note of what was given up"
+    );
+}
+
+/// A closed stderr does not cost `ima experiment` its results: its progress bar is written as
+/// a log line is (dropped, never the end of the command), so the sweep runs to its end and
+/// the results reach stdout. The progress bar once took the queue of the program's own
+/// messages, found stderr closed and ended the sweep with nothing printed.
+#[test]
+fn a_closed_stderr_does_not_cost_the_experiment_its_results() {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = ima()
+        .args(["experiment", "heading", "--rule", "thesis", "--json"])
+        .stderr(writer)
+        .output()
+        .unwrap();
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {} bytes on stdout, {}", out.stdout.len(), out.status));
+    assert!(doc.is_object(), "{doc}");
+}

@@ -137,11 +137,12 @@ fn heading(a: &HeadingArgs) -> anyhow::Result<()> {
     let progress = |done: usize, total: usize| {
         // On a terminal the bar redraws in place; otherwise one line per quarter.
         if tty || done == total || (total >= 4 && done.is_multiple_of(total / 4)) {
-            // Through the log thread, in order with the messages before it.
+            // Through the log thread, in order with the messages before it; a closed stderr
+            // does not end the sweep (its results go to stdout).
             if tty {
-                eprint!("{}", bar(done, total));
+                crate::safety::progress(format_args!("{}", bar(done, total)));
             } else {
-                eprintln!("{}", bar(done, total));
+                crate::safety::progress(format_args!("{}\n", bar(done, total)));
             }
         }
     };
