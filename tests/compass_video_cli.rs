@@ -234,6 +234,35 @@ fn decode_compass_and_switchers() {
     assert_eq!(v[1]["code"], 13);
     let v = decode("video-mux", &["--from", "host"], b"3!");
     assert_eq!(v[0]["kind"], "select");
+    // The answers to the information requests, and the requests themselves.
+    let v = decode("video-mux", &[], b"V3 A3 F1 Vmt0 Amt0\r\n1.00\r\nVrb3\r\n");
+    assert_eq!(
+        (&v[0]["kind"], &v[0]["video"], &v[0]["mode"]),
+        (
+            &serde_json::json!("information"),
+            &serde_json::json!(3),
+            &serde_json::json!(1)
+        )
+    );
+    assert_eq!(
+        (&v[1]["kind"], &v[1]["version"]),
+        (&serde_json::json!("firmware"), &serde_json::json!("1.00"))
+    );
+    assert_eq!(
+        (&v[2]["kind"], &v[2]["mode"]),
+        (&serde_json::json!("verbose"), &serde_json::json!(3))
+    );
+    let v = decode("video-mux", &["--from", "host"], b"IQNB");
+    let kinds: Vec<&str> = v.iter().map(|x| x["kind"].as_str().unwrap()).collect();
+    assert_eq!(
+        kinds,
+        [
+            "information",
+            "firmware_version",
+            "part_number",
+            "read_video_mute"
+        ]
+    );
     let v = decode("kramer", &["--hex"], b"01 83 81 81");
     assert_eq!(v[0]["kind"], "switch_video");
     assert_eq!(v[0]["input"], 3);

@@ -24,6 +24,10 @@
 //!   command): `I` answers `V<in> A<in> F<mode> Vmt<0|1> Amt0` (mode 1 manual, 2 auto-switch;
 //!   SW VGA and MTP manuals), `Q` the model's firmware version [`FIRMWARE`], `B` the video
 //!   mute (`0`/`1`; SW AV manual); `N` (part number) gets `E10`, as the model has none.
+//!   Escape commands (`ESC …` or `W…`, ended by CR or `|`) are read whole: `ESC 3CV` (verbose
+//!   mode) answers `Vrb3`, any other `E10` (they were taken for the start of the next command).
+//! * Commands are answered in order: one that comes while a switch is under way waits for it
+//!   (`3!I` answers `In3 All`, then `V3 …`; it answered the old input first).
 //!   A power-on banner is sent once, when the model starts.
 //! * Kramer (`expect_reply` drivers): a video switch to output 1 of machine 1 is echoed with
 //!   bit 6 set after the switch delay; a status request answers the input; anything else is
@@ -43,8 +47,11 @@ use ima_video_mux::wire::{
 
 use crate::model::DeviceModel;
 
-/// The mock switcher's answer to `Q` (firmware version, two decimals as SIS gives it).
-pub const FIRMWARE: &str = "1.00";
+/// The mock switcher's answer to `Q` (its firmware version, `1.00`).
+pub const FIRMWARE: ExtronReply = ExtronReply::Firmware {
+    major: 1,
+    hundredths: 0,
+};
 
 #[derive(Debug, Clone, Copy)]
 struct BusState {
@@ -164,6 +171,14 @@ enum Pending {
 }
 
 const MAX_PARTIAL: usize = 16;
+/// Commands kept while a switch is under way (more are ignored).
+const MAX_DEFERRED: usize = 32;
+
+/// Whether `c` starts an SIS escape command (`ESC` on a serial port, `W` as its stand-in),
+/// which ends at CR or `|`.
+fn is_escape(c: u8) -> bool {
+    matches!(c, 0x1b | b'W' | b'w')
+}
 const SIS_ABORT: Duration = Duration::from_secs(10);
 
 /// The mock switcher, a [`DeviceModel`].
@@ -177,6 +192,8 @@ pub struct MuxDevice {
     current: Option<Channel>,
     muted: bool,
     pending: Vec<(Instant, Pending)>,
+    /// Extron commands that came while a switch was under way: answered in order, after it.
+    deferred: std::collections::VecDeque<Vec<u8>>,
     banner_due: bool,
     stats: MuxModelStats,
 }
@@ -195,6 +212,7 @@ impl MuxDevice {
             current,
             muted: false,
             pending: Vec::new(),
+            deferred: std::collections::VecDeque::new(),
             banner_due: cfg.banner && cfg.dialect == MuxDialect::Extron,
             stats: MuxModelStats::default(),
         }
@@ -274,15 +292,48 @@ impl MuxDevice {
             ExtronCommand::ReadVideoMute => self.reply_line(if self.muted { "1" } else { "0" }),
             ExtronCommand::Information => {
                 let input = self.current.map_or(0, u16::from);
-                let mode = if self.cfg.auto_switch { 2 } else { 1 };
-                let mute = u8::from(self.muted);
-                self.reply_line(&format!("V{input} A{input} F{mode} Vmt{mute} Amt0"));
+                self.reply(ExtronReply::Information {
+                    video: input,
+                    audio: input,
+                    mode: Some(if self.cfg.auto_switch { 2 } else { 1 }),
+                    video_mute: Some(self.muted),
+                    audio_mute: Some(false),
+                });
             }
-            ExtronCommand::FirmwareVersion => self.reply_line(FIRMWARE),
+            ExtronCommand::FirmwareVersion => self.reply(FIRMWARE),
             // The model has no part number of its own.
             ExtronCommand::PartNumber => {
                 self.reply(ExtronReply::Error(ExtronError::InvalidCommand))
             }
+        }
+    }
+
+    /// A complete Extron command: answered now, or after the switch under way and the
+    /// commands before it (a unit answers in order: `3!I` gave the old input, then `In3 All`).
+    fn command(&mut self, cmd: Vec<u8>, now: Instant) {
+        if self.pending.is_empty() && self.deferred.is_empty() {
+            self.execute(&cmd, now);
+        } else if self.deferred.len() < MAX_DEFERRED {
+            self.deferred.push_back(cmd);
+        }
+    }
+
+    fn execute(&mut self, cmd: &[u8], now: Instant) {
+        match cmd.split_first() {
+            Some((&c, body)) if is_escape(c) => self.escape(body),
+            _ => self.extron(cmd, now),
+        }
+    }
+
+    /// An escape command: `<n>CV` (verbose mode) answers `Vrb<n>`; the model takes no other.
+    fn escape(&mut self, body: &[u8]) {
+        let upper = body.to_ascii_uppercase();
+        match upper.strip_suffix(b"CV") {
+            Some(d) if !d.is_empty() && d.len() <= 2 && d.iter().all(u8::is_ascii_digit) => {
+                let n = d.iter().fold(0u8, |n, c| n * 10 + (c - b'0'));
+                self.reply(ExtronReply::Verbose(n));
+            }
+            _ => self.reply(ExtronReply::Error(ExtronError::InvalidCommand)),
         }
     }
 
@@ -363,13 +414,26 @@ impl DeviceModel for MuxDevice {
         match self.cfg.dialect {
             MuxDialect::Extron => {
                 for &b in bytes {
+                    // An escape command (`ESC …` or `W…`) ends at CR or `|`.
+                    if self.partial.first().is_some_and(|&c| is_escape(c)) {
+                        if b == b'\r' || b == b'|' {
+                            let cmd = std::mem::take(&mut self.partial);
+                            self.command(cmd, now);
+                        } else if self.partial.len() >= MAX_PARTIAL {
+                            self.partial.clear();
+                            self.reply(ExtronReply::Error(ExtronError::InvalidCommand));
+                        } else {
+                            self.partial.push(b);
+                        }
+                        continue;
+                    }
                     if b == b'\r' || b == b'\n' || b == b' ' {
                         continue;
                     }
                     self.partial.push(b);
                     if let Some(end) = ExtronCommand::command_end(&self.partial) {
                         let cmd: Vec<u8> = self.partial.drain(..end).collect();
-                        self.extron(&cmd, now);
+                        self.command(cmd, now);
                     } else if self.partial.len() > MAX_PARTIAL {
                         self.partial.clear();
                         self.reply(ExtronReply::Error(ExtronError::InvalidCommand));
@@ -416,6 +480,12 @@ impl DeviceModel for MuxDevice {
         for (_, p) in due {
             self.complete(p);
         }
+        // The commands that waited for the switch, in order, until one starts another.
+        while self.pending.is_empty()
+            && let Some(cmd) = self.deferred.pop_front()
+        {
+            self.execute(&cmd, now);
+        }
     }
 
     fn name(&self) -> &str {
@@ -459,6 +529,25 @@ mod tests {
         assert_eq!(run(&mut d, b"q!", Instant::ZERO), b"1.00\r\n2\r\n");
         assert_eq!(run(&mut d, b"N3!", Instant::ZERO), b"E10\r\nIn3 All\r\n");
         assert_eq!(run(&mut d, b"0B", Instant::ZERO), b"Vmt0\r\n");
+        // In order: a query behind a switch answers after it, with the new input.
+        assert_eq!(
+            run(&mut d, b"3!I", Instant::ZERO),
+            b"In3 All\r\nV3 A3 F1 Vmt0 Amt0\r\n"
+        );
+        assert_eq!(
+            run(&mut d, b"2!Q!", Instant::ZERO),
+            b"In2 All\r\n1.00\r\n2\r\n"
+        );
+        // Escape commands end at CR or `|` and never swallow the next command.
+        assert_eq!(
+            run(&mut d, b"\x1b3CV\rQ", Instant::ZERO),
+            b"Vrb3\r\n1.00\r\n"
+        );
+        assert_eq!(
+            run(&mut d, b"W3CV|I", Instant::ZERO),
+            b"Vrb3\r\nV2 A2 F1 Vmt0 Amt0\r\n"
+        );
+        assert_eq!(run(&mut d, b"WXYZ|!", Instant::ZERO), b"E10\r\n2\r\n");
         let mut auto = MuxDevice::new(
             MuxModelConfig {
                 auto_switch: true,

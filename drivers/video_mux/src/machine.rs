@@ -449,7 +449,12 @@ impl Machine {
             ExtronReply::Signals(s) => self.unsolicited(Event::Signals(s)),
             ExtronReply::Mute(m) => self.unsolicited(Event::Mute(m)),
             ExtronReply::Banner => self.unsolicited(Event::Banner),
-            ExtronReply::Input { .. } | ExtronReply::Tie { .. } | ExtronReply::Current(_) => {
+            ExtronReply::Input { .. }
+            | ExtronReply::Tie { .. }
+            | ExtronReply::Current(_)
+            | ExtronReply::Information { .. }
+            | ExtronReply::Firmware { .. }
+            | ExtronReply::Verbose(_) => {
                 self.stats.ignored = self.stats.ignored.saturating_add(1);
             }
         }

@@ -61,6 +61,25 @@ fn reply() -> impl Strategy<Value = ExtronReply> {
         any::<bool>().prop_map(ExtronReply::Mute),
         (0u8..=99).prop_map(|c| ExtronReply::Error(ExtronError::from_code(c))),
         Just(ExtronReply::Banner),
+        (
+            any::<u16>(),
+            any::<u16>(),
+            proptest::option::of(0u8..=9),
+            proptest::option::of(any::<bool>()),
+            proptest::option::of(any::<bool>()),
+        )
+            .prop_map(|(video, audio, mode, video_mute, audio_mute)| {
+                ExtronReply::Information {
+                    video,
+                    audio,
+                    mode,
+                    video_mute,
+                    audio_mute,
+                }
+            }),
+        (any::<u16>(), 0u8..=99)
+            .prop_map(|(major, hundredths)| ExtronReply::Firmware { major, hundredths }),
+        any::<u8>().prop_map(ExtronReply::Verbose),
     ]
 }
 
@@ -153,4 +172,45 @@ proptest! {
             prop_assert!(it.any(|g| g == w), "lost {:02x?}", w);
         }
     }
+}
+
+/// The answers to the SIS information requests the mock gives (`I`, `Q`, `ESC 3CV`), and a
+/// model's longer `I` answer (MTP SW6: `Exe`, not kept); a banner that starts with a digit
+/// is still a banner.
+#[test]
+fn information_firmware_and_verbose_replies() {
+    assert_eq!(
+        ExtronReply::parse(b"V3 A3 F1 Vmt0 Amt0\r\n"),
+        Ok(ExtronReply::Information {
+            video: 3,
+            audio: 3,
+            mode: Some(1),
+            video_mute: Some(false),
+            audio_mute: Some(false),
+        })
+    );
+    assert_eq!(
+        ExtronReply::parse(b"V2 A5 F2 Vmt1 Amt0 Exe1"),
+        Ok(ExtronReply::Information {
+            video: 2,
+            audio: 5,
+            mode: Some(2),
+            video_mute: Some(true),
+            audio_mute: Some(false),
+        })
+    );
+    assert_eq!(
+        ExtronReply::parse(b"1.23"),
+        Ok(ExtronReply::Firmware {
+            major: 1,
+            hundredths: 23
+        })
+    );
+    assert_eq!(ExtronReply::parse(b"Vrb3"), Ok(ExtronReply::Verbose(3)));
+    assert_eq!(
+        ExtronReply::parse(b"2002 Extron Electronics"),
+        Ok(ExtronReply::Banner)
+    );
+    assert!(ExtronReply::parse(b"1.2").is_err());
+    assert!(ExtronReply::parse(b"V3").is_err());
 }

@@ -37,6 +37,18 @@ fn reply_json(r: &ExtronReply) -> Value {
             json!({"kind": "switcher_error", "code": e.code(), "name": format!("{e:?}")})
         }
         ExtronReply::Banner => json!({"kind": "banner"}),
+        ExtronReply::Information {
+            video,
+            audio,
+            mode,
+            video_mute,
+            audio_mute,
+        } => json!({"kind": "information", "video": video, "audio": audio, "mode": mode,
+            "video_mute": video_mute, "audio_mute": audio_mute}),
+        ExtronReply::Firmware { major, hundredths } => {
+            json!({"kind": "firmware", "version": format!("{major}.{hundredths:02}")})
+        }
+        ExtronReply::Verbose(n) => json!({"kind": "verbose", "mode": n}),
     }
 }
 

@@ -317,10 +317,64 @@ pub enum ExtronReply {
     Error(ExtronError),
     /// The power-on copyright banner (any line naming Extron or a copyright).
     Banner,
+    /// The answer to `I`: `V<in> A<in>`, then, where the model gives them, `F<mode>`,
+    /// `Vmt<0|1>` and `Amt<0|1>` (SW VGA and MTP manuals; fields after those are not kept).
+    Information {
+        /// Video input selected.
+        video: u16,
+        /// Audio input selected.
+        audio: u16,
+        /// Switch mode (1 manual, 2 auto), if given.
+        mode: Option<u8>,
+        /// Video mute, if given.
+        video_mute: Option<bool>,
+        /// Audio mute, if given.
+        audio_mute: Option<bool>,
+    },
+    /// The answer to `Q`: the firmware version, two decimals (`1.23`).
+    Firmware {
+        /// Before the point.
+        major: u16,
+        /// The two decimals, 0–99.
+        hundredths: u8,
+    },
+    /// The answer to an escape command `<n>CV`: the verbose mode set (`Vrb3`).
+    Verbose(u8),
 }
 
 /// The banner [`ExtronReply::Banner`] emits.
 pub const BANNER: &[u8] = b"(c) Copyright 2002, Extron Electronics, SW AV";
+
+/// `V<in> A<in>[ F<mode>][ Vmt<0|1>][ Amt<0|1>]`, fields after those ignored.
+fn parse_information(line: &[u8]) -> Result<ExtronReply, WireError> {
+    let mut fields = line.split(|c| *c == b' ').filter(|f| !f.is_empty());
+    let number = |f: Option<&[u8]>, tag: u8| match f {
+        Some([t, n @ ..]) if *t == tag && !n.is_empty() && n.iter().all(u8::is_ascii_digit) => {
+            parse_u16(n)
+        }
+        _ => Err(WireError::UnknownReply),
+    };
+    let video = number(fields.next(), b'V')?;
+    let audio = number(fields.next(), b'A')?;
+    let (mut mode, mut video_mute, mut audio_mute) = (None, None, None);
+    for f in fields {
+        match f {
+            [b'F', n @ ..] if !n.is_empty() && n.iter().all(u8::is_ascii_digit) => {
+                mode = Some(u8::try_from(parse_u16(n)?).map_err(|_| WireError::BadNumber)?);
+            }
+            b"Vmt0" | b"Vmt1" => video_mute = Some(f == b"Vmt1"),
+            b"Amt0" | b"Amt1" => audio_mute = Some(f == b"Amt1"),
+            _ => {}
+        }
+    }
+    Ok(ExtronReply::Information {
+        video,
+        audio,
+        mode,
+        video_mute,
+        audio_mute,
+    })
+}
 
 fn split_digits(s: &[u8]) -> (&[u8], &[u8]) {
     let n = s.iter().take_while(|c| c.is_ascii_digit()).count();
@@ -400,8 +454,25 @@ impl ExtronReply {
                 }
                 Ok(Self::Signals(Signals { mask, count }))
             }
-            l if l.iter().all(u8::is_ascii_digit) => Ok(Self::Current(parse_u16(l)?)),
+            [b'V', b'r', b'b', n @ ..] if !n.is_empty() && n.iter().all(u8::is_ascii_digit) => Ok(
+                Self::Verbose(u8::try_from(parse_u16(n)?).map_err(|_| WireError::BadNumber)?),
+            ),
             l if contains(l, b"extron") || contains(l, b"copyright") => Ok(Self::Banner),
+            [b'V', d, ..] if d.is_ascii_digit() => parse_information(line),
+            l if l.iter().all(u8::is_ascii_digit) => Ok(Self::Current(parse_u16(l)?)),
+            [d, ..] if d.is_ascii_digit() => {
+                let (major, tail) = split_digits(line);
+                let [b'.', a, b] = tail else {
+                    return Err(WireError::UnknownReply);
+                };
+                if !a.is_ascii_digit() || !b.is_ascii_digit() {
+                    return Err(WireError::UnknownReply);
+                }
+                Ok(Self::Firmware {
+                    major: parse_u16(major)?,
+                    hundredths: (a - b'0') * 10 + (b - b'0'),
+                })
+            }
             _ => Err(WireError::UnknownReply),
         }
     }
@@ -465,6 +536,40 @@ impl ExtronReply {
             }
             Self::Banner => {
                 w.bytes(BANNER)?;
+            }
+            Self::Information {
+                video,
+                audio,
+                mode,
+                video_mute,
+                audio_mute,
+            } => {
+                w.u8(b'V')?;
+                w.decimal(u64::from(video), 1)?;
+                w.bytes(b" A")?;
+                w.decimal(u64::from(audio), 1)?;
+                if let Some(m) = mode {
+                    w.bytes(b" F")?;
+                    w.decimal(u64::from(m), 1)?;
+                }
+                if let Some(m) = video_mute {
+                    w.bytes(if m { b" Vmt1" } else { b" Vmt0" })?;
+                }
+                if let Some(m) = audio_mute {
+                    w.bytes(if m { b" Amt1" } else { b" Amt0" })?;
+                }
+            }
+            Self::Firmware { major, hundredths } => {
+                if hundredths > 99 {
+                    return Err(WireError::OutOfRange);
+                }
+                w.decimal(u64::from(major), 1)?;
+                w.u8(b'.')?;
+                w.decimal(u64::from(hundredths), 2)?;
+            }
+            Self::Verbose(n) => {
+                w.bytes(b"Vrb")?;
+                w.decimal(u64::from(n), 1)?;
             }
         }
         w.bytes(b"\r\n")?;
