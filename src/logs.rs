@@ -15,11 +15,12 @@
 //! task printing them never waits on stderr either (one that did froze a worker thread of a
 //! robot's runtime until stderr was read). A message that finds stderr closed ends the
 //! command as a closed stdout does (`safety::output_closed`, status 141). The last error
-//! line waits for room in the queue for a bounded time ([`Logs::say_by`]) rather than being
-//! dropped.
+//! line waits for room in the queue for a bounded time ([`Logs::say_last`]), and if stderr
+//! does not keep up at the exit, the caller writes it after giving up the rest
+//! ([`Logs::abandon`]).
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, sync_channel};
 use std::time::{Duration, Instant};
 
@@ -31,6 +32,9 @@ enum Msg {
     Line(Vec<u8>),
     /// The program's own message: a closed stderr ends the command.
     Said(Vec<u8>),
+    /// The last error line ([`Logs::say_last`]): written by whoever claims it first, the
+    /// writing thread or [`Logs::abandon`]'s caller, never twice.
+    Last(Vec<u8>),
     /// Answered once every line queued before it is written.
     Flush(Sender<()>),
 }
@@ -53,7 +57,13 @@ struct State {
     dropped: AtomicU64,
     /// Lines and messages written so far (whether stderr is being read at all).
     written: AtomicU64,
+    /// Who writes the last error line: [`UNCLAIMED`], [`BY_WRITER`] or [`BY_CALLER`].
+    last: AtomicU8,
 }
+
+const UNCLAIMED: u8 = 0;
+const BY_WRITER: u8 = 1;
+const BY_CALLER: u8 = 2;
 
 impl Logs {
     /// Start the writing thread. If it cannot start, log lines are dropped (and counted), and
@@ -126,20 +136,22 @@ impl Logs {
         }
     }
 
-    /// [`say`](Self::say) for a message that must not be dropped (the last error): while the
-    /// queue is full, retry until `deadline`. Whether it was queued (not: the queue stayed
-    /// full, as behind a stderr nobody reads).
+    /// Queue the last error line, waiting for room until `deadline`; whether it was queued.
+    /// If it is still unwritten when the queue is given up ([`abandon`](Self::abandon)), the
+    /// caller writes it: the writing thread and the caller claim it, once.
     ///
     /// # Errors
-    /// The message back if no thread writes the queue out.
-    pub fn say_by(&self, bytes: Vec<u8>, deadline: Instant) -> Result<bool, Vec<u8>> {
-        match self.queue_by(Msg::Said(bytes), deadline) {
+    /// The line back if no thread writes the queue out.
+    pub fn say_last(&self, bytes: Vec<u8>, deadline: Instant) -> Result<bool, Vec<u8>> {
+        self.state.last.store(UNCLAIMED, Ordering::SeqCst);
+        match self.queue_by(Msg::Last(bytes), deadline) {
             Ok(()) => Ok(true),
+            // Counted, as [`abandon`](Self::abandon) counts a queued one.
             Err(TrySendError::Full(_)) => {
                 self.state.dropped.fetch_add(1, Ordering::Relaxed);
                 Ok(false)
             }
-            Err(TrySendError::Disconnected(Msg::Said(b))) => Err(b),
+            Err(TrySendError::Disconnected(Msg::Last(b))) => Err(b),
             Err(TrySendError::Disconnected(_)) => Ok(false),
         }
     }
@@ -173,16 +185,23 @@ impl Logs {
     }
 
     /// Give up on what is still queued (stderr did not keep up at the exit): the writing
-    /// thread drops it instead of writing it. How many lines and messages were not written,
-    /// with those dropped before and not yet said.
-    pub fn abandon(&self) -> usize {
+    /// thread drops it instead of writing it. How many lines and messages were not written
+    /// (the one being written may still get through), with those dropped before and not yet
+    /// said, the last error line left out; and whether that line is the caller's to write
+    /// (the writing thread has not taken it).
+    pub fn abandon(&self) -> (usize, bool) {
         self.state.abandoned.store(true, Ordering::SeqCst);
-        let dropped =
-            usize::try_from(self.state.dropped.swap(0, Ordering::Relaxed)).unwrap_or(usize::MAX);
-        self.state
+        let mine = (self.state.last)
+            .compare_exchange(UNCLAIMED, BY_CALLER, Ordering::SeqCst, Ordering::SeqCst)
+            .is_ok();
+        let dropped = self.state.dropped.swap(0, Ordering::Relaxed);
+        let dropped = usize::try_from(dropped).unwrap_or(usize::MAX);
+        let lost = self
+            .state
             .queued
             .load(Ordering::SeqCst)
-            .saturating_add(dropped)
+            .saturating_add(dropped);
+        (lost, mine)
     }
 }
 
@@ -190,7 +209,18 @@ fn write_out(rx: &Receiver<Msg>, mut out: impl std::io::Write, closed: fn(), st:
     for m in rx {
         let abandoned = st.abandoned.load(Ordering::SeqCst);
         match m {
-            Msg::Line(_) | Msg::Said(_) if abandoned => {}
+            Msg::Line(_) | Msg::Said(_) | Msg::Last(_) if abandoned => {}
+            Msg::Last(b) => {
+                let claimed = (st.last)
+                    .compare_exchange(UNCLAIMED, BY_WRITER, Ordering::SeqCst, Ordering::SeqCst)
+                    .is_ok();
+                if claimed
+                    && let Err(e) = out.write_all(&b)
+                    && e.kind() == std::io::ErrorKind::BrokenPipe
+                {
+                    closed();
+                }
+            }
             // Nowhere left to report a failed write.
             Msg::Line(b) => drop(out.write_all(&b)),
             Msg::Said(b) => {
@@ -323,25 +353,78 @@ mod tests {
     /// counts everything not written.
     #[test]
     fn the_dropped_count_survives_a_full_queue_and_abandon_counts_all() {
-        let (reader, writer) = std::io::pipe().unwrap();
-        let mut filler = writer.try_clone().unwrap();
-        let fill = std::thread::spawn(move || while filler.write_all(&[b'.'; 4096]).is_ok() {});
-        std::thread::sleep(Duration::from_millis(300));
-        let logs = Logs::start_with(writer, || {});
+        /// A stderr whose writes block until released, saying when one starts.
+        struct Gate {
+            entered: std::sync::mpsc::Sender<()>,
+            release: Receiver<()>,
+        }
+        impl std::io::Write for Gate {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                let _ = self.entered.send(());
+                let _ = self.release.recv();
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let (entered_tx, entered) = std::sync::mpsc::channel();
+        let (release, release_rx) = std::sync::mpsc::channel();
+        let gate = Gate {
+            entered: entered_tx,
+            release: release_rx,
+        };
+        let logs = Logs::start_with(gate, || {});
         // The writing thread takes the first and blocks on it; the queue fills behind.
         logs.say(b"first\n".to_vec()).unwrap();
-        std::thread::sleep(Duration::from_millis(100));
+        entered.recv_timeout(Duration::from_secs(30)).unwrap();
         for i in 0..QUEUE + 10 {
             logs.say(format!("line {i}\n").into_bytes()).unwrap();
         }
-        let dropped = logs.state.dropped.load(Ordering::Relaxed);
-        assert_eq!(dropped, 10);
+        assert_eq!(logs.state.dropped.load(Ordering::Relaxed), 10);
         assert!(!logs.flush(Duration::from_millis(50)));
-        assert_eq!(logs.state.dropped.load(Ordering::Relaxed), dropped);
-        // Everything not written: the one being written, the queue's and the dropped.
-        assert_eq!(logs.abandon(), 1 + QUEUE + 10);
-        drop(reader);
-        fill.join().unwrap();
+        assert_eq!(logs.state.dropped.load(Ordering::Relaxed), 10);
+        // The last error line, queued behind them, is left to the caller when given up.
+        assert!(!logs.say_last(b"error\n".to_vec(), Instant::now()).unwrap());
+        // Not written: the one being written, the queue's, the dropped and the error line.
+        assert_eq!(logs.abandon(), (1 + QUEUE + 10 + 1, true));
+        drop(release);
+    }
+
+    /// The last error line is written once: by the writing thread if it took it before the
+    /// queue was given up (the caller must not write it again), else by the caller.
+    #[test]
+    fn the_last_error_line_is_written_once() {
+        struct Gate {
+            entered: std::sync::mpsc::Sender<Vec<u8>>,
+            release: Receiver<()>,
+        }
+        impl std::io::Write for Gate {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                let _ = self.entered.send(b.to_vec());
+                let _ = self.release.recv();
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let (entered_tx, entered) = std::sync::mpsc::channel();
+        let (release, release_rx) = std::sync::mpsc::channel();
+        let logs = Logs::start_with(
+            Gate {
+                entered: entered_tx,
+                release: release_rx,
+            },
+            || {},
+        );
+        let soon = Instant::now() + Duration::from_secs(5);
+        assert!(logs.say_last(b"ima: error: x\n".to_vec(), soon).unwrap());
+        // The writing thread is writing it (its write blocks): not the caller's.
+        let written = entered.recv_timeout(Duration::from_secs(30)).unwrap();
+        assert_eq!(written, b"ima: error: x\n");
+        assert_eq!(logs.abandon(), (1, false));
+        drop(release);
     }
 
     /// A message that finds stderr closed (its reader gone) says so; a log line does not.

@@ -322,6 +322,19 @@ pub fn label_ports<'a>(robot: &str, ports: impl IntoIterator<Item = &'a str>) {
 /// Wrap a serial port so its bytes are recorded (a pass-through when no recorder runs).
 /// `device` is `base`, `laser`, `compass` or `video_mux`; `protocol` the protocol spoken.
 pub fn tap<S>(stream: S, device: &str, port: &str, baud: u32, protocol: &str) -> Tap<S> {
+    tap_with(stream, device, port, baud, protocol, BTreeMap::new())
+}
+
+/// [`tap`] with the driver's parameters a replay needs to re-decode the bytes as it did
+/// (`time_scale`, an rFLEX's `kd` and `ka`), in the channel's metadata.
+pub fn tap_with<S>(
+    stream: S,
+    device: &str,
+    port: &str,
+    baud: u32,
+    protocol: &str,
+    params: BTreeMap<String, String>,
+) -> Tap<S> {
     let mut raw = None;
     with(|r| {
         let robot = robots()
@@ -336,6 +349,7 @@ pub fn tap<S>(stream: S, device: &str, port: &str, baud: u32, protocol: &str) ->
             port: port.to_owned(),
             baud,
             protocol: protocol.to_owned(),
+            params: params.clone(),
         }));
     });
     Tap { inner: stream, raw }

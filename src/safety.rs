@@ -241,8 +241,9 @@ pub fn flush_logs_by(deadline: std::time::Instant) -> bool {
 /// The program's last words on stderr: the error line, if any, behind everything queued,
 /// all of it written by `deadline` if stderr keeps up. If it does not (a slow or stalled
 /// reader), what is still queued is given up, and a note of how many messages were not
-/// written and the error line are written directly, waiting at most 2 s for a reader that is
-/// slow and 0.3 s for one that took nothing: the error line is never dropped silently behind
+/// written and the error line are written directly, waiting at most 1.5 s for a reader that
+/// is slow and 0.3 s for one that took nothing (the exit, a second and that, stays within the
+/// guard's 3 s after a signal): the error line is never dropped silently behind
 /// a backlog of log lines. (It follows the line being written then, or, if that one is longer
 /// than what a pipe takes whole, may cut into it.)
 pub fn last_words(error: Option<&str>, deadline: std::time::Instant, written_before: u64) {
@@ -255,7 +256,7 @@ pub fn last_words(error: Option<&str>, deadline: std::time::Instant, written_bef
     };
     let queued = match &line {
         None => true,
-        Some(line) => match l.say_by(line.clone().into_bytes(), deadline) {
+        Some(line) => match l.say_last(line.clone().into_bytes(), deadline) {
             Ok(queued) => queued,
             // No thread writes the queue out.
             Err(_) => return say_directly(format_args!("{line}")),
@@ -268,16 +269,20 @@ pub fn last_words(error: Option<&str>, deadline: std::time::Instant, written_bef
     // [`logs_written`]) is slow, not gone: wait longer for it to take the last words (a pipe
     // frees room a page at a time) than for one that took nothing.
     let wait = if l.written() > written_before {
-        Duration::from_secs(2)
+        Duration::from_millis(1500)
     } else {
         Duration::from_millis(300)
     };
-    let lost = l.abandon();
+    let (lost, error_line_is_mine) = l.abandon();
+    // The error line, if any, is counted among the lost: it is not lost.
+    let lost = lost.saturating_sub(usize::from(line.is_some()));
     let mut words = String::new();
     if lost > 0 {
         words = format!("ima: {lost} message(s) not written: stderr did not keep up\n");
     }
-    words.push_str(line.as_deref().unwrap_or_default());
+    if error_line_is_mine {
+        words.push_str(line.as_deref().unwrap_or_default());
+    }
     if words.is_empty() {
         return;
     }

@@ -67,19 +67,9 @@ pub async fn open_p2os(d: &BaseDevice, time_scale: f64, clock: &SharedClock) -> 
         .with_context(|| format!("connecting to the P2OS base on {}", d.port))
 }
 
-/// Connect to an rFLEX base and release its brake. `time_scale` > 1 (a sped-up simulated
-/// world) widens the driver's odometry plausibility limits by that factor, since the world
-/// moves that much faster per real second, asks for motion reports that much more often, and
-/// multiplies the accelerations by it (the controller ramps in real time).
-pub async fn open_rflex(d: &BaseDevice, time_scale: f64, clock: &SharedClock) -> Result<Rflex> {
-    anyhow::ensure!(
-        d.kind == BaseKind::Rflex,
-        "the base on {} is not configured as rflex",
-        d.port
-    );
-    let port = ima_rflex::shell::open_port(&d.port, d.baud)
-        .with_context(|| format!("opening the rFLEX base port {}", d.port))?;
-    let port = crate::record::tap(port, "base", &d.port, d.baud, "rflex"); // record: raw bytes
+/// The rFLEX driver's configuration for a world `time_scale` times faster than real time
+/// (see [`open_rflex`]); `ima replay` builds the same to re-integrate a recording.
+pub fn rflex_config(time_scale: f64) -> ima_rflex::machine::Config {
     let mut cfg = ima_rflex::machine::Config::default();
     let k = if time_scale.is_finite() {
         time_scale.max(1.0)
@@ -94,6 +84,26 @@ pub async fn open_rflex(d: &BaseDevice, time_scale: f64, clock: &SharedClock) ->
     // configured ramps in world time, so Scooter stops and turns as at real speed.
     cfg.trans_accel_m_s2 *= k;
     cfg.rot_accel = (f64::from(cfg.rot_accel) * k).min(f64::from(u32::MAX)) as u32;
+    cfg
+}
+
+/// Connect to an rFLEX base and release its brake. `time_scale` > 1 (a sped-up simulated
+/// world) widens the driver's odometry plausibility limits by that factor, since the world
+/// moves that much faster per real second, asks for motion reports that much more often, and
+/// multiplies the accelerations by it (the controller ramps in real time).
+pub async fn open_rflex(d: &BaseDevice, time_scale: f64, clock: &SharedClock) -> Result<Rflex> {
+    anyhow::ensure!(
+        d.kind == BaseKind::Rflex,
+        "the base on {} is not configured as rflex",
+        d.port
+    );
+    let port = ima_rflex::shell::open_port(&d.port, d.baud)
+        .with_context(|| format!("opening the rFLEX base port {}", d.port))?;
+    let cfg = rflex_config(time_scale);
+    // record: raw bytes, with the time scale a replay needs to integrate them as the driver
+    // does (its odometry plausibility limits)
+    let params = [("time_scale".to_owned(), time_scale.to_string())].into();
+    let port = crate::record::tap_with(port, "base", &d.port, d.baud, "rflex", params);
     let mut base = Rflex::connect(port, cfg, secs(d.connect_timeout_s), clock.clone())
         .await
         .with_context(|| format!("connecting to the rFLEX base on {}", d.port))?;

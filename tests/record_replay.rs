@@ -275,6 +275,10 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
         assert!(ch[*t].1["port"].starts_with("/dev/"), "{t}: {:?}", ch[*t].1);
         assert!(ch[*t].1["baud"].parse::<u32>().is_ok());
     }
+    // The rFLEX's channel carries the time scale its driver ran with (×10 here): a replay
+    // integrates its odometry with the same plausibility limits (with the real-time ones,
+    // a fast replay rejected most motion reports).
+    assert_eq!(ch["/scooter/serial/base"].1["time_scale"], "10");
 
     // Replay: the raw laser bytes re-decode into the recorded scans, one by one, in order.
     let (out, err) = replay_json(&file);

@@ -1202,14 +1202,14 @@ fn a_slow_stderr_still_gets_the_error_line() {
     );
     let mut err = child.0.stderr.take().unwrap();
     let (mut got, mut buf) = (Vec::new(), [0u8; 1024]);
-    // 4 kB/s: far slower than the debug log comes.
+    // 8 kB/s: far slower than the debug log comes.
     loop {
         let n = err.read(&mut buf).unwrap();
         if n == 0 {
             break;
         }
         got.extend_from_slice(&buf[..n]);
-        std::thread::sleep(Duration::from_millis(250 * n as u64 / 1024));
+        std::thread::sleep(Duration::from_millis(125 * n as u64 / 1024));
     }
     let status = wait_exit(&mut child, "the demo");
     assert_eq!(status.code(), Some(1), "{status}");

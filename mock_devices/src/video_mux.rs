@@ -194,6 +194,8 @@ pub struct MuxDevice {
     pending: Vec<(Instant, Pending)>,
     /// Extron commands that came while a switch was under way: answered in order, after it.
     deferred: std::collections::VecDeque<Vec<u8>>,
+    /// Skipping the rest of an escape command too long to keep (until CR or `|`).
+    discarding: bool,
     banner_due: bool,
     stats: MuxModelStats,
 }
@@ -213,6 +215,7 @@ impl MuxDevice {
             muted: false,
             pending: Vec::new(),
             deferred: std::collections::VecDeque::new(),
+            discarding: false,
             banner_due: cfg.banner && cfg.dialect == MuxDialect::Extron,
             stats: MuxModelStats::default(),
         }
@@ -315,6 +318,9 @@ impl MuxDevice {
             self.execute(&cmd, now);
         } else if self.deferred.len() < MAX_DEFERRED {
             self.deferred.push_back(cmd);
+        } else {
+            // No room to keep it: refused at once rather than left unanswered.
+            self.reply(ExtronReply::Error(ExtronError::InvalidCommand));
         }
     }
 
@@ -414,6 +420,11 @@ impl DeviceModel for MuxDevice {
         match self.cfg.dialect {
             MuxDialect::Extron => {
                 for &b in bytes {
+                    // The rest of an escape command too long to keep, up to its end.
+                    if self.discarding {
+                        self.discarding = b != b'\r' && b != b'|';
+                        continue;
+                    }
                     // An escape command (`ESC …` or `W…`) ends at CR or `|`.
                     if self.partial.first().is_some_and(|&c| is_escape(c)) {
                         if b == b'\r' || b == b'|' {
@@ -421,6 +432,7 @@ impl DeviceModel for MuxDevice {
                             self.command(cmd, now);
                         } else if self.partial.len() >= MAX_PARTIAL {
                             self.partial.clear();
+                            self.discarding = true;
                             self.reply(ExtronReply::Error(ExtronError::InvalidCommand));
                         } else {
                             self.partial.push(b);
@@ -548,6 +560,11 @@ mod tests {
             b"Vrb3\r\nV2 A2 F1 Vmt0 Amt0\r\n"
         );
         assert_eq!(run(&mut d, b"WXYZ|!", Instant::ZERO), b"E10\r\n2\r\n");
+        // One too long to keep is refused, and its rest up to its end is skipped.
+        assert_eq!(
+            run(&mut d, b"W0123456789ABCDEFGHIJ3!|!", Instant::ZERO),
+            b"E10\r\n2\r\n"
+        );
         let mut auto = MuxDevice::new(
             MuxModelConfig {
                 auto_switch: true,

@@ -37,6 +37,7 @@ static PORT: LazyLock<RawPort> = LazyLock::new(|| {
         port: "/dev/pts/1".into(),
         baud: 115_200,
         protocol: "rflex".into(),
+        params: Default::default(),
     })
 });
 

@@ -83,6 +83,9 @@ pub struct PortInfo {
     pub baud: u32,
     /// The protocol spoken (`p2os`, `rflex`, `sick-lms`, `compass-kvh`, …).
     pub protocol: String,
+    /// What else re-decoding the bytes as the driver did needs (`time_scale`, an rFLEX's `kd`
+    /// and `ka`): more entries of the channel's metadata.
+    pub params: BTreeMap<String, String>,
 }
 
 impl PortInfo {
@@ -93,24 +96,31 @@ impl PortInfo {
 
     /// The channel's metadata.
     pub fn metadata(&self) -> BTreeMap<String, String> {
-        BTreeMap::from([
+        let mut m = self.params.clone();
+        m.extend([
             ("robot".to_owned(), self.robot.clone()),
             ("device".to_owned(), self.device.clone()),
             ("port".to_owned(), self.port.clone()),
             ("baud".to_owned(), self.baud.to_string()),
             ("protocol".to_owned(), self.protocol.clone()),
             ("format".to_owned(), FORMAT.to_owned()),
-        ])
+        ]);
+        m
     }
 
     /// Read back from a channel's metadata (`None` when a field is missing).
     pub fn from_metadata(m: &BTreeMap<String, String>) -> Option<Self> {
+        const FIXED: [&str; 6] = ["robot", "device", "port", "baud", "protocol", "format"];
         Some(Self {
             robot: m.get("robot")?.clone(),
             device: m.get("device")?.clone(),
             port: m.get("port")?.clone(),
             baud: m.get("baud")?.parse().ok()?,
             protocol: m.get("protocol")?.clone(),
+            params: (m.iter())
+                .filter(|(k, _)| !FIXED.contains(&k.as_str()))
+                .map(|(k, v)| (k.clone(), v.clone()))
+                .collect(),
         })
     }
 }
@@ -203,6 +213,7 @@ mod tests {
             port: "/dev/pts/3".into(),
             baud: 9600,
             protocol: "sick-lms".into(),
+            params: Default::default(),
         };
         assert_eq!(p.topic(), "/scooter/serial/laser");
         assert_eq!(PortInfo::from_metadata(&p.metadata()), Some(p));

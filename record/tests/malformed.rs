@@ -198,6 +198,7 @@ fn recorder(
         port: "/dev/pts/9".into(),
         baud,
         protocol: protocol.into(),
+        params: Default::default(),
     });
     (rec, port)
 }

@@ -52,6 +52,7 @@ fn a_port_path_names_the_first_channel_in_file_order() {
         port: "/dev/ttyS0".into(),
         baud: 9600,
         protocol: "p2os".into(),
+        params: Default::default(),
     };
     // Written first, but last by topic.
     let zed = rec.raw_port(port("zed"));
@@ -79,6 +80,7 @@ fn a_recording_reads_back_with_its_channels_schemas_and_counts() {
         port: "/dev/pts/9".into(),
         baud: 9600,
         protocol: "sick-lms".into(),
+        params: Default::default(),
     });
     port.tx(b"\x02\x00");
     port.baud(38400);
@@ -269,6 +271,7 @@ fn the_callers_logging_time_is_counted() {
         port: "/dev/ttyS0".into(),
         baud: 9600,
         protocol: "p2os".into(),
+        params: Default::default(),
     });
     port.rx(&[0xFA, 0xFB, 0x03, 0x00, 0x00, 0x00]);
     port.tx(&[]);
@@ -748,6 +751,7 @@ fn excluded_topics_stay_out_of_the_file() {
         port: format!("/dev/pts/{device}"),
         baud: 9600,
         protocol: "test".into(),
+        params: Default::default(),
     };
     let laser = rec.raw_port(port("laser"));
     let base = rec.raw_port(port("base"));

@@ -509,7 +509,7 @@ impl StreamDecoder {
             sonar,
             rflex: (protocol == Some(Protocol::Rflex)).then(|| {
                 Box::new(ima_rflex::machine::Machine::new(
-                    ima_rflex::machine::Config::default(),
+                    rflex_config(&port.params),
                     ima_hal::Instant::ZERO,
                 ))
             }),
@@ -651,6 +651,27 @@ fn scan_of(v: &Value) -> Option<LaserScan> {
         s.push(range, flags).ok()?;
     }
     Some(s)
+}
+
+/// The rFLEX driver's configuration as the recording's channel gives it (`time_scale`, `kd`,
+/// `ka`; the ATRV-Jr's and real time where absent), as its shell runs it (recovering after a
+/// silence).
+fn rflex_config(params: &std::collections::BTreeMap<String, String>) -> ima_rflex::machine::Config {
+    let number = |k: &str| {
+        params
+            .get(k)
+            .and_then(|v| v.parse::<f64>().ok())
+            .filter(|v| v.is_finite() && *v > 0.0)
+    };
+    let mut cfg = crate::wiring::rflex_config(number("time_scale").unwrap_or(1.0));
+    if let Some(kd) = number("kd") {
+        cfg.kd = kd;
+    }
+    if let Some(ka) = number("ka") {
+        cfg.ka = ka;
+    }
+    cfg.recover = true;
+    cfg
 }
 
 /// Feed an rFLEX motion report (`ima decode rflex`'s object, received at `t_ns`) to the
@@ -844,6 +865,7 @@ mod tests {
             port: "/dev/pts/3".into(),
             baud: 38_400,
             protocol: protocol.into(),
+            params: Default::default(),
         }
     }
 

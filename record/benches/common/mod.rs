@@ -27,5 +27,6 @@ pub fn port(robot: &str, device: &str, baud: u32) -> PortInfo {
         port: format!("/dev/pts/{device}"),
         baud,
         protocol: device.into(),
+        params: Default::default(),
     }
 }

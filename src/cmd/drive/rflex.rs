@@ -44,7 +44,13 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
         }
     }
     let port = open_port(&o.port, o.baud).with_context(|| format!("opening {}", o.port))?;
-    let port = crate::record::tap(port, "base", &o.port, o.baud, "rflex"); // record: raw bytes
+    // record: raw bytes, with the calibration a replay needs to integrate them as the driver
+    let params = [
+        ("kd".to_owned(), cfg.kd.to_string()),
+        ("ka".to_owned(), cfg.ka.to_string()),
+    ]
+    .into();
+    let port = crate::record::tap_with(port, "base", &o.port, o.baud, "rflex", params);
     let connect = Rflex::connect(
         port,
         cfg,
