@@ -283,6 +283,37 @@ mod tests {
     use super::*;
     use std::io::Write as _;
 
+    /// A stderr whose writes block until released, sending what each one writes when it
+    /// starts.
+    struct Gate {
+        entered: std::sync::mpsc::Sender<Vec<u8>>,
+        release: Receiver<()>,
+    }
+
+    impl Gate {
+        /// The gate, what its writes start with, and its release (dropping it opens it).
+        fn new() -> (Self, Receiver<Vec<u8>>, Sender<()>) {
+            let (entered_tx, entered) = std::sync::mpsc::channel();
+            let (release, release_rx) = std::sync::mpsc::channel();
+            let gate = Self {
+                entered: entered_tx,
+                release: release_rx,
+            };
+            (gate, entered, release)
+        }
+    }
+
+    impl std::io::Write for Gate {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            let _ = self.entered.send(b.to_vec());
+            let _ = self.release.recv();
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
     /// Lines go out whole and in order; a flush waits for them.
     #[test]
     fn lines_are_sent_whole_and_flushed() {
@@ -353,27 +384,7 @@ mod tests {
     /// counts everything not written.
     #[test]
     fn the_dropped_count_survives_a_full_queue_and_abandon_counts_all() {
-        /// A stderr whose writes block until released, saying when one starts.
-        struct Gate {
-            entered: std::sync::mpsc::Sender<()>,
-            release: Receiver<()>,
-        }
-        impl std::io::Write for Gate {
-            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-                let _ = self.entered.send(());
-                let _ = self.release.recv();
-                Ok(b.len())
-            }
-            fn flush(&mut self) -> std::io::Result<()> {
-                Ok(())
-            }
-        }
-        let (entered_tx, entered) = std::sync::mpsc::channel();
-        let (release, release_rx) = std::sync::mpsc::channel();
-        let gate = Gate {
-            entered: entered_tx,
-            release: release_rx,
-        };
+        let (gate, entered, release) = Gate::new();
         let logs = Logs::start_with(gate, || {});
         // The writing thread takes the first and blocks on it; the queue fills behind.
         logs.say(b"first\n".to_vec()).unwrap();
@@ -395,29 +406,8 @@ mod tests {
     /// queue was given up (the caller must not write it again), else by the caller.
     #[test]
     fn the_last_error_line_is_written_once() {
-        struct Gate {
-            entered: std::sync::mpsc::Sender<Vec<u8>>,
-            release: Receiver<()>,
-        }
-        impl std::io::Write for Gate {
-            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-                let _ = self.entered.send(b.to_vec());
-                let _ = self.release.recv();
-                Ok(b.len())
-            }
-            fn flush(&mut self) -> std::io::Result<()> {
-                Ok(())
-            }
-        }
-        let (entered_tx, entered) = std::sync::mpsc::channel();
-        let (release, release_rx) = std::sync::mpsc::channel();
-        let logs = Logs::start_with(
-            Gate {
-                entered: entered_tx,
-                release: release_rx,
-            },
-            || {},
-        );
+        let (gate, entered, release) = Gate::new();
+        let logs = Logs::start_with(gate, || {});
         let soon = Instant::now() + Duration::from_secs(5);
         assert!(logs.say_last(b"ima: error: x\n".to_vec(), soon).unwrap());
         // The writing thread is writing it (its write blocks): not the caller's.

@@ -15,6 +15,26 @@ fn scratch(test: &str) -> common::Scratch {
     common::Scratch::new(&format!("record-replay-{test}"))
 }
 
+/// Every `recorded` item is among the `replayed` ones, in order (a replay also has what came
+/// before the stack read it).
+fn in_order<T: std::fmt::Debug>(
+    what: &str,
+    recorded: &[T],
+    replayed: &[T],
+    same: impl Fn(&T, &T) -> bool,
+) {
+    let mut next = 0;
+    for (i, r) in recorded.iter().enumerate() {
+        let at = replayed
+            .get(next..)
+            .unwrap_or_default()
+            .iter()
+            .position(|x| same(r, x))
+            .unwrap_or_else(|| panic!("recorded {what} {i} {r:?} is not among the replayed ones"));
+        next += at + 1;
+    }
+}
+
 /// `ima replay --speed 0 --json FILE`: its output, and its stderr as text.
 fn replay_json(file: &std::path::Path) -> (std::process::Output, String) {
     let out = ima()
@@ -309,14 +329,7 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     assert!(!recorded.is_empty());
     // The stack reads every scan the driver decodes once it runs; the replay also has the
     // scans that streamed before Scooter's stack started.
-    let mut next = 0;
-    for (i, r) in recorded.iter().enumerate() {
-        let at = replayed[next..]
-            .iter()
-            .position(|x| x == r)
-            .unwrap_or_else(|| panic!("recorded scan {i} is not among the re-decoded ones"));
-        next += at + 1;
-    }
+    in_order("scan", &recorded, &replayed, |a, b| a == b);
     // How many scans streamed before the stack started depends on timing: no ratio asserted.
     assert!(recorded.len() >= 10, "{} recorded", recorded.len());
     // Both bases' odometry comes back from their raw bytes: every recorded pose, in order,
@@ -348,16 +361,7 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
                 - std::f64::consts::PI;
             (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9 && turn.abs() < 1e-9
         };
-        let mut next = 0;
-        for (i, r) in recorded.iter().enumerate() {
-            let at = replayed[next..]
-                .iter()
-                .position(|x| same(x, r))
-                .unwrap_or_else(|| {
-                    panic!("{robot}: recorded pose {i} {r:?} is not among the re-decoded ones")
-                });
-            next += at + 1;
-        }
+        in_order(&format!("{robot}'s pose"), &recorded, &replayed, same);
     }
 
     // A recording of the replay carries every raw channel as recorded (port metadata, stamps,
@@ -399,14 +403,7 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     };
     let (live, replayed_clouds) = (clouds(&file), clouds(&again));
     assert!(live.len() >= 10, "{} sonar clouds recorded", live.len());
-    let mut next = 0;
-    for (i, c) in live.iter().enumerate() {
-        let at = replayed_clouds[next..]
-            .iter()
-            .position(|x| x == c)
-            .unwrap_or_else(|| panic!("recorded sonar cloud {i} is not among the replayed ones"));
-        next += at + 1;
-    }
+    in_order("sonar cloud", &live, &replayed_clouds, |a, b| a == b);
     // The fixed transforms come along, so the replayed readings have a place in `map` (a
     // replay's scans could not be shown by a viewer following `map`).
     let fixed = Recording::open(&file).unwrap().fixed_transforms();
@@ -1293,12 +1290,7 @@ fn the_square_demo_records_and_replays() {
         .filter(|l| l["kind"] == "odometry")
         .map(|l| (l["x_m"].as_f64().unwrap(), l["y_m"].as_f64().unwrap()))
         .collect();
-    let mut next = 0;
-    for (i, p) in poses.iter().enumerate() {
-        let at = replayed[next..]
-            .iter()
-            .position(|r| (r.0 - p.0).abs() < 1e-9 && (r.1 - p.1).abs() < 1e-9)
-            .unwrap_or_else(|| panic!("recorded pose {i} {p:?} is not among the replayed ones"));
-        next += at + 1;
-    }
+    in_order("pose", &poses, &replayed, |a, b| {
+        (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9
+    });
 }
