@@ -216,6 +216,24 @@ fn event_level(kind: &ima_agents::runtime::EventKind) -> ima_record::messages::l
 /// most once a second of the recording's clock (for viewers that join late or seek), whatever
 /// the caller's rate.
 pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) {
+    log_fixed_frames_at(
+        r,
+        robot,
+        ima_record::convert::Pose2::default(),
+        odometry,
+        laser,
+    );
+}
+
+/// [`log_fixed_frames`] with `<robot>/odom` at `origin` in `map` (where the odometry was
+/// reset, as in `ima demo square`).
+pub fn log_fixed_frames_at(
+    r: &Recorder,
+    robot: &str,
+    origin: ima_record::convert::Pose2,
+    odometry: bool,
+    laser: bool,
+) {
     static LAST: std::sync::Mutex<BTreeMap<String, u64>> = std::sync::Mutex::new(BTreeMap::new());
     {
         let now = r.now_ns();
@@ -228,14 +246,14 @@ pub fn log_fixed_frames(r: &Recorder, robot: &str, odometry: bool, laser: bool) 
         }
         last.insert(robot.to_owned(), now);
     }
-    let origin = ima_record::convert::Pose2::default();
+    let at_origin = ima_record::convert::Pose2::default();
     let (odom, base) = (format!("{robot}/odom"), format!("{robot}/base_link"));
     r.log_odom_origin(robot, origin);
     if !odometry {
-        r.log_transform(&odom, &base, origin);
+        r.log_transform(&odom, &base, at_origin);
     }
     if laser {
-        r.log_transform(&base, &format!("{robot}/laser"), origin);
+        r.log_transform(&base, &format!("{robot}/laser"), at_origin);
     }
 }
 
@@ -349,7 +367,7 @@ pub fn tap_with<S>(
             port: port.to_owned(),
             baud,
             protocol: protocol.to_owned(),
-            params: params.clone(),
+            params,
         }));
     });
     Tap { inner: stream, raw }

@@ -155,14 +155,9 @@ async fn square(
         y_m: t0.1,
         theta_rad: t0.2,
     };
-    let mut origin_at = None;
-    let mut record = |o: &ima_hal::Stamped<ima_hal::base::Odometry>| {
+    let record = |o: &ima_hal::Stamped<ima_hal::base::Odometry>| {
         crate::record::with(|r| {
-            let now = r.now_ns();
-            if origin_at.is_none_or(|t: u64| now.saturating_sub(t) >= 1_000_000_000) {
-                origin_at = Some(now);
-                r.log_odom_origin(ROBOT, origin);
-            }
+            crate::record::log_fixed_frames_at(r, ROBOT, origin, true, false);
             let p = ima_record::convert::Pose2::from_isometry(&o.value.pose);
             r.log_odometry(ROBOT, p);
             let (x_m, y_m, theta_rad) = truth();
