@@ -216,6 +216,9 @@ pub async fn until_cancelled<T>(fut: impl Future<Output = T>) -> Result<T> {
 
 static LOG: OnceLock<crate::logs::Logs> = OnceLock::new();
 
+/// How long the panic hook waits for its "stopping" line before it halts the devices.
+const PANIC_LINE_WAIT: Duration = Duration::from_millis(50);
+
 /// Where log lines and the guard's own messages go ([`crate::logs`]): a stderr nobody reads
 /// then never blocks a driver task that logs, nor the signal thread (a blocked warning had
 /// kept a driver from sending its keep-alive and STOP, and the signal thread from ending the
@@ -359,6 +362,11 @@ pub fn install() {
         PANICKED.store(true, Ordering::SeqCst);
         if StopRegistry::global().any_running() {
             say(format_args!("panic: stopping every device that could move"));
+            // Out before the halt, as it says (the log thread writes it): waiting 50 ms at
+            // most, so a stderr nobody reads delays the stop no longer.
+            if let Some(l) = LOG.get() {
+                let _ = l.flush(PANIC_LINE_WAIT);
+            }
         }
         let pending = halt_everything_blocking(DRAIN_WAIT);
         if !pending.is_empty() {
