@@ -1294,3 +1294,45 @@ fn the_square_demo_records_and_replays() {
         (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9
     });
 }
+
+/// `ima decode --mcap` converts a recorded rFLEX port with the driver's own factors (its
+/// channel's `kd`), not the ATRV-Jr's defaults: a drive at 0.3 m/s with `--kd` halved shows
+/// 0.3 m/s, not 0.15.
+#[test]
+fn decode_mcap_converts_an_rflex_port_with_its_recorded_factors() {
+    let dir = scratch("rflex-kd");
+    let file = dir.join("kd.mcap");
+    let (_mock, pty) = common::spawn_mock(&["rflex", "--seed", "3"]);
+    let out = ima()
+        .args([
+            "drive", "--robot", "atrv-jr", "--kd", "45405", "--port", &pty,
+        ])
+        .args([
+            "--vel", "0.3", "--turn", "0", "--for", "1", "--json", "--record",
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = ima()
+        .args(["decode", "--port", "robot/base", "--from", "host", "--mcap"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let speeds: Vec<f64> = json_lines(&out.stdout)
+        .iter()
+        .filter(|l| l["kind"] == "set_dir" && l["axis"] == 0)
+        .filter_map(|l| l["v_m_s"].as_f64())
+        .collect();
+    let top = speeds.iter().copied().fold(0.0, f64::max);
+    assert!((top - 0.3).abs() < 1e-3, "{speeds:?}");
+}

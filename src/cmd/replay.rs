@@ -478,8 +478,9 @@ struct StreamDecoder {
     /// An rFLEX stream's odometry comes from the driver's own session machine (its pairing of
     /// the two axes, midpoint integration and plausibility rule), fed the motion reports.
     rflex: Option<Box<ima_rflex::machine::Machine>>,
-    /// A P2OS stream's sonar: where the transducers sit (the P2-AT's table, as `ima decode`
-    /// reads the ranges), and the latest reading of each.
+    /// A P2OS stream's sonar: where the transducers sit (the table of the robot its SYNC2
+    /// reply names, as `ima decode` reads the ranges; the P2-AT's until then), and the latest
+    /// reading of each.
     sonar: Option<(std::sync::Arc<[SonarTransducer]>, SonarScan)>,
     /// Raw chunks handed on so far (the next one's place in the stream).
     chunks: u64,
@@ -490,14 +491,14 @@ struct StreamDecoder {
 impl StreamDecoder {
     fn new(topic: &str, port: &ima_record::raw::PortInfo) -> Result<Self> {
         let protocol = recorded_protocol(&port.protocol);
-        // The switchers' ports carry commands and acknowledgements, no reading.
-        let params = ima_p2os::params::RobotParams::for_subclass(b"p2at")
-            .context("the P2OS robot parameters")?;
+        // The P2-AT's table until the robot's SYNC2 reply names its own (`follow_robot`).
+        let params = &ima_p2os::params::P2AT;
         let sonar = (protocol == Some(Protocol::P2os))
             .then(|| (params.transducers().collect(), SonarScan::default()));
+        // The switchers' ports carry commands and acknowledgements, no reading.
         let decoder = match protocol {
             Some(Protocol::VideoMux | Protocol::Kramer) | None => None,
-            Some(p) => Some(super::decode::decoder(p, false, params)),
+            Some(p) => Some(super::decode::decoder(p, false, None, Some(&port.params))),
         };
         Ok(Self {
             topic: topic.into(),
@@ -509,7 +510,7 @@ impl StreamDecoder {
             sonar,
             rflex: (protocol == Some(Protocol::Rflex)).then(|| {
                 Box::new(ima_rflex::machine::Machine::new(
-                    rflex_config(&port.params),
+                    super::decode::rflex::recorded_config(&port.params),
                     ima_hal::Instant::ZERO,
                 ))
             }),
@@ -570,6 +571,9 @@ impl StreamDecoder {
     fn hand_on(&mut self, v: &Value, tx: &tokio::sync::mpsc::Sender<Item>) -> bool {
         let offset = usize::try_from(v["offset"].as_u64().unwrap_or(0)).unwrap_or(usize::MAX);
         let t_ns = self.stamp(offset);
+        if v["kind"] == "sync2" {
+            self.follow_robot(v);
+        }
         let reading = match (self.protocol, v["kind"].as_str()) {
             (Some(Protocol::SickLms), Some("scan")) => {
                 scan_of(v).map(|s| Reading::Scan(Box::new(s)))
@@ -605,6 +609,25 @@ impl StreamDecoder {
             return true;
         };
         self.send(reading, t_ns, tx)
+    }
+
+    /// A P2OS robot's SYNC2 reply named the parameter table the decoder now reads its SIPs
+    /// with: place the sonar where that robot's transducers sit.
+    fn follow_robot(&mut self, v: &Value) {
+        let Some((transducers, scan)) = self.sonar.as_mut() else {
+            return;
+        };
+        let Some(params) = v["params"]
+            .as_str()
+            .and_then(|p| ima_p2os::params::RobotParams::for_subclass(p.as_bytes()))
+        else {
+            return;
+        };
+        let now: std::sync::Arc<[SonarTransducer]> = params.transducers().collect();
+        if now != *transducers {
+            *transducers = now;
+            *scan = SonarScan::default();
+        }
     }
 
     /// The sonar after a SIP's `sonar` readings, if it brought any.
@@ -651,27 +674,6 @@ fn scan_of(v: &Value) -> Option<LaserScan> {
         s.push(range, flags).ok()?;
     }
     Some(s)
-}
-
-/// The rFLEX driver's configuration as the recording's channel gives it (`time_scale`, `kd`,
-/// `ka`; the ATRV-Jr's and real time where absent), as its shell runs it (recovering after a
-/// silence).
-fn rflex_config(params: &std::collections::BTreeMap<String, String>) -> ima_rflex::machine::Config {
-    let number = |k: &str| {
-        params
-            .get(k)
-            .and_then(|v| v.parse::<f64>().ok())
-            .filter(|v| v.is_finite() && *v > 0.0)
-    };
-    let mut cfg = crate::wiring::rflex_config(number("time_scale").unwrap_or(1.0));
-    if let Some(kd) = number("kd") {
-        cfg.kd = kd;
-    }
-    if let Some(ka) = number("ka") {
-        cfg.ka = ka;
-    }
-    cfg.recover = true;
-    cfg
 }
 
 /// Feed an rFLEX motion report (`ima decode rflex`'s object, received at `t_ns`) to the
@@ -982,6 +984,50 @@ mod tests {
         let mut d = StreamDecoder::new("/scooter/serial/compass", &port("compass-kvh")).unwrap();
         assert!(!d.feed(400, line, &tx));
     }
+    /// A P2OS robot whose SYNC2 reply names a P2-DX: its SIPs' sonar is placed where a
+    /// P2-DX's transducers sit (the table its ranges were read with), not a P2-AT's.
+    #[test]
+    fn a_replayed_p2os_sonar_sits_where_the_named_robot_s_transducers_do() {
+        let frame = |p: ima_p2os::wire::Packet<'_>| {
+            let mut out = [0u8; 256];
+            let n = p.emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        let sip = ima_p2os::wire::Sip {
+            sonars: [ima_p2os::wire::SonarRaw {
+                index: 0,
+                range: 500,
+            }]
+            .into_iter()
+            .collect(),
+            ..Default::default()
+        };
+        let mut bytes = frame(ima_p2os::wire::Packet::SyncReply {
+            name: b"Skeeter",
+            class: b"Pioneer",
+            subclass: b"p2dx",
+        });
+        bytes.extend(frame(ima_p2os::wire::Packet::Sip(sip)));
+        let (tx, mut rx) = tokio::sync::mpsc::channel(8);
+        let mut d = StreamDecoder::new("/skeeter/serial/base", &port("p2os")).unwrap();
+        assert!(d.feed(100, &bytes, &tx));
+        let sonar = std::iter::from_fn(|| rx.try_recv().ok())
+            .find_map(|i| match i {
+                Item::Reading(r) => match r.reading.reading {
+                    Reading::Sonar(t, _) => Some(t),
+                    _ => None,
+                },
+                Item::Raw(_) => None,
+            })
+            .expect("a sonar reading");
+        let p2dx: std::sync::Arc<[SonarTransducer]> =
+            ima_p2os::params::P2DX.transducers().collect();
+        let p2at: std::sync::Arc<[SonarTransducer]> =
+            ima_p2os::params::P2AT.transducers().collect();
+        assert_ne!(p2dx, p2at, "the two tables differ");
+        assert_eq!(sonar, p2dx);
+    }
+
     /// A factor near 0 overflowed the `Duration` of the first pause (1e-300) or slept for
     /// ever (1e-20): it is refused; 0 still means no pacing.
     #[test]

@@ -92,9 +92,11 @@ pub struct DecodeArgs {
     /// The input is hex text (whitespace, commas and `0x` prefixes allowed).
     #[arg(long)]
     hex: bool,
-    /// Robot parameters for unit conversion (P2OS subclass: p2at, p2at8, p2dx).
-    #[arg(long, default_value = "p2at")]
-    robot: String,
+    /// Robot parameters for unit conversion (P2OS subclass: p2at, p2at8, p2dx). When absent,
+    /// the robot's own, as its SYNC2 reply names it (as the driver takes them); the P2-AT's
+    /// until then.
+    #[arg(long)]
+    robot: Option<String>,
     /// Capture file; stdin when absent or `-`. Bytes are decoded as they are read, so a pipe
     /// or a serial port (a tap on a robot's line: give `--baud`) shows each frame as it comes.
     file: Option<PathBuf>,
@@ -123,7 +125,7 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         .as_deref()
         .map_or_else(|| "stdin".to_owned(), |p| p.display().to_string());
     let (pieces, reader) = read_pieces(file, args.baud)?;
-    let mut d = decoder(protocol, args.from == Direction::Host, out.params);
+    let mut d = decoder(protocol, args.from == Direction::Host, out.params, None);
     if args.hex {
         let mut text = Vec::new();
         while let Some(piece) = crate::safety::recv_unless_asked_to_end(&pieces)? {
@@ -355,12 +357,23 @@ fn holder_of(rdev: u64) -> Option<(u32, String)> {
 }
 
 /// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
-/// P2OS robot's, for its units.
+/// P2OS robot's, for its units (`None`: the robot's own, as its SYNC2 reply names them, the
+/// P2-AT's until then); `recorded`: a recorded port's driver parameters (an rFLEX's `kd` and
+/// `ka`), for the units the driver used.
 pub fn decoder(
     protocol: Protocol,
     host: bool,
-    params: &'static RobotParams,
+    params: Option<&'static RobotParams>,
+    recorded: Option<&std::collections::BTreeMap<String, String>>,
 ) -> Box<dyn Decoder + Send> {
+    if let (Protocol::P2os, None, false) = (protocol, params, host) {
+        return Box::new(p2os::P2osDecoder::following(&ima_p2os::params::P2AT));
+    }
+    let params = params.unwrap_or(&ima_p2os::params::P2AT);
+    if let (Protocol::Rflex, Some(r)) = (protocol, recorded) {
+        let cfg = rflex::recorded_config(r);
+        return Box::new(rflex::RflexDecoder::with_config(host, cfg));
+    }
     match protocol {
         Protocol::P2os => Box::new(p2os::P2osDecoder::new(host, params)),
         Protocol::Compass => Box::new(compass::CompassDecoder::new(host)),
@@ -376,15 +389,21 @@ struct Output {
     out: std::io::BufWriter<std::io::StdoutLock<'static>>,
     protocol: Protocol,
     from: Direction,
-    params: &'static RobotParams,
+    /// The P2OS robot's parameters as `--robot` gives them (`None`: the robot's own).
+    params: Option<&'static RobotParams>,
     frames: u64,
     errors: u64,
 }
 
 impl Output {
     fn new(args: &DecodeArgs, protocol: Protocol) -> Result<Self> {
-        let params = RobotParams::for_subclass(args.robot.as_bytes())
-            .with_context(|| format!("unknown P2OS robot {:?} (p2at, p2at8, p2dx)", args.robot))?;
+        let params = match &args.robot {
+            None => None,
+            Some(r) => Some(
+                RobotParams::for_subclass(r.as_bytes())
+                    .with_context(|| format!("unknown P2OS robot {r:?} (p2at, p2at8, p2dx)"))?,
+            ),
+        };
         Ok(Self {
             out: std::io::BufWriter::new(std::io::stdout().lock()),
             protocol,
@@ -499,7 +518,8 @@ fn run_mcap(args: &DecodeArgs, path: &std::path::Path) -> Result<()> {
                 Ok((p, out))
             }) {
                 Ok((p, out)) => {
-                    let d = decoder(p, args.from == Direction::Host, out.params);
+                    let host = args.from == Direction::Host;
+                    let d = decoder(p, host, out.params, Some(&c.port.params));
                     decoding = Some((d, out));
                 }
                 Err(e) => {

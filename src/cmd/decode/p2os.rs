@@ -17,10 +17,12 @@ pub struct P2osDecoder<'a> {
     framer: Framer,
     host: bool,
     params: &'a RobotParams,
+    /// Take the parameter table the robot names in its SYNC2 reply, as the driver does.
+    follow: bool,
 }
 
 impl<'a> P2osDecoder<'a> {
-    /// A decoder of the host's commands (`host`) or the robot's packets.
+    /// A decoder of the host's commands (`host`) or the robot's packets, in `params`' units.
     pub fn new(host: bool, params: &'a RobotParams) -> Self {
         let framer = if host {
             Framer::for_commands()
@@ -31,13 +33,25 @@ impl<'a> P2osDecoder<'a> {
             framer,
             host,
             params,
+            follow: false,
+        }
+    }
+
+    /// A decoder of the robot's packets in `params`' units until the robot's SYNC2 reply names
+    /// a subclass with a table of its own (`p2at8`, `p2dx`), in that table's from then on: the
+    /// one the driver takes. The reply's object says which (`"params"`).
+    pub fn following(params: &'a RobotParams) -> Self {
+        Self {
+            follow: true,
+            ..Self::new(false, params)
         }
     }
 }
 
 impl Decoder for P2osDecoder<'_> {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
-        let (framer, host, params) = (&mut self.framer, self.host, self.params);
+        let (framer, host, follow) = (&mut self.framer, self.host, self.follow);
+        let mut params = self.params;
         let mut input = bytes;
         loop {
             let n = framer.feed(input);
@@ -58,7 +72,19 @@ impl Decoder for P2osDecoder<'_> {
                         let v = if host {
                             Command::parse(p).map(|c| command_json(c, params))
                         } else {
-                            Packet::parse(p).map(|pk| packet_json(&pk, params))
+                            Packet::parse(p).map(|pk| {
+                                if let Packet::SyncReply { subclass, .. } = &pk
+                                    && follow
+                                    && let Some(own) = RobotParams::for_subclass(subclass)
+                                {
+                                    params = own;
+                                }
+                                let mut v = packet_json(&pk, params);
+                                if follow && matches!(pk, Packet::SyncReply { .. }) {
+                                    v["params"] = json!(params.subclass);
+                                }
+                                v
+                            })
                         };
                         (v.map_err(|e| e.to_string()), p.len() + 5)
                     }
@@ -80,6 +106,7 @@ impl Decoder for P2osDecoder<'_> {
                 break;
             }
         }
+        self.params = params;
         Ok(())
     }
 
@@ -301,6 +328,62 @@ mod tests {
 
     fn f(v: &Value, key: &str) -> f64 {
         v[key].as_f64().unwrap_or_else(|| panic!("{key} in {v}"))
+    }
+
+    fn sync2_frame(subclass: &[u8]) -> Vec<u8> {
+        let mut out = [0u8; 256];
+        let reply = Packet::SyncReply {
+            name: b"Skeeter",
+            class: b"Pioneer",
+            subclass,
+        };
+        let n = reply.emit(&mut out).unwrap();
+        out[..n].to_vec()
+    }
+
+    /// Without `--robot`, a SIP is read in the units of the robot its SYNC2 reply names (a
+    /// P2-DX: 0.84 mm per count, not the P2-AT's 1.32), as the driver reads it; an unknown
+    /// subclass keeps the table in use; `--robot` fixes the table whatever the robot says.
+    #[test]
+    fn the_robot_s_own_sync2_reply_picks_its_units() {
+        let sip = sip_frame(ima_p2os::wire::Sip {
+            xpos: 1000,
+            ..Default::default()
+        });
+        let decode_with = |d: P2osDecoder<'_>, bytes: &[u8]| {
+            let mut out = Vec::new();
+            d.decode_whole(bytes, &mut |v| {
+                out.push(v);
+                Ok(())
+            })
+            .unwrap();
+            out
+        };
+        let p2at = &ima_p2os::params::P2AT;
+        let mut bytes = sip.clone();
+        bytes.extend(sync2_frame(b"p2dx"));
+        bytes.extend(&sip);
+        let v = decode_with(P2osDecoder::following(p2at), &bytes);
+        assert!((f(&v[0], "x_m") - 1.32).abs() < 1e-12, "{v:?}");
+        assert_eq!(
+            (&v[1]["kind"], &v[1]["params"]),
+            (&json!("sync2"), &json!("p2dx"))
+        );
+        assert!((f(&v[2], "x_m") - 0.84).abs() < 1e-12, "{v:?}");
+        // Decoded in pieces, the same.
+        let pieces = crate::cmd::decode::decoder::pieces::decode_alike(
+            &|| Box::new(P2osDecoder::following(p2at)),
+            &bytes,
+        );
+        assert_eq!(pieces, v);
+        let mut unknown = sync2_frame(b"p3xx");
+        unknown.extend(&sip);
+        let v = decode_with(P2osDecoder::following(p2at), &unknown);
+        assert_eq!(v[0]["params"], "p2at");
+        assert!((f(&v[1], "x_m") - 1.32).abs() < 1e-12, "{v:?}");
+        let v = decode_with(P2osDecoder::new(false, p2at), &bytes);
+        assert!(v[1].get("params").is_none(), "{v:?}");
+        assert!((f(&v[2], "x_m") - 1.32).abs() < 1e-12, "{v:?}");
     }
 
     #[test]

@@ -29,10 +29,17 @@ pub struct RflexDecoder {
 }
 
 impl RflexDecoder {
-    /// A decoder of the host's commands (`host`) or the base's reports.
+    /// A decoder of the host's commands (`host`) or the base's reports, in the ATRV-Jr's
+    /// units.
     pub fn new(host: bool) -> Self {
+        Self::with_config(host, Config::default())
+    }
+
+    /// A decoder converting with `cfg`'s factors (`kd`, `ka`, sonar, battery): a recorded
+    /// port's, from [`recorded_config`].
+    pub fn with_config(host: bool, cfg: Config) -> Self {
         Self {
-            cfg: Config::default(),
+            cfg,
             host,
             framer: Framer::strict(),
             base: 0,
@@ -223,6 +230,27 @@ fn report_json(r: &Report, cfg: &Config) -> Value {
             "kind": "unknown", "port": u.port, "opcode": u.opcode, "len": u.len,
         }),
     }
+}
+
+/// The rFLEX driver's configuration as a recording's channel metadata gives it (`time_scale`,
+/// `kd`, `ka`; the ATRV-Jr's and real time where absent or not a positive number), as its shell
+/// runs it (recovering after a silence).
+pub fn recorded_config(params: &std::collections::BTreeMap<String, String>) -> Config {
+    let number = |k: &str| {
+        params
+            .get(k)
+            .and_then(|v| v.parse::<f64>().ok())
+            .filter(|v| v.is_finite() && *v > 0.0)
+    };
+    let mut cfg = crate::wiring::rflex_config(number("time_scale").unwrap_or(1.0));
+    if let Some(kd) = number("kd") {
+        cfg.kd = kd;
+    }
+    if let Some(ka) = number("ka") {
+        cfg.ka = ka;
+    }
+    cfg.recover = true;
+    cfg
 }
 
 #[cfg(test)]
