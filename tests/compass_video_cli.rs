@@ -145,6 +145,8 @@ fn a_wrong_compass_dialect_is_named_and_fails() {
             "try --dialect tcm2"
         };
         assert!(stderr.contains(hint), "{stderr}");
+        // The error says it once: no warning of the failed configuration job before it.
+        assert!(!stderr.contains("WARN"), "{stderr}");
         // No heading of the wrong dialect was printed as if it were good.
         assert!(
             out.stdout.is_empty(),

@@ -21,7 +21,7 @@ fn number(s: &str) -> Result<f64, String> {
 }
 
 fn within(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
-    let v = number(s)?;
+    let v = number(s).map_err(|e| format!("{e}: {lo}–{hi}{unit}"))?;
     if (lo..=hi).contains(&v) {
         Ok(v)
     } else {
@@ -91,7 +91,7 @@ pub fn short_seconds(s: &str) -> Result<f64, String> {
 }
 
 fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
-    let v = number(s)?;
+    let v = number(s).map_err(|e| format!("{e}: more than 0, at most {hi}{unit}"))?;
     if v > 0.0 && v <= hi {
         Ok(v)
     } else {
@@ -108,8 +108,8 @@ fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
 /// the speed cap with it, and the readout hides it (one extra digit in `--kd`: 3 m/s sent
 /// for a capped 0.3 m/s, shown as 0.1 m/s).
 fn rflex_factor(s: &str, default: f64, name: &str) -> Result<f64, String> {
-    let v = number(s)?;
     let (lo, hi) = (default / 4.0, default * 4.0);
+    let v = number(s).map_err(|e| format!("{e}: {lo}–{hi} accepted"))?;
     if (lo..=hi).contains(&v) {
         Ok(v)
     } else {
@@ -227,7 +227,18 @@ mod tests {
         for p in &parsers[..6] {
             assert!(p("1e30").is_err());
             assert!(p("-1e30").is_err());
+            // NaN is refused with the range, as an absurd value is.
+            for bad in ["NaN", "x"] {
+                let e = p(bad).unwrap_err();
+                assert!(e.contains('–'), "{bad}: {e}");
+            }
         }
+        let e = cruise_m_s("NaN").unwrap_err();
+        assert_eq!(e, "NaN is not a finite number: more than 0, at most 1 m/s");
+        assert_eq!(
+            speed_m_s("inf").unwrap_err(),
+            "inf is not a finite number: -10–10 m/s"
+        );
     }
 
     #[test]

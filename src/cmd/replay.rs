@@ -588,9 +588,9 @@ impl StreamDecoder {
                 .as_deref_mut()
                 .and_then(|m| rflex_odometry(m, v, t_ns))
                 .map(Reading::Odometry),
-            (Some(Protocol::Compass), _) => v["heading_rad"]
-                .as_f64()
-                .map(|h| Reading::Compass(std::f64::consts::FRAC_PI_2 - h)),
+            (Some(Protocol::Compass), _) => v["heading_rad"].as_f64().map(|h| {
+                Reading::Compass(ima_hal::normalize_angle(std::f64::consts::FRAC_PI_2 - h))
+            }),
             _ => None,
         };
         // A SIP that brought sonar readings: the sonar too, after its odometry.
@@ -1026,6 +1026,31 @@ mod tests {
             ima_p2os::params::P2AT.transducers().collect();
         assert_ne!(p2dx, p2at, "the two tables differ");
         assert_eq!(sonar, p2dx);
+    }
+
+    /// A heading of 350° (10° west of north) replays as a yaw of 100° in (−π, π], as the live
+    /// recording logs it, not −260°: the same rotation, but the opposite quaternion.
+    #[test]
+    fn a_replayed_heading_is_a_yaw_in_the_live_range() {
+        let (tx, mut rx) = tokio::sync::mpsc::channel(8);
+        let mut d = StreamDecoder::new("/scooter/serial/compass", &port("compass-kvh")).unwrap();
+        assert!(d.feed(100, b"$HCHDM,350.0,M*2F\r\n", &tx));
+        let Ok(Item::Reading(r)) = rx.try_recv() else {
+            panic!("a reading");
+        };
+        let Reading::Compass(yaw) = r.reading.reading else {
+            panic!("a heading");
+        };
+        assert!(
+            (yaw - 100f64.to_radians()).abs() < 1e-9,
+            "{}",
+            yaw.to_degrees()
+        );
+        let live = ima_hal::compass::Heading::new(
+            350f64.to_radians(),
+            ima_hal::compass::HeadingReference::Magnetic,
+        );
+        assert!((yaw - live.yaw_enu_rad()).abs() < 1e-9);
     }
 
     /// A factor near 0 overflowed the `Duration` of the first pause (1e-300) or slept for

@@ -104,7 +104,14 @@ impl Shell for CompassShell {
                 self.link.send_replace(LinkStatus::Connected(()));
             }
             Event::JobFailed { job, step } => {
-                tracing::warn!(%job, step, "compass: job failed");
+                // While connecting, or for a job a caller waits on, the caller gets the error:
+                // no warning beside it. Otherwise (a re-configuration after a loss) it is news.
+                let told = self.job.is_waiting() || *self.link.borrow() == LinkStatus::Connecting;
+                if told {
+                    tracing::debug!(%job, step, "compass: job failed");
+                } else {
+                    tracing::warn!(%job, step, "compass: job failed");
+                }
                 if job == crate::machine::Job::Configure {
                     let e = crate::driver::configuration_failed(&self.machine, step);
                     self.job.answer(Err(e));
