@@ -93,8 +93,8 @@ pub struct DecodeArgs {
     #[arg(long)]
     hex: bool,
     /// Robot parameters for unit conversion (P2OS subclass: p2at, p2at8, p2dx). When absent,
-    /// the robot's own, as its SYNC2 reply names it (as the driver takes them); the P2-AT's
-    /// until then.
+    /// the robot's bytes are read in the units of the robot its SYNC2 reply names (as the
+    /// driver takes them), the P2-AT's until then; the host's bytes in the P2-AT's.
     #[arg(long)]
     robot: Option<String>,
     /// Capture file; stdin when absent or `-`. Bytes are decoded as they are read, so a pipe
