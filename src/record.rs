@@ -344,7 +344,8 @@ pub fn tap<S>(stream: S, device: &str, port: &str, baud: u32, protocol: &str) ->
 }
 
 /// [`tap`] with the driver's parameters a replay needs to re-decode the bytes as it did
-/// (`time_scale`, an rFLEX's `kd` and `ka`), in the channel's metadata.
+/// (`time_scale`, an rFLEX's `kd` and `ka`, a P2OS robot's `params` table when the driver was
+/// told one), in the channel's metadata.
 pub fn tap_with<S>(
     stream: S,
     device: &str,

@@ -1357,3 +1357,61 @@ fn decode_mcap_converts_an_rflex_port_with_its_recorded_factors() {
     let top = speeds.iter().copied().fold(0.0, f64::max);
     assert!((top - 0.3).abs() < 1e-3, "{speeds:?}");
 }
+
+/// A P2OS drive told its parameter table (`--params p2dx`, which overrides the robot's SYNC2
+/// reply, here a P2-AT's) records it in the channel, and `ima decode --mcap` and `ima replay`
+/// read the SIPs in those units (0.84 mm per count), as the driver did, not the P2-AT's (1.32).
+#[test]
+fn a_p2os_table_the_driver_was_told_is_recorded_and_decoded_with() {
+    let dir = scratch("p2os-params");
+    let file = dir.join("p2dx.mcap");
+    let (_mock, pty) = common::spawn_mock(&["p2os"]);
+    let out = ima()
+        .args(["drive", "--params", "p2dx", "--port", &pty])
+        .args(["--vel", "0.2", "--for", "1", "--json", "--record"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let driven = json_lines(&out.stdout)
+        .last()
+        .and_then(|l| l["x_m"].as_f64())
+        .unwrap();
+    let ch = Recording::open(&file).unwrap().channels();
+    assert_eq!(ch["/robot/serial/base"].1["params"], "p2dx");
+    let out = ima()
+        .args(["decode", "--port", "robot/base", "--mcap"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines = json_lines(&out.stdout);
+    let sips: Vec<_> = lines.iter().filter(|l| l["kind"] == "sip").collect();
+    assert!(sips.len() > 5, "{} SIPs", sips.len());
+    for s in sips {
+        let (raw, x) = (s["x_raw"].as_i64().unwrap(), s["x_m"].as_f64().unwrap());
+        assert!((x - raw as f64 * 0.84 / 1000.0).abs() < 1e-9, "{s}");
+    }
+    let (out, err) = replay_json(&file);
+    assert!(out.status.success(), "{err}");
+    let replayed: Vec<f64> = json_lines(&out.stdout)
+        .iter()
+        .filter(|l| l["kind"] == "odometry")
+        .filter_map(|l| l["x_m"].as_f64())
+        .collect();
+    // The pose the drive printed last is among the replayed ones (the P2-AT's table would
+    // make every one half as large again).
+    assert!(driven > 0.05, "drove {driven} m");
+    assert!(
+        replayed.iter().any(|x| (x - driven).abs() < 1e-9),
+        "{driven} not in {replayed:?}"
+    );
+}

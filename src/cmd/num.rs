@@ -21,7 +21,7 @@ fn number(s: &str) -> Result<f64, String> {
 }
 
 fn within(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
-    let v = number(s).map_err(|e| format!("{e}: {lo}–{hi}{unit}"))?;
+    let v = number(s).map_err(|e| format!("{e} (accepted: {lo}–{hi}{unit})"))?;
     if (lo..=hi).contains(&v) {
         Ok(v)
     } else {
@@ -36,11 +36,14 @@ pub fn seconds(s: &str) -> Result<f64, String> {
 
 /// A timeout in seconds: more than zero, at most one hour.
 pub fn timeout_seconds(s: &str) -> Result<f64, String> {
-    let v = within(s, 0.0, 3_600.0, " s")?;
-    if v > 0.0 {
-        Ok(v)
-    } else {
+    const ACCEPTED: &str = "more than 0, at most 3600 s";
+    let v = number(s).map_err(|e| format!("{e} (accepted: {ACCEPTED})"))?;
+    if v <= 0.0 {
         Err("a timeout must be more than 0 s".into())
+    } else if v > 3_600.0 {
+        Err(format!("{} is out of range: {ACCEPTED}", s.trim()))
+    } else {
+        Ok(v)
     }
 }
 
@@ -91,7 +94,7 @@ pub fn short_seconds(s: &str) -> Result<f64, String> {
 }
 
 fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
-    let v = number(s).map_err(|e| format!("{e}: more than 0, at most {hi}{unit}"))?;
+    let v = number(s).map_err(|e| format!("{e} (accepted: more than 0, at most {hi}{unit})"))?;
     if v > 0.0 && v <= hi {
         Ok(v)
     } else {
@@ -109,7 +112,7 @@ fn positive_up_to(s: &str, hi: f64, unit: &str) -> Result<f64, String> {
 /// for a capped 0.3 m/s, shown as 0.1 m/s).
 fn rflex_factor(s: &str, default: f64, name: &str) -> Result<f64, String> {
     let (lo, hi) = (default / 4.0, default * 4.0);
-    let v = number(s).map_err(|e| format!("{e}: {lo}–{hi} accepted"))?;
+    let v = number(s).map_err(|e| format!("{e} (accepted: {lo}–{hi})"))?;
     if (lo..=hi).contains(&v) {
         Ok(v)
     } else {
@@ -230,14 +233,25 @@ mod tests {
             // NaN is refused with the range, as an absurd value is.
             for bad in ["NaN", "x"] {
                 let e = p(bad).unwrap_err();
-                assert!(e.contains('–'), "{bad}: {e}");
+                assert!(e.contains("(accepted: "), "{bad}: {e}");
             }
         }
         let e = cruise_m_s("NaN").unwrap_err();
-        assert_eq!(e, "NaN is not a finite number: more than 0, at most 1 m/s");
+        assert_eq!(
+            e,
+            "NaN is not a finite number (accepted: more than 0, at most 1 m/s)"
+        );
         assert_eq!(
             speed_m_s("inf").unwrap_err(),
-            "inf is not a finite number: -10–10 m/s"
+            "inf is not a finite number (accepted: -10–10 m/s)"
+        );
+        assert_eq!(
+            timeout_seconds("x").unwrap_err(),
+            "\"x\" is not a number (accepted: more than 0, at most 3600 s)"
+        );
+        assert_eq!(
+            timeout_seconds("4000").unwrap_err(),
+            "4000 is out of range: more than 0, at most 3600 s"
         );
     }
 

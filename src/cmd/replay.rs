@@ -448,7 +448,7 @@ pub fn reading_json(r: &Stamped, t0: u64) -> Value {
         Reading::Odometry(p) => {
             json!({"kind": "odometry", "x_m": p.x_m, "y_m": p.y_m, "theta_rad": p.theta_rad})
         }
-        Reading::Compass(h) => json!({"kind": "compass", "heading_rad": h}),
+        Reading::Compass(yaw) => json!({"kind": "compass", "yaw_rad": yaw}),
         Reading::Sonar(_, scan) => json!({"kind": "sonar", "readings": scan.readings.iter()
             .map(|r| json!({"index": r.index, "range_m": r.range_m})).collect::<Vec<_>>()}),
     };
@@ -491,8 +491,10 @@ struct StreamDecoder {
 impl StreamDecoder {
     fn new(topic: &str, port: &ima_record::raw::PortInfo) -> Result<Self> {
         let protocol = recorded_protocol(&port.protocol);
-        // The P2-AT's table until the robot's SYNC2 reply names its own (`follow_robot`).
-        let params = &ima_p2os::params::P2AT;
+        // The table the driver was told, else the P2-AT's until the robot's SYNC2 reply names
+        // its own (`follow_robot`).
+        let params =
+            super::decode::p2os::recorded_params(&port.params).unwrap_or(&ima_p2os::params::P2AT);
         let sonar = (protocol == Some(Protocol::P2os))
             .then(|| (params.transducers().collect(), SonarScan::default()));
         // The switchers' ports carry commands and acknowledgements, no reading.
@@ -588,9 +590,7 @@ impl StreamDecoder {
                 .as_deref_mut()
                 .and_then(|m| rflex_odometry(m, v, t_ns))
                 .map(Reading::Odometry),
-            (Some(Protocol::Compass), _) => v["heading_rad"].as_f64().map(|h| {
-                Reading::Compass(ima_hal::normalize_angle(std::f64::consts::FRAC_PI_2 - h))
-            }),
+            (Some(Protocol::Compass), _) => compass_yaw(v).map(Reading::Compass),
             _ => None,
         };
         // A SIP that brought sonar readings: the sonar too, after its odometry.
@@ -674,6 +674,21 @@ fn scan_of(v: &Value) -> Option<LaserScan> {
         s.push(range, flags).ok()?;
     }
     Some(s)
+}
+
+/// The yaw the live recording logs for one of `ima decode compass`'s lines: the driver's
+/// [`Heading`](ima_hal::compass::Heading) (the line's own reference, deviation and variation)
+/// as an east-north-up yaw in (−π, π].
+fn compass_yaw(v: &Value) -> Option<f64> {
+    use ima_hal::compass::{Heading, HeadingReference};
+    let reference = match v["reference"].as_str() {
+        Some("true") => HeadingReference::True,
+        _ => HeadingReference::Magnetic,
+    };
+    let mut h = Heading::new(v["heading_rad"].as_f64()?, reference);
+    h.deviation_rad = v["deviation"]["rad"].as_f64();
+    h.variation_rad = v["variation"]["rad"].as_f64();
+    Some(h.yaw_enu_rad())
 }
 
 /// Feed an rFLEX motion report (`ima decode rflex`'s object, received at `t_ns`) to the
@@ -1051,6 +1066,20 @@ mod tests {
             ima_hal::compass::HeadingReference::Magnetic,
         );
         assert!((yaw - live.yaw_enu_rad()).abs() < 1e-9);
+        // An HDG line's deviation (2° E) and variation (10° W) count, as the driver's heading
+        // counts them: true heading 342°, yaw 108° (it was 100°, the bare sensor heading).
+        assert!(d.feed(200, b"$HCHDG,350.0,2.0,E,10.0,W*65\r\n", &tx));
+        let Ok(Item::Reading(r)) = rx.try_recv() else {
+            panic!("a reading");
+        };
+        let Reading::Compass(yaw) = r.reading.reading else {
+            panic!("a heading");
+        };
+        assert!(
+            (yaw - 108f64.to_radians()).abs() < 1e-9,
+            "{}",
+            yaw.to_degrees()
+        );
     }
 
     /// A factor near 0 overflowed the `Duration` of the first pause (1e-300) or slept for

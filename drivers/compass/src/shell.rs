@@ -104,9 +104,10 @@ impl Shell for CompassShell {
                 self.link.send_replace(LinkStatus::Connected(()));
             }
             Event::JobFailed { job, step } => {
-                // While connecting, or for a job a caller waits on, the caller gets the error:
-                // no warning beside it. Otherwise (a re-configuration after a loss) it is news.
-                let told = self.job.is_waiting() || *self.link.borrow() == LinkStatus::Connecting;
+                // While connecting, or for a job a caller still waits on, the caller gets the
+                // error: no warning beside it. Otherwise (a re-configuration after a loss, a
+                // caller that gave up) it is news.
+                let told = self.job.is_heard() || *self.link.borrow() == LinkStatus::Connecting;
                 if told {
                     tracing::debug!(%job, step, "compass: job failed");
                 } else {

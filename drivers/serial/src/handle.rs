@@ -401,6 +401,13 @@ impl<T, D: Shell> Pending<T, D> {
         self.0.is_some()
     }
 
+    /// Whether a call is waiting and its caller still listens (it has not given up at its
+    /// timeout): an answer would reach someone.
+    #[must_use]
+    pub fn is_heard(&self) -> bool {
+        self.0.as_ref().is_some_and(|r| !r.is_closed())
+    }
+
     /// After asking the machine (`asked`: its answer), keep `reply` for
     /// [`answer`](Self::answer); answer at once with the refusal, or with `busy` if a call
     /// is already waiting.

@@ -367,6 +367,19 @@ mod tests {
         }
     }
 
+    /// A waiting call is heard until its caller gives up; it is still waiting after that
+    /// (the device's answer is yet to come), but an answer would reach nobody.
+    #[test]
+    fn a_pending_call_is_heard_until_its_caller_gives_up() {
+        let mut p = crate::handle::Pending::<(), Flood>::default();
+        assert!(!p.is_waiting() && !p.is_heard());
+        let (reply, rx) = oneshot::channel();
+        p.wait(Ok(()), reply, crate::DriverError::Timeout);
+        assert!(p.is_waiting() && p.is_heard());
+        drop(rx);
+        assert!(p.is_waiting() && !p.is_heard());
+    }
+
     /// A device that never stops sending.
     struct Firehose;
     impl AsyncRead for Firehose {

@@ -356,16 +356,18 @@ fn holder_of(rdev: u64) -> Option<(u32, String)> {
     None
 }
 
-/// The decoder of `protocol`, for the host's side (`host`) or the device's; `params`: the
-/// P2OS robot's, for its units (`None`: the robot's own, as its SYNC2 reply names them, the
-/// P2-AT's until then); `recorded`: a recorded port's driver parameters (an rFLEX's `kd` and
-/// `ka`), for the units the driver used.
+/// The decoder of `protocol`, for the host's side (`host`) or the device's, in the units its
+/// driver used. `params`: the P2OS robot's table as `--robot` gives it; `recorded`: a
+/// recorded port's driver parameters (an rFLEX's `kd` and `ka`; the P2OS table the driver was
+/// told, `params`). A P2OS port with neither is read in the table of the robot its SYNC2
+/// reply names, the P2-AT's until then (the host's bytes: the P2-AT's).
 pub fn decoder(
     protocol: Protocol,
     host: bool,
     params: Option<&'static RobotParams>,
     recorded: Option<&std::collections::BTreeMap<String, String>>,
 ) -> Box<dyn Decoder + Send> {
+    let params = params.or_else(|| recorded.and_then(p2os::recorded_params));
     if let (Protocol::P2os, None, false) = (protocol, params, host) {
         return Box::new(p2os::P2osDecoder::following(&ima_p2os::params::P2AT));
     }
@@ -389,7 +391,7 @@ struct Output {
     out: std::io::BufWriter<std::io::StdoutLock<'static>>,
     protocol: Protocol,
     from: Direction,
-    /// The P2OS robot's parameters as `--robot` gives them (`None`: the robot's own).
+    /// The P2OS robot's parameters as `--robot` gives them (`None`: see [`decoder()`]).
     params: Option<&'static RobotParams>,
     frames: u64,
     errors: u64,

@@ -38,8 +38,9 @@ impl<'a> P2osDecoder<'a> {
     }
 
     /// A decoder of the robot's packets in `params`' units until the robot's SYNC2 reply names
-    /// a subclass with a table of its own (`p2at8`, `p2dx`), in that table's from then on: the
-    /// one the driver takes. The reply's object says which (`"params"`).
+    /// a subclass that has a table (`p2at`, `p2at8`, `p2dx`, in any case), in that table's from
+    /// then on: the one the driver takes when it is not told one. The reply's object says which
+    /// (`"params"`); an unknown subclass keeps the table in use.
     pub fn following(params: &'a RobotParams) -> Self {
         Self {
             follow: true,
@@ -51,7 +52,7 @@ impl<'a> P2osDecoder<'a> {
 impl Decoder for P2osDecoder<'_> {
     fn feed(&mut self, bytes: &[u8], emit: &mut dyn FnMut(Value) -> Result<()>) -> Result<()> {
         let (framer, host, follow) = (&mut self.framer, self.host, self.follow);
-        let mut params = self.params;
+        let params = &mut self.params;
         let mut input = bytes;
         loop {
             let n = framer.feed(input);
@@ -77,7 +78,7 @@ impl Decoder for P2osDecoder<'_> {
                                     && follow
                                     && let Some(own) = RobotParams::for_subclass(subclass)
                                 {
-                                    params = own;
+                                    *params = own;
                                 }
                                 let mut v = packet_json(&pk, params);
                                 if follow && matches!(pk, Packet::SyncReply { .. }) {
@@ -106,7 +107,6 @@ impl Decoder for P2osDecoder<'_> {
                 break;
             }
         }
-        self.params = params;
         Ok(())
     }
 
@@ -119,6 +119,14 @@ impl Decoder for P2osDecoder<'_> {
         }
         Ok(())
     }
+}
+
+/// The parameter table a recorded P2OS port's metadata names (`params`: the driver was told
+/// one, which overrides the robot's SYNC2 reply), if it names one this program has.
+pub fn recorded_params(
+    recorded: &std::collections::BTreeMap<String, String>,
+) -> Option<&'static RobotParams> {
+    RobotParams::for_subclass(recorded.get("params")?.as_bytes())
 }
 
 fn text(b: &[u8]) -> String {

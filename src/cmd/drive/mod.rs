@@ -136,9 +136,15 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
         }
     }
     cfg.bauds = bauds;
+    // A table chosen here overrides the one the robot's SYNC2 reply names: the recording says
+    // which, so that a replay reads the SIPs in the units the driver did.
+    let recorded: std::collections::BTreeMap<_, _> = params
+        .iter()
+        .map(|p| ("params".to_owned(), p.subclass.to_owned()))
+        .collect();
     cfg.params_override = params;
     let port = open_port(&args.port, baud).with_context(|| format!("opening {}", args.port))?;
-    let port = crate::record::tap(port, "base", &args.port, baud, "p2os"); // record: raw bytes
+    let port = crate::record::tap_with(port, "base", &args.port, baud, "p2os", recorded); // record: raw bytes
     let connect = P2os::connect(
         port,
         cfg,
