@@ -17,8 +17,9 @@
 //! * Extron: `N!`/`N&`/`N$` select input N (1..=inputs) and answer `InN All|Vid|Aud` after
 //!   the [switch delay](MuxModelConfig::switch_delay); `!` answers the current input; `0S`
 //!   answers `Sig 1 1 …`; `1B`/`0B` answer `Vmt1`/`Vmt0`. Errors: `E01` for an input out of
-//!   range, `E06` for a selection while auto-switch mode is on, `E10` for an unknown command.
-//!   Matrix ties `I*1!` are accepted for output 1 (`Out1 InI All`); other outputs give `E01`.
+//!   range (however many digits), `E06` for a selection while auto-switch mode is on, `E10`
+//!   for an unknown command. Matrix ties `I*1!` are accepted for output 1 (`Out1 InI All`);
+//!   other outputs give `E01`.
 //!   The information requests of the SIS manuals are answered too, so that a control system
 //!   that asks them first is not left waiting (they used to be taken for the start of the next
 //!   command): `I` answers `V<in> A<in> F<mode> Vmt<0|1> Amt0` (mode 1 manual, 2 auto-switch;
@@ -251,7 +252,16 @@ impl MuxDevice {
 
     fn extron(&mut self, cmd: &[u8], now: Instant) {
         let Ok(c) = ExtronCommand::parse(cmd) else {
-            self.reply(ExtronReply::Error(ExtronError::InvalidCommand));
+            // A selection of an input too large to parse is an input out of range, as a unit
+            // says (`99999!` → `E01`), not an unknown command.
+            let select = matches!(cmd.split_last(), Some((b'!' | b'&' | b'$', n))
+                if !n.is_empty() && n.iter().all(u8::is_ascii_digit));
+            let e = if select {
+                ExtronError::InvalidInput
+            } else {
+                ExtronError::InvalidCommand
+            };
+            self.reply(ExtronReply::Error(e));
             return;
         };
         self.stats.commands = self.stats.commands.saturating_add(1);
@@ -532,6 +542,9 @@ mod tests {
         assert_eq!(bus.current().0, Some(3));
         assert_eq!(run(&mut d, b"!", Instant::ZERO), b"3\r\n");
         assert_eq!(run(&mut d, b"9!", Instant::ZERO), b"E01\r\n");
+        // Too large for the wire's number: still an input out of range.
+        assert_eq!(run(&mut d, b"99999!", Instant::ZERO), b"E01\r\n");
+        assert_eq!(run(&mut d, b"4294967296&", Instant::ZERO), b"E01\r\n");
         assert_eq!(run(&mut d, b"5x!", Instant::ZERO), b"E10\r\n");
         assert_eq!(run(&mut d, b"2&", Instant::ZERO), b"In2 Vid\r\n");
         assert_eq!(run(&mut d, b"1B", Instant::ZERO), b"Vmt1\r\n");
