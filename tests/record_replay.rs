@@ -1324,30 +1324,20 @@ fn decode_mcap_converts_an_rflex_port_with_its_recorded_factors() {
     let dir = scratch("rflex-kd");
     let file = dir.join("kd.mcap");
     let (_mock, pty) = common::spawn_mock(&["rflex", "--seed", "3"]);
-    let out = ima()
-        .args([
-            "drive", "--robot", "atrv-jr", "--kd", "45405", "--port", &pty,
-        ])
-        .args([
-            "--vel", "0.3", "--turn", "0", "--for", "1", "--json", "--record",
-        ])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::run_ok(
+        ima()
+            .args([
+                "drive", "--robot", "atrv-jr", "--kd", "45405", "--port", &pty,
+            ])
+            .args([
+                "--vel", "0.3", "--turn", "0", "--for", "1", "--json", "--record",
+            ])
+            .arg(&file),
     );
-    let out = ima()
-        .args(["decode", "--port", "robot/base", "--from", "host", "--mcap"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::run_ok(
+        ima()
+            .args(["decode", "--port", "robot/base", "--from", "host", "--mcap"])
+            .arg(&file),
     );
     let speeds: Vec<f64> = json_lines(&out.stdout)
         .iter()
@@ -1366,16 +1356,11 @@ fn a_p2os_table_the_driver_was_told_is_recorded_and_decoded_with() {
     let dir = scratch("p2os-params");
     let file = dir.join("p2dx.mcap");
     let (_mock, pty) = common::spawn_mock(&["p2os"]);
-    let out = ima()
-        .args(["drive", "--params", "p2dx", "--port", &pty])
-        .args(["--vel", "0.2", "--for", "1", "--json", "--record"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::run_ok(
+        ima()
+            .args(["drive", "--params", "p2dx", "--port", &pty])
+            .args(["--vel", "0.2", "--for", "1", "--json", "--record"])
+            .arg(&file),
     );
     let driven = json_lines(&out.stdout)
         .last()
@@ -1383,15 +1368,10 @@ fn a_p2os_table_the_driver_was_told_is_recorded_and_decoded_with() {
         .unwrap();
     let ch = Recording::open(&file).unwrap().channels();
     assert_eq!(ch["/robot/serial/base"].1["params"], "p2dx");
-    let out = ima()
-        .args(["decode", "--port", "robot/base", "--mcap"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::run_ok(
+        ima()
+            .args(["decode", "--port", "robot/base", "--mcap"])
+            .arg(&file),
     );
     let lines = json_lines(&out.stdout);
     let sips: Vec<_> = lines.iter().filter(|l| l["kind"] == "sip").collect();

@@ -1049,37 +1049,27 @@ mod tests {
     fn a_replayed_heading_is_a_yaw_in_the_live_range() {
         let (tx, mut rx) = tokio::sync::mpsc::channel(8);
         let mut d = StreamDecoder::new("/scooter/serial/compass", &port("compass-kvh")).unwrap();
-        assert!(d.feed(100, b"$HCHDM,350.0,M*2F\r\n", &tx));
-        let Ok(Item::Reading(r)) = rx.try_recv() else {
-            panic!("a reading");
-        };
-        let Reading::Compass(yaw) = r.reading.reading else {
-            panic!("a heading");
-        };
-        assert!(
-            (yaw - 100f64.to_radians()).abs() < 1e-9,
-            "{}",
+        let mut yaw_deg = |t_ns, line: &[u8]| {
+            assert!(d.feed(t_ns, line, &tx));
+            let Ok(Item::Reading(r)) = rx.try_recv() else {
+                panic!("a reading");
+            };
+            let Reading::Compass(yaw) = r.reading.reading else {
+                panic!("a heading");
+            };
             yaw.to_degrees()
-        );
+        };
+        let yaw = yaw_deg(100, b"$HCHDM,350.0,M*2F\r\n");
+        assert!((yaw - 100.0).abs() < 1e-9, "{yaw}");
         let live = ima_hal::compass::Heading::new(
             350f64.to_radians(),
             ima_hal::compass::HeadingReference::Magnetic,
         );
-        assert!((yaw - live.yaw_enu_rad()).abs() < 1e-9);
+        assert!((yaw - live.yaw_enu_rad().to_degrees()).abs() < 1e-9);
         // An HDG line's deviation (2° E) and variation (10° W) count, as the driver's heading
         // counts them: true heading 342°, yaw 108° (it was 100°, the bare sensor heading).
-        assert!(d.feed(200, b"$HCHDG,350.0,2.0,E,10.0,W*65\r\n", &tx));
-        let Ok(Item::Reading(r)) = rx.try_recv() else {
-            panic!("a reading");
-        };
-        let Reading::Compass(yaw) = r.reading.reading else {
-            panic!("a heading");
-        };
-        assert!(
-            (yaw - 108f64.to_radians()).abs() < 1e-9,
-            "{}",
-            yaw.to_degrees()
-        );
+        let yaw = yaw_deg(200, b"$HCHDG,350.0,2.0,E,10.0,W*65\r\n");
+        assert!((yaw - 108.0).abs() < 1e-9, "{yaw}");
     }
 
     /// A factor near 0 overflowed the `Duration` of the first pause (1e-300) or slept for
