@@ -478,9 +478,9 @@ struct StreamDecoder {
     /// An rFLEX stream's odometry comes from the driver's own session machine (its pairing of
     /// the two axes, midpoint integration and plausibility rule), fed the motion reports.
     rflex: Option<Box<ima_rflex::machine::Machine>>,
-    /// A P2OS stream's sonar: where the transducers sit (the table of the robot its SYNC2
-    /// reply names, as `ima decode` reads the ranges; the P2-AT's until then), and the latest
-    /// reading of each.
+    /// A P2OS stream's sonar: where the transducers sit (in the table `ima decode` reads the
+    /// ranges with: the one the driver was told, else the one the robot's SYNC2 reply names,
+    /// the P2-AT's until then), and the latest reading of each.
     sonar: Option<(std::sync::Arc<[SonarTransducer]>, SonarScan)>,
     /// Raw chunks handed on so far (the next one's place in the stream).
     chunks: u64,
