@@ -44,6 +44,7 @@ use ima_hal::camera::Channel;
 use ima_video_mux::wire::extron::BANNER;
 use ima_video_mux::wire::{
     ExtronCommand, ExtronError, ExtronReply, Instruction, KramerMessage, Signals, TieKind,
+    WireError,
 };
 
 use crate::model::DeviceModel;
@@ -174,13 +175,18 @@ enum Pending {
 const MAX_PARTIAL: usize = 16;
 /// Commands kept while a switch is under way (more are ignored).
 const MAX_DEFERRED: usize = 32;
+const SIS_ABORT: Duration = Duration::from_secs(10);
 
 /// Whether `c` starts an SIS escape command (`ESC` on a serial port, `W` as its stand-in),
-/// which ends at CR or `|`.
+/// which ends at CR or `|` ([`ends_escape`]).
 fn is_escape(c: u8) -> bool {
     matches!(c, 0x1b | b'W' | b'w')
 }
-const SIS_ABORT: Duration = Duration::from_secs(10);
+
+/// Whether `b` ends an SIS escape command.
+fn ends_escape(b: u8) -> bool {
+    b == b'\r' || b == b'|'
+}
 
 /// The mock switcher, a [`DeviceModel`].
 #[derive(Debug)]
@@ -251,18 +257,18 @@ impl MuxDevice {
     }
 
     fn extron(&mut self, cmd: &[u8], now: Instant) {
-        let Ok(c) = ExtronCommand::parse(cmd) else {
-            // A selection of an input too large to parse is an input out of range, as a unit
-            // says (`99999!` → `E01`), not an unknown command.
-            let select = matches!(cmd.split_last(), Some((b'!' | b'&' | b'$', n))
-                if !n.is_empty() && n.iter().all(u8::is_ascii_digit));
-            let e = if select {
-                ExtronError::InvalidInput
-            } else {
-                ExtronError::InvalidCommand
-            };
-            self.reply(ExtronReply::Error(e));
-            return;
+        let c = match ExtronCommand::parse(cmd) {
+            Ok(c) => c,
+            Err(e) => {
+                // A number too large for the wire (`99999!`) is an input out of range, as a
+                // unit says, not an unknown command.
+                let e = match e {
+                    WireError::OutOfRange => ExtronError::InvalidInput,
+                    _ => ExtronError::InvalidCommand,
+                };
+                self.reply(ExtronReply::Error(e));
+                return;
+            }
         };
         self.stats.commands = self.stats.commands.saturating_add(1);
         let select = |me: &mut Self, input: u16, kind, tie| {
@@ -344,12 +350,13 @@ impl MuxDevice {
     /// An escape command: `<n>CV` (verbose mode) answers `Vrb<n>`; the model takes no other.
     fn escape(&mut self, body: &[u8]) {
         let upper = body.to_ascii_uppercase();
-        match upper.strip_suffix(b"CV") {
-            Some(d) if !d.is_empty() && d.len() <= 2 && d.iter().all(u8::is_ascii_digit) => {
-                let n = d.iter().fold(0u8, |n, c| n * 10 + (c - b'0'));
-                self.reply(ExtronReply::Verbose(n));
-            }
-            _ => self.reply(ExtronReply::Error(ExtronError::InvalidCommand)),
+        let mode = upper
+            .strip_suffix(b"CV")
+            .and_then(|d| ima_hal::bytes::parse_decimal(d, 2).ok())
+            .and_then(|n| u8::try_from(n).ok());
+        match mode {
+            Some(n) => self.reply(ExtronReply::Verbose(n)),
+            None => self.reply(ExtronReply::Error(ExtronError::InvalidCommand)),
         }
     }
 
@@ -432,12 +439,12 @@ impl DeviceModel for MuxDevice {
                 for &b in bytes {
                     // The rest of an escape command too long to keep, up to its end.
                     if self.discarding {
-                        self.discarding = b != b'\r' && b != b'|';
+                        self.discarding = !ends_escape(b);
                         continue;
                     }
                     // An escape command (`ESC …` or `W…`) ends at CR or `|`.
                     if self.partial.first().is_some_and(|&c| is_escape(c)) {
-                        if b == b'\r' || b == b'|' {
+                        if ends_escape(b) {
                             let cmd = std::mem::take(&mut self.partial);
                             self.command(cmd, now);
                         } else if self.partial.len() >= MAX_PARTIAL {

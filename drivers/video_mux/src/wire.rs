@@ -25,13 +25,14 @@ pub enum WireError {
     TrailingBytes,
     /// A byte that breaks the format (non-printable in SIS; a misplaced high bit in P2000).
     BadByte(u8),
-    /// A number is malformed or out of range.
+    /// A number is malformed.
     BadNumber,
     /// A reply this crate does not recognise.
     UnknownReply,
     /// A command this crate does not recognise.
     UnknownCommand,
-    /// A value the wire cannot carry (emit side).
+    /// A value the wire cannot carry: on the emit side, or, parsed, a well-formed number too
+    /// large for its field (an input `99999`).
     OutOfRange,
 }
 
@@ -60,8 +61,25 @@ ima_hal::cursor_errors!(WireError {
     overflow: |_| WireError::BufferTooSmall
 });
 
-/// Parse an unsigned decimal of 1–5 digits.
+/// Parse an unsigned decimal of 1–5 digits: [`WireError::BadNumber`] if it is not one,
+/// [`WireError::OutOfRange`] if it is all digits but too large for a `u16`.
 pub(crate) fn parse_u16(s: &[u8]) -> Result<u16, WireError> {
-    let v = ima_hal::bytes::parse_decimal(s, 5).map_err(|_| WireError::BadNumber)?;
-    u16::try_from(v).map_err(|_| WireError::BadNumber)
+    use ima_hal::bytes::{DecimalError, parse_decimal};
+    match parse_decimal(s, 5) {
+        Ok(v) => u16::try_from(v).map_err(|_| WireError::OutOfRange),
+        Err(DecimalError::TooLong { .. }) if s.iter().all(u8::is_ascii_digit) => {
+            Err(WireError::OutOfRange)
+        }
+        Err(_) => Err(WireError::BadNumber),
+    }
+}
+
+/// A number of at most 255 (`Vrb3`, `F1`), as [`parse_u16`] reads it.
+pub(crate) fn parse_u8(s: &[u8]) -> Result<u8, WireError> {
+    u8::try_from(parse_u16(s)?).map_err(|_| WireError::OutOfRange)
+}
+
+/// Whether `s` is a number: one or more ASCII digits.
+pub(crate) fn is_number(s: &[u8]) -> bool {
+    !s.is_empty() && s.iter().all(u8::is_ascii_digit)
 }

@@ -18,7 +18,7 @@
 //! The exact reply to `Out… In…` ties is inferred from the single-output form (the bridgecmdr
 //! source names the commands, not the replies).
 
-use super::{WireError, Writer, parse_u16};
+use super::{WireError, Writer, is_number, parse_u8, parse_u16};
 
 /// What a selection switches.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -161,7 +161,8 @@ impl ExtronCommand {
     /// Parse one complete command (device side).
     ///
     /// # Errors
-    /// [`WireError::UnknownCommand`], [`WireError::BadNumber`], [`WireError::Empty`].
+    /// [`WireError::UnknownCommand`], [`WireError::BadNumber`], [`WireError::Empty`];
+    /// [`WireError::OutOfRange`] for an input or output too large for its field (`99999!`).
     pub fn parse(cmd: &[u8]) -> Result<Self, WireError> {
         let Some((&action, args)) = cmd.split_last() else {
             return Err(WireError::Empty);
@@ -349,9 +350,7 @@ pub const BANNER: &[u8] = b"(c) Copyright 2002, Extron Electronics, SW AV";
 fn parse_information(line: &[u8]) -> Result<ExtronReply, WireError> {
     let mut fields = line.split(|c| *c == b' ').filter(|f| !f.is_empty());
     let number = |f: Option<&[u8]>, tag: u8| match f {
-        Some([t, n @ ..]) if *t == tag && !n.is_empty() && n.iter().all(u8::is_ascii_digit) => {
-            parse_u16(n)
-        }
+        Some([t, n @ ..]) if *t == tag && is_number(n) => parse_u16(n),
         _ => Err(WireError::UnknownReply),
     };
     let video = number(fields.next(), b'V')?;
@@ -359,9 +358,7 @@ fn parse_information(line: &[u8]) -> Result<ExtronReply, WireError> {
     let (mut mode, mut video_mute, mut audio_mute) = (None, None, None);
     for f in fields {
         match f {
-            [b'F', n @ ..] if !n.is_empty() && n.iter().all(u8::is_ascii_digit) => {
-                mode = Some(u8::try_from(parse_u16(n)?).map_err(|_| WireError::BadNumber)?);
-            }
+            [b'F', n @ ..] if is_number(n) => mode = Some(parse_u8(n)?),
             b"Vmt0" | b"Vmt1" => video_mute = Some(f == b"Vmt1"),
             b"Amt0" | b"Amt1" => audio_mute = Some(f == b"Amt1"),
             _ => {}
@@ -454,23 +451,21 @@ impl ExtronReply {
                 }
                 Ok(Self::Signals(Signals { mask, count }))
             }
-            [b'V', b'r', b'b', n @ ..] if !n.is_empty() && n.iter().all(u8::is_ascii_digit) => Ok(
-                Self::Verbose(u8::try_from(parse_u16(n)?).map_err(|_| WireError::BadNumber)?),
-            ),
+            [b'V', b'r', b'b', n @ ..] if is_number(n) => Ok(Self::Verbose(parse_u8(n)?)),
             l if contains(l, b"extron") || contains(l, b"copyright") => Ok(Self::Banner),
             [b'V', d, ..] if d.is_ascii_digit() => parse_information(line),
             l if l.iter().all(u8::is_ascii_digit) => Ok(Self::Current(parse_u16(l)?)),
             [d, ..] if d.is_ascii_digit() => {
                 let (major, tail) = split_digits(line);
-                let [b'.', a, b] = tail else {
+                let [b'.', hundredths @ ..] = tail else {
                     return Err(WireError::UnknownReply);
                 };
-                if !a.is_ascii_digit() || !b.is_ascii_digit() {
+                if hundredths.len() != 2 || !is_number(hundredths) {
                     return Err(WireError::UnknownReply);
                 }
                 Ok(Self::Firmware {
                     major: parse_u16(major)?,
-                    hundredths: (a - b'0') * 10 + (b - b'0'),
+                    hundredths: parse_u8(hundredths)?,
                 })
             }
             _ => Err(WireError::UnknownReply),
