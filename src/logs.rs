@@ -20,7 +20,7 @@
 //! ([`Logs::abandon`]).
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, TrySendError, sync_channel};
 use std::time::{Duration, Instant};
 
@@ -57,13 +57,10 @@ struct State {
     dropped: AtomicU64,
     /// Lines and messages written so far (whether stderr is being read at all).
     written: AtomicU64,
-    /// Who writes the last error line: [`UNCLAIMED`], [`BY_WRITER`] or [`BY_CALLER`].
-    last: AtomicU8,
+    /// Whether the last error line is claimed, by the writing thread or by
+    /// [`Logs::abandon`]'s caller: whoever sets it writes the line.
+    last_claimed: AtomicBool,
 }
-
-const UNCLAIMED: u8 = 0;
-const BY_WRITER: u8 = 1;
-const BY_CALLER: u8 = 2;
 
 impl Logs {
     /// Start the writing thread. If it cannot start, log lines are dropped (and counted), and
@@ -143,7 +140,7 @@ impl Logs {
     /// # Errors
     /// The line back if no thread writes the queue out.
     pub fn say_last(&self, bytes: Vec<u8>, deadline: Instant) -> Result<bool, Vec<u8>> {
-        self.state.last.store(UNCLAIMED, Ordering::SeqCst);
+        self.state.last_claimed.store(false, Ordering::SeqCst);
         match self.queue_by(Msg::Last(bytes), deadline) {
             Ok(()) => Ok(true),
             // Counted, as [`abandon`](Self::abandon) counts a queued one.
@@ -191,9 +188,7 @@ impl Logs {
     /// (the writing thread has not taken it).
     pub fn abandon(&self) -> (usize, bool) {
         self.state.abandoned.store(true, Ordering::SeqCst);
-        let mine = (self.state.last)
-            .compare_exchange(UNCLAIMED, BY_CALLER, Ordering::SeqCst, Ordering::SeqCst)
-            .is_ok();
+        let mine = !self.state.last_claimed.swap(true, Ordering::SeqCst);
         let dropped = self.state.dropped.swap(0, Ordering::Relaxed);
         let dropped = usize::try_from(dropped).unwrap_or(usize::MAX);
         let lost = self
@@ -211,9 +206,7 @@ fn write_out(rx: &Receiver<Msg>, mut out: impl std::io::Write, closed: fn(), st:
         match m {
             Msg::Line(_) | Msg::Said(_) | Msg::Last(_) if abandoned => {}
             Msg::Last(b) => {
-                let claimed = (st.last)
-                    .compare_exchange(UNCLAIMED, BY_WRITER, Ordering::SeqCst, Ordering::SeqCst)
-                    .is_ok();
+                let claimed = !st.last_claimed.swap(true, Ordering::SeqCst);
                 if claimed
                     && let Err(e) = out.write_all(&b)
                     && e.kind() == std::io::ErrorKind::BrokenPipe

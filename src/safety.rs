@@ -265,7 +265,7 @@ pub fn last_words(error: Option<&str>, deadline: std::time::Instant, written_bef
             Err(_) => return say_directly(format_args!("{line}")),
         },
     };
-    if queued && l.flush(deadline.saturating_duration_since(std::time::Instant::now())) {
+    if queued && flush_logs_by(deadline) {
         return;
     }
     // A reader that took something since the exit began (`written_before`, from
@@ -317,17 +317,17 @@ pub fn logs_written() -> u64 {
 /// does not keep up, and never the end of the command when it is closed (the results still
 /// go to stdout).
 pub fn progress(args: std::fmt::Arguments<'_>) {
-    match LOG.get() {
-        Some(l) => l.send(std::fmt::format(args).into_bytes()),
-        None => {
-            let _ = std::io::stderr().write_fmt(args);
-        }
-    }
+    log_line(std::fmt::format(args));
 }
 
 fn say(msg: std::fmt::Arguments<'_>) {
-    // stderr may be gone too; never panic here, and never block on it.
-    let line = format!("ima: {msg}\n");
+    log_line(format!("ima: {msg}\n"));
+}
+
+/// `line` on stderr as a log line: through the log thread (dropped when stderr does not keep
+/// up), or written here when none runs. stderr may be gone too: never panic, and never block
+/// on it while the log thread runs.
+fn log_line(line: String) {
     match LOG.get() {
         Some(l) => l.send(line.into_bytes()),
         None => {

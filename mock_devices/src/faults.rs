@@ -9,32 +9,14 @@
 //!
 //! # Spec-string grammar
 //!
-//! ```text
-//! spec   := "" | item ("," item)*          whitespace around items is ignored
-//! item   := "seed=" u64
-//!         | [dir "."] key "=" value
-//! dir    := "r2h"  (robot → host only) | "h2r" (host → robot only); absent = both directions
-//! key/value:
-//!   corrupt=P              each byte: with probability P, XOR it with a random non-zero mask
-//!   drop=P                 each byte: with probability P, drop it
-//!   garbage=P[:MIN-MAX]    each byte: with probability P, insert MIN..=MAX random bytes
-//!                          before it (default 1-16)
-//!   split=P                each write: with probability P, cut it into random chunks
-//!   stall=P:DUR            each byte: with probability P, hold the stream for DUR before it
-//!   delay=DUR              every chunk arrives DUR late (fixed latency)
-//!   hangup=DUR[:OUTAGE]    hang up DUR after the start; the link stays down for OUTAGE
-//!                          (default: for good)
-//!   hangup=P[:OUTAGE]      each byte: with probability P, hang up
-//! P   := decimal in [0, 1]
-//! DUR := decimal followed by a unit: ns | us | ms | s | min     (e.g. 300ms, 1.5s)
-//! ```
+//! ([`GRAMMAR`], which `ima mock --help` prints too.)
+//!
+#![doc = concat!("```text\n", include_str!("faults_grammar.txt"), "```")]
 //!
 //! Example: `corrupt=0.01,drop=0.001,garbage=0.001,split=1,stall=0.0005:300ms,hangup=5s,seed=42`.
-//! A later item overrides an earlier one for the same key and direction. [`FaultPlan`]'s
-//! `Display` prints a spec string that parses back to the same plan (log it to reproduce a
-//! run). Each direction draws
-//! from its own generator, seeded from `seed` and the direction, so the faults in one
-//! direction do not depend on the traffic in the other.
+//! [`FaultPlan`]'s `Display` prints a spec string that parses back to the same plan (log it to
+//! reproduce a run). Each direction draws from its own generator, seeded from `seed` and the
+//! direction, so the faults in one direction do not depend on the traffic in the other.
 //!
 //! # What a hang-up means
 //!
@@ -50,6 +32,10 @@ use std::time::Duration;
 use ima_hal::Instant;
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
+
+/// The spec-string grammar, as plain text (the module's documentation and `ima mock --help`
+/// show it).
+pub const GRAMMAR: &str = include_str!("faults_grammar.txt");
 
 /// When a direction hangs up the link.
 #[derive(Debug, Clone, Copy, PartialEq)]

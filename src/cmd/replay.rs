@@ -4,10 +4,10 @@
 //! paced by their recorded stamps (`--speed`, 0: as fast as possible).
 //!
 //! Readings: SICK LMS scans (`/<robot>/laser/scan`, exactly as decoded), P2OS SIP odometry
-//! (`/<robot>/odom`, `/tf`) and sonar (`/<robot>/sonar`, after each SIP that brought readings,
-//! the P2-AT's transducer table), rFLEX odometry as the driver's own session machine integrates
-//! its motion reports (ATRV-Jr calibration), compass headings (`/<robot>/compass`,
-//! east-north-up). The recorded decoded topics are not replayed:
+//! (`/<robot>/odom`, `/tf`) and sonar (`/<robot>/sonar`, after each SIP that brought readings),
+//! rFLEX odometry as the driver's own session machine integrates its motion reports, compass
+//! headings (`/<robot>/compass`, east-north-up), each in the units the driver used (the
+//! channel's recorded parameters, `ima decode`'s `decoder`). The recorded decoded topics are not replayed:
 //! they are what the replay re-creates. A recording of the replay (`--record`) also carries
 //! every raw channel with its recorded stamps and port metadata, so it can itself be replayed,
 //! decoded (`ima decode --mcap`) or served `--as-mock`.

@@ -73,18 +73,16 @@ impl Decoder for P2osDecoder<'_> {
                         let v = if host {
                             Command::parse(p).map(|c| command_json(c, params))
                         } else {
-                            Packet::parse(p).map(|pk| {
-                                if let Packet::SyncReply { subclass, .. } = &pk
-                                    && follow
-                                    && let Some(own) = RobotParams::for_subclass(subclass)
-                                {
-                                    *params = own;
-                                }
-                                let mut v = packet_json(&pk, params);
-                                if follow && matches!(pk, Packet::SyncReply { .. }) {
+                            Packet::parse(p).map(|pk| match &pk {
+                                Packet::SyncReply { subclass, .. } if follow => {
+                                    if let Some(own) = RobotParams::for_subclass(subclass) {
+                                        *params = own;
+                                    }
+                                    let mut v = packet_json(&pk, params);
                                     v["params"] = json!(params.subclass);
+                                    v
                                 }
-                                v
+                                _ => packet_json(&pk, params),
                             })
                         };
                         (v.map_err(|e| e.to_string()), p.len() + 5)

@@ -150,25 +150,18 @@ async fn square(
     let t0 = truth();
     // record: odometry and the ground truth after every SIP the square reads, the odometry
     // frame at the start pose (where the odometry was reset) so that both meet in `map`.
-    let origin = ima_record::convert::Pose2 {
-        x_m: t0.0,
-        y_m: t0.1,
-        theta_rad: t0.2,
+    let pose = |(x_m, y_m, theta_rad): (f64, f64, f64)| ima_record::convert::Pose2 {
+        x_m,
+        y_m,
+        theta_rad,
     };
+    let origin = pose(t0);
     let record = |o: &ima_hal::Stamped<ima_hal::base::Odometry>| {
         crate::record::with(|r| {
             crate::record::log_fixed_frames_at(r, ROBOT, origin, true, false);
             let p = ima_record::convert::Pose2::from_isometry(&o.value.pose);
             r.log_odometry(ROBOT, p);
-            let (x_m, y_m, theta_rad) = truth();
-            r.log_ground_truth(
-                ROBOT,
-                ima_record::convert::Pose2 {
-                    x_m,
-                    y_m,
-                    theta_rad,
-                },
-            );
+            r.log_ground_truth(ROBOT, pose(truth()));
         });
     };
     // Ground truth in the frame of the start pose, to compare with odometry.

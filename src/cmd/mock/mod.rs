@@ -40,26 +40,15 @@ pub enum Device {
     World,
 }
 
-/// `--faults`'s long help: the grammar (`ima_mock_devices::faults`).
-const FAULTS_HELP: &str = "\
-Faults between device and port, e.g. `corrupt=0.01,split=1,stall=0.0005:300ms`; for the world,
-between each of its serial devices and its port.
-
-Items, comma-separated; `r2h.` or `h2r.` before a key limits it to robot → host or host → robot
-(both when absent); a later item overrides an earlier one:
-
-    corrupt=P            each byte: with probability P, XOR it with a random mask
-    drop=P               each byte: with probability P, drop it
-    garbage=P[:MIN-MAX]  each byte: with probability P, insert MIN..=MAX random bytes
-                         before it (default 1-16)
-    split=P              each write: with probability P, cut it into random chunks
-    stall=P:DUR          each byte: with probability P, hold the stream for DUR
-    delay=DUR            every chunk arrives DUR late
-    hangup=DUR[:OUTAGE]  hang up DUR after the start, down for OUTAGE (default: for good)
-    hangup=P[:OUTAGE]    each byte: with probability P, hang up
-    seed=N               the faults' seed (default: --seed)
-
-P is a probability from 0 to 1; DUR a number with ns, us, ms, s or min (300ms, 1.5s).";
+/// `--faults`'s long help: what it does and the grammar ([`ima_mock_devices::faults::GRAMMAR`]).
+fn faults_help() -> String {
+    format!(
+        "Faults between device and port, e.g. `corrupt=0.01,split=1,stall=0.0005:300ms`; for \
+         the world, between each of its serial devices and its port. The seed defaults to \
+         --seed.\n\n{}",
+        ima_mock_devices::faults::GRAMMAR.trim_end()
+    )
+}
 
 /// Arguments of `ima mock`.
 #[derive(Debug, Args)]
@@ -74,7 +63,7 @@ pub struct MockArgs {
     seed: u64,
     /// Faults between device and port, e.g. `corrupt=0.01,split=1,stall=0.0005:300ms`; for
     /// the world, between each of its serial devices and its port (`--help` gives the grammar).
-    #[arg(long, default_value = "", long_help = FAULTS_HELP)]
+    #[arg(long, default_value = "", long_help = faults_help())]
     faults: String,
     /// Which robot of the world the device belongs to (default: skeeter for p2os and the
     /// video switcher, scooter for rflex, sick-lms and the compass).
