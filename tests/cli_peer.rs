@@ -383,6 +383,27 @@ fn manager_fails_with(dir: &str, toml: &str, expect: &str) {
     assert!(err.contains(expect), "{err}");
 }
 
+/// A config file's mistakes name the file; a value of the wrong type also its line, in the
+/// main table and in a `[[synthetic]]` source alike; a value out of range its key.
+#[test]
+fn config_errors_name_the_file_and_the_line() {
+    manager_fails_with(
+        "type",
+        "robot = \"s\"\nheartbeat_ms = \"x\"\n",
+        "bad.toml: TOML parse error at line 2, column 16",
+    );
+    manager_fails_with(
+        "synthtype",
+        "robot = \"s\"\n[[synthetic]]\nname = 5\n",
+        "bad.toml: TOML parse error at line 3, column 8",
+    );
+    manager_fails_with(
+        "range",
+        "[manager]\nmax_clients = 0\n",
+        "bad.toml: configuration: manager.max_clients = 0 is out of range",
+    );
+}
+
 #[test]
 fn bad_synthetic_sources_are_refused() {
     let src = |g: &str, rate: &str| {

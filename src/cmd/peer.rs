@@ -210,22 +210,30 @@ pub fn run(cmd: &PeerCommand) -> Result<()> {
     })
 }
 
-/// The config file split into the peer config and the CLI's synthetic sources.
+/// The config file split into the peer config and the CLI's synthetic sources. Errors name
+/// the file; a value of the wrong type also its line and column (the document is read with
+/// its spans, not through an untyped table), and a value out of range its key.
 fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSource>)> {
+    use serde::Deserialize;
     let Some(path) = path else {
         return Ok((PeerNetConfig::default(), Vec::new()));
     };
     let text =
         ima_hal::file::read_text(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut table: toml::Table =
-        toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-    let synthetic = match table.remove("synthetic") {
-        Some(v) => v.try_into().context("[[synthetic]] sources")?,
+    let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("in {}: {e}", path.display());
+    let spanned = |mut e: toml::de::Error| {
+        e.set_input(Some(&text));
+        in_file(&e)
+    };
+    let mut root = toml::de::DeTable::parse(&text).map_err(spanned)?;
+    let synthetic = match root.get_mut().remove("synthetic") {
+        Some(v) => Vec::<SyntheticSource>::deserialize(toml::de::ValueDeserializer::from(v))
+            .map_err(spanned)?,
         None => Vec::new(),
     };
-    let mut cfg: PeerNetConfig = toml::Value::Table(table)
-        .try_into()
-        .with_context(|| format!("{}", path.display()))?;
+    let mut cfg =
+        PeerNetConfig::deserialize(toml::de::Deserializer::from(root)).map_err(spanned)?;
+    cfg.validate().map_err(|e| in_file(&e))?;
     // A relative `key_file` is relative to the config file's directory, not to the
     // working directory.
     if let Some(k) = &cfg.key_file
