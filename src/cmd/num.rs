@@ -135,12 +135,22 @@ pub fn rflex_ka(s: &str) -> Result<f64, String> {
     rflex_factor(s, 37_000.0, "rotation factor (units per radian)")
 }
 
+/// A replay's pace: 0 (as fast as it goes), or 0.001 to 1000 times the recorded pace.
+pub fn replay_speed(s: &str) -> Result<f64, String> {
+    const ACCEPTED: &str = "0 for no pacing, or 0.001–1000×";
+    let v = number(s).map_err(|e| format!("{e} (accepted: {ACCEPTED})"))?;
+    if v == 0.0 || (0.001..=1000.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{} is out of range: {ACCEPTED}", s.trim()))
+    }
+}
+
 /// A serial line speed in baud, 50 to 4,000,000.
 pub fn baud(s: &str) -> Result<u32, String> {
-    let v: u32 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("{s:?} is not a line speed in baud (a whole number)"))?;
+    let v: u32 = s.trim().parse().map_err(|_| {
+        format!("{s:?} is not a line speed in baud (accepted: a whole number, 50–4000000)")
+    })?;
     if (50..=4_000_000).contains(&v) {
         Ok(v)
     } else {
@@ -300,5 +310,31 @@ mod tests {
         assert!((cap("--vel", 3.0, 0.75, "m/s") - 0.75).abs() < 1e-12);
         assert!((cap("--vel", -3.0, 0.75, "m/s") + 0.75).abs() < 1e-12);
         assert!((cap("--vel", 0.5, 0.75, "m/s") - 0.5).abs() < 1e-12);
+    }
+
+    /// A line speed and a replay's pace name what they accept for a word as for a number
+    /// out of range (they said only "a whole number" or gave examples).
+    #[test]
+    fn baud_and_replay_speed_name_their_ranges() {
+        assert_eq!(baud(" 9600 "), Ok(9600));
+        let e = baud("fast").unwrap_err();
+        assert!(e.contains("(accepted: a whole number, 50–4000000)"), "{e}");
+        assert_eq!(
+            replay_speed(" 2 "),
+            Ok(2.0),
+            "spaces as every number flag takes them"
+        );
+        assert_eq!(replay_speed("0"), Ok(0.0));
+        for bad in ["x", "NaN", "inf"] {
+            let e = replay_speed(bad).unwrap_err();
+            assert!(
+                e.contains("(accepted: 0 for no pacing, or 0.001–1000×)"),
+                "{e}"
+            );
+        }
+        for bad in ["0.0001", "1001", "-1"] {
+            let e = replay_speed(bad).unwrap_err();
+            assert!(e.contains("is out of range: 0 for no pacing"), "{e}");
+        }
     }
 }

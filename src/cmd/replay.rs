@@ -42,7 +42,7 @@ pub struct ReplayArgs {
     /// The recording (`--record` of `ima demo`, `run`, `drive`, `scan`, `compass`).
     file: PathBuf,
     /// Time factor of the playback, 0.001 to 1000; 0 plays as fast as possible.
-    #[arg(long, default_value_t = 1.0, value_parser = speed)]
+    #[arg(long, default_value_t = 1.0, value_parser = super::num::replay_speed)]
     speed: f64,
     /// One JSON object per reading on stdout.
     #[arg(long)]
@@ -54,17 +54,6 @@ pub struct ReplayArgs {
     /// Recording and live view of the replayed readings.
     #[command(flatten)]
     rec: crate::record::RecordArgs,
-}
-
-fn speed(s: &str) -> Result<f64, String> {
-    let v: f64 = s
-        .parse()
-        .map_err(|_| format!("{s:?} is not a number (e.g. 1, 4, 0.5; 0 for no pacing)"))?;
-    if v == 0.0 || (v.is_finite() && (0.001..=1000.0).contains(&v)) {
-        Ok(v)
-    } else {
-        Err(format!("{} is not 0 or in [0.001, 1000]", s.trim()))
-    }
 }
 
 /// A reading re-decoded from raw bytes.
@@ -1076,11 +1065,11 @@ mod tests {
     /// ever (1e-20): it is refused; 0 still means no pacing.
     #[test]
     fn the_speed_is_0_or_a_sensible_factor() {
-        assert_eq!(super::speed("0"), Ok(0.0));
-        assert_eq!(super::speed("0.001"), Ok(0.001));
-        assert_eq!(super::speed("1000"), Ok(1000.0));
+        assert_eq!(crate::cmd::num::replay_speed("0"), Ok(0.0));
+        assert_eq!(crate::cmd::num::replay_speed("0.001"), Ok(0.001));
+        assert_eq!(crate::cmd::num::replay_speed("1000"), Ok(1000.0));
         for bad in ["1e-300", "1e-20", "0.0009", "1001", "-1", "NaN", "inf", "x"] {
-            assert!(super::speed(bad).is_err(), "{bad}");
+            assert!(crate::cmd::num::replay_speed(bad).is_err(), "{bad}");
         }
     }
 }
