@@ -844,7 +844,7 @@ fn run_answers_sigint_while_opening_its_devices() {
 /// mocks model the documented firmware behaviour (P2OS: 2 s without a command; rFLEX: a fail-
 /// safe after 1 s [inferred]); this measures time and distance to standstill, as the README's
 /// "Safety" section quotes them (`cargo test --test safety sigkill -- --nocapture`).
-fn sigkill(base: Base) {
+fn sigkill(base: Base) -> (SharedWorld, RobotId, Served) {
     let (world, id, served, _log) = serve(base);
     let robot = match base {
         Base::P2os => "p2at",
@@ -881,6 +881,7 @@ fn sigkill(base: Base) {
     );
     eprintln!("{base:?} after SIGKILL at 0.3 m/s: stands after {t:.2?}, {d:.2} m further");
     assert!(d > 0.1, "the robot coasted on: only the watchdog stops it");
+    (world, id, served)
 }
 
 #[test]
@@ -891,6 +892,43 @@ fn sigkill_p2os_only_the_firmware_watchdog_stops_it() {
 #[test]
 fn sigkill_rflex_only_the_firmware_failsafe_stops_it() {
     sigkill(Base::Rflex);
+}
+
+/// After SIGKILL the P2OS watchdog stops the robot, but its session stays open and the next
+/// command revives it at the old setpoints (spec §5.2). The next client's handshake must not
+/// be that command: SYNC0 on an open session is a PULSE, and a bare handshake drove the robot
+/// on at the dead client's speed until the stale-session CLOSE, 88 ms later. Watched from
+/// the mock's side, the robot is never commanded to move while `ima drive --vel 0` connects,
+/// drives and closes.
+#[test]
+fn after_sigkill_the_next_client_does_not_revive_the_old_speed() {
+    let (world, id, served) = sigkill(Base::P2os);
+    let mut child = Child(
+        ima()
+            .args(["drive", "--robot", "p2at", "--port", &served.path()])
+            .args(["--vel", "0", "--for", "1", "--json"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    drain(child.0.stdout.take().unwrap());
+    let mut fastest = 0.0_f64;
+    let end = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        let (l, r) = commanded(&world, id);
+        fastest = fastest.max(l.abs()).max(r.abs());
+        if let Some(st) = child.0.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < end, "ima drive did not end");
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    assert!(status.success(), "{status:?}");
+    assert!(
+        fastest < 1e-9,
+        "the new client's connection revived the old speed: wheels commanded at {fastest} m/s"
+    );
 }
 
 /// Read `lines` lines of a command's stdout, close it, and return how the command ended.

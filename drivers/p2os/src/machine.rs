@@ -764,10 +764,17 @@ impl Machine {
             .unwrap_or(9600)
     }
 
+    /// Queue a handshake from SYNC0, behind a STOP. A session left open by a client that died
+    /// (SIGKILL, a power cut) has its robot stopped by the watchdog, which the next command
+    /// revives: the robot re-accelerates to the old setpoints (§5.2, §10 item 8). SYNC0 is such
+    /// a command on an open session (a PULSE), so a handshake alone drove the robot on at the
+    /// dead client's speed until the stale-session CLOSE (88 ms later in a run against the
+    /// mock). The STOP zeroes the setpoints first; a robot waiting for SYNC0 ignores it.
     fn start_sync(&mut self, now: Instant) {
         self.state = SessionState::Syncing;
         self.step = 0;
         self.tx.clear();
+        let _ = self.queue(Command::Stop, None);
         let _ = self.queue(Command::Sync0, None);
         self.deadline = Some(now + self.cfg.sync_step_timeout);
     }
@@ -804,6 +811,7 @@ impl Machine {
                 // A robot stuck mid-handshake, or one whose session we lost track of, may sit
                 // silent: a CLOSE before the next SYNC0 dislodges it (ARIA's habit, §5.1).
                 self.tx.clear();
+                let _ = self.queue(Command::Stop, None);
                 let _ = self.queue(Command::CLOSE, None);
                 let _ = self.queue(Command::Sync0, None);
             }

@@ -90,7 +90,9 @@ const P2AT_REPLY: Packet<'static> = Packet::SyncReply {
 /// Run the handshake to an open session at t = 0..; returns the time after the first SIP.
 fn open(s: &mut Machine) -> Instant {
     s.connect(ms(0));
-    assert_eq!(sent(s, ms(0)), vec![Command::Sync0]);
+    // STOP first: on a session a dead client left open, SYNC0 alone would revive the old
+    // setpoints (see `a_handshake_into_a_stale_session_never_revives_its_motion`).
+    assert_eq!(sent(s, ms(0)), vec![Command::Stop, Command::Sync0]);
     feed(s, &Packet::SyncEcho(0), ms(10));
     assert_eq!(sent(s, ms(10)), vec![Command::Sync1]);
     feed(s, &Packet::SyncEcho(1), ms(20));
@@ -139,12 +141,15 @@ fn probes_the_next_baud_after_silence() {
     let mut s = Machine::new(Config::default());
     s.connect(ms(0));
     assert_eq!(events(&mut s), vec![Event::SetBaud(9600)]);
-    assert_eq!(sent(&mut s, ms(0)), vec![Command::Sync0]);
+    assert_eq!(sent(&mut s, ms(0)), vec![Command::Stop, Command::Sync0]);
     // First silent attempt: CLOSE (to dislodge a stuck session) then SYNC0 again, same rate.
     let t1 = s.poll_timeout().unwrap();
     assert_eq!(t1, ms(300));
     s.handle_timeout(t1);
-    assert_eq!(sent(&mut s, t1), vec![Command::CLOSE, Command::Sync0]);
+    assert_eq!(
+        sent(&mut s, t1),
+        vec![Command::Stop, Command::CLOSE, Command::Sync0]
+    );
     assert!(events(&mut s).is_empty());
     // Second silent attempt: next rate.
     let t2 = s.poll_timeout().unwrap();
@@ -201,7 +206,7 @@ fn stale_open_session_is_closed_then_resynced() {
     assert_eq!(s.poll_timeout(), Some(ms(450)));
     s.handle_timeout(ms(450));
     assert!(events(&mut s).contains(&Event::FlushInput));
-    assert_eq!(sent(&mut s, ms(450)), vec![Command::Sync0]);
+    assert_eq!(sent(&mut s, ms(450)), vec![Command::Stop, Command::Sync0]);
     assert_eq!(s.state(), SessionState::Syncing);
     // Closed while a stale session is being closed: STOP and CLOSE at the line's rate, where
     // the robot was just heard.
@@ -226,7 +231,7 @@ fn out_of_sequence_reply_restarts_at_sync0() {
     s.connect(ms(0));
     let _ = sent(&mut s, ms(0));
     feed(&mut s, &Packet::SyncEcho(1), ms(10));
-    assert_eq!(sent(&mut s, ms(10)), vec![Command::Sync0]);
+    assert_eq!(sent(&mut s, ms(10)), vec![Command::Stop, Command::Sync0]);
 }
 
 #[test]
