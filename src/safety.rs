@@ -154,8 +154,12 @@ pub struct Interrupted(pub Cause);
 impl std::fmt::Display for Interrupted {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}", self.0)?;
-        if StopRegistry::global().ever_registered() {
+        let reg = StopRegistry::global();
+        if !reg.ever_registered() {
+        } else if reg.unheard().is_empty() {
             f.write_str("; every device that could move was stopped")?;
+        } else {
+            f.write_str("; every device that could move was sent its stop (see above)")?;
         }
         Ok(())
     }
@@ -604,6 +608,15 @@ pub async fn halt_and_wait() {
         say(format_args!(
             "could not confirm the stop of {}",
             pending.join(", ")
+        ));
+    }
+    let unheard = reg.unheard();
+    if !unheard.is_empty() {
+        say(format_args!(
+            "the link to the {} was down when it was stopped: the stop may not have reached \
+             the robot, whose own watchdog stops it once it hears nothing (P2OS: 2 s after \
+             the last command it received); keep clear until it stands",
+            unheard.join(" and the ")
         ));
     }
 }

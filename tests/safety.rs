@@ -5,7 +5,7 @@
 //! wrote (with its arrival time) and the world's ground truth, and asserts that a stop arrived within 0.3 s of the interruption, that
 //! the robot stood within 1.0 s, and that a P2OS session was closed with CLOSE.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
@@ -484,6 +484,74 @@ fn p2os_normal_end_closes_the_session() {
     };
     let model = dev.stop().unwrap();
     assert_eq!(model.robot().stats().watchdog_trips, 0);
+}
+
+/// A signal while `ima drive` waits, after its normal end's STOP, for the robot to stand:
+/// the command ends as interrupted (143), with no claim about the robot's standing. It exited
+/// 0 and said "still moving … 3.0 s after the stop" 0.1 s after it.
+#[test]
+fn a_signal_while_the_robot_settles_ends_as_interrupted() {
+    let (_world, _id, served, log) = serve(Base::P2os);
+    let mut child = Child(
+        ima()
+            .args([
+                "drive",
+                "--port",
+                &served.path(),
+                "--vel",
+                "0.3",
+                "--for",
+                "1",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    // The STOP after the drive's velocity commands (the handshake starts with one too).
+    wait_until(Duration::from_secs(20), "the end-of-drive STOP", || {
+        let c = p2os_commands(&log);
+        c.iter()
+            .skip_while(|(_, n)| !n.starts_with("vel"))
+            .any(|(_, n)| n == "stop")
+    });
+    kill(&child, "TERM");
+    let status = wait_exit(&mut child, "ima drive");
+    let mut stderr = String::new();
+    child
+        .0
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    assert_eq!(status.code(), Some(143), "{stderr}");
+    assert!(stderr.contains("interrupted by SIGTERM"), "{stderr}");
+    assert!(!stderr.contains("still moving"), "{stderr}");
+    wait_for_close(&log, "CLOSE at the mock");
+}
+
+/// A stop written while the robot's link is down may not reach it: the program says so, and
+/// that the robot's own watchdog is what stops it (it had nothing to say here; after a signal
+/// it said "every device that could move was stopped").
+#[test]
+fn a_stop_written_into_a_dead_link_is_not_claimed() {
+    // The line goes dead 1.5 s after the mock starts, mid-drive, for longer than the drive
+    // waits for a report.
+    let (_mock, path) = common::spawn_mock(&["p2os", "--faults", "hangup=1.5s:8s"]);
+    let out = ima()
+        .args(["drive", "--port", &path, "--vel", "0.3", "--for", "10"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains(
+            "the link to the P2OS base was down when it was stopped: the stop may not have \
+             reached the robot"
+        ),
+        "{stderr}"
+    );
 }
 
 fn p2os_handle_test(close_explicitly: bool) {

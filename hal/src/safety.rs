@@ -29,6 +29,7 @@ use std::time::Duration;
 struct Inner {
     requested: AtomicBool,
     done: AtomicBool,
+    unheard: AtomicBool,
     wakers: Mutex<Vec<Waker>>,
 }
 
@@ -80,6 +81,21 @@ impl HaltSignal {
     /// the device has been told to stop, or the link is gone.
     pub fn set_done(&self) {
         self.inner.done.store(true, Ordering::SeqCst);
+    }
+
+    /// Called by the driver task as it starts to close when the device had gone quiet (its
+    /// link lost, not yet back): the stop it writes then may not reach the device, whose own
+    /// watchdog is what stops it. Messages that would say "stopped" say so instead
+    /// ([`StopRegistry::unheard`]).
+    pub fn set_stopped_unheard(&self) {
+        self.inner.unheard.store(true, Ordering::SeqCst);
+    }
+
+    /// Whether the stop was written to a device that had gone quiet
+    /// ([`set_stopped_unheard`](Self::set_stopped_unheard)).
+    #[must_use]
+    pub fn stopped_unheard(&self) -> bool {
+        self.inner.unheard.load(Ordering::SeqCst)
     }
 
     /// Whether the task has finished (see [`set_done`](Self::set_done)).
@@ -230,6 +246,17 @@ impl StopRegistry {
             .collect()
     }
 
+    /// Names of the registered devices whose stop was written while they had gone quiet
+    /// ([`HaltSignal::set_stopped_unheard`]): it may not have reached them.
+    #[must_use]
+    pub fn unheard(&self) -> Vec<String> {
+        self.lock()
+            .iter()
+            .filter(|(_, s)| s.stopped_unheard())
+            .map(|(n, _)| n.clone())
+            .collect()
+    }
+
     /// Whether any registered device's task is still running.
     #[must_use]
     pub fn any_running(&self) -> bool {
@@ -303,6 +330,24 @@ mod tests {
         reg.register("c", HaltSignal::new());
         assert_eq!(reg.lock().len(), 1);
         assert_eq!(reg.halt_all(), 1);
+    }
+
+    #[test]
+    fn the_registry_names_the_devices_stopped_while_unheard() {
+        let reg = StopRegistry::new();
+        let (heard, unheard) = (HaltSignal::new(), HaltSignal::new());
+        reg.register("P2OS base", unheard.clone());
+        reg.register("rFLEX base", heard.clone());
+        assert!(reg.unheard().is_empty());
+        unheard.set_stopped_unheard();
+        unheard.set_done();
+        heard.set_done();
+        assert!(unheard.stopped_unheard() && !heard.stopped_unheard());
+        assert_eq!(
+            reg.unheard(),
+            ["P2OS base"],
+            "done devices are still reported"
+        );
     }
 
     #[test]

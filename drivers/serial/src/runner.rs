@@ -216,6 +216,10 @@ pub(crate) async fn run<D, S>(
             close = on_msg(&mut shell, Some(msg), &mut closers, &clock);
         }
         if close {
+            // A device that went quiet may not hear its stop: say so to whoever reports it.
+            if matches!(*shell.link().borrow(), crate::LinkStatus::Lost) {
+                halt.set_stopped_unheard();
+            }
             closing = Some(clock.now() + shell.begin_close(clock.now()));
         }
         // Yield now and then, so handles on this thread get to run.

@@ -218,7 +218,7 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
             stats.sips, stats.framer.bad_checksums, stats.implausible_sips
         ),
     )
-    .await;
+    .await?;
     robot
         .close()
         .await

@@ -16,15 +16,33 @@ pub const STANDING_V_M_S: f64 = 0.005;
 pub const STANDING_OMEGA_RAD_S: f64 = 0.01;
 
 /// After the stop: wait until the base's own odometry says it stands (reports newer than
-/// `after`, at most [`SETTLE_TIMEOUT`]) and say where, or that it was still moving; `counters`
-/// ends the line. Shared by both bases through the HAL's [`Odometer`].
-pub async fn report_end<B: Odometer>(base: &mut B, mut after: ima_hal::Instant, counters: &str) {
-    let deadline = tokio::time::Instant::now() + SETTLE_TIMEOUT;
+/// `after`, at most [`SETTLE_TIMEOUT`]) and say where, or that it was still moving and for how
+/// long it was watched; `counters` ends the line. Shared by both bases through the HAL's
+/// [`Odometer`].
+///
+/// # Errors
+/// [`safety::Interrupted`] when the program is asked to end while it waits (the guard has
+/// stopped the robot): the command then ends as interrupted, with the signal's status, not
+/// as a drive that ended well (it said "still moving … 3.0 s after the stop" 0.1 s after it,
+/// and exited 0).
+pub async fn report_end<B: Odometer>(
+    base: &mut B,
+    mut after: ima_hal::Instant,
+    counters: &str,
+) -> anyhow::Result<()> {
+    let started = tokio::time::Instant::now();
+    let deadline = started + SETTLE_TIMEOUT;
     let mut last = None;
     let mut standing = false;
+    let interrupted = |last: Option<&Odometry>| {
+        report_interrupted(last);
+        Err(safety::Interrupted(safety::cause()).into())
+    };
     while tokio::time::Instant::now() < deadline {
-        let Ok(Ok(odo)) = safety::until_cancelled(base.next_odometry(after)).await else {
-            break;
+        let odo = match safety::until_cancelled(base.next_odometry(after)).await {
+            Ok(Ok(odo)) => odo,
+            Ok(Err(_)) if !safety::asked_to_end() => break,
+            Ok(Err(_)) | Err(_) => return interrupted(last.as_ref()),
         };
         after = odo.at;
         let o = odo.value;
@@ -33,6 +51,9 @@ pub async fn report_end<B: Odometer>(base: &mut B, mut after: ima_hal::Instant, 
         if standing {
             break;
         }
+    }
+    if safety::asked_to_end() {
+        return interrupted(last.as_ref());
     }
     match last {
         Some(o) if standing => eprintln!(
@@ -45,13 +66,14 @@ pub async fn report_end<B: Odometer>(base: &mut B, mut after: ima_hal::Instant, 
             "still moving at {:.3} m/s {:.3} rad/s {:.1} s after the stop; last at x={:.3} m y={:.3} m θ={:.1}°; {counters}",
             o.v_m_s,
             o.omega_rad_s,
-            SETTLE_TIMEOUT.as_secs_f64(),
+            started.elapsed().as_secs_f64(),
             o.x_m(),
             o.y_m(),
             o.theta_rad().to_degrees()
         ),
         None => eprintln!("no report from the robot after the stop; {counters}"),
     }
+    Ok(())
 }
 
 /// After a signal (the guard has already stopped the robot): where it was last reported.

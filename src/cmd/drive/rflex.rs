@@ -117,7 +117,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
             st.session.odometry_rejected
         ),
     )
-    .await;
+    .await?;
     base.close()
         .await
         .context("shutting the base down (zero speed, brake)")?;
