@@ -331,10 +331,11 @@ impl Default for AgentConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct PeerConfig {
     /// This robot's manager listens here (TCP). Skeeter always runs one (empty: the Peer
-    /// Agent's default `0.0.0.0:7400`); for Scooter empty means no manager of its own; the
-    /// commander never runs one.
+    /// Agent's default `0.0.0.0:7400`, or `127.0.0.1:7400` with the insecure key); for Scooter
+    /// empty means no manager of its own; the commander never runs one.
     pub listen: String,
-    /// The manager's data server (TCP) listens here (port 0: any free port).
+    /// The manager's data server (TCP) listens here (port 0: any free port; an address that
+    /// names no interface, `0.0.0.0`, takes `listen`'s IP when that one names one).
     pub data_listen: String,
     /// The data address put in grants (set it on a LAN when `data_listen` is `0.0.0.0`).
     pub data_advertise: Option<String>,

@@ -440,6 +440,27 @@ fn insecure_manager_defaults_to_loopback() {
     assert!(addr.starts_with("127.0.0.1:"), "{addr}");
 }
 
+/// `--insecure --listen 127.0.0.1:0`: the data server stays beside the request channel (it
+/// listened on every interface, with the all-zero key).
+#[test]
+fn an_insecure_manager_s_data_server_stays_beside_its_listen_address() {
+    let mut m = Child(
+        ima()
+            .args(["peer", "manager", "--insecure", "--listen", "127.0.0.1:0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut first = String::new();
+    BufReader::new(m.0.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let v: Value = serde_json::from_str(&first).unwrap();
+    let data = v["data_addr"].as_str().unwrap();
+    assert!(data.starts_with("127.0.0.1:"), "{first}");
+}
+
 #[test]
 fn send_without_destinations_fails() {
     let out = ima()

@@ -420,18 +420,14 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
         cfg.manager.listen.clone_from(l);
     } else if a.common.insecure && a.common.key_file.is_none() && cfg.key_file.is_none() {
         // The all-zero key lets anyone in: stay on loopback unless told otherwise.
-        for addr in [&mut cfg.manager.listen, &mut cfg.manager.data_listen] {
-            if let Ok(mut sa) = addr.parse::<std::net::SocketAddr>()
-                && sa.ip().is_unspecified()
-            {
-                sa.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
-                *addr = sa.to_string();
-            }
-        }
+        cfg.manager.listen = crate::stack::net::loopback(&cfg.manager.listen);
         eprintln!(
             "ima: --insecure: listening on 127.0.0.1 only (pass --listen to choose the address)"
         );
     }
+    // The data server beside the request channel, unless placed itself.
+    cfg.manager.data_listen =
+        crate::stack::net::data_beside(&cfg.manager.data_listen, &cfg.manager.listen);
     apply_broadcast(&mut cfg, &a.broadcast);
     if synthetic.is_empty() {
         synthetic = default_synthetic();

@@ -6,7 +6,7 @@ use ima_agents::peer::net::{BroadcastMode, PeerNetConfig, insecure_key, load_key
 use ima_agents::peer::wire::GroupKey;
 use ima_agents::runtime::link::Bus;
 
-use crate::config::RobotConfig;
+use crate::config::{RobotConfig, Role};
 
 /// The [`PeerNetConfig`] of a robot configuration.
 pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
@@ -19,8 +19,21 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
     };
     if !p.listen.is_empty() {
         n.manager.listen = p.listen.clone();
+    } else if cfg.role != Role::Skeeter {
+        // Only Skeeter always runs a manager: for Scooter an empty `listen` means none of its
+        // own (it started one on the default 0.0.0.0:7400), the commander never runs one.
+        n.manager.listen.clear();
+    } else if p.insecure && p.key_file.is_none() {
+        // The all-zero key lets anyone in: a manager nobody placed stays on loopback, as
+        // `ima peer manager --insecure`'s does.
+        n.manager.listen = loopback(&n.manager.listen);
+        eprintln!(
+            "ima: insecure key: the Peer Agent Manager listens on {} only (set peer.listen to \
+             choose the address)",
+            n.manager.listen
+        );
     }
-    n.manager.data_listen = p.data_listen.clone();
+    n.manager.data_listen = data_beside(&p.data_listen, &n.manager.listen);
     n.manager.data_advertise = p.data_advertise.clone();
     n.manager.robot_priorities = p.priorities.clone();
     let b = &mut n.broadcast;
@@ -48,6 +61,34 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
         }
     }
     Ok(n)
+}
+
+/// `addr` with an unspecified IP (`0.0.0.0`, `::`) made loopback; anything else as it is.
+pub fn loopback(addr: &str) -> String {
+    match addr.parse::<std::net::SocketAddr>() {
+        Ok(mut sa) if sa.ip().is_unspecified() => {
+            sa.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+            sa.to_string()
+        }
+        _ => addr.to_owned(),
+    }
+}
+
+/// Where a manager's data server listens: `data` as configured, except that an unspecified
+/// IP takes the request channel's (`listen`) when that one names an address, so a manager
+/// placed on loopback or on one interface does not serve its data on every interface (its
+/// data server listened on `0.0.0.0` beside a request channel on `127.0.0.1`).
+pub fn data_beside(data: &str, listen: &str) -> String {
+    match (
+        data.parse::<std::net::SocketAddr>(),
+        listen.parse::<std::net::SocketAddr>(),
+    ) {
+        (Ok(mut d), Ok(l)) if d.ip().is_unspecified() && !l.ip().is_unspecified() => {
+            d.set_ip(l.ip());
+            d.to_string()
+        }
+        _ => data.to_owned(),
+    }
 }
 
 fn split_addr(s: &str) -> Result<(String, u16)> {
@@ -148,6 +189,48 @@ mod tests {
         let mut c = cfg("");
         c.peer.broadcast_group = "nonsense".into();
         assert!(net_config(&c).is_err());
+    }
+
+    /// With the all-zero key, a manager nobody placed listens on loopback, and a data server
+    /// nobody placed listens beside its request channel (it listened on every interface).
+    #[test]
+    fn an_insecure_manager_nobody_placed_stays_on_loopback() {
+        let cfg = |peer: &str| {
+            let mut c = cfg(peer);
+            c.role = Role::Skeeter;
+            c
+        };
+        let n = net_config(&cfg("")).unwrap();
+        assert_eq!(n.manager.listen, "127.0.0.1:7400");
+        assert_eq!(n.manager.data_listen, "127.0.0.1:0");
+        let n = net_config(&cfg("listen = \"0.0.0.0:7400\"\n")).unwrap();
+        assert_eq!(n.manager.listen, "0.0.0.0:7400", "placed on purpose");
+        assert_eq!(n.manager.data_listen, "0.0.0.0:0");
+        let n = net_config(&cfg("listen = \"10.0.0.5:7400\"\n")).unwrap();
+        assert_eq!(n.manager.data_listen, "10.0.0.5:0");
+        let n = net_config(&cfg(
+            "listen = \"10.0.0.5:7400\"\ndata_listen = \"0.0.0.0:7401\"\n",
+        ))
+        .unwrap();
+        assert_eq!(n.manager.data_listen, "10.0.0.5:7401", "the port kept");
+        let mut c = cfg("");
+        c.peer.insecure = false;
+        c.peer.key_file = Some("group.key".into());
+        let n = net_config(&c).unwrap();
+        assert_eq!(
+            n.manager.listen, "0.0.0.0:7400",
+            "a real key: the default stands"
+        );
+        assert_eq!(n.manager.data_listen, "0.0.0.0:0");
+        assert_eq!(data_beside("[::]:0", "[::1]:7400"), "[::1]:0");
+        assert_eq!(data_beside("127.0.0.2:9", "10.0.0.5:7400"), "127.0.0.2:9");
+        assert_eq!(loopback("host.local:7400"), "host.local:7400");
+        // Scooter and the commander run no manager unless placed.
+        for role in [Role::Scooter, Role::Commander] {
+            let mut c = cfg("");
+            c.role = role;
+            assert_eq!(net_config(&c).unwrap().manager.listen, "", "{role:?}");
+        }
     }
 
     #[test]
