@@ -379,11 +379,29 @@ fn decode_says_so_when_no_frame_was_found() {
         err.contains("no p2os frame in 25 bytes") && err.contains("`--from host`"),
         "{err}"
     );
-    // A frame, or no input at all, is not reported.
+    // A frame is not reported; no input at all is, as such (it gave no output at all).
     let out = decode(&["p2os", "--from", "host", "--hex"], b"FA FB 03 1D 00 1D");
     assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
     let out = decode(&["p2os"], b"");
-    assert!(out.status.success() && out.stderr.is_empty(), "{out:?}");
+    assert!(out.status.success() && out.stdout.is_empty(), "{out:?}");
+    assert_eq!(
+        String::from_utf8_lossy(&out.stderr),
+        "ima decode: stdin is empty: no bytes to decode\n"
+    );
+    // Flags that would be ignored are refused: `--port` without `--mcap` (beside a FILE,
+    // clap lets it through), `--robot` for bytes that are not P2OS.
+    let out = decode(&["p2os", "--port", "skeeter/base", "-"], b"");
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("give the recording with --mcap"),
+        "{out:?}"
+    );
+    let out = decode(&["rflex", "--robot", "p2dx"], b"");
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("--robot p2dx picks a P2OS robot's units; rflex bytes"),
+        "{out:?}"
+    );
     // `-` is stdin (it was taken for a file named `-`: "reading -: No such file").
     let out = decode(
         &["p2os", "--from", "host", "--hex", "-"],

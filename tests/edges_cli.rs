@@ -390,6 +390,25 @@ fn unknown_target_colours_list_the_known_ones() {
         "{}",
         String::from_utf8_lossy(&out.stdout)
     );
+    // A stop's reason longer than a broadcast carries is refused, as `ima peer send`'s text
+    // is (it was cut to 255 bytes without a word, and the command said "fleet stop sent").
+    let out = ima()
+        .args([
+            "commander",
+            "stop",
+            "--reason",
+            &"x".repeat(300),
+            "--config",
+        ])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("300 bytes is too long: a broadcast carries at most 255 bytes"),
+        "{}",
+        stderr(&out)
+    );
     let _ = std::fs::remove_dir_all(&d);
 }
 

@@ -1395,3 +1395,20 @@ fn a_p2os_table_the_driver_was_told_is_recorded_and_decoded_with() {
         "{driven} not in {replayed:?}"
     );
 }
+
+/// `--as-mock` serves bytes and re-decodes nothing: a `--record` or `--foxglove` beside it is
+/// refused (the file was never created, the server never started, without a word).
+#[test]
+fn as_mock_refuses_record_and_foxglove() {
+    for extra in [["--record", "never.mcap"], ["--foxglove", "127.0.0.1:0"]] {
+        let out = ima()
+            .args(["replay", "--as-mock", "robot/base"])
+            .args(extra)
+            .arg("missing.mcap")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(err.contains("cannot be used with"), "{err}");
+    }
+}

@@ -81,8 +81,8 @@ pub enum Action {
     Stop {
         #[command(flatten)]
         common: OneShot,
-        /// Why (shown by the robots).
-        #[arg(long, default_value = "operator")]
+        /// Why (shown by the robots; at most 255 bytes, what a broadcast carries).
+        #[arg(long, default_value = "operator", value_parser = super::num::wire_text)]
         reason: String,
     },
     /// Fleet resume: the robots carry on with their targets.

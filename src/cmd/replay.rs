@@ -48,8 +48,9 @@ pub struct ReplayArgs {
     #[arg(long)]
     json: bool,
     /// Serve this port's recorded robot→host bytes on a pseudo-terminal instead (its topic,
-    /// `robot/device` or path); prints the pty's path.
-    #[arg(long, value_name = "PORT", conflicts_with_all = ["json"])]
+    /// `robot/device` or path); prints the pty's path. It re-decodes nothing, so it takes
+    /// neither `--json` nor `--record`/`--foxglove`.
+    #[arg(long, value_name = "PORT", conflicts_with_all = ["json", "record", "foxglove"])]
     as_mock: Option<String>,
     /// Recording and live view of the replayed readings.
     #[command(flatten)]

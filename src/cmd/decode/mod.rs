@@ -108,6 +108,12 @@ pub struct DecodeArgs {
 
 /// Run `ima decode`.
 pub fn run(args: &DecodeArgs) -> Result<()> {
+    // clap drops `--port`'s need of `--mcap` when a FILE is given (`--mcap` conflicts with it).
+    anyhow::ensure!(
+        args.port.is_none() || args.mcap.is_some(),
+        "--port names a serial port of a recording: give the recording with --mcap FILE.mcap \
+         (a capture FILE is decoded whole)"
+    );
     if let Some(path) = &args.mcap {
         return run_mcap(args, path);
     }
@@ -164,6 +170,10 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     // and the hint when nothing was a frame (a wrong rate or side), are said first.
     d.finish(&mut |v| out.emit(v))?;
     out.end(read)?;
+    if read == 0 && ended.is_none() {
+        // An empty file gave no output at all, where noise gets a hint.
+        eprintln!("ima decode: {name} is empty: no bytes to decode");
+    }
     ended.map_or(Ok(()), Err)
 }
 
@@ -400,6 +410,10 @@ struct Output {
 impl Output {
     fn new(args: &DecodeArgs, protocol: Protocol) -> Result<Self> {
         let params = match &args.robot {
+            Some(r) if protocol != Protocol::P2os => anyhow::bail!(
+                "--robot {r} picks a P2OS robot's units; {} bytes have no such table",
+                protocol.name()
+            ),
             None => None,
             Some(r) => Some(
                 RobotParams::for_subclass(r.as_bytes())
