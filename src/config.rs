@@ -401,7 +401,9 @@ impl RobotConfig {
     /// Parse a configuration, apply `--insecure` (a configuration that names no key file then
     /// runs on the documented all-zero key; one that names a key file keeps it), and check it.
     pub fn from_toml_str_with(s: &str, insecure: bool) -> Result<Self> {
-        let mut c: Self = toml::from_str(s).context("parsing the configuration")?;
+        let mut c: Self = toml::from_str(s)
+            .map_err(|e| anyhow::anyhow!("{}", ima_hal::file::located(s, e.span(), e.message())))
+            .context("parsing the configuration")?;
         if insecure && c.peer.key_file.is_none() {
             c.peer.insecure = true;
         }

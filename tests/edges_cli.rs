@@ -630,3 +630,23 @@ fn mock_help_gives_the_fault_grammar_and_its_keys_parse() {
                 delay=5ms,r2h.hangup=5s:1s,seed=3";
     assert!(ima_mock_devices::faults::FaultPlan::parse(spec).is_ok());
 }
+
+/// A configuration error in a huge line quotes a window of it, not the line: a one-line file
+/// of 10 MB was echoed whole to stderr. `ima run` and `ima peer` alike.
+#[test]
+fn a_config_error_in_a_huge_line_is_said_briefly() {
+    let d = scratch("hugeline");
+    let p = d.join("big.toml");
+    std::fs::write(&p, format!("robot = \"{}\" oops\n", "x".repeat(2_000_000))).unwrap();
+    for args in [&["run", "--insecure"][..], &["peer", "manager", "--insecure"][..]] {
+        let out = ima().args(args).arg("--config").arg(&p).output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        assert!(err.len() < 2_000, "{args:?}: {} bytes", err.len());
+        assert!(
+            err.contains("TOML parse error at line 1, column 2000012") && err.contains('…'),
+            "{args:?}: {err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -36,9 +36,119 @@ pub fn read_text(path: &Path) -> io::Result<String> {
         .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))
 }
 
+/// The most characters of a line [`located`] shows.
+const EXCERPT_CHARS: usize = 100;
+/// The most characters of a message [`located`] shows.
+const MESSAGE_CHARS: usize = 400;
+
+/// A parser's error in `text` said the way `toml` says it (the line and column, the line with
+/// the span marked, then `message`), but bounded: a line or a message (which may quote a
+/// value) longer than a screen is cut around the span with `…`. A one-line file of 10 MB had
+/// its whole line echoed to stderr. `span` is a byte range of `text`; without one, only the
+/// (bounded) message.
+#[must_use]
+pub fn located(text: &str, span: Option<core::ops::Range<usize>>, message: &str) -> String {
+    let message = clip(message, 0, MESSAGE_CHARS).0;
+    let Some(span) = span.filter(|s| s.start <= text.len()) else {
+        return message;
+    };
+    let start = floor_boundary(text, span.start);
+    let line_start = text
+        .get(..start)
+        .and_then(|t| t.rfind('\n'))
+        .map_or(0, |i| i + 1);
+    let line_end = text
+        .get(start..)
+        .and_then(|t| t.find('\n'))
+        .map_or(text.len(), |i| start + i);
+    let line = text
+        .get(line_start..line_end)
+        .unwrap_or("")
+        .trim_end_matches('\r');
+    let number = text
+        .get(..line_start)
+        .map_or(0, |t| t.matches('\n').count())
+        + 1;
+    let column = text.get(line_start..start).map_or(0, |t| t.chars().count());
+    let marked = text
+        .get(start..floor_boundary(text, span.end.min(line_end)))
+        .map_or(0, |t| t.chars().count())
+        .max(1);
+    // A window of the line around the column.
+    let from = column.saturating_sub(EXCERPT_CHARS / 2);
+    let (shown, cut_front) = clip(line, from, EXCERPT_CHARS);
+    let caret_at = column - from + usize::from(cut_front);
+    let room = EXCERPT_CHARS.saturating_sub(column - from).max(1);
+    let gutter = " ".repeat(number.to_string().len());
+    format!(
+        "TOML parse error at line {number}, column {}\n{gutter} |\n{number} | {shown}\n{gutter} | {}{}\n{message}",
+        column + 1,
+        " ".repeat(caret_at),
+        "^".repeat(marked.min(room)),
+    )
+}
+
+/// `s` from character `from`, at most `max` characters of it, with `…` where it was cut; and
+/// whether the front was cut.
+fn clip(s: &str, from: usize, max: usize) -> (String, bool) {
+    let total = s.chars().count();
+    let mut out = String::new();
+    let cut_front = from > 0;
+    if cut_front {
+        out.push('…');
+    }
+    out.extend(s.chars().skip(from).take(max));
+    if from.saturating_add(max) < total {
+        out.push('…');
+    }
+    (out, cut_front)
+}
+
+/// The largest char boundary of `s` at or below `i`.
+fn floor_boundary(s: &str, i: usize) -> usize {
+    let mut i = i.min(s.len());
+    while !s.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn located_errors_show_the_line_and_stay_short() {
+        let text = "a = 1\nheartbeat_ms = \"x\"\n";
+        let at = text.find("\"x").unwrap();
+        assert_eq!(
+            located(text, Some(at..at + 3), "invalid type"),
+            "TOML parse error at line 2, column 16\n  |\n2 | heartbeat_ms = \"x\"\n  |                ^^^\ninvalid type"
+        );
+        // A 10 MB line and a message quoting it: a few hundred characters, the span marked.
+        let long = format!("k = \"{}\" oops", "é".repeat(5_000_000));
+        let at = long.find("oops").unwrap();
+        let msg = format!("invalid value {long}");
+        let e = located(&long, Some(at..at + 4), &msg);
+        assert!(e.len() < 2_000, "{} bytes", e.len());
+        assert!(
+            e.starts_with("TOML parse error at line 1, column 5000008\n"),
+            "{e}"
+        );
+        assert!(e.contains("…éééé"), "{e}");
+        let lines: Vec<&str> = e.lines().collect();
+        let caret = lines[3].find('^').unwrap();
+        let oops = lines[2].find("oops").unwrap();
+        assert_eq!(
+            lines[2][..oops].chars().count(),
+            lines[3][..caret].chars().count()
+        );
+        // No span, or one past the end: the message alone; spans inside a character do not panic.
+        assert_eq!(located("x", None, "bad"), "bad");
+        assert_eq!(located("x", Some(9..10), "bad"), "bad");
+        let _ = located("é", Some(1..2), "bad");
+        let _ = located("a\n", Some(2..2), "bad");
+    }
 
     #[test]
     fn a_file_over_the_limit_is_an_error_and_dev_zero_ends() {

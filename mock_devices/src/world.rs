@@ -629,7 +629,8 @@ impl World {
 
     /// Parse a TOML world file (format on [`WorldFile`]).
     pub fn from_toml_str(s: &str) -> Result<Self, WorldError> {
-        let file: WorldFile = toml::from_str(s).map_err(|e| WorldError::Toml(e.to_string()))?;
+        let file: WorldFile = toml::from_str(s)
+            .map_err(|e| WorldError::Toml(ima_hal::file::located(s, e.span(), e.message())))?;
         Self::from_file(file)
     }
 

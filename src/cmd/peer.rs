@@ -221,10 +221,8 @@ fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSourc
     let text =
         ima_hal::file::read_text(path).with_context(|| format!("reading {}", path.display()))?;
     let in_file = |e: &dyn std::fmt::Display| anyhow::anyhow!("in {}: {e}", path.display());
-    let spanned = |mut e: toml::de::Error| {
-        e.set_input(Some(&text));
-        in_file(&e)
-    };
+    let spanned =
+        |e: toml::de::Error| in_file(&ima_hal::file::located(&text, e.span(), e.message()));
     let mut root = toml::de::DeTable::parse(&text).map_err(spanned)?;
     let synthetic = match root.get_mut().remove("synthetic") {
         Some(v) => Vec::<SyntheticSource>::deserialize(toml::de::ValueDeserializer::from(v))

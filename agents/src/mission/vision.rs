@@ -181,7 +181,9 @@ impl ColourDb {
     /// # Errors
     /// [`ColourDbError`].
     pub fn from_toml(text: &str) -> Result<Self, ColourDbError> {
-        let db: Self = toml::from_str(text).map_err(|e| ColourDbError::Toml(e.to_string()))?;
+        let db: Self = toml::from_str(text).map_err(|e| {
+            ColourDbError::Toml(ima_hal::file::located(text, e.span(), e.message()))
+        })?;
         db.validate()?;
         Ok(db)
     }

@@ -263,6 +263,7 @@ impl NetworkSpec {
     /// # Errors
     /// [`SpecError::Toml`].
     pub fn from_toml(text: &str) -> Result<Self, SpecError> {
-        toml::from_str(text).map_err(|e| SpecError::Toml(e.to_string()))
+        toml::from_str(text)
+            .map_err(|e| SpecError::Toml(ima_hal::file::located(text, e.span(), e.message())))
     }
 }

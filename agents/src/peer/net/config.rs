@@ -100,7 +100,8 @@ impl PeerNetConfig {
     /// # Errors
     /// [`NetError::Config`].
     pub fn from_toml(text: &str) -> Result<Self, NetError> {
-        let c: Self = toml::from_str(text).map_err(|e| NetError::Config(e.to_string()))?;
+        let c: Self = toml::from_str(text)
+            .map_err(|e| NetError::Config(ima_hal::file::located(text, e.span(), e.message())))?;
         c.validate()?;
         Ok(c)
     }
