@@ -638,7 +638,10 @@ fn a_config_error_in_a_huge_line_is_said_briefly() {
     let d = scratch("hugeline");
     let p = d.join("big.toml");
     std::fs::write(&p, format!("robot = \"{}\" oops\n", "x".repeat(2_000_000))).unwrap();
-    for args in [&["run", "--insecure"][..], &["peer", "manager", "--insecure"][..]] {
+    for args in [
+        &["run", "--insecure"][..],
+        &["peer", "manager", "--insecure"][..],
+    ] {
         let out = ima().args(args).arg("--config").arg(&p).output().unwrap();
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(1), "{args:?}");

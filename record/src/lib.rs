@@ -470,13 +470,16 @@ impl Recorder {
         self.shared.dropped.load(Ordering::Relaxed)
     }
 
-    /// Whether anything would take a message on `topic`: a live view takes every topic, the
-    /// file what [`Options::exclude`] does not leave out. Callers skip building messages
-    /// nobody takes.
+    /// Whether anything would take a message on `topic`: a live view takes every topic but
+    /// raw serial bytes, the file what [`Options::exclude`] does not leave out. Callers skip
+    /// building messages nobody takes (a live view alone built, and counted as published,
+    /// the raw bytes it never serves).
     #[must_use]
     pub fn wants(&self, topic: &str) -> bool {
-        self.shared.server_port.is_some()
-            || (!self.shared.exclude.excludes(topic) && !self.file_failed())
+        (self.shared.server_port.is_some() && served(topic))
+            || (self.shared.path.is_some()
+                && !self.shared.exclude.excludes(topic)
+                && !self.file_failed())
     }
 
     /// The file could not be written (its first error is in the [`Report`]); with no live

@@ -354,8 +354,11 @@ fn survey(b: &[u8], start: usize) -> Survey {
     loop {
         match top_record(b, at, 0, &mut budget) {
             Ok(None) => {
-                // Fewer than 9 bytes: the reader reports a missing footer.
-                s.end = b.len();
+                // Fewer than 9 bytes left, and no footer: a recorder stopped between two
+                // records, or a few bytes into one (what the `mcap` crate calls "ended in the
+                // middle of a record" either way).
+                s.end = at;
+                s.damage = Some(cut_between_records(at as u64, b.len() as u64));
                 return s;
             }
             Ok(Some((op, next))) => {
@@ -387,6 +390,20 @@ fn survey(b: &[u8], start: usize) -> Survey {
                 at = next;
             }
         }
+    }
+}
+
+/// A file of `len` bytes whose records stop at `at` with fewer than a record's header left,
+/// and no footer: a recorder stopped between two records, or a few bytes into one (the
+/// `mcap` crate said "MCAP file ended in the middle of a record" either way).
+fn cut_between_records(at: u64, len: u64) -> String {
+    if at >= len {
+        format!("it stops after byte {at}, between two records, without its footer")
+    } else {
+        format!(
+            "it stops {} bytes into the record at byte {at}, without its footer",
+            len - at
+        )
     }
 }
 
@@ -439,10 +456,9 @@ fn survey_file(file: &File, len: u64, limits: Limits) -> std::io::Result<FileSur
     loop {
         let left = len.saturating_sub(at);
         if left < 9 {
-            // Fewer than 9 bytes: the reader reports a missing footer.
             return Ok(FileSurvey::Sound {
-                end: len,
-                damage: None,
+                end: at,
+                damage: Some(cut_between_records(at, len)),
                 after_end: None,
             });
         }
@@ -1398,9 +1414,17 @@ mod tests {
         sound.extend(chunk(&record(0x07, &[0; 6])));
         match survey_of(&sound, LIMITS) {
             FileSurvey::Sound {
-                end, damage: None, ..
-            } => assert_eq!(end, sound.len() as u64),
-            other => panic!("a sound file is streamed: {other:?}"),
+                end,
+                damage: Some(why),
+                ..
+            } => {
+                assert_eq!(end, sound.len() as u64);
+                assert!(
+                    why.contains("between two records, without its footer"),
+                    "{why}"
+                );
+            }
+            other => panic!("a sound file is streamed (its missing footer said): {other:?}"),
         }
         let small = Limits {
             record: 8,

@@ -490,3 +490,29 @@ fn a_fifo_or_a_directory_is_refused_at_once() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A file cut a few bytes into a record's header (a recorder killed between two records)
+/// says where and how, in its own words ("MCAP file ended in the middle of a record" was the
+/// `mcap` crate's, whatever the cut); one cut exactly between records says the end is missing.
+#[test]
+fn a_file_cut_between_or_inside_records_says_where() {
+    let mut b = MAGIC.to_vec();
+    b.extend(record(0x01, &[0; 8])); // a header: profile and library, both empty
+    b.extend(chunk(0, "", &[]));
+    let between = b.len();
+    b.extend_from_slice(&[0x06, 0xff, 0xff]);
+    assert_eq!(
+        read_all(b.clone()).as_deref(),
+        Some(
+            "it ends early: it stops 3 bytes into the record at byte 74, without its footer \
+             (the file was cut short or is damaged)"
+        )
+    );
+    assert_eq!(
+        read_all(b[..between].to_vec()).as_deref(),
+        Some(
+            "it ends early: it stops after byte 74, between two records, without its footer \
+             (the file was cut short or is damaged)"
+        )
+    );
+}

@@ -818,6 +818,41 @@ fn a_live_view_still_gets_what_the_file_leaves_out() {
     assert_eq!(ch.keys().collect::<Vec<_>>(), ["/scooter/laser/scan"]);
 }
 
+/// A live view alone does not take raw serial bytes (it never serves them): they are not
+/// built, and the end line's count of messages published leaves them out (it counted 2,587
+/// rFLEX chunks a viewer never got).
+#[test]
+fn a_live_view_alone_takes_no_raw_bytes() {
+    let rec = Recorder::start(&Options {
+        foxglove: Some("127.0.0.1:0".parse().unwrap()),
+        ..Options::default()
+    })
+    .unwrap();
+    assert!(!rec.wants("/scooter/serial/base"));
+    assert!(rec.wants("/scooter/laser/scan"));
+    let port = rec.raw_port(PortInfo {
+        robot: "scooter".into(),
+        device: "base".into(),
+        port: "/dev/pts/9".into(),
+        baud: 115_200,
+        protocol: "rflex".into(),
+        params: Default::default(),
+    });
+    port.rx(b"\x1b\x02");
+    rec.log_scan("scooter", &scan(181));
+    let report = rec.finish(Duration::from_secs(10));
+    assert_eq!(
+        report.written.keys().collect::<Vec<_>>(),
+        ["/scooter/laser/scan"],
+        "{report:?}"
+    );
+    assert!(
+        report.summary().starts_with("published 1 messages"),
+        "{}",
+        report.summary()
+    );
+}
+
 /// Each message the recorder's thread fills in from a compact record is exactly the message
 /// the `convert` builders make from the same reading, stamped with its log time.
 #[test]

@@ -578,6 +578,34 @@ pub struct Events {
 }
 
 impl Events {
+    /// Whether a runtime's periodic detail (SAN, map, Peer Agent status) is due at `now`:
+    /// every `every` on a fixed grid from the first report, `last` updated when it is; never
+    /// when nobody wants detail. Counting `every` from the tick that reported made a loop
+    /// whose ticks do not divide it report a tick late each time (Scooter's 0.5 s came every
+    /// 0.6 s).
+    pub fn detail_due(
+        &self,
+        last: &mut Option<ima_hal::Instant>,
+        now: ima_hal::Instant,
+        every: std::time::Duration,
+    ) -> bool {
+        if !self.wants_detail() {
+            return false;
+        }
+        match *last {
+            Some(t) if now < t + every => false,
+            // On the grid; a runtime that fell more than a period behind starts it again.
+            Some(t) if now < t + every + every => {
+                *last = Some(t + every);
+                true
+            }
+            _ => {
+                *last = Some(now);
+                true
+            }
+        }
+    }
+
     /// Events logged only.
     #[must_use]
     pub fn log_only() -> Self {
@@ -683,6 +711,36 @@ impl EventReceiver {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Detail every 0.5 s from a loop ticking every ~100 ms (jittered a millisecond either
+    /// way) comes twice a second, on a fixed grid; nobody wanting it, never.
+    #[test]
+    fn detail_comes_on_its_grid_whatever_the_loop_s_jitter() {
+        use ima_hal::Instant;
+        let (events, _rx) = Events::channel(8);
+        let events = events.detailed(true);
+        let every = std::time::Duration::from_millis(500);
+        let mut last = None;
+        let mut due = Vec::new();
+        for i in 0..100u64 {
+            let jitter = [0, 1, 2][(i % 3) as usize];
+            let now = Instant::from_millis(i * 100 + jitter);
+            if events.detail_due(&mut last, now, every) {
+                due.push(now.as_micros() / 1000);
+            }
+        }
+        assert_eq!(due.len(), 20, "{due:?}");
+        assert!(
+            due.windows(2).all(|w| (400..=600).contains(&(w[1] - w[0]))),
+            "{due:?}"
+        );
+        let mut last = None;
+        assert!(!Events::log_only().detail_due(&mut last, Instant::from_millis(9), every));
+        // A runtime that fell behind starts the grid again from now.
+        let mut last = Some(Instant::from_millis(0));
+        assert!(events.detail_due(&mut last, Instant::from_millis(5_000), every));
+        assert_eq!(last, Some(Instant::from_millis(5_000)));
+    }
     use ima_hal::time::ManualClock;
 
     fn t() -> MissionTime {

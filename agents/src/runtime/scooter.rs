@@ -300,12 +300,7 @@ where
             );
         }
         // A live console's detail: map, SAN and Peer Agent status.
-        if events.wants_detail()
-            && st
-                .last_detail
-                .is_none_or(|t| now.saturating_duration_since(t) >= DETAIL_EVERY)
-        {
-            st.last_detail = Some(now);
+        if events.detail_due(&mut st.last_detail, now, DETAIL_EVERY) {
             events.emit(&time, &me, EventKind::Map(MapView::of(&brain)));
             let san = SanView::of(brain.san(), out.behaviour.as_str());
             events.emit(&time, &me, EventKind::San(san));

@@ -201,10 +201,7 @@ where
             events.emit(&time, &me, EventKind::Behaviour(last_behaviour.clone()));
         }
         // A live console's detail: SAN activations and the manager's status, once a second.
-        if events.wants_detail()
-            && last_detail.is_none_or(|t| time.now().saturating_duration_since(t) >= DETAIL_EVERY)
-        {
-            last_detail = Some(time.now());
+        if events.detail_due(&mut last_detail, time.now(), DETAIL_EVERY) {
             let san = SanView::of(brain.network(), brain.behaviour());
             events.emit(&time, &me, EventKind::San(san));
             if let Some(p) = link.peer_status().await {
