@@ -441,6 +441,8 @@ pub struct RecordedFrames<F> {
     /// Where to copy the source's own frame counter after each frame (see
     /// [`RecordedFrames::counting`]).
     count: Option<FrameCounter<F>>,
+    /// Where the head's cameras look (see [`RecordedFrames::mounted`]).
+    head: Option<ima_agents::mission::vision::HeadGeometry>,
 }
 
 /// Where a frame source's own counter is copied, and how it is read.
@@ -452,6 +454,7 @@ pub fn frames<F>(inner: F, robot: &str) -> RecordedFrames<F> {
         inner,
         robot: robot.to_owned(),
         count: None,
+        head: None,
     }
 }
 
@@ -461,6 +464,15 @@ impl<F> RecordedFrames<F> {
     #[must_use]
     pub fn counting(mut self, into: Arc<AtomicU64>, read: fn(&F) -> u64) -> Self {
         self.count = Some((into, read));
+        self
+    }
+
+    /// Record with each frame where its camera looks (its optical frame on `/tf` and its
+    /// calibration, [`Recorder::log_camera_mount`]), from the head geometry the robot's vision
+    /// uses: a 3-D view places the images (without it, their frame had no transform).
+    #[must_use]
+    pub fn mounted(mut self, head: ima_agents::mission::vision::HeadGeometry) -> Self {
+        self.head = Some(head);
         self
     }
 }
@@ -475,7 +487,22 @@ impl<F: ima_hal::camera::FrameSource + Send> ima_hal::camera::FrameSource for Re
         if let Some((into, read)) = &self.count {
             into.store(read(&self.inner), Ordering::Relaxed);
         }
-        with(|r| r.log_image(&self.robot, &f.value));
+        with(|r| {
+            let frame = &f.value;
+            if let Some(head) = &self.head {
+                let mount = ima_record::convert::CameraMount {
+                    channel: frame.channel,
+                    yaw_rad: (frame.channel)
+                        .and_then(|c| head.camera_yaw_rad(c))
+                        .unwrap_or(0.0),
+                    hfov_rad: head.fov_rad(),
+                    width: frame.width,
+                    height: frame.height,
+                };
+                r.log_camera_mount(&self.robot, &mount);
+            }
+            r.log_image(&self.robot, frame);
+        });
         Ok(f)
     }
 }

@@ -703,8 +703,9 @@ pub async fn run_skeeter(
         checks.push(("video switcher", Box::new(move || m.link().is_ended())));
     }
     // record: camera frames (and the client's own count of them)
-    let frames =
-        crate::record::frames(frames, &cfg.robot).counting(frames_received, NetFrames::grabs);
+    let frames = crate::record::frames(frames, &cfg.robot)
+        .counting(frames_received, NetFrames::grabs)
+        .mounted(rt.scan.head);
     match base {
         Base::P2os(base) => {
             let dev = skeeter::SkeeterDevices { base, mux, frames };

@@ -101,9 +101,15 @@ fn a_recorded_demo_reads_back_and_replays_into_the_same_scans() {
     assert!(count("scooter", "laser_scans_read") <= count("scooter", "laser_scans"));
     let images = msgs
         .iter()
-        .filter(|m| m.topic.starts_with("/skeeter/camera/"))
+        .filter(|m| m.topic.starts_with("/skeeter/camera/") && m.schema.ends_with("Image"))
         .count() as u64;
     assert_eq!(images, count("skeeter", "camera_frames"));
+    // Each with its camera's calibration.
+    let calibrations = msgs
+        .iter()
+        .filter(|m| m.topic.ends_with("/calibration"))
+        .count() as u64;
+    assert_eq!(calibrations, images);
     assert!(images > 0);
     // Re-decoding each raw channel gives exactly what its driver decoded.
     let kinds = |port: &str| {

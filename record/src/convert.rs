@@ -1,16 +1,18 @@
 //! ima's readings as `foxglove.*` messages, and the [`Recorder`]'s sink API over them.
 //!
-//! Frames: `map` → `<robot>/odom` → `<robot>/base_link` → `<robot>/laser` (one tree for
-//! every robot of a session). Topics: `/<robot>/laser/scan`, `/<robot>/odom` (pose in the
-//! odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>`, `/<robot>/ses`,
-//! `/<robot>/sonar`, `/<robot>/truth`, `/tf`, `/broadcasts`, `/events`.
+//! Frames: `map` → `<robot>/odom` → `<robot>/base_link` → `<robot>/laser` and
+//! `<robot>/camera/<channel>` (each camera's optical frame, [`Recorder::log_camera_mount`]; one
+//! tree for every robot of a session). Topics: `/<robot>/laser/scan`, `/<robot>/odom` (pose in
+//! the odometry frame), `/<robot>/compass`, `/<robot>/camera/<channel>` (and its
+//! `/calibration`), `/<robot>/ses`, `/<robot>/sonar`, `/<robot>/truth`, `/tf`, `/broadcasts`,
+//! `/events`.
 
 use std::sync::PoisonError;
 
 use foxglove::messages::{
-    Color, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose, PoseInFrame,
-    Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp,
-    Vector3, log, packed_element_field::NumericType,
+    CameraCalibration, Color, FrameTransform, LaserScan, Log, PackedElementField, PointCloud, Pose,
+    PoseInFrame, Quaternion, RawImage, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive,
+    Timestamp, Vector3, log, packed_element_field::NumericType,
 };
 use ima_hal::camera::Frame;
 
@@ -99,6 +101,76 @@ fn quat_z(theta: f64) -> Quaternion {
         y: 0.0,
         z: h.sin(),
         w: h.cos(),
+    }
+}
+
+/// Where a camera of a head looks, for [`Recorder::log_camera_mount`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraMount {
+    /// The mux channel (`None`: a single camera).
+    pub channel: Option<u8>,
+    /// The lens's direction in the robot's `base_link`, radians counter-clockwise from
+    /// forward.
+    pub yaw_rad: f64,
+    /// The horizontal field of view, radians.
+    pub hfov_rad: f64,
+    /// Image size, pixels.
+    pub width: u32,
+    /// Image size, pixels.
+    pub height: u32,
+}
+
+impl CameraMount {
+    /// The camera's optical frame: `<robot>/camera/<channel>` (`<robot>/camera` alone).
+    #[must_use]
+    pub fn frame(&self, robot: &str) -> String {
+        match self.channel {
+            Some(c) => format!("{robot}/camera/{c}"),
+            None => format!("{robot}/camera"),
+        }
+    }
+
+    /// `base_link` → the optical frame (z along the lens, x to the image's right, y down,
+    /// as `foxglove.RawImage` defines it): the turn by the yaw, then the optical axes.
+    #[must_use]
+    pub fn transform(&self, robot: &str, at_ns: u64) -> FrameTransform {
+        // The optical axes in a forward-looking camera's body frame (x forward, z up):
+        // x_opt = −y, y_opt = −z, z_opt = x; as a quaternion (x, y, z, w).
+        let (bx, by, bz, bw) = (-0.5, 0.5, -0.5, 0.5);
+        let (s, c) = (self.yaw_rad / 2.0).sin_cos();
+        FrameTransform {
+            timestamp: Some(stamp(at_ns)),
+            parent_frame_id: format!("{robot}/base_link"),
+            child_frame_id: self.frame(robot),
+            translation: Some(Vector3::default()),
+            // quat_z(yaw) ⊗ optical
+            rotation: Some(Quaternion {
+                x: c * bx - s * by,
+                y: c * by + s * bx,
+                z: c * bz + s * bw,
+                w: c * bw - s * bz,
+            }),
+        }
+    }
+
+    /// A pinhole calibration from the field of view (square pixels, the centre the principal
+    /// point, no distortion): what a viewer needs to place the image in 3-D.
+    #[must_use]
+    pub fn calibration(&self, robot: &str, at_ns: u64) -> CameraCalibration {
+        let (w, h) = (f64::from(self.width), f64::from(self.height));
+        let f = w / 2.0 / (self.hfov_rad / 2.0).tan();
+        let (cx, cy) = (w / 2.0, h / 2.0);
+        CameraCalibration {
+            timestamp: Some(stamp(at_ns)),
+            frame_id: self.frame(robot),
+            width: self.width,
+            height: self.height,
+            distortion_model: "plumb_bob".to_owned(),
+            d: vec![0.0; 5],
+            k: vec![f, 0.0, cx, 0.0, f, cy, 0.0, 0.0, 1.0],
+            r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p: vec![f, 0.0, cx, 0.0, 0.0, f, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        }
     }
 }
 
@@ -614,7 +686,11 @@ impl Recorder {
                 None => format!("/{robot}/camera"),
             };
             let raw = RawImage {
-                frame_id: format!("{robot}/camera"),
+                // The camera's optical frame (`CameraMount::frame`).
+                frame_id: match f.channel {
+                    Some(c) => format!("{robot}/camera/{c}"),
+                    None => format!("{robot}/camera"),
+                },
                 encoding: "rgb8".to_owned(),
                 ..RawImage::default()
             };
@@ -631,6 +707,17 @@ impl Recorder {
             b.extend_from_slice(&f.pixels);
             true
         });
+    }
+
+    /// Where `robot`'s camera `mount` looks: its optical frame under `<robot>/base_link` on
+    /// `/tf`, and its pinhole calibration on `/<robot>/camera/<channel>/calibration`, so that a
+    /// 3-D view can place its images. Log it beside each frame (a head's cameras take turns).
+    pub fn log_camera_mount(&self, robot: &str, mount: &CameraMount) {
+        let at = self.now_ns();
+        let frame = mount.frame(robot);
+        self.log_keyed(&["camtf", &frame], "/tf", mount.transform(robot, at));
+        let topic = format!("/{frame}/calibration");
+        self.log_keyed(&["enc", &topic], &topic, mount.calibration(robot, at));
     }
 
     /// The SES of `robot` on `/<robot>/ses` (around `<robot>/base_link`).

@@ -631,7 +631,13 @@ impl Recorder {
     /// Log any `foxglove` well-known message on `topic` (encoded on the caller's thread, into
     /// the queue: its `Encode` must not log to this recorder).
     pub fn log<T: Encode>(&self, topic: &str, msg: T) {
-        let s = self.stream(&["enc", topic], || {
+        self.log_keyed(&["enc", topic], topic, msg);
+    }
+
+    /// [`log`](Self::log) on a stream of its own, `key` (a topic such as `/tf` carries
+    /// several: each keeps its own latest message for a late viewer).
+    pub(crate) fn log_keyed<T: Encode>(&self, key: &[&str], topic: &str, msg: T) {
+        let s = self.stream(key, || {
             let proto = stream::Proto::Encoded {
                 schema: T::get_schema(),
                 encoding: T::get_message_encoding(),

@@ -586,7 +586,8 @@ fn frames_in_reused_buffers_are_recorded_exactly() {
         .collect();
     assert_eq!(got.len(), frames.len());
     for (g, f) in got.iter().zip(&frames) {
-        let want = ima_record::convert::raw_image("skeeter/camera", 0, f);
+        // Each camera's own optical frame.
+        let want = ima_record::convert::raw_image("skeeter/camera/3", 0, f);
         assert_eq!(
             (&g.frame_id, g.width, g.height, &g.encoding, g.step),
             (
@@ -705,7 +706,7 @@ fn png_frames_decode_to_the_same_pixels() {
     let img = foxglove::messages::CompressedImage::decode(&msgs[0].data[..]).unwrap();
     assert_eq!(
         (img.format.as_str(), img.frame_id.as_str()),
-        ("png", "skeeter/camera")
+        ("png", "skeeter/camera/3")
     );
     let mut reader = png::Decoder::new(std::io::Cursor::new(&img.data[..]))
         .read_info()
@@ -851,6 +852,81 @@ fn a_live_view_alone_takes_no_raw_bytes() {
         "{}",
         report.summary()
     );
+}
+
+/// A camera's mount: its optical frame under `base_link` (z along the lens, x to the image's
+/// right, y down), and a pinhole calibration from its field of view.
+#[test]
+fn a_camera_mount_places_its_optical_frame_and_calibration() {
+    use foxglove::messages::{CameraCalibration, FrameTransform};
+    let path = tmp("mount.mcap");
+    let rec = record_to(&path, 0);
+    let mount = ima_record::convert::CameraMount {
+        channel: Some(3),
+        yaw_rad: std::f64::consts::FRAC_PI_2,
+        hfov_rad: 60f64.to_radians(),
+        width: 320,
+        height: 240,
+    };
+    rec.log_camera_mount("skeeter", &mount);
+    rec.finish(Duration::from_secs(10));
+    let (msgs, _) = Recording::open(&path).unwrap().messages();
+    let tf = msgs.iter().find(|m| m.topic == "/tf").unwrap();
+    let tf = FrameTransform::decode(&tf.data[..]).unwrap();
+    assert_eq!(
+        (tf.parent_frame_id.as_str(), tf.child_frame_id.as_str()),
+        ("skeeter/base_link", "skeeter/camera/3")
+    );
+    // Rotate the optical axes into base_link with the transform's quaternion.
+    let q = tf.rotation.unwrap();
+    let rot = |v: [f64; 3]| {
+        let (x, y, z, w) = (q.x, q.y, q.z, q.w);
+        let t = [
+            2.0 * (y * v[2] - z * v[1]),
+            2.0 * (z * v[0] - x * v[2]),
+            2.0 * (x * v[1] - y * v[0]),
+        ];
+        [
+            v[0] + w * t[0] + (y * t[2] - z * t[1]),
+            v[1] + w * t[1] + (z * t[0] - x * t[2]),
+            v[2] + w * t[2] + (x * t[1] - y * t[0]),
+        ]
+    };
+    let near = |a: [f64; 3], b: [f64; 3]| a.iter().zip(b).all(|(a, b)| (a - b).abs() < 1e-12);
+    // Looking left (yaw 90°): the lens (optical z) along +y, the image's right (optical x)
+    // towards the robot's front (+x), the image's down (optical y) down (−z).
+    assert!(
+        near(rot([0.0, 0.0, 1.0]), [0.0, 1.0, 0.0]),
+        "{:?}",
+        rot([0.0, 0.0, 1.0])
+    );
+    assert!(
+        near(rot([1.0, 0.0, 0.0]), [1.0, 0.0, 0.0]),
+        "{:?}",
+        rot([1.0, 0.0, 0.0])
+    );
+    assert!(
+        near(rot([0.0, 1.0, 0.0]), [0.0, 0.0, -1.0]),
+        "{:?}",
+        rot([0.0, 1.0, 0.0])
+    );
+    let cal = msgs
+        .iter()
+        .find(|m| m.topic == "/skeeter/camera/3/calibration")
+        .unwrap();
+    let cal = CameraCalibration::decode(&cal.data[..]).unwrap();
+    assert_eq!(
+        (cal.frame_id.as_str(), cal.width, cal.height),
+        ("skeeter/camera/3", 320, 240)
+    );
+    // 60° across 320 pixels: f = 160 / tan 30°.
+    let f = 160.0 / 30f64.to_radians().tan();
+    assert!(
+        (cal.k[0] - f).abs() < 1e-9 && (cal.k[4] - f).abs() < 1e-9,
+        "{:?}",
+        cal.k
+    );
+    assert_eq!((cal.k[2], cal.k[5]), (160.0, 120.0));
 }
 
 /// Each message the recorder's thread fills in from a compact record is exactly the message

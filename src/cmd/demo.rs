@@ -274,12 +274,13 @@ pub fn run(args: &DemoArgs) -> Result<()> {
                         crate::record::with(|rec| {
                             for (name, p) in &starts {
                                 rec.log_odom_origin(name, *p);
-                                rec.log_transform(
-                                    &format!("{name}/base_link"),
-                                    &format!("{name}/laser"),
-                                    ima_record::convert::Pose2::default(),
-                                );
                             }
+                            // Scooter carries the laser (Skeeter none: it had a frame too).
+                            rec.log_transform(
+                                "scooter/base_link",
+                                "scooter/laser",
+                                ima_record::convert::Pose2::default(),
+                            );
                         });
                     }
                 }
