@@ -131,10 +131,54 @@ fn error_chain(e: &anyhow::Error) -> String {
     out
 }
 
+/// Whether `p` parses into a number type.
+fn is_numeric(p: &clap::builder::ValueParser) -> bool {
+    fn id_of<T>() -> clap::builder::ValueParser
+    where
+        T: std::str::FromStr + Clone + Send + Sync + 'static,
+    {
+        clap::builder::ValueParser::new(|s: &str| s.parse::<T>().map_err(|_| "not a number"))
+    }
+    let t = p.type_id();
+    [
+        id_of::<f64>(),
+        id_of::<f32>(),
+        id_of::<u8>(),
+        id_of::<u16>(),
+        id_of::<u32>(),
+        id_of::<u64>(),
+        id_of::<usize>(),
+        id_of::<i8>(),
+        id_of::<i16>(),
+        id_of::<i32>(),
+        id_of::<i64>(),
+    ]
+    .iter()
+    .any(|v| v.type_id() == t)
+}
+
+/// Every numeric flag takes a negative number as its value, so that its parser says what it
+/// accepts: `--for -1` was "unexpected argument '-1' found" where `--for=-1` got the range.
+fn negative_numbers_are_values(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|a| {
+        if is_numeric(a.get_value_parser()) {
+            a.allow_negative_numbers(true)
+        } else {
+            a
+        }
+    })
+    .mut_subcommands(negative_numbers_are_values)
+}
+
 fn main() -> ExitCode {
     // Before anything can move a robot: the panic hook and the signal thread.
     safety::install();
-    let cli = Cli::parse();
+    let matches =
+        negative_numbers_are_values(<Cli as clap::CommandFactory>::command()).get_matches();
+    let cli = match <Cli as clap::FromArgMatches>::from_arg_matches(&matches) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     // On a terminal, show what a connecting driver is trying (rate, attempt) as plain lines:
     // connecting can take tens of seconds and should not look like a hang. A `--log` filter
     // that names the target takes over (and prints it in the log format, also off a TTY).
@@ -255,39 +299,12 @@ mod tests {
 
 #[cfg(test)]
 mod cli_tests {
-    use super::Cli;
-    use clap::builder::ValueParser;
+    use super::{Cli, is_numeric};
     use clap::{CommandFactory, Parser};
 
     /// The committed list of every numeric flag (`tests/data/numeric-flags.txt`), which the
     /// process-level flag fuzz test (`tests/flag_fuzz.rs`) runs.
     const LISTED: &str = include_str!("../tests/data/numeric-flags.txt");
-
-    fn id_of<T>() -> ValueParser
-    where
-        T: std::str::FromStr + Clone + Send + Sync + 'static,
-    {
-        ValueParser::new(|s: &str| s.parse::<T>().map_err(|_| "not a number"))
-    }
-
-    fn is_numeric(p: &ValueParser) -> bool {
-        let t = p.type_id();
-        [
-            id_of::<f64>(),
-            id_of::<f32>(),
-            id_of::<u8>(),
-            id_of::<u16>(),
-            id_of::<u32>(),
-            id_of::<u64>(),
-            id_of::<usize>(),
-            id_of::<i8>(),
-            id_of::<i16>(),
-            id_of::<i32>(),
-            id_of::<i64>(),
-        ]
-        .iter()
-        .any(|v| v.type_id() == t)
-    }
 
     /// Every (sub-command path, numeric flag) of the program.
     fn numeric_flags() -> Vec<(Vec<String>, String)> {

@@ -249,6 +249,20 @@ fn negative_velocities_and_rates_parse() {
     // Past the parser: the port is what failed.
     assert!(err.contains("/dev/ima-no-such-port"), "{err}");
     assert_ne!(out.status.code(), Some(2), "{err}");
+    // Every numeric flag takes a negative number as its value and says its range (`--for -1`
+    // was "unexpected argument '-1' found", where `--for=-1` got the range).
+    for (flag, want) in [
+        ("--for", "-1 is out of range: 0–86400 s"),
+        ("--baud", "-1 is out of range: 50–4000000 baud"),
+        ("--connect-timeout", "a timeout must be more than 0 s"),
+    ] {
+        let out = ima()
+            .args(["drive", "--port", "/dev/ima-no-such-port", flag, "-1"])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "{flag}");
+        assert!(stderr(&out).contains(want), "{flag}: {}", stderr(&out));
+    }
 }
 
 #[test]

@@ -34,7 +34,7 @@ pub struct GrabArgs {
     #[arg(long)]
     world: Option<PathBuf>,
     /// Seed for pixel noise.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = crate::cmd::num::seed)]
     seed: u64,
     /// The robot carrying the head.
     #[arg(long, default_value = "skeeter")]

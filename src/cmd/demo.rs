@@ -41,7 +41,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 4.0, value_parser = super::num::time_factor)]
     speed: f64,
     /// Seed for sensor noise.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = crate::cmd::num::seed)]
     seed: u64,
     /// Target colours, in order.
     #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]

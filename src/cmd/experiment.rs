@@ -61,7 +61,7 @@ pub struct HeadingArgs {
     #[arg(long, value_enum, default_value_t = RuleArg::Both)]
     pub rule: RuleArg,
     /// Seed of every noise source (the same seed gives the same results).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = crate::cmd::num::seed)]
     pub seed: u64,
     /// Write CSV, JSON, Markdown tables and SVG plots into this directory.
     #[arg(long)]

@@ -148,29 +148,44 @@ pub fn replay_speed(s: &str) -> Result<f64, String> {
 
 /// A serial line speed in baud, 50 to 4,000,000.
 pub fn baud(s: &str) -> Result<u32, String> {
-    let v: u32 = s.trim().parse().map_err(|_| {
-        format!("{s:?} is not a line speed in baud (accepted: a whole number, 50–4000000)")
-    })?;
-    if (50..=4_000_000).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!("{v} is out of range: 50–4000000 baud"))
-    }
+    int_in::<u32, 50, 4_000_000>(s).map_err(|e| {
+        if e.contains("out of range") {
+            format!("{e} baud")
+        } else {
+            format!(
+                "{:?} is not a line speed in baud (accepted: a whole number, 50–4000000)",
+                s.trim()
+            )
+        }
+    })
 }
 
-/// A whole number in `LO..=HI`, as any integer type that holds the range.
+/// A whole number in `LO..=HI`, as any integer type that holds the range. A whole number
+/// outside it, negative or too large for any integer type, is "out of range"; anything else
+/// is "not a whole number" (both said "not a whole number in …" for `-1`).
 pub fn int_in<T, const LO: u64, const HI: u64>(s: &str) -> Result<T, String>
 where
     T: TryFrom<u64>,
 {
-    let v: u64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("{:?} is not a whole number in {LO}–{HI}", s.trim()))?;
-    if !(LO..=HI).contains(&v) {
-        return Err(format!("{v} is out of range: {LO}–{HI}"));
+    let t = s.trim();
+    let out = || format!("{t} is out of range: {LO}–{HI}");
+    match t.parse::<u64>() {
+        Ok(v) if (LO..=HI).contains(&v) => T::try_from(v).map_err(|_| out()),
+        Ok(_) => Err(out()),
+        Err(_) => {
+            let digits = t.strip_prefix(['-', '+']).unwrap_or(t);
+            if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
+                Err(out())
+            } else {
+                Err(format!("{t:?} is not a whole number (accepted: {LO}–{HI})"))
+            }
+        }
     }
-    T::try_from(v).map_err(|_| format!("{v} is out of range: {LO}–{HI}"))
+}
+
+/// A seed for a random source: any whole number 0–18446744073709551615.
+pub fn seed(s: &str) -> Result<u64, String> {
+    int_in::<u64, 0, { u64::MAX }>(s)
 }
 
 /// Text a Peer frame carries (a behaviour, a colour, an emergency's text): at most
@@ -290,6 +305,26 @@ mod tests {
         assert!(int_in::<u8, 0, 300>("300").is_err(), "does not fit a u8");
         assert!(int_in::<u64, 0, 5>("-1").is_err());
         assert!(int_in::<u64, 0, 5>("1e30").is_err());
+        // A whole number is out of range, whatever its sign or size; a word is not one.
+        for (v, want) in [
+            ("-1", "-1 is out of range: 1–64"),
+            (
+                "99999999999999999999999",
+                "99999999999999999999999 is out of range: 1–64",
+            ),
+            ("4294967296", "4294967296 is out of range: 1–64"),
+            ("x", "\"x\" is not a whole number (accepted: 1–64)"),
+            ("1.5", "\"1.5\" is not a whole number (accepted: 1–64)"),
+            ("-", "\"-\" is not a whole number (accepted: 1–64)"),
+        ] {
+            assert_eq!(int_in::<u32, 1, 64>(v), Err(want.to_owned()));
+        }
+        assert_eq!(seed(&u64::MAX.to_string()), Ok(u64::MAX));
+        assert!(
+            seed("nan")
+                .unwrap_err()
+                .contains("(accepted: 0–18446744073709551615)")
+        );
         assert_eq!(period_seconds("5"), Ok(5.0));
         assert_eq!(wire_text("idle"), Ok("idle".to_owned()));
         assert!(
@@ -317,6 +352,14 @@ mod tests {
     #[test]
     fn baud_and_replay_speed_name_their_ranges() {
         assert_eq!(baud(" 9600 "), Ok(9600));
+        assert_eq!(
+            baud("-5"),
+            Err("-5 is out of range: 50–4000000 baud".to_owned())
+        );
+        assert_eq!(
+            baud("49"),
+            Err("49 is out of range: 50–4000000 baud".to_owned())
+        );
         let e = baud("fast").unwrap_err();
         assert!(e.contains("(accepted: a whole number, 50–4000000)"), "{e}");
         assert_eq!(

@@ -68,7 +68,7 @@ pub struct BroadcastArgs {
     mode: Option<Mode>,
     /// UDP port (overrides `broadcast.port`). `ima peer listen --port 0` listens on a free
     /// port and prints it; a multicast sender needs the listeners' port.
-    #[arg(long)]
+    #[arg(long, value_parser = num::int_in::<u16, 0, 65_535>)]
     port: Option<u16>,
     /// Multicast group (overrides `broadcast.group`).
     #[arg(long)]
@@ -119,8 +119,8 @@ pub struct ClientArgs {
     /// Source to request.
     #[arg(long)]
     request: String,
-    /// Request priority.
-    #[arg(long, default_value_t = 0)]
+    /// Request priority, 0–255.
+    #[arg(long, default_value_t = 0, value_parser = num::int_in::<u8, 0, 255>)]
     priority: u8,
     /// Stop after this many samples, 1–1000000000 (default: run until the source ends).
     #[arg(long, value_parser = num::int_in::<u64, 1, 1_000_000_000>)]

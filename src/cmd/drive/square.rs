@@ -34,7 +34,7 @@ pub struct SquareArgs {
     #[arg(long, hide = true, allow_hyphen_values = true, value_parser = refuse_speed)]
     speed: Option<String>,
     /// Seed for sensor noise and faults.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = crate::cmd::num::seed)]
     seed: u64,
     /// Faults on the robot's serial line, e.g. `corrupt=0.01` (see `ima mock --help`).
     #[arg(long, default_value = "")]

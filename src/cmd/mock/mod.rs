@@ -59,7 +59,7 @@ pub struct MockArgs {
     #[arg(long)]
     world: Option<PathBuf>,
     /// Seed for sensor noise and faults.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = crate::cmd::num::seed)]
     seed: u64,
     /// Faults between device and port, e.g. `corrupt=0.01,split=1,stall=0.0005:300ms`; for
     /// the world, between each of its serial devices and its port (`--help` gives the grammar).
