@@ -461,6 +461,51 @@ fn an_insecure_manager_s_data_server_stays_beside_its_listen_address() {
     assert!(data.starts_with("127.0.0.1:"), "{first}");
 }
 
+/// A bad status group is refused before the manager says it listens (it printed its
+/// "listening" line, then failed), naming the flags that set it.
+#[test]
+fn a_bad_status_group_fails_before_listening() {
+    let out = ima()
+        .args([
+            "peer",
+            "manager",
+            "--insecure",
+            "--group",
+            "bogus",
+            "--status-ms",
+            "100",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    assert!(
+        err.contains("--group") && err.contains("\"bogus\""),
+        "{err}"
+    );
+}
+
+/// An interface that is not one of this host's addresses: the error names it and the group
+/// (it was "I/O error: No such device (os error 19)").
+#[test]
+fn a_listener_on_a_foreign_interface_names_it() {
+    let out = ima()
+        .args(["peer", "listen", "--insecure", "--interface", "10.99.99.99"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("joining multicast group 239.255.73.77 on interface 10.99.99.99"),
+        "{err}"
+    );
+}
+
 #[test]
 fn send_without_destinations_fails() {
     let out = ima()

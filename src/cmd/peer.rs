@@ -441,6 +441,22 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
             );
         }
     }
+    // The status channel first: a bad group or interface is refused before the manager says
+    // it listens (it printed "listening", then failed).
+    let status = if a.status_ms > 0 {
+        // The status channel only sends: it binds any free port, not the shared one.
+        let mut bcfg = cfg.clone();
+        bcfg.broadcast.bind_port = Some(0);
+        let ch = BroadcastChannel::bind(&bcfg, &cfg.robot, key.clone())
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .context(
+                "binding the status channel (--status-ms; its group, interface, mode and \
+                 peers come from --group, --interface, --mode, --peer or [broadcast])",
+            )?;
+        Some(ch)
+    } else {
+        None
+    };
     let agent = FixedSelfAgent::new(cfg.manager.task_priority, Vec::new());
     let m = spawn_manager(&cfg, key.clone(), agent)
         .await
@@ -460,12 +476,7 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
         "data_addr": m.data_addr().to_string(),
         "sources": synthetic.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
     }))?;
-    if a.status_ms > 0 {
-        // The status channel only sends: it binds any free port, not the shared one.
-        let mut bcfg = cfg.clone();
-        bcfg.broadcast.bind_port = Some(0);
-        let ch =
-            BroadcastChannel::bind(&bcfg, &cfg.robot, key).map_err(|e| anyhow::anyhow!("{e}"))?;
+    if let Some(ch) = status {
         let period = Duration::from_millis(a.status_ms);
         tasks.push(tokio::spawn(async move {
             let mut tick = tokio::time::interval(period);

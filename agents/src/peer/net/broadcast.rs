@@ -93,7 +93,16 @@ fn udp_socket(b: &BroadcastConfig) -> Result<Socket, NetError> {
                 "broadcast.group {group} is not a multicast address"
             )));
         }
-        s.join_multicast_v4(&group, &iface)?;
+        s.join_multicast_v4(&group, &iface).map_err(|e| {
+            // "No such device" alone named neither: the interface is an address of this host.
+            NetError::Io(std::io::Error::new(
+                e.kind(),
+                format!(
+                    "joining multicast group {group} on interface {iface}: {e} (the interface \
+                     is one of this host's addresses, e.g. 127.0.0.1 or the LAN's)"
+                ),
+            ))
+        })?;
         s.set_multicast_if_v4(&iface)?;
         s.set_multicast_ttl_v4(b.ttl)?;
         s.set_multicast_loop_v4(b.loopback)?;
