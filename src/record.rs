@@ -77,13 +77,7 @@ pub fn foxglove_addr(s: &str) -> Result<SocketAddr, String> {
     let s = s.trim();
     let s = s.strip_prefix("ws://").unwrap_or(s);
     let s = s.strip_suffix('/').unwrap_or(s);
-    let port_alone = s.bytes().all(|b| b.is_ascii_digit());
-    let addr = if port_alone {
-        crate::web::socket_addr(&format!("localhost:{s}"))
-    } else {
-        crate::web::socket_addr(s)
-    };
-    addr.ok_or_else(|| {
+    crate::web::socket_addr(s).ok_or_else(|| {
         // `ima replay rec.mcap` typed as `ima replay --foxglove rec.mcap`: the optional
         // address took the file.
         let file = s.ends_with(".mcap") || s.contains('/') || Path::new(s).is_file();

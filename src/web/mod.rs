@@ -315,16 +315,23 @@ pub fn random_token() -> String {
 pub fn parse_addr(s: &str) -> Result<SocketAddr> {
     socket_addr(s).with_context(|| {
         format!(
-            "--web {:?}: not an address such as {DEFAULT_ADDR} or 0.0.0.0:8080",
+            "--web {:?}: not an address such as {DEFAULT_ADDR}, 0.0.0.0:8080 or a port alone",
             s.trim()
         )
     })
 }
 
-/// `ip:port`, or `localhost:port` (127.0.0.1), surrounding blanks ignored: the addresses
-/// `--web` and `--foxglove` take.
+/// `ip:port`, `localhost:port` or a port alone (both on 127.0.0.1), surrounding blanks
+/// ignored: the addresses `--web` and `--foxglove` take (`--web 0` was refused, though its
+/// help says port 0 picks a free one).
 pub fn socket_addr(s: &str) -> Option<SocketAddr> {
     let s = s.trim();
+    let port_alone = !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    let s = if port_alone {
+        format!("localhost:{s}")
+    } else {
+        s.to_owned()
+    };
     match s.strip_prefix("localhost:") {
         Some(port) => port
             .parse()

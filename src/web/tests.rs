@@ -576,6 +576,14 @@ fn addresses_parse_or_say_why_not() {
     );
     let e = format!("{:#}", parse_addr("nowhere").unwrap_err());
     assert!(e.contains("not an address"), "{e}");
+    // A port alone is on loopback, as `--foxglove` takes it (`--web 0`: a free port).
+    assert_eq!(parse_addr(" 0 ").unwrap(), "127.0.0.1:0".parse().unwrap());
+    assert_eq!(
+        parse_addr("8081").unwrap(),
+        "127.0.0.1:8081".parse().unwrap()
+    );
+    assert!(parse_addr("99999").is_err());
+    assert!(parse_addr("").is_err());
 }
 
 #[test]
