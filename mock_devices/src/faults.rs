@@ -179,25 +179,37 @@ pub enum FaultSpecError {
         /// The item.
         item: String,
     },
-    /// Not a duration such as `300ms`.
-    #[error("fault spec item {item:?}: expected a duration like 300ms, 5s, 250us, 1min")]
+    /// Not a duration such as `300ms`, or one over a day.
+    #[error(
+        "fault spec item {item:?}: expected a duration like 300ms, 5s, 250us, 1min, at most one \
+         day (1440min)"
+    )]
     BadDuration {
         /// The item.
         item: String,
     },
     /// Not an integer (seed, garbage lengths) or a malformed `MIN-MAX`.
-    #[error("fault spec item {item:?}: bad number")]
+    #[error("fault spec item {item:?}: expected {expected}")]
     BadNumber {
         /// The item.
         item: String,
+        /// What the value must be.
+        expected: &'static str,
     },
     /// A value has the wrong number of `:`-separated parts (e.g. `stall=0.1` without a duration).
-    #[error("fault spec item {item:?}: wrong number of ':' parts")]
+    #[error("fault spec item {item:?}: wrong number of ':' parts: {key} takes {form}")]
     BadShape {
         /// The item.
         item: String,
+        /// Its key.
+        key: String,
+        /// The values the key takes, e.g. `P:DUR (stall=0.01:300ms)`.
+        form: &'static str,
     },
 }
+
+/// The longest duration a fault takes: one day, as the command line's flags.
+const MAX_DURATION: Duration = Duration::from_secs(86_400);
 
 fn parse_prob(s: &str) -> Option<f64> {
     let p: f64 = s.trim().parse().ok()?;
@@ -252,16 +264,24 @@ impl FromStr for FaultPlan {
                 if dirs.len() != 2 {
                     return Err(FaultSpecError::BadDirection { item: e_item() });
                 }
-                plan.seed = value
-                    .parse()
-                    .map_err(|_| FaultSpecError::BadNumber { item: e_item() })?;
+                plan.seed = value.parse().map_err(|_| FaultSpecError::BadNumber {
+                    item: e_item(),
+                    expected: "a whole number 0–18446744073709551615",
+                })?;
                 continue;
             }
             let prob =
                 |s: &str| parse_prob(s).ok_or(FaultSpecError::BadProbability { item: e_item() });
-            let dur =
-                |s: &str| parse_duration(s).ok_or(FaultSpecError::BadDuration { item: e_item() });
-            let shape = || FaultSpecError::BadShape { item: e_item() };
+            let dur = |s: &str| {
+                parse_duration(s)
+                    .filter(|d| *d <= MAX_DURATION)
+                    .ok_or(FaultSpecError::BadDuration { item: e_item() })
+            };
+            let shape = |form| FaultSpecError::BadShape {
+                item: e_item(),
+                key: key.to_owned(),
+                form,
+            };
             let parts: Vec<&str> = value.split(':').collect();
             // Build the change once, then apply it to each selected direction.
             let apply: Box<dyn Fn(&mut FaultConfig)> = match (key, parts.as_slice()) {
@@ -283,7 +303,10 @@ impl FromStr for FaultPlan {
                 }
                 ("garbage", [p, range]) => {
                     let p = prob(p)?;
-                    let bad = || FaultSpecError::BadNumber { item: e_item() };
+                    let bad = || FaultSpecError::BadNumber {
+                        item: e_item(),
+                        expected: "lengths MIN-MAX with 1 ≤ MIN ≤ MAX ≤ 65535 (garbage=0.01:1-8)",
+                    };
                     let (lo, hi) = range.split_once('-').ok_or_else(bad)?;
                     let lo: u16 = lo.trim().parse().map_err(|_| bad())?;
                     let hi: u16 = hi.trim().parse().map_err(|_| bad())?;
@@ -309,13 +332,14 @@ impl FromStr for FaultPlan {
                     Box::new(move |c| c.delay = d)
                 }
                 ("hangup", [when, rest @ ..]) if rest.len() <= 1 => {
-                    let trigger = if let Some(d) = parse_duration(when) {
-                        HangupTrigger::At(d)
-                    } else if let Some(p) = parse_prob(when) {
-                        HangupTrigger::Probability(p)
-                    } else {
-                        return Err(FaultSpecError::BadDuration { item: e_item() });
-                    };
+                    let trigger =
+                        if let Some(d) = parse_duration(when).filter(|d| *d <= MAX_DURATION) {
+                            HangupTrigger::At(d)
+                        } else if let Some(p) = parse_prob(when) {
+                            HangupTrigger::Probability(p)
+                        } else {
+                            return Err(FaultSpecError::BadDuration { item: e_item() });
+                        };
                     let outage = match rest.first() {
                         Some(o) => Some(dur(o)?),
                         None => None,
@@ -325,8 +349,12 @@ impl FromStr for FaultPlan {
                         c.hangup_for = outage;
                     })
                 }
-                ("corrupt" | "drop" | "split" | "garbage" | "stall" | "delay" | "hangup", _) => {
-                    return Err(shape());
+                ("corrupt" | "drop" | "split", _) => return Err(shape("P (corrupt=0.01)")),
+                ("garbage", _) => return Err(shape("P or P:MIN-MAX (garbage=0.01:1-8)")),
+                ("stall", _) => return Err(shape("P:DUR (stall=0.01:300ms)")),
+                ("delay", _) => return Err(shape("DUR (delay=20ms)")),
+                ("hangup", _) => {
+                    return Err(shape("AT or P, then :DUR if it ends (hangup=5s:2s)"));
                 }
                 _ => return Err(FaultSpecError::UnknownKey { item: e_item() }),
             };
@@ -756,31 +784,38 @@ mod tests {
         assert_eq!(
             FaultPlan::parse("stall=0.1"),
             Err(E::BadShape {
-                item: item("stall=0.1")
+                item: item("stall=0.1"),
+                key: "stall".into(),
+                form: "P:DUR (stall=0.01:300ms)",
             })
         );
         assert_eq!(
             FaultPlan::parse("corrupt=0.1:2"),
             Err(E::BadShape {
-                item: item("corrupt=0.1:2")
+                item: item("corrupt=0.1:2"),
+                key: "corrupt".into(),
+                form: "P (corrupt=0.01)",
             })
         );
         assert_eq!(
             FaultPlan::parse("seed=-3"),
             Err(E::BadNumber {
-                item: item("seed=-3")
+                item: item("seed=-3"),
+                expected: "a whole number 0–18446744073709551615",
             })
         );
         assert_eq!(
             FaultPlan::parse("garbage=0.1:5-2"),
             Err(E::BadNumber {
-                item: item("garbage=0.1:5-2")
+                item: item("garbage=0.1:5-2"),
+                expected: "lengths MIN-MAX with 1 ≤ MIN ≤ MAX ≤ 65535 (garbage=0.01:1-8)",
             })
         );
         assert_eq!(
             FaultPlan::parse("garbage=0.1:0-2"),
             Err(E::BadNumber {
-                item: item("garbage=0.1:0-2")
+                item: item("garbage=0.1:0-2"),
+                expected: "lengths MIN-MAX with 1 ≤ MIN ≤ MAX ≤ 65535 (garbage=0.01:1-8)",
             })
         );
         assert_eq!(
@@ -792,9 +827,20 @@ mod tests {
         assert_eq!(
             FaultPlan::parse("hangup=1s:2s:3s"),
             Err(E::BadShape {
-                item: item("hangup=1s:2s:3s")
+                item: item("hangup=1s:2s:3s"),
+                key: "hangup".into(),
+                form: "AT or P, then :DUR if it ends (hangup=5s:2s)",
             })
         );
+        // A duration over a day is refused, as the command line's are.
+        assert_eq!(
+            FaultPlan::parse("delay=1e10ms"),
+            Err(E::BadDuration {
+                item: item("delay=1e10ms")
+            })
+        );
+        assert!(FaultPlan::parse("stall=1:1440min").is_ok());
+        assert!(FaultPlan::parse("hangup=1441min").is_err());
         // Errors print the item.
         assert!(
             E::UnknownKey { item: item("q=1") }
