@@ -444,7 +444,10 @@ impl RobotConfig {
         if let Some(b) = &d.base {
             let t = b.connect_timeout_s;
             if !(t.is_finite() && t > 0.0 && t <= 600.0) {
-                bail!("devices.base.connect_timeout_s must be in (0, 600], not {t}");
+                bail!(
+                    "devices.base.connect_timeout_s must be in (0, 600], not {}",
+                    shown(t)
+                );
             }
         }
         if let Some(m) = &d.video_mux {
@@ -457,7 +460,7 @@ impl RobotConfig {
             if !(m.fov_deg.is_finite() && m.fov_deg > 0.0 && m.fov_deg <= 360.0) {
                 bail!(
                     "devices.video_mux.fov_deg must be in (0, 360], not {}",
-                    m.fov_deg
+                    shown(m.fov_deg)
                 );
             }
         }
@@ -472,7 +475,10 @@ impl RobotConfig {
         if let Some(l) = &d.laser {
             let w = l.power_up_wait_s;
             if !(w.is_finite() && (0.0..=120.0).contains(&w)) {
-                bail!("devices.laser.power_up_wait_s must be in [0, 120], not {w}");
+                bail!(
+                    "devices.laser.power_up_wait_s must be in [0, 120], not {}",
+                    shown(w)
+                );
             }
         }
         Ok(())
@@ -609,7 +615,7 @@ impl RobotConfig {
         ];
         for (name, v, lo, hi) in bounded {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                bail!("{name} must be a number in [{lo}, {hi}], not {v}");
+                bail!("{name} must be a number in [{lo}, {hi}], not {}", shown(v));
             }
         }
         self.check_devices()?;
@@ -699,12 +705,39 @@ pub fn key_to_hex(key: &[u8; 32]) -> String {
     s
 }
 
+/// A number for a message: as written for ordinary magnitudes, in exponent form beyond
+/// (`1e300` was printed with all its 301 digits).
+pub fn shown(v: f64) -> String {
+    if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn example(name: &str) -> String {
         std::fs::read_to_string(format!("{}/configs/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+    }
+
+    /// Huge and tiny numbers are shown in exponent form, ordinary ones as written; a value
+    /// of 1e300 in a key made a 300-digit message.
+    #[test]
+    fn numbers_in_messages_stay_short() {
+        assert_eq!(shown(1e300), "1e300");
+        assert_eq!(shown(-2.5e12), "-2.5e12");
+        assert_eq!(shown(1e-9), "1e-9");
+        assert_eq!(shown(700.0), "700");
+        assert_eq!(shown(0.25), "0.25");
+        assert_eq!(shown(0.0), "0");
+        assert_eq!(shown(f64::NAN), "NaN");
+        let text = example("skeeter.toml")
+            .replace("connect_timeout_s = 10.0", "connect_timeout_s = 1e300");
+        let e = format!("{:#}", RobotConfig::from_toml_str(&text).unwrap_err());
+        assert!(e.contains("not 1e300"), "{e}");
     }
 
     #[test]

@@ -367,7 +367,7 @@ fn check_synthetic(s: &SyntheticSource, max_payload: usize) -> Result<()> {
         bail!(
             "synthetic source {:?}: rate_hz = {} must be a number from {} to {}",
             s.name,
-            s.rate_hz,
+            crate::config::shown(s.rate_hz),
             SYNTHETIC_RATES.start(),
             SYNTHETIC_RATES.end()
         );

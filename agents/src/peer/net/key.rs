@@ -89,6 +89,12 @@ pub fn make_key_command(file: &str) -> String {
 /// [`NetError::Key`] (missing, unreadable, too permissive, too short).
 pub fn load_key_file(path: &Path) -> Result<GroupKey, NetError> {
     use std::io::Read;
+    if path.as_os_str().is_empty() {
+        // It said "group key: : No such file or directory".
+        return Err(NetError::Key(
+            "the key file's path is empty: give the path of the group's key file".into(),
+        ));
+    }
     let err = |e: std::io::Error| NetError::Key(format!("{}: {e}", path.display()));
     // The permissions are checked on the opened handle, so the file read is the file
     // checked (no swap between a check by path and the open).
@@ -158,6 +164,12 @@ mod tests {
             parse_key(&"ab".repeat(8).into_bytes()),
             Err(NetError::Key(_))
         ));
+    }
+
+    #[test]
+    fn an_empty_path_is_named_as_such() {
+        let e = load_key_file(Path::new("")).unwrap_err().to_string();
+        assert!(e.contains("the key file's path is empty"), "{e}");
     }
 
     #[cfg(unix)]
