@@ -57,6 +57,11 @@ impl Served {
 }
 
 fn serve(base: Base) -> (SharedWorld, RobotId, Served, HostLog) {
+    serve_with(base, FaultPlan::none())
+}
+
+/// [`serve`] with `faults` on the line.
+fn serve_with(base: Base, faults: FaultPlan) -> (SharedWorld, RobotId, Served, HostLog) {
     let mut w = World::new();
     let mut spec = RobotSpec::new("robot", 0.0, 0.0, 0.0);
     spec.max_wheel_speed_m_s = 1.0;
@@ -65,7 +70,7 @@ fn serve(base: Base) -> (SharedWorld, RobotId, Served, HostLog) {
     let world = SharedWorld::new(w);
     let log = HostLog::new();
     let opts = PtyOptions {
-        faults: FaultPlan::none(),
+        faults,
         step_world: Some(world.clone()),
         host_log: Some(log.clone()),
         ..PtyOptions::default()
@@ -484,6 +489,47 @@ fn p2os_normal_end_closes_the_session() {
     };
     let model = dev.stop().unwrap();
     assert_eq!(model.robot().stats().watchdog_trips, 0);
+}
+
+/// The line goes dead mid-drive and comes back 1.2 s later: the drive gives up at its 1 s
+/// report timeout with the link lost, so its STOP and CLOSE go into the dead line. It writes
+/// them again while closing, and the one after the line's return stops the robot: its
+/// watchdog never trips (it did, 1.3 s after the program ended, in a run against the mock).
+#[test]
+fn a_stop_is_repeated_until_a_dead_line_comes_back() {
+    let faults = FaultPlan::parse("hangup=2s:1.2s").unwrap();
+    let (world, id, served, _log) = serve_with(Base::P2os, faults);
+    let out = ima()
+        .args([
+            "drive",
+            "--port",
+            &served.path(),
+            "--vel",
+            "0.3",
+            "--for",
+            "20",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("may not have reached the robot"),
+        "{stderr}"
+    );
+    wait_until(Duration::from_secs(5), "the robot to stand", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+    let Served::P2os(dev) = served else {
+        unreachable!()
+    };
+    let model = dev.stop().unwrap();
+    assert_eq!(
+        model.robot().stats().watchdog_trips,
+        0,
+        "the repeated STOP, not the watchdog, stopped the robot: {stderr}"
+    );
 }
 
 /// A signal while `ima drive` waits, after its normal end's STOP, for the robot to stand:

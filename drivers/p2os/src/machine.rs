@@ -597,6 +597,17 @@ impl Machine {
         self.enable_deadline = None;
     }
 
+    /// After [`close`](Self::close), queue STOP and CLOSE again (once the last ones are
+    /// written): for a link that was down as it closed, where a stop written into the dead
+    /// line is lost, and a robot that drove on until its watchdog met the line again while the
+    /// host still ran. Does nothing before `close`.
+    pub fn repeat_close(&mut self) {
+        if self.state == SessionState::Closed && self.tx.is_empty() {
+            let _ = self.queue(Command::Stop, None);
+            let _ = self.queue(Command::CLOSE, None);
+        }
+    }
+
     // ----------------------------------------------------------------------------------------
     // I/O side
     // ----------------------------------------------------------------------------------------

@@ -55,10 +55,27 @@ pub struct P2osShell {
     probe: Probe,
     /// Motor switches waiting for FLAGS to confirm them.
     motors: Confirmations<bool, (), Self>,
+    /// Closing with the link down: STOP and CLOSE are written again until then.
+    restop: Option<Restop>,
+}
+
+/// STOP and CLOSE written again while a closing task waits for a lost link to come back.
+#[derive(Debug, Clone, Copy)]
+struct Restop {
+    /// The next repeat.
+    next: Instant,
+    /// The last one.
+    until: Instant,
 }
 
 /// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up.
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
+/// Closing with the link down, how long STOP and CLOSE are written again, and how often: a
+/// robot whose line comes back within it stops at once instead of driving on until its
+/// watchdog (2 s after the last command it received; 1.3 s after the program ended in a run
+/// against the mock, whose line came back 0.1 s after it).
+const RESTOP_FOR: Duration = Duration::from_millis(1200);
+const RESTOP_EVERY: Duration = Duration::from_millis(100);
 
 impl P2osShell {
     fn fail(&mut self, f: Fault) {
@@ -92,6 +109,32 @@ impl Shell for P2osShell {
         self.machine.handle_bytes(bytes, now);
         let after = self.machine.stats().framer.tally();
         self.probe.received(bytes.len(), before, after);
+        // Closing with the link down, and the robot is heard again: one more STOP and CLOSE
+        // meets it, and closing ends.
+        if !bytes.is_empty() && self.restop.take().is_some() {
+            self.machine.repeat_close();
+        }
+    }
+
+    fn on_timeout(&mut self, now: Instant) {
+        self.machine.handle_timeout(now);
+        if let Some(r) = &mut self.restop
+            && now >= r.next
+        {
+            self.machine.repeat_close();
+            r.next = now + RESTOP_EVERY;
+            if now >= r.until {
+                self.restop = None;
+            }
+        }
+    }
+
+    fn next_wake(&mut self) -> Option<Instant> {
+        let own = self.restop.map(|r| r.next);
+        [self.machine.poll_timeout(), own]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     fn on_event(&mut self, ev: Event, line: &mut dyn BaudControl) -> std::io::Result<()> {
@@ -144,14 +187,22 @@ impl Shell for P2osShell {
         self.machine.stats()
     }
 
-    /// Queue STOP and CLOSE (frames are paced, so they may need more than one round).
-    fn begin_close(&mut self, _now: Instant) -> Duration {
+    /// Queue STOP and CLOSE (frames are paced, so they may need more than one round); with
+    /// the link down, write them again for 1.2 s unless the robot is heard first.
+    fn begin_close(&mut self, now: Instant) -> Duration {
         self.machine.close();
+        if matches!(*self.link.borrow(), LinkStatus::Lost) {
+            self.restop = Some(Restop {
+                next: now + RESTOP_EVERY,
+                until: now + RESTOP_FOR,
+            });
+            return RESTOP_FOR + CLOSE_DRAIN_LIMIT / 2;
+        }
         CLOSE_DRAIN_LIMIT
     }
 
     fn is_closed(&mut self) -> bool {
-        !self.machine.has_pending_transmit()
+        !self.machine.has_pending_transmit() && self.restop.is_none()
     }
 
     /// Say what each rate tried received.
@@ -202,6 +253,7 @@ impl P2os {
             config: config_tx,
             probe: Probe::new("P2OS"),
             motors: Confirmations::default(),
+            restop: None,
         };
         let stop_as = Some("P2OS base");
         let (h, c) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;

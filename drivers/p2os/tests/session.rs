@@ -588,6 +588,20 @@ fn close_stops_then_closes() {
     assert_eq!(sent(&mut s, t), vec![Command::Stop, Command::CLOSE]);
     assert_eq!(s.state(), SessionState::Closed);
     assert_eq!(s.poll_timeout(), None);
+    // Again, for a line that was down (the shell repeats them until the robot is heard).
+    s.repeat_close();
+    s.repeat_close();
+    assert_eq!(
+        sent(&mut s, t),
+        vec![Command::Stop, Command::CLOSE],
+        "once queued"
+    );
+    // Not before closing.
+    let mut s = Machine::new(Config::default());
+    let t = open(&mut s);
+    let _ = sent(&mut s, t);
+    s.repeat_close();
+    assert!(sent(&mut s, t).is_empty());
 }
 
 /// Closing while reconnecting after a link loss still stops the robot: it may have been
