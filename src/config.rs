@@ -335,7 +335,8 @@ pub struct PeerConfig {
     /// empty means no manager of its own; the commander never runs one.
     pub listen: String,
     /// The manager's data server (TCP) listens here (port 0: any free port; an address that
-    /// names no interface, `0.0.0.0`, takes `listen`'s IP when that one names one).
+    /// names no interface, `0.0.0.0`, takes `listen`'s IP when that one names one, unless
+    /// `data_advertise` is set).
     pub data_listen: String,
     /// The data address put in grants (set it on a LAN when `data_listen` is `0.0.0.0`).
     pub data_advertise: Option<String>,

@@ -173,11 +173,11 @@ fn negative_numbers_are_values(cmd: clap::Command) -> clap::Command {
 fn main() -> ExitCode {
     // Before anything can move a robot: the panic hook and the signal thread.
     safety::install();
-    let matches =
-        negative_numbers_are_values(<Cli as clap::CommandFactory>::command()).get_matches();
+    let mut cmd = negative_numbers_are_values(<Cli as clap::CommandFactory>::command());
+    let matches = cmd.get_matches_mut();
     let cli = match <Cli as clap::FromArgMatches>::from_arg_matches(&matches) {
         Ok(cli) => cli,
-        Err(e) => e.exit(),
+        Err(e) => e.format(&mut cmd).exit(),
     };
     // On a terminal, show what a connecting driver is trying (rate, attempt) as plain lines:
     // connecting can take tens of seconds and should not look like a hang. A `--log` filter

@@ -156,12 +156,15 @@ impl std::fmt::Display for Interrupted {
         write!(f, "{}", self.0)?;
         let reg = StopRegistry::global();
         if !reg.ever_registered() {
-        } else if reg.unheard().is_empty() {
-            f.write_str("; every device that could move was stopped")?;
-        } else {
-            f.write_str("; every device that could move was sent its stop (see above)")?;
+            return Ok(());
         }
-        Ok(())
+        match unheard_note() {
+            None => f.write_str("; every device that could move was stopped"),
+            Some(note) => write!(
+                f,
+                "; every device that could move was sent its stop, but {note}"
+            ),
+        }
     }
 }
 
@@ -597,6 +600,9 @@ fn after_a_signal<T>(r: Result<T>, asked_to_end: bool) -> Result<T> {
 pub async fn halt_and_wait() {
     let reg = StopRegistry::global();
     if reg.halt_all() == 0 {
+        // Every driver already closed (a command's own `close`): one whose stop went into a
+        // dead link is still said.
+        say_unheard();
         return;
     }
     let end = tokio::time::Instant::now() + DRAIN_WAIT;
@@ -610,14 +616,30 @@ pub async fn halt_and_wait() {
             pending.join(", ")
         ));
     }
-    let unheard = reg.unheard();
-    if !unheard.is_empty() {
-        say(format_args!(
-            "the link to the {} was down when it was stopped: the stop may not have reached \
-             the robot, whose own watchdog stops it once it hears nothing (P2OS: 2 s after \
-             the last command it received); keep clear until it stands",
+    say_unheard();
+}
+
+/// What to say of devices whose stop was written while their link was down
+/// ([`StopRegistry::unheard`]), if any.
+fn unheard_note() -> Option<String> {
+    let unheard = StopRegistry::global().unheard();
+    (!unheard.is_empty()).then(|| {
+        format!(
+            "the link to the {} was down when its stop was written: the stop may not have \
+             reached the robot, whose own watchdog stops it once it hears nothing (P2OS: 2 s \
+             after the last command it received); keep clear until it stands",
             unheard.join(" and the ")
-        ));
+        )
+    })
+}
+
+/// Say [`unheard_note`], unless the program was asked to end: its [`Interrupted`] message
+/// says it then.
+fn say_unheard() {
+    if !asked_to_end()
+        && let Some(note) = unheard_note()
+    {
+        say(format_args!("{note}"));
     }
 }
 

@@ -83,10 +83,10 @@ impl HaltSignal {
         self.inner.done.store(true, Ordering::SeqCst);
     }
 
-    /// Called by the driver task as it starts to close when the device had gone quiet (its
-    /// link lost, not yet back): the stop it writes then may not reach the device, whose own
-    /// watchdog is what stops it. Messages that would say "stopped" say so instead
-    /// ([`StopRegistry::unheard`]).
+    /// Called by the driver task, before [`set_done`](Self::set_done), when it closed while
+    /// the device had gone quiet (its link lost, and not heard since): the stop it wrote may
+    /// not have reached the device, whose own watchdog is what stops it. Messages that would
+    /// say "stopped" say so instead ([`StopRegistry::unheard`]).
     pub fn set_stopped_unheard(&self) {
         self.inner.unheard.store(true, Ordering::SeqCst);
     }

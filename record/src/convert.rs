@@ -104,6 +104,16 @@ fn quat_z(theta: f64) -> Quaternion {
     }
 }
 
+/// The optical frame of `robot`'s camera on mux `channel`: `<robot>/camera/<channel>`
+/// (`<robot>/camera` without one); its images' topic is the same with a leading `/`.
+#[must_use]
+pub fn camera_frame(robot: &str, channel: Option<u8>) -> String {
+    match channel {
+        Some(c) => format!("{robot}/camera/{c}"),
+        None => format!("{robot}/camera"),
+    }
+}
+
 /// Where a camera of a head looks, for [`Recorder::log_camera_mount`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraMount {
@@ -121,13 +131,10 @@ pub struct CameraMount {
 }
 
 impl CameraMount {
-    /// The camera's optical frame: `<robot>/camera/<channel>` (`<robot>/camera` alone).
+    /// The camera's optical frame ([`camera_frame`]).
     #[must_use]
     pub fn frame(&self, robot: &str) -> String {
-        match self.channel {
-            Some(c) => format!("{robot}/camera/{c}"),
-            None => format!("{robot}/camera"),
-        }
+        camera_frame(robot, self.channel)
     }
 
     /// `base_link` → the optical frame (z along the lens, x to the image's right, y down,
@@ -154,13 +161,17 @@ impl CameraMount {
     }
 
     /// A pinhole calibration from the field of view (square pixels, the centre the principal
-    /// point, no distortion): what a viewer needs to place the image in 3-D.
+    /// point, no distortion): what a viewer needs to place the image in 3-D. `None` for a
+    /// field of view a pinhole cannot have (180° or more, or none).
     #[must_use]
-    pub fn calibration(&self, robot: &str, at_ns: u64) -> CameraCalibration {
+    pub fn calibration(&self, robot: &str, at_ns: u64) -> Option<CameraCalibration> {
+        if !(self.hfov_rad > 0.0 && self.hfov_rad < std::f64::consts::PI) {
+            return None;
+        }
         let (w, h) = (f64::from(self.width), f64::from(self.height));
         let f = w / 2.0 / (self.hfov_rad / 2.0).tan();
         let (cx, cy) = (w / 2.0, h / 2.0);
-        CameraCalibration {
+        Some(CameraCalibration {
             timestamp: Some(stamp(at_ns)),
             frame_id: self.frame(robot),
             width: self.width,
@@ -170,7 +181,7 @@ impl CameraMount {
             k: vec![f, 0.0, cx, 0.0, f, cy, 0.0, 0.0, 1.0],
             r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
             p: vec![f, 0.0, cx, 0.0, 0.0, f, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
-        }
+        })
     }
 }
 
@@ -681,16 +692,11 @@ impl Recorder {
     pub fn log_image(&self, robot: &str, f: &Frame) {
         let png = self.images() == crate::Images::Png;
         let make = || {
-            let topic = match f.channel {
-                Some(c) => format!("/{robot}/camera/{c}"),
-                None => format!("/{robot}/camera"),
-            };
+            // In the camera's optical frame, on the topic of the same name.
+            let frame_id = camera_frame(robot, f.channel);
+            let topic = format!("/{frame_id}");
             let raw = RawImage {
-                // The camera's optical frame (`CameraMount::frame`).
-                frame_id: match f.channel {
-                    Some(c) => format!("{robot}/camera/{c}"),
-                    None => format!("{robot}/camera"),
-                },
+                frame_id,
                 encoding: "rgb8".to_owned(),
                 ..RawImage::default()
             };
@@ -716,8 +722,10 @@ impl Recorder {
         let at = self.now_ns();
         let frame = mount.frame(robot);
         self.log_keyed(&["camtf", &frame], "/tf", mount.transform(robot, at));
-        let topic = format!("/{frame}/calibration");
-        self.log_keyed(&["enc", &topic], &topic, mount.calibration(robot, at));
+        if let Some(c) = mount.calibration(robot, at) {
+            let topic = format!("/{frame}/calibration");
+            self.log_keyed(&["enc", &topic], &topic, c);
+        }
     }
 
     /// The SES of `robot` on `/<robot>/ses` (around `<robot>/base_link`).

@@ -927,6 +927,12 @@ fn a_camera_mount_places_its_optical_frame_and_calibration() {
         cal.k
     );
     assert_eq!((cal.k[2], cal.k[5]), (160.0, 120.0));
+    // A field of view no pinhole has: no calibration (its focal length would be negative).
+    let wide = ima_record::convert::CameraMount {
+        hfov_rad: 200f64.to_radians(),
+        ..mount
+    };
+    assert!(wide.calibration("skeeter", 0).is_none());
 }
 
 /// Each message the recorder's thread fills in from a compact record is exactly the message

@@ -148,16 +148,14 @@ pub fn replay_speed(s: &str) -> Result<f64, String> {
 
 /// A serial line speed in baud, 50 to 4,000,000.
 pub fn baud(s: &str) -> Result<u32, String> {
-    int_in::<u32, 50, 4_000_000>(s).map_err(|e| {
-        if e.contains("out of range") {
-            format!("{e} baud")
-        } else {
-            format!(
-                "{:?} is not a line speed in baud (accepted: a whole number, 50–4000000)",
-                s.trim()
-            )
-        }
-    })
+    let t = s.trim();
+    let digits = t.strip_prefix(['-', '+']).unwrap_or(t);
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(format!(
+            "{t:?} is not a line speed in baud (accepted: a whole number, 50–4000000)"
+        ));
+    }
+    int_in::<u32, 50, 4_000_000>(t).map_err(|e| format!("{e} baud"))
 }
 
 /// A whole number in `LO..=HI`, as any integer type that holds the range. A whole number

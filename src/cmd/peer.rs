@@ -236,6 +236,7 @@ fn load_config(path: Option<&Path>) -> Result<(PeerNetConfig, Vec<SyntheticSourc
     // working directory.
     if let Some(k) = &cfg.key_file
         && k.is_relative()
+        && !k.as_os_str().is_empty()
         && let Some(dir) = path.parent()
     {
         cfg.key_file = Some(dir.join(k));
@@ -423,9 +424,11 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
             "ima: --insecure: listening on 127.0.0.1 only (pass --listen to choose the address)"
         );
     }
-    // The data server beside the request channel, unless placed itself.
-    cfg.manager.data_listen =
-        crate::stack::net::data_beside(&cfg.manager.data_listen, &cfg.manager.listen);
+    // The data server beside the request channel, unless placed itself (or advertised).
+    if cfg.manager.data_advertise.is_none() {
+        cfg.manager.data_listen =
+            crate::stack::net::data_beside(&cfg.manager.data_listen, &cfg.manager.listen);
+    }
     apply_broadcast(&mut cfg, &a.broadcast);
     if synthetic.is_empty() {
         synthetic = default_synthetic();

@@ -33,7 +33,11 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
             n.manager.listen
         );
     }
-    n.manager.data_listen = data_beside(&p.data_listen, &n.manager.listen);
+    n.manager.data_listen = match &p.data_advertise {
+        // Grants name that address: the data server stays where it was put.
+        Some(_) => p.data_listen.clone(),
+        None => data_beside(&p.data_listen, &n.manager.listen),
+    };
     n.manager.data_advertise = p.data_advertise.clone();
     n.manager.robot_priorities = p.priorities.clone();
     let b = &mut n.broadcast;
@@ -77,7 +81,8 @@ pub fn loopback(addr: &str) -> String {
 /// Where a manager's data server listens: `data` as configured, except that an unspecified
 /// IP takes the request channel's (`listen`) when that one names an address, so a manager
 /// placed on loopback or on one interface does not serve its data on every interface (its
-/// data server listened on `0.0.0.0` beside a request channel on `127.0.0.1`).
+/// data server listened on `0.0.0.0` beside a request channel on `127.0.0.1`). Not for a
+/// manager with a `data_advertise` address: its grants name that one.
 pub fn data_beside(data: &str, listen: &str) -> String {
     match (
         data.parse::<std::net::SocketAddr>(),
@@ -117,10 +122,12 @@ pub fn group_key(cfg: &RobotConfig, override_key: Option<&GroupKey>) -> Result<G
                 // A relative path is taken from the working directory, which a robot started
                 // by a service manager may not share with its configuration file.
                 match std::env::current_dir() {
-                    Ok(cwd) if path.is_relative() => e.context(format!(
-                        "peer.key_file is relative: it is read from the working directory {}",
-                        cwd.display()
-                    )),
+                    Ok(cwd) if path.is_relative() && !path.as_os_str().is_empty() => {
+                        e.context(format!(
+                            "peer.key_file is relative: it is read from the working directory {}",
+                            cwd.display()
+                        ))
+                    }
                     _ => e,
                 }
             })?;
@@ -213,6 +220,13 @@ mod tests {
         ))
         .unwrap();
         assert_eq!(n.manager.data_listen, "10.0.0.5:7401", "the port kept");
+        // An advertised data address is what grants name: the data server stays put.
+        let n = net_config(&cfg(
+            "listen = \"127.0.0.1:7400\"\ndata_listen = \"0.0.0.0:7401\"\n\
+             data_advertise = \"10.8.0.2:7401\"\n",
+        ))
+        .unwrap();
+        assert_eq!(n.manager.data_listen, "0.0.0.0:7401");
         let mut c = cfg("");
         c.peer.insecure = false;
         c.peer.key_file = Some("group.key".into());

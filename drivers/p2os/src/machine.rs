@@ -782,10 +782,19 @@ impl Machine {
     /// dead client's speed until the stale-session CLOSE (88 ms later in a run against the
     /// mock). The STOP zeroes the setpoints first; a robot waiting for SYNC0 ignores it.
     fn start_sync(&mut self, now: Instant) {
+        self.start_sync_closing(now, false);
+    }
+
+    /// [`start_sync`](Self::start_sync), with a CLOSE between the STOP and SYNC0 when
+    /// `close_first`.
+    fn start_sync_closing(&mut self, now: Instant, close_first: bool) {
         self.state = SessionState::Syncing;
         self.step = 0;
         self.tx.clear();
         let _ = self.queue(Command::Stop, None);
+        if close_first {
+            let _ = self.queue(Command::CLOSE, None);
+        }
         let _ = self.queue(Command::Sync0, None);
         self.deadline = Some(now + self.cfg.sync_step_timeout);
     }
@@ -817,15 +826,9 @@ impl Machine {
             }
             self.start_sync(now);
         } else {
-            self.start_sync(now);
-            if self.attempts_at_baud == 1 {
-                // A robot stuck mid-handshake, or one whose session we lost track of, may sit
-                // silent: a CLOSE before the next SYNC0 dislodges it (ARIA's habit, §5.1).
-                self.tx.clear();
-                let _ = self.queue(Command::Stop, None);
-                let _ = self.queue(Command::CLOSE, None);
-                let _ = self.queue(Command::Sync0, None);
-            }
+            // A robot stuck mid-handshake, or one whose session we lost track of, may sit
+            // silent: a CLOSE before the next SYNC0 dislodges it (ARIA's habit, §5.1).
+            self.start_sync_closing(now, self.attempts_at_baud == 1);
         }
     }
 

@@ -57,6 +57,8 @@ pub struct P2osShell {
     motors: Confirmations<bool, (), Self>,
     /// Closing with the link down: STOP and CLOSE are written again until then.
     restop: Option<Restop>,
+    /// The robot was heard again while they were (the last ones met it).
+    heard_closing: bool,
 }
 
 /// STOP and CLOSE written again while a closing task waits for a lost link to come back.
@@ -68,7 +70,9 @@ struct Restop {
     until: Instant,
 }
 
-/// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up.
+/// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up,
+/// with the link up; with it lost, [`RESTOP_FOR`] and half this (together within
+/// [`P2os`]'s `CLOSE_LIMIT` and the program's 2 s wait for its drivers).
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
 /// Closing with the link down, how long STOP and CLOSE are written again, and how often: a
 /// robot whose line comes back within it stops at once instead of driving on until its
@@ -76,6 +80,8 @@ const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
 /// against the mock, whose line came back 0.1 s after it).
 const RESTOP_FOR: Duration = Duration::from_millis(1200);
 const RESTOP_EVERY: Duration = Duration::from_millis(100);
+// Closing with the link lost ends within `P2os::CLOSE_LIMIT` (2 s), the program's wait.
+const _: () = assert!(RESTOP_FOR.as_millis() + CLOSE_DRAIN_LIMIT.as_millis() / 2 < 2_000);
 
 impl P2osShell {
     fn fail(&mut self, f: Fault) {
@@ -109,9 +115,10 @@ impl Shell for P2osShell {
         self.machine.handle_bytes(bytes, now);
         let after = self.machine.stats().framer.tally();
         self.probe.received(bytes.len(), before, after);
-        // Closing with the link down, and the robot is heard again: one more STOP and CLOSE
-        // meets it, and closing ends.
-        if !bytes.is_empty() && self.restop.take().is_some() {
+        // Closing with the link down, and a frame from the robot again (not noise): one more
+        // STOP and CLOSE meets it, and closing ends.
+        if after.0 > before.0 && self.restop.take().is_some() {
+            self.heard_closing = true;
             self.machine.repeat_close();
         }
     }
@@ -205,6 +212,11 @@ impl Shell for P2osShell {
         !self.machine.has_pending_transmit() && self.restop.is_none()
     }
 
+    /// The link was lost, and the robot was not heard while STOP was written again.
+    fn stop_unheard(&self) -> bool {
+        matches!(*self.link.borrow(), LinkStatus::Lost) && !self.heard_closing
+    }
+
     /// Say what each rate tried received.
     fn no_answer(&mut self) -> DriverError {
         Fault::NoAnswer(Box::new(self.probe.report())).into()
@@ -254,6 +266,7 @@ impl P2os {
             probe: Probe::new("P2OS"),
             motors: Confirmations::default(),
             restop: None,
+            heard_closing: false,
         };
         let stop_as = Some("P2OS base");
         let (h, c) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;

@@ -101,6 +101,14 @@ pub trait Shell: Sized + Send + 'static {
         Duration::ZERO
     }
 
+    /// After closing: whether the device had gone quiet as its last frames were written, and
+    /// was not heard since, so that it may not have heard them (by default: the link is
+    /// [`Lost`](crate::LinkStatus::Lost)). A driver that can move a robot reports it through
+    /// its halt signal ([`HaltSignal::stopped_unheard`](ima_hal::safety::HaltSignal::stopped_unheard)).
+    fn stop_unheard(&self) -> bool {
+        matches!(*self.link().borrow(), crate::LinkStatus::Lost)
+    }
+
     /// Whether the last frames are out (closing ends early; by default: yes).
     fn is_closed(&mut self) -> bool {
         true
@@ -216,15 +224,16 @@ pub(crate) async fn run<D, S>(
             close = on_msg(&mut shell, Some(msg), &mut closers, &clock);
         }
         if close {
-            // A device that went quiet may not hear its stop: say so to whoever reports it.
-            if matches!(*shell.link().borrow(), crate::LinkStatus::Lost) {
-                halt.set_stopped_unheard();
-            }
             closing = Some(clock.now() + shell.begin_close(clock.now()));
         }
         // Yield now and then, so handles on this thread get to run.
         tokio::task::coop::consume_budget().await;
     };
+    // A device that had gone quiet may not have heard its stop: said to whoever reports it,
+    // before the halt is done.
+    if matches!(end, End::Closed { .. }) && shell.stop_unheard() {
+        halt.set_stopped_unheard();
+    }
     // Release the port before reporting: a caller may reopen it at once.
     drop(stream);
     halt.set_done();
