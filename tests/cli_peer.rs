@@ -444,18 +444,8 @@ fn insecure_manager_defaults_to_loopback() {
 /// listened on every interface, with the all-zero key).
 #[test]
 fn an_insecure_manager_s_data_server_stays_beside_its_listen_address() {
-    let mut m = Child(
-        ima()
-            .args(["peer", "manager", "--insecure", "--listen", "127.0.0.1:0"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut first = String::new();
-    BufReader::new(m.0.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
+    let (_m, first) =
+        common::spawn_first_line(["peer", "manager", "--insecure", "--listen", "127.0.0.1:0"]);
     let v: Value = serde_json::from_str(&first).unwrap();
     let data = v["data_addr"].as_str().unwrap();
     assert!(data.starts_with("127.0.0.1:"), "{first}");
