@@ -667,3 +667,35 @@ fn a_config_error_in_a_huge_line_is_said_briefly() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// Flags whose values the program cannot use are refused as the command line is read (status
+/// 2, the flag named): an LMS variant or rate (they failed with status 1 after the command
+/// started), an empty robot name to wait for (the commander waited for a robot that cannot
+/// exist).
+#[test]
+fn unusable_values_are_refused_as_the_command_line_is_read() {
+    for (args, want) in [
+        (
+            &["scan", "--port", "/dev/null", "--variant", "180x0.25"][..],
+            "\"180x0.25\" is not an LMS variant",
+        ),
+        (
+            &["scan", "--port", "/dev/null", "--baud", "4800"][..],
+            "4800 is not an LMS rate",
+        ),
+        (
+            &[
+                "commander",
+                "--config",
+                "/dev/null",
+                "--wait-for",
+                "skeeter,",
+            ][..],
+            "an empty name names no robot",
+        ),
+    ] {
+        let out = ima().args(args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr(&out));
+        assert!(stderr(&out).contains(want), "{args:?}: {}", stderr(&out));
+    }
+}

@@ -46,8 +46,9 @@ pub struct CommanderArgs {
     /// Target colours, in order.
     #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]
     targets: Vec<String>,
-    /// Robots to hear on the broadcast channel before the first target is sent.
-    #[arg(long, value_delimiter = ',', default_value = "skeeter,scooter")]
+    /// Robots to hear on the broadcast channel before the first target is sent
+    /// (`--wait-timeout 0`: send at once).
+    #[arg(long, value_delimiter = ',', default_value = "skeeter,scooter", value_parser = super::num::robot_name)]
     wait_for: Vec<String>,
     /// Longest wait for them, seconds, 0–86400 (then the targets go anyway).
     #[arg(long, default_value_t = 60.0, value_parser = super::num::seconds)]

@@ -199,6 +199,15 @@ pub fn wire_text(s: &str) -> Result<String, String> {
     Ok(s.to_owned())
 }
 
+/// A robot's name as broadcasts carry it: 1 to 255 bytes (an empty one names no robot, and
+/// `--wait-for ""` waited for one that cannot exist).
+pub fn robot_name(s: &str) -> Result<String, String> {
+    if s.trim().is_empty() {
+        return Err("an empty name names no robot".into());
+    }
+    wire_text(s)
+}
+
 /// Seconds within `[0.1, 3600]` (liveness and similar periods).
 pub fn period_seconds(s: &str) -> Result<f64, String> {
     within(s, 0.1, 3_600.0, " s")
@@ -325,6 +334,8 @@ mod tests {
         );
         assert_eq!(period_seconds("5"), Ok(5.0));
         assert_eq!(wire_text("idle"), Ok("idle".to_owned()));
+        assert_eq!(robot_name("scooter"), Ok("scooter".to_owned()));
+        assert!(robot_name(" ").unwrap_err().contains("names no robot"));
         assert!(
             wire_text(&"é".repeat(128))
                 .unwrap_err()

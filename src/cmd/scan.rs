@@ -24,11 +24,11 @@ pub struct ScanArgs {
     port: String,
     /// Rate to run at once found: 9600, 19200, 38400 or 500000 (500000 needs RS-422 and is
     /// also probed then).
-    #[arg(long, default_value_t = 38400, value_parser = super::num::baud)]
+    #[arg(long, default_value_t = 38400, value_parser = lms_baud)]
     baud: u32,
     /// Variant: 180x1, 180x0.5, 100x1, 100x0.5 or 100x0.25 (field of view x resolution, °).
-    #[arg(long, default_value = "180x0.5")]
-    variant: String,
+    #[arg(long, default_value = "180x0.5", value_parser = variant)]
+    variant: Variant,
     /// Wait this long (s) for the unit's power-on telegram first (units powered with the
     /// port take up to 60 s to boot).
     #[arg(long, value_parser = super::num::seconds)]
@@ -60,8 +60,25 @@ pub struct ScanArgs {
 /// The variants the LMS has, as `--variant` takes them.
 const VARIANTS: &str = "180x1, 180x0.5, 100x1, 100x0.5 or 100x0.25";
 
+/// `--variant`, checked as the command line is read (a wrong one ended the command with
+/// status 1 after it started, not 2 with the usage, as every other bad flag).
+fn variant(s: &str) -> Result<Variant, String> {
+    parse_variant(s).map_err(|e| e.to_string())
+}
+
+/// `--baud`: a rate the LMS has, checked as the command line is read.
+fn lms_baud(s: &str) -> Result<u32, String> {
+    let bps = super::num::baud(s)?;
+    match BaudRate::from_bps(bps) {
+        Some(_) => Ok(bps),
+        None => Err(format!(
+            "{bps} is not an LMS rate (9600, 19200, 38400 or 500000)"
+        )),
+    }
+}
+
 fn parse_variant(s: &str) -> Result<Variant> {
-    let none = || anyhow::anyhow!("--variant {s:?}: the LMS variants are {VARIANTS}");
+    let none = || anyhow::anyhow!("{s:?} is not an LMS variant: they are {VARIANTS}");
     let (a, r) = s.split_once(['x', 'X', '/']).ok_or_else(none)?;
     let a: u16 = a.trim().parse().map_err(|_| none())?;
     let r: f64 = r.trim().parse().map_err(|_| none())?;
@@ -270,13 +287,9 @@ fn is_pty(path: &str) -> bool {
 
 /// Run `ima scan`.
 pub fn run(args: &ScanArgs) -> Result<()> {
-    let baud = BaudRate::from_bps(args.baud).with_context(|| {
-        format!(
-            "--baud {} is not an LMS rate (9600, 19200, 38400 or 500000)",
-            args.baud
-        )
-    })?;
-    let variant = parse_variant(&args.variant)?;
+    // Checked by `lms_baud` already.
+    let baud = BaudRate::from_bps(args.baud).context("--baud is not an LMS rate")?;
+    let variant = args.variant;
     if let Some(p) = &args.svg {
         // Before the scan: a typo in the path must not cost the laser's start-up.
         super::output::check_file("--svg", p)?;
@@ -449,11 +462,20 @@ mod tests {
         assert_eq!(parse_variant("100x0.25").unwrap(), Variant::W100_R25);
         assert!(parse_variant("180x0.25").is_err());
         assert!(parse_variant("oops").is_err());
-        // Every refusal names the flag and lists the variants there are.
+        // Every refusal names the value and lists the variants there are (clap names the
+        // flag), as the command line is read.
         for bad in ["oops", "180x0.25", "180xq", "1e9x1", "180x999"] {
-            let e = parse_variant(bad).unwrap_err().to_string();
-            assert!(e.starts_with("--variant") && e.contains("100x0.25"), "{e}");
+            let e = variant(bad).unwrap_err();
+            assert!(
+                e.starts_with(&format!("{bad:?} is not an LMS variant")) && e.contains("100x0.25"),
+                "{e}"
+            );
         }
+        assert_eq!(lms_baud("9600"), Ok(9600));
+        assert_eq!(
+            lms_baud("4800"),
+            Err("4800 is not an LMS rate (9600, 19200, 38400 or 500000)".to_owned())
+        );
     }
 
     #[test]
