@@ -211,6 +211,11 @@ pub enum FaultSpecError {
 /// The longest duration a fault takes: one day, as the command line's flags.
 const MAX_DURATION: Duration = Duration::from_secs(86_400);
 
+/// A fault's duration: [`parse_duration`], at most [`MAX_DURATION`].
+fn fault_duration(s: &str) -> Option<Duration> {
+    parse_duration(s).filter(|d| *d <= MAX_DURATION)
+}
+
 fn parse_prob(s: &str) -> Option<f64> {
     let p: f64 = s.trim().parse().ok()?;
     (p.is_finite() && (0.0..=1.0).contains(&p)).then_some(p)
@@ -272,11 +277,8 @@ impl FromStr for FaultPlan {
             }
             let prob =
                 |s: &str| parse_prob(s).ok_or(FaultSpecError::BadProbability { item: e_item() });
-            let dur = |s: &str| {
-                parse_duration(s)
-                    .filter(|d| *d <= MAX_DURATION)
-                    .ok_or(FaultSpecError::BadDuration { item: e_item() })
-            };
+            let dur =
+                |s: &str| fault_duration(s).ok_or(FaultSpecError::BadDuration { item: e_item() });
             let shape = |form| FaultSpecError::BadShape {
                 item: e_item(),
                 key: key.to_owned(),
@@ -332,14 +334,13 @@ impl FromStr for FaultPlan {
                     Box::new(move |c| c.delay = d)
                 }
                 ("hangup", [when, rest @ ..]) if rest.len() <= 1 => {
-                    let trigger =
-                        if let Some(d) = parse_duration(when).filter(|d| *d <= MAX_DURATION) {
-                            HangupTrigger::At(d)
-                        } else if let Some(p) = parse_prob(when) {
-                            HangupTrigger::Probability(p)
-                        } else {
-                            return Err(FaultSpecError::BadDuration { item: e_item() });
-                        };
+                    let trigger = if let Some(d) = fault_duration(when) {
+                        HangupTrigger::At(d)
+                    } else if let Some(p) = parse_prob(when) {
+                        HangupTrigger::Probability(p)
+                    } else {
+                        return Err(FaultSpecError::BadDuration { item: e_item() });
+                    };
                     let outage = match rest.first() {
                         Some(o) => Some(dur(o)?),
                         None => None,

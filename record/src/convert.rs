@@ -723,8 +723,7 @@ impl Recorder {
         let frame = mount.frame(robot);
         self.log_keyed(&["camtf", &frame], "/tf", mount.transform(robot, at));
         if let Some(c) = mount.calibration(robot, at) {
-            let topic = format!("/{frame}/calibration");
-            self.log_keyed(&["enc", &topic], &topic, c);
+            self.log(&format!("/{frame}/calibration"), c);
         }
     }
 

@@ -149,8 +149,7 @@ pub fn replay_speed(s: &str) -> Result<f64, String> {
 /// A serial line speed in baud, 50 to 4,000,000.
 pub fn baud(s: &str) -> Result<u32, String> {
     let t = s.trim();
-    let digits = t.strip_prefix(['-', '+']).unwrap_or(t);
-    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+    if !is_whole(t) {
         return Err(format!(
             "{t:?} is not a line speed in baud (accepted: a whole number, 50–4000000)"
         ));
@@ -170,15 +169,15 @@ where
     match t.parse::<u64>() {
         Ok(v) if (LO..=HI).contains(&v) => T::try_from(v).map_err(|_| out()),
         Ok(_) => Err(out()),
-        Err(_) => {
-            let digits = t.strip_prefix(['-', '+']).unwrap_or(t);
-            if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
-                Err(out())
-            } else {
-                Err(format!("{t:?} is not a whole number (accepted: {LO}–{HI})"))
-            }
-        }
+        Err(_) if is_whole(t) => Err(out()),
+        Err(_) => Err(format!("{t:?} is not a whole number (accepted: {LO}–{HI})")),
     }
+}
+
+/// Whether `t` is a whole number in decimal, of any sign or size.
+fn is_whole(t: &str) -> bool {
+    let digits = t.strip_prefix(['-', '+']).unwrap_or(t);
+    !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit())
 }
 
 /// A seed for a random source: any whole number 0–18446744073709551615.

@@ -424,11 +424,7 @@ async fn manager(a: &ManagerArgs) -> Result<()> {
             "ima: --insecure: listening on 127.0.0.1 only (pass --listen to choose the address)"
         );
     }
-    // The data server beside the request channel, unless placed itself (or advertised).
-    if cfg.manager.data_advertise.is_none() {
-        cfg.manager.data_listen =
-            crate::stack::net::data_beside(&cfg.manager.data_listen, &cfg.manager.listen);
-    }
+    crate::stack::net::place_data_server(&mut cfg.manager);
     apply_broadcast(&mut cfg, &a.broadcast);
     if synthetic.is_empty() {
         synthetic = default_synthetic();

@@ -33,12 +33,9 @@ pub fn net_config(cfg: &RobotConfig) -> Result<PeerNetConfig> {
             n.manager.listen
         );
     }
-    n.manager.data_listen = match &p.data_advertise {
-        // Grants name that address: the data server stays where it was put.
-        Some(_) => p.data_listen.clone(),
-        None => data_beside(&p.data_listen, &n.manager.listen),
-    };
+    n.manager.data_listen = p.data_listen.clone();
     n.manager.data_advertise = p.data_advertise.clone();
+    place_data_server(&mut n.manager);
     n.manager.robot_priorities = p.priorities.clone();
     let b = &mut n.broadcast;
     let multicast = !p.broadcast_group.is_empty();
@@ -78,12 +75,19 @@ pub fn loopback(addr: &str) -> String {
     }
 }
 
-/// Where a manager's data server listens: `data` as configured, except that an unspecified
-/// IP takes the request channel's (`listen`) when that one names an address, so a manager
-/// placed on loopback or on one interface does not serve its data on every interface (its
-/// data server listened on `0.0.0.0` beside a request channel on `127.0.0.1`). Not for a
-/// manager with a `data_advertise` address: its grants name that one.
-pub fn data_beside(data: &str, listen: &str) -> String {
+/// Put a manager's data server beside its request channel: a `data_listen` whose IP names no
+/// interface takes `listen`'s when that one names one, so a manager placed on loopback or on
+/// one interface does not serve its data on every interface (its data server listened on
+/// `0.0.0.0` beside a request channel on `127.0.0.1`). Not for a manager with a
+/// `data_advertise` address: its grants name that one, and the data server stays put.
+pub fn place_data_server(m: &mut ima_agents::peer::net::ManagerNetConfig) {
+    if m.data_advertise.is_none() {
+        m.data_listen = data_beside(&m.data_listen, &m.listen);
+    }
+}
+
+/// `data` with an unspecified IP given `listen`'s, when that one names an address.
+fn data_beside(data: &str, listen: &str) -> String {
     match (
         data.parse::<std::net::SocketAddr>(),
         listen.parse::<std::net::SocketAddr>(),
