@@ -209,10 +209,11 @@ impl StopRegistry {
     }
 
     /// Register a device's signal under a name for messages (e.g. `"p2os on /dev/ttyS0"`).
-    /// Entries whose task is done are dropped at the same time.
+    /// Entries whose task is done are dropped at the same time, except those whose stop went
+    /// unheard: the program's last words must still name them ([`unheard`](Self::unheard)).
     pub fn register(&self, name: impl Into<String>, signal: HaltSignal) {
         let mut e = self.lock();
-        e.retain(|(_, s)| !s.is_done());
+        e.retain(|(_, s)| !s.is_done() || s.stopped_unheard());
         e.push((name.into(), signal));
         self.ever.store(true, std::sync::atomic::Ordering::SeqCst);
     }
@@ -348,6 +349,15 @@ mod tests {
             ["P2OS base"],
             "done devices are still reported"
         );
+        // A device opened later (a reconnect, the next robot) prunes the finished entries,
+        // but not the one whose stop went unheard: the exit message still names it.
+        reg.register("compass", HaltSignal::new());
+        assert_eq!(
+            reg.unheard(),
+            ["P2OS base"],
+            "kept through a later register"
+        );
+        assert_eq!(reg.lock().len(), 2, "the heard, finished entry is dropped");
     }
 
     #[test]
