@@ -158,14 +158,29 @@ impl std::fmt::Display for Interrupted {
         if !reg.ever_registered() {
             return Ok(());
         }
-        match unheard_note() {
-            None => f.write_str("; every device that could move was stopped"),
-            Some(note) => write!(
-                f,
-                "; every device that could move was sent its stop, but {note}"
-            ),
-        }
+        f.write_str(&stop_summary(&reg.pending(), unheard_note().as_deref()))
     }
+}
+
+/// What an interrupted command says of its devices: a device still running after the wait
+/// (`pending`), or one whose stop went into a dead link (`note`), is not claimed stopped.
+fn stop_summary(pending: &[String], note: Option<&str>) -> String {
+    let mut s = String::from("; every device that could move was ");
+    if pending.is_empty() && note.is_none() {
+        s.push_str("stopped");
+        return s;
+    }
+    s.push_str("asked to stop, but");
+    if !pending.is_empty() {
+        s.push_str(" the stop of ");
+        s.push_str(&pending.join(", "));
+        s.push_str(" could not be confirmed");
+    }
+    if let Some(note) = note {
+        s.push_str(if pending.is_empty() { " " } else { ", and " });
+        s.push_str(note);
+    }
+    s
 }
 
 impl std::error::Error for Interrupted {}
@@ -542,7 +557,9 @@ where
     halt_and_wait().await;
     // record: every way out of a command closes the recording (its summary and indexes).
     let _ = crate::record::finish();
-    after_a_signal(r, asked_to_end)
+    let r = after_a_signal(r, asked_to_end);
+    say_unheard(&r);
+    r
 }
 
 /// How often [`recv_unless_asked_to_end`] looks whether the program has been asked to end.
@@ -600,9 +617,7 @@ fn after_a_signal<T>(r: Result<T>, asked_to_end: bool) -> Result<T> {
 pub async fn halt_and_wait() {
     let reg = StopRegistry::global();
     if reg.halt_all() == 0 {
-        // Every driver already closed (a command's own `close`): one whose stop went into a
-        // dead link is still said.
-        say_unheard();
+        // Every driver already closed (a command's own `close`).
         return;
     }
     let end = tokio::time::Instant::now() + DRAIN_WAIT;
@@ -616,7 +631,6 @@ pub async fn halt_and_wait() {
             pending.join(", ")
         ));
     }
-    say_unheard();
 }
 
 /// What to say of devices whose stop was written while their link was down
@@ -625,7 +639,7 @@ fn unheard_note() -> Option<String> {
     let unheard = StopRegistry::global().unheard();
     (!unheard.is_empty()).then(|| {
         format!(
-            "the link to the {} was down when its stop was written: the stop may not have \
+            "the link to the {} was down when it was to stop: the stop may not have \
              reached the robot, whose own watchdog stops it once it hears nothing (P2OS: 2 s \
              after the last command it received); keep clear until it stands",
             unheard.join(" and the ")
@@ -633,14 +647,29 @@ fn unheard_note() -> Option<String> {
     })
 }
 
-/// Say [`unheard_note`], unless the program was asked to end: its [`Interrupted`] message
-/// says it then.
-fn say_unheard() {
-    if !asked_to_end()
+/// Say [`unheard_note`] on the way out with `result`, unless its [`Interrupted`] message
+/// says it. Decided by the result, not by whether the program was asked to end: a Ctrl-C
+/// pressed while a failed command's drivers were still closing leaves the command's own
+/// error, which does not say it; a closed stdout ends quietly, but stderr may be open.
+fn say_unheard<T>(result: &Result<T>) {
+    if !interrupted_says_it(result)
         && let Some(note) = unheard_note()
     {
         say(format_args!("{note}"));
     }
+}
+
+/// Whether `result`'s message is an [`Interrupted`] one that says what became of the devices
+/// (a closed output ends quietly: it says nothing).
+fn interrupted_says_it<T>(result: &Result<T>) -> bool {
+    result.as_ref().err().is_some_and(|e| {
+        e.chain().any(|c| {
+            matches!(
+                c.downcast_ref::<Interrupted>(),
+                Some(Interrupted(cause)) if *cause != Cause::OutputClosed
+            )
+        })
+    })
 }
 
 /// Write one line to standard output. A closed stdout is never a panic: it halts every device,
@@ -720,6 +749,41 @@ pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Only a stop every device confirmed, none into a dead link, is claimed.
+    #[test]
+    fn the_summary_claims_a_stop_only_when_every_device_confirmed_it() {
+        assert_eq!(
+            stop_summary(&[], None),
+            "; every device that could move was stopped"
+        );
+        let p = ["P2OS base".to_owned()];
+        assert_eq!(
+            stop_summary(&p, None),
+            "; every device that could move was asked to stop, but the stop of P2OS base could \
+             not be confirmed"
+        );
+        assert_eq!(
+            stop_summary(&[], Some("N")),
+            "; every device that could move was asked to stop, but N"
+        );
+        assert!(stop_summary(&p, Some("N")).ends_with("could not be confirmed, and N"));
+    }
+
+    /// The note about a stop into a dead link is said by the message of an interruption, and
+    /// on its own otherwise: after a plain error (a Ctrl-C while a failed command's drivers
+    /// were closing left that error, and the note was said nowhere), and after a closed
+    /// output (which ends quietly).
+    #[test]
+    fn the_unheard_note_is_said_unless_the_interruption_says_it() {
+        let signal: Result<()> = Err(Interrupted(Cause::Signal(Signal::INT)).into());
+        assert!(interrupted_says_it(&signal));
+        let closed: Result<()> = Err(Interrupted(Cause::OutputClosed).into());
+        assert!(!interrupted_says_it(&closed));
+        let plain: Result<()> = Err(anyhow::anyhow!("the P2OS base: link lost"));
+        assert!(!interrupted_says_it(&plain));
+        assert!(!interrupted_says_it(&Ok(())));
+    }
 
     #[test]
     fn an_error_is_the_interruption_only_when_the_program_was_asked_to_end() {

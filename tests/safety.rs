@@ -496,14 +496,14 @@ fn p2os_normal_end_closes_the_session() {
     assert_eq!(model.robot().stats().watchdog_trips, 0);
 }
 
-/// The line goes dead mid-drive and comes back 1.2 s later: the drive gives up at its 1 s
+/// The line goes dead mid-drive and comes back 1.5 s later: the drive gives up at its 1 s
 /// report timeout with the link lost, so its STOP and CLOSE go into the dead line. It writes
 /// them again while closing, and the one after the line's return stops the robot: its
 /// watchdog never trips (it did, 1.3 s after the program ended, in a run against the mock).
 #[test]
 fn a_stop_is_repeated_until_a_dead_line_comes_back() {
     // 3 s: well after the drive connects, even on a loaded machine.
-    let faults = FaultPlan::parse("hangup=3s:1.2s").unwrap();
+    let faults = FaultPlan::parse("hangup=3s:1.5s").unwrap();
     let (world, id, served, _log) = serve_with(Base::P2os, faults, 1.0);
     let out = ima()
         .args([
@@ -520,6 +520,80 @@ fn a_stop_is_repeated_until_a_dead_line_comes_back() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     // Heard again while the stop was repeated: the last one met it, and no doubt is said.
+    assert!(!stderr.contains("may not have reached"), "{stderr}");
+    wait_until(Duration::from_secs(5), "the robot to stand", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+    let Served::P2os(dev) = served else {
+        unreachable!()
+    };
+    let model = dev.stop().unwrap();
+    assert_eq!(
+        model.robot().stats().watchdog_trips,
+        0,
+        "the repeated STOP, not the watchdog, stopped the robot: {stderr}"
+    );
+}
+
+/// `ima drive` interrupted (SIGINT) while `--vel 0.3` with the line `hangup` (from the mock's
+/// start); the signal comes 3.55 s after the mock's start, when the line has been dead for
+/// 0.55 s: the robot is quiet (nothing heard for 0.3 s), but the driver declares its link
+/// lost only 0.7 s after the last SIP. (A signal handled later still passes, by the lost
+/// link's path; one handled early would fail.) Returns the world, the robot, what is served, and the command's stderr.
+fn interrupt_while_quiet(hangup: &str) -> (SharedWorld, RobotId, Served, String) {
+    let start = Instant::now();
+    let faults = FaultPlan::parse(hangup).unwrap();
+    let (world, id, served, _log) = serve_with(Base::P2os, faults, 1.0);
+    let mut child = Child(
+        ima()
+            .args([
+                "drive",
+                "--port",
+                &served.path(),
+                "--vel",
+                "0.3",
+                "--for",
+                "20",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    std::thread::sleep(Duration::from_millis(3550).saturating_sub(start.elapsed()));
+    kill(&child, "INT");
+    let status = wait_exit(&mut child, "ima drive");
+    let mut stderr = String::new();
+    child
+        .0
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    assert_eq!(status.code(), Some(130), "{stderr}");
+    (world, id, served, stderr)
+}
+
+/// A stop written into a line that went quiet 0.55 s before, its link not yet declared lost,
+/// is not claimed (it was: "every device that could move was stopped", and the robot drove
+/// on until its watchdog).
+#[test]
+fn a_stop_into_a_line_quiet_but_not_yet_lost_is_not_claimed() {
+    let (_world, _id, _served, stderr) = interrupt_while_quiet("hangup=3s:8s");
+    assert!(
+        stderr.contains("may not have reached the robot"),
+        "the note: {stderr}"
+    );
+    assert!(!stderr.contains("could move was stopped"), "{stderr}");
+}
+
+/// The same with a line that comes back 1 s after it died: the stop, written again, meets
+/// it, and the robot stops before its watchdog (which trips 2 s after the last command).
+#[test]
+fn a_stop_into_a_quiet_line_is_repeated_until_it_comes_back() {
+    let (world, id, served, stderr) = interrupt_while_quiet("hangup=3s:1s");
     assert!(!stderr.contains("may not have reached"), "{stderr}");
     wait_until(Duration::from_secs(5), "the robot to stand", || {
         let (l, r) = wheel_speeds(&world, id);
@@ -599,7 +673,7 @@ fn a_stop_written_into_a_dead_link_is_not_claimed() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
         stderr.contains(
-            "the link to the P2OS base was down when its stop was written: the stop may not have \
+            "the link to the P2OS base was down when it was to stop: the stop may not have \
              reached the robot"
         ),
         "{stderr}"

@@ -55,11 +55,21 @@ pub struct P2osShell {
     probe: Probe,
     /// Motor switches waiting for FLAGS to confirm them.
     motors: Confirmations<bool, (), Self>,
-    /// Closing with the link down: STOP and CLOSE are written again until then.
+    /// Closing with the link down or the robot quiet: STOP and CLOSE are written again until
+    /// then.
     restop: Option<Restop>,
     /// The robot was heard again while they were (the last ones met it).
     heard_closing: bool,
+    /// The last frame from the robot.
+    last_frame: Option<Instant>,
+    /// Closing began with the robot quiet ([`QUIET`]): its stop may go into a dead line.
+    quiet_at_close: bool,
 }
+
+/// A connected robot silent this long is taken as gone when the driver closes (three SIP
+/// periods): its stop is written again and not claimed, though the link is declared lost only
+/// after the session's longer timeout.
+const QUIET: Duration = Duration::from_millis(300);
 
 /// STOP and CLOSE written again while a closing task waits for a lost link to come back.
 #[derive(Debug, Clone, Copy)]
@@ -74,7 +84,8 @@ struct Restop {
 /// with the link up; with it lost, [`RESTOP_FOR`] and half this (together within
 /// [`P2os`]'s `CLOSE_LIMIT` and the program's 2 s wait for its drivers).
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
-/// Closing with the link down, how long STOP and CLOSE are written again, and how often: a
+/// Closing with the link down (or the robot quiet), how long STOP and CLOSE are written
+/// again, and how often: a
 /// robot whose line comes back within it stops at once instead of driving on until its
 /// watchdog (2 s after the last command it received; 1.3 s after the program ended in a run
 /// against the mock, whose line came back 0.1 s after it).
@@ -115,11 +126,14 @@ impl Shell for P2osShell {
         self.machine.handle_bytes(bytes, now);
         let after = self.machine.stats().framer.tally();
         self.probe.received(bytes.len(), before, after);
-        // Closing with the link down, and a frame from the robot again (not noise): one more
-        // STOP and CLOSE meets it, and closing ends.
-        if after.0 > before.0 && self.restop.take().is_some() {
-            self.heard_closing = true;
-            self.machine.repeat_close();
+        if after.0 > before.0 {
+            self.last_frame = Some(now);
+            // Closing with the link down, and a frame from the robot again (not noise): one
+            // more STOP and CLOSE meets it, and closing ends.
+            if self.restop.take().is_some() {
+                self.heard_closing = true;
+                self.machine.repeat_close();
+            }
         }
     }
 
@@ -195,10 +209,12 @@ impl Shell for P2osShell {
     }
 
     /// Queue STOP and CLOSE (frames are paced, so they may need more than one round); with
-    /// the link down, write them again for 1.2 s unless the robot is heard first.
+    /// the link down or the robot quiet (nothing heard for 0.3 s), write them again for 1.2 s
+    /// unless the robot is heard first.
     fn begin_close(&mut self, now: Instant) -> Duration {
         self.machine.close();
-        if matches!(*self.link.borrow(), LinkStatus::Lost) {
+        self.quiet_at_close = self.link.borrow().is_quiet(self.last_frame, now, QUIET);
+        if self.quiet_at_close {
             self.restop = Some(Restop {
                 next: now + RESTOP_EVERY,
                 until: now + RESTOP_FOR,
@@ -212,9 +228,11 @@ impl Shell for P2osShell {
         !self.machine.has_pending_transmit() && self.restop.is_none()
     }
 
-    /// The link was lost, and the robot was not heard while STOP was written again.
+    /// The robot was quiet (or the link lost) as closing began, or the link is lost now, and
+    /// the robot was not heard while STOP was written again.
     fn stop_unheard(&self) -> bool {
-        matches!(*self.link.borrow(), LinkStatus::Lost) && !self.heard_closing
+        (self.quiet_at_close || matches!(*self.link.borrow(), LinkStatus::Lost))
+            && !self.heard_closing
     }
 
     /// Say what each rate tried received.
@@ -267,6 +285,8 @@ impl P2os {
             motors: Confirmations::default(),
             restop: None,
             heard_closing: false,
+            last_frame: None,
+            quiet_at_close: false,
         };
         let stop_as = Some("P2OS base");
         let (h, c) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;

@@ -71,7 +71,17 @@ pub struct RflexShell {
     motors: Confirmations<bool, (), Self>,
     reconnects: u32,
     bytes: u64,
+    /// The last motion report.
+    last_report: Option<Instant>,
+    /// Closing began with the base quiet ([`QUIET`]): its stop may go into a dead line.
+    quiet_at_close: bool,
 }
+
+/// A connected base silent this long (three report periods) is taken as gone when the driver
+/// closes: its stop is not claimed, though the link is declared lost only after the machine's
+/// 1 s timeout. (The stop is not written again: the base's own fail-safe stops it 1 s after
+/// its last command, about when a repeat could first help.)
+const QUIET: Duration = Duration::from_millis(300);
 
 impl Shell for RflexShell {
     type Machine = Machine;
@@ -104,6 +114,7 @@ impl Shell for RflexShell {
             // A frame alone (an ack, a status reply) does not prove the base is streaming
             // again (a power-cycled controller has reports off): only motion reports do.
             Event::Odometry(o) => {
+                self.last_report = Some(o.at);
                 self.odometry.send_replace(Some(o));
                 self.link.send_if_modified(|l| {
                     let up = l.is_connected();
@@ -156,8 +167,14 @@ impl Shell for RflexShell {
     }
 
     fn begin_close(&mut self, now: Instant) -> Duration {
+        self.quiet_at_close = self.link.borrow().is_quiet(self.last_report, now, QUIET);
         self.machine.shutdown(now);
         Duration::from_secs(2)
+    }
+
+    /// The base was quiet (or the link lost) as closing began, or the link is lost now.
+    fn stop_unheard(&self) -> bool {
+        self.quiet_at_close || matches!(*self.link.borrow(), LinkStatus::Lost)
     }
 
     fn is_closed(&mut self) -> bool {
@@ -244,6 +261,8 @@ impl Rflex {
             motors: Confirmations::default(),
             reconnects: 0,
             bytes: 0,
+            last_report: None,
+            quiet_at_close: false,
         };
         tracing::info!(target: "ima::connect", "rFLEX: initialising, waiting for motion reports");
         // One fixed rate (§1): the stream needs no line-speed control.

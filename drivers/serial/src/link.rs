@@ -32,6 +32,26 @@ impl<U, E> LinkStatus<U, E> {
         matches!(self, Self::Failed(_) | Self::Closed)
     }
 
+    /// Whether a robot on this link may not hear a stop written at `now`: the link is
+    /// [`Lost`](Self::Lost), or [`Connected`](Self::Connected) but with nothing good heard
+    /// for `quiet` (a device that streams reports every 100 ms, silent for 300 ms, is gone
+    /// long before its driver's link timeout says so). `last_heard`: the last good frame.
+    #[must_use]
+    pub fn is_quiet(
+        &self,
+        last_heard: Option<ima_hal::Instant>,
+        now: ima_hal::Instant,
+        quiet: std::time::Duration,
+    ) -> bool {
+        match self {
+            Self::Lost => true,
+            Self::Connected(_) => {
+                last_heard.is_none_or(|t| now.saturating_duration_since(t) > quiet)
+            }
+            _ => false,
+        }
+    }
+
     /// What a connected link reports.
     #[must_use]
     pub fn connection(&self) -> Option<&U> {

@@ -104,7 +104,8 @@ pub trait Shell: Sized + Send + 'static {
     /// After closing: whether the device had gone quiet as its last frames were written, and
     /// was not heard since, so that it may not have heard them (by default: the link is
     /// [`Lost`](crate::LinkStatus::Lost)). A driver that can move a robot reports it through
-    /// its halt signal ([`HaltSignal::stopped_unheard`](ima_hal::safety::HaltSignal::stopped_unheard)).
+    /// its halt signal ([`HaltSignal::stopped_unheard`](ima_hal::safety::HaltSignal::stopped_unheard)),
+    /// as it does whenever its port fails (the stop may not have been written at all).
     fn stop_unheard(&self) -> bool {
         matches!(*self.link().borrow(), crate::LinkStatus::Lost)
     }
@@ -224,14 +225,23 @@ pub(crate) async fn run<D, S>(
             close = on_msg(&mut shell, Some(msg), &mut closers, &clock);
         }
         if close {
+            // The events of what just ran first (a link declared lost by the timeout that ran
+            // in this round), so that the shell closes knowing them.
+            if let Err(e) = drain(&mut shell, &mut stream) {
+                break End::Failed(e.into());
+            }
             closing = Some(clock.now() + shell.begin_close(clock.now()));
         }
         // Yield now and then, so handles on this thread get to run.
         tokio::task::coop::consume_budget().await;
     };
-    // A device that had gone quiet may not have heard its stop: said to whoever reports it,
-    // before the halt is done.
-    if matches!(end, End::Closed { .. }) && shell.stop_unheard() {
+    // A device that had gone quiet may not have heard its stop, and one whose port failed
+    // may not have been sent it: said to whoever reports it, before the halt is done.
+    let unheard = match end {
+        End::Closed { .. } => shell.stop_unheard(),
+        End::Failed(_) => true,
+    };
+    if unheard {
         halt.set_stopped_unheard();
     }
     // Release the port before reporting: a caller may reopen it at once.
@@ -436,5 +446,34 @@ mod tests {
         assert!(later.unwrap() >= seen.unwrap());
         assert_eq!(h.close(Duration::from_secs(5)).await, Ok(()));
         assert!(matches!(h.link(), LinkStatus::Closed));
+        assert!(
+            !h.halt_signal().stopped_unheard(),
+            "closed with the device heard"
+        );
+    }
+
+    /// A port that ends (a pulled adapter, a device that hung up) ends the task without a stop
+    /// written: its halt signal says the stop may not have been heard (it said nothing, and a
+    /// program then claimed the robot stopped).
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_port_that_ends_reports_its_stop_unheard() {
+        let shell = Flood {
+            machine: Counter::default(),
+            link: watch::channel(LinkStatus::Connecting).0,
+        };
+        let (ours, theirs) = tokio::io::duplex(64);
+        let clock = ima_hal::time::TokioClock::shared();
+        let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
+        drop(theirs);
+        let halt = h.halt_signal();
+        tokio::time::timeout(Duration::from_secs(5), async {
+            while !halt.is_done() {
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+        })
+        .await
+        .unwrap();
+        assert!(matches!(h.link(), LinkStatus::Failed(_)), "{:?}", h.link());
+        assert!(halt.stopped_unheard());
     }
 }
