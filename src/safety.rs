@@ -158,9 +158,20 @@ impl std::fmt::Display for Interrupted {
         if !reg.ever_registered() {
             return Ok(());
         }
-        f.write_str(&stop_summary(&reg.pending(), unheard_note().as_deref()))
+        // What `guarded` saw once its wait ended: by the time this is printed the runtime
+        // has shut down and dropped every task still running (the devices not confirmed).
+        let seen = SUMMARY
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone();
+        f.write_str(
+            &seen.unwrap_or_else(|| stop_summary(&reg.pending(), unheard_note().as_deref())),
+        )
     }
 }
+
+/// [`stop_summary`] as the command's exit guard saw it after its wait.
+static SUMMARY: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
 
 /// What an interrupted command says of its devices: a device still running after the wait
 /// (`pending`), or one whose stop went into a dead link (`note`), is not claimed stopped.
@@ -397,6 +408,9 @@ pub fn install() {
                 pending.join(", ")
             ));
         }
+        if let Some(note) = unheard_note() {
+            say(format_args!("panic: {note}"));
+        }
         cancel_channel().send_replace(true);
         // record: the recording gets its summary even after a panic.
         let _ = crate::record::finish();
@@ -502,6 +516,9 @@ fn signal_thread() {
                 pending.join(", ")
             ));
         }
+        if let Some(note) = unheard_note() {
+            say(format_args!("exiting; {note}"));
+        }
         // record: close the recording before the forced exit.
         let _ = crate::record::finish();
         flush_logs();
@@ -555,6 +572,12 @@ where
     // during that wait) stays that error.
     let asked_to_end = asked_to_end();
     halt_and_wait().await;
+    *SUMMARY
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(stop_summary(
+        &StopRegistry::global().pending(),
+        unheard_note().as_deref(),
+    ));
     // record: every way out of a command closes the recording (its summary and indexes).
     let _ = crate::record::finish();
     let r = after_a_signal(r, asked_to_end);

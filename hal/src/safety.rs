@@ -251,11 +251,14 @@ impl StopRegistry {
     /// ([`HaltSignal::set_stopped_unheard`]): it may not have reached them.
     #[must_use]
     pub fn unheard(&self) -> Vec<String> {
-        self.lock()
-            .iter()
-            .filter(|(_, s)| s.stopped_unheard())
-            .map(|(n, _)| n.clone())
-            .collect()
+        let mut names: Vec<String> = Vec::new();
+        for (n, _) in self.lock().iter().filter(|(_, s)| s.stopped_unheard()) {
+            // One name once (a device reopened under its name after a failure).
+            if !names.contains(n) {
+                names.push(n.clone());
+            }
+        }
+        names
     }
 
     /// Whether any registered device's task is still running.
@@ -358,6 +361,11 @@ mod tests {
             "kept through a later register"
         );
         assert_eq!(reg.lock().len(), 2, "the heard, finished entry is dropped");
+        // The same device reopened and unheard again is named once.
+        let again = HaltSignal::new();
+        reg.register("P2OS base", again.clone());
+        again.set_stopped_unheard();
+        assert_eq!(reg.unheard(), ["P2OS base"]);
     }
 
     #[test]

@@ -71,9 +71,10 @@ pub struct RflexShell {
     motors: Confirmations<bool, (), Self>,
     reconnects: u32,
     bytes: u64,
-    /// The last motion report.
-    last_report: Option<Instant>,
-    /// Closing began with the base quiet ([`QUIET`]): its stop may go into a dead line.
+    /// The last good frame from the base.
+    last_frame: Option<Instant>,
+    /// Closing began with the base quiet ([`QUIET`]): its stop, written once, may have gone
+    /// into a dead line (a frame heard later does not say the stop got through).
     quiet_at_close: bool,
 }
 
@@ -100,7 +101,11 @@ impl Shell for RflexShell {
 
     fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
         self.bytes = self.bytes.saturating_add(bytes.len() as u64);
+        let before = self.machine.framer_stats().frames;
         self.machine.handle_bytes(bytes, now);
+        if self.machine.framer_stats().frames != before {
+            self.last_frame = Some(now);
+        }
     }
 
     fn on_event(&mut self, ev: Event, _line: &mut dyn BaudControl) -> std::io::Result<()> {
@@ -114,7 +119,6 @@ impl Shell for RflexShell {
             // A frame alone (an ack, a status reply) does not prove the base is streaming
             // again (a power-cycled controller has reports off): only motion reports do.
             Event::Odometry(o) => {
-                self.last_report = Some(o.at);
                 self.odometry.send_replace(Some(o));
                 self.link.send_if_modified(|l| {
                     let up = l.is_connected();
@@ -167,7 +171,7 @@ impl Shell for RflexShell {
     }
 
     fn begin_close(&mut self, now: Instant) -> Duration {
-        self.quiet_at_close = self.link.borrow().is_quiet(self.last_report, now, QUIET);
+        self.quiet_at_close = self.link.borrow().is_quiet(self.last_frame, now, QUIET);
         self.machine.shutdown(now);
         Duration::from_secs(2)
     }
@@ -261,7 +265,7 @@ impl Rflex {
             motors: Confirmations::default(),
             reconnects: 0,
             bytes: 0,
-            last_report: None,
+            last_frame: None,
             quiet_at_close: false,
         };
         tracing::info!(target: "ima::connect", "rFLEX: initialising, waiting for motion reports");

@@ -105,7 +105,8 @@ pub trait Shell: Sized + Send + 'static {
     /// was not heard since, so that it may not have heard them (by default: the link is
     /// [`Lost`](crate::LinkStatus::Lost)). A driver that can move a robot reports it through
     /// its halt signal ([`HaltSignal::stopped_unheard`](ima_hal::safety::HaltSignal::stopped_unheard)),
-    /// as it does whenever its port fails (the stop may not have been written at all).
+    /// as it does whenever its port fails after it connected (the stop may not have been
+    /// written at all) and when its task is dropped before its end.
     fn stop_unheard(&self) -> bool {
         matches!(*self.link().borrow(), crate::LinkStatus::Lost)
     }
@@ -151,15 +152,23 @@ pub(crate) async fn run<D, S>(
     D: Shell,
     S: AsyncRead + AsyncWrite + BaudControl + Unpin,
 {
-    // Every way out of this task (return, cancellation, panic) marks the halt done.
-    let _done = halt.done_on_drop();
+    // Every way out of this task (return, cancellation, panic) marks the halt done; one that
+    // skips the end below (a runtime dropped under it, a panic) also marks the stop unheard:
+    // none was written.
+    let mut guard = EndGuard {
+        halt: halt.clone(),
+        ended: false,
+    };
     let mut rbuf = [0u8; 1024];
     let mut tbuf = vec![0u8; D::MAX_FRAME];
     let mut closers = Vec::new();
     shell.start(clock.now());
     // Closing: the instant after which writing the last frames gives up.
     let mut closing: Option<Instant> = None;
+    // Whether the device was ever connected: a port that fails before has moved nothing.
+    let mut ever_up = false;
     let end = loop {
+        ever_up = ever_up || shell.link().borrow().is_connected();
         if let Err(e) = drain(&mut shell, &mut stream) {
             break End::Failed(e.into());
         }
@@ -236,16 +245,18 @@ pub(crate) async fn run<D, S>(
         tokio::task::coop::consume_budget().await;
     };
     // A device that had gone quiet may not have heard its stop, and one whose port failed
-    // may not have been sent it: said to whoever reports it, before the halt is done.
+    // after it connected may not have been sent it: said to whoever reports it, before the
+    // halt is done.
     let unheard = match end {
         End::Closed { .. } => shell.stop_unheard(),
-        End::Failed(_) => true,
+        End::Failed(_) => ever_up || shell.link().borrow().is_connected(),
     };
     if unheard {
         halt.set_stopped_unheard();
     }
     // Release the port before reporting: a caller may reopen it at once.
     drop(stream);
+    guard.ended = true;
     halt.set_done();
     requests.close();
     shell.end(end);
@@ -279,6 +290,22 @@ pub(crate) async fn run<D, S>(
     });
     for tx in closers {
         let _ = tx.send(r);
+    }
+}
+
+/// Marks a task's halt signal done when dropped, and its stop unheard unless the task reached
+/// its end ([`run`]).
+struct EndGuard {
+    halt: HaltSignal,
+    ended: bool,
+}
+
+impl Drop for EndGuard {
+    fn drop(&mut self) {
+        if !self.ended {
+            self.halt.set_stopped_unheard();
+        }
+        self.halt.set_done();
     }
 }
 
@@ -457,23 +484,59 @@ mod tests {
     /// program then claimed the robot stopped).
     #[tokio::test(flavor = "current_thread")]
     async fn a_port_that_ends_reports_its_stop_unheard() {
-        let shell = Flood {
-            machine: Counter::default(),
-            link: watch::channel(LinkStatus::Connecting).0,
-        };
-        let (ours, theirs) = tokio::io::duplex(64);
-        let clock = ima_hal::time::TokioClock::shared();
-        let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
-        drop(theirs);
-        let halt = h.halt_signal();
-        tokio::time::timeout(Duration::from_secs(5), async {
-            while !halt.is_done() {
-                tokio::time::sleep(Duration::from_millis(1)).await;
+        for connected in [true, false] {
+            let shell = Flood {
+                machine: Counter::default(),
+                link: watch::channel(LinkStatus::Connecting).0,
+            };
+            let (ours, theirs) = tokio::io::duplex(64);
+            let clock = ima_hal::time::TokioClock::shared();
+            let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
+            if connected {
+                let up = |s: &mut Flood, _| {
+                    s.link.send_replace(LinkStatus::Connected(()));
+                    Ok(())
+                };
+                h.call(Duration::from_secs(5), up).await.unwrap();
             }
-        })
-        .await
-        .unwrap();
-        assert!(matches!(h.link(), LinkStatus::Failed(_)), "{:?}", h.link());
-        assert!(halt.stopped_unheard());
+            drop(theirs);
+            let halt = h.halt_signal();
+            tokio::time::timeout(Duration::from_secs(5), async {
+                while !halt.is_done() {
+                    tokio::time::sleep(Duration::from_millis(1)).await;
+                }
+            })
+            .await
+            .unwrap();
+            assert!(matches!(h.link(), LinkStatus::Failed(_)), "{:?}", h.link());
+            // One never connected has moved nothing: no doubt to raise.
+            assert_eq!(halt.stopped_unheard(), connected, "connected: {connected}");
+        }
+    }
+
+    /// A task dropped before its end (its runtime shut down under it) wrote no stop: its halt
+    /// is done, and its stop unheard.
+    #[test]
+    fn a_task_dropped_before_its_end_reports_its_stop_unheard() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let (h, _theirs) = rt.block_on(async {
+            let shell = Flood {
+                machine: Counter::default(),
+                link: watch::channel(LinkStatus::Connecting).0,
+            };
+            let (ours, theirs) = tokio::io::duplex(64);
+            let clock = ima_hal::time::TokioClock::shared();
+            let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
+            // The task has started: it answers a call.
+            h.call(Duration::from_secs(5), |_, _| Ok(())).await.unwrap();
+            (h, theirs)
+        });
+        let halt = h.halt_signal();
+        assert!(!halt.is_done());
+        drop(rt);
+        assert!(halt.is_done() && halt.stopped_unheard());
     }
 }
