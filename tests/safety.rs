@@ -536,26 +536,23 @@ fn a_stop_is_repeated_until_a_dead_line_comes_back() {
     );
 }
 
-/// `ima drive` interrupted (SIGINT) while `--vel 0.3` with the line `hangup` (from the mock's
+/// `ima drive` on `base` interrupted (SIGINT) while `--vel 0.3` with the line `hangup` (from the mock's
 /// start); the signal comes 3.55 s after the mock's start, when the line has been dead for
 /// 0.55 s: the robot is quiet (nothing heard for 0.3 s), but the driver declares its link
-/// lost only 0.7 s after the last SIP. (A signal handled later still passes, by the lost
+/// lost only later (P2OS: 0.7 s after the last SIP; rFLEX: 1 s after the last frame). (A signal handled later still passes, by the lost
 /// link's path; one handled early would fail.) Returns the world, the robot, what is served, and the command's stderr.
-fn interrupt_while_quiet(hangup: &str) -> (SharedWorld, RobotId, Served, String) {
+fn interrupt_while_quiet(base: Base, hangup: &str) -> (SharedWorld, RobotId, Served, String) {
     let start = Instant::now();
     let faults = FaultPlan::parse(hangup).unwrap();
-    let (world, id, served, _log) = serve_with(Base::P2os, faults, 1.0);
+    let (world, id, served, _log) = serve_with(base, faults, 1.0);
+    let robot = match base {
+        Base::P2os => "p2at",
+        Base::Rflex => "atrv-jr",
+    };
     let mut child = Child(
         ima()
-            .args([
-                "drive",
-                "--port",
-                &served.path(),
-                "--vel",
-                "0.3",
-                "--for",
-                "20",
-            ])
+            .args(["drive", "--robot", robot, "--port", &served.path()])
+            .args(["--vel", "0.3", "--for", "20"])
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
@@ -581,19 +578,21 @@ fn interrupt_while_quiet(hangup: &str) -> (SharedWorld, RobotId, Served, String)
 /// on until its watchdog).
 #[test]
 fn a_stop_into_a_line_quiet_but_not_yet_lost_is_not_claimed() {
-    let (_world, _id, _served, stderr) = interrupt_while_quiet("hangup=3s:8s");
-    assert!(
-        stderr.contains("may not have reached the robot"),
-        "the note: {stderr}"
-    );
-    assert!(!stderr.contains("could move was stopped"), "{stderr}");
+    for base in [Base::P2os, Base::Rflex] {
+        let (_world, _id, _served, stderr) = interrupt_while_quiet(base, "hangup=3s:8s");
+        assert!(
+            stderr.contains("may not have reached the robot"),
+            "the note ({base:?}): {stderr}"
+        );
+        assert!(!stderr.contains("could move was stopped"), "{stderr}");
+    }
 }
 
 /// The same with a line that comes back 1 s after it died: the stop, written again, meets
 /// it, and the robot stops before its watchdog (which trips 2 s after the last command).
 #[test]
 fn a_stop_into_a_quiet_line_is_repeated_until_it_comes_back() {
-    let (world, id, served, stderr) = interrupt_while_quiet("hangup=3s:1s");
+    let (world, id, served, stderr) = interrupt_while_quiet(Base::P2os, "hangup=3s:1s");
     assert!(!stderr.contains("may not have reached"), "{stderr}");
     wait_until(Duration::from_secs(5), "the robot to stand", || {
         let (l, r) = wheel_speeds(&world, id);

@@ -55,44 +55,14 @@ pub struct P2osShell {
     probe: Probe,
     /// Motor switches waiting for FLAGS to confirm them.
     motors: Confirmations<bool, (), Self>,
-    /// Closing with the link down or the robot quiet: STOP and CLOSE are written again until
-    /// then.
-    restop: Option<Restop>,
-    /// The robot was heard again while they were (the last ones met it).
-    heard_closing: bool,
-    /// The last frame from the robot.
-    last_frame: Option<Instant>,
-    /// Closing began with the robot quiet ([`QUIET`]): its stop may go into a dead line.
-    quiet_at_close: bool,
-}
-
-/// A connected robot silent this long is taken as gone when the driver closes (three SIP
-/// periods): its stop is written again and not claimed, though the link is declared lost only
-/// after the session's longer timeout.
-const QUIET: Duration = Duration::from_millis(300);
-
-/// STOP and CLOSE written again while a closing task waits for a lost link to come back.
-#[derive(Debug, Clone, Copy)]
-struct Restop {
-    /// The next repeat.
-    next: Instant,
-    /// The last one.
-    until: Instant,
 }
 
 /// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up,
-/// with the link up; with it lost, [`RESTOP_FOR`] and half this (together within
-/// [`P2os`]'s `CLOSE_LIMIT` and the program's 2 s wait for its drivers).
+/// with the robot heard; with it gone, the runner writes them again for 1.2 s
+/// ([`ima_serial::runner::RESTOP_BOUND`] in all, within [`P2os`]'s `CLOSE_LIMIT`).
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
-/// Closing with the link down (or the robot quiet), how long STOP and CLOSE are written
-/// again, and how often: a
-/// robot whose line comes back within it stops at once instead of driving on until its
-/// watchdog (2 s after the last command it received; 1.3 s after the program ended in a run
-/// against the mock, whose line came back 0.1 s after it).
-const RESTOP_FOR: Duration = Duration::from_millis(1200);
-const RESTOP_EVERY: Duration = Duration::from_millis(100);
-// Closing with the link lost ends within `P2os::CLOSE_LIMIT` (2 s), the program's wait.
-const _: () = assert!(RESTOP_FOR.as_millis() + CLOSE_DRAIN_LIMIT.as_millis() / 2 < 2_000);
+// Closing ends within `P2os::CLOSE_LIMIT` (2 s), the program's wait for its drivers.
+const _: () = assert!(ima_serial::runner::RESTOP_BOUND.as_millis() < 2_000);
 
 impl P2osShell {
     fn fail(&mut self, f: Fault) {
@@ -107,6 +77,12 @@ impl Shell for P2osShell {
     type Up = Connection;
     type Stats = SessionStats;
     const MAX_FRAME: usize = crate::wire::MAX_FRAME_LEN;
+    /// Three SIP periods: a robot silent this long as the driver closes is taken as gone (its
+    /// link is declared lost only after the session's 0.7 s); its STOP and CLOSE are written
+    /// again, so a line that comes back stops it at once instead of its watchdog 2 s after
+    /// the last command it received.
+    const QUIET: Option<Duration> = Some(Duration::from_millis(300));
+    const REPEATS_STOP: bool = true;
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine
@@ -126,36 +102,15 @@ impl Shell for P2osShell {
         self.machine.handle_bytes(bytes, now);
         let after = self.machine.stats().framer.tally();
         self.probe.received(bytes.len(), before, after);
-        if after.0 > before.0 {
-            self.last_frame = Some(now);
-            // Closing with the link down, and a frame from the robot again (not noise): one
-            // more STOP and CLOSE meets it, and closing ends.
-            if self.restop.take().is_some() {
-                self.heard_closing = true;
-                self.machine.repeat_close();
-            }
-        }
     }
 
-    fn on_timeout(&mut self, now: Instant) {
-        self.machine.handle_timeout(now);
-        if let Some(r) = &mut self.restop
-            && now >= r.next
-        {
-            self.machine.repeat_close();
-            r.next = now + RESTOP_EVERY;
-            if now >= r.until {
-                self.restop = None;
-            }
-        }
+    fn frames_heard(&self) -> u64 {
+        self.machine.stats().framer.frames
     }
 
-    fn next_wake(&mut self) -> Option<Instant> {
-        let own = self.restop.map(|r| r.next);
-        [self.machine.poll_timeout(), own]
-            .into_iter()
-            .flatten()
-            .min()
+    /// STOP and CLOSE again.
+    fn repeat_stop(&mut self) {
+        self.machine.repeat_close();
     }
 
     fn on_event(&mut self, ev: Event, line: &mut dyn BaudControl) -> std::io::Result<()> {
@@ -208,31 +163,14 @@ impl Shell for P2osShell {
         self.machine.stats()
     }
 
-    /// Queue STOP and CLOSE (frames are paced, so they may need more than one round); with
-    /// the link down or the robot quiet (nothing heard for 0.3 s), write them again for 1.2 s
-    /// unless the robot is heard first.
-    fn begin_close(&mut self, now: Instant) -> Duration {
+    /// Queue STOP and CLOSE (frames are paced, so they may need more than one round).
+    fn begin_close(&mut self, _now: Instant) -> Duration {
         self.machine.close();
-        self.quiet_at_close = self.link.borrow().is_quiet(self.last_frame, now, QUIET);
-        if self.quiet_at_close {
-            self.restop = Some(Restop {
-                next: now + RESTOP_EVERY,
-                until: now + RESTOP_FOR,
-            });
-            return RESTOP_FOR + CLOSE_DRAIN_LIMIT / 2;
-        }
         CLOSE_DRAIN_LIMIT
     }
 
     fn is_closed(&mut self) -> bool {
-        !self.machine.has_pending_transmit() && self.restop.is_none()
-    }
-
-    /// The robot was quiet (or the link lost) as closing began, or the link is lost now, and
-    /// the robot was not heard while STOP was written again.
-    fn stop_unheard(&self) -> bool {
-        (self.quiet_at_close || matches!(*self.link.borrow(), LinkStatus::Lost))
-            && !self.heard_closing
+        !self.machine.has_pending_transmit()
     }
 
     /// Say what each rate tried received.
@@ -283,10 +221,6 @@ impl P2os {
             config: config_tx,
             probe: Probe::new("P2OS"),
             motors: Confirmations::default(),
-            restop: None,
-            heard_closing: false,
-            last_frame: None,
-            quiet_at_close: false,
         };
         let stop_as = Some("P2OS base");
         let (h, c) = Handle::connect(shell, stream, clock, connect_timeout, stop_as).await?;

@@ -71,18 +71,7 @@ pub struct RflexShell {
     motors: Confirmations<bool, (), Self>,
     reconnects: u32,
     bytes: u64,
-    /// The last good frame from the base.
-    last_frame: Option<Instant>,
-    /// Closing began with the base quiet ([`QUIET`]): its stop, written once, may have gone
-    /// into a dead line (a frame heard later does not say the stop got through).
-    quiet_at_close: bool,
 }
-
-/// A connected base silent this long (three report periods) is taken as gone when the driver
-/// closes: its stop is not claimed, though the link is declared lost only after the machine's
-/// 1 s timeout. (The stop is not written again: the base's own fail-safe stops it 1 s after
-/// its last command, about when a repeat could first help.)
-const QUIET: Duration = Duration::from_millis(300);
 
 impl Shell for RflexShell {
     type Machine = Machine;
@@ -90,6 +79,11 @@ impl Shell for RflexShell {
     type Up = ();
     type Stats = ShellStats;
     const MAX_FRAME: usize = TX_BUF;
+    /// Three report periods: a base silent this long as the driver closes is taken as gone
+    /// (its link is declared lost only after the machine's 1 s), and its stop not claimed.
+    /// The stop is written once: the base's own fail-safe stops it 1 s after its last command,
+    /// about when a repeat could first help.
+    const QUIET: Option<Duration> = Some(Duration::from_millis(300));
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine
@@ -101,11 +95,11 @@ impl Shell for RflexShell {
 
     fn on_bytes(&mut self, bytes: &[u8], now: Instant) {
         self.bytes = self.bytes.saturating_add(bytes.len() as u64);
-        let before = self.machine.framer_stats().frames;
         self.machine.handle_bytes(bytes, now);
-        if self.machine.framer_stats().frames != before {
-            self.last_frame = Some(now);
-        }
+    }
+
+    fn frames_heard(&self) -> u64 {
+        self.machine.framer_stats().frames.into()
     }
 
     fn on_event(&mut self, ev: Event, _line: &mut dyn BaudControl) -> std::io::Result<()> {
@@ -171,14 +165,8 @@ impl Shell for RflexShell {
     }
 
     fn begin_close(&mut self, now: Instant) -> Duration {
-        self.quiet_at_close = self.link.borrow().is_quiet(self.last_frame, now, QUIET);
         self.machine.shutdown(now);
         Duration::from_secs(2)
-    }
-
-    /// The base was quiet (or the link lost) as closing began, or the link is lost now.
-    fn stop_unheard(&self) -> bool {
-        self.quiet_at_close || matches!(*self.link.borrow(), LinkStatus::Lost)
     }
 
     fn is_closed(&mut self) -> bool {
@@ -265,8 +253,6 @@ impl Rflex {
             motors: Confirmations::default(),
             reconnects: 0,
             bytes: 0,
-            last_frame: None,
-            quiet_at_close: false,
         };
         tracing::info!(target: "ima::connect", "rFLEX: initialising, waiting for motion reports");
         // One fixed rate (§1): the stream needs no line-speed control.

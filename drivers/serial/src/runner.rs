@@ -28,6 +28,27 @@ pub type Status<D> = LinkStatus<<D as Shell>::Up, Error<D>>;
 /// Where a shell answers a call it finishes later (after a device's confirmation).
 pub type Reply<T, D> = oneshot::Sender<Result<T, Error<D>>>;
 
+/// Closing with the device gone, how long its stop is written again ([`Shell::repeat_stop`]),
+/// and how often: a line that comes back in that time gets the stop.
+pub const RESTOP_FOR: Duration = Duration::from_millis(1200);
+/// See [`RESTOP_FOR`].
+pub const RESTOP_EVERY: Duration = Duration::from_millis(100);
+/// After the last repeat, how long its frames may take to go out.
+const RESTOP_DRAIN: Duration = Duration::from_millis(500);
+/// The longest closing with repeats lasts ([`RESTOP_FOR`] and the last repeat's drain): within
+/// the 2 s a program waits for its drivers.
+pub const RESTOP_BOUND: Duration = RESTOP_FOR.saturating_add(RESTOP_DRAIN);
+const _: () = assert!(RESTOP_BOUND.as_millis() < 2_000);
+
+/// The stop written again while a closing task waits for a gone device's line to come back.
+#[derive(Debug, Clone, Copy)]
+struct Restop {
+    /// The next repeat.
+    next: Instant,
+    /// The last one.
+    until: Instant,
+}
+
 /// How a task ends.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum End {
@@ -101,15 +122,24 @@ pub trait Shell: Sized + Send + 'static {
         Duration::ZERO
     }
 
-    /// After closing: whether the device had gone quiet as its last frames were written, and
-    /// was not heard since, so that it may not have heard them (by default: the link is
-    /// [`Lost`](crate::LinkStatus::Lost)). A driver that can move a robot reports it through
-    /// its halt signal ([`HaltSignal::stopped_unheard`](ima_hal::safety::HaltSignal::stopped_unheard)),
-    /// as it does whenever its port fails after it connected (the stop may not have been
-    /// written at all) and when its task is dropped before its end.
-    fn stop_unheard(&self) -> bool {
-        matches!(*self.link().borrow(), crate::LinkStatus::Lost)
+    /// A device that streams reports: connected but silent this long as closing begins, it
+    /// counts as gone (its link is declared [`Lost`](crate::LinkStatus::Lost) only after the
+    /// machine's longer timeout). By default only a lost link counts.
+    const QUIET: Option<Duration> = None;
+
+    /// Whether [`repeat_stop`](Self::repeat_stop) does anything (by default: no; the stop is
+    /// written once).
+    const REPEATS_STOP: bool = false;
+
+    /// Good frames received so far: what "quiet" and "heard" are judged on.
+    fn frames_heard(&self) -> u64 {
+        0
     }
+
+    /// Closing with the device gone (see [`QUIET`](Self::QUIET)): queue the stop frames
+    /// again. The runner calls it every [`RESTOP_EVERY`] for [`RESTOP_FOR`], and once more
+    /// when a frame is heard (the line is back), which ends the repeats.
+    fn repeat_stop(&mut self) {}
 
     /// Whether the last frames are out (closing ends early; by default: yes).
     fn is_closed(&mut self) -> bool {
@@ -167,6 +197,12 @@ pub(crate) async fn run<D, S>(
     let mut closing: Option<Instant> = None;
     // Whether the device was ever connected: a port that fails before has moved nothing.
     let mut ever_up = false;
+    // The last good frame; whether the device was gone as closing began, the repeats of its
+    // stop, and whether it was heard while they ran (the last one met it).
+    let mut last_frame: Option<Instant> = None;
+    let mut gone_at_close = false;
+    let mut restop: Option<Restop> = None;
+    let mut heard_closing = false;
     let end = loop {
         ever_up = ever_up || shell.link().borrow().is_connected();
         if let Err(e) = drain(&mut shell, &mut stream) {
@@ -183,12 +219,15 @@ pub(crate) async fn run<D, S>(
         });
         let now = clock.now();
         if let Some(limit) = closing {
-            let drained = shell.is_closed();
+            let drained = shell.is_closed() && restop.is_none();
             if drained || now >= limit {
                 break End::Closed { drained };
             }
         }
-        let wake = [shell.next_wake(), closing].into_iter().flatten().min();
+        let wake = [shell.next_wake(), closing, restop.map(|r| r.next)]
+            .into_iter()
+            .flatten()
+            .min();
         let sleep_for = wake.map_or(Duration::from_millis(500), |t| {
             t.saturating_duration_since(now)
         });
@@ -208,7 +247,17 @@ pub(crate) async fn run<D, S>(
             r = stream.read(&mut rbuf) => match r {
                 Ok(0) => break End::Failed(LinkError::Disconnected),
                 Ok(n) => {
-                    shell.on_bytes(rbuf.get(..n).unwrap_or(&[]), clock.now());
+                    let (now, before) = (clock.now(), shell.frames_heard());
+                    shell.on_bytes(rbuf.get(..n).unwrap_or(&[]), now);
+                    if shell.frames_heard() != before {
+                        last_frame = Some(now);
+                        // Closing, a gone device heard again (not noise): one more stop meets
+                        // it, and the repeats end.
+                        if restop.take().is_some() {
+                            heard_closing = true;
+                            shell.repeat_stop();
+                        }
+                    }
                     false
                 }
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => false,
@@ -227,6 +276,15 @@ pub(crate) async fn run<D, S>(
         if slept || shell.next_wake().is_some_and(|t| t <= now) {
             shell.on_timeout(now);
         }
+        if let Some(r) = &mut restop
+            && now >= r.next
+        {
+            shell.repeat_stop();
+            r.next = now + RESTOP_EVERY;
+            if now >= r.until {
+                restop = None;
+            }
+        }
         if closing.is_none()
             && !close
             && let Ok(msg) = requests.try_recv()
@@ -239,7 +297,23 @@ pub(crate) async fn run<D, S>(
             if let Err(e) = drain(&mut shell, &mut stream) {
                 break End::Failed(e.into());
             }
-            closing = Some(clock.now() + shell.begin_close(clock.now()));
+            let now = clock.now();
+            gone_at_close = {
+                let link = shell.link().borrow();
+                match D::QUIET {
+                    Some(q) => link.is_quiet(last_frame, now, q),
+                    None => matches!(*link, LinkStatus::Lost),
+                }
+            };
+            let mut bound = shell.begin_close(now);
+            if gone_at_close && D::REPEATS_STOP {
+                restop = Some(Restop {
+                    next: now + RESTOP_EVERY,
+                    until: now + RESTOP_FOR,
+                });
+                bound = RESTOP_BOUND;
+            }
+            closing = Some(now + bound);
         }
         // Yield now and then, so handles on this thread get to run.
         tokio::task::coop::consume_budget().await;
@@ -248,7 +322,10 @@ pub(crate) async fn run<D, S>(
     // after it connected may not have been sent it: said to whoever reports it, before the
     // halt is done.
     let unheard = match end {
-        End::Closed { .. } => shell.stop_unheard(),
+        End::Closed { .. } => {
+            let lost = matches!(*shell.link().borrow(), LinkStatus::Lost);
+            (gone_at_close || lost) && !heard_closing
+        }
         End::Failed(_) => ever_up || shell.link().borrow().is_connected(),
     };
     if unheard {
