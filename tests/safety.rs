@@ -47,6 +47,16 @@ enum Served {
     Rflex(PtyDevice<RflexDevice>),
 }
 
+impl Base {
+    /// Its `ima drive --robot` name.
+    fn robot(self) -> &'static str {
+        match self {
+            Base::P2os => "p2at",
+            Base::Rflex => "atrv-jr",
+        }
+    }
+}
+
 impl Served {
     fn path(&self) -> String {
         match self {
@@ -206,10 +216,7 @@ fn wait_for_close(log: &HostLog, what: &str) {
 /// Drive at 0.3 m/s, interrupt, and check the stop from the robot's side.
 fn interrupt_drive(base: Base, how: Interruption) {
     let (world, id, served, log) = serve(base);
-    let robot = match base {
-        Base::P2os => "p2at",
-        Base::Rflex => "atrv-jr",
-    };
+    let robot = base.robot();
     let mut cmd = ima();
     cmd.args(["drive", "--robot", robot, "--port", &served.path()])
         .args(["--vel", "0.3", "--for", "30", "--connect-timeout", "20"])
@@ -496,6 +503,25 @@ fn p2os_normal_end_closes_the_session() {
     assert_eq!(model.robot().stats().watchdog_trips, 0);
 }
 
+/// After a stop written again while closing: no doubt said, the robot stands, and it was the
+/// repeated STOP that stopped it (the P2OS mock's watchdog never tripped).
+fn stopped_by_a_repeat(world: &SharedWorld, id: RobotId, served: Served, stderr: &str) {
+    assert!(!stderr.contains("may not have reached"), "{stderr}");
+    wait_until(Duration::from_secs(5), "the robot to stand", || {
+        let (l, r) = wheel_speeds(world, id);
+        l.abs() < 1e-3 && r.abs() < 1e-3
+    });
+    let Served::P2os(dev) = served else {
+        unreachable!()
+    };
+    let model = dev.stop().unwrap();
+    assert_eq!(
+        model.robot().stats().watchdog_trips,
+        0,
+        "the repeated STOP, not the watchdog, stopped the robot: {stderr}"
+    );
+}
+
 /// The line goes dead mid-drive and comes back 1.5 s later: the drive gives up at its 1 s
 /// report timeout with the link lost, so its STOP and CLOSE go into the dead line. It writes
 /// them again while closing, and the one after the line's return stops the robot: its
@@ -520,35 +546,20 @@ fn a_stop_is_repeated_until_a_dead_line_comes_back() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     // Heard again while the stop was repeated: the last one met it, and no doubt is said.
-    assert!(!stderr.contains("may not have reached"), "{stderr}");
-    wait_until(Duration::from_secs(5), "the robot to stand", || {
-        let (l, r) = wheel_speeds(&world, id);
-        l.abs() < 1e-3 && r.abs() < 1e-3
-    });
-    let Served::P2os(dev) = served else {
-        unreachable!()
-    };
-    let model = dev.stop().unwrap();
-    assert_eq!(
-        model.robot().stats().watchdog_trips,
-        0,
-        "the repeated STOP, not the watchdog, stopped the robot: {stderr}"
-    );
+    stopped_by_a_repeat(&world, id, served, &stderr);
 }
 
-/// `ima drive` on `base` interrupted (SIGINT) while `--vel 0.3` with the line `hangup` (from the mock's
-/// start); the signal comes 3.55 s after the mock's start, when the line has been dead for
-/// 0.55 s: the robot is quiet (nothing heard for 0.3 s), but the driver declares its link
-/// lost only later (P2OS: 0.7 s after the last SIP; rFLEX: 1 s after the last frame). (A signal handled later still passes, by the lost
-/// link's path; one handled early would fail.) Returns the world, the robot, what is served, and the command's stderr.
+/// `ima drive` on `base` interrupted (SIGINT) while `--vel 0.3` with the line `hangup` (from
+/// the mock's start); the signal comes 3.55 s after the mock's start, when the line has been
+/// dead for 0.55 s: the robot is quiet (nothing heard for 0.3 s), but the driver declares its
+/// link lost only later (P2OS: 0.7 s after the last SIP; rFLEX: 1 s after the last frame). A
+/// signal handled later still passes, by the lost link's path; one handled early would fail.
+/// Returns the world, the robot, what is served, and the command's stderr.
 fn interrupt_while_quiet(base: Base, hangup: &str) -> (SharedWorld, RobotId, Served, String) {
     let start = Instant::now();
     let faults = FaultPlan::parse(hangup).unwrap();
     let (world, id, served, _log) = serve_with(base, faults, 1.0);
-    let robot = match base {
-        Base::P2os => "p2at",
-        Base::Rflex => "atrv-jr",
-    };
+    let robot = base.robot();
     let mut child = Child(
         ima()
             .args(["drive", "--robot", robot, "--port", &served.path()])
@@ -559,16 +570,7 @@ fn interrupt_while_quiet(base: Base, hangup: &str) -> (SharedWorld, RobotId, Ser
             .unwrap(),
     );
     std::thread::sleep(Duration::from_millis(3550).saturating_sub(start.elapsed()));
-    kill(&child, "INT");
-    let status = wait_exit(&mut child, "ima drive");
-    let mut stderr = String::new();
-    child
-        .0
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut stderr)
-        .unwrap();
+    let (status, stderr) = signal_and_read(&mut child, "INT");
     assert_eq!(status.code(), Some(130), "{stderr}");
     (world, id, served, stderr)
 }
@@ -593,20 +595,7 @@ fn a_stop_into_a_line_quiet_but_not_yet_lost_is_not_claimed() {
 #[test]
 fn a_stop_into_a_quiet_line_is_repeated_until_it_comes_back() {
     let (world, id, served, stderr) = interrupt_while_quiet(Base::P2os, "hangup=3s:1s");
-    assert!(!stderr.contains("may not have reached"), "{stderr}");
-    wait_until(Duration::from_secs(5), "the robot to stand", || {
-        let (l, r) = wheel_speeds(&world, id);
-        l.abs() < 1e-3 && r.abs() < 1e-3
-    });
-    let Served::P2os(dev) = served else {
-        unreachable!()
-    };
-    let model = dev.stop().unwrap();
-    assert_eq!(
-        model.robot().stats().watchdog_trips,
-        0,
-        "the repeated STOP, not the watchdog, stopped the robot: {stderr}"
-    );
+    stopped_by_a_repeat(&world, id, served, &stderr);
 }
 
 /// A signal while `ima drive` waits, after its normal end's STOP, for the robot to stand:
@@ -640,16 +629,7 @@ fn a_signal_while_the_robot_settles_ends_as_interrupted() {
             .skip_while(|(_, n)| !n.starts_with("vel"))
             .any(|(_, n)| n == "stop")
     });
-    kill(&child, "TERM");
-    let status = wait_exit(&mut child, "ima drive");
-    let mut stderr = String::new();
-    child
-        .0
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut stderr)
-        .unwrap();
+    let (status, stderr) = signal_and_read(&mut child, "TERM");
     assert_eq!(status.code(), Some(143), "{stderr}");
     assert!(stderr.contains("interrupted by SIGTERM"), "{stderr}");
     assert!(!stderr.contains("still moving"), "{stderr}");
@@ -947,6 +927,17 @@ fn signal_number(sig: &str) -> i32 {
     }
 }
 
+/// Send `sig` to an `ima drive` spawned with its stderr piped; its exit status and stderr.
+fn signal_and_read(child: &mut Child, sig: &str) -> (std::process::ExitStatus, String) {
+    kill(child, sig);
+    let status = wait_exit(child, "ima drive");
+    let mut stderr = String::new();
+    if let Some(mut e) = child.0.stderr.take() {
+        e.read_to_string(&mut stderr).unwrap();
+    }
+    (status, stderr)
+}
+
 fn wait_exit(child: &mut Child, what: &str) -> std::process::ExitStatus {
     let end = Instant::now() + Duration::from_secs(15);
     loop {
@@ -1039,10 +1030,7 @@ fn run_answers_sigint_while_opening_its_devices() {
 /// "Safety" section quotes them (`cargo test --test safety sigkill -- --nocapture`).
 fn sigkill(base: Base) -> (SharedWorld, RobotId, Served) {
     let (world, id, served, _log) = serve(base);
-    let robot = match base {
-        Base::P2os => "p2at",
-        Base::Rflex => "atrv-jr",
-    };
+    let robot = base.robot();
     let mut child = Child(
         ima()
             .args(["drive", "--robot", robot, "--port", &served.path()])

@@ -556,19 +556,24 @@ mod tests {
         );
     }
 
+    /// A [`Flood`] driver on one end of an in-memory pipe (inside a runtime); the other end.
+    fn flood_on_a_pipe() -> (Handle<Flood>, tokio::io::DuplexStream) {
+        let shell = Flood {
+            machine: Counter::default(),
+            link: watch::channel(LinkStatus::Connecting).0,
+        };
+        let (ours, theirs) = tokio::io::duplex(64);
+        let clock = ima_hal::time::TokioClock::shared();
+        (Handle::spawn(shell, FixedBaud(ours), clock, None), theirs)
+    }
+
     /// A port that ends (a pulled adapter, a device that hung up) ends the task without a stop
     /// written: its halt signal says the stop may not have been heard (it said nothing, and a
     /// program then claimed the robot stopped).
     #[tokio::test(flavor = "current_thread")]
     async fn a_port_that_ends_reports_its_stop_unheard() {
         for connected in [true, false] {
-            let shell = Flood {
-                machine: Counter::default(),
-                link: watch::channel(LinkStatus::Connecting).0,
-            };
-            let (ours, theirs) = tokio::io::duplex(64);
-            let clock = ima_hal::time::TokioClock::shared();
-            let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
+            let (h, theirs) = flood_on_a_pipe();
             if connected {
                 let up = |s: &mut Flood, _| {
                     s.link.send_replace(LinkStatus::Connected(()));
@@ -600,13 +605,7 @@ mod tests {
             .build()
             .unwrap();
         let (h, _theirs) = rt.block_on(async {
-            let shell = Flood {
-                machine: Counter::default(),
-                link: watch::channel(LinkStatus::Connecting).0,
-            };
-            let (ours, theirs) = tokio::io::duplex(64);
-            let clock = ima_hal::time::TokioClock::shared();
-            let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
+            let (h, theirs) = flood_on_a_pipe();
             // The task has started: it answers a call.
             h.call(Duration::from_secs(5), |_, _| Ok(())).await.unwrap();
             (h, theirs)
