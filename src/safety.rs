@@ -660,14 +660,34 @@ pub async fn halt_and_wait() {
 /// ([`StopRegistry::unheard`]), if any.
 fn unheard_note() -> Option<String> {
     let unheard = StopRegistry::global().unheard();
-    (!unheard.is_empty()).then(|| {
-        format!(
-            "the link to the {} was down when it was to stop: the stop may not have \
-             reached the robot, whose own watchdog stops it once it hears nothing (P2OS: 2 s \
-             after the last command it received); keep clear until it stands",
-            unheard.join(" and the ")
-        )
-    })
+    (!unheard.is_empty()).then(|| unheard_text(&unheard))
+}
+
+/// [`unheard_note`] for the devices named `unheard`, with the watchdog of each kind of base.
+fn unheard_text(unheard: &[String]) -> String {
+    // The watchdog of each kind of base named (the mocks model them; spec §5.2, §6).
+    let figures: Vec<&str> = [
+        ("P2OS", "P2OS: 2 s after the last command it received"),
+        (
+            "rFLEX",
+            "rFLEX: its fail-safe, about 1 s after the last command",
+        ),
+    ]
+    .into_iter()
+    .filter(|(kind, _)| unheard.iter().any(|n| n.contains(kind)))
+    .map(|(_, figure)| figure)
+    .collect();
+    let figures = if figures.is_empty() {
+        String::new()
+    } else {
+        format!(" ({})", figures.join("; "))
+    };
+    format!(
+        "the link to the {} was down when it was to stop: the stop may not have \
+         reached the robot, whose own watchdog stops it once it hears nothing{figures}; \
+         keep clear until it stands",
+        unheard.join(" and the ")
+    )
 }
 
 /// Say [`unheard_note`] on the way out with `result`, unless its [`Interrupted`] message
@@ -772,6 +792,20 @@ pub fn exit_status(result: &Result<()>) -> (u8, Option<String>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The note gives the watchdog of the base it names (an rFLEX note gave the P2OS one).
+    #[test]
+    fn the_unheard_note_gives_each_named_base_its_own_watchdog() {
+        let rflex = unheard_text(&["rFLEX base".to_owned()]);
+        assert!(
+            rflex.contains("(rFLEX: its fail-safe, about 1 s"),
+            "{rflex}"
+        );
+        assert!(!rflex.contains("P2OS"), "{rflex}");
+        let both = unheard_text(&["P2OS base".to_owned(), "rFLEX base".to_owned()]);
+        assert!(both.starts_with("the link to the P2OS base and the rFLEX base was down"));
+        assert!(both.contains("(P2OS: 2 s after the last command it received; rFLEX:"));
+    }
 
     /// Only a stop every device confirmed, none into a dead link, is claimed.
     #[test]

@@ -149,7 +149,7 @@ impl Shell for P2osShell {
             Event::MotorsEnabled(on) => self.motors.confirm(&on, &()),
             Event::MotorsRefused => self.motors.fail_all(&Fault::MotorsRefused.into()),
             Event::CommandTimeout => {
-                tracing::warn!("p2os: no velocity command for the command timeout; robot stopped");
+                tracing::warn!("p2os: no velocity command for the command timeout; stop sent");
             }
             Event::Config(c) => {
                 self.config.send_replace(Some(c));

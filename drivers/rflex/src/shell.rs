@@ -147,7 +147,7 @@ impl Shell for RflexShell {
                 tracing::debug!(address, data, "rflex: DIO report");
             }
             Event::CommandTimeout => {
-                tracing::warn!("rflex: no velocity command for 0.5 s; robot stopped");
+                tracing::warn!("rflex: no velocity command for 0.5 s; stop sent");
             }
             Event::LinkUp | Event::Joystick { .. } | Event::Unknown(_) => {}
             Event::ShutdownComplete => {}

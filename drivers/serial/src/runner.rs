@@ -322,9 +322,11 @@ pub(crate) async fn run<D, S>(
     // after it connected may not have been sent it: said to whoever reports it, before the
     // halt is done.
     let unheard = match end {
+        // A device never connected has moved nothing: no doubt to raise (a connect that
+        // timed out, a port nobody serves).
         End::Closed { .. } => {
             let lost = matches!(*shell.link().borrow(), LinkStatus::Lost);
-            (gone_at_close || lost) && !heard_closing
+            (gone_at_close || lost) && !heard_closing && ever_up
         }
         End::Failed(_) => ever_up || shell.link().borrow().is_connected(),
     };
@@ -593,6 +595,33 @@ mod tests {
             assert!(matches!(h.link(), LinkStatus::Failed(_)), "{:?}", h.link());
             // One never connected has moved nothing: no doubt to raise.
             assert_eq!(halt.stopped_unheard(), connected, "connected: {connected}");
+        }
+    }
+
+    /// Closed with its link lost: a device that had connected may not have heard its stop;
+    /// one that never connected (a connect that timed out on a silent line) raises no doubt
+    /// (it did: "keep clear until it stands" for a robot nothing had ever answered for).
+    #[tokio::test(flavor = "current_thread")]
+    async fn a_lost_link_raises_doubt_only_for_a_device_that_connected() {
+        for connected in [true, false] {
+            let (h, _theirs) = flood_on_a_pipe();
+            let set = |to: Status<Flood>| {
+                move |s: &mut Flood, _| {
+                    s.link.send_replace(to);
+                    Ok(())
+                }
+            };
+            if connected {
+                h.call(Duration::from_secs(5), set(LinkStatus::Connected(())))
+                    .await
+                    .unwrap();
+            }
+            h.call(Duration::from_secs(5), set(LinkStatus::Lost))
+                .await
+                .unwrap();
+            assert_eq!(h.close(Duration::from_secs(5)).await, Ok(()));
+            let unheard = h.halt_signal().stopped_unheard();
+            assert_eq!(unheard, connected, "connected: {connected}");
         }
     }
 
