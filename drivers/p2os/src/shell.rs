@@ -61,8 +61,11 @@ pub struct P2osShell {
 /// with the robot heard; with it gone, the runner writes them again for 1.2 s
 /// ([`ima_serial::runner::RESTOP_BOUND`] in all, within [`P2os`]'s `CLOSE_LIMIT`).
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
-// Closing ends within `P2os::CLOSE_LIMIT` (2 s), the program's wait for its drivers.
-const _: () = assert!(ima_serial::runner::RESTOP_BOUND.as_millis() < 2_000);
+// Closing, with or without repeats, ends within `P2os::CLOSE_LIMIT` (2 s), the program's wait
+// for its drivers.
+const _: () = assert!(
+    ima_serial::runner::RESTOP_BOUND.as_millis() < 2_000 && CLOSE_DRAIN_LIMIT.as_millis() < 2_000
+);
 
 impl P2osShell {
     fn fail(&mut self, f: Fault) {

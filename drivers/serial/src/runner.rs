@@ -124,7 +124,9 @@ pub trait Shell: Sized + Send + 'static {
 
     /// A device that streams reports: connected but silent this long as closing begins, it
     /// counts as gone (its link is declared [`Lost`](crate::LinkStatus::Lost) only after the
-    /// machine's longer timeout). By default only a lost link counts.
+    /// machine's longer timeout). By default only a lost link counts. A shell that sets it
+    /// must count its frames ([`frames_heard`](Self::frames_heard)): with none counted, the
+    /// device always counts as gone.
     const QUIET: Option<Duration> = None;
 
     /// Whether [`repeat_stop`](Self::repeat_stop) does anything (by default: no; the stop is
@@ -311,7 +313,7 @@ pub(crate) async fn run<D, S>(
                     next: now + RESTOP_EVERY,
                     until: now + RESTOP_FOR,
                 });
-                bound = RESTOP_BOUND;
+                bound = bound.max(RESTOP_BOUND);
             }
             closing = Some(now + bound);
         }
