@@ -659,33 +659,23 @@ pub async fn halt_and_wait() {
 /// What to say of devices whose stop was written while their link was down
 /// ([`StopRegistry::unheard`]), if any.
 fn unheard_note() -> Option<String> {
-    let unheard = StopRegistry::global().unheard();
-    (!unheard.is_empty()).then(|| unheard_text(&unheard))
+    let reg = StopRegistry::global();
+    let unheard = reg.unheard();
+    (!unheard.is_empty()).then(|| unheard_text(&unheard, &reg.unheard_watchdogs()))
 }
 
-/// [`unheard_note`] for the devices named `unheard`, with the watchdog of each kind of base.
-fn unheard_text(unheard: &[String]) -> String {
-    // The watchdog of each kind of base named (the mocks model them; spec §5.2, §6).
-    let figures: Vec<&str> = [
-        ("P2OS", "P2OS: 2 s after the last command it received"),
-        (
-            "rFLEX",
-            "rFLEX: its fail-safe, about 1 s after the last command",
-        ),
-    ]
-    .into_iter()
-    .filter(|(kind, _)| unheard.iter().any(|n| n.contains(kind)))
-    .map(|(_, figure)| figure)
-    .collect();
-    let figures = if figures.is_empty() {
+/// [`unheard_note`] for the devices named `unheard`, with the watchdogs their drivers declare
+/// (`Shell::WATCHDOG`).
+fn unheard_text(unheard: &[String], watchdogs: &[&str]) -> String {
+    let figures = if watchdogs.is_empty() {
         String::new()
     } else {
-        format!(" ({})", figures.join("; "))
+        format!(" ({})", watchdogs.join("; "))
     };
     format!(
-        "the link to the {} was down when it was to stop: the stop may not have \
-         reached the robot, whose own watchdog stops it once it hears nothing{figures}; \
-         keep clear until it stands",
+        "the link to the {} was down when it was to stop: the stop may not have reached the \
+         robot, whose own watchdog stops it once it hears nothing{figures}; keep clear until it \
+         stands",
         unheard.join(" and the ")
     )
 }
@@ -796,13 +786,24 @@ mod tests {
     /// The note gives the watchdog of the base it names (an rFLEX note gave the P2OS one).
     #[test]
     fn the_unheard_note_gives_each_named_base_its_own_watchdog() {
-        let rflex = unheard_text(&["rFLEX base".to_owned()]);
+        // What the drivers declare.
+        use ima_serial::runner::Shell;
+        let (Some(p2os), Some(rflex_watchdog)) = (
+            ima_p2os::shell::P2osShell::WATCHDOG,
+            ima_rflex::shell::RflexShell::WATCHDOG,
+        ) else {
+            panic!("both bases declare their watchdog");
+        };
+        let rflex = unheard_text(&["rFLEX base".to_owned()], &[rflex_watchdog]);
         assert!(
             rflex.contains("(rFLEX: its fail-safe, about 1 s"),
             "{rflex}"
         );
         assert!(!rflex.contains("P2OS"), "{rflex}");
-        let both = unheard_text(&["P2OS base".to_owned(), "rFLEX base".to_owned()]);
+        let both = unheard_text(
+            &["P2OS base".to_owned(), "rFLEX base".to_owned()],
+            &[p2os, rflex_watchdog],
+        );
         assert!(both.starts_with("the link to the P2OS base and the rFLEX base was down"));
         assert!(both.contains("(P2OS: 2 s after the last command it received; rFLEX:"));
     }

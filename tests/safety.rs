@@ -465,18 +465,7 @@ fn rflex_closed_stdout_stops_and_brakes() {
 #[test]
 fn p2os_normal_end_closes_the_session() {
     let (world, id, served, log) = serve(Base::P2os);
-    let out = ima()
-        .args([
-            "drive",
-            "--port",
-            &served.path(),
-            "--vel",
-            "0.3",
-            "--for",
-            "1",
-        ])
-        .output()
-        .unwrap();
+    let out = drive_output(&served.path(), "0.3", "1");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("stopped at x="), "{stderr}");
@@ -531,18 +520,7 @@ fn a_stop_is_repeated_until_a_dead_line_comes_back() {
     // 3 s: well after the drive connects, even on a loaded machine.
     let faults = FaultPlan::parse("hangup=3s:1.5s").unwrap();
     let (world, id, served, _log) = serve_with(Base::P2os, faults, 1.0);
-    let out = ima()
-        .args([
-            "drive",
-            "--port",
-            &served.path(),
-            "--vel",
-            "0.3",
-            "--for",
-            "20",
-        ])
-        .output()
-        .unwrap();
+    let out = drive_output(&served.path(), "0.3", "20");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     // Heard again while the stop was repeated: the last one met it, and no doubt is said.
@@ -644,10 +622,7 @@ fn a_stop_written_into_a_dead_link_is_not_claimed() {
     // The line goes dead 3 s after the mock starts, mid-drive (well after the drive connects,
     // even on a loaded machine), for longer than the drive waits and repeats its stop.
     let (_mock, path) = common::spawn_mock(&["p2os", "--faults", "hangup=3s:8s"]);
-    let out = ima()
-        .args(["drive", "--port", &path, "--vel", "0.3", "--for", "10"])
-        .output()
-        .unwrap();
+    let out = drive_output(&path, "0.3", "10");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(
@@ -925,6 +900,14 @@ fn signal_number(sig: &str) -> i32 {
         "TERM" => 15,
         other => panic!("unknown signal {other}"),
     }
+}
+
+/// `ima drive --port PATH --vel VEL --for SECS`, run to its end.
+fn drive_output(path: &str, vel: &str, secs: &str) -> std::process::Output {
+    ima()
+        .args(["drive", "--port", path, "--vel", vel, "--for", secs])
+        .output()
+        .unwrap()
 }
 
 /// Send `sig` to an `ima drive` spawned with its stderr piped; its exit status and stderr.

@@ -30,6 +30,7 @@ struct Inner {
     requested: AtomicBool,
     done: AtomicBool,
     unheard: AtomicBool,
+    watchdog: std::sync::OnceLock<&'static str>,
     wakers: Mutex<Vec<Waker>>,
 }
 
@@ -83,10 +84,11 @@ impl HaltSignal {
         self.inner.done.store(true, Ordering::SeqCst);
     }
 
-    /// Called by the driver task, before [`set_done`](Self::set_done), when it closed while
-    /// the device had gone quiet (its link lost, and not heard since): the stop it wrote may
-    /// not have reached the device, whose own watchdog is what stops it. Messages that would
-    /// say "stopped" say so instead ([`StopRegistry::unheard`]).
+    /// Called by the driver task, before [`set_done`](Self::set_done), when its stop may not
+    /// have reached the device: it closed while the device had gone quiet and was not heard
+    /// since, its port failed after the device connected, or the task ended before its stop.
+    /// The device's own watchdog is what stops it then. Messages that would say "stopped"
+    /// say so instead ([`StopRegistry::unheard`]).
     pub fn set_stopped_unheard(&self) {
         self.inner.unheard.store(true, Ordering::SeqCst);
     }
@@ -96,6 +98,19 @@ impl HaltSignal {
     #[must_use]
     pub fn stopped_unheard(&self) -> bool {
         self.inner.unheard.load(Ordering::SeqCst)
+    }
+
+    /// Say what stops the device by itself when it hears nothing (e.g. `"P2OS: 2 s after the
+    /// last command it received"`), for messages about a stop that went unheard. The first
+    /// call counts.
+    pub fn set_watchdog(&self, what: &'static str) {
+        let _ = self.inner.watchdog.set(what);
+    }
+
+    /// What [`set_watchdog`](Self::set_watchdog) said, if anything.
+    #[must_use]
+    pub fn watchdog(&self) -> Option<&'static str> {
+        self.inner.watchdog.get().copied()
     }
 
     /// Whether the task has finished (see [`set_done`](Self::set_done)).
@@ -261,6 +276,21 @@ impl StopRegistry {
         names
     }
 
+    /// The watchdogs ([`HaltSignal::watchdog`]) of the devices [`unheard`](Self::unheard)
+    /// names, each once.
+    #[must_use]
+    pub fn unheard_watchdogs(&self) -> Vec<&'static str> {
+        let mut out: Vec<&'static str> = Vec::new();
+        for (_, s) in self.lock().iter().filter(|(_, s)| s.stopped_unheard()) {
+            if let Some(w) = s.watchdog()
+                && !out.contains(&w)
+            {
+                out.push(w);
+            }
+        }
+        out
+    }
+
     /// Whether any registered device's task is still running.
     #[must_use]
     pub fn any_running(&self) -> bool {
@@ -366,6 +396,11 @@ mod tests {
         reg.register("P2OS base", again.clone());
         again.set_stopped_unheard();
         assert_eq!(reg.unheard(), ["P2OS base"]);
+        // Its watchdog, as its driver declared it, once too.
+        unheard.set_watchdog("P2OS: 2 s");
+        again.set_watchdog("P2OS: 2 s");
+        heard.set_watchdog("rFLEX: 1 s");
+        assert_eq!(reg.unheard_watchdogs(), ["P2OS: 2 s"]);
     }
 
     #[test]

@@ -61,10 +61,10 @@ pub struct P2osShell {
 /// with the robot heard; with it gone, the runner writes them again for 1.2 s
 /// ([`ima_serial::runner::RESTOP_BOUND`] in all, within [`P2os`]'s `CLOSE_LIMIT`).
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
-// Closing, with or without repeats, ends within `P2os::CLOSE_LIMIT` (2 s), the program's wait
-// for its drivers.
+// Closing, with or without repeats, ends within `P2os::CLOSE_LIMIT`.
 const _: () = assert!(
-    ima_serial::runner::RESTOP_BOUND.as_millis() < 2_000 && CLOSE_DRAIN_LIMIT.as_millis() < 2_000
+    ima_serial::runner::RESTOP_BOUND.as_millis() <= <P2os as Driver>::CLOSE_LIMIT.as_millis()
+        && CLOSE_DRAIN_LIMIT.as_millis() <= <P2os as Driver>::CLOSE_LIMIT.as_millis()
 );
 
 impl P2osShell {
@@ -86,6 +86,8 @@ impl Shell for P2osShell {
     /// the last command it received.
     const QUIET: Option<Duration> = Some(Duration::from_millis(300));
     const REPEATS_STOP: bool = true;
+    /// The firmware's watchdog (spec §5.2).
+    const WATCHDOG: Option<&'static str> = Some("P2OS: 2 s after the last command it received");
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine

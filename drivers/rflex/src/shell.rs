@@ -84,6 +84,9 @@ impl Shell for RflexShell {
     /// The stop is written once: the base's own fail-safe stops it 1 s after its last command,
     /// about when a repeat could first help.
     const QUIET: Option<Duration> = Some(Duration::from_millis(300));
+    /// The controller's fail-safe (spec §6).
+    const WATCHDOG: Option<&'static str> =
+        Some("rFLEX: its fail-safe, about 1 s after the last command");
 
     fn machine(&mut self) -> &mut Machine {
         &mut self.machine

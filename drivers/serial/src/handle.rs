@@ -116,6 +116,9 @@ impl<D: Shell> Handle<D> {
     {
         let halt = HaltSignal::new();
         if let Some(name) = stop_as {
+            if let Some(w) = D::WATCHDOG {
+                halt.set_watchdog(w);
+            }
             StopRegistry::global().register(name, halt.clone());
         }
         let link = shell.link().subscribe();

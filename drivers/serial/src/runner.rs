@@ -129,6 +129,10 @@ pub trait Shell: Sized + Send + 'static {
     /// device always counts as gone.
     const QUIET: Option<Duration> = None;
 
+    /// What stops the device by itself when it hears nothing, for the message about a stop
+    /// that may not have reached it ([`HaltSignal::set_watchdog`]); none by default.
+    const WATCHDOG: Option<&'static str> = None;
+
     /// Whether [`repeat_stop`](Self::repeat_stop) does anything (by default: no; the stop is
     /// written once).
     const REPEATS_STOP: bool = false;
@@ -338,7 +342,8 @@ pub(crate) async fn run<D, S>(
     // Release the port before reporting: a caller may reopen it at once.
     drop(stream);
     guard.ended = true;
-    halt.set_done();
+    // Marks the halt done, before the closers hear.
+    drop(guard);
     requests.close();
     shell.end(end);
     let closed = matches!(end, End::Closed { .. });
