@@ -327,6 +327,11 @@ fn interrupt_drive(base: Base, how: Interruption) {
         stood <= STAND_WITHIN,
         "{base:?} {how:?}: the robot stood {stood:?} after the interruption"
     );
+    // The robot took its stop (a P2OS robot fell silent after CLOSE): no doubt is said.
+    assert!(
+        !stderr.contains("may not have reached"),
+        "{base:?} {how:?}: {stderr}"
+    );
     match base {
         Base::P2os => {
             wait_for_close(&log, "CLOSE at the mock");
@@ -574,6 +579,63 @@ fn a_stop_into_a_line_quiet_but_not_yet_lost_is_not_claimed() {
 fn a_stop_into_a_quiet_line_is_repeated_until_it_comes_back() {
     let (world, id, served, stderr) = interrupt_while_quiet(Base::P2os, "hangup=3s:1s");
     stopped_by_a_repeat(&world, id, served, &stderr);
+}
+
+/// A line dead from host to robot only (that side stalls for 6 s from about its 100th byte,
+/// early in the drive; the robot's SIPs still arrive): the STOP and CLOSE of a SIGINT do not
+/// reach the robot, which goes on sending. The driver writes them again while the SIPs keep
+/// coming, and then does not claim the stop. It did: it heard the robot after its CLOSE and
+/// said "every device that could move was stopped", and only the robot's watchdog stopped it.
+#[test]
+fn a_stop_into_a_line_dead_one_way_is_not_claimed() {
+    let faults = FaultPlan::parse("h2r.stall=0.01:6s,seed=1").unwrap();
+    let (_world, _id, served, log) = serve_with(Base::P2os, faults, 1.0);
+    let mut child = Child(
+        ima()
+            .args([
+                "drive",
+                "--port",
+                &served.path(),
+                "--vel",
+                "0.3",
+                "--for",
+                "20",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    // Connected (the handshake got through), then a second more: the stall has begun.
+    wait_until(Duration::from_secs(20), "the handshake", || {
+        p2os_commands(&log).iter().any(|(_, n)| n == "sync2_close")
+    });
+    std::thread::sleep(Duration::from_millis(1500));
+    let (status, stderr) = signal_and_read(&mut child, "INT");
+    assert_eq!(status.code(), Some(130), "{stderr}");
+    // The program wrote its stop more than once, and did not claim it …
+    let closes = p2os_commands(&log)
+        .iter()
+        .filter(|(_, n)| n == "sync2_close")
+        .count();
+    assert!(
+        closes >= 3,
+        "the handshake's SYNC2, then CLOSE repeated: {closes}"
+    );
+    assert!(
+        stderr.contains("still sending after its stop")
+            && stderr.contains("may not have reached the robot")
+            && !stderr.contains("could move was stopped"),
+        "{stderr}"
+    );
+    // … rightly: none reached the robot, whose watchdog stopped it (a CLOSE it took would
+    // have ended its session first).
+    std::thread::sleep(Duration::from_secs(3));
+    let Served::P2os(dev) = served else {
+        unreachable!()
+    };
+    let model = dev.stop().unwrap();
+    assert!(model.robot().stats().watchdog_trips >= 1, "{stderr}");
 }
 
 /// A signal while `ima drive` waits, after its normal end's STOP, for the robot to stand:

@@ -57,8 +57,8 @@ pub struct P2osShell {
     motors: Confirmations<bool, (), Self>,
 }
 
-/// The longest a closing task keeps writing its last frames (STOP, CLOSE) before it gives up,
-/// with the robot heard; with it gone, the runner writes them again for 1.2 s
+/// The longest a closing task keeps writing its last frames (STOP, CLOSE) and waiting for the
+/// robot to fall silent after them before it gives up, with the robot heard; with it gone, the runner writes them again for 1.2 s
 /// ([`ima_serial::runner::RESTOP_BOUND`] in all, within [`P2os`]'s `CLOSE_LIMIT`).
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
 // Closing, with or without repeats, ends within `P2os::CLOSE_LIMIT`.
@@ -86,6 +86,11 @@ impl Shell for P2osShell {
     /// the last command it received.
     const QUIET: Option<Duration> = Some(Duration::from_millis(300));
     const REPEATS_STOP: bool = true;
+    /// CLOSE ends the robot's SIPs (spec §5.2): three SIP periods of silence after it show the
+    /// robot took it. SIPs still coming mean STOP and CLOSE did not reach it (a line dead from
+    /// host to robot only, a corrupted frame): they are written again, and the stop is not
+    /// claimed unless the robot then falls silent.
+    const SILENT_ONCE_CLOSED: Option<Duration> = Some(Duration::from_millis(300));
     /// The firmware's watchdog (spec §5.2).
     const WATCHDOG: Option<&'static str> = Some("P2OS: 2 s after the last command it received");
 

@@ -7,7 +7,8 @@
 //! write) → write every frame due → flush → wait on one `select!` over the halt signal, the
 //! stream, the machine's next deadline and the handles' calls. A device that goes quiet
 //! never blocks the task. Closing (a `close` call, every handle dropped, or a halt) lets the
-//! shell queue its last frames and keeps writing them for a bounded time; then the port is
+//! shell queue its last frames and keeps writing them for a bounded time (for a device that
+//! falls silent once closed, until it has: [`Shell::SILENT_ONCE_CLOSED`]); then the port is
 //! released, the link's last status published and every closer answered.
 
 use std::io;
@@ -56,6 +57,9 @@ pub enum End {
     Closed {
         /// Whether [`Shell::is_closed`] held before the bound passed.
         drained: bool,
+        /// Whether a device that falls silent once closed ([`Shell::SILENT_ONCE_CLOSED`])
+        /// did (always, for one that does not).
+        silent: bool,
     },
     /// The link failed (end of stream, I/O error).
     Failed(LinkError),
@@ -137,6 +141,16 @@ pub trait Shell: Sized + Send + 'static {
     /// written once).
     const REPEATS_STOP: bool = false;
 
+    /// A device that falls silent once it has taken its close (a P2OS robot's CLOSE ends its
+    /// SIPs): with the last frames out, the runner waits until the device has sent nothing
+    /// for this long, so that a stop it reports heard was taken. Frames still coming this
+    /// long after the stop was written mean it was not (a line dead from host to device only,
+    /// a frame corrupted on the way): the stop is written again
+    /// ([`REPEATS_STOP`](Self::REPEATS_STOP)) and, the device still sending when closing
+    /// ends, reported unheard. Only for a device that was connected. By default closing ends
+    /// once the last frames are out.
+    const SILENT_ONCE_CLOSED: Option<Duration> = None;
+
     /// Good frames received so far: what "quiet" and "heard" are judged on.
     fn frames_heard(&self) -> u64 {
         0
@@ -209,6 +223,15 @@ pub(crate) async fn run<D, S>(
     let mut gone_at_close = false;
     let mut restop: Option<Restop> = None;
     let mut heard_closing = false;
+    // A device that falls silent once closed ([`Shell::SILENT_ONCE_CLOSED`]): the silence
+    // waited for, and when its stop was last written on purpose (not a gone device's timed
+    // repeats).
+    let mut confirm: Option<Duration> = None;
+    let mut stop_at: Option<Instant> = None;
+    // When the device has been silent long enough since its stop and its last frame.
+    let silent_from = |confirm: Option<Duration>, stop_at, last_frame| {
+        confirm.and_then(|s| Some(Option::max(stop_at, last_frame)? + s))
+    };
     let end = loop {
         ever_up = ever_up || shell.link().borrow().is_connected();
         if let Err(e) = drain(&mut shell, &mut stream) {
@@ -224,13 +247,17 @@ pub(crate) async fn run<D, S>(
             changed
         });
         let now = clock.now();
+        let silent_at = silent_from(confirm, stop_at, last_frame);
         if let Some(limit) = closing {
             let drained = shell.is_closed() && restop.is_none();
-            if drained || now >= limit {
-                break End::Closed { drained };
+            let silent = silent_at.is_none_or(|t| now >= t);
+            if (drained && silent) || now >= limit {
+                break End::Closed { drained, silent };
             }
         }
-        let wake = [shell.next_wake(), closing, restop.map(|r| r.next)]
+        // (A silence already reached waits for the last frames, not for itself.)
+        let silence = silent_at.filter(|&t| t > now);
+        let wake = [shell.next_wake(), closing, restop.map(|r| r.next), silence]
             .into_iter()
             .flatten()
             .min();
@@ -262,6 +289,14 @@ pub(crate) async fn run<D, S>(
                         if restop.take().is_some() {
                             heard_closing = true;
                             shell.repeat_stop();
+                            stop_at = Some(now);
+                        } else if D::REPEATS_STOP
+                            && let Some(t) = silent_from(confirm, stop_at, None)
+                            && now >= t
+                        {
+                            // Still sending this long after its stop: not taken; again.
+                            shell.repeat_stop();
+                            stop_at = Some(now);
                         }
                     }
                     false
@@ -312,6 +347,10 @@ pub(crate) async fn run<D, S>(
                 }
             };
             let mut bound = shell.begin_close(now);
+            if ever_up {
+                confirm = D::SILENT_ONCE_CLOSED;
+                stop_at = Some(now);
+            }
             if gone_at_close && D::REPEATS_STOP {
                 restop = Some(Restop {
                     next: now + RESTOP_EVERY,
@@ -330,9 +369,13 @@ pub(crate) async fn run<D, S>(
     let unheard = match end {
         // A device never connected has moved nothing: no doubt to raise (a connect that
         // timed out, a port nobody serves).
-        End::Closed { .. } => {
+        End::Closed { silent, .. } => {
             let lost = matches!(*shell.link().borrow(), LinkStatus::Lost);
-            (gone_at_close || lost) && !heard_closing && ever_up
+            if !silent {
+                let device = <D::Fault as Fault>::DEVICE;
+                tracing::warn!("{device}: still sending after its stop: it may not have taken it");
+            }
+            (((gone_at_close || lost) && !heard_closing) || !silent) && ever_up
         }
         End::Failed(_) => ever_up || shell.link().borrow().is_connected(),
     };
@@ -348,8 +391,8 @@ pub(crate) async fn run<D, S>(
     shell.end(end);
     let closed = matches!(end, End::Closed { .. });
     let (r, status) = match end {
-        End::Closed { drained: true } => (Ok(()), LinkStatus::Closed),
-        End::Closed { drained: false } => {
+        End::Closed { drained: true, .. } => (Ok(()), LinkStatus::Closed),
+        End::Closed { drained: false, .. } => {
             tracing::warn!("the device's last frames could not all be written in time");
             (Err(LinkError::Timeout), LinkStatus::Closed)
         }
@@ -650,5 +693,141 @@ mod tests {
         assert!(!halt.is_done());
         drop(rt);
         assert!(halt.is_done() && halt.stopped_unheard());
+    }
+
+    /// A device that streams a frame (one byte) every 50 ms and falls silent once it takes a
+    /// stop (`S`); it ignores the first `ignored` stops, as a robot does whose line drops or
+    /// corrupts them.
+    #[derive(Debug, Default)]
+    struct Streamer {
+        frames: u64,
+        stops_queued: u32,
+    }
+
+    impl Machine for Streamer {
+        type Event = ();
+        fn handle_bytes(&mut self, bytes: &[u8], _: Instant) {
+            self.frames += bytes.len() as u64;
+        }
+        fn handle_timeout(&mut self, _: Instant) {}
+        fn poll_transmit(&mut self, _: Instant, buf: &mut [u8]) -> Option<usize> {
+            self.stops_queued = self.stops_queued.checked_sub(1)?;
+            *buf.first_mut()? = b'S';
+            Some(1)
+        }
+        fn poll_event(&mut self) -> Option<()> {
+            None
+        }
+        fn poll_timeout(&self) -> Option<Instant> {
+            None
+        }
+    }
+
+    /// Closes by writing `S`, and confirms it by the device's silence.
+    struct Closer {
+        machine: Streamer,
+        link: watch::Sender<Status<Self>>,
+    }
+
+    impl Shell for Closer {
+        type Machine = Streamer;
+        type Fault = Never;
+        type Up = ();
+        type Stats = ();
+        const MAX_FRAME: usize = 8;
+        const REPEATS_STOP: bool = true;
+        const SILENT_ONCE_CLOSED: Option<Duration> = Some(Duration::from_millis(300));
+        fn stats(&self) {}
+        fn machine(&mut self) -> &mut Streamer {
+            &mut self.machine
+        }
+        fn link(&self) -> &watch::Sender<Status<Self>> {
+            &self.link
+        }
+        fn on_event(&mut self, (): (), _: &mut dyn BaudControl) -> io::Result<()> {
+            Ok(())
+        }
+        fn frames_heard(&self) -> u64 {
+            self.machine.frames
+        }
+        fn begin_close(&mut self, _: Instant) -> Duration {
+            self.machine.stops_queued += 1;
+            Duration::from_secs(1)
+        }
+        fn repeat_stop(&mut self) {
+            self.machine.stops_queued += 1;
+        }
+        fn is_closed(&mut self) -> bool {
+            self.machine.stops_queued == 0
+        }
+    }
+
+    /// Close a connected [`Closer`] whose device ignores its first `ignored` stops; the stops
+    /// it received, whether the halt says the stop was unheard, and how long closing took.
+    async fn close_against(ignored: u32) -> (u32, bool, Duration) {
+        let shell = Closer {
+            machine: Streamer::default(),
+            link: watch::channel(LinkStatus::Connected(())).0,
+        };
+        let (ours, mut theirs) = tokio::io::duplex(64);
+        let clock = ima_hal::time::TokioClock::shared();
+        let h = Handle::spawn(shell, FixedBaud(ours), clock, None);
+        let device = tokio::spawn(async move {
+            let mut stops = 0;
+            let mut buf = [0u8; 16];
+            let mut tick = tokio::time::interval(Duration::from_millis(50));
+            loop {
+                tokio::select! {
+                    r = theirs.read(&mut buf) => match r {
+                        Ok(0) | Err(_) => return stops,
+                        Ok(n) => stops += buf.get(..n).unwrap_or(&[]).iter().filter(|&&b| b == b'S').count() as u32,
+                    },
+                    _ = tick.tick(), if stops <= ignored => {
+                        if theirs.write_all(&[1]).await.is_err() {
+                            return stops;
+                        }
+                    }
+                }
+            }
+        });
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let t0 = tokio::time::Instant::now();
+        assert_eq!(h.close(Duration::from_secs(5)).await, Ok(()));
+        let took = t0.elapsed();
+        let unheard = h.halt_signal().stopped_unheard();
+        (device.await.unwrap(), unheard, took)
+    }
+
+    /// A device that falls silent at its first stop: closing waits out the silence and the
+    /// stop is heard.
+    #[tokio::test(start_paused = true)]
+    async fn a_device_silent_after_its_stop_took_it() {
+        let (stops, unheard, took) = close_against(0).await;
+        assert_eq!(stops, 1);
+        assert!(!unheard);
+        assert!(took >= Duration::from_millis(300), "{took:?}");
+    }
+
+    /// One that ignored the first stop (still sending 300 ms later) gets it again, takes the
+    /// second, and is heard.
+    #[tokio::test(start_paused = true)]
+    async fn a_stop_the_device_did_not_take_is_written_again() {
+        let (stops, unheard, _) = close_against(1).await;
+        assert_eq!(stops, 2);
+        assert!(!unheard, "it fell silent after the second stop");
+    }
+
+    /// One that never takes it (a line dead from host to device only: its frames still
+    /// arrive) gets it again while closing lasts, and the stop is reported unheard. It was
+    /// claimed: the device had been heard after it.
+    #[tokio::test(start_paused = true)]
+    async fn a_device_still_sending_after_its_stops_did_not_hear_them() {
+        let (stops, unheard, took) = close_against(u32::MAX).await;
+        assert!(stops >= 3, "{stops}");
+        assert!(unheard);
+        assert!(
+            took <= Duration::from_millis(1100),
+            "within the shell's bound: {took:?}"
+        );
     }
 }
