@@ -542,16 +542,7 @@ fn interrupt_while_quiet(base: Base, hangup: &str) -> (SharedWorld, RobotId, Ser
     let start = Instant::now();
     let faults = FaultPlan::parse(hangup).unwrap();
     let (world, id, served, _log) = serve_with(base, faults, 1.0);
-    let robot = base.robot();
-    let mut child = Child(
-        ima()
-            .args(["drive", "--robot", robot, "--port", &served.path()])
-            .args(["--vel", "0.3", "--for", "20"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
+    let mut child = spawn_drive(base.robot(), &served.path(), "0.3", "20");
     std::thread::sleep(Duration::from_millis(3550).saturating_sub(start.elapsed()));
     let (status, stderr) = signal_and_read(&mut child, "INT");
     assert_eq!(status.code(), Some(130), "{stderr}");
@@ -590,22 +581,7 @@ fn a_stop_into_a_quiet_line_is_repeated_until_it_comes_back() {
 fn a_stop_into_a_line_dead_one_way_is_not_claimed() {
     let faults = FaultPlan::parse("h2r.stall=0.01:6s,seed=1").unwrap();
     let (_world, _id, served, log) = serve_with(Base::P2os, faults, 1.0);
-    let mut child = Child(
-        ima()
-            .args([
-                "drive",
-                "--port",
-                &served.path(),
-                "--vel",
-                "0.3",
-                "--for",
-                "20",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
+    let mut child = spawn_drive("p2at", &served.path(), "0.3", "20");
     // Connected (the handshake got through), then a second more: the stall has begun.
     wait_until(Duration::from_secs(20), "the handshake", || {
         p2os_commands(&log).iter().any(|(_, n)| n == "sync2_close")
@@ -646,22 +622,7 @@ fn a_signal_while_the_robot_settles_ends_as_interrupted() {
     // Wheels that take 1.5 s to stop from 0.3 m/s: the signal comes well before the robot
     // stands, however slow the machine.
     let (_world, _id, served, log) = serve_with(Base::P2os, FaultPlan::none(), 0.2);
-    let mut child = Child(
-        ima()
-            .args([
-                "drive",
-                "--port",
-                &served.path(),
-                "--vel",
-                "0.3",
-                "--for",
-                "1",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
+    let mut child = spawn_drive("p2at", &served.path(), "0.3", "1");
     // The STOP after the drive's velocity commands (the handshake starts with one too).
     wait_until(Duration::from_secs(20), "the end-of-drive STOP", || {
         let c = p2os_commands(&log);
@@ -970,6 +931,20 @@ fn drive_output(path: &str, vel: &str, secs: &str) -> std::process::Output {
         .args(["drive", "--port", path, "--vel", vel, "--for", secs])
         .output()
         .unwrap()
+}
+
+/// `ima drive --robot ROBOT --port PATH --vel VEL --for SECS`, its stdout discarded and its
+/// stderr piped (read it with [`signal_and_read`]).
+fn spawn_drive(robot: &str, path: &str, vel: &str, secs: &str) -> Child {
+    Child(
+        ima()
+            .args(["drive", "--robot", robot, "--port", path])
+            .args(["--vel", vel, "--for", secs])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    )
 }
 
 /// Send `sig` to an `ima drive` spawned with its stderr piped; its exit status and stderr.

@@ -488,18 +488,23 @@ mod tests {
     use std::pin::Pin;
     use std::task::{Context, Poll};
 
-    /// Counts the bytes it is fed.
+    /// Counts the bytes it is fed (each a frame), and writes a stop (`S`) for each one queued.
     #[derive(Debug, Default)]
-    struct Counter(u64);
+    struct Counter {
+        frames: u64,
+        stops_queued: u32,
+    }
 
     impl Machine for Counter {
         type Event = ();
         fn handle_bytes(&mut self, bytes: &[u8], _: Instant) {
-            self.0 += bytes.len() as u64;
+            self.frames += bytes.len() as u64;
         }
         fn handle_timeout(&mut self, _: Instant) {}
-        fn poll_transmit(&mut self, _: Instant, _: &mut [u8]) -> Option<usize> {
-            None
+        fn poll_transmit(&mut self, _: Instant, buf: &mut [u8]) -> Option<usize> {
+            self.stops_queued = self.stops_queued.checked_sub(1)?;
+            *buf.first_mut()? = b'S';
+            Some(1)
         }
         fn poll_event(&mut self) -> Option<()> {
             None
@@ -523,17 +528,29 @@ mod tests {
         }
     }
 
-    struct Flood {
+    /// A test shell over a [`Counter`]: it closes by writing `S` (again on a repeat); with
+    /// `CONFIRMS`, its device falls silent once it takes the stop.
+    struct Fake<const CONFIRMS: bool> {
         machine: Counter,
         link: watch::Sender<Status<Self>>,
     }
+    /// Closing ends once the stop is written.
+    type Flood = Fake<false>;
+    /// Closing waits for the device's silence.
+    type Closer = Fake<true>;
 
-    impl Shell for Flood {
+    impl<const CONFIRMS: bool> Shell for Fake<CONFIRMS> {
         type Machine = Counter;
         type Fault = Never;
         type Up = ();
         type Stats = ();
         const MAX_FRAME: usize = 8;
+        const REPEATS_STOP: bool = CONFIRMS;
+        const SILENT_ONCE_CLOSED: Option<Duration> = if CONFIRMS {
+            Some(Duration::from_millis(300))
+        } else {
+            None
+        };
         fn stats(&self) {}
         fn machine(&mut self) -> &mut Counter {
             &mut self.machine
@@ -543,6 +560,19 @@ mod tests {
         }
         fn on_event(&mut self, (): (), _: &mut dyn BaudControl) -> io::Result<()> {
             Ok(())
+        }
+        fn frames_heard(&self) -> u64 {
+            self.machine.frames
+        }
+        fn begin_close(&mut self, _: Instant) -> Duration {
+            self.machine.stops_queued += 1;
+            Duration::from_secs(1)
+        }
+        fn repeat_stop(&mut self) {
+            self.machine.stops_queued += 1;
+        }
+        fn is_closed(&mut self) -> bool {
+            self.machine.stops_queued == 0
         }
     }
 
@@ -596,9 +626,13 @@ mod tests {
         };
         let clock = ima_hal::time::TokioClock::shared();
         let h = Handle::spawn(shell, FixedBaud(Firehose), clock, None);
-        let seen = h.call(Duration::from_secs(5), |s, _| Ok(s.machine.0)).await;
+        let seen = h
+            .call(Duration::from_secs(5), |s, _| Ok(s.machine.frames))
+            .await;
         assert!(seen.is_ok(), "{seen:?}");
-        let later = h.call(Duration::from_secs(5), |s, _| Ok(s.machine.0)).await;
+        let later = h
+            .call(Duration::from_secs(5), |s, _| Ok(s.machine.frames))
+            .await;
         assert!(later.unwrap() >= seen.unwrap());
         assert_eq!(h.close(Duration::from_secs(5)).await, Ok(()));
         assert!(matches!(h.link(), LinkStatus::Closed));
@@ -695,78 +729,12 @@ mod tests {
         assert!(halt.is_done() && halt.stopped_unheard());
     }
 
-    /// A device that streams a frame (one byte) every 50 ms and falls silent once it takes a
-    /// stop (`S`); it ignores the first `ignored` stops, as a robot does whose line drops or
-    /// corrupts them.
-    #[derive(Debug, Default)]
-    struct Streamer {
-        frames: u64,
-        stops_queued: u32,
-    }
-
-    impl Machine for Streamer {
-        type Event = ();
-        fn handle_bytes(&mut self, bytes: &[u8], _: Instant) {
-            self.frames += bytes.len() as u64;
-        }
-        fn handle_timeout(&mut self, _: Instant) {}
-        fn poll_transmit(&mut self, _: Instant, buf: &mut [u8]) -> Option<usize> {
-            self.stops_queued = self.stops_queued.checked_sub(1)?;
-            *buf.first_mut()? = b'S';
-            Some(1)
-        }
-        fn poll_event(&mut self) -> Option<()> {
-            None
-        }
-        fn poll_timeout(&self) -> Option<Instant> {
-            None
-        }
-    }
-
-    /// Closes by writing `S`, and confirms it by the device's silence.
-    struct Closer {
-        machine: Streamer,
-        link: watch::Sender<Status<Self>>,
-    }
-
-    impl Shell for Closer {
-        type Machine = Streamer;
-        type Fault = Never;
-        type Up = ();
-        type Stats = ();
-        const MAX_FRAME: usize = 8;
-        const REPEATS_STOP: bool = true;
-        const SILENT_ONCE_CLOSED: Option<Duration> = Some(Duration::from_millis(300));
-        fn stats(&self) {}
-        fn machine(&mut self) -> &mut Streamer {
-            &mut self.machine
-        }
-        fn link(&self) -> &watch::Sender<Status<Self>> {
-            &self.link
-        }
-        fn on_event(&mut self, (): (), _: &mut dyn BaudControl) -> io::Result<()> {
-            Ok(())
-        }
-        fn frames_heard(&self) -> u64 {
-            self.machine.frames
-        }
-        fn begin_close(&mut self, _: Instant) -> Duration {
-            self.machine.stops_queued += 1;
-            Duration::from_secs(1)
-        }
-        fn repeat_stop(&mut self) {
-            self.machine.stops_queued += 1;
-        }
-        fn is_closed(&mut self) -> bool {
-            self.machine.stops_queued == 0
-        }
-    }
-
-    /// Close a connected [`Closer`] whose device ignores its first `ignored` stops; the stops
-    /// it received, whether the halt says the stop was unheard, and how long closing took.
+    /// Close a connected [`Closer`] whose device streams a frame (one byte) every 50 ms and
+    /// falls silent once it takes a stop, ignoring the first `ignored` (as a robot does whose
+    /// line drops or corrupts them); the stops it received, whether the halt says the stop was unheard, and how long closing took.
     async fn close_against(ignored: u32) -> (u32, bool, Duration) {
         let shell = Closer {
-            machine: Streamer::default(),
+            machine: Counter::default(),
             link: watch::channel(LinkStatus::Connected(())).0,
         };
         let (ours, mut theirs) = tokio::io::duplex(64);
