@@ -516,8 +516,15 @@ fn signal_thread() {
                 pending.join(", ")
             ));
         }
-        if let Some(note) = unheard_note() {
+        let note = unheard_note();
+        if let Some(note) = &note {
             say(format_args!("exiting; {note}"));
+        } else if halted > 0 && pending.is_empty() {
+            // The last word a first signal would have said (it was lost when the drivers'
+            // close outlasted a quick second Ctrl-C).
+            say(format_args!(
+                "exiting; every device that could move was stopped"
+            ));
         }
         // record: close the recording before the forced exit.
         let _ = crate::record::finish();
@@ -673,9 +680,9 @@ fn unheard_text(unheard: &[String], watchdogs: &[&str]) -> String {
         format!(" ({})", watchdogs.join("; "))
     };
     format!(
-        "the link to the {} was down when it was to stop: the stop may not have reached the \
-         robot, whose own watchdog stops it once it hears nothing{figures}; keep clear until it \
-         stands",
+        "the stop of the {} is not confirmed (its link was down, or it went on sending after the \
+         stop): the stop may not have reached the robot, whose own watchdog stops it once it \
+         hears nothing{figures}; keep clear until it stands",
         unheard.join(" and the ")
     )
 }
@@ -799,7 +806,7 @@ mod tests {
             &["P2OS base".to_owned(), "rFLEX base".to_owned()],
             &[p2os, rflex_watchdog],
         );
-        assert!(both.starts_with("the link to the P2OS base and the rFLEX base was down"));
+        assert!(both.starts_with("the stop of the P2OS base and the rFLEX base is not confirmed"));
         assert!(both.contains("(P2OS: 2 s after the last command it received; rFLEX:"));
     }
 

@@ -87,9 +87,10 @@ impl Shell for P2osShell {
     const QUIET: Option<Duration> = Some(Duration::from_millis(300));
     const REPEATS_STOP: bool = true;
     /// CLOSE ends the robot's SIPs (spec §5.2): three SIP periods of silence after it show the
-    /// robot took it. SIPs still coming mean STOP and CLOSE did not reach it (a line dead from
-    /// host to robot only, a corrupted frame): they are written again, and the stop is not
-    /// claimed unless the robot then falls silent.
+    /// robot took it. A SIP 0.15 s or more after them (later than one in flight as the robot
+    /// took them) means STOP and CLOSE did not reach it (a line dead from host to robot only,
+    /// a corrupted frame): they are written again, and the stop is not claimed unless the
+    /// robot then falls silent.
     const SILENT_ONCE_CLOSED: Option<Duration> = Some(Duration::from_millis(300));
     /// The firmware's watchdog (spec §5.2).
     const WATCHDOG: Option<&'static str> = Some("P2OS: 2 s after the last command it received");
