@@ -510,27 +510,35 @@ fn signal_thread() {
         };
         // Either way the devices get their last frames out before the process ends.
         let pending = halt_everything_blocking(Duration::from_millis(500));
-        if !pending.is_empty() {
-            say(format_args!(
-                "exiting; could not confirm the stop of {}",
-                pending.join(", ")
-            ));
-        }
-        let note = unheard_note();
-        if let Some(note) = &note {
-            say(format_args!("exiting; {note}"));
-        } else if halted > 0 && pending.is_empty() {
-            // The last word a first signal would have said (it was lost when the drivers'
-            // close outlasted a quick second Ctrl-C).
-            say(format_args!(
-                "exiting; every device that could move was stopped"
-            ));
+        for words in forced_exit_words(halted, &pending, unheard_note().as_deref()) {
+            say(format_args!("{words}"));
         }
         // record: close the recording before the forced exit.
         let _ = crate::record::finish();
         flush_logs();
         std::process::exit(i32::from(code));
     });
+}
+
+/// What a forced exit says of the devices, `halted` of them halted at the first signal:
+/// those whose stop it could not confirm (`pending`: still closing), the note about unheard
+/// stops, or, when every one finished and none is in doubt, that each was stopped (the last
+/// word a first signal says; it was lost when a quick second Ctrl-C came while the drivers
+/// still closed).
+fn forced_exit_words(halted: usize, pending: &[String], note: Option<&str>) -> Vec<String> {
+    let mut words = Vec::new();
+    if !pending.is_empty() {
+        words.push(format!(
+            "exiting; could not confirm the stop of {}",
+            pending.join(", ")
+        ));
+    }
+    if let Some(note) = note {
+        words.push(format!("exiting; {note}"));
+    } else if halted > 0 && pending.is_empty() {
+        words.push("exiting; every device that could move was stopped".to_owned());
+    }
+    words
 }
 
 /// Run a command's async body on a multi-threaded tokio runtime under the stop guarantee: when
@@ -828,6 +836,21 @@ mod tests {
             "; every device that could move was asked to stop, but N"
         );
         assert!(stop_summary(&p, Some("N")).ends_with("could not be confirmed, and N"));
+        // A forced exit claims the stop only when every device finished and none is in doubt.
+        let claim = ["exiting; every device that could move was stopped".to_owned()];
+        assert_eq!(forced_exit_words(1, &[], None), claim);
+        assert!(
+            forced_exit_words(0, &[], None).is_empty(),
+            "nothing to stop"
+        );
+        assert_eq!(
+            forced_exit_words(1, &p, None),
+            ["exiting; could not confirm the stop of P2OS base".to_owned()]
+        );
+        assert_eq!(
+            forced_exit_words(2, &[], Some("N")),
+            ["exiting; N".to_owned()]
+        );
     }
 
     /// The note about a stop into a dead link is said by the message of an interruption, and

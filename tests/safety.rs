@@ -66,6 +66,15 @@ impl Served {
             Self::Rflex(d) => d.path().display().to_string(),
         }
     }
+
+    /// The stalls injected so far on the host → robot side.
+    fn host_to_robot_stalls(&self) -> u64 {
+        let status = match self {
+            Self::P2os(d) => d.status(),
+            Self::Rflex(d) => d.status(),
+        };
+        status.counters.host_to_robot.stalls
+    }
 }
 
 fn serve(base: Base) -> (SharedWorld, RobotId, Served, HostLog) {
@@ -343,10 +352,12 @@ fn interrupt_drive(base: Base, how: Interruption) {
         "{base:?} {how:?}: {stderr}"
     );
     if let Interruption::Twice(_) = how {
-        // The last word, from the forced exit if the close outlasted the second signal (there
-        // was none then), else from the first signal's way out.
+        // A last word, from the forced exit if the close outlasted the second signal (there
+        // was none then), else from the first signal's way out; on a loaded machine the close
+        // may outlast the forced exit's wait too (its wording: `forced_exit_words`).
         assert!(
-            stderr.contains("every device that could move was stopped"),
+            stderr.contains("every device that could move was stopped")
+                || stderr.contains("exiting; could not confirm the stop of"),
             "{base:?}: {stderr}"
         );
     }
@@ -608,24 +619,25 @@ fn a_stop_into_a_quiet_line_is_repeated_until_it_comes_back() {
 #[test]
 fn a_stop_into_a_line_dead_one_way_is_not_claimed() {
     let faults = FaultPlan::parse("h2r.stall=0.01:6s,seed=1").unwrap();
-    let (_world, _id, served, log) = serve_with(Base::P2os, faults, 1.0);
+    let (world, id, served, log) = serve_with(Base::P2os, faults, 1.0);
     let mut child = spawn_drive("p2at", &served.path(), "0.3", "20");
-    // Connected (the handshake got through), then a second more: the stall has begun.
-    wait_until(Duration::from_secs(20), "the handshake", || {
-        p2os_commands(&log).iter().any(|(_, n)| n == "sync2_close")
+    // Driving (the motors were enabled before the stall), and the stall has begun.
+    wait_until(Duration::from_secs(20), "the robot to move", || {
+        let (l, r) = wheel_speeds(&world, id);
+        l > 0.05 && r > 0.05
     });
-    std::thread::sleep(Duration::from_millis(1500));
+    wait_until(Duration::from_secs(20), "the host → robot stall", || {
+        served.host_to_robot_stalls() > 0
+    });
+    let t0 = Instant::now();
     let (status, stderr) = signal_and_read(&mut child, "INT");
     assert_eq!(status.code(), Some(130), "{stderr}");
     // The program wrote its stop more than once, and did not claim it …
     let closes = p2os_commands(&log)
         .iter()
-        .filter(|(_, n)| n == "sync2_close")
+        .filter(|(at, n)| *at >= t0 && n == "sync2_close")
         .count();
-    assert!(
-        closes >= 3,
-        "the handshake's SYNC2, then CLOSE repeated: {closes}"
-    );
+    assert!(closes >= 2, "CLOSE written again: {closes}");
     assert!(
         stderr.contains("still sending after its stop")
             && stderr.contains("may not have reached the robot")

@@ -86,14 +86,15 @@ impl HaltSignal {
 
     /// Called by the driver task, before [`set_done`](Self::set_done), when its stop may not
     /// have reached the device: it closed while the device had gone quiet and was not heard
-    /// since, its port failed after the device connected, or the task ended before its stop.
+    /// since, or while a device that falls silent once stopped went on sending; its port
+    /// failed after the device connected; or the task ended before its stop.
     /// The device's own watchdog is what stops it then. Messages that would say "stopped"
     /// say so instead ([`StopRegistry::unheard`]).
     pub fn set_stopped_unheard(&self) {
         self.inner.unheard.store(true, Ordering::SeqCst);
     }
 
-    /// Whether the stop was written to a device that had gone quiet
+    /// Whether the stop may not have reached the device
     /// ([`set_stopped_unheard`](Self::set_stopped_unheard)).
     #[must_use]
     pub fn stopped_unheard(&self) -> bool {
@@ -262,8 +263,8 @@ impl StopRegistry {
             .collect()
     }
 
-    /// Names of the registered devices whose stop was written while they had gone quiet
-    /// ([`HaltSignal::set_stopped_unheard`]): it may not have reached them.
+    /// Names of the registered devices whose stop may not have reached them
+    /// ([`HaltSignal::set_stopped_unheard`]).
     #[must_use]
     pub fn unheard(&self) -> Vec<String> {
         let mut names: Vec<String> = Vec::new();

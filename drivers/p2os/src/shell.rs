@@ -57,9 +57,10 @@ pub struct P2osShell {
     motors: Confirmations<bool, (), Self>,
 }
 
-/// The longest a closing task keeps writing its last frames (STOP, CLOSE) and waiting for the
-/// robot to fall silent after them before it gives up, with the robot heard; with it gone, the runner writes them again for 1.2 s
-/// ([`ima_serial::runner::RESTOP_BOUND`] in all, within [`P2os`]'s `CLOSE_LIMIT`).
+/// The longest a closing task keeps writing its last frames (STOP, CLOSE) for a robot that
+/// never connected. For one that did, the runner allows [`ima_serial::runner::RESTOP_BOUND`]
+/// (within [`P2os`]'s `CLOSE_LIMIT`): to repeat them while the robot is gone (for 1.2 s) or
+/// still sending, and to wait for its silence after them.
 const CLOSE_DRAIN_LIMIT: Duration = Duration::from_secs(1);
 // Closing, with or without repeats, ends within `P2os::CLOSE_LIMIT`.
 const _: () = assert!(

@@ -36,8 +36,9 @@ pub const RESTOP_FOR: Duration = Duration::from_millis(1200);
 pub const RESTOP_EVERY: Duration = Duration::from_millis(100);
 /// After the last repeat, how long its frames may take to go out.
 const RESTOP_DRAIN: Duration = Duration::from_millis(500);
-/// The longest closing with repeats lasts ([`RESTOP_FOR`] and the last repeat's drain): within
-/// the 2 s a program waits for its drivers.
+/// The longest closing with repeats lasts ([`RESTOP_FOR`] and the last repeat's drain; also
+/// the bound of a device confirmed by its silence, [`Shell::SILENT_ONCE_CLOSED`]): within the
+/// 2 s a program waits for its drivers.
 pub const RESTOP_BOUND: Duration = RESTOP_FOR.saturating_add(RESTOP_DRAIN);
 const _: () = assert!(RESTOP_BOUND.as_millis() < 2_000);
 
@@ -146,9 +147,11 @@ pub trait Shell: Sized + Send + 'static {
     /// for this long, so that a stop it reports heard was taken. A frame that comes half this
     /// long after the stop was written or later means it was not (a line dead from host to
     /// device only, a frame corrupted on the way): the stop is written again
-    /// ([`REPEATS_STOP`](Self::REPEATS_STOP)) and, the device still sending when closing
-    /// ends (at [`RESTOP_BOUND`] at the latest), reported unheard. Only for a device that was
-    /// connected. By default closing ends once the last frames are out.
+    /// ([`REPEATS_STOP`](Self::REPEATS_STOP)) and, the device not silent this long when
+    /// closing ends, reported unheard. For a device that was connected, closing then lasts
+    /// up to the longer of [`begin_close`](Self::begin_close)'s bound and [`RESTOP_BOUND`].
+    /// It must exceed the device's report period (several periods: a lost report must not
+    /// pass for silence). By default closing ends once the last frames are out.
     const SILENT_ONCE_CLOSED: Option<Duration> = None;
 
     /// Good frames received so far: what "quiet" and "heard" are judged on.
@@ -156,9 +159,11 @@ pub trait Shell: Sized + Send + 'static {
         0
     }
 
-    /// Closing with the device gone (see [`QUIET`](Self::QUIET)): queue the stop frames
-    /// again. The runner calls it every [`RESTOP_EVERY`] for [`RESTOP_FOR`], and once more
-    /// when a frame is heard (the line is back), which ends the repeats.
+    /// Queue the stop frames again: closing with the device gone (see
+    /// [`QUIET`](Self::QUIET)), the runner calls it every [`RESTOP_EVERY`] for
+    /// [`RESTOP_FOR`], and once more when a frame is heard (the line is back), which ends the
+    /// repeats; with [`SILENT_ONCE_CLOSED`](Self::SILENT_ONCE_CLOSED), whenever the device is
+    /// still sending after its stop.
     fn repeat_stop(&mut self) {}
 
     /// Whether the last frames are out (closing ends early; by default: yes).
@@ -348,6 +353,8 @@ pub(crate) async fn run<D, S>(
                 }
             };
             let mut bound = shell.begin_close(now);
+            // (Connected in this very round counts.)
+            ever_up = ever_up || shell.link().borrow().is_connected();
             if ever_up && D::SILENT_ONCE_CLOSED.is_some() {
                 confirm = D::SILENT_ONCE_CLOSED;
                 stop_at = Some(now);
