@@ -64,8 +64,8 @@ pub trait Driver {
     /// release the port and end the task, waiting at most [`Driver::CLOSE_LIMIT`]. Closing a
     /// driver already closed is `Ok`; dropping every handle closes it in the background.
     /// `Ok` says the frames were written, not that the device took them: whether it may not
-    /// have (its link was down, or it went on sending) is
-    /// [`halt_signal`](Driver::halt_signal)`().`[`stopped_unheard`](HaltSignal::stopped_unheard)`()`.
+    /// have (its link was down, or it went on sending) is on the
+    /// [`halt_signal`](Driver::halt_signal) ([`HaltSignal::stopped_unheard`]).
     ///
     /// # Errors
     /// `Timeout` if the last frames were not all written in time, or the link's failure.
