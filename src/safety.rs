@@ -536,7 +536,7 @@ fn forced_exit_words(halted: usize, pending: &[String], note: Option<&str>) -> V
     if let Some(note) = note {
         words.push(format!("exiting; {note}"));
     } else if halted > 0 && pending.is_empty() {
-        words.push("exiting; every device that could move was stopped".to_owned());
+        words.push(format!("exiting{}", stop_summary(&[], None)));
     }
     words
 }

@@ -302,16 +302,7 @@ fn interrupt_drive(base: Base, how: Interruption) {
         l.abs() < 1e-3 && r.abs() < 1e-3
     });
     let stood = t0.elapsed();
-    let status = {
-        let end = Instant::now() + Duration::from_secs(15);
-        loop {
-            if let Some(s) = child.0.try_wait().unwrap() {
-                break s;
-            }
-            assert!(Instant::now() < end, "ima drive did not exit");
-            std::thread::sleep(Duration::from_millis(10));
-        }
-    };
+    let status = wait_exit(&mut child, "ima drive");
     stderr_reader.join().unwrap();
     let stderr: String = stderr_lines
         .lock()

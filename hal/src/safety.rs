@@ -267,26 +267,25 @@ impl StopRegistry {
     /// ([`HaltSignal::set_stopped_unheard`]).
     #[must_use]
     pub fn unheard(&self) -> Vec<String> {
-        let mut names: Vec<String> = Vec::new();
-        for (n, _) in self.lock().iter().filter(|(_, s)| s.stopped_unheard()) {
-            // One name once (a device reopened under its name after a failure).
-            if !names.contains(n) {
-                names.push(n.clone());
-            }
-        }
-        names
+        // One name once (a device reopened under its name after a failure).
+        self.of_unheard(|n, _| Some(n.to_owned()))
     }
 
     /// The watchdogs ([`HaltSignal::watchdog`]) of the devices [`unheard`](Self::unheard)
     /// names, each once.
     #[must_use]
     pub fn unheard_watchdogs(&self) -> Vec<&'static str> {
-        let mut out: Vec<&'static str> = Vec::new();
-        for (_, s) in self.lock().iter().filter(|(_, s)| s.stopped_unheard()) {
-            if let Some(w) = s.watchdog()
-                && !out.contains(&w)
+        self.of_unheard(|_, s| s.watchdog())
+    }
+
+    /// `pick` of each registered device whose stop may not have reached it, each value once.
+    fn of_unheard<T: PartialEq>(&self, pick: impl Fn(&str, &HaltSignal) -> Option<T>) -> Vec<T> {
+        let mut out = Vec::new();
+        for (n, s) in self.lock().iter().filter(|(_, s)| s.stopped_unheard()) {
+            if let Some(v) = pick(n, s)
+                && !out.contains(&v)
             {
-                out.push(w);
+                out.push(v);
             }
         }
         out

@@ -58,9 +58,6 @@ pub enum End {
     Closed {
         /// Whether [`Shell::is_closed`] held before the bound passed.
         drained: bool,
-        /// Whether a device that falls silent once closed ([`Shell::SILENT_ONCE_CLOSED`])
-        /// did (always, for one that does not).
-        silent: bool,
     },
     /// The link failed (end of stream, I/O error).
     Failed(LinkError),
@@ -228,15 +225,11 @@ pub(crate) async fn run<D, S>(
     let mut gone_at_close = false;
     let mut restop: Option<Restop> = None;
     let mut heard_closing = false;
-    // A device that falls silent once closed ([`Shell::SILENT_ONCE_CLOSED`]): the silence
-    // waited for, and when its stop was last written on purpose (not a gone device's timed
-    // repeats).
-    let mut confirm: Option<Duration> = None;
+    // A device that falls silent once closed ([`Shell::SILENT_ONCE_CLOSED`]), connected,
+    // closing: when its stop was last written on purpose (not a gone device's timed repeats),
+    // and whether it had been silent since for long enough when closing ended.
     let mut stop_at: Option<Instant> = None;
-    // When the device has been silent long enough since its stop and its last frame.
-    let silent_from = |confirm: Option<Duration>, stop_at, last_frame| {
-        confirm.and_then(|s| Some(Option::max(stop_at, last_frame)? + s))
-    };
+    let mut silent = true;
     let end = loop {
         ever_up = ever_up || shell.link().borrow().is_connected();
         if let Err(e) = drain(&mut shell, &mut stream) {
@@ -252,12 +245,15 @@ pub(crate) async fn run<D, S>(
             changed
         });
         let now = clock.now();
-        let silent_at = silent_from(confirm, stop_at, last_frame);
+        // When the device has been silent long enough since its stop and its last frame.
+        let silent_at = D::SILENT_ONCE_CLOSED
+            .zip(stop_at)
+            .map(|(s, t)| last_frame.map_or(t, |f| f.max(t)) + s);
         if let Some(limit) = closing {
             let drained = shell.is_closed() && restop.is_none();
-            let silent = silent_at.is_none_or(|t| now >= t);
+            silent = silent_at.is_none_or(|t| now >= t);
             if (drained && silent) || now >= limit {
-                break End::Closed { drained, silent };
+                break End::Closed { drained };
             }
         }
         // (A silence already reached waits for the last frames, not for itself.)
@@ -294,9 +290,9 @@ pub(crate) async fn run<D, S>(
                         if restop.take().is_some() {
                             heard_closing = true;
                             shell.repeat_stop();
-                            stop_at = Some(now);
+                            stop_at = stop_at.map(|_| now);
                         } else if D::REPEATS_STOP
-                            && let (Some(s), Some(t)) = (confirm, stop_at)
+                            && let (Some(s), Some(t)) = (D::SILENT_ONCE_CLOSED, stop_at)
                             && now >= t + s / 2
                         {
                             // Still sending after a frame in flight would have come: not taken;
@@ -356,7 +352,6 @@ pub(crate) async fn run<D, S>(
             // (Connected in this very round counts.)
             ever_up = ever_up || shell.link().borrow().is_connected();
             if ever_up && D::SILENT_ONCE_CLOSED.is_some() {
-                confirm = D::SILENT_ONCE_CLOSED;
                 stop_at = Some(now);
                 // Room for a few repeats and the silence after the last.
                 bound = bound.max(RESTOP_BOUND);
@@ -379,7 +374,7 @@ pub(crate) async fn run<D, S>(
     let unheard = match end {
         // A device never connected has moved nothing: no doubt to raise (a connect that
         // timed out, a port nobody serves).
-        End::Closed { silent, .. } => {
+        End::Closed { .. } => {
             let lost = matches!(*shell.link().borrow(), LinkStatus::Lost);
             if !silent {
                 let device = <D::Fault as Fault>::DEVICE;
@@ -401,8 +396,8 @@ pub(crate) async fn run<D, S>(
     shell.end(end);
     let closed = matches!(end, End::Closed { .. });
     let (r, status) = match end {
-        End::Closed { drained: true, .. } => (Ok(()), LinkStatus::Closed),
-        End::Closed { drained: false, .. } => {
+        End::Closed { drained: true } => (Ok(()), LinkStatus::Closed),
+        End::Closed { drained: false } => {
             tracing::warn!("the device's last frames could not all be written in time");
             (Err(LinkError::Timeout), LinkStatus::Closed)
         }
