@@ -383,14 +383,21 @@ fn manager_fails_with(dir: &str, toml: &str, expect: &str) {
     assert!(err.contains(expect), "{err}");
 }
 
-/// A config file's mistakes name the file; a value of the wrong type also its line, in the
-/// main table and in a `[[synthetic]]` source alike; a value out of range its key.
+/// A config file's mistakes name the file; a value of the wrong type also its line (and what
+/// was expected, in words), in the main table and in a `[[synthetic]]` source alike; a value
+/// out of range its key.
 #[test]
 fn config_errors_name_the_file_and_the_line() {
     manager_fails_with(
         "type",
         "robot = \"s\"\nheartbeat_ms = \"x\"\n",
         "bad.toml: TOML parse error at line 2, column 16",
+    );
+    // In words, not serde's Rust type names ("expected u64").
+    manager_fails_with(
+        "typewords",
+        "robot = \"s\"\nheartbeat_ms = -3\n",
+        "invalid value: integer `-3`, expected a whole number, 0 or more",
     );
     manager_fails_with(
         "synthtype",

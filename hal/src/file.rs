@@ -48,7 +48,7 @@ const MESSAGE_CHARS: usize = 400;
 /// (bounded) message.
 #[must_use]
 pub fn located(text: &str, span: Option<core::ops::Range<usize>>, message: &str) -> String {
-    let message = clip(message, 0, MESSAGE_CHARS).0;
+    let message = plain_types(&clip(message, 0, MESSAGE_CHARS).0);
     let Some(span) = span.filter(|s| s.start <= text.len()) else {
         return message;
     };
@@ -86,6 +86,43 @@ pub fn located(text: &str, span: Option<core::ops::Range<usize>>, message: &str)
         " ".repeat(caret_at),
         "^".repeat(marked.min(room)),
     )
+}
+
+/// `message` with serde's Rust type names said in words: "invalid value: integer `300`,
+/// expected u8" reads "…, expected a whole number from 0 to 255". A person writing a
+/// configuration need not know what a `u8` is.
+fn plain_types(message: &str) -> String {
+    const WORDS: [(&str, &str); 12] = [
+        ("u8", "a whole number from 0 to 255"),
+        ("u16", "a whole number from 0 to 65535"),
+        ("u32", "a whole number from 0 to 4294967295"),
+        ("u64", "a whole number, 0 or more"),
+        ("usize", "a whole number, 0 or more"),
+        ("i8", "a whole number from -128 to 127"),
+        ("i16", "a whole number from -32768 to 32767"),
+        ("i32", "a whole number from -2147483648 to 2147483647"),
+        ("i64", "a whole number"),
+        ("isize", "a whole number"),
+        ("f32", "a number"),
+        ("f64", "a number"),
+    ];
+    let mut out = String::with_capacity(message.len());
+    let mut rest = message;
+    while let Some(at) = rest.find("expected ") {
+        let (head, tail) = rest.split_at(at + "expected ".len());
+        out.push_str(head);
+        let name_len = tail
+            .find(|c: char| !c.is_ascii_alphanumeric())
+            .unwrap_or(tail.len());
+        let (name, after) = tail.split_at(name_len);
+        match WORDS.iter().find(|(rust, _)| *rust == name) {
+            Some((_, words)) => out.push_str(words),
+            None => out.push_str(name),
+        }
+        rest = after;
+    }
+    out.push_str(rest);
+    out
 }
 
 /// `s` from character `from`, at most `max` characters of it, with `…` where it was cut; and
@@ -148,6 +185,34 @@ mod tests {
         assert_eq!(located("x", Some(9..10), "bad"), "bad");
         let _ = located("é", Some(1..2), "bad");
         let _ = located("a\n", Some(2..2), "bad");
+    }
+
+    #[test]
+    fn serde_type_names_are_said_in_words() {
+        let text = "task_priority = 300\n";
+        let e = located(
+            text,
+            Some(16..19),
+            "invalid value: integer `300`, expected u8",
+        );
+        assert!(
+            e.ends_with("invalid value: integer `300`, expected a whole number from 0 to 255"),
+            "{e}"
+        );
+        assert_eq!(
+            plain_types("invalid type: string \"x\", expected f64; expected u16s, expected u64"),
+            "invalid type: string \"x\", expected a number; expected u16s, \
+             expected a whole number, 0 or more"
+        );
+        for kept in [
+            "expected a boolean",
+            "expected `,`",
+            "expected ",
+            "",
+            "u8 expected",
+        ] {
+            assert_eq!(plain_types(kept), kept);
+        }
     }
 
     #[test]
