@@ -196,6 +196,20 @@ fn stop_summary(pending: &[String], note: Option<&str>) -> String {
 
 impl std::error::Error for Interrupted {}
 
+/// An error whose message already says that a robot's stop is not confirmed and what stops
+/// it instead (`ima drive` losing its only base's link while it drove): the way out does not
+/// say the unheard note a second time.
+#[derive(Debug)]
+pub struct StopNotConfirmed(pub String);
+
+impl std::fmt::Display for StopNotConfirmed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for StopNotConfirmed {}
+
 /// Set once a panic hook ran.
 static PANICKED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
@@ -695,28 +709,30 @@ fn unheard_text(unheard: &[String], watchdogs: &[&str]) -> String {
     )
 }
 
-/// Say [`unheard_note`] on the way out with `result`, unless its [`Interrupted`] message
-/// says it. Decided by the result, not by whether the program was asked to end: a Ctrl-C
+/// Say [`unheard_note`] on the way out with `result`, unless its message says it
+/// ([`says_the_stop`]). Decided by the result, not by whether the program was asked to end: a Ctrl-C
 /// pressed while a failed command's drivers were still closing leaves the command's own
 /// error, which does not say it; a closed stdout ends quietly, but stderr may be open.
 fn say_unheard<T>(result: &Result<T>) {
-    if !interrupted_says_it(result)
+    if !says_the_stop(result)
         && let Some(note) = unheard_note()
     {
         say(format_args!("{note}"));
     }
 }
 
-/// Whether `result`'s message is an [`Interrupted`] one that says what became of the devices
-/// (a closed output ends quietly: it says nothing).
-fn interrupted_says_it<T>(result: &Result<T>) -> bool {
+/// Whether `result`'s message says what became of the devices: an [`Interrupted`] one (a
+/// closed output ends quietly: it says nothing), or a [`StopNotConfirmed`].
+fn says_the_stop<T>(result: &Result<T>) -> bool {
     result.as_ref().err().is_some_and(|e| {
-        e.chain().any(|c| {
-            matches!(
-                c.downcast_ref::<Interrupted>(),
-                Some(Interrupted(cause)) if *cause != Cause::OutputClosed
-            )
-        })
+        // A context is found by `downcast_ref` on the error, not in its chain.
+        e.downcast_ref::<StopNotConfirmed>().is_some()
+            || e.chain().any(|c| {
+                matches!(
+                    c.downcast_ref::<Interrupted>(),
+                    Some(Interrupted(cause)) if *cause != Cause::OutputClosed
+                )
+            })
     })
 }
 
@@ -853,19 +869,23 @@ mod tests {
         );
     }
 
-    /// The note about a stop into a dead link is said by the message of an interruption, and
-    /// on its own otherwise: after a plain error (a Ctrl-C while a failed command's drivers
-    /// were closing left that error, and the note was said nowhere), and after a closed
-    /// output (which ends quietly).
+    /// The note about a stop into a dead link is said by the message of an interruption or a
+    /// [`StopNotConfirmed`] error, and on its own otherwise: after a plain error (a Ctrl-C
+    /// while a failed command's drivers were closing left that error, and the note was said
+    /// nowhere), and after a closed output (which ends quietly).
     #[test]
     fn the_unheard_note_is_said_unless_the_interruption_says_it() {
         let signal: Result<()> = Err(Interrupted(Cause::Signal(Signal::INT)).into());
-        assert!(interrupted_says_it(&signal));
+        assert!(says_the_stop(&signal));
         let closed: Result<()> = Err(Interrupted(Cause::OutputClosed).into());
-        assert!(!interrupted_says_it(&closed));
+        assert!(!says_the_stop(&closed));
         let plain: Result<()> = Err(anyhow::anyhow!("the P2OS base: link lost"));
-        assert!(!interrupted_says_it(&plain));
-        assert!(!interrupted_says_it(&Ok(())));
+        assert!(!says_the_stop(&plain));
+        let said: Result<()> = Err(anyhow::anyhow!("driver disconnected")
+            .context(StopNotConfirmed("… keep clear until it stands".into()))
+            .context("driving"));
+        assert!(says_the_stop(&said));
+        assert!(!says_the_stop(&Ok(())));
     }
 
     #[test]

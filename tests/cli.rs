@@ -77,7 +77,7 @@ fn a_stalled_stdout_does_not_stall_the_drive() {
 
 /// The robot's port goes away mid-drive (a pulled cable; here the mock is killed): the drive
 /// fails saying that nothing from here can stop the robot any more and what does (it said only
-/// "P2OS robot driver disconnected").
+/// "P2OS robot driver disconnected"), once (the exit's note said it again).
 #[test]
 fn a_link_lost_mid_drive_says_who_stops_the_robot_now() {
     let (mut mock, path) = spawn_mock(&["p2os", "--seed", "3"]);
@@ -102,11 +102,14 @@ fn a_link_lost_mid_drive_says_who_stops_the_robot_now() {
     assert_eq!(drive.0.wait().unwrap().code(), Some(1), "{err}");
     assert!(
         err.contains(
-            "the link to the robot is lost while it was driving: ima can no longer stop it; \
-             the robot stops itself when commands stop coming"
+            "the link to the robot was lost while it was driving: ima can no longer stop it; its \
+             own watchdog stops it once it hears nothing (P2OS: 2 s after the last command it \
+             received); keep clear until it stands"
         ),
         "{err}"
     );
+    // Said once: the exit's note about a stop that is not confirmed said it again.
+    assert!(!err.contains("is not confirmed"), "{err}");
 }
 
 #[test]

@@ -201,12 +201,7 @@ async fn drive(args: &DriveArgs, params: Option<ima_p2os::RobotParams>) -> Resul
     {
         report_interrupted(robot.latest().map(|st| st.odometry.value).as_ref());
     }
-    moved?.map_err(|e| {
-        report::link_lost::<ima_p2os::shell::Fault>(
-            e,
-            "the robot stops itself when commands stop coming (its command watchdog)",
-        )
-    })?;
+    moved?.map_err(report::link_lost::<ima_p2os::shell::P2osShell>)?;
     robot.stop().await?;
     let stats = robot.stats();
     let after = robot.now();

@@ -199,24 +199,23 @@ impl Drop for Live {
 
 /// A motion that failed because the link to the robot is gone (its port closed, an I/O
 /// error) says what that means for the robot: nothing from here can stop it any more, its own
-/// watchdog does. Other errors go as they are.
-pub fn link_lost<F: ima_serial::Fault + Send + Sync + 'static>(
-    e: anyhow::Error,
-    watchdog: &str,
-) -> anyhow::Error {
+/// watchdog does (the one the driver's shell `S` declares). The message is a
+/// [`safety::StopNotConfirmed`], so the way out does not say it a second time. Other errors
+/// go as they are.
+pub fn link_lost<S: ima_serial::runner::Shell>(e: anyhow::Error) -> anyhow::Error {
     use ima_serial::DriverError;
     let lost = e.chain().any(|c| {
         matches!(
-            c.downcast_ref::<DriverError<F>>(),
+            c.downcast_ref::<DriverError<S::Fault>>(),
             Some(DriverError::Disconnected | DriverError::Io(_))
         )
     });
-    if lost {
-        e.context(format!(
-            "the link to the robot is lost while it was driving: ima can no longer stop it; \
-             {watchdog}"
-        ))
-    } else {
-        e
+    if !lost {
+        return e;
     }
+    let watchdog = S::WATCHDOG.map_or_else(String::new, |w| format!(" ({w})"));
+    e.context(safety::StopNotConfirmed(format!(
+        "the link to the robot was lost while it was driving: ima can no longer stop it; its \
+         own watchdog stops it once it hears nothing{watchdog}; keep clear until it stands"
+    )))
 }

@@ -98,12 +98,7 @@ pub async fn drive(o: &DriveOptions) -> Result<()> {
     {
         super::report::report_interrupted(latest.as_ref());
     }
-    moved?.map_err(|e| {
-        super::report::link_lost::<ima_rflex::shell::Fault>(
-            e,
-            "the base's own fail-safe stops it when commands stop coming (§6)",
-        )
-    })?;
+    moved?.map_err(super::report::link_lost::<ima_rflex::shell::RflexShell>)?;
     base.stop().await?;
     let st = base.stats();
     let after = base.now();
