@@ -1,30 +1,13 @@
 //! Replay every committed fuzz-corpus file through its harness.
 
-use std::path::Path;
+use ima_hal::fuzzing::replay_corpus;
 
-fn replay(dir: &str, harness: fn(&[u8])) {
-    let dir = Path::new(dir);
-    assert!(dir.is_dir(), "missing corpus {}", dir.display());
-    let mut n = 0;
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_file() {
-            harness(&std::fs::read(&p).unwrap());
-            n += 1;
-        }
-    }
-    assert!(n > 0, "empty corpus {}", dir.display());
-}
+const CORPORA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../fuzz/corpus");
 
 #[test]
 fn ses_shared_form_corpus() {
-    replay(
-        concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../fuzz/corpus/ses_shared_form"
-        ),
-        ima_agents::fuzz_harness::ses_shared_form,
-    );
+    let h = ima_agents::fuzz_harness::ses_shared_form;
+    replay_corpus(CORPORA, "ses_shared_form", h, false).unwrap();
 }
 
 /// Writes the seed corpus (run with `--ignored` after a format change).
@@ -83,7 +66,8 @@ const PEER_CORPUS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../fuzz/corpus/p
 
 #[test]
 fn peer_frames_corpus() {
-    replay(PEER_CORPUS, ima_agents::fuzz_harness::peer_frames);
+    let h = ima_agents::fuzz_harness::peer_frames;
+    replay_corpus(CORPORA, "peer_frames", h, false).unwrap();
 }
 
 /// Writes the `peer_frames` seed corpus (run with `--ignored` after a format change).

@@ -45,6 +45,8 @@ pub mod compass;
 pub mod error;
 #[cfg(feature = "std")]
 pub mod file;
+#[cfg(feature = "fuzzing")]
+pub mod fuzzing;
 pub mod laser;
 pub mod link;
 pub mod power;

@@ -1,29 +1,13 @@
 //! Replays the committed fuzz corpora through the same harness functions cargo-fuzz runs, so
 //! `cargo test` catches a regression on any saved input without nightly or cargo-fuzz.
 
-use std::path::PathBuf;
+use ima_hal::fuzzing::replay_corpus;
 
-fn replay(target: &str, run: fn(&[u8])) {
-    let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../fuzz/corpus")).join(target);
-    assert!(
-        dir.is_dir(),
-        "corpus directory {} is missing",
-        dir.display()
-    );
-    let mut files = 0;
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
-        if path.is_file() {
-            let data = std::fs::read(&path).unwrap();
-            run(&data);
-            // Every prefix too: truncated inputs are the commonest real-world damage.
-            for n in 0..data.len() {
-                run(&data[..n]);
-            }
-            files += 1;
-        }
-    }
-    assert!(files > 0, "corpus directory {} is empty", dir.display());
+const CORPORA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../fuzz/corpus");
+
+/// Every input and every prefix of it: truncated inputs are the commonest real-world damage.
+fn replay(target: &str, harness: fn(&[u8])) {
+    replay_corpus(CORPORA, target, harness, true).unwrap();
 }
 
 #[test]

@@ -2,24 +2,14 @@
 //! so the invariants the fuzzer checked keep holding in a plain `cargo test` (with checksums
 //! on, unlike the `cfg(fuzzing)` build).
 
+use ima_hal::fuzzing::replay_corpus;
 use ima_p2os::fuzz_harness;
 use std::path::Path;
 
+const CORPORA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../fuzz/corpus");
+
 fn replay(target: &str, harness: fn(&[u8])) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../fuzz/corpus")
-        .join(target);
-    assert!(dir.is_dir(), "missing corpus directory {}", dir.display());
-    let mut files = 0;
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
-        if path.is_file() {
-            let data = std::fs::read(&path).unwrap();
-            harness(&data);
-            files += 1;
-        }
-    }
-    assert!(files > 0, "empty corpus {}", dir.display());
+    let files = replay_corpus(CORPORA, target, harness, false).unwrap();
     eprintln!("{target}: replayed {files} files");
 }
 

@@ -15,24 +15,16 @@ const TARGETS: [(&str, Harness); 3] = [
     ("sick_lms_roundtrip", fuzz_harness::sick_lms_roundtrip),
 ];
 
+const CORPORA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../fuzz/corpus");
+
 fn dir(target: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../fuzz/corpus")).join(target)
+    PathBuf::from(CORPORA).join(target)
 }
 
 #[test]
 fn replay_committed_corpora() {
     for (target, harness) in TARGETS {
-        let d = dir(target);
-        assert!(d.is_dir(), "{} missing", d.display());
-        let mut n = 0;
-        for entry in std::fs::read_dir(&d).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_file() {
-                harness(&std::fs::read(&path).unwrap());
-                n += 1;
-            }
-        }
-        assert!(n > 0, "{target}: empty corpus");
+        ima_hal::fuzzing::replay_corpus(CORPORA, target, harness, false).unwrap();
     }
 }
 
