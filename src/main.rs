@@ -94,15 +94,18 @@ const CONNECT_TARGET: &str = "ima::connect";
 
 /// The Foxglove server logs each client's mistake (a subscription to an unknown channel, an
 /// old subprotocol) at ERROR: any program or web page on the machine could write into the
-/// robot's terminal that way. Those lines are left out unless the filter names `foxglove`.
+/// robot's terminal that way. And the SDK warns, in Rust's debug form
+/// (`McapError(Io(Os { code: 28, … }))`), of the message a failed file refused, beside the
+/// recorder's own line that names the cause. Those lines are left out unless the filter names
+/// `foxglove`.
 fn quiet_clients(f: tracing_subscriber::EnvFilter, given: &str) -> tracing_subscriber::EnvFilter {
     if given.contains("foxglove") {
         return f;
     }
-    match "foxglove::websocket=off".parse() {
-        Ok(d) => f.add_directive(d),
-        Err(_) => f,
-    }
+    ["foxglove::websocket=off", "foxglove::log_sink_set=off"]
+        .into_iter()
+        .filter_map(|d| d.parse().ok())
+        .fold(f, tracing_subscriber::EnvFilter::add_directive)
 }
 
 /// Checks a `--log` filter (clap then reports a bad one with exit status 2).

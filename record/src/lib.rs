@@ -88,6 +88,10 @@ const LIVE_TICK: Duration = Duration::from_millis(20);
 /// crash loses at most this much more than the chunk being filled.
 const FILE_TICK: Duration = Duration::from_millis(500);
 
+/// The largest failed file whose messages are counted again from the file at its end (a
+/// read of ~0.5 s): a larger one keeps the count of what was logged.
+pub const RECOUNT_LIMIT: u64 = 512 << 20;
+
 /// MCAP chunk size, bytes (uncompressed): a crash loses at most this much (about 2 s of the
 /// demo); a camera frame is ~230 KB, so smaller chunks would hold one frame each.
 const CHUNK_SIZE: u64 = 1024 * 1024;
@@ -150,8 +154,13 @@ pub enum Error {
 pub struct Report {
     /// The MCAP file, if any.
     pub path: Option<PathBuf>,
-    /// Messages written per topic.
+    /// Messages written per topic. After a write error ([`error`](Self::error)) those the file
+    /// holds, read back from it ([`lost_unknown`](Self::lost_unknown) says when it was too
+    /// large to read at the end): the chunk being written when the file failed is lost.
     pub written: BTreeMap<String, u64>,
+    /// The file failed and was larger than [`RECOUNT_LIMIT`], so [`written`](Self::written)
+    /// counts what was logged, including the messages of the chunk lost when it failed.
+    pub lost_unknown: bool,
     /// Messages dropped because the queue was full.
     pub dropped: u64,
     /// Messages logged but not written: their payload could not be encoded (a `Serialize`
@@ -222,6 +231,9 @@ impl Report {
         }
         if let Some(e) = &self.error {
             s.push_str(&format!("; writing stopped: {e}"));
+            if self.lost_unknown {
+                s.push_str(" (the count includes the messages of the chunk lost then)");
+            }
         }
         if let Some(cpu) = self.thread_cpu {
             s.push_str(&format!(
@@ -1124,9 +1136,20 @@ impl Worker {
         for s in self.streams.iter().flatten().filter(|s| s.written > 0) {
             *written.entry(s.topic.to_string()).or_insert(0) += s.written;
         }
+        // A file that failed lost the chunk being written (its messages were counted as they
+        // went into it): say what the file holds.
+        let mut lost_unknown = false;
+        if let (Some(_), Some(path)) = (&self.error, &self.path) {
+            let file = (bytes <= RECOUNT_LIMIT).then(|| read::Recording::open(path).ok());
+            match file.flatten() {
+                Some(r) => written = r.count_by_topic(),
+                None => lost_unknown = true,
+            }
+        }
         Report {
             path: self.path.clone(),
             written,
+            lost_unknown,
             dropped: 0,
             unwritten: self.unwritten,
             error: self.error.clone(),

@@ -1081,6 +1081,17 @@ impl Recording {
         (n, Truncation(self.damage().or(cut)))
     }
 
+    /// How many messages the file holds on each topic (as [`count`](Self::count), by topic).
+    #[must_use]
+    pub fn count_by_topic(&self) -> BTreeMap<String, u64> {
+        let mut out = BTreeMap::new();
+        self.each(|m| {
+            *out.entry(m.channel.topic.clone()).or_insert(0) += 1;
+            true
+        });
+        out
+    }
+
     /// Every channel: topic → (schema name, metadata).
     pub fn channels(&self) -> BTreeMap<String, (String, BTreeMap<String, String>)> {
         let mut out = BTreeMap::new();
