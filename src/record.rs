@@ -120,12 +120,21 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
         return Ok(());
     }
     if let Some(p) = &args.record {
-        crate::cmd::output::check_file("--record", p)?;
+        // `-` is stdin or stdout elsewhere (`ima decode`); here it made a file named `-`.
         anyhow::ensure!(
-            !p.exists(),
-            "--record {}: the file exists (a recording never overwrites one)",
-            p.display()
+            p.as_os_str() != "-",
+            "--record -: a recording is written to a file (an MCAP file ends with an index of \
+             what it holds); name one, e.g. --record run.mcap"
         );
+        crate::cmd::output::check_file("--record", p)?;
+        let what = match std::fs::metadata(p) {
+            Ok(m) if m.is_file() => Some("the file exists (a recording never overwrites one)"),
+            Ok(_) => Some("not a regular file (a recording is written to a new file)"),
+            Err(_) => None,
+        };
+        if let Some(what) = what {
+            anyhow::bail!("--record {}: {what}", p.display());
+        }
     }
     let rec = Recorder::start(&Options {
         mcap: args.record.clone(),

@@ -358,7 +358,8 @@ fn decode_reads_hex_from_stdin_and_reports_bad_frames() {
 }
 
 /// Bytes of another protocol (or direction) give no frame: the output is empty, so stderr
-/// says what likely happened instead of leaving the user with nothing.
+/// says what likely happened instead of leaving the user with nothing; an MCAP recording is
+/// named as one.
 #[test]
 fn decode_says_so_when_no_frame_was_found() {
     let decode = |args: &[&str], input: &[u8]| {
@@ -381,6 +382,19 @@ fn decode_says_so_when_no_frame_was_found() {
     assert!(
         err.contains("no p2os frame in 25 bytes") && err.contains("`--from host`"),
         "{err}"
+    );
+    // An MCAP recording given as a capture (`--mcap` forgotten) is refused, pointing at
+    // `--mcap` (SICK decoded one into 56,812 lines of noise, with success).
+    let mcap = b"\x89MCAP0\r\n\x01\x02\x00\x00\x00\x00\x00\x00\x00ros1";
+    let out = decode(&["sick-lms"], mcap);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(out.stdout.is_empty(), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(
+            "stdin is an MCAP recording, not a capture of a port's bytes: decode one of its \
+             ports with `ima decode --mcap FILE.mcap --port PORT`"
+        ),
+        "{out:?}"
     );
     // A frame is not reported; no input at all is, as such (it gave no output at all).
     let out = decode(&["p2os", "--from", "host", "--hex"], b"FA FB 03 1D 00 1D");

@@ -699,3 +699,42 @@ fn unusable_values_are_refused_as_the_command_line_is_read() {
         assert!(stderr(&out).contains(want), "{args:?}: {}", stderr(&out));
     }
 }
+
+/// `--record` takes a new file only: `-` (stdout elsewhere) made a file named `-`, a device
+/// such as `/dev/null` was refused as "the file exists", and an existing file is never
+/// overwritten. Each is refused before anything starts.
+#[test]
+fn record_takes_a_new_file_only() {
+    let d = scratch("record-new");
+    let old = d.join("old.mcap");
+    std::fs::write(&old, b"keep").unwrap();
+    for (path, why) in [
+        (
+            "-".to_owned(),
+            "--record -: a recording is written to a file",
+        ),
+        (
+            "/dev/null".to_owned(),
+            "--record /dev/null: not a regular file (a recording is written to a new file)",
+        ),
+        (
+            old.display().to_string(),
+            "the file exists (a recording never overwrites one)",
+        ),
+    ] {
+        let out = ima()
+            .current_dir(&d)
+            .args(["demo", "--svg"])
+            .arg(d.join("x.svg"))
+            .args(["--record", &path])
+            .output()
+            .unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{path}: {err}");
+        assert!(err.contains(why), "{path}: {err}");
+        assert!(!d.join("x.svg").exists(), "the demo ran: {err}");
+    }
+    assert!(!d.join("-").exists());
+    assert_eq!(std::fs::read(&old).unwrap(), b"keep");
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -840,6 +840,24 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
         "{live:?}\n{replayed:?}"
     );
     assert_eq!(replayed[..n], live[..n]);
+    // A client that writes, then closes the port: the server ends at once, saying so (it went
+    // on for each chunk's 2 s wait for a request, 69 s for an 8 s recording, into a pty
+    // nobody had open).
+    let (served, path) = serve(std::process::Stdio::piped());
+    let mut client = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&path)
+        .unwrap();
+    std::io::Write::write_all(&mut client, &[0xFA, 0xFB, 0x03, 0x00, 0x00, 0x00]).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    drop(client);
+    let out = served.output_within(5);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains(&format!("the client closed {path}")),
+        "{err}"
+    );
     // Ctrl-C while the recording is served (waiting for a host that never writes): it ends at
     // once as interrupted, saying what it served (it used to end with status 0, as if it had
     // served everything).
@@ -883,6 +901,29 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
         err.contains("interrupted by SIGINT") && !err.contains("could move"),
         "{err}"
     );
+    // Without `--json`, a replay says what it does as it starts (it showed nothing for as
+    // long as the recording lasted), and how far it got when it is stopped.
+    let mut replay = common::Child(
+        ima()
+            .args(["replay", "--speed", "0.05"])
+            .arg(&file)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut errs = std::io::BufReader::new(replay.0.stderr.take().unwrap());
+    let mut start = String::new();
+    errs.read_line(&mut start).unwrap();
+    assert!(
+        start.starts_with("ima replay: re-decoding ")
+            && start.contains("at ×0.05; `--json` prints each reading"),
+        "{start}"
+    );
+    replay.signal("INT");
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut errs, &mut rest).unwrap();
+    assert_eq!(replay.0.wait().unwrap().code(), Some(130), "{rest}");
+    assert!(rest.contains("replayed before it stopped"), "{rest}");
 }
 
 /// Ctrl-C during a recorded demo: the guard closes the file, which then has its summary.

@@ -115,6 +115,24 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         .context("starting the replay's reader")?;
     let json_out = args.json;
     let speed = args.speed;
+    if !json_out {
+        // A replay shows nothing by itself: say what it does while it plays (it printed only
+        // its count at the end, after as long as the recording lasted).
+        let pace = if speed > 0.0 {
+            format!("at ×{speed}")
+        } else {
+            "as fast as it can".to_owned()
+        };
+        let hint = if args.rec.foxglove.is_none() {
+            "; `--json` prints each reading, `--foxglove` serves them to a live view"
+        } else {
+            ""
+        };
+        eprintln!("ima replay: re-decoding {file} {pace}{hint}");
+    }
+    // Readings played so far, for the line at the end (also after a Ctrl-C).
+    let count = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counted = std::sync::Arc::clone(&count);
     let played = crate::safety::block_on(async move {
         let mut order = Reorder::default();
         let mut raw = RawReplay::default();
@@ -167,6 +185,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
                 Item::Raw(c) => raw.publish(&c),
                 Item::Reading(r) => {
                     n += 1;
+                    counted.store(n, std::sync::atomic::Ordering::Relaxed);
                     publish(&r.reading);
                     if json_out {
                         let t0 = *t0.get_or_insert(t);
@@ -181,7 +200,12 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     let read = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
-    let (n, late) = played?;
+    let (n, late) = played.inspect_err(|_| {
+        if !json_out {
+            let n = count.load(std::sync::atomic::Ordering::Relaxed);
+            eprintln!("ima replay: {n} readings from {file}, replayed before it stopped");
+        }
+    })?;
     let (streams, cut) = read?;
     let ends_early = cut.beyond(damage.as_deref());
     if streams == 0 && n == 0 && (damage.is_some() || ends_early.is_some()) {
@@ -778,12 +802,11 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
     let path = slave.name().context("the pseudo-terminal has no path")?;
     master.set_timeout(Duration::from_millis(5))?;
     outln!("{path}")?;
-    let mut heard = 0usize;
-    let mut buf = [0u8; 512];
-    let mut listen = |master: &mut serialport::TTYPort, heard: &mut usize| {
-        if let Ok(n) = std::io::Read::read(master, &mut buf) {
-            *heard += n;
-        }
+    let mut line = AsMockLine {
+        master,
+        slave: Some(slave),
+        heard: 0,
+        gone: false,
     };
     let mut sent = 0usize;
     let mut prev_t: Option<u64> = None;
@@ -801,27 +824,35 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
             }
         };
         let waited = std::time::Instant::now();
-        while heard < need && waited.elapsed() < AS_MOCK_WAIT && !asked_to_end() {
-            listen(&mut master, &mut heard);
+        while line.heard < need && waited.elapsed() < AS_MOCK_WAIT && line.open() {
+            line.listen();
         }
         if speed > 0.0
             && let Some(p) = prev_t
         {
             let gap = Duration::from_nanos(t.saturating_sub(p)).div_f64(speed);
             let until = std::time::Instant::now() + gap.min(Duration::from_secs(5));
-            while std::time::Instant::now() < until && !asked_to_end() {
-                listen(&mut master, &mut heard);
+            while std::time::Instant::now() < until && line.open() {
+                line.listen();
             }
         }
         if asked_to_end() {
             served(sent);
             return interrupted();
         }
+        if line.gone {
+            // The driver closed the port: nobody reads the rest (it waited out every chunk's
+            // request, 2 s each, into a pty nobody had open).
+            eprintln!("ima replay: the client closed {path}");
+            served(sent);
+            return Ok(());
+        }
         prev_t = Some(t);
-        std::io::Write::write_all(&mut master, &bytes)
+        line.write(&bytes)
             .with_context(|| format!("writing to {path}"))?;
         sent += bytes.len();
     }
+    let AsMockLine { slave, .. } = line;
     let (read, _) = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
@@ -837,6 +868,81 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
 
 /// How long `--as-mock` waits for the host's request before sending the recorded answer.
 const AS_MOCK_WAIT: Duration = Duration::from_secs(2);
+
+/// `--as-mock`'s side of the pty, and whether its client is there.
+///
+/// The server holds the port's far end open until the client is first heard, so that bytes
+/// sent before it opens wait for it; then it lets go, so that the client's close shows as a
+/// hang-up on this side (a client that never writes is never known to have left).
+struct AsMockLine {
+    master: serialport::TTYPort,
+    slave: Option<serialport::TTYPort>,
+    /// Bytes the client wrote so far.
+    heard: usize,
+    /// The client was heard, then closed the port.
+    gone: bool,
+}
+
+impl AsMockLine {
+    /// Whether to go on waiting: the client is there and nobody asked the program to end.
+    fn open(&self) -> bool {
+        !self.gone && !crate::safety::asked_to_end()
+    }
+
+    /// Read what the client wrote (at most the master's 5 ms timeout).
+    fn listen(&mut self) {
+        let mut buf = [0u8; 512];
+        match std::io::Read::read(&mut self.master, &mut buf) {
+            Ok(n) => {
+                self.heard += n;
+                if n > 0 {
+                    self.slave = None;
+                }
+            }
+            // No far end open: the client closed it (once this side let go of its own).
+            Err(e) if self.slave.is_none() && hung_up(&e) => self.gone = true,
+            Err(_) => {}
+        }
+    }
+
+    /// Write `bytes`, as the client reads them: a pty holds a few kB, so a large chunk waits
+    /// for the client. Ends early when the client closes the port.
+    ///
+    /// # Errors
+    /// The write fails, or the client takes no byte for [`AS_MOCK_WAIT`] (it stopped reading).
+    fn write(&mut self, mut bytes: &[u8]) -> std::io::Result<()> {
+        let mut progress = std::time::Instant::now();
+        while !bytes.is_empty() && self.open() {
+            match std::io::Write::write(&mut self.master, bytes) {
+                Ok(n) => {
+                    bytes = bytes.get(n..).unwrap_or_default();
+                    progress = std::time::Instant::now();
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                    if progress.elapsed() >= AS_MOCK_WAIT {
+                        return Err(std::io::Error::new(
+                            e.kind(),
+                            format!(
+                                "the client took no byte for {} s (it stopped reading)",
+                                AS_MOCK_WAIT.as_secs()
+                            ),
+                        ));
+                    }
+                    self.listen();
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Whether a read of a pty's master says no far end is open (Linux: EIO; `serialport` turns
+/// the poll's hang-up into a broken pipe).
+fn hung_up(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::BrokenPipe || e.raw_os_error() == Some(5)
+}
 
 #[cfg(test)]
 mod tests {

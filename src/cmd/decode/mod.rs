@@ -159,6 +159,17 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
             Ok(None) => break None,
             Err(e) => break Some(e),
         };
+        // An MCAP recording given as a capture decoded into tens of thousands of
+        // "frames" of noise, with success.
+        if read == 0 && piece.starts_with(MCAP_MAGIC) {
+            let f = args.file.as_deref().filter(|p| p.as_os_str() != "-");
+            let f = f.map_or_else(|| "FILE.mcap".to_owned(), |p| p.display().to_string());
+            anyhow::bail!(
+                "{name} is an MCAP recording, not a capture of a port's bytes: decode one of its \
+                 ports with `ima decode --mcap {f} --port PORT` (`ima replay {f}` re-decodes \
+                 them all)"
+            );
+        }
         read = read.saturating_add(piece.len() as u64);
         d.feed(&piece, &mut |v| out.emit(v))?;
         out.flush()?;
@@ -176,6 +187,9 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     }
     ended.map_or(Ok(()), Err)
 }
+
+/// How an MCAP file starts (its magic, without the format version that follows).
+const MCAP_MAGIC: &[u8] = b"\x89MCAP";
 
 /// The pieces of a capture as they are read, or the error that ended the reading.
 type Pieces = std::sync::mpsc::Receiver<std::io::Result<Vec<u8>>>;
