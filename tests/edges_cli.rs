@@ -738,3 +738,34 @@ fn record_takes_a_new_file_only() {
     assert_eq!(std::fs::read(&old).unwrap(), b"keep");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A SAN network Skeeter's brain cannot run (one that lacks a condition the brain feeds) is
+/// refused before any device opens, naming the configuration, the key and the network file.
+/// It was found only once the devices had connected: "configuration: Skeeter's SAN: skeeter
+/// network lacks condition `target-requested`".
+#[test]
+fn a_network_skeeter_cannot_run_is_refused_before_its_devices_open() {
+    let d = scratch("skeeter-network");
+    let (world, line) = mock_world(&d, &[]);
+    assert!(line.is_some(), "the world did not start");
+    // The world's devices are not needed: the check comes first.
+    drop(world);
+    let toy = concat!(env!("CARGO_MANIFEST_DIR"), "/agents/networks/maes_toy.toml");
+    let cfg = d.join("skeeter.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let text = text.replacen("[agent]\n", &format!("[agent]\nnetwork = {toy:?}\n"), 1);
+    assert!(text.contains("network = "), "no [agent] table: {text}");
+    std::fs::write(&cfg, text).unwrap();
+    let out = ima().args(["run", "--config"]).arg(&cfg).output().unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!("in {}", cfg.display()))
+            && err.contains(&format!(
+                "agent.network {toy}: skeeter network lacks condition"
+            ))
+            && !err.contains("opening"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}

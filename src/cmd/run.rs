@@ -74,6 +74,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
             bail!("{key} {a:?}: the name does not resolve on this machine ({e})");
         }
     }
+    // Skeeter's SAN network and colour database, read and checked before any device opens.
+    if cfg.role == Role::Skeeter {
+        crate::stack::skeeter::runtime_config(&cfg)
+            .with_context(|| format!("in {}", args.config.display()))?;
+    }
     let _served = if cfg.mock {
         Some(serve_mock(&mut cfg)?)
     } else {

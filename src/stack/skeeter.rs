@@ -53,6 +53,15 @@ pub fn runtime_config(cfg: &RobotConfig) -> Result<SkeeterRuntimeConfig> {
     if let Some(path) = &cfg.agent.network {
         brain.network = ima_hal::file::read_text(path)
             .with_context(|| format!("reading the SAN network {}", path.display()))?;
+        // Checked here, before any device opens (the brain checked it only once the devices
+        // had connected, in words that named neither the key nor the file).
+        ima_agents::mission::skeeter::SkeeterBrain::new(brain.clone()).map_err(|e| {
+            anyhow::anyhow!(
+                "agent.network {}: {e} (Skeeter's brain feeds the conditions {})",
+                path.display(),
+                ima_agents::mission::skeeter::FED_CONDITIONS.join(", ")
+            )
+        })?;
     }
     Ok(SkeeterRuntimeConfig {
         brain,

@@ -17,6 +17,9 @@
 //! * **target notices** — repeats of the current target (several copies are sent) change
 //!   nothing; a new target replays Skeeter's latest SES if it is younger than
 //!   `brain.lost_after`, stamped with the time it arrived (the lost timer runs from then);
+//!   the commander's target is not taken while the observer works on another one it
+//!   accepted (it queues the commander's behind it, and says when it starts it), so that the
+//!   two robots never pursue different targets;
 //! * **heading requests** — the brain's `RequestHeading` becomes a re-request on the link.
 
 use core::time::Duration;
@@ -32,7 +35,7 @@ use tokio::sync::watch;
 use super::events::{Control, EventKind, Events, MapView, SanView};
 use super::link::ScooterLink;
 use super::{HaltOnDrop, MissionTime, RuntimeError, StopRequest, stopped};
-use crate::mission::msg::{Broadcast, Emergency};
+use crate::mission::msg::{Broadcast, COMMANDER, Emergency, MissionEvent};
 use crate::mission::scooter::{ScooterBrain, ScooterConfig, ScooterHeard, ScooterSay};
 use crate::ses::shared::SharedForm;
 
@@ -381,6 +384,9 @@ struct LoopState {
     last_odo_at: Option<Instant>,
     /// A fleet stop holds the base at zero until a fleet resume or a new target.
     halted: bool,
+    /// The target the observer (a robot, not the commander) accepted and has not ended: it
+    /// works on one target at a time and queues the commander's next ones behind it.
+    observer_target: Option<String>,
     /// The control loop's velocity commands the base refused in a row.
     base_refusals: Refusals,
 }
@@ -500,12 +506,20 @@ impl LoopState {
                 _ => {}
             }
         }
+        self.follow_observer(b, me);
         let Some(h) = ScooterHeard::from_broadcast(b, me) else {
             return;
         };
         match &h {
             // Repeats of the current target (several copies are sent) change nothing.
             ScooterHeard::TargetAccepted { colour } if brain.target() == Some(colour) => {}
+            // The observer still works on another target and queued this one behind it (a
+            // console restarted while a target was in progress): taken when the observer
+            // starts it. Taking it at once sent Scooter after it while Skeeter went on
+            // with the other until its timeout.
+            ScooterHeard::TargetAccepted { colour }
+                if b.robot() == COMMANDER
+                    && self.observer_target.as_ref().is_some_and(|t| t != colour) => {}
             ScooterHeard::TargetAccepted { colour } => {
                 if self.halted {
                     // A new target ends a fleet stop.
@@ -543,6 +557,36 @@ impl LoopState {
                 self.reached = None;
             }
             _ => brain.handle_heard(&h, now),
+        }
+    }
+}
+
+impl LoopState {
+    /// Track the observer's target: accepted by a robot other than the commander, until
+    /// that robot ends it or the commander cancels it.
+    fn follow_observer(&mut self, b: &Broadcast, me: &str) {
+        let ended = match b {
+            Broadcast::Mission {
+                robot,
+                event: MissionEvent::Accepted,
+                target,
+            } if robot != me && robot != COMMANDER => {
+                self.observer_target = Some(target.clone());
+                return;
+            }
+            Broadcast::Mission {
+                event: MissionEvent::Accomplished | MissionEvent::Failed,
+                target,
+                ..
+            } => target,
+            Broadcast::Emergency {
+                emergency: Emergency::TargetCancel { colour },
+                ..
+            } => colour,
+            _ => return,
+        };
+        if self.observer_target.as_ref() == Some(ended) {
+            self.observer_target = None;
         }
     }
 }
@@ -800,6 +844,74 @@ mod tests {
             after.iter().all(|c| *c == Cmd::Vel(VelocityCommand::ZERO)),
             "{after:?}"
         );
+        stop_tx.send(true).unwrap();
+        run.await.unwrap().unwrap();
+    }
+
+    /// A console restarted while the observer worked on a target: the new console's target
+    /// is queued by the observer, and Scooter waits for it too (it went after it at once,
+    /// ending its fleet stop, while Skeeter went on with the other target until its timeout).
+    #[tokio::test(start_paused = true)]
+    async fn the_commanders_target_waits_while_the_observer_works_on_another() {
+        let clock = TokioClock::shared();
+        let (dev, log) = devices(&clock, None);
+        let (link, ends) = ScooterLink::channels();
+        let (stop_tx, stop) = watch::channel(false);
+        let (events, mut rx) = Events::channel(4096);
+        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        let say = |robot: &str, event, target: &str| Broadcast::mission(robot, event, target);
+        ends.heard
+            .send(say("skeeter", MissionEvent::Accepted, "purple"))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        ends.heard
+            .send(Broadcast::Emergency {
+                robot: "commander".into(),
+                emergency: Emergency::FleetStop {
+                    reason: "interrupted".into(),
+                },
+            })
+            .await
+            .unwrap();
+        ends.heard
+            .send(Broadcast::new_target("blue"))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let resumed = |rx: &mut crate::runtime::events::EventReceiver| {
+            let mut by = Vec::new();
+            while let Some(e) = rx.try_recv() {
+                if let EventKind::FleetResume { target, .. } = e.kind {
+                    by.push(target);
+                }
+            }
+            by
+        };
+        assert_eq!(
+            resumed(&mut rx),
+            [],
+            "blue taken while Skeeter works on purple"
+        );
+        let n = log.lock().unwrap().len();
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        assert!(
+            log.lock().unwrap()[n..]
+                .iter()
+                .all(|c| *c == Cmd::Vel(VelocityCommand::ZERO)),
+            "the fleet stop holds"
+        );
+        // Skeeter ends purple and starts blue: now Scooter takes it.
+        ends.heard
+            .send(say("skeeter", MissionEvent::Failed, "purple"))
+            .await
+            .unwrap();
+        ends.heard
+            .send(say("skeeter", MissionEvent::Accepted, "blue"))
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert_eq!(resumed(&mut rx), [Some("blue".to_owned())]);
         stop_tx.send(true).unwrap();
         run.await.unwrap().unwrap();
     }
