@@ -199,7 +199,7 @@ impl Report {
     pub fn summary(&self) -> String {
         let mut s = match &self.path {
             Some(p) => format!(
-                "recorded {} messages on {} topics to {} ({} kB)",
+                "recorded {} messages on {} topics to {} ({} KiB)",
                 self.total(),
                 self.written.len(),
                 p.display(),
@@ -1101,7 +1101,7 @@ impl Worker {
             .unwrap_or_else(|| "a write failed".into());
         let path = self.path.as_deref().unwrap_or(Path::new("?"));
         tracing::error!(
-            "recording to {}: {first}; writing stopped after {} kB (the messages of the chunk \
+            "recording to {}: {first}; writing stopped after {} KiB (the messages of the chunk \
              being written are lost; `ima replay` reads the chunks before)",
             path.display(),
             bytes.div_ceil(1024)

@@ -963,7 +963,7 @@ impl Recording {
             let (_, first) = &survey.skipped[0];
             let what = if n == 1 { "stretch" } else { "stretches" };
             format!(
-                "{n} damaged {what} of {} kB skipped (first: {first})",
+                "{n} damaged {what} of {} KiB skipped (first: {first})",
                 size.div_ceil(1024)
             )
         });
