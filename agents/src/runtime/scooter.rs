@@ -836,16 +836,21 @@ mod tests {
             .await
             .unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
+        held_at_zero(&log, Duration::from_secs(2)).await;
+        stop_tx.send(true).unwrap();
+        run.await.unwrap().unwrap();
+    }
+
+    /// Every velocity command of the next `span` is zero, and there is one.
+    async fn held_at_zero(log: &Arc<Mutex<Vec<Cmd>>>, span: Duration) {
         let n = log.lock().unwrap().len();
-        tokio::time::sleep(Duration::from_secs(2)).await;
+        tokio::time::sleep(span).await;
         let after: Vec<Cmd> = log.lock().unwrap()[n..].to_vec();
         assert!(!after.is_empty());
         assert!(
             after.iter().all(|c| *c == Cmd::Vel(VelocityCommand::ZERO)),
             "{after:?}"
         );
-        stop_tx.send(true).unwrap();
-        run.await.unwrap().unwrap();
     }
 
     /// A console restarted while the observer worked on a target: the new console's target
@@ -865,19 +870,16 @@ mod tests {
             .await
             .unwrap();
         tokio::time::sleep(Duration::from_secs(1)).await;
-        ends.heard
-            .send(Broadcast::Emergency {
-                robot: "commander".into(),
-                emergency: Emergency::FleetStop {
-                    reason: "interrupted".into(),
-                },
-            })
-            .await
-            .unwrap();
-        ends.heard
-            .send(Broadcast::new_target("blue"))
-            .await
-            .unwrap();
+        let stop_all = Emergency::FleetStop {
+            reason: "interrupted".into(),
+        };
+        let heard = [
+            Broadcast::emergency(COMMANDER, stop_all),
+            Broadcast::new_target("blue"),
+        ];
+        for b in heard {
+            ends.heard.send(b).await.unwrap();
+        }
         tokio::time::sleep(Duration::from_secs(2)).await;
         let resumed = |rx: &mut crate::runtime::events::EventReceiver| {
             let mut by = Vec::new();
@@ -893,14 +895,7 @@ mod tests {
             [],
             "blue taken while Skeeter works on purple"
         );
-        let n = log.lock().unwrap().len();
-        tokio::time::sleep(Duration::from_secs(1)).await;
-        assert!(
-            log.lock().unwrap()[n..]
-                .iter()
-                .all(|c| *c == Cmd::Vel(VelocityCommand::ZERO)),
-            "the fleet stop holds"
-        );
+        held_at_zero(&log, Duration::from_secs(1)).await;
         // Skeeter ends purple and starts blue: now Scooter takes it.
         ends.heard
             .send(say("skeeter", MissionEvent::Failed, "purple"))
