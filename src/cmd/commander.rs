@@ -44,7 +44,7 @@ pub struct CommanderArgs {
     #[arg(long, required = true)]
     config: Option<PathBuf>,
     /// Target colours, in order.
-    #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]
+    #[arg(long, value_delimiter = ',', default_value = "red,blue,green", value_parser = super::num::target_colour)]
     targets: Vec<String>,
     /// Robots to hear on the broadcast channel before the first target is sent
     /// (`--wait-timeout 0`: send at once).

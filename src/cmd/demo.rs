@@ -44,7 +44,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1, value_parser = crate::cmd::num::seed)]
     seed: u64,
     /// Target colours, in order.
-    #[arg(long, value_delimiter = ',', default_value = "red,blue,green")]
+    #[arg(long, value_delimiter = ',', default_value = "red,blue,green", value_parser = super::num::target_colour)]
     targets: Vec<String>,
     /// World file (TOML); the built-in thesis arena when absent.
     #[arg(long)]

@@ -207,6 +207,18 @@ pub fn robot_name(s: &str) -> Result<String, String> {
     wire_text(s)
 }
 
+/// A target colour of a `--targets` list, without the blanks around it (`--targets "red,
+/// blue"` refused " blue" as an unknown colour); an empty one is refused as such (`--targets
+/// ""` said `unknown target colour ""`). Whether the colour is known is checked later,
+/// against the colour database.
+pub fn target_colour(s: &str) -> Result<String, String> {
+    let c = s.trim();
+    if c.is_empty() {
+        return Err("an empty colour: give colours separated by commas, e.g. red,blue".into());
+    }
+    Ok(c.to_owned())
+}
+
 /// Seconds within `[0.1, 3600]` (liveness and similar periods).
 pub fn period_seconds(s: &str) -> Result<f64, String> {
     within(s, 0.1, 3_600.0, " s")
@@ -335,6 +347,8 @@ mod tests {
         assert_eq!(wire_text("idle"), Ok("idle".to_owned()));
         assert_eq!(robot_name("scooter"), Ok("scooter".to_owned()));
         assert!(robot_name(" ").unwrap_err().contains("names no robot"));
+        assert_eq!(target_colour(" blue "), Ok("blue".to_owned()));
+        assert!(target_colour("").unwrap_err().contains("an empty colour"));
         assert!(
             wire_text(&"é".repeat(128))
                 .unwrap_err()
