@@ -769,3 +769,36 @@ fn a_network_skeeter_cannot_run_is_refused_before_its_devices_open() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A live view asked for on one of the robot's own Peer Agent ports is refused before any
+/// device opens (it failed once the devices had connected, blaming "another program").
+#[test]
+fn a_live_view_on_the_robots_own_port_is_refused_at_once() {
+    let d = scratch("foxglove-own-port");
+    let (world, line) = mock_world(&d, &[]);
+    assert!(line.is_some(), "the world did not start");
+    drop(world);
+    let cfg = d.join("skeeter.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let listen = text
+        .lines()
+        .find_map(|l| l.strip_prefix("listen = "))
+        .expect("peer.listen")
+        .trim_matches('"')
+        .to_owned();
+    let out = ima()
+        .args(["run", "--config"])
+        .arg(&cfg)
+        .args(["--foxglove", &listen])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!(
+            "--foxglove {listen}: that is this robot's peer.listen ({listen})"
+        )),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}

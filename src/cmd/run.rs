@@ -74,6 +74,29 @@ pub fn run(args: &RunArgs) -> Result<()> {
             bail!("{key} {a:?}: the name does not resolve on this machine ({e})");
         }
     }
+    // The live view on one of the robot's own ports failed only once the devices had
+    // connected, blaming "another program" (the live view itself).
+    if let Some(fox) = args.rec.foxglove.filter(|f| f.port() != 0) {
+        for (key, a) in [
+            ("peer.listen", &cfg.peer.listen),
+            ("peer.data_listen", &cfg.peer.data_listen),
+        ] {
+            let clash = std::net::ToSocketAddrs::to_socket_addrs(a.as_str())
+                .into_iter()
+                .flatten()
+                .any(|l| {
+                    l.port() == fox.port()
+                        && (l.ip() == fox.ip()
+                            || l.ip().is_unspecified()
+                            || fox.ip().is_unspecified())
+                });
+            if clash {
+                bail!(
+                    "--foxglove {fox}: that is this robot's {key} ({a}); give the live view another port"
+                );
+            }
+        }
+    }
     // Skeeter's SAN network and colour database, read and checked before any device opens.
     if cfg.role == Role::Skeeter {
         crate::stack::skeeter::runtime_config(&cfg)
