@@ -96,13 +96,13 @@ const CONNECT_TARGET: &str = "ima::connect";
 /// old subprotocol) at ERROR: any program or web page on the machine could write into the
 /// robot's terminal that way. And the SDK warns, in Rust's debug form
 /// (`McapError(Io(Os { code: 28, … }))`), of the message a failed file refused, beside the
-/// recorder's own line that names the cause. Those lines are left out unless the filter names
-/// `foxglove`.
+/// recorder's own line that names the cause: its sink warnings are left out (its sink errors
+/// stay). Both unless the filter names `foxglove`.
 fn quiet_clients(f: tracing_subscriber::EnvFilter, given: &str) -> tracing_subscriber::EnvFilter {
     if given.contains("foxglove") {
         return f;
     }
-    ["foxglove::websocket=off", "foxglove::log_sink_set=off"]
+    ["foxglove::websocket=off", "foxglove::log_sink_set=error"]
         .into_iter()
         .filter_map(|d| d.parse().ok())
         .fold(f, tracing_subscriber::EnvFilter::add_directive)

@@ -126,15 +126,19 @@ pub fn start(args: &RecordArgs, name: &str) -> Result<()> {
             "--record -: a recording is written to a file (an MCAP file ends with an index of \
              what it holds); name one, e.g. --record run.mcap"
         );
-        crate::cmd::output::check_file("--record", p)?;
+        // Looked at before `check_file` opens it to test it: opening a FIFO for writing waits
+        // for a reader, and a serial port (`--record` typed for `--port`) may wait for its
+        // carrier and toggles its modem lines.
         let what = match std::fs::metadata(p) {
             Ok(m) if m.is_file() => Some("the file exists (a recording never overwrites one)"),
+            Ok(m) if m.is_dir() => None, // said by `check_file`
             Ok(_) => Some("not a regular file (a recording is written to a new file)"),
             Err(_) => None,
         };
         if let Some(what) = what {
             anyhow::bail!("--record {}: {what}", p.display());
         }
+        crate::cmd::output::check_file("--record", p)?;
     }
     let rec = Recorder::start(&Options {
         mcap: args.record.clone(),

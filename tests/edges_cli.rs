@@ -701,14 +701,27 @@ fn unusable_values_are_refused_as_the_command_line_is_read() {
 }
 
 /// `--record` takes a new file only: `-` (stdout elsewhere) made a file named `-`, a device
-/// such as `/dev/null` was refused as "the file exists", and an existing file is never
-/// overwritten. Each is refused before anything starts.
+/// such as `/dev/null` was refused as "the file exists", a FIFO would be waited on for ever,
+/// and an existing file is never overwritten. Each is refused before anything starts.
 #[test]
 fn record_takes_a_new_file_only() {
     let d = scratch("record-new");
     let old = d.join("old.mcap");
     std::fs::write(&old, b"keep").unwrap();
+    // A FIFO nobody reads: opening it to test it would wait for a reader for ever.
+    let fifo = d.join("fifo");
+    assert!(
+        std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
     for (path, why) in [
+        (
+            fifo.display().to_string(),
+            "not a regular file (a recording is written to a new file)",
+        ),
         (
             "-".to_owned(),
             "--record -: a recording is written to a file",

@@ -814,10 +814,10 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     let sonar = Recording::open(&file).unwrap().channels();
     assert_eq!(sonar["/robot/sonar"].0, "foxglove.PointCloud", "{sonar:?}");
     // The recording served on a pty, and the pty's path.
-    let serve = |stderr: std::process::Stdio| {
+    let serve = |stderr: std::process::Stdio, speed: &str| {
         let mut served = common::Child(
             ima()
-                .args(["replay", "--as-mock", "robot/base"])
+                .args(["replay", "--as-mock", "robot/base", "--speed", speed])
                 .arg(&file)
                 .stdout(std::process::Stdio::piped())
                 .stderr(stderr)
@@ -830,7 +830,7 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
             .unwrap();
         (served, path.trim().to_owned())
     };
-    let (_served, path) = serve(std::process::Stdio::null());
+    let (_served, path) = serve(std::process::Stdio::null(), "1");
     let replayed = drive(&path, None);
     // The same odometry in the same order; how many states each run prints within its `--for`
     // depends on timing, so one may have a state more than the other.
@@ -843,25 +843,29 @@ fn the_p2os_driver_runs_against_a_recording_served_as_a_mock() {
     // A client that writes, then closes the port: the server ends at once, saying so (it went
     // on for each chunk's 2 s wait for a request, 69 s for an 8 s recording, into a pty
     // nobody had open).
-    let (served, path) = serve(std::process::Stdio::piped());
-    let mut client = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .open(&path)
-        .unwrap();
-    std::io::Write::write_all(&mut client, &[0xFA, 0xFB, 0x03, 0x00, 0x00, 0x00]).unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(300));
-    drop(client);
-    let out = served.output_within(5);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        out.status.success() && err.contains(&format!("the client closed {path}")),
-        "{err}"
-    );
+    // As fast as possible too, where the write sees the close first (it failed with "Broken
+    // pipe").
+    for speed in ["1", "0"] {
+        let (served, path) = serve(std::process::Stdio::piped(), speed);
+        let mut client = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&path)
+            .unwrap();
+        std::io::Write::write_all(&mut client, &[0xFA, 0xFB, 0x03, 0x00, 0x00, 0x00]).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        drop(client);
+        let out = served.output_within(5);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && err.contains(&format!("the client closed {path}")),
+            "--speed {speed}: {err}"
+        );
+    }
     // Ctrl-C while the recording is served (waiting for a host that never writes): it ends at
     // once as interrupted, saying what it served (it used to end with status 0, as if it had
     // served everything).
-    let (mut served, path) = serve(std::process::Stdio::piped());
+    let (mut served, path) = serve(std::process::Stdio::piped(), "1");
     assert!(path.starts_with("/dev/"), "{path}");
     served.signal("INT");
     let out = served.wait_output();

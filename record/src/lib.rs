@@ -89,8 +89,9 @@ const LIVE_TICK: Duration = Duration::from_millis(20);
 const FILE_TICK: Duration = Duration::from_millis(500);
 
 /// The largest failed file whose messages are counted again from the file at its end (a
-/// read of ~0.5 s): a larger one keeps the count of what was logged.
-pub const RECOUNT_LIMIT: u64 = 512 << 20;
+/// read of well under a second from a disk that works, within the recorder's time to
+/// finish): a larger one keeps the count of what was logged.
+pub const RECOUNT_LIMIT: u64 = 64 << 20;
 
 /// MCAP chunk size, bytes (uncompressed): a crash loses at most this much (about 2 s of the
 /// demo); a camera frame is ~230 KB, so smaller chunks would hold one frame each.
@@ -155,12 +156,13 @@ pub struct Report {
     /// The MCAP file, if any.
     pub path: Option<PathBuf>,
     /// Messages written per topic. After a write error ([`error`](Self::error)) those the file
-    /// holds, read back from it ([`lost_unknown`](Self::lost_unknown) says when it was too
-    /// large to read at the end): the chunk being written when the file failed is lost.
+    /// holds, read back from it, unless [`uncounted`](Self::uncounted) says why not: the
+    /// chunk being written when the file failed is lost.
     pub written: BTreeMap<String, u64>,
-    /// The file failed and was larger than [`RECOUNT_LIMIT`], so [`written`](Self::written)
-    /// counts what was logged, including the messages of the chunk lost when it failed.
-    pub lost_unknown: bool,
+    /// Why a file that failed was not read back to count what it holds (larger than
+    /// [`RECOUNT_LIMIT`], or unreadable): [`written`](Self::written) then counts what was
+    /// logged, the lost chunk's messages included.
+    pub uncounted: Option<String>,
     /// Messages dropped because the queue was full.
     pub dropped: u64,
     /// Messages logged but not written: their payload could not be encoded (a `Serialize`
@@ -231,8 +233,10 @@ impl Report {
         }
         if let Some(e) = &self.error {
             s.push_str(&format!("; writing stopped: {e}"));
-            if self.lost_unknown {
-                s.push_str(" (the count includes the messages of the chunk lost then)");
+            if let Some(why) = &self.uncounted {
+                s.push_str(&format!(
+                    " (the count includes the messages of the chunk lost then: {why})"
+                ));
             }
         }
         if let Some(cpu) = self.thread_cpu {
@@ -1138,18 +1142,24 @@ impl Worker {
         }
         // A file that failed lost the chunk being written (its messages were counted as they
         // went into it): say what the file holds.
-        let mut lost_unknown = false;
+        let mut uncounted = None;
         if let (Some(_), Some(path)) = (&self.error, &self.path) {
-            let file = (bytes <= RECOUNT_LIMIT).then(|| read::Recording::open(path).ok());
-            match file.flatten() {
-                Some(r) => written = r.count_by_topic(),
-                None => lost_unknown = true,
+            if bytes > RECOUNT_LIMIT {
+                uncounted = Some(format!(
+                    "the file is over {} MiB, too large to read back",
+                    RECOUNT_LIMIT >> 20
+                ));
+            } else {
+                match read::Recording::open(path) {
+                    Ok(r) => written = r.count_by_topic(),
+                    Err(e) => uncounted = Some(format!("it could not be read back: {e}")),
+                }
             }
         }
         Report {
             path: self.path.clone(),
             written,
-            lost_unknown,
+            uncounted,
             dropped: 0,
             unwritten: self.unwritten,
             error: self.error.clone(),

@@ -658,7 +658,7 @@ fn summarise(
         // record: what the recording wrote (null without --record/--foxglove).
         "recording": recording.as_ref().map(|r| json!({
             "path": r.path.as_ref().map(|p| p.display().to_string()), "written": r.written, "dropped": r.dropped, "unwritten": r.unwritten,
-            "bytes": r.bytes, "error": r.error,
+            "bytes": r.bytes, "error": r.error, "uncounted": r.uncounted,
             "thread_cpu_s": r.thread_cpu.map(|d| d.as_secs_f64()),
             "calls_s": r.calls_time.as_secs_f64(),
         })),

@@ -123,7 +123,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
         } else {
             "as fast as it can".to_owned()
         };
-        let hint = if args.rec.foxglove.is_none() {
+        let hint = if args.rec.is_off() {
             "; `--json` prints each reading, `--foxglove` serves them to a live view"
         } else {
             ""
@@ -836,6 +836,12 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
                 line.listen();
             }
         }
+        if line.open() {
+            prev_t = Some(t);
+            sent += line
+                .write(&bytes)
+                .with_context(|| format!("writing to {path}"))?;
+        }
         if asked_to_end() {
             served(sent);
             return interrupted();
@@ -847,10 +853,6 @@ fn serve_as_mock(rec: Recording, name: &str, speed: f64) -> Result<()> {
             served(sent);
             return Ok(());
         }
-        prev_t = Some(t);
-        line.write(&bytes)
-            .with_context(|| format!("writing to {path}"))?;
-        sent += bytes.len();
     }
     let AsMockLine { slave, .. } = line;
     let (read, _) = reader
@@ -871,9 +873,10 @@ const AS_MOCK_WAIT: Duration = Duration::from_secs(2);
 
 /// `--as-mock`'s side of the pty, and whether its client is there.
 ///
-/// The server holds the port's far end open until the client is first heard, so that bytes
-/// sent before it opens wait for it; then it lets go, so that the client's close shows as a
-/// hang-up on this side (a client that never writes is never known to have left).
+/// The server holds the port's far end open until the client is first heard: with no far end
+/// open, this side reads a hang-up, the same as after a client's close. Then it lets go, so
+/// that the client's close shows as a hang-up here (a client that never writes is never known
+/// to have left).
 struct AsMockLine {
     master: serialport::TTYPort,
     slave: Option<serialport::TTYPort>,
@@ -906,11 +909,15 @@ impl AsMockLine {
     }
 
     /// Write `bytes`, as the client reads them: a pty holds a few kB, so a large chunk waits
-    /// for the client. Ends early when the client closes the port.
+    /// for the client (a client not yet heard, which may not have opened the port, is
+    /// waited for as long as it takes). Ends early when the client closes the port or the
+    /// program is asked to end. Returns how many bytes went out.
     ///
     /// # Errors
-    /// The write fails, or the client takes no byte for [`AS_MOCK_WAIT`] (it stopped reading).
-    fn write(&mut self, mut bytes: &[u8]) -> std::io::Result<()> {
+    /// The write fails, or a client that was heard takes no byte for [`AS_MOCK_WAIT`] (it
+    /// stopped reading).
+    fn write(&mut self, all: &[u8]) -> std::io::Result<usize> {
+        let mut bytes = all;
         let mut progress = std::time::Instant::now();
         while !bytes.is_empty() && self.open() {
             match std::io::Write::write(&mut self.master, bytes) {
@@ -919,7 +926,7 @@ impl AsMockLine {
                     progress = std::time::Instant::now();
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
-                    if progress.elapsed() >= AS_MOCK_WAIT {
+                    if self.slave.is_none() && progress.elapsed() >= AS_MOCK_WAIT {
                         return Err(std::io::Error::new(
                             e.kind(),
                             format!(
@@ -930,18 +937,21 @@ impl AsMockLine {
                     }
                     self.listen();
                 }
+                // The write's own poll sees the client's close first (`--speed 0`, a chunk
+                // with no gap before it).
+                Err(e) if self.slave.is_none() && hung_up(&e) => self.gone = true,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => return Err(e),
             }
         }
-        Ok(())
+        Ok(all.len() - bytes.len())
     }
 }
 
-/// Whether a read of a pty's master says no far end is open (Linux: EIO; `serialport` turns
-/// the poll's hang-up into a broken pipe).
+/// Whether an error of the pty's master says no far end is open: `serialport` turns the
+/// poll's hang-up into a broken pipe.
 fn hung_up(e: &std::io::Error) -> bool {
-    e.kind() == std::io::ErrorKind::BrokenPipe || e.raw_os_error() == Some(5)
+    e.kind() == std::io::ErrorKind::BrokenPipe
 }
 
 #[cfg(test)]

@@ -55,12 +55,16 @@ pub fn runtime_config(cfg: &RobotConfig) -> Result<SkeeterRuntimeConfig> {
             .with_context(|| format!("reading the SAN network {}", path.display()))?;
         // Checked here, before any device opens (the brain checked it only once the devices
         // had connected, in words that named neither the key nor the file).
-        ima_agents::mission::skeeter::SkeeterBrain::new(brain.clone()).map_err(|e| {
-            anyhow::anyhow!(
-                "agent.network {}: {e} (Skeeter's brain feeds the conditions {})",
-                path.display(),
-                ima_agents::mission::skeeter::FED_CONDITIONS.join(", ")
-            )
+        use ima_agents::mission::skeeter::{FED_CONDITIONS, SkeeterBrain, SkeeterError};
+        SkeeterBrain::new(brain.clone()).map_err(|e| {
+            let fed = match e {
+                SkeeterError::MissingCondition(_) => format!(
+                    " (Skeeter's brain feeds the conditions {})",
+                    FED_CONDITIONS.join(", ")
+                ),
+                SkeeterError::Network(_) => String::new(),
+            };
+            anyhow::anyhow!("agent.network {}: {e}{fed}", path.display())
         })?;
     }
     Ok(SkeeterRuntimeConfig {

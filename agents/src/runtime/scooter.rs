@@ -384,9 +384,10 @@ struct LoopState {
     last_odo_at: Option<Instant>,
     /// A fleet stop holds the base at zero until a fleet resume or a new target.
     halted: bool,
-    /// The target the observer (a robot, not the commander) accepted and has not ended: it
-    /// works on one target at a time and queues the commander's next ones behind it.
-    observer_target: Option<String>,
+    /// The target the observer (a robot, not the commander) accepted and has not ended, the
+    /// observer, and when it was last heard: it works on one target at a time and queues the
+    /// commander's next ones behind it.
+    observer_target: Option<ObserverTarget>,
     /// The control loop's velocity commands the base refused in a row.
     base_refusals: Refusals,
 }
@@ -506,7 +507,7 @@ impl LoopState {
                 _ => {}
             }
         }
-        self.follow_observer(b, me);
+        self.follow_observer(b, me, now);
         let Some(h) = ScooterHeard::from_broadcast(b, me) else {
             return;
         };
@@ -519,7 +520,9 @@ impl LoopState {
             // with the other until its timeout.
             ScooterHeard::TargetAccepted { colour }
                 if b.robot() == COMMANDER
-                    && self.observer_target.as_ref().is_some_and(|t| t != colour) => {}
+                    && self.observer_target.as_ref().is_some_and(|o| {
+                        o.target != *colour && now.saturating_duration_since(o.heard) < lost_after
+                    }) => {}
             ScooterHeard::TargetAccepted { colour } => {
                 if self.halted {
                     // A new target ends a fleet stop.
@@ -561,17 +564,35 @@ impl LoopState {
     }
 }
 
+/// A target the observer works on ([`LoopState::observer_target`]).
+struct ObserverTarget {
+    target: String,
+    observer: String,
+    /// When the observer was last heard (any broadcast): one silent for the brain's
+    /// `lost_after` (gone for good, say) holds back no target of the commander's.
+    heard: Instant,
+}
+
 impl LoopState {
     /// Track the observer's target: accepted by a robot other than the commander, until
     /// that robot ends it or the commander cancels it.
-    fn follow_observer(&mut self, b: &Broadcast, me: &str) {
+    fn follow_observer(&mut self, b: &Broadcast, me: &str, now: Instant) {
+        if let Some(o) = &mut self.observer_target
+            && o.observer == b.robot()
+        {
+            o.heard = now;
+        }
         let ended = match b {
             Broadcast::Mission {
                 robot,
                 event: MissionEvent::Accepted,
                 target,
             } if robot != me && robot != COMMANDER => {
-                self.observer_target = Some(target.clone());
+                self.observer_target = Some(ObserverTarget {
+                    target: target.clone(),
+                    observer: robot.clone(),
+                    heard: now,
+                });
                 return;
             }
             Broadcast::Mission {
@@ -585,7 +606,11 @@ impl LoopState {
             } => colour,
             _ => return,
         };
-        if self.observer_target.as_ref() == Some(ended) {
+        if self
+            .observer_target
+            .as_ref()
+            .is_some_and(|o| o.target == *ended)
+        {
             self.observer_target = None;
         }
     }
@@ -855,7 +880,8 @@ mod tests {
 
     /// A console restarted while the observer worked on a target: the new console's target
     /// is queued by the observer, and Scooter waits for it too (it went after it at once,
-    /// ending its fleet stop, while Skeeter went on with the other target until its timeout).
+    /// ending its fleet stop, while Skeeter went on with the other target until its timeout);
+    /// an observer gone silent holds nothing back.
     #[tokio::test(start_paused = true)]
     async fn the_commanders_target_waits_while_the_observer_works_on_another() {
         let clock = TokioClock::shared();
@@ -907,6 +933,21 @@ mod tests {
             .unwrap();
         tokio::time::sleep(Duration::from_millis(500)).await;
         assert_eq!(resumed(&mut rx), [Some("blue".to_owned())]);
+        // An observer gone silent (for the brain's `lost_after`, 12 s) holds nothing back.
+        ends.heard
+            .send(say("skeeter", MissionEvent::Accepted, "green"))
+            .await
+            .unwrap();
+        let stop_all = Emergency::FleetStop {
+            reason: "again".into(),
+        };
+        let stop_all = Broadcast::emergency(COMMANDER, stop_all);
+        ends.heard.send(stop_all).await.unwrap();
+        tokio::time::sleep(Duration::from_secs(13)).await;
+        let yellow = Broadcast::new_target("yellow");
+        ends.heard.send(yellow).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert_eq!(resumed(&mut rx), [Some("yellow".to_owned())]);
         stop_tx.send(true).unwrap();
         run.await.unwrap().unwrap();
     }
