@@ -752,20 +752,27 @@ fn record_takes_a_new_file_only() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
+/// A directory holding the configurations `ima mock world --write-configs` writes (the world
+/// itself ended: no device is served), and Skeeter's: its path and text.
+fn skeeter_config(name: &str) -> (std::path::PathBuf, std::path::PathBuf, String) {
+    let d = scratch(name);
+    let (world, line) = mock_world(&d, &[]);
+    assert!(line.is_some(), "the world did not start");
+    drop(world);
+    let cfg = d.join("skeeter.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    (d, cfg, text)
+}
+
 /// A SAN network Skeeter's brain cannot run (one that lacks a condition the brain feeds) is
 /// refused before any device opens, naming the configuration, the key and the network file.
 /// It was found only once the devices had connected: "configuration: Skeeter's SAN: skeeter
 /// network lacks condition `target-requested`".
 #[test]
 fn a_network_skeeter_cannot_run_is_refused_before_its_devices_open() {
-    let d = scratch("skeeter-network");
-    let (world, line) = mock_world(&d, &[]);
-    assert!(line.is_some(), "the world did not start");
     // The world's devices are not needed: the check comes first.
-    drop(world);
+    let (d, cfg, text) = skeeter_config("skeeter-network");
     let toy = concat!(env!("CARGO_MANIFEST_DIR"), "/agents/networks/maes_toy.toml");
-    let cfg = d.join("skeeter.toml");
-    let text = std::fs::read_to_string(&cfg).unwrap();
     let text = text.replacen("[agent]\n", &format!("[agent]\nnetwork = {toy:?}\n"), 1);
     assert!(text.contains("network = "), "no [agent] table: {text}");
     std::fs::write(&cfg, text).unwrap();
@@ -787,12 +794,7 @@ fn a_network_skeeter_cannot_run_is_refused_before_its_devices_open() {
 /// device opens (it failed once the devices had connected, blaming "another program").
 #[test]
 fn a_live_view_on_the_robots_own_port_is_refused_at_once() {
-    let d = scratch("foxglove-own-port");
-    let (world, line) = mock_world(&d, &[]);
-    assert!(line.is_some(), "the world did not start");
-    drop(world);
-    let cfg = d.join("skeeter.toml");
-    let text = std::fs::read_to_string(&cfg).unwrap();
+    let (d, cfg, text) = skeeter_config("foxglove-own-port");
     let listen = text
         .lines()
         .find_map(|l| l.strip_prefix("listen = "))
