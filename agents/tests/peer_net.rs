@@ -672,6 +672,29 @@ async fn unicast_fallback_and_both_modes() {
     assert_eq!(st.receiver.accepted, 2, "{st:?}");
 }
 
+/// A unicast port is not shared: a second process binding it (a commander started twice
+/// from one configuration) fails, naming the address, instead of taking half of the
+/// datagrams meant for the first. A multicast port is shared, as every listener on a host
+/// needs it.
+#[tokio::test]
+async fn a_unicast_port_is_not_shared_and_a_multicast_one_is() {
+    let a = free_udp_port();
+    let c = bcfg("commander", BroadcastMode::Unicast, a, &[]);
+    let _first = BroadcastChannel::bind(&c, "commander", key()).unwrap();
+    let e = BroadcastChannel::bind(&c, "commander", key()).unwrap_err();
+    assert!(
+        e.to_string().contains(&format!(
+            "binding the broadcast channel to 0.0.0.0:{a}: Address already in use"
+        )),
+        "{e}"
+    );
+    let m = free_udp_port();
+    let mut c = bcfg("skeeter", BroadcastMode::Multicast, m, &[]);
+    c.broadcast.interface = "127.0.0.1".into();
+    let _one = BroadcastChannel::bind(&c, "skeeter", key()).unwrap();
+    let _two = BroadcastChannel::bind(&c, "scooter", key()).unwrap();
+}
+
 #[tokio::test]
 async fn broadcast_rejections_are_counted() {
     let (a, b) = (free_udp_port(), free_udp_port());

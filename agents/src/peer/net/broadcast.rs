@@ -81,9 +81,15 @@ fn udp_socket(b: &BroadcastConfig) -> Result<Socket, NetError> {
     let iface = v4(&b.interface, "broadcast.interface")?;
     let bind = v4(&b.bind, "broadcast.bind")?;
     let s = Socket::new(Domain::IPV4, Type::DGRAM, Some(Protocol::UDP))?;
-    s.set_reuse_address(true)?;
-    #[cfg(all(unix, not(any(target_os = "solaris", target_os = "illumos"))))]
-    s.set_reuse_port(true)?;
+    // Multicast: every process of a host that listens to the group shares its port, and each
+    // gets every datagram. Unicast only: a shared port would give each datagram to one of the
+    // sockets (two commanders started from one configuration each heard half the robots'
+    // broadcasts, and reported robots that were running as lost): the second bind fails.
+    if b.mode != BroadcastMode::Unicast {
+        s.set_reuse_address(true)?;
+        #[cfg(all(unix, not(any(target_os = "solaris", target_os = "illumos"))))]
+        s.set_reuse_port(true)?;
+    }
     let at = SocketAddrV4::new(bind, b.bind_port.unwrap_or(b.port));
     s.bind(&at.into())
         .map_err(super::bind_error("the broadcast channel", at))?;

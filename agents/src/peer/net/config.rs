@@ -298,7 +298,8 @@ pub struct BroadcastConfig {
     pub group: String,
     /// UDP port (default 7477); bound with `SO_REUSEADDR`/`SO_REUSEPORT` so several processes
     /// on one host share it for multicast. In unicast mode every process on one host needs
-    /// its own port (unicast datagrams reach only one of the sockets sharing a port).
+    /// its own port (unicast datagrams reach only one of the sockets sharing a port), so there
+    /// it is bound without them: a second process on the port fails to start.
     pub port: u16,
     /// Interface address for `IP_MULTICAST_IF` and the group membership (default
     /// `0.0.0.0`: the system's choice; `127.0.0.1` for loopback).
