@@ -432,13 +432,27 @@ pub fn install() {
         previous(info);
     }));
     #[cfg(unix)]
-    if let Err(e) = std::thread::Builder::new()
-        .name("ima-signals".into())
-        .spawn(signal_thread)
     {
-        say(format_args!("cannot watch for signals: {e}"));
+        // The command starts once every signal is watched: a Ctrl-C in between was lost when
+        // the program was started with SIGINT ignored (a shell's background job), or ended it
+        // without a word otherwise, a device it had just opened not stopped.
+        let (ready, watched) = std::sync::mpsc::channel();
+        match std::thread::Builder::new()
+            .name("ima-signals".into())
+            .spawn(move || signal_thread(&ready))
+        {
+            Ok(_) => {
+                let _ = watched.recv_timeout(SIGNALS_READY_WAIT);
+            }
+            Err(e) => say(format_args!("cannot watch for signals: {e}")),
+        }
     }
 }
+
+/// How long the program waits for its signal thread to watch every signal before the command
+/// starts (it takes well under a millisecond; the bound is for a thread that failed).
+#[cfg(unix)]
+const SIGNALS_READY_WAIT: Duration = Duration::from_secs(2);
 
 /// The signals ignored when the program started (Linux: `SigIgn` of `/proc/self/status`;
 /// elsewhere none are known).
@@ -456,7 +470,8 @@ fn ignored_at_start() -> Vec<i32> {
 }
 
 #[cfg(unix)]
-fn signal_thread() {
+/// Watch the signals (`ready` is told once every one is watched), and carry out the first.
+fn signal_thread(ready: &std::sync::mpsc::Sender<()>) {
     use tokio::signal::unix::{SignalKind, signal as listen};
     let Ok(rt) = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -487,6 +502,7 @@ fn signal_thread() {
                 Err(e) => say(format_args!("cannot watch for {name}: {e}")),
             }
         }
+        let _ = ready.send(());
         // `got` cannot close: `tx` lives as long as this future.
         let Some(first) = got.recv().await.and_then(Signal::from_number) else {
             return;
