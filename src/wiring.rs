@@ -674,16 +674,17 @@ pub async fn run_scooter(
 }
 
 /// Run Skeeter's runtime ([`skeeter::run`]) on its devices, with its Peer Agent manager and
-/// broadcast channel as configured in `cfg`, until `stop`.
+/// broadcast channel as configured in `cfg`, until `stop`. `rt` is its runtime configuration
+/// ([`stack::skeeter::runtime_config`]), read and checked before the devices were opened.
 pub async fn run_skeeter(
     cfg: &RobotConfig,
+    rt: skeeter::SkeeterRuntimeConfig,
     key: GroupKey,
     hw: SkeeterHw,
     clock: SharedClock,
     events: Events,
     stop: StopRequest,
 ) -> Result<()> {
-    let rt = stack::skeeter::runtime_config(cfg)?;
     let net = stack::net::net_config(cfg)?;
     let time = ima_agents::runtime::MissionTime::new(clock.clone(), rt.time_scale);
     let SkeeterHw {

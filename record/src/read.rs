@@ -809,6 +809,12 @@ pub enum ReadError {
     },
 }
 
+/// Whether `start` (a file's first bytes) is how an MCAP file begins: its magic.
+#[must_use]
+pub fn is_mcap(start: &[u8]) -> bool {
+    start.starts_with(mcap::MAGIC)
+}
+
 /// One message of a recording.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Message {
@@ -952,7 +958,7 @@ impl Recording {
 
     /// A recording held in memory; `Err` says why it is not an MCAP file.
     pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, String> {
-        if !bytes.starts_with(mcap::MAGIC) {
+        if !is_mcap(&bytes) {
             return Err("no MCAP magic at the start".into());
         }
         let survey = survey(&bytes, mcap::MAGIC.len());

@@ -300,9 +300,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let counters = [sk_dev.counters(), sc_dev.counters()];
         let (stop_sk, stop_rx_sk) = tokio::sync::watch::channel(false);
         let (stop_sc, stop_rx_sc) = tokio::sync::watch::channel(false);
+        let sk_rt = crate::stack::skeeter::runtime_config(&sk)?;
         let mut skeeter = tokio::spawn({
             let (sk, key, clock, events) = (sk.clone(), key.clone(), clock.clone(), events.clone());
-            async move { wiring::run_skeeter(&sk, key, sk_dev, clock, events, stop_rx_sk).await }
+            async move { wiring::run_skeeter(&sk, sk_rt, key, sk_dev, clock, events, stop_rx_sk).await }
         });
         let mut scooter = tokio::spawn({
             let (sc, key, clock, events) = (sc.clone(), key.clone(), clock.clone(), events.clone());

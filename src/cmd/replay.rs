@@ -136,7 +136,6 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     let played = crate::safety::block_on(async move {
         let mut order = Reorder::default();
         let mut raw = RawReplay::default();
-        let mut n = 0usize;
         // Pacing starts at the first item, a reading or a raw chunk; `t_s` at the first
         // reading.
         let mut first: Option<(u64, tokio::time::Instant)> = None;
@@ -184,8 +183,7 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
             match next {
                 Item::Raw(c) => raw.publish(&c),
                 Item::Reading(r) => {
-                    n += 1;
-                    counted.store(n, std::sync::atomic::Ordering::Relaxed);
+                    counted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     publish(&r.reading);
                     if json_out {
                         let t0 = *t0.get_or_insert(t);
@@ -194,15 +192,15 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
                 }
             }
         }
-        Ok((n, order.late))
+        Ok(order.late)
     });
     // The reader ends once the playback stops taking items (its channel is closed).
     let read = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the replay's reader failed"))?;
-    let (n, late) = played.inspect_err(|_| {
+    let n = count.load(std::sync::atomic::Ordering::Relaxed);
+    let late = played.inspect_err(|_| {
         if !json_out {
-            let n = count.load(std::sync::atomic::Ordering::Relaxed);
             eprintln!("ima replay: {n} readings from {file}, replayed before it stopped");
         }
     })?;

@@ -63,34 +63,24 @@ pub fn run(args: &RunArgs) -> Result<()> {
     // The addresses this robot listens on, looked up before any device opens (a name that
     // does not resolve failed only after the devices had connected and waited out their
     // timeout). The config's own checks take names without a lookup, so that a robot's
-    // configuration can be checked on another machine.
+    // configuration can be checked on another machine. A live view on one of them failed
+    // only once the devices had connected, blaming "another program" (the live view itself).
+    let fox = args.rec.foxglove.filter(|f| f.port() != 0);
     for (key, a) in [
         ("peer.listen", &cfg.peer.listen),
         ("peer.data_listen", &cfg.peer.data_listen),
     ] {
-        if !a.is_empty()
-            && let Err(e) = std::net::ToSocketAddrs::to_socket_addrs(a.as_str())
-        {
-            bail!("{key} {a:?}: the name does not resolve on this machine ({e})");
+        if a.is_empty() {
+            continue;
         }
-    }
-    // The live view on one of the robot's own ports failed only once the devices had
-    // connected, blaming "another program" (the live view itself).
-    if let Some(fox) = args.rec.foxglove.filter(|f| f.port() != 0) {
-        for (key, a) in [
-            ("peer.listen", &cfg.peer.listen),
-            ("peer.data_listen", &cfg.peer.data_listen),
-        ] {
-            let clash = std::net::ToSocketAddrs::to_socket_addrs(a.as_str())
-                .into_iter()
-                .flatten()
-                .any(|l| {
-                    l.port() == fox.port()
-                        && (l.ip() == fox.ip()
-                            || l.ip().is_unspecified()
-                            || fox.ip().is_unspecified())
-                });
-            if clash {
+        let addrs = std::net::ToSocketAddrs::to_socket_addrs(a.as_str()).map_err(|e| {
+            anyhow::anyhow!("{key} {a:?}: the name does not resolve on this machine ({e})")
+        })?;
+        for l in addrs {
+            if let Some(fox) = fox
+                && l.port() == fox.port()
+                && (l.ip() == fox.ip() || l.ip().is_unspecified() || fox.ip().is_unspecified())
+            {
                 bail!(
                     "--foxglove {fox}: that is this robot's {key} ({a}); give the live view another port"
                 );
@@ -98,10 +88,13 @@ pub fn run(args: &RunArgs) -> Result<()> {
         }
     }
     // Skeeter's SAN network and colour database, read and checked before any device opens.
-    if cfg.role == Role::Skeeter {
-        crate::stack::skeeter::runtime_config(&cfg)
-            .with_context(|| format!("in {}", args.config.display()))?;
-    }
+    let skeeter_rt = match cfg.role {
+        Role::Skeeter => Some(
+            crate::stack::skeeter::runtime_config(&cfg)
+                .with_context(|| format!("in {}", args.config.display()))?,
+        ),
+        Role::Scooter | Role::Commander => None,
+    };
     let _served = if cfg.mock {
         Some(serve_mock(&mut cfg)?)
     } else {
@@ -179,10 +172,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
                 wiring::run_scooter(&cfg, key, hw, clock, events, stop_rx).await
             }
             Role::Skeeter => {
+                let rt = skeeter_rt.context("Skeeter's runtime configuration was not read")?;
                 let hw = crate::safety::until_cancelled(wiring::open_skeeter(&cfg, &clock))
                     .await?
                     .context("opening Skeeter's devices")?;
-                wiring::run_skeeter(&cfg, key, hw, clock, events, stop_rx).await
+                wiring::run_skeeter(&cfg, rt, key, hw, clock, events, stop_rx).await
             }
             Role::Commander => bail!("role commander: use `ima commander --config …`"),
         };

@@ -794,14 +794,29 @@ mod tests {
         c
     }
 
-    #[tokio::test(start_paused = true)]
-    async fn a_stop_request_ends_the_run_with_the_base_stopped() {
+    /// Scooter's runtime started on the fake devices: its task, the link's far ends, its stop
+    /// and the base's command log.
+    type Started = (
+        tokio::task::JoinHandle<Result<(), RuntimeError>>,
+        crate::runtime::link::ScooterLinkEnds,
+        watch::Sender<bool>,
+        Arc<Mutex<Vec<Cmd>>>,
+    );
+
+    /// Start Scooter's runtime on the fake devices with `events`.
+    fn started(events: Events) -> Started {
         let clock = TokioClock::shared();
         let (dev, log) = devices(&clock, None);
-        let (link, mut ends) = ScooterLink::channels();
-        let (events, mut rx) = Events::channel(256);
+        let (link, ends) = ScooterLink::channels();
         let (stop_tx, stop) = watch::channel(false);
         let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        (run, ends, stop_tx, log)
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stop_request_ends_the_run_with_the_base_stopped() {
+        let (events, mut rx) = Events::channel(256);
+        let (run, mut ends, stop_tx, log) = started(events);
         // A target from the commander: Scooter hears it and asks for a heading.
         let target = Broadcast::mission("commander", MissionEvent::Accepted, "red");
         ends.heard.send(target.clone()).await.unwrap();
@@ -837,11 +852,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn a_fleet_stop_holds_the_base_at_zero() {
-        let clock = TokioClock::shared();
-        let (dev, log) = devices(&clock, None);
-        let (link, ends) = ScooterLink::channels();
-        let (stop_tx, stop) = watch::channel(false);
-        let run = tokio::spawn(run(cfg(), dev, link, clock, Events::log_only(), stop));
+        let (run, ends, stop_tx, log) = started(Events::log_only());
         ends.heard
             .send(Broadcast::mission(
                 "commander",
@@ -884,12 +895,8 @@ mod tests {
     /// an observer gone silent holds nothing back.
     #[tokio::test(start_paused = true)]
     async fn the_commanders_target_waits_while_the_observer_works_on_another() {
-        let clock = TokioClock::shared();
-        let (dev, log) = devices(&clock, None);
-        let (link, ends) = ScooterLink::channels();
-        let (stop_tx, stop) = watch::channel(false);
         let (events, mut rx) = Events::channel(4096);
-        let run = tokio::spawn(run(cfg(), dev, link, clock, events, stop));
+        let (run, ends, stop_tx, log) = started(events);
         let say = |robot: &str, event, target: &str| Broadcast::mission(robot, event, target);
         ends.heard
             .send(say("skeeter", MissionEvent::Accepted, "purple"))

@@ -161,7 +161,7 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
         };
         // An MCAP recording given as a capture decoded into tens of thousands of
         // "frames" of noise, with success.
-        if read == 0 && piece.starts_with(MCAP_MAGIC) {
+        if read == 0 && ima_record::read::is_mcap(&piece) {
             let f = args.file.as_deref().filter(|p| p.as_os_str() != "-");
             let f = f.map_or_else(|| "FILE.mcap".to_owned(), |p| p.display().to_string());
             anyhow::bail!(
@@ -187,9 +187,6 @@ pub fn run(args: &DecodeArgs) -> Result<()> {
     }
     ended.map_or(Ok(()), Err)
 }
-
-/// How an MCAP file starts (its magic, without the format version that follows).
-const MCAP_MAGIC: &[u8] = b"\x89MCAP";
 
 /// The pieces of a capture as they are read, or the error that ended the reading.
 type Pieces = std::sync::mpsc::Receiver<std::io::Result<Vec<u8>>>;
